@@ -1,0 +1,123 @@
+"""Geodesics on the ellipsoid (shortest paths), via pyproj.Geod (Karney's algorithms).
+
+Angles are degrees, azimuths clockwise from north, distances metres along the ellipsoid.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from pyproj import Geod
+
+from globeview.geodesy.ellipsoid import WGS84, Ellipsoid
+
+__all__ = ["geodesic_direct", "geodesic_inverse", "geodesic_points"]
+
+FloatArray = NDArray[np.float64]
+
+
+@functools.lru_cache(maxsize=16)
+def _geod(ellipsoid: Ellipsoid) -> Geod:
+    """A pyproj Geod for the ellipsoid (cached: the dataclass is frozen and hashable)."""
+    return Geod(a=ellipsoid.a, f=ellipsoid.f)
+
+
+def _float_arrays(*values: ArrayLike) -> list[FloatArray]:
+    # pyproj wants equal shapes and writable float64 buffers: broadcast, then copy.
+    arrays = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in values))
+    return [np.array(a, dtype=np.float64, copy=True) for a in arrays]
+
+
+def geodesic_inverse(
+    lon1: ArrayLike,
+    lat1: ArrayLike,
+    lon2: ArrayLike,
+    lat2: ArrayLike,
+    ellipsoid: Ellipsoid = WGS84,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Solve the inverse geodesic problem between point 1 and point 2.
+
+    Args:
+        lon1, lat1, lon2, lat2: end points in degrees (broadcast together).
+        ellipsoid: the reference ellipsoid.
+
+    Returns:
+        ``(azimuth12_deg, azimuth21_deg, distance_m)``: the azimuth at point 1 toward
+        point 2, the azimuth at point 2 toward point 1 (the back azimuth), both in
+        (-180, 180], and the geodesic distance in metres.
+    """
+    arrays = _float_arrays(lon1, lat1, lon2, lat2)
+    az12, az21, dist = _geod(ellipsoid).inv(*arrays, return_back_azimuth=True)
+    return (
+        np.asarray(az12, dtype=np.float64)[()],
+        np.asarray(az21, dtype=np.float64)[()],
+        np.asarray(dist, dtype=np.float64)[()],
+    )
+
+
+def geodesic_direct(
+    lon: ArrayLike,
+    lat: ArrayLike,
+    azimuth_deg: ArrayLike,
+    distance_m: ArrayLike,
+    ellipsoid: Ellipsoid = WGS84,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Solve the direct geodesic problem: travel ``distance_m`` from (lon, lat) at an azimuth.
+
+    Args:
+        lon, lat: start point in degrees.
+        azimuth_deg: start azimuth in degrees, clockwise from north.
+        distance_m: distance in metres (may be negative: travel backwards).
+        ellipsoid: the reference ellipsoid.
+
+    Returns:
+        ``(lon2, lat2, back_azimuth_deg)``: end point in degrees (longitude in [-180, 180])
+        and the azimuth at the end point pointing back toward the start.
+    """
+    arrays = _float_arrays(lon, lat, azimuth_deg, distance_m)
+    lon2, lat2, back = _geod(ellipsoid).fwd(*arrays, return_back_azimuth=True)
+    return (
+        np.asarray(lon2, dtype=np.float64)[()],
+        np.asarray(lat2, dtype=np.float64)[()],
+        np.asarray(back, dtype=np.float64)[()],
+    )
+
+
+def geodesic_points(
+    lon1: float,
+    lat1: float,
+    lon2: float,
+    lat2: float,
+    spacing_m: float,
+    ellipsoid: Ellipsoid = WGS84,
+) -> tuple[FloatArray, FloatArray]:
+    """Densify one geodesic into equally spaced points, both end points included.
+
+    Args:
+        lon1, lat1, lon2, lat2: end points in degrees (scalars).
+        spacing_m: the largest allowed distance between consecutive points, metres (> 0).
+        ellipsoid: the reference ellipsoid.
+
+    Returns:
+        ``(lons, lats)`` in degrees, 1-D arrays of equal length >= 2, starting at point 1 and
+        ending at point 2, consecutive points equally spaced by at most ``spacing_m``.
+    """
+    if not (spacing_m > 0 and math.isfinite(spacing_m)):
+        raise ValueError(f"spacing must be a positive finite length in metres, got {spacing_m}")
+    geod = _geod(ellipsoid)
+    _, _, dist = geod.inv(lon1, lat1, lon2, lat2, return_back_azimuth=True)
+    npts = max(math.ceil(dist / spacing_m) + 1, 2)
+    line = geod.inv_intermediate(
+        lon1,
+        lat1,
+        lon2,
+        lat2,
+        npts=npts,
+        initial_idx=0,
+        terminus_idx=0,
+        return_back_azimuth=True,
+    )
+    return np.asarray(line.lons, dtype=np.float64), np.asarray(line.lats, dtype=np.float64)

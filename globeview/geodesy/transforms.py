@@ -1,0 +1,180 @@
+"""Geodetic (longitude, latitude, ellipsoidal height) <-> ECEF conversions.
+
+Geodetic coordinates: longitude and latitude in degrees (latitude is geodetic, i.e. the angle
+of the ellipsoid normal to the equatorial plane), height in metres above the ellipsoid along
+that normal. ECEF: Earth-centred, Earth-fixed Cartesian metres, z along the polar axis, x
+through (lon 0, lat 0), y through (lon 90, lat 0).
+
+All functions are vectorised and broadcast their inputs; results are float64.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from globeview.geodesy.ellipsoid import WGS84, Ellipsoid
+
+__all__ = ["ecef_to_geodetic", "ecef_to_lonlat", "geodetic_to_ecef", "lonlat_to_ecef"]
+
+FloatArray = NDArray[np.float64]
+
+
+def geodetic_to_ecef(
+    lon_deg: ArrayLike,
+    lat_deg: ArrayLike,
+    h_m: ArrayLike,
+    ellipsoid: Ellipsoid = WGS84,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Convert geodetic coordinates to ECEF.
+
+    Args:
+        lon_deg: longitude in degrees (any range).
+        lat_deg: geodetic latitude in degrees, [-90, 90].
+        h_m: ellipsoidal height in metres.
+        ellipsoid: the reference ellipsoid.
+
+    Returns:
+        ``(x, y, z)`` ECEF coordinates in metres, each of the broadcast input shape.
+    """
+    lon = np.radians(np.asarray(lon_deg, dtype=np.float64))
+    lat = np.radians(np.asarray(lat_deg, dtype=np.float64))
+    h = np.asarray(h_m, dtype=np.float64)
+    sin_lat = np.sin(lat)
+    cos_lat = np.cos(lat)
+    # Prime-vertical radius of curvature N(lat).
+    n = ellipsoid.a / np.sqrt(1.0 - ellipsoid.e2 * sin_lat * sin_lat)
+    rho = (n + h) * cos_lat
+    x = rho * np.cos(lon)
+    y = rho * np.sin(lon)
+    z = (n * (1.0 - ellipsoid.e2) + h) * sin_lat
+    x, y, z = np.broadcast_arrays(x, y, z)
+    # Copy (broadcast views are read-only); [()] turns 0-d results into numpy scalars.
+    return x.copy()[()], y.copy()[()], z.copy()[()]
+
+
+def _wrap_lon_deg(lon: FloatArray) -> FloatArray:
+    """Map longitudes from ``atan2`` ([-180, 180]) into (-180, 180]."""
+    return np.where(lon <= -180.0, lon + 360.0, lon)
+
+
+def ecef_to_geodetic(
+    x: ArrayLike,
+    y: ArrayLike,
+    z: ArrayLike,
+    ellipsoid: Ellipsoid = WGS84,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Convert ECEF coordinates to geodetic, exactly (closed form, no iteration).
+
+    Uses Vermeille's analytical method (H. Vermeille, "An analytical method to transform
+    geocentric into geodetic coordinates", J. Geodesy 85:105-117, 2011), which is valid
+    everywhere: on the polar axis, on the equator, deep inside the Earth (inside the evolute
+    of the meridian ellipse, including the centre) and far out in space.
+
+    Degenerate points get a definite answer: on the polar axis the longitude is 0; at the
+    centre of the Earth the result is the north pole at height ``-b``; on the equatorial plane
+    inside the evolute (where two normals meet) the northern solution is returned.
+
+    Args:
+        x, y, z: ECEF coordinates in metres (broadcast together).
+        ellipsoid: the reference ellipsoid.
+
+    Returns:
+        ``(lon_deg, lat_deg, h_m)``: longitude in degrees in (-180, 180], geodetic latitude in
+        degrees, ellipsoidal height in metres.
+    """
+    x, y, z = np.broadcast_arrays(
+        np.asarray(x, dtype=np.float64),
+        np.asarray(y, dtype=np.float64),
+        np.asarray(z, dtype=np.float64),
+    )
+    a = ellipsoid.a
+    e2 = ellipsoid.e2
+    e4 = e2 * e2
+    rho = np.hypot(x, y)
+
+    # Vermeille's notation: p, q are the squared, a-normalised equatorial and polar parts.
+    p = (rho / a) ** 2
+    q = (1.0 - e2) * (z / a) ** 2
+    r = (p + q - e4) / 6.0
+    border = 8.0 * r**3 + e4 * p * q  # sign says outside (>0) or inside (<0) the evolute
+    outside = border > 0.0
+    general = outside | (q != 0.0)
+
+    # Every branch is evaluated for every element and the right one picked with np.where, so
+    # the branches that do not apply may produce NaN/inf: silence those warnings here only.
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # Outside the evolute (almost everywhere): Cardano's real root.
+        rad1 = np.sqrt(np.where(outside, border, 0.0))
+        rad2 = np.sqrt(e4 * p * q)
+        cb_plus = np.cbrt((rad1 + rad2) ** 2)
+        # Two algebraically equal forms; the first avoids rad1 - rad2 cancellation far out,
+        # the second avoids dividing by a tiny cube root close to the evolute.
+        u_far = r + 0.5 * cb_plus + 2.0 * r * r / cb_plus
+        u_near = r + 0.5 * cb_plus + 0.5 * np.cbrt((rad1 - rad2) ** 2)
+        u_out = np.where(border > 10.0 * e2, u_far, u_near)
+        # Inside the evolute (within ~43 km of the centre for WGS84): trigonometric root.
+        rad1_in = np.sqrt(np.where(outside, 0.0, -border))
+        rad2_in = np.sqrt(np.where(outside, 0.0, -8.0 * r**3))
+        ang = 2.0 * np.arctan2(rad2, rad1_in + rad2_in) / 3.0
+        u_in = -4.0 * r * np.sin(ang) * np.cos(np.pi / 6.0 + ang)
+        u = np.where(outside, u_out, u_in)
+
+        v = np.sqrt(u * u + e4 * q)
+        w = e2 * (u + v - q) / (2.0 * v)
+        k = (u + v) / (np.sqrt(w * w + u + v) + w)
+        d = k * rho / (k + e2)
+        dz = np.hypot(d, z)
+        h_gen = (k + e2 - 1.0) * dz / k
+        lat_gen = 2.0 * np.arctan2(z, dz + d)
+
+        # Equatorial plane inside the evolute (q == 0, border <= 0), centre included: the
+        # foot point is off the equator at cos(lat) = sqrt(p (1 - e2)) / (e sqrt(e2 - p)).
+        # Derived directly (normals through (rho, 0) satisfy rho = N e2 cos(lat)).
+        sqrt_p = np.sqrt(p)
+        lat_eq = np.arctan2(np.sqrt(np.maximum(e4 - p, 0.0)), sqrt_p * np.sqrt(1.0 - e2))
+        # At the centre of a sphere the expression is 0/0; call it the north pole, as for
+        # the ellipsoid, so the centre has one answer for every ellipsoid.
+        lat_eq = np.where(p == 0.0, np.pi / 2.0, lat_eq)
+        sin_eq = np.sin(lat_eq)
+        h_eq = -a * (1.0 - e2) / np.sqrt(1.0 - e2 * sin_eq * sin_eq)  # -N (1 - e2)
+
+    lat = np.where(general, lat_gen, lat_eq)
+    h = np.where(general, h_gen, h_eq)
+    lon = _wrap_lon_deg(np.degrees(np.arctan2(y, x)))
+    # [()] turns 0-d results (scalar input) into numpy scalars, leaving arrays alone.
+    return lon[()], np.degrees(lat)[()], h[()]
+
+
+def lonlat_to_ecef(
+    lon: ArrayLike,
+    lat: ArrayLike,
+    h: ArrayLike = 0.0,
+    ellipsoid: Ellipsoid = WGS84,
+) -> FloatArray:
+    """Convert geodetic coordinates to stacked ECEF points.
+
+    Args:
+        lon: longitude in degrees.
+        lat: geodetic latitude in degrees.
+        h: ellipsoidal height in metres (default: on the ellipsoid).
+        ellipsoid: the reference ellipsoid.
+
+    Returns:
+        ECEF positions in metres, shape ``(..., 3)`` for inputs broadcasting to ``(...)``.
+    """
+    return np.stack(geodetic_to_ecef(lon, lat, h, ellipsoid), axis=-1)
+
+
+def ecef_to_lonlat(
+    xyz: ArrayLike,
+    ellipsoid: Ellipsoid = WGS84,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Convert stacked ECEF points ``(..., 3)`` in metres to ``(lon_deg, lat_deg, h_m)``.
+
+    Each output has shape ``(...)``; see `ecef_to_geodetic` for conventions.
+    """
+    xyz = np.asarray(xyz, dtype=np.float64)
+    if xyz.shape[-1:] != (3,):
+        raise ValueError(f"expected an array of shape (..., 3), got {xyz.shape}")
+    return ecef_to_geodetic(xyz[..., 0], xyz[..., 1], xyz[..., 2], ellipsoid)

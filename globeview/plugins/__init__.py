@@ -1,0 +1,1 @@
+"""Plugin API and registry; the built-in LOD providers and tools (no Qt)."""

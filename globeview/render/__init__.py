@@ -1,0 +1,1 @@
+"""Rendering with moderngl: camera, tile meshes, shaders, culling, picking, offscreen frames."""

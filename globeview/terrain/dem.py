@@ -1,0 +1,643 @@
+"""Reading DEM rasters: metadata (`DemInfo`) and resampled height grids in WGS84 lon/lat.
+
+Any raster GDAL reads, in any CRS, is opened with `open_dem`; `Dem.read_grid` returns heights at
+the nodes of a regular geographic grid (longitude/latitude in degrees on WGS84, heights in the
+raster's vertical units, normally metres), reprojected with `rasterio.warp.reproject`. Reading is
+windowed: only the source window a request needs is read, so rasters larger than RAM can be read
+window by window.
+
+Quirks of real data handled here (see data/README.md):
+- pixel-is-point grids (SRTM, ETOPO5): GDAL already places samples at cell centres, so the
+  footprint is GDAL's bounds shrunk by half a cell;
+- undeclared fill values (Crater Lake's -32767) are detected and treated as nodata;
+- global grids wrap across the antimeridian and grids reaching a pole are extended to it;
+- interior voids (nodata surrounded by data) are filled; nodata touching the edge of what was
+  read is left as NaN (outside the footprint).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+
+import numpy as np
+import pyproj
+import rasterio
+import rasterio.errors
+import rasterio.features
+import rasterio.fill
+import rasterio.warp
+from affine import Affine
+from pyproj import Geod
+from rasterio.crs import CRS
+from rasterio.enums import Resampling
+from rasterio.windows import Window
+
+from globeview.errors import DemError
+
+# globeview/terrain/dem.py -> repository root /data
+EMBEDDED_DATA_DIR: Path = (Path(__file__).resolve().parent.parent.parent / "data").resolve()
+
+WGS84 = CRS.from_epsg(4326)
+
+# Rasters above this many pixels get their value range from a decimated read.
+EXACT_RANGE_MAX_PIXELS = 50_000_000
+# Pixels per block when scanning a raster for statistics (bounded memory).
+_SCAN_BLOCK_PIXELS = 4_000_000
+# Target size of the decimated read used for statistics of huge rasters.
+_DECIMATED_PIXELS = 4_000_000
+# Extra source cells read around a request so void detection sees a void's surroundings.
+_VOID_MARGIN = 32
+# Values commonly used as fill without being declared as nodata.
+_COMMON_FILLS = (-9999.0, -32767.0, -32768.0, -3.4028234663852886e38, 3.4028234663852886e38)
+# A fill candidate must be at least this large in magnitude (no real elevation reaches it).
+_MIN_FILL_MAGNITUDE = 9999.0
+
+# Metres per degree on WGS84, used only for approximate resolutions in `DemInfo`.
+_GEOD = Geod(ellps="WGS84")
+
+
+def embedded_dem_paths() -> list[Path]:
+    """The DEMs shipped in data/: the global base first, then the regional samples."""
+    names = [
+        "etopo20.tif",
+        "N44W072.hgt",
+        "craterlake-elev-16bit-30m.tif",
+        "topobathy_vancouver.tif",
+    ]
+    return [EMBEDDED_DATA_DIR / n for n in names]
+
+
+@dataclass(frozen=True)
+class DemInfo:
+    """What a DEM holds. Angles in degrees (WGS84 lon/lat), distances in metres.
+
+    bounds_lonlat is the data footprint (west, south, east, north): where samples are, not where
+    GDAL's cells end for pixel-is-point grids. west > east when it crosses the antimeridian.
+    """
+
+    path: str
+    driver: str
+    width: int
+    height: int
+    band_count: int
+    dtype: str
+    crs: str
+    bounds_lonlat: tuple[float, float, float, float]
+    res_deg: tuple[float, float]  # (dlon, dlat) approximate, degrees
+    res_m: tuple[float, float]  # (east-west, north-south) at the footprint centre, metres
+    nodata: float | None
+    fill_value: float | None
+    vmin: float
+    vmax: float
+    range_exact: bool
+    vertical_units: str | None
+    pixel_is_point: bool
+    crosses_antimeridian: bool
+    reaches_pole: bool
+    wraps_longitude: bool = False  # footprint spans all 360 degrees of longitude
+
+    def summary(self) -> str:
+        """A multi-line description for people."""
+        w, s, e, n = self.bounds_lonlat
+        units = self.vertical_units or "unknown units"
+        approx = "" if self.range_exact else " (approximate, from a decimated read)"
+        lines = [
+            f"{self.path}",
+            f"  format      {self.driver}, {self.width} x {self.height} pixels, {self.dtype}",
+            f"  CRS         {self.crs}",
+            f"  footprint   W {w:.6f}  S {s:.6f}  E {e:.6f}  N {n:.6f} (degrees, WGS84)",
+            f"  resolution  {self.res_deg[0]:.6g} x {self.res_deg[1]:.6g} deg"
+            f" (~{self.res_m[0]:.4g} x {self.res_m[1]:.4g} m at centre)",
+            f"  registration {'pixel-is-point (grid)' if self.pixel_is_point else 'pixel-is-area'}",
+            f"  nodata      {'none declared' if self.nodata is None else _fmt(self.nodata)}",
+        ]
+        if self.fill_value is not None:
+            lines.append(f"  fill value  {_fmt(self.fill_value)} (undeclared; treated as nodata)")
+        lines.append(f"  heights     {self.vmin:.6g} .. {self.vmax:.6g} {units}{approx}")
+        if self.band_count > 1:
+            lines.append(f"  bands       {self.band_count}; band 1 is used as elevation")
+        flags = []
+        if self.wraps_longitude:
+            flags.append("global in longitude (wraps across the antimeridian)")
+        elif self.crosses_antimeridian:
+            flags.append("crosses the antimeridian")
+        if self.reaches_pole:
+            flags.append("reaches a pole")
+        if flags:
+            lines.append(f"  coverage    {'; '.join(flags)}")
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON-friendly dict of every field (a NaN nodata becomes the string "nan")."""
+        d = {k: getattr(self, k) for k in self.__dataclass_fields__}
+        if d["nodata"] is not None and math.isnan(d["nodata"]):
+            d["nodata"] = "nan"
+        return d
+
+
+def _fmt(v: float) -> str:
+    return f"{v:.0f}" if float(v).is_integer() else f"{v:.6g}"
+
+
+def _short(exc: BaseException) -> str:
+    """First line of a rasterio/GDAL message, without GDAL's trailing noise."""
+    text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    return text if len(text) <= 200 else text[:197] + "..."
+
+
+class Dem:
+    """An open DEM raster (band 1 is elevation). Use `open_dem` to create one.
+
+    The geographic helpers assume a north-up geotransform for geographic CRSs; any other source
+    goes through a general reprojection path.
+    """
+
+    def __init__(self, path: Path, crs_override: str | None = None) -> None:
+        self.path = path
+        if not path.exists():
+            raise DemError(f"DEM file not found: {path}")
+        if path.is_dir():
+            raise DemError(f"{path} is a directory, not a DEM raster")
+        try:
+            with warnings.catch_warnings():
+                # A raster without geotransform is reported below as a DemError instead.
+                warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+                self._ds = rasterio.open(path)
+        except rasterio.errors.RasterioIOError as exc:
+            raise DemError(f"cannot read {path} as a raster: {_short(exc)}") from None
+        try:
+            self._setup(crs_override)
+        except BaseException:
+            self._ds.close()
+            raise
+
+    # ---- opening -------------------------------------------------------------------------
+
+    def _setup(self, crs_override: str | None) -> None:
+        ds = self._ds
+        if crs_override is not None:
+            try:
+                self.crs = CRS.from_user_input(crs_override)
+            except (rasterio.errors.CRSError, ValueError):
+                raise DemError(
+                    f"not a valid CRS: {crs_override!r} (use e.g. EPSG:4326 or EPSG:32610)"
+                ) from None
+        elif ds.crs is None or not ds.crs.to_wkt():
+            raise DemError(
+                f"{self.path} has no coordinate reference system; supply one with "
+                "--crs EPSG:XXXX (e.g. --crs EPSG:4326 for lon/lat degrees)"
+            )
+        else:
+            self.crs = ds.crs
+        if ds.transform == Affine.identity() and not ds.gcps[0]:
+            raise DemError(f"{self.path} has no georeferencing (no geotransform)")
+        if ds.width < 2 or ds.height < 2:
+            raise DemError(f"{self.path} is {ds.width}x{ds.height} pixels: too small to be a DEM")
+        self.transform: Affine = ds.transform
+        self.nodata: float | None = None if ds.nodata is None else float(ds.nodata)
+        self.pixel_is_point = str(ds.tags().get("AREA_OR_POINT", "")).lower() == "point"
+        t = self.transform
+        # Geographic north-up sources get the wrap/pole-aware path.
+        self._geo_fast = bool(self.crs.is_geographic) and t.b == 0 and t.d == 0 and t.e < 0
+        self.wraps_longitude = self._geo_fast and math.isclose(
+            abs(t.a) * ds.width, 360.0, rel_tol=1e-6
+        )
+        self.fill_value, vmin, vmax, self.range_exact = self._scan_values()
+        self.vmin, self.vmax = vmin, vmax
+        self._info: DemInfo | None = None
+        self._pole_values: dict[float, float] = {}
+
+    def _blocks(self) -> Iterator[Window]:
+        rows = max(1, _SCAN_BLOCK_PIXELS // self._ds.width)
+        for r0 in range(0, self._ds.height, rows):
+            yield Window(0, r0, self._ds.width, min(rows, self._ds.height - r0))
+
+    def _scan_values(self) -> tuple[float | None, float, float, bool]:
+        """Detect an undeclared fill value and the value range over valid data.
+
+        A candidate (the dtype's extremes or a common fill) is a fill when it occurs, has a
+        magnitude of at least 9999 and lies outside the range of all other valid values: a real
+        elevation of -9999 m amid bathymetry reaching -10 000 m is data, not fill.
+        """
+        ds = self._ds
+        dtype = np.dtype(ds.dtypes[0])
+        cands = set(_COMMON_FILLS)
+        if dtype.kind in "iu":
+            info = np.iinfo(dtype)
+            cands |= {float(info.min), float(info.max)}
+        elif dtype.kind == "f":
+            cands |= {float(np.finfo(dtype).min), float(np.finfo(dtype).max)}
+        if self.nodata is not None:
+            cands.discard(self.nodata)
+        cand_arr = np.array(
+            sorted(c for c in cands if abs(c) >= _MIN_FILL_MAGNITUDE), dtype=np.float64
+        )
+        exact = ds.width * ds.height <= EXACT_RANGE_MAX_PIXELS
+        if exact:
+            arrays: Iterator[np.ndarray] = (self._read_raw(w) for w in self._blocks())
+        else:
+            f = math.sqrt(ds.width * ds.height / _DECIMATED_PIXELS)
+            shape = (max(2, int(ds.height / f)), max(2, int(ds.width / f)))
+            arrays = iter([self._read_raw(None, out_shape=shape)])
+        counts = np.zeros(cand_arr.size, dtype=np.int64)
+        lo, hi = math.inf, -math.inf
+        for a in arrays:
+            v = a[np.isfinite(a)]
+            if self.nodata is not None:
+                v = v[v != self.nodata]
+            is_c = np.isin(v, cand_arr)
+            if cand_arr.size:
+                counts += np.count_nonzero(v[is_c, None] == cand_arr[None, :], axis=0)
+            rest = v[~is_c]
+            if rest.size:
+                lo, hi = min(lo, float(rest.min())), max(hi, float(rest.max()))
+        fill = None
+        for c, n in zip(cand_arr, counts, strict=True):
+            if n and not (lo <= c <= hi):
+                fill = float(c)
+                break
+        # Other present candidates that are not fills are real data and widen the range.
+        for c, n in zip(cand_arr, counts, strict=True):
+            if n and (fill is None or c != fill):
+                lo, hi = min(lo, float(c)), max(hi, float(c))
+        if not math.isfinite(lo):
+            raise DemError(f"{self.path} holds no valid data (every pixel is nodata or NaN)")
+        return fill, lo, hi, exact
+
+    def _read_raw(
+        self, window: Window | None, out_shape: tuple[int, int] | None = None
+    ) -> np.ndarray:
+        """Band 1 as float64 without any masking (for statistics)."""
+        try:
+            a = self._ds.read(1, window=window, out_shape=out_shape, resampling=Resampling.nearest)
+        except rasterio.errors.RasterioError as exc:
+            raise DemError(f"{self.path} is corrupt or truncated: {_short(exc)}") from None
+        return a.astype(np.float64, copy=False)
+
+    # ---- metadata ------------------------------------------------------------------------
+
+    @property
+    def info(self) -> DemInfo:
+        """Metadata and statistics of the raster (computed once)."""
+        if self._info is None:
+            self._info = self._make_info()
+        return self._info
+
+    def _footprint_native(self) -> tuple[float, float, float, float]:
+        """(left, bottom, right, top) of where samples are, in the source CRS."""
+        ds = self._ds
+        left, bottom, right, top = ds.bounds
+        if self.pixel_is_point:
+            hx, hy = abs(self.transform.a) / 2.0, abs(self.transform.e) / 2.0
+            left, right, bottom, top = left + hx, right - hx, bottom + hy, top - hy
+        return left, bottom, right, top
+
+    def _make_info(self) -> DemInfo:
+        ds = self._ds
+        left, bottom, right, top = self._footprint_native()
+        if self._geo_fast:
+            dx, dy = abs(self.transform.a), abs(self.transform.e)
+            if self.wraps_longitude:
+                west, east = -180.0, 180.0
+            else:
+                west, east = _wrap_lon(left), _wrap_lon(right)
+                if right - left >= 360.0 - 1e-9:
+                    west, east = -180.0, 180.0
+                elif west > east and math.isclose(east, -180.0):
+                    east = 180.0
+                elif west == 180.0 and east > -180.0:
+                    west = -180.0
+            south, north = max(bottom, -90.0), min(top, 90.0)
+            res_deg = (dx, dy)
+            crosses = self.wraps_longitude or west > east
+        else:
+            try:
+                west, south, east, north = rasterio.warp.transform_bounds(
+                    self.crs, WGS84, left, bottom, right, top, densify_pts=21
+                )
+            except Exception as exc:  # pyproj/GDAL raise several types here
+                raise DemError(
+                    f"cannot place {self.path} on the globe from its CRS: {_short(exc)}"
+                ) from None
+            crosses = west > east
+            dx = dy = 0.0  # filled below from metres
+        # Resolution in metres at the footprint centre, from one cell's neighbours.
+        cc, cr = ds.width / 2.0, ds.height / 2.0
+        xs, ys = zip(*(self.transform @ p for p in ((cc, cr), (cc + 1, cr), (cc, cr + 1))))
+        if self._geo_fast:
+            lons, lats = list(xs), list(ys)
+        else:
+            lons, lats = rasterio.warp.transform(self.crs, WGS84, list(xs), list(ys))
+        _, _, dist_x = _GEOD.inv(lons[0], lats[0], lons[1], lats[1])
+        _, _, dist_y = _GEOD.inv(lons[0], lats[0], lons[2], lats[2])
+        res_m = (float(dist_x), float(dist_y))
+        if not self._geo_fast:
+            lat_c = math.radians(lats[0])
+            # metres per degree of latitude / longitude on WGS84 (series to O(e^2))
+            m_lat = 111_132.954 - 559.822 * math.cos(2 * lat_c)
+            m_lon = max(111_412.84 * math.cos(lat_c), 1e-6)
+            dx, dy = res_m[0] / m_lon, res_m[1] / m_lat
+            res_deg = (dx, dy)
+        reaches_pole = north >= 90.0 - dy * 1.0001 or south <= -90.0 + dy * 1.0001
+        crs_txt = _crs_label(self.crs)
+        units = ds.units[0] if ds.units and ds.units[0] else ds.tags().get("UNITS") or None
+        return DemInfo(
+            path=str(self.path),
+            driver=ds.driver,
+            width=ds.width,
+            height=ds.height,
+            band_count=ds.count,
+            dtype=ds.dtypes[0],
+            crs=crs_txt,
+            bounds_lonlat=(float(west), float(south), float(east), float(north)),
+            res_deg=(float(res_deg[0]), float(res_deg[1])),
+            res_m=res_m,
+            nodata=self.nodata,
+            fill_value=self.fill_value,
+            vmin=self.vmin,
+            vmax=self.vmax,
+            range_exact=self.range_exact,
+            vertical_units=units,
+            pixel_is_point=self.pixel_is_point,
+            crosses_antimeridian=bool(crosses),
+            reaches_pole=bool(reaches_pole),
+            wraps_longitude=bool(self.wraps_longitude),
+        )
+
+    # ---- reading -------------------------------------------------------------------------
+
+    def read_grid(
+        self,
+        west: float,
+        north: float,
+        dlon: float,
+        dlat: float,
+        width: int,
+        height: int,
+        resampling: str = "bilinear",
+    ) -> np.ndarray:
+        """Heights at the nodes lon = west + i*dlon, lat = north - j*dlat (WGS84 degrees).
+
+        Returns float32 (height, width), row j / column i; NaN where the source has no data.
+        Only the source window the grid needs is read.
+        """
+        if width < 1 or height < 1 or not (dlon > 0 and dlat > 0):
+            raise ValueError("read_grid needs width, height >= 1 and dlon, dlat > 0")
+        try:
+            rs = Resampling[resampling]
+        except KeyError:
+            raise DemError(f"unknown resampling {resampling!r}") from None
+        out = np.full((height, width), np.nan, dtype=np.float32)
+        # Destination cells centred on the nodes.
+        dst_t = Affine(dlon, 0.0, west - dlon / 2.0, 0.0, -dlat, north + dlat / 2.0)
+        lon0, lon1 = west, west + (width - 1) * dlon
+        lat1, lat0 = north, north - (height - 1) * dlat
+        if self._geo_fast:
+            # A regional source may use 0..360 longitudes or cross the antimeridian.
+            shifts = [0.0] if self.wraps_longitude else [-360.0, 0.0, 360.0]
+            for k in shifts:
+                src = self._geo_source(lon0 + k, lon1 + k, lat0, lat1, dlon, dlat)
+                if src is None:
+                    continue
+                arr, src_t = src
+                piece = self._warp(arr, src_t, dst_t, out.shape, rs, k)
+                np.copyto(out, piece, where=np.isnan(out))
+            if self.wraps_longitude:
+                self._set_pole_rows(out, north, dlat)
+        else:
+            src = self._projected_source(lon0, lon1, lat0, lat1, dlon, dlat)
+            if src is not None:
+                arr, src_t = src
+                out = self._warp(arr, src_t, dst_t, out.shape, rs, 0.0)
+        return out
+
+    def _set_pole_rows(self, out: np.ndarray, north: float, dlat: float) -> None:
+        """Give the nodes at lat +-90 one value each: a pole is a single point.
+
+        The value is the mean of the source's edge row, so every window of a global grid agrees
+        on it. Only for sources spanning all longitudes (a sector's edge row is not the pole's
+        neighbourhood).
+        """
+        lats = north - np.arange(out.shape[0]) * dlat
+        for pole, row in ((90.0, 0), (-90.0, self._ds.height - 1)):
+            at_pole = np.isclose(lats, pole, rtol=0.0, atol=1e-9)
+            if not at_pole.any() or not self._reaches(pole):
+                continue
+            if pole not in self._pole_values:
+                edge = self._read_window(Window(0, row, self._ds.width, 1), 1)
+                ok = np.isfinite(edge)
+                self._pole_values[pole] = float(edge[ok].mean()) if ok.any() else np.nan
+            out[at_pole, :] = self._pole_values[pole]
+
+    def _reaches(self, pole: float) -> bool:
+        """Whether the source's samples come within one cell of the pole (+90 or -90 deg)."""
+        t, dy = self.transform, abs(self.transform.e)
+        half = dy / 2.0 if self.pixel_is_point else 0.0
+        if pole > 0:
+            return t.f - half >= 90.0 - dy * 1.0001
+        return t.f - self._ds.height * dy + half <= -90.0 + dy * 1.0001
+
+    def _warp(
+        self,
+        arr: np.ndarray,
+        src_t: Affine,
+        dst_t: Affine,
+        shape: tuple[int, int],
+        rs: Resampling,
+        lon_shift: float,
+    ) -> np.ndarray:
+        dst = np.full(shape, np.nan, dtype=np.float32)
+        # Shift the destination into the source's longitude frame (0..360 sources etc.).
+        if lon_shift:
+            dst_t = Affine.translation(lon_shift, 0.0) @ dst_t
+        src_crs = self.crs
+        dst_crs = self.crs if self._geo_fast else WGS84
+        # For geographic sources the grid is in the source datum; the datum shift between
+        # geographic CRSs is metres, well below a cell of any DEM this path is used for.
+        rasterio.warp.reproject(
+            arr,
+            dst,
+            src_transform=src_t,
+            src_crs=src_crs,
+            dst_transform=dst_t,
+            dst_crs=dst_crs,
+            resampling=rs,
+            src_nodata=np.nan,
+            dst_nodata=np.nan,
+        )
+        return dst
+
+    def _decimation(self, dlon_src: float, dlat_src: float, dx: float, dy: float) -> int:
+        """Integer read decimation when the request is much coarser than the source."""
+        f = min(dlon_src / dx, dlat_src / dy) / 2.0
+        return max(1, int(f))
+
+    def _geo_source(
+        self, lon0: float, lon1: float, lat0: float, lat1: float, dlon: float, dlat: float
+    ) -> tuple[np.ndarray, Affine] | None:
+        """Source window (with wrap and pole padding) covering the nodes, in source lon/lat."""
+        t = self.transform
+        ds = self._ds
+        dx, dy = t.a, -t.e
+        pad = 3 + _VOID_MARGIN
+        c0 = math.floor((lon0 - t.c) / dx - 0.5) - pad
+        c1 = math.ceil((lon1 - t.c) / dx - 0.5) + pad + 1
+        r0 = math.floor((t.f - lat1) / dy - 0.5) - pad
+        r1 = math.ceil((t.f - lat0) / dy - 0.5) + pad + 1
+        if not self.wraps_longitude:
+            c0, c1 = max(c0, 0), min(c1, ds.width)
+        if c1 <= c0:
+            return None
+        # Rows: read what exists, then extend the edge rows if the source reaches a pole.
+        rr0, rr1 = max(r0, 0), min(r1, ds.height)
+        if rr1 <= rr0:
+            return None
+        north_pole, south_pole = self._reaches(90.0), self._reaches(-90.0)
+        f = self._decimation(dlon, dlat, dx, dy)
+        # Column segments (wrap: modulo width), read separately and concatenated.
+        pieces = []
+        c = c0
+        while c < c1:
+            seg0 = c % ds.width
+            n = min(c1 - c, ds.width - seg0)
+            pieces.append(self._read_window(Window(seg0, rr0, n, rr1 - rr0), f))
+            c += n
+        arr = np.concatenate(pieces, axis=1) if len(pieces) > 1 else pieces[0]
+        arr = self._clean(arr)
+        # Decimation may round sizes: compute the effective cell size of what was read.
+        sx = (c1 - c0) * dx / arr.shape[1]
+        sy = (rr1 - rr0) * dy / arr.shape[0]
+        top = t.f - rr0 * dy
+        n_top = math.ceil((rr0 - r0) * dy / sy) if (north_pole and r0 < rr0) else 0
+        n_bot = math.ceil((r1 - rr1) * dy / sy) if (south_pole and r1 > rr1) else 0
+        if n_top or n_bot:
+            # Extend the edge rows past the pole so the pole nodes get values (not NaN).
+            arr = np.pad(arr, ((n_top, n_bot), (0, 0)), mode="edge")
+            top += n_top * sy
+        return arr, Affine(sx, 0.0, t.c + c0 * dx, 0.0, -sy, top)
+
+    def _projected_source(
+        self, lon0: float, lon1: float, lat0: float, lat1: float, dlon: float, dlat: float
+    ) -> tuple[np.ndarray, Affine] | None:
+        """Source window covering the nodes for a non-geographic (or rotated) source."""
+        ds = self._ds
+        n = 21
+        lons = np.linspace(lon0 - dlon, lon1 + dlon, n)
+        lats = np.clip(np.linspace(lat0 - dlat, lat1 + dlat, n), -90.0, 90.0)
+        glon, glat = np.meshgrid(lons, lats)
+        with np.errstate(all="ignore"):
+            xs, ys = rasterio.warp.transform(WGS84, self.crs, glon.ravel(), glat.ravel())
+        xs, ys = np.asarray(xs), np.asarray(ys)
+        ok = np.isfinite(xs) & np.isfinite(ys)
+        if not ok.any():
+            return None
+        inv = ~self.transform
+        cols, rows = inv @ (xs[ok], ys[ok])
+        pad = 3 + _VOID_MARGIN
+        # The sampled nodes bound the window only approximately: pad by a tenth of its span.
+        span_c = float(cols.max() - cols.min()) / 10.0
+        span_r = float(rows.max() - rows.min()) / 10.0
+        c0 = max(0, math.floor(cols.min() - span_c) - pad)
+        c1 = min(ds.width, math.ceil(cols.max() + span_c) + pad + 1)
+        r0 = max(0, math.floor(rows.min() - span_r) - pad)
+        r1 = min(ds.height, math.ceil(rows.max() + span_r) + pad + 1)
+        if c1 <= c0 or r1 <= r0:
+            return None
+        # Source cells per destination cell, from the node spacing mapped into the source.
+        cells_x = (cols.max() - cols.min()) / max(1, (lon1 - lon0) / dlon + 2)
+        cells_y = (rows.max() - rows.min()) / max(1, (lat1 - lat0) / dlat + 2)
+        f = max(1, int(min(cells_x, cells_y) / 2.0))
+        arr = self._clean(self._read_window(Window(c0, r0, c1 - c0, r1 - r0), f))
+        sx, sy = (c1 - c0) / arr.shape[1], (r1 - r0) / arr.shape[0]
+        win_t = self.transform @ Affine.translation(c0, r0) @ Affine.scale(sx, sy)
+        return arr, win_t
+
+    def _read_window(self, window: Window, f: int) -> np.ndarray:
+        """Band 1 of a window as float32, decimated by f, nodata and fill as NaN."""
+        shape = (max(1, math.ceil(window.height / f)), max(1, math.ceil(window.width / f)))
+        # Averaging would mix an undeclared fill into real heights: use nearest then.
+        rs = Resampling.nearest if (f == 1 or self.fill_value is not None) else Resampling.average
+        try:
+            a = self._ds.read(1, window=window, out_shape=shape, resampling=rs, masked=True)
+        except rasterio.errors.RasterioError as exc:
+            raise DemError(f"{self.path} is corrupt or truncated: {_short(exc)}") from None
+        arr = a.astype(np.float32).filled(np.nan)
+        if self.fill_value is not None:
+            arr[arr == np.float32(self.fill_value)] = np.nan
+        return arr
+
+    def _clean(self, arr: np.ndarray) -> np.ndarray:
+        """Fill interior voids: NaN regions that do not touch the edge of what was read."""
+        void = np.isnan(arr)
+        if not void.any() or void.all():
+            return arr
+        h, w = arr.shape
+        shapes = rasterio.features.shapes(
+            void.astype(np.uint8), mask=void, connectivity=4, transform=Affine.identity()
+        )
+        interior = []
+        for geom, _ in shapes:
+            ring = np.asarray(geom["coordinates"][0])
+            x0, y0 = ring.min(axis=0)
+            x1, y1 = ring.max(axis=0)
+            if x0 > 0 and y0 > 0 and x1 < w and y1 < h:
+                interior.append(geom)
+        if not interior:
+            return arr
+        fill_mask = rasterio.features.rasterize(
+            ((g, 1) for g in interior), out_shape=arr.shape, dtype=np.uint8
+        ).astype(bool)
+        valid = ~void
+        filled = rasterio.fill.fillnodata(
+            np.where(valid, arr, 0.0).astype(np.float32),
+            mask=valid.astype(np.uint8),
+            max_search_distance=float(max(h, w)),
+            smoothing_iterations=0,
+        )
+        return np.where(fill_mask, filled, arr).astype(np.float32)
+
+    # ---- context manager ----------------------------------------------------------------
+
+    def close(self) -> None:
+        """Close the underlying dataset."""
+        self._ds.close()
+
+    def __enter__(self) -> Dem:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+def _crs_label(crs: CRS) -> str:
+    """'EPSG:n' when the CRS has an EPSG code, else its name."""
+    epsg = crs.to_epsg()
+    if epsg:
+        return f"EPSG:{epsg}"
+    try:
+        return pyproj.CRS.from_wkt(crs.to_wkt()).name
+    except pyproj.exceptions.CRSError:
+        return crs.to_string()
+
+
+def _wrap_lon(lon: float) -> float:
+    """Longitude in degrees folded into [-180, 180)."""
+    return ((lon + 180.0) % 360.0) - 180.0
+
+
+def open_dem(path: str | Path, crs: str | None = None) -> Dem:
+    """Open a DEM raster (band 1 = elevation); `crs` overrides or supplies its CRS.
+
+    Raises DemError with a one-line message for anything that cannot be used as a DEM.
+    """
+    return Dem(Path(path), crs)

@@ -1,0 +1,1 @@
+"""The Qt desktop shell (the only layer that imports PyQt6)."""
