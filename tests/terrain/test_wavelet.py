@@ -1,0 +1,160 @@
+"""Tests for the grid-registered dyadic wavelet approximation (globeview.terrain.wavelet)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from globeview.errors import GlobeviewError
+from globeview.terrain.wavelet import (
+    WaveletError,
+    approximate_grid,
+    approximate_window,
+    extend_borders,
+    kernel_halo,
+    lowpass_kernel,
+)
+
+WAVELETS = ["bior2.2", "bior4.4"]
+
+
+def _plane(rows: int, cols: int) -> np.ndarray:
+    y, x = np.mgrid[0:rows, 0:cols].astype(np.float64)
+    return (1250.0 + 3.5 * x - 2.25 * y).astype(np.float32)
+
+
+@pytest.mark.parametrize("wavelet", WAVELETS)
+def test_kernel_is_symmetric_odd_unit_sum(wavelet: str) -> None:
+    k = lowpass_kernel(wavelet)
+    assert k.size % 2 == 1
+    np.testing.assert_allclose(k, k[::-1], atol=1e-14)
+    assert k.sum() == pytest.approx(1.0, abs=1e-14)
+    assert k[0] != 0.0 and k[-1] != 0.0
+
+
+def test_default_is_le_gall_5_3() -> None:
+    np.testing.assert_allclose(lowpass_kernel(), np.array([-1, 2, 6, 2, -1]) / 8.0, atol=1e-14)
+
+
+@pytest.mark.parametrize("wavelet", ["haar", "db2", "bior3.3", "morl", "nonsense"])
+def test_rejected_wavelets(wavelet: str) -> None:
+    with pytest.raises(ValueError) as info:
+        lowpass_kernel(wavelet)
+    assert isinstance(info.value, GlobeviewError)
+    assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("wavelet", WAVELETS)
+def test_halo_even_and_covers_kernel(wavelet: str) -> None:
+    h = kernel_halo(wavelet)
+    assert h % 2 == 0
+    assert h >= lowpass_kernel(wavelet).size // 2
+
+
+@pytest.mark.parametrize("wavelet", WAVELETS)
+@pytest.mark.parametrize("shape", [(9, 11), (33, 17), (3, 5), (1, 7)])
+def test_plane_reproduced_at_coarse_nodes(wavelet: str, shape: tuple[int, int]) -> None:
+    fine = _plane(*shape)
+    coarse = approximate_grid(fine, wavelet)
+    assert coarse.dtype == np.float32
+    assert coarse.shape == ((shape[0] + 1) // 2, (shape[1] + 1) // 2)
+    # Exact up to float32 rounding of the accumulated taps, borders included (odd mirror).
+    np.testing.assert_allclose(coarse, fine[::2, ::2], rtol=1e-6, atol=0)
+
+
+@pytest.mark.parametrize("wavelet", WAVELETS)
+def test_constant_stays_constant(wavelet: str) -> None:
+    fine = np.full((17, 25), 431.5, dtype=np.float32)
+    coarse = approximate_grid(fine, wavelet)
+    np.testing.assert_allclose(coarse, 431.5, rtol=0, atol=1e-4)
+
+
+def test_smooths_a_spike() -> None:
+    fine = np.zeros((9, 9), dtype=np.float32)
+    fine[4, 4] = 64.0
+    coarse = approximate_grid(fine)
+    # Centre weight of the 2-D 5/3 low-pass is (6/8)^2.
+    assert coarse[2, 2] == pytest.approx(64.0 * 0.75**2)
+    assert coarse.sum() == pytest.approx(64.0 / 4.0)  # unit-sum kernel, decimation by 2x2
+
+
+@pytest.mark.parametrize("wavelet", WAVELETS)
+def test_windowed_equals_whole(wavelet: str) -> None:
+    rng = np.random.default_rng(7)
+    fine = rng.normal(500.0, 80.0, size=(129, 97)).astype(np.float32)
+    whole = approximate_grid(fine, wavelet)
+    halo = kernel_halo(wavelet)
+    for r0, r1, c0, c1 in [(3, 20, 4, 9), (10, 11, 10, 11), (5, 60, 2, 46), (30, 63, 20, 45)]:
+        rows = slice(2 * r0 - halo, 2 * (r1 - 1) + 1 + halo)
+        cols = slice(2 * c0 - halo, 2 * (c1 - 1) + 1 + halo)
+        padded = fine[rows, cols]
+        win = approximate_window(padded, halo, wavelet)
+        assert win.shape == (r1 - r0, c1 - c0)
+        np.testing.assert_array_equal(win, whole[r0:r1, c0:c1])
+
+
+@pytest.mark.parametrize("wavelet", WAVELETS)
+def test_windowed_at_true_borders_with_extend_borders(wavelet: str) -> None:
+    rng = np.random.default_rng(11)
+    fine = rng.normal(0.0, 30.0, size=(41, 57)).astype(np.float32)
+    fine[:6, :5] = np.nan
+    whole = approximate_grid(fine, wavelet)
+    halo = kernel_halo(wavelet)
+    ext = extend_borders(fine, halo)
+    # Window touching the top-left corner and one touching the bottom-right corner.
+    for r0, r1, c0, c1 in [(0, 8, 0, 10), (12, 21, 20, 29)]:
+        padded = ext[2 * r0 : 2 * (r1 - 1) + 1 + 2 * halo, 2 * c0 : 2 * (c1 - 1) + 1 + 2 * halo]
+        win = approximate_window(padded, halo, wavelet)
+        np.testing.assert_array_equal(win, whole[r0:r1, c0:c1])
+
+
+def test_nan_does_not_spread() -> None:
+    rng = np.random.default_rng(3)
+    fine = rng.uniform(100.0, 200.0, size=(33, 33)).astype(np.float32)
+    fine[10:17, 8:21] = np.nan
+    coarse = approximate_grid(fine)
+    # NaN exactly where the coarse node's own fine node is NaN.
+    np.testing.assert_array_equal(np.isnan(coarse), np.isnan(fine[::2, ::2]))
+
+
+def test_node_next_to_nan_is_weighted_mean_of_valid_neighbours() -> None:
+    rng = np.random.default_rng(5)
+    fine = rng.uniform(100.0, 200.0, size=(33, 33)).astype(np.float32)
+    # Spikes next to the hole that a negative-lobe renormalisation would amplify.
+    fine[9, :] = 1000.0
+    fine[10:17, 8:21] = np.nan
+    coarse = approximate_grid(fine)
+    nan_fine = np.isnan(fine)
+    for j, i in [(4, 6), (4, 4), (9, 3), (9, 11), (8, 11)]:
+        win = fine[max(2 * j - 2, 0) : 2 * j + 3, max(2 * i - 2, 0) : 2 * i + 3]
+        assert np.isnan(win).any(), "test node must touch the hole"
+        valid = win[~np.isnan(win)]
+        assert not np.isnan(coarse[j, i])
+        assert valid.min() - 1e-3 <= coarse[j, i] <= valid.max() + 1e-3
+    # Nodes whose support is all valid get the plain low-pass (compare with NaN-free input).
+    filled = np.where(nan_fine, np.float32(150.0), fine)
+    plain = approximate_grid(filled)
+    np.testing.assert_array_equal(coarse[0:3, :], plain[0:3, :])
+
+
+def test_nan_node_with_valid_constant_neighbourhood() -> None:
+    fine = np.full((11, 11), 42.0, dtype=np.float32)
+    fine[3:8, 3:8] = np.nan
+    coarse = approximate_grid(fine)
+    valid = ~np.isnan(coarse)
+    np.testing.assert_allclose(coarse[valid], 42.0, atol=1e-4)
+
+
+@pytest.mark.parametrize("shape", [(8, 9), (9, 8), (10, 10), (0, 3)])
+def test_even_sides_rejected(shape: tuple[int, int]) -> None:
+    with pytest.raises(WaveletError, match="odd sides"):
+        approximate_grid(np.zeros(shape, dtype=np.float32))
+
+
+def test_bad_dimensions_and_halo_rejected() -> None:
+    with pytest.raises(WaveletError, match="2-D"):
+        approximate_grid(np.zeros(9, dtype=np.float32))
+    with pytest.raises(WaveletError, match="halo"):
+        approximate_window(np.zeros((21, 21), dtype=np.float32), 1)
+    with pytest.raises(WaveletError, match="halo"):
+        approximate_window(np.zeros((21, 21), dtype=np.float32), 2, "bior4.4")
