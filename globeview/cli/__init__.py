@@ -17,6 +17,8 @@ from globeview.errors import GlobeviewError
 # subcommand name -> module under globeview.cli, with a one-line help
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "info": ("info", "describe DEM rasters (bounds, resolution, nodata, value range)"),
+    "ingest": ("ingest", "build a tile-pyramid store from one or more DEMs"),
+    "render": ("render", "render the globe headless to a PNG (EGL, no display needed)"),
 }
 
 

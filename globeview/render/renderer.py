@@ -1,0 +1,321 @@
+"""`GlobeRenderer`: draws a render set of terrain tiles into any moderngl framebuffer.
+
+The same code draws into the Qt widget's framebuffer and into an offscreen one from an EGL
+standalone context (tests, `globeview render`, benchmarks).
+
+One frame is one multi-draw call: every resident tile lives in a slot of the shared vertex
+buffer and texture arrays (tile_pool.py); per draw, an instanced attribute carries the tile's
+centre relative to the eye (computed in float64 on the CPU, then rounded to float32: the
+relative-to-centre scheme) and its texture-array layer; a per-frame indirect command buffer
+(count, first index, base vertex, base instance) is built with numpy. No GL object is created
+per frame in steady state.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from importlib import resources
+
+import moderngl
+import numpy as np
+
+from globeview.geodesy import WGS84, ecef_to_lonlat
+from globeview.render.colour_ramp import ramp_texture_data
+from globeview.render.render_set import FrameStats, RenderSet
+from globeview.render.tile_indices import IndexVariant
+from globeview.render.tile_mesh import FLOATS_PER_VERTEX, TileMesh, build_tile_mesh
+from globeview.render.tile_pool import IndexPool, TilePool
+from globeview.render.view_state import ViewState
+from globeview.terrain.quadtree import tile_bounds
+from globeview.terrain.stack import TerrainStack
+
+RAMP_LO_M = -11000.0
+RAMP_HI_M = 9000.0
+SPACE_RGB = (0.02, 0.02, 0.05)
+
+
+@dataclass
+class RenderSettings:
+    """Live display settings (all take effect on the next frame)."""
+
+    exaggeration: float = 1.0
+    wireframe: bool = False
+    hillshade: bool = False
+    fog: bool = True
+    background: tuple[float, float, float] = SPACE_RGB
+    wire_color: tuple[float, float, float] = (0.05, 0.05, 0.05)
+
+
+@dataclass
+class DisplacementHook:
+    """GLSL a tool plugin injects into the terrain vertex shader (see docs/plugins.md).
+
+    ``glsl`` defines ``vec3 gv_displace(vec3 rel, vec3 up, float h, vec3 center_rel)`` that
+    returns the displaced eye-relative position; ``uniforms`` are set every frame.
+    """
+
+    owner: str
+    glsl: str
+    uniforms: dict[str, object] = field(default_factory=dict)
+
+
+def load_shader(name: str) -> str:
+    return resources.files("globeview.render").joinpath("shaders", name).read_text()
+
+
+class GlobeRenderer:
+    """Draws terrain tiles of a `TerrainStack`.
+
+    Args:
+        ctx: the moderngl context (EGL standalone or the Qt widget's).
+        terrain: the composed DEM layers.
+        capacity: tiles resident on the GPU at once (also the max tiles per frame).
+    """
+
+    def __init__(self, ctx: moderngl.Context, terrain: TerrainStack, capacity: int = 768) -> None:
+        self.ctx = ctx
+        self.terrain = terrain
+        self.settings = RenderSettings()
+        self.size = terrain.tile_size
+        self.pool = TilePool(ctx, self.size, capacity)
+        self.indices = IndexPool(ctx, self.size)
+        self.indices.on_realloc = self._build_vao
+        self._terrain_version = terrain.version
+        self._hook: DisplacementHook | None = None
+        self.program = self._compile(None)
+        self.instances = ctx.buffer(reserve=capacity * 7 * 4, dynamic=True)
+        self.commands = ctx.buffer(reserve=capacity * 5 * 4, dynamic=True)
+        # Providers that triangulate each tile themselves (quadtree-clod) write their indices
+        # here every frame; the buffer only grows (rarely), it is never created per frame.
+        self.custom_ibo = ctx.buffer(reserve=1 << 22, dynamic=True)
+        self.custom_commands = ctx.buffer(reserve=capacity * 5 * 4, dynamic=True)
+        ramp = ramp_texture_data(RAMP_LO_M, RAMP_HI_M, 1024)
+        self.ramp = ctx.texture((ramp.shape[1], 1), 3, ramp.tobytes(), dtype="f1")
+        self.ramp.filter = (moderngl.LINEAR, moderngl.LINEAR)
+        self.ramp.repeat_x = False
+        self._build_vao()
+        self.last_view: ViewState | None = None
+
+    # -- shader program and displacement hooks --------------------------------------------
+    def _compile(self, hook: DisplacementHook | None) -> moderngl.Program:
+        vert = load_shader("terrain.vert")
+        if hook is not None:
+            vert = vert.replace("//GV_DISPLACE_DECLS", hook.glsl)
+            vert = vert.replace(
+                "//GV_DISPLACE_CALL", "rel = gv_displace(rel, up, in_h * u_exag, in_center_rel);"
+            )
+        return self.ctx.program(vertex_shader=vert, fragment_shader=load_shader("terrain.frag"))
+
+    def set_displacement_hook(self, hook: DisplacementHook | None) -> None:
+        """Install (or remove, with None) a vertex displacement hook. Raises
+        moderngl.Error if the hook's GLSL does not compile; the previous program stays."""
+        program = self._compile(hook)
+        self.program.release()
+        self.program = program
+        self._hook = hook
+        self._build_vao()
+
+    def _build_vao(self) -> None:
+        content = [
+            (self.pool.vbo, "3f 1f 2f", "in_pos", "in_h", "in_uv"),
+            (self.instances, "3f 3f 1f/i", "in_center_rel", "in_center", "in_layer"),
+        ]
+        # skip_errors: a shader variant may not use every attribute.
+        self.vao = self.ctx.vertex_array(
+            self.program,
+            content,
+            index_buffer=self.indices.buffer,
+            index_element_size=4,
+            skip_errors=True,
+        )
+        self.custom_vao = self.ctx.vertex_array(
+            self.program,
+            content,
+            index_buffer=self.custom_ibo,
+            index_element_size=4,
+            skip_errors=True,
+        )
+
+    def _write_custom_indices(self, idx: np.ndarray) -> None:
+        data = idx.astype(np.uint32).tobytes()
+        if len(data) > self.custom_ibo.size:
+            self.custom_ibo.release()
+            self.custom_ibo = self.ctx.buffer(reserve=2 * len(data), dynamic=True)
+            self._build_vao()
+        self.custom_ibo.write(data)
+
+    # -- tile loading ----------------------------------------------------------------------
+    def build_mesh(self, key: tuple[int, int, int]) -> TileMesh:
+        heights = self.terrain.heights(key)
+        bounds = tile_bounds_tuple(key)
+        meta = self.terrain.metadata(key[0], np.array([key[1]]), np.array([key[2]]))
+        edge_m = math.radians(bounds[2] - bounds[0]) * WGS84.a
+        # Skirts must reach below any neighbour drawn at another level or stride: a few times
+        # this tile's coarsest height error plus a little of its size.
+        skirt = 3.0 * float(np.nanmax(meta.stride_error)) + 0.01 * edge_m + 10.0
+        return build_tile_mesh(bounds, heights, skirt)
+
+    def ensure_resident(self, keys: np.ndarray) -> int:
+        """Upload the tiles of ``keys`` that are not on the GPU yet; returns how many."""
+        if self.terrain.version != self._terrain_version:
+            self.pool.invalidate()
+            self._terrain_version = self.terrain.version
+        return self.pool.load(keys, self.build_mesh)
+
+    # -- drawing -----------------------------------------------------------------------------
+    def draw(
+        self, view: ViewState, render_set: RenderSet, target: moderngl.Framebuffer
+    ) -> FrameStats:
+        """Draw a render set into ``target`` and return the frame's figures."""
+        t0 = time.perf_counter()
+        stats = FrameStats()
+        uploaded = self.ensure_resident(render_set.keys)
+        slots = self.pool.slots_of(render_set.keys)
+        self.pool.touch(slots)
+        n = len(slots)
+
+        table = np.array(
+            [self.indices.get(v) for v in render_set.variants], dtype=np.int64
+        ).reshape(-1, 2)
+        counts = table[render_set.variant_ids, 1] if n else np.empty(0, np.int64)
+        firsts = table[render_set.variant_ids, 0] if n else np.empty(0, np.int64)
+        custom = np.zeros(n, dtype=bool)
+        custom_cmds = None
+        if render_set.custom_indices:
+            rows = np.array(sorted(render_set.custom_indices), dtype=np.int64)
+            custom[rows] = True
+            chunks = [np.asarray(render_set.custom_indices[int(r)], np.uint32) for r in rows]
+            lengths = np.array([len(c) for c in chunks], dtype=np.int64)
+            starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+            self._write_custom_indices(np.concatenate(chunks))
+            counts = counts.copy()
+            counts[rows] = lengths
+            custom_cmds = (rows, starts)
+
+        verts = self.pool.verts_per_tile
+        base_inst = np.arange(n)
+        cmds = np.stack(
+            [counts, np.ones(n, np.int64), firsts, slots * verts, base_inst], axis=1
+        ).astype(np.uint32)
+        centers = self.pool.centers[slots]
+        inst = np.concatenate(
+            [(centers - view.eye), centers, slots[:, None].astype(np.float64)], axis=1
+        ).astype(np.float32)
+        n_var = int(np.count_nonzero(~custom))
+        if n:
+            self.instances.write(inst.tobytes())
+            self.commands.write(cmds[~custom].tobytes())
+        if custom_cmds is not None:
+            rows, starts = custom_cmds
+            ccmds = cmds[rows].copy()
+            ccmds[:, 2] = starts
+            self.custom_commands.write(ccmds.tobytes())
+
+        self._set_uniforms(view)
+        target.use()
+        bg = self.settings.background
+        target.clear(bg[0], bg[1], bg[2], 1.0, depth=1.0)
+        self.ctx.enable(moderngl.DEPTH_TEST)
+        self.ctx.disable(moderngl.CULL_FACE)
+        self.ctx.depth_func = "<"
+        self.pool.height_tex.use(0)
+        self.pool.normal_tex.use(1)
+        self.ramp.use(2)
+        passes = [0, 1] if self.settings.wireframe else [0]
+        for mode in passes:
+            if "u_mode" in self.program:
+                self.program["u_mode"].value = mode
+            if "u_depth_bias" in self.program:
+                self.program["u_depth_bias"].value = 2e-6 if mode == 1 else 0.0
+            self.ctx.wireframe = mode == 1
+            self.ctx.depth_func = "<=" if mode == 1 else "<"
+            if n_var:
+                self.vao.render_indirect(self.commands, moderngl.TRIANGLES, count=n_var)
+            if custom_cmds is not None:
+                self.custom_vao.render_indirect(
+                    self.custom_commands, moderngl.TRIANGLES, count=len(custom_cmds[0])
+                )
+        self.ctx.wireframe = False
+        self.ctx.depth_func = "<"
+        self.ctx.finish()
+        t1 = time.perf_counter()
+
+        stats.triangles = int(counts.sum() // 3)
+        stats.tiles_drawn = n
+        stats.tiles_uploaded = uploaded
+        stats.draw_ms = (t1 - t0) * 1e3
+        stats.lod_ms = float(render_set.stats.get("lod_ms", 0.0))
+        stats.frame_ms = stats.draw_ms + stats.lod_ms
+        stats.tiles_culled_frustum = int(render_set.stats.get("tiles_culled_frustum", 0))
+        stats.tiles_culled_horizon = int(render_set.stats.get("tiles_culled_horizon", 0))
+        if render_set.error_px is not None and len(render_set.error_px):
+            stats.max_sse_px = float(np.max(render_set.error_px))
+        self.last_view = view
+        return stats
+
+    def _set_uniforms(self, view: ViewState) -> None:
+        s = self.settings
+        uni: dict[str, object] = {}
+        uni["u_rot"] = view.rotation.T.astype("f4").tobytes()
+        uni["u_proj"] = view.proj.T.astype("f4").tobytes()
+        uni["u_exag"] = float(s.exaggeration)
+        uni["u_inv_axes2"] = (1.0 / WGS84.a**2, 1.0 / WGS84.a**2, 1.0 / WGS84.b**2)
+        uni["u_heights"] = 0
+        uni["u_normals"] = 1
+        uni["u_ramp"] = 2
+        uni["u_ramp_lo"] = RAMP_LO_M
+        uni["u_ramp_hi"] = RAMP_HI_M
+        # A light from behind the viewer's upper left keeps the visible side lit and relief
+        # readable at every scale.
+        right, up, back = view.rotation
+        light = 0.55 * back + 0.6 * up - 0.55 * right
+        light = light / np.linalg.norm(light)
+        uni["u_light"] = tuple(float(v) for v in light)
+        uni["u_hillshade"] = bool(s.hillshade)
+        uni["u_log_far"] = 1.0 / math.log2(1.0 + view.far)
+        h = max(float(ecef_to_lonlat(view.eye)[2]), 1.0)
+        horizon = math.sqrt(h * (2 * WGS84.a + h))
+        uni["u_fog_start"] = 0.6 * horizon if s.fog else 1e30
+        uni["u_fog_end"] = 1.6 * horizon if s.fog else 2e30
+        uni["u_fog_color"] = (0.70, 0.78, 0.90)
+        uni["u_wire_color"] = tuple(s.wire_color)
+        if self._hook is not None:
+            uni.update(self._hook.uniforms)
+        p = self.program
+        for name, value in uni.items():
+            # The GLSL compiler drops uniforms a shader variant does not use.
+            if name in p:
+                if isinstance(value, bytes):
+                    p[name].write(value)
+                else:
+                    p[name].value = value
+
+    def release(self) -> None:
+        for obj in (
+            self.vao,
+            self.custom_vao,
+            self.program,
+            self.instances,
+            self.commands,
+            self.custom_ibo,
+            self.custom_commands,
+            self.ramp,
+        ):
+            obj.release()
+
+
+def tile_bounds_tuple(key: tuple[int, int, int]) -> tuple[float, float, float, float]:
+    from globeview.terrain.quadtree import TileKey
+
+    return tuple(float(v) for v in tile_bounds(TileKey(*key)))  # type: ignore[return-value]
+
+
+__all__ = [
+    "FLOATS_PER_VERTEX",
+    "DisplacementHook",
+    "GlobeRenderer",
+    "IndexVariant",
+    "RenderSettings",
+]

@@ -1,0 +1,80 @@
+"""`GlobeScene`: camera + terrain + display settings + renderer, rendering into any
+framebuffer. The CLI's headless renders and the Qt window drive the same scene."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import moderngl
+
+from globeview.render.camera import Camera
+from globeview.render.chunked_lod import select_tiles
+from globeview.render.picking import Pick, pick
+from globeview.render.render_set import FrameStats, RenderSet
+from globeview.render.renderer import GlobeRenderer
+from globeview.render.view_state import ViewState
+from globeview.terrain.stack import TerrainStack
+
+LodFunction = Callable[[ViewState, TerrainStack], RenderSet]
+
+
+@dataclass
+class FrameResult:
+    view: ViewState
+    render_set: RenderSet
+    stats: FrameStats
+
+
+class GlobeScene:
+    """One globe view: render it with ``render(fbo, viewport)``, pick with ``pick(x, y)``.
+
+    ``lod`` is the function choosing the render set (an LOD provider's ``select``); tau_px is
+    the screen-space error threshold in pixels; speed_mps the navigation speed.
+    """
+
+    def __init__(
+        self,
+        ctx: moderngl.Context,
+        terrain: TerrainStack,
+        camera: Camera | None = None,
+        lod: LodFunction = select_tiles,
+    ) -> None:
+        self.ctx = ctx
+        self.terrain = terrain
+        self.camera = camera or Camera.from_lonlat(0.0, 20.0, 2.0e7)
+        self.renderer = GlobeRenderer(ctx, terrain)
+        self.lod: LodFunction = lod
+        self.lod_name = "chunked-sse"
+        self.tau_px = 2.0
+        self.speed_mps = 0.0
+        self.last: FrameResult | None = None
+        self._last_fbo: moderngl.Framebuffer | None = None
+
+    @property
+    def settings(self):
+        return self.renderer.settings
+
+    def view_state(self, viewport: tuple[int, int]) -> ViewState:
+        return ViewState.from_camera(
+            self.camera,
+            viewport,
+            tau_px=self.tau_px,
+            exaggeration=self.renderer.settings.exaggeration,
+            speed_mps=self.speed_mps,
+        )
+
+    def render(self, fbo: moderngl.Framebuffer, viewport: tuple[int, int]) -> FrameResult:
+        view = self.view_state(viewport)
+        rs = self.lod(view, self.terrain)
+        stats = self.renderer.draw(view, rs, fbo)
+        stats.lod_provider = self.lod_name
+        self.last = FrameResult(view, rs, stats)
+        self._last_fbo = fbo
+        return self.last
+
+    def pick(self, x_px: float, y_px: float) -> Pick | None:
+        """The terrain point under a pixel of the last rendered frame."""
+        if self.last is None or self._last_fbo is None:
+            return None
+        return pick(self.last.view, self._last_fbo, x_px, y_px)

@@ -1,0 +1,63 @@
+#version 330
+// Shading: hypsometric colour ramp with a separate bathymetry ramp, directional light or a
+// hillshade, fog toward the horizon, and an optional wireframe overlay.
+//
+// Depth is logarithmic: depth = log2(1 + w) / log2(1 + far) for view depth w (terrain.vert).
+// Relative precision is then the same at every distance (about w * ln(far) / 2^24 with a
+// 24-bit buffer: ~1 mm at 100 m, ~20 m at 40 000 km), which one perspective depth range cannot
+// give from 100 m to 40 000 km. We chose it over reversed-Z because reversed-Z needs a float
+// depth buffer and glClipControl, and neither moderngl's depth textures nor Qt's default
+// framebuffer offer a float depth format. It is computed per vertex, not written per
+// fragment: on llvmpipe a gl_FragDepth write costs a third of the frame (it disables early
+// depth tests); between vertices the depth is interpolated linearly in screen space, which
+// is exact at vertices and off by well under a percent of w inside the small triangles the
+// LOD keeps. Picking inverts the mapping (picking.py).
+
+uniform sampler2DArray u_heights;
+uniform sampler2DArray u_normals;
+uniform sampler2D u_ramp;        // colour by height: u in [0, 1] over [u_ramp_lo, u_ramp_hi]
+uniform float u_ramp_lo;
+uniform float u_ramp_hi;
+uniform float u_exag;
+uniform vec3 u_light;            // ECEF unit vector toward the light
+uniform bool u_hillshade;        // light from the north-west, 45 degrees up, in each local frame
+uniform float u_fog_start;       // metres
+uniform float u_fog_end;         // metres
+uniform vec3 u_fog_color;
+uniform int u_mode;              // 0 = shaded, 1 = wireframe overlay
+uniform vec3 u_wire_color;
+
+in vec2 v_uv;
+flat in float v_layer;
+in vec3 v_up;
+in vec3 v_rel;
+
+out vec4 f_color;
+
+void main() {
+    if (u_mode == 1) {
+        f_color = vec4(u_wire_color, 1.0);
+        return;
+    }
+    float h = texture(u_heights, vec3(v_uv, v_layer)).r;
+    vec3 n = texture(u_normals, vec3(v_uv, v_layer)).xyz;
+    vec3 up = normalize(v_up);
+    // Exaggeration scales slopes: tilt the stored (true-relief) normal accordingly.
+    float nu = dot(n, up);
+    n = normalize(u_exag * (n - nu * up) + nu * up);
+
+    vec3 albedo = texture(u_ramp, vec2(clamp((h - u_ramp_lo) / (u_ramp_hi - u_ramp_lo), 0.0, 1.0), 0.5)).rgb;
+
+    vec3 light = u_light;
+    if (u_hillshade) {
+        vec3 east = normalize(cross(vec3(0.0, 0.0, 1.0), up) + vec3(1e-9, 0.0, 0.0));
+        vec3 north = cross(up, east);
+        light = normalize(0.5 * (-east + north) + 0.7071 * up);
+    }
+    float diffuse = max(dot(n, light), 0.0);
+    vec3 color = albedo * (0.35 + 0.75 * diffuse);
+
+    float dist = length(v_rel);
+    float fog = smoothstep(u_fog_start, u_fog_end, dist);
+    f_color = vec4(mix(color, u_fog_color, fog * 0.6), 1.0);
+}

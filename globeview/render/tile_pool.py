@@ -1,0 +1,161 @@
+"""GPU residency of terrain tiles: one vertex buffer and texture arrays with a slot per tile.
+
+All GL objects are created once (capacity fixed at construction); loading a tile writes its
+slot, so the steady-state frame creates no GL object. Lookups of many keys at once are
+vectorised (tile keys are packed into int64 codes kept in a sorted array).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import moderngl
+import numpy as np
+
+from globeview.render.tile_indices import IndexVariant, grid_indices
+from globeview.render.tile_mesh import FLOATS_PER_VERTEX, TileMesh, vertices_per_tile
+
+KeyArray = np.ndarray  # (N, 3) int64: level, x, y
+
+
+def key_codes(keys: np.ndarray) -> np.ndarray:
+    """Pack (level, x, y) rows into sortable int64 codes (level < 32, x, y < 2^29)."""
+    k = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
+    return (k[:, 0] << 58) | (k[:, 2] << 29) | k[:, 1]
+
+
+class IndexPool:
+    """One element buffer holding every index variant used so far; variants are appended
+    on first use (the buffer grows by doubling, which is rare and not per frame)."""
+
+    def __init__(self, ctx: moderngl.Context, size: int, initial_bytes: int = 1 << 22) -> None:
+        self.ctx = ctx
+        self.size = size
+        self.buffer = ctx.buffer(reserve=initial_bytes, dynamic=True)
+        self._used = 0  # indices written
+        self._variants: dict[IndexVariant, tuple[int, int]] = {}
+        self._custom_first = None
+        self.on_realloc: Callable[[], None] | None = None
+
+    def get(self, variant: IndexVariant) -> tuple[int, int]:
+        """(first index, index count) of a variant in the buffer."""
+        hit = self._variants.get(variant)
+        if hit is not None:
+            return hit
+        idx = grid_indices(self.size, variant)
+        first = self._append(idx)
+        self._variants[variant] = (first, len(idx))
+        return first, len(idx)
+
+    def _append(self, idx: np.ndarray) -> int:
+        need = (self._used + len(idx)) * 4
+        if need > self.buffer.size:
+            old = self.buffer.read(size=self._used * 4)
+            self.buffer.release()
+            self.buffer = self.ctx.buffer(reserve=max(need * 2, 1 << 22), dynamic=True)
+            self.buffer.write(old)
+            if self.on_realloc is not None:
+                self.on_realloc()
+        first = self._used
+        self.buffer.write(idx.astype(np.uint32).tobytes(), offset=first * 4)
+        self._used += len(idx)
+        return first
+
+
+class TilePool:
+    """Slots for resident tiles: vertices in one buffer, heights and normals in texture arrays.
+
+    Args:
+        ctx: the moderngl context.
+        size: nodes per tile side (2^n + 1).
+        capacity: number of slots (tiles resident at once).
+    """
+
+    def __init__(self, ctx: moderngl.Context, size: int, capacity: int = 768) -> None:
+        self.ctx = ctx
+        self.size = size
+        self.capacity = capacity
+        self.verts_per_tile = vertices_per_tile(size)
+        self.vbo = ctx.buffer(reserve=capacity * self.verts_per_tile * FLOATS_PER_VERTEX * 4)
+        self.height_tex = ctx.texture_array((size, size, capacity), 1, dtype="f4")
+        self.normal_tex = ctx.texture_array((size, size, capacity), 4, dtype="f2")
+        for tex in (self.height_tex, self.normal_tex):
+            tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            tex.repeat_x = False
+            tex.repeat_y = False
+        # Per-slot state (numpy, so frame lookups vectorise).
+        self.codes = np.full(capacity, -1, dtype=np.int64)
+        self.centers = np.zeros((capacity, 3), dtype=np.float64)
+        self.last_used = np.zeros(capacity, dtype=np.int64)
+        self.generation = np.zeros(capacity, dtype=np.int64)
+        self._sorted_codes = np.empty(0, dtype=np.int64)
+        self._sorted_slots = np.empty(0, dtype=np.int64)
+        self._frame = 0
+
+    # -- lookups -----------------------------------------------------------------------------
+    def slots_of(self, keys: KeyArray) -> np.ndarray:
+        """Slot of each key, or -1 where not resident."""
+        codes = key_codes(keys)
+        if len(self._sorted_codes) == 0:
+            return np.full(len(codes), -1, dtype=np.int64)
+        pos = np.searchsorted(self._sorted_codes, codes)
+        pos = np.minimum(pos, len(self._sorted_codes) - 1)
+        found = self._sorted_codes[pos] == codes
+        return np.where(found, self._sorted_slots[pos], -1)
+
+    def touch(self, slots: np.ndarray) -> None:
+        self._frame += 1
+        self.last_used[slots[slots >= 0]] = self._frame
+
+    @property
+    def resident_count(self) -> int:
+        return int(np.count_nonzero(self.codes >= 0))
+
+    # -- loading -----------------------------------------------------------------------------
+    def load(self, keys: KeyArray, build: Callable[[tuple[int, int, int]], TileMesh]) -> int:
+        """Make the given keys resident, building meshes with ``build(key)``; returns how many
+        tiles were uploaded. Evicts least-recently-used slots not among ``keys``."""
+        keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
+        missing = keys[self.slots_of(keys) < 0]
+        if len(missing) == 0:
+            return 0
+        missing = np.unique(missing, axis=0)
+        protected = np.zeros(self.capacity, dtype=bool)
+        have = self.slots_of(keys)
+        protected[have[have >= 0]] = True
+        order = np.argsort(np.where(self.codes < 0, -1, self.last_used), kind="stable")
+        free = order[~protected[order]]
+        if len(missing) > len(free):
+            raise RuntimeError(
+                f"tile pool too small: {len(missing)} tiles to load, {len(free)} slots free"
+            )
+        for key, slot in zip(missing, free[: len(missing)], strict=False):
+            self._upload(int(slot), build((int(key[0]), int(key[1]), int(key[2]))))
+            self.codes[slot] = key_codes(key[None, :])[0]
+            self.last_used[slot] = self._frame
+        self._reindex()
+        return len(missing)
+
+    def invalidate(self) -> None:
+        """Forget every resident tile (e.g. after a layer was hidden or removed)."""
+        self.codes[:] = -1
+        self._reindex()
+
+    def _reindex(self) -> None:
+        live = np.nonzero(self.codes >= 0)[0]
+        order = np.argsort(self.codes[live])
+        self._sorted_codes = self.codes[live][order]
+        self._sorted_slots = live[order]
+
+    def _upload(self, slot: int, mesh: TileMesh) -> None:
+        stride = self.verts_per_tile * FLOATS_PER_VERTEX * 4
+        self.vbo.write(mesh.vertices.tobytes(), offset=slot * stride)
+        s = self.size
+        self.height_tex.write(
+            np.ascontiguousarray(mesh.heights, dtype=np.float32).tobytes(),
+            viewport=(0, 0, slot, s, s, 1),
+        )
+        nrm = np.concatenate([mesh.normals, np.zeros((s, s, 1), np.float32)], axis=2)
+        self.normal_tex.write(nrm.astype(np.float16).tobytes(), viewport=(0, 0, slot, s, s, 1))
+        self.centers[slot] = mesh.center
+        self.generation[slot] += 1

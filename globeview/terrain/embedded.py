@@ -1,0 +1,39 @@
+"""The embedded default terrain: the DEMs shipped in data/, each ingested once into a tile
+store in the user's cache directory (re-ingesting an unchanged source is a no-op)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from globeview.terrain.dem import embedded_dem_paths
+from globeview.terrain.store import TileStore
+
+
+def cache_dir() -> Path:
+    """``$GLOBEVIEW_CACHE_DIR``, else ``$XDG_CACHE_HOME/globeview``, else ``~/.cache/globeview``."""
+    env = os.environ.get("GLOBEVIEW_CACHE_DIR")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "globeview"
+
+
+def store_path_for(source: Path) -> Path:
+    """Where the store of an ingested DEM lives in the cache."""
+    return cache_dir() / "stores" / source.stem
+
+
+def open_or_ingest(source: Path, progress: bool = False) -> TileStore:
+    """Open the cached store of ``source``, ingesting it first if it is missing or stale."""
+    from globeview.terrain.ingest import ingest
+
+    out = store_path_for(source)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    ingest([source], out, progress=progress)
+    return TileStore.open(out)
+
+
+def embedded_stores(progress: bool = False) -> list[TileStore]:
+    """Stores of the embedded DEMs: the global base first, then the regional samples."""
+    return [open_or_ingest(p, progress=progress) for p in embedded_dem_paths()]
