@@ -19,6 +19,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "info": ("info", "describe DEM rasters (bounds, resolution, nodata, value range)"),
     "ingest": ("ingest", "build a tile-pyramid store from one or more DEMs"),
     "render": ("render", "render the globe headless to a PNG (EGL, no display needed)"),
+    "plugins": ("plugins", "list, validate, enable and disable plugins"),
 }
 
 

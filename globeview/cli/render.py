@@ -30,6 +30,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--background", help="R,G,B background colour in 0..1")
     parser.add_argument("--stats", help="write the frame's figures as JSON to this file")
     parser.add_argument("--crs", help="CRS for DEM sources that lack one (e.g. EPSG:32610)")
+    parser.add_argument(
+        "--lod", default="chunked-sse", help="LOD provider plugin (see `globeview plugins list`)"
+    )
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -94,9 +97,9 @@ def run(args: argparse.Namespace) -> int:
 
     from PIL import Image
 
+    from globeview.plugins.session import GlobeSession
     from globeview.render.camera import Camera, camera_for_bounds
     from globeview.render.offscreen import OffscreenTarget, create_headless_context
-    from globeview.render.scene import GlobeScene
     from globeview.terrain.stack import TerrainStack
 
     size = parse_size(args.size)
@@ -112,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
 
     ctx = create_headless_context()
     target = OffscreenTarget(ctx, size)
-    scene = GlobeScene(ctx, terrain, camera)
+    scene = GlobeSession(ctx, terrain, camera, lod=args.lod)
     scene.tau_px = args.tau
     s = scene.settings
     s.exaggeration = args.exaggeration

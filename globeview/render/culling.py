@@ -89,9 +89,7 @@ def horizon_visible(
     anywhere on the ellipsoid, so the test never hides a visible tile. (Testing a few sample
     points of a tile, Cesium-style, fails for big tiles whose interior holds the nadir.)
     """
-    from globeview.geodesy import ecef_to_lonlat
-
-    lon0, lat0, h0 = (float(v) for v in ecef_to_lonlat(view.eye))
+    lon0, lat0, h0 = view.eye_lonlat_h
     r = WGS84.b
     if h0 <= 0.0:
         return np.ones(len(west), dtype=bool)

@@ -173,6 +173,8 @@ class GlobeRenderer:
         stats = FrameStats()
         uploaded = self.ensure_resident(render_set.keys)
         slots = self.pool.slots_of(render_set.keys)
+        # Draw near tiles first so the depth test rejects hidden fragments early.
+        order = np.argsort(np.linalg.norm(self.pool.centers[slots] - view.eye, axis=1))
         self.pool.touch(slots)
         n = len(slots)
 
@@ -199,6 +201,8 @@ class GlobeRenderer:
         cmds = np.stack(
             [counts, np.ones(n, np.int64), firsts, slots * verts, base_inst], axis=1
         ).astype(np.uint32)
+        cmds_sorted = cmds[order]
+        custom_sorted = custom[order]
         centers = self.pool.centers[slots]
         inst = np.concatenate(
             [(centers - view.eye), centers, slots[:, None].astype(np.float64)], axis=1
@@ -206,7 +210,7 @@ class GlobeRenderer:
         n_var = int(np.count_nonzero(~custom))
         if n:
             self.instances.write(inst.tobytes())
-            self.commands.write(cmds[~custom].tobytes())
+            self.commands.write(cmds_sorted[~custom_sorted].tobytes())
         if custom_cmds is not None:
             rows, starts = custom_cmds
             ccmds = cmds[rows].copy()

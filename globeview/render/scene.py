@@ -9,7 +9,6 @@ from dataclasses import dataclass
 import moderngl
 
 from globeview.render.camera import Camera
-from globeview.render.chunked_lod import select_tiles
 from globeview.render.picking import Pick, pick
 from globeview.render.render_set import FrameStats, RenderSet
 from globeview.render.renderer import GlobeRenderer
@@ -29,23 +28,24 @@ class FrameResult:
 class GlobeScene:
     """One globe view: render it with ``render(fbo, viewport)``, pick with ``pick(x, y)``.
 
-    ``lod`` is the function choosing the render set (an LOD provider's ``select``); tau_px is
-    the screen-space error threshold in pixels; speed_mps the navigation speed.
+    ``lod`` is the function choosing the render set (an LOD provider's ``select``; the
+    plugin layer's `GlobeSession` supplies the active provider); tau_px is the screen-space
+    error threshold in pixels; speed_mps the navigation speed (m/s).
     """
 
     def __init__(
         self,
         ctx: moderngl.Context,
         terrain: TerrainStack,
+        lod: LodFunction,
         camera: Camera | None = None,
-        lod: LodFunction = select_tiles,
     ) -> None:
         self.ctx = ctx
         self.terrain = terrain
         self.camera = camera or Camera.from_lonlat(0.0, 20.0, 2.0e7)
         self.renderer = GlobeRenderer(ctx, terrain)
         self.lod: LodFunction = lod
-        self.lod_name = "chunked-sse"
+        self.lod_name = getattr(lod, "__qualname__", "lod")
         self.tau_px = 2.0
         self.speed_mps = 0.0
         self.last: FrameResult | None = None

@@ -86,6 +86,14 @@ class ViewState:
         return self.viewport[1] / (2.0 * math.tan(math.radians(self.fovy_deg) / 2.0))
 
     @cached_property
+    def eye_lonlat_h(self) -> tuple[float, float, float]:
+        """The eye's geodetic longitude, latitude (degrees) and height (m)."""
+        from globeview.geodesy import ecef_to_lonlat
+
+        lon, lat, h = ecef_to_lonlat(self.eye)
+        return float(lon), float(lat), float(h)
+
+    @cached_property
     def view(self) -> np.ndarray:
         """World (ECEF) -> camera 4x4 matrix with the translation, float64."""
         m = np.eye(4)

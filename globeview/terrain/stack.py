@@ -68,6 +68,7 @@ class TerrainStack:
         self._lock = threading.Lock()
         self._cache: dict[tuple[int, int, int], np.ndarray] = {}
         self._order: list[tuple[int, int, int]] = []
+        self._tables: dict[tuple[int, int], tuple] = {}
         self._check_sizes()
 
     # -- layer management --------------------------------------------------------------------
@@ -140,38 +141,53 @@ class TerrainStack:
         for layer in self.visible_layers:
             st = layer.store
             lm = st.max_level
-            if level <= lm:
-                ok = st.has_data(level, x, y)
-                if not ok.any():
-                    continue
-                e = np.nan_to_num(st.tile_stride_error(level, x, y), nan=0.0)
-                lo, hi = st.tile_hrange(level, x, y)
+            la = min(level, lm)
+            f = level - la
+            grid, table = self._layer_table(st, la)
+            iy, ix, inside = grid.tile_slots(y >> f, x >> f)
+            rows = table[iy, ix]
+            ok = inside & (rows[:, 0] > 0)
+            if not ok.any():
+                continue
+            if f == 0:
+                e = rows[:, 3:]
                 if level < lm:
                     has_finer |= ok
             else:
-                # Finer than the layer's data: its finest ancestor, upsampled. Height error
-                # of stride s here is that of stride s / f on the ancestor (f = 2^(level-lm)),
-                # and zero below one ancestor cell.
-                f = level - lm
-                ax, ay = x >> f, y >> f
-                ok = st.has_data(lm, ax, ay)
-                if not ok.any():
-                    continue
-                anc = np.nan_to_num(st.tile_stride_error(lm, ax, ay), nan=0.0)
+                # Finer than the layer's data: its finest ancestor, upsampled. The height
+                # error of stride s here is that of stride s / 2^f on the ancestor, and zero
+                # below one ancestor cell.
                 e = np.zeros((n, N_STRIDES))
-                for k in range(N_STRIDES):
-                    j = k - f
-                    if j >= 0:
-                        e[:, k] = anc[:, j]
-                lo, hi = st.tile_hrange(lm, ax, ay)
+                if f < N_STRIDES:
+                    e[:, f:] = rows[:, 3 : 3 + N_STRIDES - f]
             covered |= ok
             err = np.where(ok[:, None], np.maximum(err, e), err)
-            hmin = np.where(ok, np.minimum(hmin, np.nan_to_num(lo, nan=0.0)), hmin)
-            hmax = np.where(ok, np.maximum(hmax, np.nan_to_num(hi, nan=0.0)), hmax)
+            hmin = np.where(ok, np.minimum(hmin, rows[:, 1]), hmin)
+            hmax = np.where(ok, np.maximum(hmax, rows[:, 2]), hmax)
         # Where a layer covers only part of the tile, the rest is the ellipsoid (height 0).
         hmin = np.where(covered, np.minimum(hmin, 0.0), 0.0)
         hmax = np.where(covered, np.maximum(hmax, 0.0), 0.0)
         return TileMetadata(err, hmin, hmax, has_finer, covered)
+
+    def _layer_table(self, st: TileStore, level: int):
+        """A layer's per-tile facts at a level as one dense (ny, nx, 3 + N_STRIDES) table:
+        [has data, hmin, hmax, stride errors...] (built once, then looked up per frame)."""
+        key = (id(st), level)
+        hit = self._tables.get(key)
+        if hit is not None:
+            return hit
+        grid = st.level_grid(level)
+        ys, xs = np.mgrid[grid.y0 : grid.y0 + grid.ny, grid.x0 : grid.x0 + grid.nx]
+        xs = xs % grid.ncols
+        valid = st.has_data(level, xs, ys)
+        lo, hi = st.tile_hrange(level, xs, ys)
+        errs = st.tile_stride_error(level, xs, ys)
+        table = np.concatenate(
+            [valid[..., None], lo[..., None], hi[..., None], errs], axis=-1
+        ).astype(np.float64)
+        table = np.nan_to_num(table, nan=0.0)
+        self._tables[key] = (grid, table)
+        return grid, table
 
     # -- heights -------------------------------------------------------------------------------
     def heights(self, key: tuple[int, int, int]) -> np.ndarray:

@@ -1,4 +1,6 @@
-"""Chunked screen-space-error LOD selection (TREND §4.2 / Cesium style), vectorised.
+"""`chunked-sse`: the default LOD provider, chunked screen-space-error selection (TREND §4.2 /
+Cesium style), vectorised. This is the renderer's original selection moved, unchanged, behind
+the plugin interface (`LodProvider`).
 
 The quadtree is walked level by level with numpy over all candidate tiles at once:
 
@@ -25,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from globeview.plugins.api import LodProvider, Setting
 from globeview.render.culling import (
     bounding_distance,
     chord_sag,
@@ -153,3 +156,33 @@ def select_tiles(
         }
     )
     return rs
+
+
+class ChunkedSseProvider(LodProvider):
+    """The built-in default LOD provider (see the module docstring)."""
+
+    name = "chunked-sse"
+    label = "Chunked (screen-space error)"
+    settings = (
+        Setting(
+            "texel_px",
+            "float",
+            1.5,
+            min=0.5,
+            max=8.0,
+            label="texel size (pixels)",
+            help="refine while a texel of the tile textures covers more pixels",
+        ),
+        Setting("max_tiles", "int", 600, min=16, max=2000, label="tile budget"),
+    )
+
+    def select(self, view: ViewState, terrain: TerrainStack) -> RenderSet:
+        if terrain is None or not terrain.layers:
+            return RenderSet.empty()
+        v = self.values
+        return select_tiles(
+            view,
+            terrain,
+            # tau comes with the view (ViewState.tau_px): one threshold for every provider.
+            ChunkedSettings(texel_px=v["texel_px"], max_tiles=v["max_tiles"]),
+        )

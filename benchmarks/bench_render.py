@@ -1,0 +1,106 @@
+"""Render benchmark: triangles, frame_ms and lod_ms for fixed views over the embedded data.
+
+Prints a Markdown table (and writes it with --out). Figures depend on the machine: the
+header says which. Performance targets live here, never in timed tests.
+
+    .venv/bin/python benchmarks/bench_render.py [--frames 15] [--size 1280x720] [--lod NAME]
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import statistics
+import time
+from pathlib import Path
+
+from globeview.plugins.session import GlobeSession
+from globeview.render.camera import Camera
+from globeview.render.offscreen import OffscreenTarget, create_headless_context
+from globeview.terrain.embedded import embedded_stores
+from globeview.terrain.stack import TerrainStack
+
+# name -> (lon, lat, height m, heading, pitch)
+VIEWS = {
+    "global": (0.0, 20.0, 2.0e7, 0.0, -90.0),
+    "regional oblique (Alps, 300 km)": (8.0, 44.0, 3.0e5, 20.0, -35.0),
+    "low-altitude oblique (White Mountains, 9 km)": (-71.3, 44.15, 9.0e3, 0.0, -30.0),
+    "low-altitude oblique (Crater Lake, 6 km)": (-122.1, 42.85, 6.0e3, 200.0, -25.0),
+}
+TARGET_MS = 50.0
+
+
+def run_view(scene: GlobeSession, target, size, cam: tuple, frames: int) -> dict:
+    lon, lat, h, heading, pitch = cam
+    scene.camera = Camera.from_lonlat(lon, lat, h, heading, pitch)
+    scene.render(target.fbo, size)  # uploads tiles
+    frame_ms, lod_ms, tris, tiles, sse = [], [], [], [], []
+    for i in range(frames):
+        # A tiny camera move per frame so every frame really selects and draws.
+        scene.camera.fly_yaw(0.01 * (-1) ** i)
+        t0 = time.perf_counter()
+        r = scene.render(target.fbo, size)
+        frame_ms.append((time.perf_counter() - t0) * 1e3)
+        lod_ms.append(r.stats.lod_ms)
+        tris.append(r.stats.triangles)
+        tiles.append(r.stats.tiles_drawn)
+        sse.append(r.stats.max_sse_px)
+    return {
+        "frame_ms": statistics.median(frame_ms),
+        "lod_ms": statistics.median(lod_ms),
+        "triangles": int(statistics.median(tris)),
+        "tiles": int(statistics.median(tiles)),
+        "max_sse_px": max(sse),
+    }
+
+
+def machine() -> str:
+    import moderngl
+
+    ctx = create_headless_context()
+    renderer = ctx.info["GL_RENDERER"]
+    ctx.release()
+    del moderngl
+    return f"{platform.node()} ({platform.processor() or platform.machine()}), {renderer}"
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--frames", type=int, default=15)
+    ap.add_argument("--size", default="1280x720")
+    ap.add_argument("--tau", type=float, default=2.0)
+    ap.add_argument("--lod", default="chunked-sse", help="LOD provider plugin")
+    ap.add_argument("--out", help="also write the Markdown table to this file")
+    args = ap.parse_args()
+    size = tuple(int(v) for v in args.size.split("x"))
+
+    terrain = TerrainStack.from_stores(embedded_stores())
+    ctx = create_headless_context()
+    target = OffscreenTarget(ctx, size)
+    scene = GlobeSession(ctx, terrain, lod=args.lod)
+    scene.tau_px = args.tau
+    lines = [
+        f"Render benchmark, LOD provider {args.lod}, {size[0]}x{size[1]}, tau = {args.tau} px, "
+        f"{args.frames} frames per view, {time.strftime('%Y-%m-%d')}, {ctx.info['GL_RENDERER']}, "
+        f"{platform.machine()} ({len(__import__('os').sched_getaffinity(0))} cores)",
+        "",
+        "| view | triangles | tiles | frame_ms (median) | lod_ms (median) | max SSE px | "
+        f"<= {TARGET_MS:.0f} ms |",
+        "|---|---:|---:|---:|---:|---:|---|",
+    ]
+    for name, cam in VIEWS.items():
+        r = run_view(scene, target, size, cam, args.frames)
+        ok = "yes" if r["frame_ms"] <= TARGET_MS else "no"
+        lines.append(
+            f"| {name} | {r['triangles']} | {r['tiles']} | {r['frame_ms']:.1f} | "
+            f"{r['lod_ms']:.2f} | {r['max_sse_px']:.2f} | {ok} |"
+        )
+    text = "\n".join(lines)
+    print(text)
+    if args.out:
+        Path(args.out).write_text(text + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,229 @@
+"""Plugin manifests: the static TOML file that describes a plugin without running its code.
+
+Format (all keys at the top level, plus one ``[[contributions]]`` table per contribution)::
+
+    name = "fixed-level"                 # lower-case letters, digits, '-', '_', '.'
+    version = "0.1.0"
+    description = "Draws every visible tile at one fixed quadtree level."
+    kinds = ["lod", "tool"]              # among 'lod', 'tool', 'layer'
+    api_version = "1.0"                  # the globeview plugin API it targets
+
+    [[contributions]]
+    name = "fixed-level"                 # unique within the plugin
+    kind = "lod"                         # one of the plugin's kinds
+    target = "globeview_fixedlevel.provider:FixedLevelProvider"
+    label = "Fixed level"                # optional, for menus
+
+An entry point in group ``globeview.plugins`` points at the manifest as
+``"package.path:file.toml"``: the manifest is the file ``file.toml`` inside the package's
+directory. It is located with `importlib.util.find_spec` on the top-level package (which finds
+a module without executing it) and the remaining path segments as directories, so reading
+manifests never imports a plugin.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from globeview.errors import GlobeviewError
+from globeview.plugins.api import API_VERSION, PluginKind
+
+__all__ = [
+    "Contribution",
+    "Manifest",
+    "ManifestError",
+    "check_api_version",
+    "locate_manifest",
+    "parse_manifest",
+    "read_manifest",
+]
+
+_NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]*$")
+_DOTTED = r"[A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*"
+_TARGET_RE = re.compile(rf"^{_DOTTED}:{_DOTTED}$")
+_RESOURCE_RE = re.compile(rf"^({_DOTTED}):([\w.-]+\.toml)$")
+_VERSION_RE = re.compile(r"^(\d+)\.(\d+)$")
+_KINDS = tuple(k.value for k in PluginKind)
+
+
+class ManifestError(GlobeviewError):
+    """A plugin manifest is missing, unreadable or invalid (one-line message)."""
+
+
+@dataclass(frozen=True)
+class Contribution:
+    """One thing a plugin adds: ``target`` is ``"module:attribute"`` of its factory."""
+
+    name: str
+    kind: PluginKind
+    target: str
+    label: str = ""
+
+    @property
+    def module(self) -> str:
+        return self.target.partition(":")[0]
+
+    @property
+    def attribute(self) -> str:
+        return self.target.partition(":")[2]
+
+
+@dataclass(frozen=True)
+class Manifest:
+    """A validated plugin manifest. ``path`` is the file it was read from (None if parsed
+    from text)."""
+
+    name: str
+    version: str
+    description: str
+    kinds: tuple[PluginKind, ...]
+    api_version: str
+    contributions: tuple[Contribution, ...]
+    path: Path | None = None
+
+    def contribution(self, name: str) -> Contribution:
+        for c in self.contributions:
+            if c.name == name:
+                return c
+        raise KeyError(f"plugin {self.name!r} has no contribution {name!r}")
+
+
+def check_api_version(wanted: str, host: str = API_VERSION) -> None:
+    """Raise ManifestError unless a plugin targeting API ``wanted`` runs on API ``host``:
+    same major, and the plugin's minor not newer than the host's."""
+    m = _VERSION_RE.match(wanted)
+    if m is None:
+        raise ManifestError(f"api_version {wanted!r} is not MAJOR.MINOR (e.g. {host!r})")
+    h = _VERSION_RE.match(host)
+    assert h is not None
+    if m.group(1) != h.group(1):
+        raise ManifestError(
+            f"targets plugin API {wanted}, this globeview provides {host} (major versions differ)"
+        )
+    if int(m.group(2)) > int(h.group(2)):
+        raise ManifestError(f"targets plugin API {wanted}, newer than this globeview's {host}")
+
+
+def _str_field(data: dict[str, Any], key: str, where: str, required: bool = True) -> str:
+    if key not in data:
+        if required:
+            raise ManifestError(f"{where}missing required field {key!r}")
+        return ""
+    value = data[key]
+    if not isinstance(value, str):
+        raise ManifestError(f"{where}field {key!r} must be a string, got {type(value).__name__}")
+    if required and not value.strip():
+        raise ManifestError(f"{where}field {key!r} is empty")
+    return value
+
+
+def _kind(value: Any, where: str) -> PluginKind:
+    if value not in _KINDS:
+        raise ManifestError(f"{where}unknown kind {value!r} (expected one of {', '.join(_KINDS)})")
+    return PluginKind(value)
+
+
+def parse_manifest(data: dict[str, Any], path: Path | None = None) -> Manifest:
+    """Validate a manifest's decoded TOML and return it; ManifestError names the first fault."""
+    name = _str_field(data, "name", "")
+    if not _NAME_RE.match(name):
+        raise ManifestError(
+            f"plugin name {name!r} must be lower-case letters, digits, '-', '_' or '.'"
+        )
+    version = _str_field(data, "version", "")
+    description = _str_field(data, "description", "")
+    api_version = _str_field(data, "api_version", "")
+    check_api_version(api_version)
+
+    if "kinds" not in data:
+        raise ManifestError("missing required field 'kinds'")
+    raw_kinds = data["kinds"]
+    if isinstance(raw_kinds, str):
+        raw_kinds = [raw_kinds]
+    if not isinstance(raw_kinds, list) or not raw_kinds:
+        raise ManifestError("field 'kinds' must be a non-empty list of 'lod', 'tool', 'layer'")
+    kinds = tuple(dict.fromkeys(_kind(k, "") for k in raw_kinds))
+
+    raw_contribs = data.get("contributions")
+    if raw_contribs is None:
+        raise ManifestError("missing required field 'contributions' (one [[contributions]] table)")
+    if not isinstance(raw_contribs, list) or not raw_contribs:
+        raise ManifestError("'contributions' must be a non-empty array of tables")
+    contribs: list[Contribution] = []
+    seen: set[str] = set()
+    for i, c in enumerate(raw_contribs):
+        where = f"contribution {i + 1}: "
+        if not isinstance(c, dict):
+            raise ManifestError(f"{where}must be a table with name, kind and target")
+        cname = _str_field(c, "name", where)
+        if not _NAME_RE.match(cname):
+            raise ManifestError(
+                f"{where}name {cname!r} must be lower-case letters, digits, '-', '_' or '.'"
+            )
+        if cname in seen:
+            raise ManifestError(f"{where}duplicate contribution name {cname!r}")
+        seen.add(cname)
+        ckind = _kind(_str_field(c, "kind", where), where)
+        if ckind not in kinds:
+            raise ManifestError(f"{where}kind {ckind.value!r} is not among the plugin's kinds")
+        target = _str_field(c, "target", where)
+        if not _TARGET_RE.match(target):
+            raise ManifestError(
+                f"{where}target {target!r} is not 'module:attribute' (e.g. 'pkg.mod:Provider')"
+            )
+        label = _str_field(c, "label", where, required=False) or cname
+        contribs.append(Contribution(cname, ckind, target, label))
+    return Manifest(name, version, description, kinds, api_version, tuple(contribs), path)
+
+
+def read_manifest(path: str | Path) -> Manifest:
+    """Read and validate a manifest file. Errors are ManifestError naming the file."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ManifestError(f"{p}: cannot read manifest ({exc.strerror or exc})") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ManifestError(f"{p}: not valid TOML ({exc})") from None
+    try:
+        return parse_manifest(data, p)
+    except ManifestError as exc:
+        raise ManifestError(f"{p}: {exc}") from None
+
+
+def locate_manifest(reference: str) -> Path:
+    """The manifest file an entry point value ``"package.path:file.toml"`` names.
+
+    Finds the top-level package with `importlib.util.find_spec` (which locates it without
+    executing it) and follows the remaining package names as directories, so no plugin code
+    runs. Raises ManifestError when the reference is malformed or the file is absent.
+    """
+    m = _RESOURCE_RE.match(reference.strip())
+    if m is None:
+        raise ManifestError(
+            f"entry point value {reference!r} must be 'package:manifest.toml' "
+            "(a TOML file inside the package)"
+        )
+    package, resource = m.group(1), m.group(2)
+    top, *rest = package.split(".")
+    try:
+        spec = importlib.util.find_spec(top)
+    except (ImportError, ValueError) as exc:
+        raise ManifestError(f"cannot locate package {top!r}: {exc}") from None
+    if spec is None:
+        raise ManifestError(f"package {top!r} of manifest {reference!r} is not installed")
+    locations = list(spec.submodule_search_locations or [])
+    if not locations:
+        raise ManifestError(f"{top!r} is a module, not a package holding {resource!r}")
+    for loc in locations:
+        candidate = Path(loc).joinpath(*rest, resource)
+        if candidate.is_file():
+            return candidate
+    raise ManifestError(f"manifest {resource!r} not found in package {package!r}")
