@@ -38,7 +38,7 @@ class GlobeSession(GlobeScene):
         registry: PluginRegistry | None = None,
         lod: str = DEFAULT_LOD,
     ) -> None:
-        super().__init__(ctx, terrain, self._select, camera)
+        super().__init__(ctx, terrain, camera, lod=self._select)
         if registry is None:
             registry = PluginRegistry()
             registry.discover()

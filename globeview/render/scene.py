@@ -37,9 +37,15 @@ class GlobeScene:
         self,
         ctx: moderngl.Context,
         terrain: TerrainStack,
-        lod: LodFunction,
         camera: Camera | None = None,
+        lod: LodFunction | None = None,
     ) -> None:
+        if lod is None:
+            raise TypeError(
+                "GlobeScene needs an LOD function (view, terrain) -> RenderSet; for the "
+                "plugin-driven scene use globeview.plugins.session.GlobeSession(ctx, terrain, "
+                "camera, lod='chunked-sse')"
+            )
         self.ctx = ctx
         self.terrain = terrain
         self.camera = camera or Camera.from_lonlat(0.0, 20.0, 2.0e7)
