@@ -341,6 +341,11 @@ class Tool(_Contribution):
         """The displacement applied to (N, 3) ECEF points (m) on the CPU; identity by default."""
         return np.asarray(points_ecef, dtype=np.float64)
 
+    def displacement_inverse_numpy(self, points_ecef: np.ndarray) -> np.ndarray:
+        """The inverse of ``displacement_numpy``: maps drawn (displaced) ECEF points back to
+        the true ones, so picks report real coordinates. Identity by default."""
+        return np.asarray(points_ecef, dtype=np.float64)
+
     def deactivate(self) -> None:
         """Called when the tool stops being the active tool (drop transient state)."""
 

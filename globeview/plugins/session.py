@@ -8,12 +8,16 @@ from __future__ import annotations
 import logging
 
 import moderngl
+import numpy as np
 
 from globeview.errors import GlobeviewError
+from globeview.geodesy import ecef_to_lonlat
 from globeview.plugins.registry import PluginRegistry
 from globeview.render.camera import Camera
+from globeview.render.picking import Pick
 from globeview.render.render_set import RenderSet
-from globeview.render.scene import GlobeScene
+from globeview.render.renderer import DisplacementHook
+from globeview.render.scene import FrameResult, GlobeScene
 from globeview.render.view_state import ViewState
 from globeview.terrain.stack import TerrainStack
 
@@ -43,6 +47,7 @@ class GlobeSession(GlobeScene):
             registry = PluginRegistry()
             registry.discover()
         self.registry = registry
+        self.active_tool: str | None = None
         self.registry.attach(
             scene=self, terrain=terrain, camera=self.camera, renderer=self.renderer
         )
@@ -76,3 +81,84 @@ class GlobeSession(GlobeScene):
             if rs is not None:
                 return rs
         return RenderSet.empty()
+
+    # -- tools ---------------------------------------------------------------------------------
+    def tools(self) -> dict:
+        """Name -> tool of every enabled tool plugin contribution."""
+        return self.registry.tools()
+
+    def activate_tool(self, name: str | None) -> None:
+        """Make ``name`` the active tool (None: no tool). A tool's displacement hook is
+        compiled into the terrain shader now; if it does not compile the tool's plugin is
+        disabled and reported, and the terrain keeps the plain shader."""
+        if name is not None and name not in self.tools():
+            raise GlobeviewError(f"no enabled tool named {name!r}")
+        previous = self.tool()
+        if previous is not None and name != self.active_tool:
+            self.registry.invoke(previous, "deactivate")
+        self.active_tool = name
+        tool = self.tool()
+        glsl = self.registry.invoke(tool, "displacement_glsl") if tool is not None else None
+        if not glsl:
+            if self.renderer._hook is not None:
+                self.renderer.set_displacement_hook(None)
+            return
+        owner = self.registry.owner_of(tool)
+        try:
+            self.renderer.set_displacement_hook(DisplacementHook(owner, glsl))
+        except Exception as exc:  # moderngl.Error: the plugin's GLSL failed to compile
+            self.registry.report_failure(owner, exc)
+            self.active_tool = None
+            if self.renderer._hook is not None:
+                self.renderer.set_displacement_hook(None)
+
+    def tool(self):
+        """The active tool object, or None (also None once its plugin has failed)."""
+        if self.active_tool is None:
+            return None
+        tool = self.tools().get(self.active_tool)
+        if tool is None:  # its plugin was disabled or failed
+            self.active_tool = None
+            if self.renderer._hook is not None:
+                self.renderer.set_displacement_hook(None)
+        return tool
+
+    def _displace(self, points: np.ndarray) -> np.ndarray:
+        tool = self.tool()
+        if tool is None:
+            return points
+        return self.registry.invoke(tool, "displacement_numpy", points, default=points)
+
+    def view_state(self, viewport: tuple[int, int]):
+        view = super().view_state(viewport)
+        tool = self.tool()
+        if tool is None or self.renderer._hook is None:
+            return view
+        from dataclasses import replace
+
+        return replace(view, displace=self._displace)
+
+    def render(self, fbo: moderngl.Framebuffer, viewport: tuple[int, int]) -> FrameResult:
+        tool = self.tool()
+        hook = self.renderer._hook
+        if tool is not None and hook is not None:
+            view = self.view_state(viewport)
+            uniforms = self.registry.invoke(tool, "displacement_uniforms", view, default=None)
+            if uniforms is None:  # the tool failed: drop its hook this frame
+                self.renderer.set_displacement_hook(None)
+            else:
+                hook.uniforms = dict(uniforms)
+        return super().render(fbo, viewport)
+
+    def pick(self, x_px: float, y_px: float) -> Pick | None:
+        """The true (un-displaced) terrain point under a pixel of the last frame."""
+        p = super().pick(x_px, y_px)
+        tool = self.tool()
+        if p is None or tool is None or self.renderer._hook is None:
+            return p
+        true = self.registry.invoke(
+            tool, "displacement_inverse_numpy", p.ecef[None, :], default=p.ecef[None, :]
+        )
+        ecef = np.asarray(true, dtype=np.float64).reshape(3)
+        lon, lat, h = ecef_to_lonlat(ecef)
+        return Pick(ecef, float(lon), float(lat), float(h), p.on_terrain)

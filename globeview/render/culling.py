@@ -32,11 +32,14 @@ def tile_bounding_points(
     hmin: np.ndarray,
     hmax: np.ndarray,
     exaggeration: float = 1.0,
+    displace=None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Bounding points of N tiles and the margin (m) that makes them conservative.
 
     Returns points (N, 2 * LATTICE**2, 3) in ECEF and margin (N,). Heights are multiplied by
-    the vertical exaggeration, as the renderer does.
+    the vertical exaggeration, as the renderer does; ``displace`` (a ViewState's CPU
+    displacement, (M, 3) -> (M, 3) ECEF) moves the points where the vertex shader will draw
+    them.
     """
     n = len(west)
     t = np.linspace(0.0, 1.0, LATTICE)
@@ -56,7 +59,10 @@ def tile_bounding_points(
     )
     spacing = np.maximum(east - west, north - south) / (LATTICE - 1)
     margin = chord_sag(spacing) + 1.0
-    return pts.reshape(n, -1, 3), margin
+    pts = pts.reshape(n, -1, 3)
+    if displace is not None and n:
+        pts = np.asarray(displace(pts.reshape(-1, 3)), dtype=np.float64).reshape(pts.shape)
+    return pts, margin
 
 
 def frustum_visible(view: ViewState, points: np.ndarray, margin: np.ndarray) -> np.ndarray:

@@ -7,6 +7,7 @@ coordinates (relative-to-centre rendering, see tile_pool.py).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -30,6 +31,10 @@ class ViewState:
         speed_mps: navigation speed of the camera, metres per second (Rishe's HSpeed).
         tau_px: screen-space error threshold, pixels.
         exaggeration: vertical exaggeration applied to heights (1 = true relief).
+        frame_rate_hz: the frame rate the navigation speed is measured against.
+        displace: the active tool's vertex displacement on the CPU, (N, 3) ECEF -> (N, 3) ECEF
+            (e.g. the terrain collapse), or None. LOD providers apply it to tile bounding
+            points so culling and screen-space error see the terrain where it is drawn.
     """
 
     eye: np.ndarray
@@ -43,6 +48,7 @@ class ViewState:
     tau_px: float = 2.0
     exaggeration: float = 1.0
     frame_rate_hz: float = 30.0
+    displace: Callable[[np.ndarray], np.ndarray] | None = field(default=None, compare=False)
     extras: dict = field(default_factory=dict, compare=False)
 
     @classmethod
@@ -55,6 +61,7 @@ class ViewState:
         exaggeration: float = 1.0,
         speed_mps: float = 0.0,
         max_terrain_height: float = 9000.0,
+        displace: Callable[[np.ndarray], np.ndarray] | None = None,
     ) -> ViewState:
         w, h = int(viewport[0]), int(viewport[1])
         near, far = camera.clip_range(max_terrain_height * max(exaggeration, 1.0))
@@ -70,6 +77,7 @@ class ViewState:
             speed_mps=float(speed_mps),
             tau_px=float(tau_px),
             exaggeration=float(exaggeration),
+            displace=displace,
         )
 
     # -- derived ---------------------------------------------------------------------------
