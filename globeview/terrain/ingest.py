@@ -655,6 +655,8 @@ def ingest(
         return IngestResult(out_path, True, int(existing.get("max_level", 0)), 0.0)
 
     with contextlib.ExitStack() as stack:
+        # A fixed GDAL block cache for everything below, the sources' value scan included.
+        stack.enter_context(rasterio.Env(GDAL_CACHEMAX=_GDAL_CACHE_MB * 1024 * 1024))
         srcs = []
         for p, rec in zip(src_paths, records):
             dem = stack.enter_context(open_dem(p, crs))
@@ -687,10 +689,7 @@ def ingest(
         os.umask(umask)
         os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes it private; a store is an ordinary folder
         try:
-            with (
-                rasterio.Env(GDAL_CACHEMAX=_GDAL_CACHE_MB * 1024 * 1024),
-                _progress(progress) as bar,
-            ):
+            with _progress(progress) as bar:
                 builder = _Builder(srcs, tile_n, l_max, wavelet, tmp, bar.update)
                 bar.total = builder.total_steps()
                 bar.refresh()
