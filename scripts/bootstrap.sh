@@ -48,10 +48,19 @@ if [ ! -x "$GV_PY" ]; then
 fi
 if [ ! -f "$GV_VENV/.gv-stamp" ] || [ "$(cat "$GV_VENV/.gv-stamp")" != "$stamp_src" ]; then
   echo "bootstrap: installing globeview and its dependencies into .venv" >&2
-  "$GV_PY" -m pip install -q --disable-pip-version-check -e "$GV_ROOT[test,bench]"
+  log="$GV_VENV/pip-install.log"
+  gv_pip() {
+    "$GV_PY" -m pip install -q --disable-pip-version-check "$@" >>"$log" 2>&1 || {
+      cat "$log" >&2
+      echo "bootstrap: pip install failed (log above)" >&2
+      exit 1
+    }
+  }
+  : >"$log"
+  gv_pip -e "$GV_ROOT[test,bench]"
   # The example plugin is its own pip package; installing it makes its entry point real.
   if [ -f "$GV_ROOT/examples/globeview-fixedlevel/pyproject.toml" ]; then
-    "$GV_PY" -m pip install -q --disable-pip-version-check -e "$GV_ROOT/examples/globeview-fixedlevel"
+    gv_pip -e "$GV_ROOT/examples/globeview-fixedlevel"
   fi
   echo "$stamp_src" > "$GV_VENV/.gv-stamp"
 fi

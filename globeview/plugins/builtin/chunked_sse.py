@@ -94,9 +94,7 @@ def select_tiles(
             break
         w, s, e, n = tile_bounds_arrays(level, x, y)
         meta = terrain.metadata(level, x, y)
-        pts, margin = tile_bounding_points(
-            w, s, e, n, meta.hmin, meta.hmax, exag, view.displace
-        )
+        pts, margin = tile_bounding_points(w, s, e, n, meta.hmin, meta.hmax, exag, view.displace)
         vis_f = frustum_visible(view, pts, margin)
         vis_h = horizon_visible(view, w, s, e, n, meta.hmax, exag)
         culled_f += int(np.count_nonzero(~vis_f))
