@@ -224,6 +224,10 @@ class LodProvider(_Contribution):
         """
         raise NotImplementedError
 
+    def reset(self) -> None:
+        """Forget anything cached between frames (the next ``select`` computes afresh).
+        The host calls it before measured frames; the default does nothing."""
+
 
 # -- tools -----------------------------------------------------------------------------------
 PointerKind = Literal["press", "move", "release", "wheel"]

@@ -66,6 +66,12 @@ class GlobeSession(GlobeScene):
             raise GlobeviewError(f"no enabled LOD provider named {name!r} (available: {known})")
         self.lod_name = name
 
+    def reset_lod(self) -> None:
+        """Make the active provider forget its per-view cache (before a measured frame)."""
+        provider = self.lod_providers().get(self.lod_name)
+        if provider is not None:
+            self.registry.invoke(provider, "reset")
+
     def _select(self, view: ViewState, terrain: TerrainStack) -> RenderSet:
         providers = self.lod_providers()
         provider = providers.get(self.lod_name)

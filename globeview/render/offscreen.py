@@ -44,7 +44,9 @@ class OffscreenTarget:
     def read_depth(self) -> np.ndarray:
         """(height, width) float32 window depth in 0..1 (1 = nothing drawn), row 0 at top."""
         w, h = self.size
-        data = np.frombuffer(self.fbo.read(attachment=-1, dtype="f4", alignment=1), np.float32)
+        data = np.frombuffer(
+            self.fbo.read(attachment=-1, components=1, dtype="f4", alignment=1), np.float32
+        )
         return data.reshape(h, w)[::-1].copy()
 
     def release(self) -> None:

@@ -83,4 +83,6 @@ class GlobeScene:
         """The terrain point under a pixel of the last rendered frame."""
         if self.last is None or self._last_fbo is None:
             return None
-        return pick(self.last.view, self._last_fbo, x_px, y_px)
+        terrain = self.terrain if self.terrain.visible_layers else None
+        height_at = terrain.height_at if terrain is not None else None
+        return pick(self.last.view, self._last_fbo, x_px, y_px, height_at)

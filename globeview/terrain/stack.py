@@ -228,13 +228,13 @@ class TerrainStack:
     def height_at(self, lon: float, lat: float, level: int | None = None) -> float:
         """Composed height (m) at a point, bilinear in the tile at ``level`` (default: the
         finest level any visible layer has, capped at 12)."""
-        from globeview.terrain.quadtree import key_for_lonlat, tile_bounds
+        from globeview.terrain.quadtree import TileKey, key_for_lonlat, tile_bounds
 
         level = min(self.max_level, 12) if level is None else level
         kx, ky = key_for_lonlat(level, np.array([lon]), np.array([lat]))
         key = (level, int(np.asarray(kx).reshape(-1)[0]), int(np.asarray(ky).reshape(-1)[0]))
         h = self.heights(key)
-        w, s, e, n = tile_bounds(key)
+        w, s, e, n = tile_bounds(TileKey(*key))
         size = h.shape[0]
         c = (lon - w) / (e - w) * (size - 1)
         r = (n - lat) / (n - s) * (size - 1)

@@ -176,13 +176,42 @@ class ChunkedSseProvider(LodProvider):
         Setting("max_tiles", "int", 600, min=16, max=2000, label="tile budget"),
     )
 
+    def __init__(self, context=None) -> None:
+        super().__init__(context)
+        self._cache_key: tuple | None = None
+        self._cache: RenderSet | None = None
+
+    def reset(self) -> None:
+        self._cache_key = self._cache = None
+
     def select(self, view: ViewState, terrain: TerrainStack) -> RenderSet:
         if terrain is None or not terrain.layers:
             return RenderSet.empty()
+        # A repaint with an unchanged view (window expose, overlay redraw) reuses the last
+        # selection; any camera move, setting or layer change recomputes it.
+        key = (
+            view.eye.tobytes(),
+            view.rotation.tobytes(),
+            view.viewport,
+            view.fovy_deg,
+            view.tau_px,
+            view.exaggeration,
+            view.displace is None,
+            id(terrain),
+            terrain.version,
+            tuple(sorted(self.values.items())),
+        )
+        if key == self._cache_key and self._cache is not None and view.displace is None:
+            rs = self._cache
+            rs.stats["lod_ms"] = 0.0
+            rs.stats["lod_cached"] = 1.0
+            return rs
         v = self.values
-        return select_tiles(
+        rs = select_tiles(
             view,
             terrain,
             # tau comes with the view (ViewState.tau_px): one threshold for every provider.
             ChunkedSettings(texel_px=v["texel_px"], max_tiles=v["max_tiles"]),
         )
+        self._cache_key, self._cache = key, rs
+        return rs
