@@ -8,8 +8,8 @@ A tile of ``size = 2^n + 1`` nodes per side becomes:
   ``h * exaggeration`` along the geodetic normal, so exaggeration is a live uniform), and
   ``u, v`` texture coordinates of the node's texel centre. The grid nodes come first, row-major
   (row 0 at the north edge), then four skirts (north, south, west, east edges), whose vertices
-  repeat the edge nodes ``skirt_depth`` metres lower to hide cracks between tiles drawn at
-  different resolutions.
+  repeat the edge nodes ``skirt_depth`` metres lower and as far outward, to hide cracks between
+  tiles drawn at different resolutions.
 - normals, float32 (size, size, 3): unit ECEF normals averaged from the eight triangles
   around each node (Wang thesis §3.2.2: two triangles per surrounding cell), computed once
   and cached with the tile (§3.2.3). The fragment shader reads them from a texture, so a tile
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from globeview.geodesy import lonlat_to_ecef
+from globeview.geodesy import enu_basis, lonlat_to_ecef
 
 FLOATS_PER_VERTEX = 6
 
@@ -98,9 +98,15 @@ def build_tile_mesh(
         (slice(None), slice(size - 1, size)),
     ]
     grid3 = grid.reshape(size, size, FLOATS_PER_VERTEX)
+    # Skirts slant outward as well as down (45 degrees): a vertical skirt is edge-on when seen
+    # from straight above, and there the curved edge of a finer neighbour and the straight
+    # chord of a coarser one leave a sliver only an outward-leaning skirt can fill.
+    basis = enu_basis(lon_g, lat_g)  # (size, size, 3, 3) rows E, N, U
+    outward = [basis[0, :, 1], -basis[-1, :, 1], -basis[:, 0, 0], basis[:, -1, 0]]
     skirts = []
-    for rows, cols in edges:
+    for (rows, cols), out_dir in zip(edges, outward, strict=True):
         s = grid3[rows, cols].reshape(size, FLOATS_PER_VERTEX).copy()
+        s[:, :3] += out_dir * skirt_depth
         s[:, 3] -= skirt_depth
         skirts.append(s)
     vertices = np.concatenate([grid, *skirts], axis=0).astype(np.float32)
