@@ -12,6 +12,7 @@ import numpy as np
 
 from globeview.errors import GlobeviewError
 from globeview.geodesy import ecef_to_lonlat
+from globeview.plugins.api import NullRendererHooks
 from globeview.plugins.registry import PluginRegistry
 from globeview.render.camera import Camera
 from globeview.render.picking import Pick
@@ -48,9 +49,10 @@ class GlobeSession(GlobeScene):
             registry.discover()
         self.registry = registry
         self.active_tool: str | None = None
-        self.registry.attach(
-            scene=self, terrain=terrain, camera=self.camera, renderer=self.renderer
-        )
+        # Plugins get redraw/status hooks, not the GL renderer: headless they are recorded,
+        # and the window attaches its own (redraw = widget.update, status = status bar).
+        self.hooks = NullRendererHooks()
+        self.registry.attach(scene=self, terrain=terrain, camera=self.camera, renderer=self.hooks)
         self.set_lod(lod)
 
     # -- LOD providers -------------------------------------------------------------------------

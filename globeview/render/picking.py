@@ -54,9 +54,11 @@ def unproject(view: ViewState, x_px: float, y_px: float, depth: float) -> np.nda
 def read_depth(fbo: moderngl.Framebuffer, x_px: int, y_px: int) -> float:
     """Window depth of one pixel (top-left origin) of a framebuffer."""
     h = fbo.size[1]
-    data = fbo.read(
-        viewport=(int(x_px), h - 1 - int(y_px), 1, 1), attachment=-1, components=1, dtype="f4"
-    )
+    vp = (int(x_px), h - 1 - int(y_px), 1, 1)
+    data = fbo.read(viewport=vp, attachment=-1, components=1, dtype="f4")
+    # Reading the depth attachment leaves the framebuffer's read buffer at GL_NONE; a window
+    # framebuffer (Qt's) then grabs black. One colour read restores the read buffer.
+    fbo.read(viewport=vp, components=3)
     return float(np.frombuffer(data, dtype=np.float32)[0])
 
 

@@ -609,6 +609,7 @@ def ingest(
     crs: str | None = None,
     force: bool = False,
     progress: bool = False,
+    on_progress: Callable[[int, int], None] | None = None,
 ) -> IngestResult:
     """Build (or refresh) the tile store ``out`` from DEM rasters.
 
@@ -624,6 +625,9 @@ def ingest(
         crs: CRS for every source (overrides or supplies a missing one).
         force: rebuild even if the store is up to date.
         progress: show a tqdm bar with ETA on stderr.
+        on_progress: called as ``on_progress(done, total)`` after each window of work (for a
+            GUI progress bar); an exception it raises aborts the build (cancel) and, like any
+            failure, leaves no store behind.
 
     Raises:
         DemError: a source cannot be used (unreadable, no CRS, all nodata, ...).
@@ -690,8 +694,17 @@ def ingest(
         os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes it private; a store is an ordinary folder
         try:
             with _progress(progress) as bar:
-                builder = _Builder(srcs, tile_n, l_max, wavelet, tmp, bar.update)
-                bar.total = builder.total_steps()
+                done = [0]
+
+                def step(n: int = 1) -> None:
+                    bar.update(n)
+                    if on_progress is not None:
+                        done[0] += n
+                        on_progress(done[0], total)
+
+                builder = _Builder(srcs, tile_n, l_max, wavelet, tmp, step)
+                total = builder.total_steps()
+                bar.total = total
                 bar.refresh()
                 builder.build()
             manifest = builder.manifest(params, records)

@@ -79,8 +79,8 @@ class TerrainStack:
 
     def add(self, store: TileStore, name: str | None = None) -> TerrainLayer:
         layer = TerrainLayer(store, name or store.path.name)
+        self._check_sizes([*self.layers, layer])
         self.layers.append(layer)
-        self._check_sizes()
         self._changed()
         return layer
 
@@ -107,8 +107,8 @@ class TerrainStack:
             self._cache.clear()
             self._order.clear()
 
-    def _check_sizes(self) -> None:
-        sizes = {ly.store.tile_size for ly in self.layers}
+    def _check_sizes(self, layers: list[TerrainLayer] | None = None) -> None:
+        sizes = {ly.store.tile_size for ly in (self.layers if layers is None else layers)}
         if len(sizes) > 1:
             raise StoreError(
                 f"DEM layers use different tile sizes {sorted(sizes)}; re-ingest with one --tile-n"

@@ -1,0 +1,63 @@
+"""Starting the desktop application: display check, QApplication with the OpenGL surface
+format, the embedded data, the main window, and the exception hook."""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+from collections.abc import Sequence
+
+from PyQt6.QtCore import QSettings
+from PyQt6.QtGui import QSurfaceFormat
+from PyQt6.QtWidgets import QApplication
+
+from globeview.terrain.stack import TerrainStack
+from globeview.ui.errors import install_excepthook
+from globeview.ui.globe_widget import surface_format
+from globeview.ui.main_window import MainWindow
+
+ORGANIZATION = "globeview"
+APPLICATION = "globeview"
+
+
+def has_display(env: dict[str, str] | None = None) -> bool:
+    """True when Qt has somewhere to open a window: an X or Wayland display, or a platform
+    chosen explicitly with QT_QPA_PLATFORM."""
+    env = os.environ if env is None else env
+    return any(env.get(k) for k in ("DISPLAY", "WAYLAND_DISPLAY", "QT_QPA_PLATFORM"))
+
+
+def create_application(argv: Sequence[str] | None = None) -> QApplication:
+    """The QApplication (created once), with OpenGL 3.3 core as the default surface format
+    (set before the application exists, as Qt requires for shared contexts)."""
+    app = QApplication.instance()
+    if app is None:
+        QSurfaceFormat.setDefaultFormat(surface_format())
+        app = QApplication(list(argv) if argv is not None else [sys.argv[0]])
+        app.setOrganizationName(ORGANIZATION)
+        app.setApplicationName(APPLICATION)
+        app.setApplicationDisplayName("globeview")
+    return app  # type: ignore[return-value]
+
+
+def embedded_terrain() -> TerrainStack:
+    """The embedded DEMs as a stack (ingested into the cache on first use)."""
+    from globeview.terrain.embedded import embedded_stores
+
+    stores = embedded_stores()
+    return TerrainStack.from_stores(stores, [s.path.name for s in stores])
+
+
+def run(files: Sequence[str] = (), settings: QSettings | None = None) -> int:
+    """Open the window with the embedded data plus ``files``; returns the exit code."""
+    logging.basicConfig(level=logging.WARNING, format="globeview: %(levelname)s: %(message)s")
+    app = create_application()
+    window = MainWindow(embedded_terrain(), settings or QSettings(ORGANIZATION, APPLICATION))
+    previous = install_excepthook(window.errors)
+    try:
+        window.show()
+        window.open_paths(list(files))
+        return int(app.exec())
+    finally:
+        sys.excepthook = previous

@@ -1,0 +1,157 @@
+"""Opening DEMs off the UI thread.
+
+`DemLoader` ingests a DEM (or opens an existing tile store) in a worker thread and reports
+back through Qt signals, which arrive on the UI thread (queued connections). One file at a
+time; further requests wait in a queue.
+
+Progress and cancellation: `globeview.terrain.ingest.ingest` has no progress callback or
+cancellation hook yet, so the progress is indeterminate and "cancel" can only be honoured
+between files: the running ingest finishes (its store lands in the cache, complete, for the
+next time) and its result is discarded. If ``ingest`` grows an ``on_progress(done, total)``
+keyword whose exception aborts the build, this loader uses it (see `_ingest_kwargs`).
+"""
+
+from __future__ import annotations
+
+import inspect
+import logging
+import threading
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
+from pathlib import Path
+
+from PyQt6.QtCore import QObject, pyqtSignal
+
+from globeview.errors import GlobeviewError
+from globeview.terrain.store import MANIFEST_NAME, TileStore
+
+log = logging.getLogger("globeview.ui")
+
+
+class LoadCancelled(Exception):
+    """Raised inside the worker (through the progress hook) to abort an ingest."""
+
+
+def open_store(path: str | Path, on_progress=None) -> TileStore:
+    """A tile store for ``path``: a store directory is opened as is; a DEM file is ingested
+    into the user cache once (an unchanged file opens instantly the next time).
+
+    Raises:
+        GlobeviewError: the path is neither a DEM globeview can read nor a tile store.
+    """
+    from globeview.terrain.embedded import store_path_for
+    from globeview.terrain.ingest import ingest
+
+    p = Path(path)
+    if p.is_dir():
+        if (p / MANIFEST_NAME).exists():
+            return TileStore.open(p)
+        raise GlobeviewError(f"{p} is a folder but not a globeview tile store")
+    if not p.exists():
+        raise GlobeviewError(f"file not found: {p}")
+    out = store_path_for(p)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    ingest([p], out, **_ingest_kwargs(ingest, on_progress))
+    return TileStore.open(out)
+
+
+def _ingest_kwargs(ingest_fn, on_progress) -> dict:
+    """Pass a progress hook when ``ingest`` accepts one (forward compatible)."""
+    if on_progress is not None and "on_progress" in inspect.signature(ingest_fn).parameters:
+        return {"on_progress": on_progress}
+    return {}
+
+
+class DemLoader(QObject):
+    """Loads DEMs one at a time in a worker thread.
+
+    Signals (all delivered on the UI thread):
+        started(str): a file's load began.
+        progress(int, int): done / total steps of the running load (total 0: unknown).
+        loaded(str, object): the path and its `TileStore`.
+        failed(str, object): the path and the exception.
+        cancelled(str): the load was cancelled (its result, if any, discarded).
+        idle(): the queue is empty.
+    """
+
+    started = pyqtSignal(str)
+    progress = pyqtSignal(int, int)
+    loaded = pyqtSignal(str, object)
+    failed = pyqtSignal(str, object)
+    cancelled = pyqtSignal(str)
+    idle = pyqtSignal()
+    _done = pyqtSignal(str, object, object)  # worker -> UI thread
+
+    def __init__(self, parent: QObject | None = None) -> None:
+        super().__init__(parent)
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="globeview-load")
+        self._queue: deque[str] = deque()
+        self._current: str | None = None
+        self._future: Future | None = None
+        self._cancel = threading.Event()
+        self._done.connect(self._on_done)
+
+    @property
+    def busy(self) -> bool:
+        return self._current is not None
+
+    def load(self, path: str | Path) -> None:
+        """Queue a file (or store folder) for loading."""
+        self._queue.append(str(path))
+        self._next()
+
+    def cancel(self) -> None:
+        """Cancel the running load and drop the queued ones."""
+        self._queue.clear()
+        if self._current is not None:
+            self._cancel.set()
+
+    def _next(self) -> None:
+        if self._current is not None:
+            return
+        if not self._queue:
+            self.idle.emit()
+            return
+        path = self._current = self._queue.popleft()
+        self._cancel.clear()
+        self.started.emit(path)
+        self.progress.emit(0, 0)
+        self._future = self._pool.submit(self._work, path)
+
+    def _work(self, path: str) -> None:
+        """Worker thread: never touches widgets, only emits signals."""
+
+        def hook(done: int, total: int) -> None:
+            if self._cancel.is_set():
+                raise LoadCancelled
+            self.progress.emit(int(done), int(total))
+
+        try:
+            store = open_store(path, hook)
+        except BaseException as exc:  # delivered to the UI thread, never lost
+            self._done.emit(path, None, exc)
+            return
+        self._done.emit(path, store, None)
+
+    def _on_done(self, path: str, store: object, exc: object) -> None:
+        self._current = None
+        self._future = None
+        if self._cancel.is_set() or isinstance(exc, LoadCancelled):
+            log.info("load of %s cancelled", path)
+            self.cancelled.emit(path)
+        elif exc is not None:
+            self.failed.emit(path, exc)
+        else:
+            self.loaded.emit(path, store)
+        self._next()
+
+    def wait(self, timeout_s: float | None = None) -> None:
+        """Block until the running load's worker returns (shutdown and tests)."""
+        fut = self._future
+        if fut is not None:
+            fut.result(timeout=timeout_s)
+
+    def shutdown(self) -> None:
+        """Cancel everything and stop the worker (waits for a running ingest to end)."""
+        self.cancel()
+        self._pool.shutdown(wait=True, cancel_futures=True)

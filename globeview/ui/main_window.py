@@ -1,0 +1,413 @@
+"""`MainWindow`: the globe view in the middle, the layer and plugin panels as docks, the
+display toolbar, menus, and the status bar. It wires widgets to the model (terrain stack,
+scene, camera, plugin registry) and holds no algorithm of its own."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from PyQt6.QtCore import QSettings, Qt
+from PyQt6.QtGui import QAction, QCloseEvent, QDragEnterEvent, QDropEvent, QKeySequence
+from PyQt6.QtWidgets import (
+    QCheckBox,
+    QDockWidget,
+    QFileDialog,
+    QLabel,
+    QLineEdit,
+    QMainWindow,
+    QProgressBar,
+    QPushButton,
+    QSlider,
+    QToolBar,
+    QWidget,
+)
+
+from globeview.errors import GlobeviewError
+from globeview.plugins.registry import PluginRegistry
+from globeview.render.camera import Camera, camera_for_bounds
+from globeview.terrain.stack import TerrainStack
+from globeview.terrain.store import TileStore
+from globeview.ui.errors import ErrorReporter, UserMessage
+from globeview.ui.globe_widget import GlobeWidget
+from globeview.ui.layer_panel import LayerPanel
+from globeview.ui.loading import DemLoader
+from globeview.ui.plugin_host import PluginHost, QSettingsBackend
+from globeview.ui.plugin_panel import PluginPanel
+from globeview.ui.status import StatusBar
+
+log = logging.getLogger("globeview.ui")
+
+MAX_RECENT = 10
+DEM_FILTER = (
+    "DEM rasters (*.tif *.tiff *.hgt *.dem *.asc *.img *.vrt *.nc *.bil *.dt0 *.dt1 *.dt2);;"
+    "All files (*)"
+)
+#: Exaggeration slider: tenths, 0.1x .. 50x.
+EXAG_MAX_TENTHS = 500
+
+
+class MainWindow(QMainWindow):
+    """The globeview window.
+
+    Args:
+        terrain: the DEM layers to show.
+        settings: where layout, tau, display toggles, recent files and plugin choices
+            persist (tests pass an ini file of their own).
+        registry: the plugin registry (default: a new one on ``settings``, discovered).
+        show_error: how modal error messages are shown (default: a message box); tests
+            inject a recorder so no dialog blocks.
+        camera: the initial camera (default: the whole globe).
+    """
+
+    def __init__(
+        self,
+        terrain: TerrainStack,
+        settings: QSettings | None = None,
+        registry: PluginRegistry | None = None,
+        show_error=None,
+        camera: Camera | None = None,
+    ) -> None:
+        super().__init__()
+        self.setWindowTitle("globeview")
+        self.setAcceptDrops(True)
+        self.qsettings = settings or QSettings("globeview", "globeview")
+        self.terrain = terrain
+        self.errors = ErrorReporter(show_error, self)
+
+        self.status = StatusBar(self)
+        self.setStatusBar(self.status)
+        self.load_bar = QProgressBar()
+        self.load_bar.setMaximumWidth(160)
+        self.load_label = QLabel()
+        self.cancel_button = QPushButton("Cancel")
+        self.cancel_button.setToolTip("Cancel opening the DEM")
+        for w in (self.load_label, self.load_bar, self.cancel_button):
+            self.status.addWidget(w)
+            w.hide()
+
+        # Plugins
+        if registry is None:
+            registry = PluginRegistry(QSettingsBackend(self.qsettings))
+        self.plugins = PluginHost(registry, self)
+        self.plugins.notice.connect(self.errors.notify)
+        if len(registry) == 0:
+            self.plugins.discover()
+        else:
+            self.plugins.refresh()
+
+        self.globe = GlobeWidget(terrain, registry, camera, self.plugins.active, self)
+        self.setCentralWidget(self.globe)
+
+        # Docks
+        self.layer_panel = LayerPanel(terrain)
+        self.layer_dock = self._dock("Layers", "layers", self.layer_panel)
+        tau = _float(self.qsettings.value("view/tau"), 2.0)
+        self.plugin_panel = PluginPanel(self.plugins, tau)
+        self.plugin_dock = self._dock("Plugins", "plugins", self.plugin_panel)
+        self.globe.set_tau(self.plugin_panel.tau())
+
+        self.loader = DemLoader(self)
+        self._build_toolbar()
+        self._build_menus()
+        self._connect()
+        self._restore()
+        self.globe.setFocus()
+
+    # -- construction ----------------------------------------------------------------------
+    def _dock(self, title: str, name: str, widget: QWidget) -> QDockWidget:
+        dock = QDockWidget(title, self)
+        dock.setObjectName(f"dock-{name}")
+        dock.setWidget(widget)
+        self.addDockWidget(Qt.DockWidgetArea.LeftDockWidgetArea, dock)
+        return dock
+
+    def _build_toolbar(self) -> None:
+        tb = QToolBar("Display", self)
+        tb.setObjectName("toolbar-display")
+        self.addToolBar(tb)
+        tb.addWidget(QLabel(" Go to "))
+        self.goto_edit = QLineEdit()
+        self.goto_edit.setPlaceholderText("lon, lat[, height m]")
+        self.goto_edit.setToolTip(
+            "Fly to a place: longitude and latitude in degrees, optionally a height in metres"
+        )
+        self.goto_edit.setMaximumWidth(220)
+        self.goto_edit.returnPressed.connect(lambda: self.go_to(self.goto_edit.text()))
+        tb.addWidget(self.goto_edit)
+        tb.addSeparator()
+        tb.addWidget(QLabel(" Exaggeration "))
+        self.exag_slider = QSlider(Qt.Orientation.Horizontal)
+        self.exag_slider.setRange(1, EXAG_MAX_TENTHS)
+        self.exag_slider.setMaximumWidth(160)
+        self.exag_slider.setToolTip("Vertical exaggeration of the terrain (1x = true relief)")
+        self.exag_label = QLabel()
+        tb.addWidget(self.exag_slider)
+        tb.addWidget(self.exag_label)
+        tb.addSeparator()
+        self.wire_check = QCheckBox("Wireframe")
+        self.wire_check.setToolTip("Overlay the triangle edges")
+        self.hill_check = QCheckBox("Hillshade")
+        self.hill_check.setToolTip("Shade relief with a light from the north-west")
+        tb.addWidget(self.wire_check)
+        tb.addWidget(self.hill_check)
+
+    def _build_menus(self) -> None:
+        mb = self.menuBar()
+        file_menu = mb.addMenu("&File")
+        self.open_action = QAction("&Open DEM…", self)
+        self.open_action.setShortcut(QKeySequence.StandardKey.Open)
+        self.open_action.triggered.connect(self.open_dialog)
+        file_menu.addAction(self.open_action)
+        self.recent_menu = file_menu.addMenu("Open &Recent")
+        self.export_action = QAction("&Export Image…", self)
+        self.export_action.setShortcut(QKeySequence("Ctrl+E"))
+        self.export_action.triggered.connect(self.export_dialog)
+        file_menu.addAction(self.export_action)
+        file_menu.addSeparator()
+        quit_action = QAction("&Quit", self)
+        quit_action.setShortcut(QKeySequence.StandardKey.Quit)
+        quit_action.triggered.connect(self.close)
+        file_menu.addAction(quit_action)
+
+        view_menu = mb.addMenu("&View")
+        home = QAction("&Whole Globe", self)
+        home.setShortcut(QKeySequence("Ctrl+Home"))
+        home.triggered.connect(lambda: self.globe.go_home())
+        view_menu.addAction(home)
+        view_menu.addSeparator()
+        view_menu.addAction(self.layer_dock.toggleViewAction())
+        view_menu.addAction(self.plugin_dock.toggleViewAction())
+        self._update_recent_menu()
+
+    def _connect(self) -> None:
+        g = self.globe
+        g.sceneReady.connect(self.plugins.bind)
+        g.frameRendered.connect(self.status.show_frame)
+        g.frameRendered.connect(lambda *_: self.plugins.after_frame())
+        g.frameRendered.connect(self._camera_changed)
+        g.cursorPicked.connect(self.status.show_pick)
+        g.cameraChanged.connect(self._camera_changed)
+        g.renderFailed.connect(lambda exc: self.errors.notify(f"drawing failed: {exc}"))
+        self.errors.notified.connect(self.status.notice)
+        self.layer_panel.changed.connect(g.request_frame)
+        self.layer_panel.zoomRequested.connect(self.zoom_to_bounds)
+        self.plugin_panel.tauChanged.connect(self._tau_changed)
+        self.plugins.lodChanged.connect(self._use_lod)
+        self.plugins.redrawRequested.connect(g.request_frame)
+        self.exag_slider.valueChanged.connect(self._exaggeration_changed)
+        self.wire_check.toggled.connect(self._wireframe_changed)
+        self.hill_check.toggled.connect(self._hillshade_changed)
+        self.loader.started.connect(self._load_started)
+        self.loader.progress.connect(self._load_progress)
+        self.loader.loaded.connect(self._loaded)
+        self.loader.failed.connect(self._load_failed)
+        self.loader.cancelled.connect(
+            lambda p: self.errors.notify(f"opening {Path(p).name} cancelled")
+        )
+        self.loader.idle.connect(self._load_idle)
+        self.cancel_button.clicked.connect(self.loader.cancel)
+
+    def _restore(self) -> None:
+        s = self.qsettings
+        geom = s.value("window/geometry")
+        if geom is not None:
+            self.restoreGeometry(geom)
+        else:
+            self.resize(1280, 800)
+        state = s.value("window/state")
+        if state is not None:
+            self.restoreState(state)
+        self.exag_slider.setValue(round(_float(s.value("view/exaggeration"), 1.0) * 10))
+        self._exaggeration_changed(self.exag_slider.value())
+        self.wire_check.setChecked(_bool(s.value("view/wireframe"), False))
+        self.hill_check.setChecked(_bool(s.value("view/hillshade"), False))
+
+    def save_settings(self) -> None:
+        s = self.qsettings
+        s.setValue("window/geometry", self.saveGeometry())
+        s.setValue("window/state", self.saveState())
+        s.setValue("view/tau", self.plugin_panel.tau())
+        s.setValue("view/exaggeration", self.globe.settings.exaggeration)
+        s.setValue("view/wireframe", self.globe.settings.wireframe)
+        s.setValue("view/hillshade", self.globe.settings.hillshade)
+        s.sync()
+
+    # -- display ---------------------------------------------------------------------------
+    def _camera_changed(self, *_args: object) -> None:
+        self.status.show_altitude(self.globe.camera.height)
+
+    def _tau_changed(self, tau_px: float) -> None:
+        self.globe.set_tau(tau_px)
+        self.qsettings.setValue("view/tau", tau_px)
+
+    def _use_lod(self, name: str) -> None:
+        self.status.lod.setText(f"LOD {name}")
+        self.globe.request_frame()
+
+    def _exaggeration_changed(self, tenths: int) -> None:
+        self.globe.settings.exaggeration = tenths / 10.0
+        self.exag_label.setText(f"{tenths / 10.0:.1f}×")
+        self.globe.request_frame()
+
+    def _wireframe_changed(self, on: bool) -> None:
+        self.globe.settings.wireframe = bool(on)
+        self.globe.request_frame()
+
+    def _hillshade_changed(self, on: bool) -> None:
+        self.globe.settings.hillshade = bool(on)
+        self.globe.request_frame()
+
+    def go_to(self, text: str) -> bool:
+        """Fly to ``"lon, lat[, height]"`` (degrees, metres); a bad entry is a notice."""
+        try:
+            vals = [float(v) for v in text.replace(";", ",").split(",") if v.strip()]
+            if len(vals) not in (2, 3):
+                raise ValueError
+        except ValueError:
+            self.errors.notify(f"go to: expected 'lon, lat' or 'lon, lat, height', not {text!r}")
+            return False
+        lon, lat = vals[0], vals[1]
+        if not (-180.0 <= lon <= 360.0 and -90.0 <= lat <= 90.0):
+            self.errors.notify(f"go to: {lon}, {lat} is not a longitude, latitude in degrees")
+            return False
+        height = vals[2] if len(vals) == 3 else min(self.globe.camera.height, 2.0e6)
+        self.globe.flight.fly_to((lon, lat, max(height, 10.0), 0.0, -90.0))
+        return True
+
+    def zoom_to_bounds(self, bounds: tuple[float, float, float, float]) -> None:
+        """Fly over a lon/lat box (west, south, east, north degrees)."""
+        self.globe.fly_to_camera(camera_for_bounds(*bounds, fovy_deg=self.globe.camera.fovy_deg))
+
+    # -- opening data ------------------------------------------------------------------------
+    def open_dialog(self) -> None:
+        start = str(Path(self.recent_files()[0]).parent) if self.recent_files() else ""
+        paths, _ = QFileDialog.getOpenFileNames(self, "Open DEM", start, DEM_FILTER)
+        self.open_paths(paths)
+
+    def open_paths(self, paths: list[str] | tuple[str, ...]) -> None:
+        """Open DEM files (or tile store folders) in the background: the same path the Open
+        dialog, drag and drop, recent files and the command line take."""
+        for p in paths:
+            if p:
+                self.loader.load(str(p))
+
+    def _load_started(self, path: str) -> None:
+        self.load_label.setText(f"Opening {Path(path).name}…")
+        self.load_bar.setRange(0, 0)  # indeterminate until progress arrives
+        for w in (self.load_label, self.load_bar, self.cancel_button):
+            w.show()
+
+    def _load_progress(self, done: int, total: int) -> None:
+        if total > 0:
+            self.load_bar.setRange(0, total)
+            self.load_bar.setValue(done)
+
+    def _load_idle(self) -> None:
+        for w in (self.load_label, self.load_bar, self.cancel_button):
+            w.hide()
+
+    def _load_failed(self, path: str, exc: BaseException) -> None:
+        self.errors.error(exc, f"cannot open {Path(path).name}")
+
+    def _loaded(self, path: str, store: TileStore) -> None:
+        try:
+            self.add_store(store, Path(path).stem)
+        except Exception as exc:
+            self.errors.error(exc, f"cannot add {Path(path).name}")
+            return
+        self.add_recent(path)
+        self.zoom_to_bounds(tuple(store.bounds))
+
+    def add_store(self, store: TileStore, name: str) -> str:
+        """Add a store as the top layer under a unique name; returns the name."""
+        taken = {ly.name for ly in self.terrain.layers}
+        unique, n = name, 2
+        while unique in taken:
+            unique, n = f"{name} ({n})", n + 1
+        try:
+            self.terrain.add(store, unique)
+        except GlobeviewError:
+            # The stack appends before it validates: take the layer out again.
+            if any(ly.name == unique for ly in self.terrain.layers):
+                self.terrain.remove(unique)
+            raise
+        self.layer_panel.refresh()
+        self.layer_panel.select(unique)
+        self.globe.request_frame()
+        return unique
+
+    # -- recent files ------------------------------------------------------------------------
+    def recent_files(self) -> list[str]:
+        val = self.qsettings.value("files/recent")
+        if val is None:
+            return []
+        if isinstance(val, str):
+            return [val]
+        return [str(v) for v in val]
+
+    def add_recent(self, path: str) -> None:
+        p = str(Path(path).absolute())
+        files = [p] + [f for f in self.recent_files() if f != p]
+        self.qsettings.setValue("files/recent", files[:MAX_RECENT])
+        self._update_recent_menu()
+
+    def _update_recent_menu(self) -> None:
+        self.recent_menu.clear()
+        files = self.recent_files()
+        for f in files:
+            act = self.recent_menu.addAction(f)
+            act.triggered.connect(lambda _checked=False, f=f: self.open_paths([f]))
+        self.recent_menu.setEnabled(bool(files))
+
+    # -- export ------------------------------------------------------------------------------
+    def export_dialog(self) -> None:
+        path, _ = QFileDialog.getSaveFileName(self, "Export Image", "globe.png", "PNG (*.png)")
+        if path:
+            self.export_image(path)
+
+    def export_image(self, path: str) -> bool:
+        """Write the current frame to a PNG; a failure is reported, not raised."""
+        image = self.globe.grab_image()
+        if image.isNull() or not image.save(path, "PNG"):
+            self.errors.error(GlobeviewError(f"cannot write the image {path}"))
+            return False
+        self.status.notice(f"wrote {path}")
+        return True
+
+    # -- drag and drop -----------------------------------------------------------------------
+    def dragEnterEvent(self, event: QDragEnterEvent) -> None:
+        if event.mimeData().hasUrls():
+            event.acceptProposedAction()
+
+    def dropEvent(self, event: QDropEvent) -> None:
+        paths = [u.toLocalFile() for u in event.mimeData().urls() if u.isLocalFile()]
+        if paths:
+            event.acceptProposedAction()
+            self.open_paths(paths)
+
+    # -- shutdown ----------------------------------------------------------------------------
+    def closeEvent(self, event: QCloseEvent) -> None:
+        self.save_settings()
+        self.globe.flight.stop()
+        self.loader.shutdown()
+        self.globe.release_gl()
+        super().closeEvent(event)
+
+    def last_error(self) -> UserMessage | None:
+        return self.errors.history[-1] if self.errors.history else None
+
+
+def _float(value: object, default: float) -> float:
+    try:
+        return float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return default
+
+
+def _bool(value: object, default: bool) -> bool:
+    if value is None:
+        return default
+    if isinstance(value, str):
+        return value.lower() in ("1", "true", "yes")
+    return bool(value)

@@ -1,0 +1,175 @@
+"""The UI's side of the plugin contract: the registry and the `GlobeSession` wired to the
+window.
+
+`PluginHost` lists the plugins and LOD providers for the panel, switches the session's active
+provider, applies provider settings, and turns plugin failures into one-line notices: the
+registry disables a plugin that raises, the session falls back to the built-in provider on
+that same frame, and `after_frame` notices the switch and tells the user. It is also the
+`RendererHooks` object plugin contexts get (``request_redraw``, ``set_status``).
+
+`QSettingsBackend` stores the registry's settings (enabled plugins, provider settings) in the
+application's QSettings as JSON strings, next to the window layout.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from typing import Any
+
+from PyQt6.QtCore import QObject, QSettings, pyqtSignal
+
+from globeview.errors import GlobeviewError
+from globeview.plugins.registry import PluginRecord, PluginRegistry
+from globeview.plugins.session import DEFAULT_LOD, GlobeSession
+
+log = logging.getLogger("globeview.ui")
+
+
+class QSettingsBackend:
+    """The plugins' `SettingsBackend` over a QSettings (values JSON-encoded)."""
+
+    def __init__(self, settings: QSettings, prefix: str = "") -> None:
+        self.qsettings = settings
+        self.prefix = prefix
+
+    def get(self, key: str, default: Any = None) -> Any:
+        raw = self.qsettings.value(self.prefix + key)
+        if raw is None:
+            return default
+        try:
+            return json.loads(str(raw))
+        except ValueError:
+            return default
+
+    def set(self, key: str, value: Any) -> None:
+        self.qsettings.setValue(self.prefix + key, json.dumps(value))
+
+
+class PluginHost(QObject):
+    """Plugin state for the UI, around a `PluginRegistry` and (once GL is up) a session.
+
+    Signals:
+        changed(): plugin records or the provider list changed (the panel refreshes).
+        lodChanged(str): the active LOD provider changed (a user choice or a fallback).
+        redrawRequested(): a plugin or a setting asks for a frame.
+        notice(str): a one-line message for the status bar.
+    """
+
+    changed = pyqtSignal()
+    lodChanged = pyqtSignal(str)
+    redrawRequested = pyqtSignal()
+    notice = pyqtSignal(str)
+
+    def __init__(self, registry: PluginRegistry, parent: QObject | None = None) -> None:
+        super().__init__(parent)
+        self.registry = registry
+        self.session: GlobeSession | None = None
+        self.active = DEFAULT_LOD
+        self._statuses: dict[str, str] = {}
+
+    # -- RendererHooks (what PluginContext.renderer offers plugins) -------------------------
+    def request_redraw(self) -> None:
+        self.redrawRequested.emit()
+
+    def set_status(self, text: str) -> None:
+        self.notice.emit(str(text))
+
+    # -- discovery and state -------------------------------------------------------------
+    def discover(self) -> None:
+        """Discover the installed plugins; a failure becomes a notice, never a crash."""
+        try:
+            self.registry.discover()
+        except Exception as exc:
+            log.exception("plugin discovery failed")
+            self.notice.emit(f"plugin discovery failed: {exc}")
+        self.refresh()
+
+    def records(self) -> list[PluginRecord]:
+        return list(self.registry)
+
+    def providers(self) -> dict[str, str]:
+        """Name -> menu label of the enabled LOD providers (loading them now; a plugin that
+        fails to load is disabled and reported)."""
+        try:
+            return {c.name: c.label or c.name for c in self.registry.contributions("lod")}
+        except Exception as exc:
+            log.exception("loading LOD providers failed")
+            self.notice.emit(f"loading LOD providers failed: {exc}")
+            return {}
+
+    def provider(self) -> Any:
+        """The active LOD provider object, or None."""
+        return self.registry.lod_providers().get(self.active)
+
+    def refresh(self) -> None:
+        """Reload providers, report newly failed plugins, keep a valid active provider."""
+        available = self.providers()
+        for rec in self.registry:
+            if rec.status == "failed" and self._statuses.get(rec.name) != "failed":
+                self.notice.emit(f"plugin {rec.name} failed and was disabled: {rec.error}")
+        self._statuses = {rec.name: rec.status for rec in self.registry}
+        if self.active not in available and available:
+            old = self.active
+            self.active = DEFAULT_LOD if DEFAULT_LOD in available else next(iter(available))
+            self.notice.emit(f"LOD provider {old} is not available; using {self.active}")
+            self._apply()
+            self.lodChanged.emit(self.active)
+        self.changed.emit()
+
+    def set_enabled(self, name: str, enabled: bool) -> None:
+        """Enable or disable a plugin (persisted) and reload the providers."""
+        if enabled:
+            self.registry.enable(name)
+        else:
+            self.registry.disable(name)
+        self.refresh()
+        self.redrawRequested.emit()
+
+    # -- the session -----------------------------------------------------------------------
+    def bind(self, session: GlobeSession) -> None:
+        """Use ``session`` (created by the globe widget once GL is up)."""
+        self.session = session
+        self.registry.attach(renderer=self)  # the session attached scene, terrain, camera
+        self._apply()
+        self.refresh()
+
+    def _apply(self) -> None:
+        if self.session is None:
+            return
+        try:
+            self.session.set_lod(self.active)
+        except GlobeviewError as exc:
+            self.notice.emit(str(exc))
+            self.active = self.session.lod_name
+
+    def choose(self, name: str) -> None:
+        """Make ``name`` the active LOD provider from the next frame on."""
+        if name == self.active:
+            return
+        self.active = name
+        self._apply()
+        self.lodChanged.emit(self.active)
+        self.redrawRequested.emit()
+
+    def configure(self, values: dict[str, Any]) -> None:
+        """Apply and persist setting values of the active provider (isolated)."""
+        provider = self.provider()
+        if provider is None:
+            return
+        self.registry.configure(provider, values)
+        self.after_frame()
+        self.redrawRequested.emit()
+
+    def after_frame(self) -> None:
+        """Notice a fallback the session made during a frame (a provider failed)."""
+        if self.session is None:
+            return
+        if any(rec.status != self._statuses.get(rec.name) for rec in self.registry):
+            self.refresh()
+        if self.session.lod_name != self.active:
+            failed = self.active
+            self.active = self.session.lod_name
+            self.notice.emit(f"LOD provider {failed} failed; using {self.active}")
+            self.lodChanged.emit(self.active)
+            self.changed.emit()

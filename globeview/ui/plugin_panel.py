@@ -1,0 +1,218 @@
+"""The plugin manager panel: every discovered plugin (name, version, kind, description,
+enabled switch, status and error), the active LOD provider, the screen-space error threshold
+tau, and the active provider's own settings, editable live (each change takes effect on the
+next frame)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from PyQt6.QtCore import Qt, pyqtSignal
+from PyQt6.QtWidgets import (
+    QCheckBox,
+    QComboBox,
+    QDoubleSpinBox,
+    QFormLayout,
+    QGroupBox,
+    QHBoxLayout,
+    QHeaderView,
+    QLabel,
+    QSlider,
+    QSpinBox,
+    QTreeWidget,
+    QTreeWidgetItem,
+    QVBoxLayout,
+    QWidget,
+)
+
+from globeview.plugins.api import Setting
+from globeview.ui.plugin_host import PluginHost
+
+COLUMNS = ("Plugin", "Version", "Kind", "Status", "Description")
+#: tau slider: tenths of a pixel, 0.5 .. 32 px.
+TAU_MIN_PX, TAU_MAX_PX = 0.5, 32.0
+
+
+class PluginPanel(QWidget):
+    """View of a `PluginHost`.
+
+    Signals:
+        tauChanged(float): the user moved the tau slider (pixels).
+    """
+
+    tauChanged = pyqtSignal(float)
+
+    def __init__(self, host: PluginHost, tau_px: float = 2.0, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.host = host
+        self._updating = False
+        self.tree = QTreeWidget()
+        self.tree.setColumnCount(len(COLUMNS))
+        self.tree.setHeaderLabels(COLUMNS)
+        self.tree.setRootIsDecorated(False)
+        self.tree.header().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
+        self.tree.header().setStretchLastSection(True)
+        self.tree.setToolTip("Tick to enable a plugin (remembered across sessions)")
+        self.tree.itemChanged.connect(self._item_changed)
+
+        self.lod_combo = QComboBox()
+        self.lod_combo.setToolTip("The level-of-detail algorithm choosing the tiles each frame")
+        self.lod_combo.currentIndexChanged.connect(self._combo_changed)
+
+        self.tau_slider = QSlider(Qt.Orientation.Horizontal)
+        self.tau_slider.setRange(int(TAU_MIN_PX * 10), int(TAU_MAX_PX * 10))
+        self.tau_slider.setToolTip(
+            "Screen-space error threshold tau: the most a tile's geometric error may cover "
+            "on screen, in pixels (smaller: more detail, more triangles)"
+        )
+        self.tau_label = QLabel()
+        self.tau_slider.valueChanged.connect(self._tau_moved)
+        self.set_tau(tau_px)
+
+        self.settings_box = QGroupBox("Provider settings")
+        self.settings_form = QFormLayout(self.settings_box)
+        self.setting_widgets: dict[str, QWidget] = {}
+
+        lod_form = QFormLayout()
+        lod_form.addRow("LOD provider", self.lod_combo)
+        tau_row = QHBoxLayout()
+        tau_row.addWidget(self.tau_slider, 1)
+        tau_row.addWidget(self.tau_label)
+        lod_form.addRow("tau", tau_row)
+
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(4, 4, 4, 4)
+        layout.addWidget(self.tree, 1)
+        layout.addLayout(lod_form)
+        layout.addWidget(self.settings_box)
+
+        host.changed.connect(self.refresh)
+        host.lodChanged.connect(lambda _name: self.refresh())
+        self.refresh()
+
+    # -- refresh from the host ------------------------------------------------------------
+    def refresh(self) -> None:
+        self._updating = True
+        try:
+            self.tree.clear()
+            for rec in self.host.records():
+                m = rec.manifest
+                status = rec.status if not rec.error else f"failed: {rec.error}"
+                item = QTreeWidgetItem(
+                    [
+                        rec.name,
+                        rec.version,
+                        ", ".join(rec.kinds),
+                        status,
+                        m.description if m else "",
+                    ]
+                )
+                item.setData(0, Qt.ItemDataRole.UserRole, rec.name)
+                flags = item.flags() | Qt.ItemFlag.ItemIsUserCheckable
+                if m is None:
+                    flags &= ~Qt.ItemFlag.ItemIsEnabled
+                item.setFlags(flags)
+                state = Qt.CheckState.Checked if rec.enabled else Qt.CheckState.Unchecked
+                item.setCheckState(0, state)
+                tip = f"{rec.source}" + (f"\n{rec.error}" if rec.error else "")
+                for col in range(len(COLUMNS)):
+                    item.setToolTip(col, tip)
+                if rec.status == "failed":
+                    item.setForeground(3, Qt.GlobalColor.red)
+                self.tree.addTopLevelItem(item)
+
+            self.lod_combo.clear()
+            for name, label in self.host.providers().items():
+                self.lod_combo.addItem(label, name)
+            idx = self.lod_combo.findData(self.host.active)
+            self.lod_combo.setCurrentIndex(max(idx, 0))
+            self._build_settings()
+        finally:
+            self._updating = False
+
+    def _build_settings(self) -> None:
+        while self.settings_form.rowCount():
+            self.settings_form.removeRow(0)
+        self.setting_widgets = {}
+        provider = self.host.provider()
+        specs: list[Setting] = list(getattr(provider, "settings", ()) or ())
+        values: dict[str, Any] = dict(getattr(provider, "values", {}) or {})
+        if not specs:
+            self.settings_form.addRow(QLabel("No settings"))
+            return
+        for spec in specs:
+            w = self._editor(spec, values.get(spec.name, spec.default))
+            w.setToolTip(spec.help)
+            self.setting_widgets[spec.name] = w
+            self.settings_form.addRow(spec.label or spec.name, w)
+
+    def _editor(self, spec: Setting, value: Any) -> QWidget:
+        if spec.type == "bool":
+            w = QCheckBox()
+            w.setChecked(bool(value))
+            w.toggled.connect(self._settings_edited)
+        elif spec.type == "choice":
+            w = QComboBox()
+            w.addItems(list(spec.choices))
+            w.setCurrentText(str(value))
+            w.currentTextChanged.connect(self._settings_edited)
+        elif spec.type == "int":
+            w = QSpinBox()
+            w.setRange(
+                int(spec.min) if spec.min is not None else -(2**31),
+                int(spec.max) if spec.max is not None else 2**31 - 1,
+            )
+            w.setValue(int(value))
+            w.valueChanged.connect(self._settings_edited)
+        else:
+            w = QDoubleSpinBox()
+            w.setDecimals(3)
+            w.setRange(
+                float(spec.min) if spec.min is not None else -1e12,
+                float(spec.max) if spec.max is not None else 1e12,
+            )
+            w.setSingleStep(0.1)
+            w.setValue(float(value))
+            w.valueChanged.connect(self._settings_edited)
+        return w
+
+    def setting_values(self) -> dict[str, Any]:
+        """The values shown in the settings editors."""
+        out: dict[str, Any] = {}
+        for name, w in self.setting_widgets.items():
+            if isinstance(w, QCheckBox):
+                out[name] = w.isChecked()
+            elif isinstance(w, QComboBox):
+                out[name] = w.currentText()
+            elif isinstance(w, QSpinBox | QDoubleSpinBox):
+                out[name] = w.value()
+        return out
+
+    # -- user edits -----------------------------------------------------------------------
+    def _item_changed(self, item: QTreeWidgetItem, column: int) -> None:
+        if self._updating or column != 0:
+            return
+        name = item.data(0, Qt.ItemDataRole.UserRole)
+        self.host.set_enabled(name, item.checkState(0) == Qt.CheckState.Checked)
+
+    def _combo_changed(self, index: int) -> None:
+        if self._updating or index < 0:
+            return
+        self.host.choose(self.lod_combo.itemData(index))
+
+    def _settings_edited(self, *_args: Any) -> None:
+        if self._updating:
+            return
+        self.host.configure(self.setting_values())
+
+    def set_tau(self, tau_px: float) -> None:
+        """Show ``tau_px`` on the slider (emits tauChanged like a user move)."""
+        self.tau_slider.setValue(round(min(max(tau_px, TAU_MIN_PX), TAU_MAX_PX) * 10))
+        self._tau_moved(self.tau_slider.value())
+
+    def tau(self) -> float:
+        return self.tau_slider.value() / 10.0
+
+    def _tau_moved(self, value: int) -> None:
+        self.tau_label.setText(f"{value / 10.0:.1f} px")
+        self.tauChanged.emit(value / 10.0)

@@ -1,0 +1,144 @@
+"""Plugin manager panel, failure isolation, the exception hook and `globeview gui` without a
+display."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from globeview.errors import DemError
+
+pytestmark = pytest.mark.gui
+
+BROKEN_MANIFEST = """
+name = "broken-lod"
+version = "0.3.0"
+description = "An LOD provider that raises on its second frame."
+kinds = ["lod"]
+api_version = "1.0"
+
+[[contributions]]
+name = "broken-lod"
+kind = "lod"
+target = "broken_lod.provider:BrokenProvider"
+label = "Broken"
+"""
+
+BROKEN_MODULE = """
+from globeview.plugins.api import LodProvider, Setting
+from globeview.plugins.builtin.chunked_sse import ChunkedSseProvider
+
+
+class BrokenProvider(LodProvider):
+    name = "broken-lod"
+    settings = (Setting("fail_after", "int", 0, min=0, max=10, label="fail after"),)
+
+    def __init__(self, context=None):
+        super().__init__(context)
+        self.frames = 0
+        self.inner = ChunkedSseProvider(context)
+
+    def select(self, view, terrain):
+        self.frames += 1
+        if self.frames > self.values["fail_after"]:
+            raise RuntimeError("boom in select")
+        return self.inner.select(view, terrain)
+"""
+
+
+@pytest.fixture
+def broken_registry(plugin_site):
+    from globeview.plugins.registry import PluginRegistry
+    from globeview.plugins.settings import MemorySettings
+
+    plugin_site.add("broken_lod", BROKEN_MANIFEST, {"provider": BROKEN_MODULE})
+    return PluginRegistry(MemorySettings()).discover()
+
+
+def test_plugin_panel_lists_plugins_and_switches_provider(make_window, wait_frame):
+    win = make_window()
+    panel = win.plugin_panel
+    rows = {
+        panel.tree.topLevelItem(i).text(0): panel.tree.topLevelItem(i)
+        for i in range(panel.tree.topLevelItemCount())
+    }
+    assert "chunked-sse" in rows
+    item = rows["chunked-sse"]
+    assert item.text(1) == "1.0.0" and item.text(2) == "lod" and item.text(3) == "ok"
+    assert item.checkState(0) == item.checkState(0).Checked
+    assert panel.lod_combo.currentData() == "chunked-sse"
+    assert "max_tiles" in panel.setting_widgets
+    # a provider setting edited live
+    panel.setting_widgets["max_tiles"].setValue(100)
+    provider = win.plugins.provider()
+    assert provider.values["max_tiles"] == 100
+    wait_frame(win)
+    assert win.globe.last_stats.tiles_drawn <= 100
+
+
+def test_failing_provider_falls_back_and_is_reported(make_window, broken_registry, wait_frame):
+    win = make_window(registry=broken_registry)
+    panel = win.plugin_panel
+    idx = panel.lod_combo.findData("broken-lod")
+    assert idx >= 0
+    panel.lod_combo.setCurrentIndex(idx)  # as the user would
+    wait_frame(win)  # select() raises: the frame falls back to chunked-sse
+    assert win.globe.last_stats.triangles > 0
+    assert win.globe.scene.lod_name == "chunked-sse"
+    assert win.plugins.active == "chunked-sse"
+    rec = broken_registry.get("broken-lod")
+    assert rec.status == "failed" and "boom in select" in rec.error
+    assert any("broken-lod" in m.text for m in win.errors.history)
+    assert panel.lod_combo.currentData() == "chunked-sse"
+    assert panel.lod_combo.findData("broken-lod") < 0
+    # re-enabling through the panel's switch makes it selectable again
+    win.plugins.set_enabled("broken-lod", True)
+    assert panel.lod_combo.findData("broken-lod") >= 0
+
+
+def test_excepthook_shows_errors_instead_of_aborting(make_window, errors_shown):
+    from globeview.ui.errors import install_excepthook
+
+    win = make_window()
+    previous = install_excepthook(win.errors)
+    try:
+        try:
+            raise DemError("x.tif has no CRS")
+        except DemError as exc:
+            sys.excepthook(type(exc), exc, exc.__traceback__)
+        try:
+            raise ZeroDivisionError("division by zero")
+        except ZeroDivisionError as exc:
+            sys.excepthook(type(exc), exc, exc.__traceback__)
+    finally:
+        sys.excepthook = previous
+    assert errors_shown[0].text == "x.tif has no CRS" and not errors_shown[0].details
+    assert errors_shown[1].text.startswith("Unexpected error")
+    assert "Traceback" in errors_shown[1].details and "Traceback" not in errors_shown[1].text
+    assert win.isVisible()
+
+
+def test_gui_without_display_prints_one_line(tmp_path):
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("DISPLAY", "WAYLAND_DISPLAY", "QT_QPA_PLATFORM")
+    }
+    code = (
+        "import argparse, sys\n"
+        "from globeview.cli import gui\n"
+        "p = argparse.ArgumentParser(); gui.add_arguments(p)\n"
+        "rc = gui.run(p.parse_args([]))\n"
+        "assert 'PyQt6' not in sys.modules\n"
+        "sys.exit(rc)\n"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60
+    )
+    assert proc.returncode == 1, proc.stderr
+    lines = [ln for ln in (proc.stdout + proc.stderr).splitlines() if ln.strip()]
+    assert len(lines) == 1
+    assert "display" in lines[0] and "globeview render" in lines[0]
