@@ -100,57 +100,80 @@ def _skirt_triangles(size: int, variant: IndexVariant) -> list[np.ndarray]:
 
 def _stitch_edges(size, variant, tri1, tri2, keep1, keep2, rr, cc):
     """Replace the border cells of edges drawn at a coarser stride by fans that use only the
-    coarse edge's nodes, so the edge matches the coarser neighbour with no T-junction."""
+    coarse edge's nodes, so the edge matches the coarser neighbour with no T-junction.
+
+    A border cell touching one coarse edge keeps its two triangles with the corners that lie
+    on that edge snapped down to the edge's coarse nodes; the cells along an edge then form
+    fans from the inner row to each coarse segment. A corner cell touching two coarse edges is
+    first split along the diagonal from its inner corner to the tile's corner, and each half
+    is snapped along its own edge only (snapping both at once made overlapping triangles).
+    """
     s = variant.stride
     n = size - 1
     north, south, west, east = variant.edge_strides
-    extra = []
-    border = np.zeros(rr.shape, dtype=bool)
-    for es, mask_fn in (
-        (north, lambda: rr == 0),
-        (south, lambda: rr == n - s),
-        (west, lambda: cc == 0),
-        (east, lambda: cc == n - s),
-    ):
-        if es > s:
-            border |= mask_fn()
+    coarse = {
+        "north": (north > s, rr == 0),
+        "south": (south > s, rr == n - s),
+        "west": (west > s, cc == 0),
+        "east": (east > s, cc == n - s),
+    }
+    touches = {k: on & m for k, (on, m) in coarse.items()}
+    n_touch = sum(t.astype(np.int64) for t in touches.values())
+    border = n_touch > 0
     if not border.any():
-        return extra, keep1, keep2
+        return [], keep1, keep2
     keep1 = keep1 & ~border
     keep2 = keep2 & ~border
-    # Re-triangulate the ring of border cells: every border cell becomes a fan from its inner
-    # corner(s) to the nodes of the coarse edge it touches. Simplest exact construction: for
-    # each border cell, snap its edge-lying corners to the coarse edge's nodes.
-    a = rr * size + cc
-    b = a + s
-    c = a + s * size
-    d = c + s
-    cells = np.stack([a, b, c, d], axis=-1)[border]
-    r0 = rr[border]
-    c0 = cc[border]
-    corners_r = np.stack([r0, r0, r0 + s, r0 + s], axis=-1)
-    corners_c = np.stack([c0, c0 + s, c0, c0 + s], axis=-1)
-    snapped_r = corners_r.copy()
-    snapped_c = corners_c.copy()
-    for es, on_edge, axis_is_col in (
-        (north, corners_r == 0, True),
-        (south, corners_r == n, True),
-        (west, corners_c == 0, False),
-        (east, corners_c == n, False),
-    ):
-        if es <= s:
+
+    def snap(r: np.ndarray, c: np.ndarray, edges: list[str]) -> np.ndarray:
+        """Node index after moving nodes that lie on the given coarse edges onto the
+        edge's coarse nodes (rounding toward the edge's start)."""
+        r, c = r.copy(), c.copy()
+        for name in edges:
+            es = {"north": north, "south": south, "west": west, "east": east}[name]
+            if name in ("north", "south"):
+                on = r == (0 if name == "north" else n)
+                c = np.where(on, (c // es) * es, c)
+            else:
+                on = c == (0 if name == "west" else n)
+                r = np.where(on, (r // es) * es, r)
+        return r * size + c
+
+    tris = []
+    # Cells on exactly one coarse edge.
+    for name in ("north", "south", "west", "east"):
+        sel = touches[name] & (n_touch == 1)
+        if not sel.any():
             continue
-        if axis_is_col:
-            snapped_c = np.where(on_edge, (snapped_c // es) * es, snapped_c)
-        else:
-            snapped_r = np.where(on_edge, (snapped_r // es) * es, snapped_r)
-    snapped = snapped_r * size + snapped_c
-    del cells
-    t1 = np.stack([snapped[:, 0], snapped[:, 2], snapped[:, 1]], axis=-1)
-    t2 = np.stack([snapped[:, 1], snapped[:, 2], snapped[:, 3]], axis=-1)
-    tris = np.concatenate([t1, t2])
-    nondegenerate = (
-        (tris[:, 0] != tris[:, 1]) & (tris[:, 1] != tris[:, 2]) & (tris[:, 0] != tris[:, 2])
-    )
-    extra.append(tris[nondegenerate])
-    return extra, keep1, keep2
+        r0, c0 = rr[sel], cc[sel]
+        cr = np.stack([r0, r0, r0 + s, r0 + s], axis=-1)
+        ccol = np.stack([c0, c0 + s, c0, c0 + s], axis=-1)
+        q = snap(cr, ccol, [name])  # a, b, c, d
+        tris.append(np.stack([q[:, 0], q[:, 2], q[:, 1]], axis=-1))
+        tris.append(np.stack([q[:, 1], q[:, 2], q[:, 3]], axis=-1))
+    # Corner cells on two coarse edges, as (row, col) offsets in the cell: the inner corner,
+    # the cell's other corner on the first edge, the one on the second edge, the tile corner.
+    corners = {
+        ("north", "west"): ((1, 1), (0, 1), (1, 0), (0, 0)),
+        ("north", "east"): ((1, 0), (0, 0), (1, 1), (0, 1)),
+        ("south", "west"): ((0, 1), (1, 1), (0, 0), (1, 0)),
+        ("south", "east"): ((0, 0), (1, 0), (0, 1), (1, 1)),
+    }
+    for (e1, e2), (inner, on_e1, on_e2, outer) in corners.items():
+        sel = touches[e1] & touches[e2]
+        if not sel.any():
+            continue
+        r0, c0 = rr[sel], cc[sel]
+
+        def node(rc, r0=r0, c0=c0):
+            return r0 + rc[0] * s, c0 + rc[1] * s
+
+        (ri, ci), (ro, co) = node(inner), node(outer)
+        for edge, mid in ((e1, on_e1), (e2, on_e2)):
+            rm, cm = node(mid)
+            tri_r = np.stack([ri, rm, ro], axis=-1)
+            tri_c = np.stack([ci, cm, co], axis=-1)
+            tris.append(snap(tri_r, tri_c, [edge]))
+    out = np.concatenate(tris)
+    nondegenerate = (out[:, 0] != out[:, 1]) & (out[:, 1] != out[:, 2]) & (out[:, 0] != out[:, 2])
+    return [out[nondegenerate]], keep1, keep2

@@ -1,0 +1,273 @@
+"""`collapse`: the terrain-collapse tool (Wang thesis ch. 6, on the ellipsoid).
+
+Pick A, then B: the land between them is squeezed along the A->B axis by the ratio r (the
+zone's length becomes r times as long) and the land beyond slides rigidly toward the zone,
+so two distant patches come side by side. The displacement runs in the terrain vertex shader
+(`collapse_glsl.COLLAPSE_GLSL`); `CollapseFrame` (collapse_geometry.py) is its float64 CPU
+twin, used for LOD bounds, overlays, and (inverted) for picking. See docs/collapse.md.
+
+State machine: ``idle`` -> (press) ``a_set`` -> (press) collapsing animation -> collapsed.
+'e' expands (animated), 'c' collapses again, Escape cancels (points cleared at once).
+The animation is host-driven: the host calls ``animate(now_s)`` each frame with a monotonic
+time in seconds and redraws while it returns True; nothing here needs Qt or a timer.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from globeview.geodesy import lonlat_to_ecef
+from globeview.plugins.api import KeyEvent, Marker, Overlay, PointerEvent, Polyline, Setting, Tool
+from globeview.plugins.builtin.collapse_geometry import CollapseFrame, ellipsoid_point_along
+from globeview.plugins.builtin.collapse_glsl import COLLAPSE_GLSL
+
+__all__ = ["CollapseTool"]
+
+#: Duration of the collapse / expand animation (s).
+ANIMATION_S = 0.5
+
+
+def _ease(p: float) -> float:
+    """Smoothstep easing of a progress in [0, 1]."""
+    p = min(max(p, 0.0), 1.0)
+    return p * p * (3.0 - 2.0 * p)
+
+
+class CollapseTool(Tool):
+    """Collapse the terrain between two picked points (see the module docstring).
+
+    Settings: ``ratio`` r in (0, 1] (fraction of the zone's along-axis length kept),
+    ``animate`` (animate collapse/expand over 0.5 s).
+    """
+
+    name = "collapse"
+    label = "Collapse terrain"
+    settings = (
+        Setting("ratio", "float", 0.2, min=0.01, max=1.0, label="Ratio",
+                help="Fraction of the A-B distance kept after the collapse (1 = none)."),
+        Setting("animate", "bool", True, label="Animate",
+                help="Animate collapsing and expanding over half a second."),
+    )  # fmt: skip
+
+    def __init__(self, context: Any = None) -> None:
+        super().__init__(context)
+        self.a: tuple[float, float] | None = None  # (lon, lat) degrees
+        self.b: tuple[float, float] | None = None
+        self.ratio: float = float(self.values["ratio"])
+        self.progress: float = 0.0  # 0 = expanded, 1 = fully collapsed
+        self._target: float = 0.0
+        self._anim_from: float = 0.0
+        self._anim_start: float | None = None
+        self._frame: CollapseFrame | None = None  # cached for (a, b, effective ratio)
+
+    # -- state -----------------------------------------------------------------------------
+    def configure(self, values: dict[str, Any]) -> None:
+        super().configure(values)
+        self.ratio = float(self.values["ratio"])
+        self._frame = None
+
+    @property
+    def state(self) -> str:
+        """'idle' (no points), 'a_set' (A picked), 'expanded', 'collapsing', 'collapsed',
+        'expanding'."""
+        if self.a is None:
+            return "idle"
+        if self.b is None:
+            return "a_set"
+        if self._anim_start is not None or self.progress not in (0.0, 1.0):
+            return "collapsing" if self._target == 1.0 else "expanding"
+        return "collapsed" if self.progress == 1.0 else "expanded"
+
+    @property
+    def effective_ratio(self) -> float:
+        """The ratio drawn now: 1 when expanded, ``ratio`` when collapsed, eased between."""
+        return 1.0 + (self.ratio - 1.0) * _ease(self.progress)
+
+    def frame(self) -> CollapseFrame | None:
+        """The current `CollapseFrame` (with the effective ratio), or None without A and B."""
+        if self.a is None or self.b is None:
+            return None
+        r = self.effective_ratio
+        f = self._frame
+        if f is None or (f.ratio != r and f.psi0 > 0.0):
+            f = CollapseFrame.from_lonlat(*self.a, *self.b, r)
+            self._frame = f
+        return f
+
+    def set_points(
+        self,
+        lon_a: float,
+        lat_a: float,
+        lon_b: float,
+        lat_b: float,
+        ratio: float | None = None,
+        animate: bool = False,
+    ) -> None:
+        """Set A and B (degrees) and collapse with ``ratio`` (default: the setting); at once
+        unless ``animate``. Raises ValueError for an impossible pair (near-antipodal)."""
+        r = self.ratio if ratio is None else float(ratio)
+        CollapseFrame.from_lonlat(lon_a, lat_a, lon_b, lat_b, r)  # validate
+        self.ratio = r
+        self.a, self.b = (float(lon_a), float(lat_a)), (float(lon_b), float(lat_b))
+        self._frame = None
+        if animate:
+            self.progress = 0.0
+            self._start(1.0)
+        else:
+            self.progress, self._target, self._anim_start = 1.0, 1.0, None
+        self._redraw()
+
+    def collapse(self) -> None:
+        """Collapse (animated if the setting says so) the current A-B pair."""
+        if self.b is not None:
+            self._start(1.0)
+
+    def expand(self) -> None:
+        """Expand back to the true terrain (animated if the setting says so), keeping A, B."""
+        if self.b is not None:
+            self._start(0.0)
+
+    def cancel(self) -> None:
+        """Drop A and B: the terrain is drawn true at once."""
+        self.a = self.b = None
+        self.progress, self._target, self._anim_start = 0.0, 0.0, None
+        self._frame = None
+        self._redraw()
+
+    def _start(self, target: float) -> None:
+        self._target = target
+        self._frame = None
+        if not self.values.get("animate", True):
+            self.progress, self._anim_start = target, None
+        else:
+            self._anim_from = self.progress
+            self._anim_start = math.nan  # started by the next animate(now)
+        self._redraw()
+
+    def animate(self, now_s: float) -> bool:
+        """Advance the animation to time ``now_s`` (s, any monotonic clock; the first call
+        after a start fixes its origin). Returns True while animating (redraw again)."""
+        if self._anim_start is None:
+            return False
+        if math.isnan(self._anim_start):
+            self._anim_start = float(now_s)
+        span = self._target - self._anim_from
+        frac = 1.0 if span == 0.0 else (float(now_s) - self._anim_start) / ANIMATION_S
+        frac = min(max(frac, 0.0), 1.0)
+        self.progress = self._anim_from + span * frac
+        self._frame = None
+        if frac >= 1.0:
+            self.progress, self._anim_start = self._target, None
+            return False
+        return True
+
+    def _redraw(self) -> None:
+        # Tolerant: a host may pass renderer hooks without request_redraw.
+        hook = getattr(getattr(self.context, "renderer", None), "request_redraw", None)
+        if callable(hook):
+            hook()
+
+    # -- events ------------------------------------------------------------------------------
+    def on_mouse(self, event: PointerEvent) -> bool:
+        """Left press on terrain: first sets A, second sets B and collapses; a press after
+        that starts a new pair."""
+        if event.kind != "press" or event.button != "left" or event.lonlat is None:
+            return False
+        lon, lat = float(event.lonlat[0]), float(event.lonlat[1])
+        if self.a is None or self.b is not None:
+            self.cancel()
+            self.a = (lon, lat)
+            self._status(f"collapse: A at {lon:.4f}, {lat:.4f}; pick B")
+            return True
+        try:
+            CollapseFrame.from_lonlat(*self.a, lon, lat, self.ratio)
+        except ValueError as exc:
+            self._status(f"collapse: {exc}")
+            return True
+        self.b = (lon, lat)
+        self.progress = 0.0
+        self._start(1.0)
+        f = self.frame()
+        d_km = 0.0 if f is None else CollapseFrame.from_lonlat(*self.a, *self.b, 1.0).d_m / 1e3
+        self._status(f"collapse: {d_km:.1f} km collapsed to {self.ratio * d_km:.1f} km")
+        return True
+
+    def on_key(self, event: KeyEvent) -> bool:
+        """Escape cancels, 'e' expands, 'c' collapses again."""
+        if event.kind != "press":
+            return False
+        if event.key == "Escape" and self.a is not None:
+            self.cancel()
+            return True
+        if event.key.lower() == "e" and self.b is not None:
+            self.expand()
+            return True
+        if event.key.lower() == "c" and self.b is not None:
+            self.collapse()
+            return True
+        return False
+
+    def _status(self, text: str) -> None:
+        hook = getattr(getattr(self.context, "renderer", None), "set_status", None)
+        if callable(hook):
+            hook(text)
+
+    def deactivate(self) -> None:
+        """Leaving the tool keeps nothing collapsed."""
+        self.cancel()
+
+    # -- overlay -----------------------------------------------------------------------------
+    def overlay(self, view: Any) -> list[Overlay]:
+        """Markers at A and B and the two fold lines (zone edges), in **true** ECEF (m) on
+        the ellipsoid: the host applies ``displacement_numpy`` to overlays, which puts them
+        where the collapsed terrain is drawn. The central axis A-B is drawn thin."""
+        out: list[Overlay] = []
+        for p, label in ((self.a, "A"), (self.b, "B")):
+            if p is not None:
+                pos = lonlat_to_ecef(p[0], p[1], 0.0)
+                out.append(Marker(tuple(float(v) for v in pos), (1.0, 0.3, 0.1, 1.0), 10.0, label))
+        f = self.frame()
+        if f is None or f.psi0 == 0.0:
+            return out
+        half = min(max(2.0 * f.psi0, 0.002), 0.6)  # cross-axis extent (rad)
+        for psi in (-f.psi0, f.psi0):
+            out.append(Polyline(f.edge_line(psi, half), (1.0, 0.9, 0.1, 1.0), 2.0))
+        psis = np.linspace(-f.psi0, f.psi0, 64)
+        dirs = np.cos(psis)[:, None] * f.m + np.sin(psis)[:, None] * f.t
+        out.append(Polyline(ellipsoid_point_along(dirs), (1.0, 1.0, 1.0, 0.6), 1.0))
+        return out
+
+    # -- displacement hook -----------------------------------------------------------------
+    def displacement_glsl(self) -> str:
+        """The vertex-shader twin of `CollapseFrame.forward` (collapse_glsl.py)."""
+        return COLLAPSE_GLSL
+
+    def displacement_uniforms(self, view: Any) -> dict[str, float | tuple[float, ...]]:
+        """Uniforms for this frame: M - eye in float64, the frame axes, the map knots."""
+        f = self.frame()
+        if f is None:
+            return {"gv_u_map": (0.0, 0.0, 1.0, 0.0)}
+        return f.gpu_uniforms(view.eye)
+
+    def displacement_key(self) -> tuple | None:
+        """A hashable summary of the current displacement (None = identity): hosts may key
+        caches on it (e.g. an LOD provider's per-view cache) instead of disabling them."""
+        f = self.frame()
+        if f is None or f.psi0 == 0.0 or f.ratio == 1.0:
+            return None
+        return (self.a, self.b, f.ratio)
+
+    def displacement_numpy(self, points_ecef: np.ndarray) -> np.ndarray:
+        """True ECEF points (N, 3) -> where the collapsed terrain draws them."""
+        f = self.frame()
+        pts = np.asarray(points_ecef, dtype=np.float64)
+        return pts if f is None else f.forward(pts)
+
+    def displacement_inverse_numpy(self, points_ecef: np.ndarray) -> np.ndarray:
+        """Drawn ECEF points (N, 3) -> true ones (exact inverse of ``displacement_numpy``)."""
+        f = self.frame()
+        pts = np.asarray(points_ecef, dtype=np.float64)
+        return pts if f is None else f.inverse(pts)

@@ -1,0 +1,251 @@
+"""Terrain-collapse geometry on the WGS84 ellipsoid (CPU, float64, vectorised).
+
+The collapse of Wang's thesis (ch. 6) moved onto the curved globe: the land between two
+points A and B is squeezed along the A->B axis by a ratio r so that A and B come r times as
+close while everything outside the zone slides rigidly toward the zone. The derivation, the
+departures from the thesis's printed §6.2 formulas and the precision analysis are in
+docs/collapse.md; in short:
+
+- Frame. a, b = geocentric unit directions of the ellipsoid foot points of A and B;
+  n = unit(a x b) (normal of the great-circle plane through A and B), m = unit(a + b) (the
+  midpoint direction), t = n x m (the axis direction at the midpoint M, toward B). M is the
+  ellipsoid point in direction m; R_M = |M| (m).
+- Along-axis coordinate of a point P: with F its ellipsoid foot point (geodetic normal
+  through P) and u = F/|F|, psi = atan2(u.t, u.m) (radians; -psi0 at A, +psi0 at B where
+  2 psi0 is the angle between a and b), s = R_M psi (metres). Cross-axis coordinate:
+  c = asin(u.n).
+- Mapping. psi' = r psi inside the zone (|psi| <= psi0), psi' = psi -+ (1 - r) psi0 outside
+  (continuous at the edges). The far side of the globe must absorb the lost length somewhere
+  (a circle cannot shrink rigidly), so beyond psi_k = (pi + psi0) / 2 (always > 90 degrees
+  from M, out of sight when the zone is in view) the shift tapers linearly to zero at the
+  antipodal half-meridian psi = +-pi: the mapping is continuous and one-to-one everywhere.
+- Move. u is rotated about n by phi = psi' - psi (this keeps u.n, the cross-axis angle,
+  exactly); the foot point goes back onto the ellipsoid along the rotated direction; the
+  ellipsoidal height h is re-added along the geodetic normal there, so heights are kept
+  exactly.
+
+Everything here takes and returns absolute ECEF metres (float64); the GPU twin
+(collapse_glsl.py) evaluates the same formulas relative to the eye.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from globeview.geodesy import WGS84, ecef_to_lonlat, lonlat_to_ecef
+
+__all__ = ["CollapseFrame", "rotate_about"]
+
+#: A and B closer than this (m) collapse nothing (the frame is undefined).
+MIN_SEPARATION_M = 0.5
+#: A and B must be less than this far apart (radians of geocentric angle): near-antipodal
+#: points have no unique great circle, and the far-side taper needs room.
+MAX_ANGLE_RAD = math.radians(170.0)
+
+_A2 = WGS84.a**2
+_B2 = WGS84.b**2
+#: Gradient scale of the ellipsoid equation, (1/a^2, 1/a^2, 1/b^2) (m^-2).
+INV_AXES2 = np.array([1.0 / _A2, 1.0 / _A2, 1.0 / _B2])
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def rotate_about(v: np.ndarray, axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Rotate vectors ``v`` (N, 3) about the unit ``axis`` (3,) by ``angle`` (N,) radians,
+    right-handed (Rodrigues)."""
+    angle = np.asarray(angle, dtype=np.float64)[..., None]
+    cross = np.cross(axis, v)
+    along = (v @ axis)[..., None] * axis
+    return v * np.cos(angle) + cross * np.sin(angle) + along * (1.0 - np.cos(angle))
+
+
+def ellipsoid_point_along(directions: np.ndarray) -> np.ndarray:
+    """The ellipsoid point in each geocentric direction (N, 3) (any length): ECEF metres."""
+    d = np.asarray(directions, dtype=np.float64)
+    q = np.sum(d * d * INV_AXES2, axis=-1, keepdims=True)
+    return d / np.sqrt(q)
+
+
+def geodetic_normal(points_on_ellipsoid: np.ndarray) -> np.ndarray:
+    """Unit geodetic normals at ellipsoid points (N, 3) ECEF."""
+    return _unit(points_on_ellipsoid * INV_AXES2)
+
+
+@dataclass(frozen=True)
+class CollapseFrame:
+    """The collapse between A and B with ratio ``ratio``, in ECEF.
+
+    Attributes:
+        lon_a, lat_a, lon_b, lat_b: the two points (degrees; heights ignored).
+        ratio: r in (0, 1]: how much the zone's along-axis length is scaled (1 = identity).
+        m, t, n: unit ECEF vectors: midpoint direction, axis direction at M (toward B),
+            normal of the A-B great-circle plane (t = n x m).
+        m_ecef: M, the ellipsoid point in direction m (ECEF m); r_m = |M| (m).
+        psi0: half the geocentric angle between A and B (rad); d = 2 r_m psi0 is the
+            along-axis length of the zone (m).
+    """
+
+    lon_a: float
+    lat_a: float
+    lon_b: float
+    lat_b: float
+    ratio: float
+    m: np.ndarray
+    t: np.ndarray
+    n: np.ndarray
+    m_ecef: np.ndarray
+    r_m: float
+    psi0: float
+
+    @classmethod
+    def from_lonlat(
+        cls, lon_a: float, lat_a: float, lon_b: float, lat_b: float, ratio: float
+    ) -> CollapseFrame:
+        """Build the frame. Raises ValueError for r outside (0, 1] or A, B (near-)antipodal.
+        A and B closer than ``MIN_SEPARATION_M`` give the identity (psi0 = 0)."""
+        if not (0.0 < ratio <= 1.0):
+            raise ValueError(f"collapse ratio must lie in (0, 1], got {ratio!r}")
+        fa = lonlat_to_ecef(lon_a, lat_a, 0.0)
+        fb = lonlat_to_ecef(lon_b, lat_b, 0.0)
+        a, b = _unit(fa), _unit(fb)
+        cross = np.cross(a, b)
+        sin_ang = float(np.linalg.norm(cross))
+        angle = math.atan2(sin_ang, float(a @ b))
+        if angle > MAX_ANGLE_RAD:
+            raise ValueError(
+                f"A and B are {math.degrees(angle):.1f} degrees apart; the collapse needs "
+                f"less than {math.degrees(MAX_ANGLE_RAD):.0f}"
+            )
+        m = _unit(a + b)
+        m_ecef = ellipsoid_point_along(m)
+        if np.linalg.norm(fa - fb) < MIN_SEPARATION_M or sin_ang == 0.0:
+            # No axis: any frame will do, the mapping is the identity.
+            n = _unit(np.cross(m, [0.0, 0.0, 1.0]) + np.array([0.0, 1e-12, 0.0]))
+            n = _unit(np.cross(m, np.cross(n, m)))
+            return cls(lon_a, lat_a, lon_b, lat_b, 1.0, m, np.cross(n, m), n, m_ecef,
+                       float(np.linalg.norm(m_ecef)), 0.0)  # fmt: skip
+        n = cross / sin_ang
+        t = np.cross(n, m)
+        return cls(
+            float(lon_a), float(lat_a), float(lon_b), float(lat_b), float(ratio),
+            m, t, n, m_ecef, float(np.linalg.norm(m_ecef)), 0.5 * angle,
+        )  # fmt: skip
+
+    def with_ratio(self, ratio: float) -> CollapseFrame:
+        """The same A and B with another ratio (the animation interpolates it)."""
+        return CollapseFrame.from_lonlat(self.lon_a, self.lat_a, self.lon_b, self.lat_b, ratio)
+
+    # -- the along-axis coordinate --------------------------------------------------------------
+    @property
+    def d_m(self) -> float:
+        """Along-axis length of the zone (m): 2 R_M psi0."""
+        return 2.0 * self.r_m * self.psi0
+
+    @property
+    def psi_k(self) -> float:
+        """Start of the far-side taper (rad): halfway between the zone edge and the antipode."""
+        return 0.5 * (math.pi + self.psi0)
+
+    def axis_angles(self, points_ecef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(psi, c) of points (N, 3) ECEF: along-axis angle atan2(u.t, u.m) and cross-axis
+        angle asin(u.n) (radians) of the geocentric direction u of each point's ellipsoid
+        foot point."""
+        foot, _, _ = self._foot(points_ecef)
+        u = _unit(foot)
+        psi = np.arctan2(u @ self.t, u @ self.m)
+        c = np.arcsin(np.clip(u @ self.n, -1.0, 1.0))
+        return psi, c
+
+    def rotation_angle(self, psi: np.ndarray, inverse: bool = False) -> np.ndarray:
+        """phi = psi' - psi (rad) for along-axis angles ``psi`` (forward), or, with
+        ``inverse``, the angle that takes displaced angles ``psi`` back (psi - psi')."""
+        psi = np.asarray(psi, dtype=np.float64)
+        r, p0, pk = self.ratio, self.psi0, self.psi_k
+        shift = (1.0 - r) * p0
+        a = np.abs(psi)
+        sgn = np.where(psi < 0.0, -1.0, 1.0)
+        if not inverse:
+            inside = (r - 1.0) * psi
+            outside = -sgn * shift
+            # Far taper: |psi'| = pi - (pi - |psi|) * (pi - pk + shift) / (pi - pk).
+            far = -sgn * (math.pi - a) * shift / (math.pi - pk)
+            return np.where(a <= p0, inside, np.where(a <= pk, outside, far))
+        p0d, pkd = r * p0, pk - shift  # the same knots after the collapse
+        inside = (1.0 / r - 1.0) * psi
+        outside = sgn * shift
+        far = sgn * (math.pi - a) * shift / (math.pi - pkd)
+        return np.where(a <= p0d, inside, np.where(a <= pkd, outside, far))
+
+    # -- the mapping ------------------------------------------------------------------------
+    def _foot(self, points_ecef: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        p = np.asarray(points_ecef, dtype=np.float64).reshape(-1, 3)
+        lon, lat, h = ecef_to_lonlat(p)
+        return lonlat_to_ecef(lon, lat, 0.0), np.asarray(h), p
+
+    def _move(self, points_ecef: np.ndarray, inverse: bool) -> np.ndarray:
+        shape = np.shape(points_ecef)
+        if self.ratio == 1.0 or self.psi0 == 0.0:
+            return np.asarray(points_ecef, dtype=np.float64).copy()
+        foot, h, p = self._foot(points_ecef)
+        psi = np.arctan2(foot @ self.t, foot @ self.m)
+        phi = self.rotation_angle(psi, inverse=inverse)
+        g = ellipsoid_point_along(rotate_about(foot, self.n, phi))
+        out = g + h[:, None] * geodetic_normal(g)
+        out = np.where((phi == 0.0)[:, None], p, out)
+        return out.reshape(shape)
+
+    def forward(self, points_ecef: np.ndarray) -> np.ndarray:
+        """Collapse (..., 3) true ECEF points (m) to where they are drawn."""
+        return self._move(points_ecef, inverse=False)
+
+    def inverse(self, points_ecef: np.ndarray) -> np.ndarray:
+        """Drawn (collapsed) ECEF points (..., 3) back to the true ones (exact inverse)."""
+        return self._move(points_ecef, inverse=True)
+
+    # -- overlays ---------------------------------------------------------------------------
+    def edge_line(self, psi: float, half_extent_rad: float, n_points: int = 64) -> np.ndarray:
+        """Points (n_points, 3) ECEF on the ellipsoid along the line of constant along-axis
+        angle ``psi`` (rad), cross-axis angle from -half_extent to +half_extent (rad)."""
+        c = np.linspace(-half_extent_rad, half_extent_rad, n_points)[:, None]
+        base = math.cos(psi) * self.m + math.sin(psi) * self.t
+        return ellipsoid_point_along(np.cos(c) * base + np.sin(c) * self.n)
+
+    def gpu_uniforms(self, eye_ecef: np.ndarray) -> dict[str, float | tuple[float, ...]]:
+        """Values of the GLSL twin's uniforms for an eye at ``eye_ecef`` (m): M - eye is
+        formed here in float64, so the GPU never rounds an absolute position."""
+        m_rel = self.m_ecef - np.asarray(eye_ecef, dtype=np.float64)
+        r = self.ratio if self.psi0 > 0.0 else 1.0
+        return {
+            "gv_u_m_rel": tuple(float(v) for v in m_rel),
+            "gv_u_m": tuple(float(v) for v in self.m),
+            "gv_u_t": tuple(float(v) for v in self.t),
+            "gv_u_n": tuple(float(v) for v in self.n),
+            "gv_u_rm": float(self.r_m),
+            "gv_u_map": (float(self.psi0), float(self.psi_k), float(r), 0.0),
+            "gv_u_ell": (_A2 / _B2, _A2 / _B2 - 1.0, 1.0 / WGS84.a, 0.0),
+        }
+
+
+def displacement_chord_error_m(displace, points: np.ndarray) -> np.ndarray:
+    """How far a displacement bends straight edges: for tiles' bounding lattices ``points``
+    (N, K, 3) ECEF laid out as (2 heights x L x L) like `culling.tile_bounding_points`, the
+    largest distance (m) between the displaced midpoint of two neighbouring lattice points
+    and the midpoint of their displaced ends, per tile (N,). Zero for an affine
+    displacement. A triangle edge spanning the same length deviates about this much from
+    the displaced surface (linearly less for shorter edges, at a fold's kink), so an LOD
+    provider can add it to the tile's geometric error to refine where the fold would open
+    gaps between neighbouring tiles drawn at different strides."""
+    pts = np.asarray(points, dtype=np.float64)
+    n, k, _ = pts.shape
+    side = round(math.sqrt(k // 2))
+    grid = pts.reshape(n, 2, side, side, 3)[:, 0]  # the lower surface suffices
+    a = np.concatenate([grid[:, :, :-1].reshape(n, -1, 3), grid[:, :-1, :].reshape(n, -1, 3)], 1)
+    b = np.concatenate([grid[:, :, 1:].reshape(n, -1, 3), grid[:, 1:, :].reshape(n, -1, 3)], 1)
+    mid = 0.5 * (a + b)
+    da, db, dm = (np.asarray(displace(v.reshape(-1, 3))).reshape(v.shape) for v in (a, b, mid))
+    return np.max(np.linalg.norm(dm - 0.5 * (da + db), axis=-1), axis=1)

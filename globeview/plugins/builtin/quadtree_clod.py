@@ -1,0 +1,237 @@
+"""`quadtree-clod`: real-time adaptive quadtree continuous LOD inside each tile (Wang thesis
+ch. 4-5, after Lindstrom et al. 1996 and Ulrich 2002).
+
+Which tiles to draw, and at which quadtree level, follows the default provider's walk
+(`chunked_sse.select_tiles`: frustum + horizon culling, screen-space error); this provider
+then decides the mesh *inside* each tile with the thesis' vertex errors, box test and vertex
+dependencies, and hands the renderer one triangle list per tile (`RenderSet.custom_indices`).
+The per-tile mathematics is in `clod_mesh.py`.
+
+Thresholds. The thesis enables a vertex when ``E_v / d >= tau'`` (eq. 4.1) and refines a block
+when ``E_max / (d - s) >= tau'`` (eq. 4.2), a dimensionless ratio (its experiments: 0.0001 to
+0.003). A vertex error e at distance d covers ``e * K / d`` pixels (K = view.sse_factor), so a
+threshold of tau pixels is ``tau' = tau / K``: at 720 px and 45 degrees (K = 869) the default
+2 px is tau' = 0.0023; the thesis' 0.0001..0.003 are 0.09..2.6 px there.
+
+Caching. A tile's vertex errors, block maxima and radii are computed at its first use and kept
+(per exaggeration: errors are 3-D deviations of exaggerated positions, so exaggeration scales
+the height part of every error). The whole frame's result is reused while the tile set, the
+settings and the view's projection are unchanged, the view direction turned by less than
+``reuse_turn_deg`` and the eye moved by less than ``reuse_fraction`` of its distance to the
+nearest tile: the same index arrays are handed on (``stats["clod_cache_hits"]`` counts).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import OrderedDict
+
+import numpy as np
+
+from globeview.plugins.api import LodProvider, Setting
+from globeview.plugins.builtin.chunked_sse import ChunkedSettings, select_tiles
+from globeview.plugins.builtin.clod_mesh import (
+    ClodFrame,
+    TileClod,
+    clod_frame,
+    tile_clod,
+    triangulate,
+)
+from globeview.render.render_set import RenderSet
+from globeview.render.view_state import ViewState
+from globeview.terrain.stack import TerrainStack
+
+#: Tiles whose CLOD data stays cached (about 170 kB each for 65 x 65 tiles).
+TILE_CACHE = 1500
+
+
+class QuadtreeClodProvider(LodProvider):
+    """Quadtree CLOD meshes inside chunked-selected tiles (see the module docstring)."""
+
+    name = "quadtree-clod"
+    label = "Quadtree CLOD (Lindstrom/Ulrich)"
+    settings = (
+        Setting(
+            "tau_px",
+            "float",
+            0.0,
+            min=0.0,
+            max=64.0,
+            label="error threshold (pixels)",
+            help="vertex / box test threshold in pixels; tau' = tau / K. 0 = the view's tau",
+        ),
+        Setting(
+            "texel_px",
+            "float",
+            1.5,
+            min=0.5,
+            max=8.0,
+            label="texel size (pixels)",
+            help="tile selection: refine tiles while a texel covers more pixels",
+        ),
+        Setting("max_tiles", "int", 600, min=16, max=2000, label="tile budget"),
+        Setting(
+            "cull_blocks",
+            "bool",
+            True,
+            label="quadtree culling",
+            help="do not refine blocks outside the view frustum (thesis §5.2)",
+        ),
+        Setting(
+            "reuse_fraction",
+            "float",
+            0.01,
+            min=0.0,
+            max=0.2,
+            label="reuse below eye move (fraction)",
+            help="reuse last frame's meshes while the eye moved less than this fraction of "
+            "its distance to the nearest tile",
+        ),
+        Setting(
+            "reuse_turn_deg",
+            "float",
+            0.05,
+            min=0.0,
+            max=5.0,
+            label="reuse below turn (degrees)",
+        ),
+    )
+
+    def __init__(self, context=None) -> None:
+        super().__init__(context)
+        self._tiles: OrderedDict[tuple, TileClod] = OrderedDict()
+        self._terrain_id: tuple[int, int] | None = None
+        self._last: dict | None = None
+        self.cache_hits = 0
+        self.last_frame: ClodFrame | None = None
+
+    # -- tile data -------------------------------------------------------------------------
+    def _tile(self, terrain: TerrainStack, key: tuple[int, int, int], exag: float) -> TileClod:
+        ck = (key, exag)
+        hit = self._tiles.get(ck)
+        if hit is not None:
+            self._tiles.move_to_end(ck)
+            return hit
+        data = tile_clod(key, terrain.heights(key), exag)
+        self._tiles[ck] = data
+        while len(self._tiles) > TILE_CACHE:
+            self._tiles.popitem(last=False)
+        return data
+
+    def tau_px(self, view: ViewState) -> float:
+        """The threshold in pixels: the setting, or the view's when the setting is 0."""
+        tau = float(self.values.get("tau_px", 0.0))
+        return tau if tau > 0.0 else float(view.tau_px)
+
+    # -- selection -----------------------------------------------------------------------------
+    def select(self, view: ViewState, terrain: TerrainStack) -> RenderSet:
+        if terrain is None or not terrain.layers:
+            return RenderSet.empty()
+        t0 = time.perf_counter()
+        v = self.values
+        tid = (id(terrain), int(getattr(terrain, "version", 0)))
+        if tid != self._terrain_id:
+            self._tiles.clear()
+            self._last = None
+            self._terrain_id = tid
+        tau = self.tau_px(view)
+        base = select_tiles(
+            view,
+            terrain,
+            ChunkedSettings(tau_px=tau, texel_px=v["texel_px"], max_tiles=v["max_tiles"]),
+        )
+        keys = base.keys
+        exag = float(view.exaggeration)
+        sig = (
+            tau,
+            exag,
+            tuple(view.viewport),
+            float(view.fovy_deg),
+            tuple(sorted(v.items())),
+            keys.tobytes(),
+        )
+        reused = self._reuse(view, sig)
+        if reused is not None:
+            rs = RenderSet(
+                keys, base.variant_ids, base.variants, reused.custom_indices, reused.error_px
+            )
+            rs.stats.update(reused.stats)
+            self.cache_hits += 1
+            rs.stats["clod_cache_hits"] = self.cache_hits
+            rs.stats["clod_reused"] = 1
+            rs.stats["lod_ms"] = (time.perf_counter() - t0) * 1e3
+            return rs
+
+        rs = self._build(view, terrain, keys, base, tau, exag)
+        rs.stats["clod_cache_hits"] = self.cache_hits
+        rs.stats["clod_reused"] = 0
+        rs.stats["lod_ms"] = (time.perf_counter() - t0) * 1e3
+        self._last = {"sig": sig, "eye": view.eye.copy(), "rot": view.rotation.copy(), "rs": rs}
+        return rs
+
+    def _reuse(self, view: ViewState, sig: tuple) -> RenderSet | None:
+        last = self._last
+        if last is None or last["sig"] != sig:
+            return None
+        rs = last["rs"]
+        moved = float(np.linalg.norm(view.eye - last["eye"]))
+        near = float(rs.stats.get("clod_nearest_m", 0.0))
+        if moved > float(self.values["reuse_fraction"]) * near:
+            return None
+        # Turn angle between the two camera frames.
+        c = (np.trace(view.rotation @ last["rot"].T) - 1.0) / 2.0
+        if math.degrees(math.acos(min(max(c, -1.0), 1.0))) > float(self.values["reuse_turn_deg"]):
+            return None
+        return rs
+
+    def _build(
+        self,
+        view: ViewState,
+        terrain: TerrainStack,
+        keys: np.ndarray,
+        base: RenderSet,
+        tau: float,
+        exag: float,
+    ) -> RenderSet:
+        if len(keys) == 0:
+            rs = RenderSet.empty()
+            rs.stats.update(base.stats)
+            return rs
+        tiles = [self._tile(terrain, (int(a), int(b), int(c)), exag) for a, b, c in keys]
+        origins = np.stack([t.origin for t in tiles])
+        bases = np.stack([t.basis for t in tiles])
+        eye_local, planes_local = view.in_local_frames(origins, bases)
+        k_px = view.sse_factor
+        frame = clod_frame(
+            keys,
+            tiles,
+            eye_local,
+            planes_local,
+            tau / k_px,
+            k_px,
+            cull=bool(self.values["cull_blocks"]),
+        )
+        self.last_frame = frame
+        size = tiles[0].pos.shape[0]
+        chunks, counts = triangulate(frame, size, keys)
+        rs = RenderSet(
+            keys,
+            base.variant_ids,
+            base.variants,
+            custom_indices=dict(enumerate(chunks)),
+            error_px=frame.error_px,
+        )
+        rs.stats.update(base.stats)
+        # Nearest tile distance (for the reuse rule): the nearest node of any tile.
+        d = np.linalg.norm(
+            np.stack([t.pos[:: size // 4, :: size // 4].reshape(-1, 3) for t in tiles])
+            - eye_local[:, None, :],
+            axis=-1,
+        )
+        rs.stats["clod_nearest_m"] = float(d.min())
+        rs.stats["clod_triangles"] = int(counts.sum())
+        rs.stats["clod_vertices"] = int(frame.enabled.sum())
+        rs.stats["clod_exchange_passes"] = frame.exchange_passes
+        rs.stats["clod_tau_ratio"] = tau / k_px
+        return rs
