@@ -33,6 +33,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--lod", default="chunked-sse", help="LOD provider plugin (see `globeview plugins list`)"
     )
+    parser.add_argument(
+        "--collapse",
+        metavar="LONA,LATA,LONB,LATB[,RATIO]",
+        help="fold away the terrain between A and B (degrees) to RATIO (default 0.2) of its "
+        "length with the terrain-collapse tool",
+    )
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -97,6 +103,7 @@ def run(args: argparse.Namespace) -> int:
 
     from PIL import Image
 
+    from globeview.errors import GlobeviewError
     from globeview.plugins.session import GlobeSession
     from globeview.render.camera import Camera, camera_for_bounds
     from globeview.render.offscreen import OffscreenTarget, create_headless_context
@@ -124,6 +131,16 @@ def run(args: argparse.Namespace) -> int:
     s.fog = not args.no_fog
     if args.background:
         s.background = tuple(parse_floats(args.background, "--background", (3,)))
+    if args.collapse:
+        vals = parse_floats(args.collapse, "--collapse", (4, 5))
+        tool = scene.tools().get("collapse")
+        if tool is None:
+            raise GlobeviewError("the collapse tool plugin is not enabled")
+        try:
+            tool.set_points(*vals[:4], vals[4] if len(vals) == 5 else None)
+        except ValueError as exc:
+            raise GlobeviewError(f"--collapse: {exc}") from None
+        scene.activate_tool("collapse")
     # The first frame uploads tiles; the second one is the steady-state frame we report.
     first = scene.render(target.fbo, size)
     scene.reset_lod()  # measure a full selection, not a cache hit

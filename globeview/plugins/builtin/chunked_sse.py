@@ -29,8 +29,10 @@ import numpy as np
 
 from globeview.plugins.api import LodProvider, Setting
 from globeview.render.culling import (
+    LATTICE,
     bounding_distance,
     chord_sag,
+    displacement_chord_error_m,
     frustum_visible,
     horizon_visible,
     tile_bounding_points,
@@ -94,7 +96,10 @@ def select_tiles(
             break
         w, s, e, n = tile_bounds_arrays(level, x, y)
         meta = terrain.metadata(level, x, y)
-        pts, margin = tile_bounding_points(w, s, e, n, meta.hmin, meta.hmax, exag, view.displace)
+        pts, margin = tile_bounding_points(w, s, e, n, meta.hmin, meta.hmax, exag)
+        pts_true = pts
+        if view.displace is not None:
+            pts = np.asarray(view.displace(pts.reshape(-1, 3)), dtype=np.float64).reshape(pts.shape)
         vis_f = frustum_visible(view, pts, margin)
         vis_h = horizon_visible(view, w, s, e, n, meta.hmax, exag)
         culled_f += int(np.count_nonzero(~vis_f))
@@ -104,6 +109,13 @@ def select_tiles(
         if len(x) == 0:
             break
         err = stride_errors_m(level, meta.stride_error[keep], exag, size)
+        if view.displace is not None:
+            # A displacement that bends the surface (the collapse's fold lines) bends it away
+            # from straight triangle edges: count that as geometric error, shrinking with the
+            # stride, so tiles across a fold refine and no gap opens between them.
+            bend = displacement_chord_error_m(view.displace, pts_true[keep])
+            frac = np.minimum(1.0, 2.0 ** np.arange(N_STRIDES) * (LATTICE - 1) / (size - 1))
+            err = err + bend[:, None] * frac[None, :]
         dist = bounding_distance(view, pts[keep], margin[keep])
         px_per_m = k_px / dist
         sse = err * px_per_m[:, None]

@@ -229,23 +229,3 @@ class CollapseFrame:
             "gv_u_map": (float(self.psi0), float(self.psi_k), float(r), 0.0),
             "gv_u_ell": (_A2 / _B2, _A2 / _B2 - 1.0, 1.0 / WGS84.a, 0.0),
         }
-
-
-def displacement_chord_error_m(displace, points: np.ndarray) -> np.ndarray:
-    """How far a displacement bends straight edges: for tiles' bounding lattices ``points``
-    (N, K, 3) ECEF laid out as (2 heights x L x L) like `culling.tile_bounding_points`, the
-    largest distance (m) between the displaced midpoint of two neighbouring lattice points
-    and the midpoint of their displaced ends, per tile (N,). Zero for an affine
-    displacement. A triangle edge spanning the same length deviates about this much from
-    the displaced surface (linearly less for shorter edges, at a fold's kink), so an LOD
-    provider can add it to the tile's geometric error to refine where the fold would open
-    gaps between neighbouring tiles drawn at different strides."""
-    pts = np.asarray(points, dtype=np.float64)
-    n, k, _ = pts.shape
-    side = round(math.sqrt(k // 2))
-    grid = pts.reshape(n, 2, side, side, 3)[:, 0]  # the lower surface suffices
-    a = np.concatenate([grid[:, :, :-1].reshape(n, -1, 3), grid[:, :-1, :].reshape(n, -1, 3)], 1)
-    b = np.concatenate([grid[:, :, 1:].reshape(n, -1, 3), grid[:, 1:, :].reshape(n, -1, 3)], 1)
-    mid = 0.5 * (a + b)
-    da, db, dm = (np.asarray(displace(v.reshape(-1, 3))).reshape(v.shape) for v in (a, b, mid))
-    return np.max(np.linalg.norm(dm - 0.5 * (da + db), axis=-1), axis=1)

@@ -26,11 +26,18 @@ uniform float u_fog_end;         // metres
 uniform vec3 u_fog_color;
 uniform int u_mode;              // 0 = shaded, 1 = wireframe overlay
 uniform vec3 u_wire_color;
+// overlays: imagery drape (overlay_imagery.py): premultiplied RGBA per tile, one-texel border.
+uniform sampler2DArray u_imagery;
+uniform float u_imagery_on;       // 0 or 1
+uniform float u_imagery_opacity;  // 0..1
+uniform float u_imagery_size;     // texels per tile side, border included
+uniform float u_tile_nodes;       // nodes per terrain tile side
 
 in vec2 v_uv;
 flat in float v_layer;
 in vec3 v_up;
 in vec3 v_rel;
+in float v_shade;
 
 out vec4 f_color;
 
@@ -47,6 +54,12 @@ void main() {
     n = normalize(u_exag * (n - nu * up) + nu * up);
 
     vec3 albedo = texture(u_ramp, vec2(clamp((h - u_ramp_lo) / (u_ramp_hi - u_ramp_lo), 0.0, 1.0), 0.5)).rgb;
+    if (u_imagery_on > 0.5) {  // overlays: node uv -> tile fraction -> interior texels
+        vec2 t = (v_uv * u_tile_nodes - 0.5) / (u_tile_nodes - 1.0);
+        vec2 iuv = (1.0 + t * (u_imagery_size - 2.0)) / u_imagery_size;
+        vec4 img = texture(u_imagery, vec3(iuv, v_layer)) * u_imagery_opacity;
+        albedo = albedo * (1.0 - img.a) + img.rgb;
+    }
 
     vec3 light = u_light;
     if (u_hillshade) {
@@ -57,6 +70,9 @@ void main() {
     float diffuse = max(dot(n, light), 0.0);
     vec3 color = albedo * (0.35 + 0.75 * diffuse);
 
+    // Interpolating 1.0 across a triangle can give 0.99999994: snap it back to exactly 1 so
+    // a hook that shades nothing changes no pixel.
+    color *= min(v_shade + 1e-3, 1.0);
     float dist = length(v_rel);
     float fog = smoothstep(u_fog_start, u_fog_end, dist);
     f_color = vec4(mix(color, u_fog_color, fog * 0.6), 1.0);

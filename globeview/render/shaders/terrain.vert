@@ -22,7 +22,11 @@ out vec2 v_uv;
 flat out float v_layer;
 out vec3 v_up;
 out vec3 v_rel;
+// Shading factor a displacement hook may set (e.g. darkening the collapsed zone).
+out float v_shade;
 
+#define GV_HAS_SHADE 1
+float gv_shade = 1.0;
 //GV_DISPLACE_DECLS
 
 void main() {
@@ -39,4 +43,5 @@ void main() {
     v_layer = in_layer;
     v_up = up;
     v_rel = rel;
+    v_shade = gv_shade;
 }
