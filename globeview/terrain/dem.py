@@ -39,8 +39,26 @@ from rasterio.windows import Window
 
 from globeview.errors import DemError
 
+
 # globeview/terrain/dem.py -> repository root /data
-EMBEDDED_DATA_DIR: Path = (Path(__file__).resolve().parent.parent.parent / "data").resolve()
+def _find_data_dir() -> Path:
+    """Where the embedded data lives: ``$GLOBEVIEW_DATA_DIR``; the checkout's ``data/`` (an
+    editable install or running from the source tree); else ``<prefix>/share/globeview/data``
+    where a wheel install puts it (pyproject's data-files)."""
+    import os
+    import sys
+
+    env = os.environ.get("GLOBEVIEW_DATA_DIR")
+    if env:
+        return Path(env)
+    checkout = (Path(__file__).resolve().parent.parent.parent / "data").resolve()
+    if (checkout / "etopo20.tif").exists():
+        return checkout
+    installed = Path(sys.prefix) / "share" / "globeview" / "data"
+    return installed if installed.exists() else checkout
+
+
+EMBEDDED_DATA_DIR: Path = _find_data_dir()
 
 WGS84 = CRS.from_epsg(4326)
 
