@@ -78,7 +78,9 @@ class TilePool:
         self.verts_per_tile = vertices_per_tile(size)
         self.vbo = ctx.buffer(reserve=capacity * self.verts_per_tile * FLOATS_PER_VERTEX * 4)
         self.height_tex = ctx.texture_array((size, size, capacity), 1, dtype="f4")
-        self.normal_tex = ctx.texture_array((size, size, capacity), 4, dtype="f2")
+        # Normals as 8-bit unsigned (n * 0.5 + 0.5): llvmpipe samples RGBA8 on its fast path,
+        # half floats noticeably slower; 1/255 steps are ~0.5 degree, finer than shading needs.
+        self.normal_tex = ctx.texture_array((size, size, capacity), 4, dtype="f1")
         for tex in (self.height_tex, self.normal_tex):
             tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
             tex.repeat_x = False
@@ -156,6 +158,7 @@ class TilePool:
             viewport=(0, 0, slot, s, s, 1),
         )
         nrm = np.concatenate([mesh.normals, np.zeros((s, s, 1), np.float32)], axis=2)
-        self.normal_tex.write(nrm.astype(np.float16).tobytes(), viewport=(0, 0, slot, s, s, 1))
+        nrm8 = np.clip(np.rint((nrm * 0.5 + 0.5) * 255.0), 0, 255).astype(np.uint8)
+        self.normal_tex.write(nrm8.tobytes(), viewport=(0, 0, slot, s, s, 1))
         self.centers[slot] = mesh.center
         self.generation[slot] += 1

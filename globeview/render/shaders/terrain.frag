@@ -47,7 +47,7 @@ void main() {
         return;
     }
     float h = texture(u_heights, vec3(v_uv, v_layer)).r;
-    vec3 n = texture(u_normals, vec3(v_uv, v_layer)).xyz;
+    vec3 n = normalize(texture(u_normals, vec3(v_uv, v_layer)).xyz * 2.0 - 1.0);
     vec3 up = normalize(v_up);
     // Exaggeration scales slopes: tilt the stored (true-relief) normal accordingly.
     float nu = dot(n, up);
