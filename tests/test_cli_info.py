@@ -37,8 +37,9 @@ def test_info_json_embedded() -> None:
     assert crater["fill_value"] == -32767
 
 
-def test_bare_command_describes_embedded() -> None:
-    r = _run()
+def test_info_embedded_describes_the_embedded_dems() -> None:
+    # (The bare `globeview` command opens the window; tests/ui covers it.)
+    r = _run("info", "--embedded")
     assert r.returncode == 0, r.stderr
     assert "etopo20.tif" in r.stdout and "N44W072.hgt" in r.stdout
 

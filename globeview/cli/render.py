@@ -34,6 +34,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--lod", default="chunked-sse", help="LOD provider plugin (see `globeview plugins list`)"
     )
     parser.add_argument(
+        "--layer",
+        action="append",
+        default=[],
+        metavar="FILE",
+        help="overlay a raster (imagery, thematic) or vector (GeoJSON lines, points) file; "
+        "repeatable",
+    )
+    parser.add_argument(
+        "--imagery", action="store_true", help="drape the embedded Blue Marble imagery"
+    )
+    parser.add_argument(
+        "--no-borders", action="store_true", help="hide the embedded country borders"
+    )
+    parser.add_argument(
         "--collapse",
         metavar="LONA,LATA,LONB,LATB[,RATIO]",
         help="fold away the terrain between A and B (degrees) to RATIO (default 0.2) of its "
@@ -131,6 +145,14 @@ def run(args: argparse.Namespace) -> int:
     s.fog = not args.no_fog
     if args.background:
         s.background = tuple(parse_floats(args.background, "--background", (3,)))
+    if not args.no_borders or args.imagery:
+        if args.no_borders:
+            scene.add_embedded_overlays(imagery=True)
+            scene.remove_overlay(scene.overlay_layers[-1])  # keep the imagery only
+        else:
+            scene.add_embedded_overlays(imagery=args.imagery)
+    for path in args.layer:
+        scene.add_overlay(path)
     if args.collapse:
         vals = parse_floats(args.collapse, "--collapse", (4, 5))
         tool = scene.tools().get("collapse")

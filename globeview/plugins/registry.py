@@ -22,12 +22,14 @@ import contextlib
 import importlib
 import importlib.metadata as md
 import logging
+import sys
 import traceback
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
+from globeview.errors import GlobeviewError
 from globeview.plugins.api import LodProvider, PluginContext, PluginKind, RendererHooks, Tool
 from globeview.plugins.manifest import Manifest, ManifestError, locate_manifest, read_manifest
 from globeview.plugins.settings import (
@@ -420,22 +422,43 @@ class PluginRegistry:
         return rec is not None and rec.enabled and rec.status == "ok"
 
     def call(
-        self, plugin_name: str, fn: Callable[..., T], *args: Any, default: Any = None, **kwargs: Any
+        self,
+        plugin_name: str,
+        fn: Callable[..., T],
+        *args: Any,
+        default: Any = None,
+        user_errors: bool = False,
+        **kwargs: Any,
     ) -> T | Any:
         """Run ``fn(*args, **kwargs)`` — plugin code — isolated.
 
         Returns ``default`` without calling when the plugin is not active, and when ``fn``
-        raises: the plugin is then disabled for the session (`report_failure`).
+        raises: the plugin is then disabled for the session (`report_failure`). With
+        ``user_errors``, a `GlobeviewError` (bad input the user gave, e.g. a broken file to a
+        layer type's ``open``) propagates to the caller instead: the plugin is not at fault.
         """
         if not self.is_active(plugin_name):
             return default
         try:
             return fn(*args, **kwargs)
+        except GlobeviewError:
+            if user_errors:
+                raise
+            self.report_failure(plugin_name, sys.exc_info()[1])  # type: ignore[arg-type]
+            return default
         except Exception as exc:
             self.report_failure(plugin_name, exc)
             return default
 
-    def invoke(self, instance: Any, method: str, *args: Any, default: Any = None) -> Any:
+    def invoke(
+        self,
+        instance: Any,
+        method: str,
+        *args: Any,
+        default: Any = None,
+        user_errors: bool = False,
+        **kwargs: Any,
+    ) -> Any:
         """``call`` a method of a loaded contribution, e.g.
         ``registry.invoke(tool, "on_mouse", event, default=False)``.
 
@@ -448,7 +471,7 @@ class PluginRegistry:
         if not callable(fn):
             self.report_failure(plugin, TypeError(f"{type(instance).__name__} has no {method}()"))
             return default
-        return self.call(plugin, fn, *args, default=default)
+        return self.call(plugin, fn, *args, default=default, user_errors=user_errors, **kwargs)
 
     def select(self, provider: LodProvider, view: Any, terrain: Any) -> Any | None:
         """``provider.select(view, terrain)`` isolated, checking it returned a RenderSet.

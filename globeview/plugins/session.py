@@ -49,6 +49,7 @@ class GlobeSession(GlobeScene):
             registry.discover()
         self.registry = registry
         self.active_tool: str | None = None
+        self.overlay_layers: list = []
         # Plugins get redraw/status hooks, not the GL renderer: headless they are recorded,
         # and the window attaches its own (redraw = widget.update, status = status bar).
         self.hooks = NullRendererHooks()
@@ -170,3 +171,37 @@ class GlobeSession(GlobeScene):
         ecef = np.asarray(true, dtype=np.float64).reshape(3)
         lon, lat, h = ecef_to_lonlat(ecef)
         return Pick(ecef, float(lon), float(lat), float(h), p.on_terrain)
+
+    # -- overlay layers (imagery, thematic, vectors, points) ------------------------------------
+    def add_overlay(self, path: str, **style):
+        """Open a raster or vector file as an overlay layer (its type decided by content) and
+        show it. Bad files raise a one-line `GlobeviewError`; the layers plugin stays enabled."""
+        from globeview.plugins.builtin.layers import detect_layer_type
+
+        kind = detect_layer_type(str(path))
+        layer_type = self.registry.layer_types().get(kind)
+        if layer_type is None:
+            raise GlobeviewError(f"no enabled layer plugin opens {kind} files ({path})")
+        layer = self.registry.invoke(layer_type, "open", str(path), user_errors=True, **style)
+        if layer is None:
+            raise GlobeviewError(f"the layer plugin failed to open {path} (see the plugin list)")
+        layer.attach(self.renderer)
+        self.overlay_layers.append(layer)
+        return layer
+
+    def add_embedded_overlays(self, imagery: bool = False) -> list:
+        """The embedded default overlays: Natural Earth borders and coastlines (and the Blue
+        Marble imagery with ``imagery``)."""
+        from globeview.plugins.builtin.layers import embedded_layers
+
+        if "layers" not in self.registry or not self.registry.is_active("layers"):
+            return []
+        layers = embedded_layers(imagery=imagery)
+        for layer in layers:
+            layer.attach(self.renderer)
+        self.overlay_layers.extend(layers)
+        return layers
+
+    def remove_overlay(self, layer) -> None:
+        layer.detach(self.renderer)
+        self.overlay_layers.remove(layer)

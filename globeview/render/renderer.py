@@ -23,6 +23,7 @@ import numpy as np
 
 from globeview.geodesy import WGS84, ecef_to_lonlat
 from globeview.render.colour_ramp import ramp_texture_data
+from globeview.render.overlay_imagery import OverlaySet  # overlays:
 from globeview.render.render_set import FrameStats, RenderSet
 from globeview.render.tile_indices import IndexVariant
 from globeview.render.tile_mesh import FLOATS_PER_VERTEX, TileMesh, build_tile_mesh
@@ -97,6 +98,8 @@ class GlobeRenderer:
         self.ramp.repeat_x = False
         self._build_vao()
         self.last_view: ViewState | None = None
+        # overlays: imagery drape (texture array parallel to the pool), vectors, point objects.
+        self.overlays = OverlaySet(ctx, capacity)
 
     # -- shader program and displacement hooks --------------------------------------------
     def _compile(self, hook: DisplacementHook | None) -> moderngl.Program:
@@ -227,6 +230,8 @@ class GlobeRenderer:
         self.pool.height_tex.use(0)
         self.pool.normal_tex.use(1)
         self.ramp.use(2)
+        # overlays: upload stale imagery slots, bind the drape, set its uniforms.
+        self.overlays.prepare(self.program, self.pool, slots, render_set.keys)
         passes = [0, 1] if self.settings.wireframe else [0]
         for mode in passes:
             if "u_mode" in self.program:
@@ -243,6 +248,8 @@ class GlobeRenderer:
                 )
         self.ctx.wireframe = False
         self.ctx.depth_func = "<"
+        # overlays: vectors and point objects, depth-tested against the terrain just drawn.
+        stats.extra.update(self.overlays.draw(view, render_set, self.terrain, self.settings))
         self.ctx.finish()
         t1 = time.perf_counter()
 
@@ -308,6 +315,7 @@ class GlobeRenderer:
             self.ramp,
         ):
             obj.release()
+        self.overlays.release()  # overlays:
 
 
 def tile_bounds_tuple(key: tuple[int, int, int]) -> tuple[float, float, float, float]:

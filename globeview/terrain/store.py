@@ -29,7 +29,7 @@ from globeview.terrain.quadtree import TileKey
 
 __all__ = ["FORMAT_VERSION", "TileStore"]
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 MANIFEST_NAME = "manifest.json"
 DEFAULT_CACHE_TILES = 256
 

@@ -7,23 +7,43 @@ are drawn on demand only: something that changes the view calls ``request_frame(
 
 Pixel coordinates handed to the scene (picking, navigation) are framebuffer pixels, top-left
 origin: Qt's logical coordinates times ``devicePixelRatio``.
+
+Tools (``GlobeSession.tool()``, the active tool plugin): a left click — press and release
+without moving more than `CLICK_SLOP_PX` — goes to the tool as a ``press`` and a ``release``
+`PointerEvent` (with the true, un-displaced picked point), a drag still navigates; cursor
+moves, wheel steps and key presses go to the tool first and to navigation when it does not
+consume them. Escape also deactivates the tool (``toolDeactivated``). Each frame the widget
+advances the tool's ``animate(now)`` (a 16 ms timer keeps frames coming while it returns
+True) and draws the tool's overlay primitives (`ToolOverlayRenderer`) over the terrain.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import time
+from dataclasses import replace
 
 import moderngl
 import numpy as np
-from PyQt6.QtCore import QPointF, Qt, QTimer, pyqtSignal
-from PyQt6.QtGui import QImage, QKeyEvent, QMouseEvent, QSurfaceFormat, QWheelEvent
+from PyQt6.QtCore import QEvent, QPointF, Qt, QTimer, pyqtSignal
+from PyQt6.QtGui import (
+    QImage,
+    QKeyEvent,
+    QMouseEvent,
+    QOpenGLContext,
+    QSurfaceFormat,
+    QWheelEvent,
+)
 from PyQt6.QtOpenGLWidgets import QOpenGLWidget
 from PyQt6.QtWidgets import QWidget
 
+from globeview.geodesy import ecef_to_lonlat, lonlat_to_ecef
+from globeview.plugins.api import KeyEvent, PointerEvent
 from globeview.plugins.registry import PluginRegistry
 from globeview.plugins.session import DEFAULT_LOD, GlobeSession
 from globeview.render.camera import Camera
+from globeview.render.overlay_tools import ToolOverlayRenderer
 from globeview.render.picking import Pick
 from globeview.render.render_set import FrameStats
 from globeview.render.renderer import RenderSettings
@@ -35,6 +55,65 @@ log = logging.getLogger("globeview.ui")
 #: OpenGL version the renderer needs (multi-draw indirect needs 4.3 where available; 3.3 is
 #: the floor moderngl's programs need).
 GL_VERSION = (3, 3)
+#: A left press and release closer than this (framebuffer pixels) is a click for the tool.
+CLICK_SLOP_PX = 4.0
+#: Repaint interval while a tool animates (ms).
+ANIMATION_INTERVAL_MS = 16
+
+#: Qt keys -> `KeyEvent.key` names (printable keys use their lower-case text).
+_KEY_NAMES = {
+    Qt.Key.Key_Escape: "Escape",
+    Qt.Key.Key_Return: "Return",
+    Qt.Key.Key_Enter: "Return",
+    Qt.Key.Key_Space: "space",
+    Qt.Key.Key_Tab: "Tab",
+    Qt.Key.Key_Backspace: "BackSpace",
+    Qt.Key.Key_Delete: "Delete",
+    Qt.Key.Key_Left: "Left",
+    Qt.Key.Key_Right: "Right",
+    Qt.Key.Key_Up: "Up",
+    Qt.Key.Key_Down: "Down",
+    Qt.Key.Key_Home: "Home",
+    Qt.Key.Key_End: "End",
+    Qt.Key.Key_PageUp: "Prior",
+    Qt.Key.Key_PageDown: "Next",
+}
+
+
+def key_name(key: int, text: str) -> str:
+    """The `KeyEvent.key` name of a Qt key: "a", "1", "Escape", "Left", ... ("" if none)."""
+    try:
+        name = _KEY_NAMES.get(Qt.Key(key))
+    except ValueError:
+        name = None
+    if name is not None:
+        return name
+    if text and text.isprintable():
+        return text.lower()
+    return ""
+
+
+def modifier_names(mods: Qt.KeyboardModifier) -> frozenset[str]:
+    """``shift``/``ctrl``/``alt``/``meta`` of a Qt modifier set."""
+    m = Qt.KeyboardModifier
+    table = (
+        (m.ShiftModifier, "shift"),
+        (m.ControlModifier, "ctrl"),
+        (m.AltModifier, "alt"),
+        (m.MetaModifier, "meta"),
+    )
+    return frozenset(name for flag, name in table if mods & flag)
+
+
+def button_name(button: Qt.MouseButton) -> str | None:
+    b = Qt.MouseButton
+    return {b.LeftButton: "left", b.MiddleButton: "middle", b.RightButton: "right"}.get(button)
+
+
+def button_names(buttons: Qt.MouseButton) -> frozenset[str]:
+    b = Qt.MouseButton
+    table = ((b.LeftButton, "left"), (b.MiddleButton, "middle"), (b.RightButton, "right"))
+    return frozenset(name for flag, name in table if buttons & flag)
 
 
 def surface_format() -> QSurfaceFormat:
@@ -66,6 +145,10 @@ class GlobeWidget(QOpenGLWidget):
         cursorPicked(object): the `Pick` under the cursor (or None) as the mouse moves.
         cameraChanged(): navigation or a flight moved the camera.
         renderFailed(object): an exception while drawing (the widget keeps running).
+        toolDeactivated(): the widget deactivated the active tool (Escape, or its plugin
+            failed).
+        keyUnhandled(int, object): a key press neither the tool nor navigation took (Qt key,
+            modifiers): the window matches it against the tool actions' shortcuts.
     """
 
     sceneReady = pyqtSignal(object)
@@ -73,6 +156,8 @@ class GlobeWidget(QOpenGLWidget):
     cursorPicked = pyqtSignal(object)
     cameraChanged = pyqtSignal()
     renderFailed = pyqtSignal(object)
+    toolDeactivated = pyqtSignal()
+    keyUnhandled = pyqtSignal(int, object)
 
     def __init__(
         self,
@@ -109,6 +194,14 @@ class GlobeWidget(QOpenGLWidget):
         self._settle.setSingleShot(True)
         self._settle.setInterval(150)
         self._settle.timeout.connect(self.update)
+        # Tools: animation repaints, the pending left click, overlay drawing.
+        self.tool_overlay: ToolOverlayRenderer | None = None
+        self.overlay_drawn = 0
+        self._anim = QTimer(self)
+        self._anim.setInterval(ANIMATION_INTERVAL_MS)
+        self._anim.timeout.connect(self.update)
+        self._click: tuple[float, float] | None = None  # left press a tool may get as a click
+        self._marker_heights: dict[tuple[float, float, float], float] = {}
 
     # -- model wiring ----------------------------------------------------------------------
     def set_tau(self, tau_px: float) -> None:
@@ -146,6 +239,7 @@ class GlobeWidget(QOpenGLWidget):
         scene.tau_px = self.tau_px
         self.scene = scene
         self.navigator = Navigator(scene, self.pick, self.viewport_px, self._camera_moved)
+        self.tool_overlay = ToolOverlayRenderer(self.ctx)
         log.info("OpenGL %s on %s", self.ctx.info["GL_VERSION"], self.ctx.info["GL_RENDERER"])
         self.sceneReady.emit(scene)
 
@@ -159,8 +253,10 @@ class GlobeWidget(QOpenGLWidget):
         fbo = self.ctx.detect_framebuffer()
         w, h = self.viewport_px()
         fbo.viewport = (0, 0, w, h)
+        self._animate_tool()
         try:
             result = self.scene.render(fbo, (w, h))
+            self._draw_tool_overlay(fbo, result.view)
         except Exception as exc:
             # Clear to the background so a failed frame is not garbage, and report once.
             fbo.use()
@@ -185,6 +281,140 @@ class GlobeWidget(QOpenGLWidget):
             self.update()  # keep drawing while tiles stream in
         elif self.scene.speed_mps > 0.0:
             self._settle.start()
+
+    # -- tools -------------------------------------------------------------------------------
+    def active_tool(self):
+        """The session's active tool object, or None."""
+        if self.scene is None or self.scene.active_tool is None:
+            return None
+        tool = self.scene.tools().get(self.scene.active_tool)
+        if tool is None:
+            # Its plugin was disabled or failed: the session drops the displacement hook,
+            # which recompiles the terrain shader, so our context must be current.
+            self._anim.stop()
+            if QOpenGLContext.currentContext() is self.context() or self.context() is None:
+                self.scene.tool()
+            else:
+                self.makeCurrent()
+                try:
+                    self.scene.tool()
+                finally:
+                    self.doneCurrent()
+            self.toolDeactivated.emit()
+        return tool
+
+    def set_tool(self, name: str | None) -> bool:
+        """Activate tool ``name`` (None: none) in the session, compiling its displacement hook
+        with this widget's context current. Returns whether ``name`` is now active (a tool
+        whose hook fails to compile is disabled and reported by the registry)."""
+        if self.scene is None:
+            return name is None
+        self._click = None
+        self.makeCurrent()
+        try:
+            self.scene.activate_tool(name)
+        finally:
+            self.doneCurrent()
+        self.update()
+        return self.scene.active_tool == name
+
+    def _animate_tool(self) -> None:
+        """Advance the active tool's animation; keep the repaint timer running while it moves."""
+        tool = self.active_tool()
+        moving = False
+        if tool is not None and callable(getattr(tool, "animate", None)):
+            moving = bool(
+                self.scene.registry.invoke(tool, "animate", time.monotonic(), default=False)
+            )
+        if moving and not self._anim.isActive():
+            self._anim.start()
+        elif not moving and self._anim.isActive():
+            self._anim.stop()
+
+    @property
+    def animating(self) -> bool:
+        """Whether the tool animation timer is running."""
+        return self._anim.isActive()
+
+    def _draw_tool_overlay(self, fbo: moderngl.Framebuffer, view) -> None:
+        """Draw the active tool's overlay primitives over the terrain just drawn."""
+        self.overlay_drawn = 0
+        tool = self.active_tool()
+        if tool is None or self.tool_overlay is None or self.scene is None:
+            return
+        prims = self.scene.registry.invoke(tool, "overlay", view, default=None) or []
+        if not prims:
+            return
+        prims = [self._drape_marker(p) for p in prims]
+        displace = self.scene._displace if self.scene.renderer._hook is not None else None
+        self.overlay_drawn = self.tool_overlay.draw(view, prims, fbo, displace)
+
+    def _drape_marker(self, prim):
+        """A marker on the ellipsoid (height < 1 m) lifted to the terrain surface (with the
+        exaggeration), so it marks the ground the user clicked in oblique views too."""
+        pos = getattr(prim, "position", None)
+        if pos is None or self.scene is None:
+            return prim
+        lon, lat, h = (float(v) for v in np.asarray(ecef_to_lonlat(np.asarray(pos))).ravel())
+        if abs(h) >= 1.0 or not self.terrain.visible_layers:
+            return prim
+        exag = float(self.settings.exaggeration)
+        key = (round(lon, 9), round(lat, 9), exag)
+        ground = self._marker_heights.get(key)
+        if ground is None:
+            try:
+                ground = float(self.terrain.height_at(lon, lat)) * exag
+            except Exception:  # no data there: keep it on the ellipsoid
+                ground = 0.0
+            if len(self._marker_heights) > 256:
+                self._marker_heights.clear()
+            self._marker_heights[key] = ground
+        new = tuple(float(v) for v in np.asarray(lonlat_to_ecef(lon, lat, ground)).ravel())
+        return replace(prim, position=new)
+
+    def _pointer_event(
+        self,
+        kind: str,
+        x: float,
+        y: float,
+        button: str | None,
+        buttons: frozenset[str],
+        modifiers: frozenset[str],
+        wheel_delta: float = 0.0,
+        hit: Pick | None = None,
+        picked: bool = False,
+    ) -> PointerEvent:
+        if not picked:
+            hit = self.pick(x, y)
+        return PointerEvent(
+            x=float(x),
+            y=float(y),
+            kind=kind,  # type: ignore[arg-type]
+            button=button,
+            buttons=buttons,
+            modifiers=modifiers,
+            wheel_delta=float(wheel_delta),
+            picked=None if hit is None else tuple(float(v) for v in hit.ecef),
+            lonlat=None if hit is None else (hit.lon, hit.lat, hit.height),
+        )
+
+    def _send_to_tool(self, event: PointerEvent | KeyEvent) -> bool:
+        tool = self.active_tool()
+        if tool is None or self.scene is None:
+            return False
+        method = "on_key" if isinstance(event, KeyEvent) else "on_mouse"
+        used = bool(self.scene.registry.invoke(tool, method, event, default=False))
+        self.active_tool()  # the tool raised? then its plugin is disabled now: leave it
+        if used or not (isinstance(event, PointerEvent) and event.kind == "move"):
+            self.update()
+        return used
+
+    def deactivate_tool(self) -> None:
+        """Leave the active tool (its ``deactivate`` runs) and tell the window."""
+        if self.scene is not None and self.scene.active_tool is not None:
+            self.set_tool(None)
+            self._anim.stop()
+            self.toolDeactivated.emit()
 
     def grab_image(self) -> QImage:
         """The current frame as an image (renders one if needed)."""
@@ -227,7 +457,11 @@ class GlobeWidget(QOpenGLWidget):
         if nav is None:
             return
         self.flight.stop()
-        nav.press(*self.to_px(event.position()), event.button())
+        x, y = self.to_px(event.position())
+        if self.active_tool() is not None and event.button() == Qt.MouseButton.LeftButton:
+            # A click for the tool unless it turns into a drag (then: navigation).
+            self._click = (x, y)
+        nav.press(x, y, event.button())
         event.accept()
 
     def mouseMoveEvent(self, event: QMouseEvent) -> None:
@@ -235,16 +469,35 @@ class GlobeWidget(QOpenGLWidget):
         if nav is None:
             return
         x, y = self.to_px(event.position())
+        if self._click is not None:
+            if math.hypot(x - self._click[0], y - self._click[1]) <= CLICK_SLOP_PX:
+                event.accept()
+                return  # still a click: the camera stays put
+            self._click = None  # a drag: navigation from here on
         if nav.dragging:
             nav.move(x, y)
         else:
-            self.cursorPicked.emit(self.pick(x, y))
+            hit = self.pick(x, y)
+            self.cursorPicked.emit(hit)
+            if self.active_tool() is not None:
+                mods = modifier_names(event.modifiers())
+                buttons = button_names(event.buttons())
+                self._send_to_tool(
+                    self._pointer_event("move", x, y, None, buttons, mods, hit=hit, picked=True)
+                )
         event.accept()
 
     def mouseReleaseEvent(self, event: QMouseEvent) -> None:
         nav = self._nav()
         if nav is not None:
             nav.release()
+        click, self._click = self._click, None
+        if click is not None and event.button() == Qt.MouseButton.LeftButton:
+            mods = modifier_names(event.modifiers())
+            press = self._pointer_event("press", *click, "left", frozenset({"left"}), mods)
+            self._send_to_tool(press)
+            release = replace(press, kind="release", buttons=frozenset())
+            self._send_to_tool(release)
         event.accept()
 
     def wheelEvent(self, event: QWheelEvent) -> None:
@@ -253,11 +506,43 @@ class GlobeWidget(QOpenGLWidget):
             return
         self.flight.stop()
         steps = event.angleDelta().y() / 120.0
-        nav.wheel(*self.to_px(event.position()), steps)
+        x, y = self.to_px(event.position())
+        if self.active_tool() is not None:
+            ev = self._pointer_event(
+                "wheel", x, y, None, button_names(event.buttons()),
+                modifier_names(event.modifiers()), wheel_delta=steps,
+            )  # fmt: skip
+            if self._send_to_tool(ev):
+                event.accept()
+                return
+        nav.wheel(x, y, steps)
         event.accept()
+
+    def event(self, event: QEvent) -> bool:
+        # With a tool active, plain keys go to the widget (the tool) before window shortcuts
+        # (e.g. the collapse tool's own 'c'); keys it does not take are offered to the
+        # shortcuts again through keyUnhandled.
+        if event.type() == QEvent.Type.ShortcutOverride and self.active_tool() is not None:
+            mods = event.modifiers() & ~Qt.KeyboardModifier.ShiftModifier
+            if not mods and key_name(event.key(), event.text()):
+                event.accept()
+                return True
+        return super().event(event)
 
     def keyPressEvent(self, event: QKeyEvent) -> None:
         nav = self._nav()
+        if self.active_tool() is not None:
+            name = key_name(event.key(), event.text())
+            if name:
+                ev = KeyEvent(name, modifier_names(event.modifiers()), "press")
+                used = self._send_to_tool(ev)
+                if name == "Escape":
+                    self.deactivate_tool()
+                    event.accept()
+                    return
+                if used:
+                    event.accept()
+                    return
         if event.key() == Qt.Key.Key_Home:
             self.go_home()
             event.accept()
@@ -266,6 +551,8 @@ class GlobeWidget(QOpenGLWidget):
             self.flight.stop()
             event.accept()
             return
+        if self.active_tool() is not None:
+            self.keyUnhandled.emit(int(event.key()), event.modifiers())
         super().keyPressEvent(event)
 
     def release_gl(self) -> None:
@@ -273,6 +560,9 @@ class GlobeWidget(QOpenGLWidget):
         if self.scene is not None and self.context() is not None:
             self.makeCurrent()
             try:
+                if self.tool_overlay is not None:
+                    self.tool_overlay.release()
+                    self.tool_overlay = None
                 self.scene.renderer.release()
             finally:
                 self.doneCurrent()

@@ -1,18 +1,31 @@
 """`MainWindow`: the globe view in the middle, the layer and plugin panels as docks, the
-display toolbar, menus, and the status bar. It wires widgets to the model (terrain stack,
-scene, camera, plugin registry) and holds no algorithm of its own."""
+display and tools toolbars, menus, and the status bar. It wires widgets to the model (terrain
+stack, scene, camera, plugin registry) and holds no algorithm of its own.
+
+The Tools toolbar and menu list the enabled tool plugins (rebuilt when plugins are enabled or
+disabled) as checkable actions, at most one active; the collapse tool has the shortcut C and
+its own controls (ratio slider, Expand/Collapse button), configured through the registry."""
 
 from __future__ import annotations
 
 import logging
 from pathlib import Path
+from typing import Any
 
-from PyQt6.QtCore import QSettings, Qt
-from PyQt6.QtGui import QAction, QCloseEvent, QDragEnterEvent, QDropEvent, QKeySequence
+from PyQt6.QtCore import QKeyCombination, QSettings, Qt
+from PyQt6.QtGui import (
+    QAction,
+    QActionGroup,
+    QCloseEvent,
+    QDragEnterEvent,
+    QDropEvent,
+    QKeySequence,
+)
 from PyQt6.QtWidgets import (
     QCheckBox,
     QDockWidget,
     QFileDialog,
+    QHBoxLayout,
     QLabel,
     QLineEdit,
     QMainWindow,
@@ -45,6 +58,11 @@ DEM_FILTER = (
 )
 #: Exaggeration slider: tenths, 0.1x .. 50x.
 EXAG_MAX_TENTHS = 500
+#: The collapse tool's contribution name, its shortcut, and its ratio slider (hundredths).
+COLLAPSE_TOOL = "collapse"
+TOOL_SHORTCUTS = {COLLAPSE_TOOL: "C"}
+RATIO_MIN_HUNDREDTHS = 5
+RATIO_MAX_HUNDREDTHS = 100
 
 
 class MainWindow(QMainWindow):
@@ -110,6 +128,7 @@ class MainWindow(QMainWindow):
         self.loader = DemLoader(self)
         self._build_toolbar()
         self._build_menus()
+        self._build_tools()
         self._connect()
         self._restore()
         self.globe.setFocus()
@@ -180,6 +199,160 @@ class MainWindow(QMainWindow):
         view_menu.addAction(self.plugin_dock.toggleViewAction())
         self._update_recent_menu()
 
+    def _build_tools(self) -> None:
+        """The Tools toolbar and menu (actions filled by `refresh_tools`)."""
+        self.tools_toolbar = QToolBar("Tools", self)
+        self.tools_toolbar.setObjectName("toolbar-tools")
+        self.addToolBar(self.tools_toolbar)
+        self.tools_menu = self.menuBar().addMenu("&Tools")
+        self.tool_group = QActionGroup(self)
+        self.tool_group.setExclusionPolicy(QActionGroup.ExclusionPolicy.ExclusiveOptional)
+        self.tool_actions: dict[str, QAction] = {}
+        # The collapse tool's controls: ratio r and expand / collapse again.
+        self.collapse_controls = QWidget()
+        lay = QHBoxLayout(self.collapse_controls)
+        lay.setContentsMargins(4, 0, 0, 0)
+        lay.addWidget(QLabel("Ratio"))
+        self.ratio_slider = QSlider(Qt.Orientation.Horizontal)
+        self.ratio_slider.setRange(RATIO_MIN_HUNDREDTHS, RATIO_MAX_HUNDREDTHS)
+        self.ratio_slider.setMaximumWidth(140)
+        self.ratio_slider.setToolTip(
+            "Collapse ratio: the fraction of the A-B distance kept (1 = no collapse)"
+        )
+        self.ratio_label = QLabel()
+        self.ratio_label.setMinimumWidth(32)
+        self.expand_button = QPushButton("Expand")
+        self.expand_button.setToolTip("Expand the collapsed terrain back (E); again: collapse")
+        for w in (self.ratio_slider, self.ratio_label, self.expand_button):
+            lay.addWidget(w)
+        self.tools_toolbar.addSeparator()
+        self.collapse_controls_action = self.tools_toolbar.addWidget(self.collapse_controls)
+        self.ratio_slider.valueChanged.connect(self._ratio_changed)
+        self.expand_button.clicked.connect(self._expand_clicked)
+        self.refresh_tools()
+
+    # -- tools -----------------------------------------------------------------------------
+    def tool_labels(self) -> dict[str, str]:
+        """Name -> label of the enabled tool plugins' tools (loading them; a plugin that fails
+        to load is disabled and reported)."""
+        try:
+            return {c.name: c.label or c.name for c in self.plugins.registry.contributions("tool")}
+        except Exception as exc:
+            log.exception("loading tools failed")
+            self.errors.notify(f"loading tools failed: {exc}")
+            return {}
+
+    def collapse_tool(self) -> Any:
+        """The collapse tool object (enabled), or None."""
+        return self.plugins.registry.tools().get(COLLAPSE_TOOL)
+
+    def refresh_tools(self) -> None:
+        """Rebuild the tool actions from the enabled tool plugins."""
+        labels = self.tool_labels()
+        if set(labels) != set(self.tool_actions):
+            for act in self.tool_actions.values():
+                self.tool_group.removeAction(act)
+                self.tools_toolbar.removeAction(act)
+                self.tools_menu.removeAction(act)
+                act.deleteLater()
+            self.tool_actions = {}
+            first = self.tools_toolbar.actions()[0] if self.tools_toolbar.actions() else None
+            for name, label in labels.items():
+                act = QAction(label, self)
+                act.setCheckable(True)
+                act.setObjectName(f"tool-{name}")
+                shortcut = TOOL_SHORTCUTS.get(name)
+                tip = label
+                if shortcut:
+                    act.setShortcut(QKeySequence(shortcut))
+                    tip += f" ({shortcut})"
+                act.setToolTip(tip + "; Escape leaves the tool")
+                act.triggered.connect(lambda checked, n=name: self.set_tool(n if checked else None))
+                self.tool_group.addAction(act)
+                self.tools_toolbar.insertAction(first, act)
+                self.tools_menu.addAction(act)
+                self.tool_actions[name] = act
+        self.tools_menu.setEnabled(bool(self.tool_actions))
+        self._sync_tools()
+
+    def active_tool_name(self) -> str | None:
+        """The session's active tool, or None."""
+        if self.globe.scene is None:
+            return None
+        return self.globe.scene.active_tool if self.globe.active_tool() is not None else None
+
+    def set_tool(self, name: str | None) -> bool:
+        """Activate a tool (None: none); returns whether it is active now."""
+        ok = self.globe.set_tool(name)
+        if not ok and name is not None:
+            rec = next((r for r in self.plugins.registry if r.status == "failed"), None)
+            why = f": {rec.error}" if rec is not None and rec.error else ""
+            self.errors.notify(f"tool {name} could not be activated{why}")
+            self.plugins.refresh()
+        elif name is not None:
+            tool = self.globe.active_tool()
+            label = getattr(tool, "label", name) or name
+            self.status.notice(f"{label}: click two places (drag to move, Escape to leave)")
+        self._sync_tools()
+        return ok
+
+    def _sync_tools(self) -> None:
+        """Check the active tool's action; show the collapse controls when it is enabled."""
+        active = self.active_tool_name()
+        for name, act in self.tool_actions.items():
+            act.blockSignals(True)
+            act.setChecked(name == active)
+            act.blockSignals(False)
+        tool = self.collapse_tool()
+        self.collapse_controls_action.setVisible(tool is not None)
+        if tool is not None:
+            ratio = float(getattr(tool, "ratio", tool.values.get("ratio", 1.0)))
+            self.ratio_slider.blockSignals(True)
+            self.ratio_slider.setValue(round(ratio * 100))
+            self.ratio_slider.blockSignals(False)
+            self.ratio_label.setText(f"{ratio:.2f}")
+        self._sync_expand_button()
+
+    def _sync_expand_button(self, *_args: object) -> None:
+        tool = self.collapse_tool()
+        state = getattr(tool, "state", "idle") if tool is not None else "idle"
+        on = tool is not None and self.active_tool_name() == COLLAPSE_TOOL
+        self.expand_button.setEnabled(on and state not in ("idle", "a_set"))
+        self.expand_button.setText("Collapse" if state in ("expanded", "expanding") else "Expand")
+
+    def _ratio_changed(self, hundredths: int) -> None:
+        tool = self.collapse_tool()
+        ratio = hundredths / 100.0
+        self.ratio_label.setText(f"{ratio:.2f}")
+        if tool is None:
+            return
+        self.plugins.registry.configure(tool, {**dict(tool.values), "ratio": ratio})
+        self.plugins.after_frame()
+        self.globe.request_frame()
+
+    def _expand_clicked(self) -> None:
+        tool = self.collapse_tool()
+        if tool is None:
+            return
+        state = getattr(tool, "state", "idle")
+        method = "collapse" if state in ("expanded", "expanding") else "expand"
+        self.plugins.registry.invoke(tool, method)
+        self._sync_expand_button()
+        self.globe.request_frame()
+
+    def _key_unhandled(self, key: int, modifiers: object) -> None:
+        """A key the active tool and navigation left: try the tool actions' shortcuts."""
+        try:
+            seq = QKeySequence(QKeyCombination(Qt.KeyboardModifier(modifiers), Qt.Key(key)))
+        except (TypeError, ValueError):
+            return
+        for act in self.tool_actions.values():
+            if not act.shortcut().isEmpty() and act.shortcut().matches(seq) == (
+                QKeySequence.SequenceMatch.ExactMatch
+            ):
+                act.trigger()
+                return
+
     def _connect(self) -> None:
         g = self.globe
         g.sceneReady.connect(self.plugins.bind)
@@ -195,6 +368,11 @@ class MainWindow(QMainWindow):
         self.plugin_panel.tauChanged.connect(self._tau_changed)
         self.plugins.lodChanged.connect(self._use_lod)
         self.plugins.redrawRequested.connect(g.request_frame)
+        self.plugins.changed.connect(self.refresh_tools)
+        g.sceneReady.connect(lambda _s: self.refresh_tools())
+        g.toolDeactivated.connect(self._sync_tools)
+        g.keyUnhandled.connect(self._key_unhandled)
+        g.frameRendered.connect(self._sync_expand_button)
         self.exag_slider.valueChanged.connect(self._exaggeration_changed)
         self.wire_check.toggled.connect(self._wireframe_changed)
         self.hill_check.toggled.connect(self._hillshade_changed)

@@ -15,7 +15,7 @@ import rasterio
 from globeview.errors import StoreError
 from globeview.terrain.ingest import ingest
 from globeview.terrain.quadtree import TileKey
-from globeview.terrain.store import TileStore
+from globeview.terrain.store import FORMAT_VERSION, TileStore
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 
@@ -109,7 +109,7 @@ def test_open_errors(tmp_path: Path, store_path: Path) -> None:
     (bad / "manifest.json").write_text(json.dumps(man))
     with pytest.raises(StoreError, match="version"):
         TileStore.open(bad)
-    man["format_version"] = 1
+    man["format_version"] = FORMAT_VERSION
     del man["levels"]
     (bad / "manifest.json").write_text(json.dumps(man))
     with pytest.raises(StoreError, match="damaged"):

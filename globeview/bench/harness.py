@@ -1,0 +1,308 @@
+"""Headless scene setup and per-frame measurement shared by every benchmark."""
+
+from __future__ import annotations
+
+import csv
+import os
+import platform
+import statistics
+import sys
+import time
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+import numpy as np
+
+from globeview.bench.flight import Flight, Pose
+from globeview.errors import GlobeviewError
+
+ROOT = Path(__file__).resolve().parents[2]
+BIG_DEM_SIZE = 8192
+#: "Full resolution" reference: chunked-sse with this tau (px) and the largest tile budget.
+FULL_RES_TAU = 0.05
+FULL_RES_CAPACITY = 1400  # chunked-sse's budget is soft (overshoots ~50%); the pool holds 2048
+FULL_RES_POOL = 2048  # GL_MAX_ARRAY_TEXTURE_LAYERS on Mesa
+PAGE = os.sysconf("SC_PAGE_SIZE")
+
+
+def rss_mb() -> float:
+    """Resident set size of this process in MB (/proc/self/statm, no psutil)."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * PAGE / 1e6
+    except OSError:
+        return float("nan")
+
+
+def big_dem_store(size: int = BIG_DEM_SIZE, progress: bool = True):
+    """The tile store of the synthetic-detail benchmark DEM (benchmarks/make_big_dem.py),
+    generating and ingesting it under benchmarks/cache/ the first time."""
+    from globeview.terrain.store import TileStore
+
+    cache = ROOT / "benchmarks" / "cache"
+    store = cache / f"store_{size}"
+    if (store / "manifest.json").exists():
+        return TileStore.open(store)
+    script = ROOT / "benchmarks" / "make_big_dem.py"
+    if not script.exists():
+        raise GlobeviewError(
+            "the benchmark DEM needs benchmarks/make_big_dem.py (run from a source checkout)"
+        )
+    sys.path.insert(0, str(script.parent))
+    try:
+        from make_big_dem import make  # type: ignore[import-not-found]
+    finally:
+        sys.path.pop(0)
+    from globeview.terrain.ingest import ingest
+
+    if progress:
+        print(f"generating the {size}x{size} benchmark DEM (synthetic detail) ...", flush=True)
+    src = make(size, quiet=not progress)
+    ingest([src], store, progress=progress)
+    return TileStore.open(store)
+
+
+def load_terrain(kind: str = "embedded", big_size: int = BIG_DEM_SIZE):
+    """The TerrainStack of a flight: the embedded DEMs, plus the big DEM for ``big-dem``."""
+    from globeview.terrain.embedded import embedded_stores
+    from globeview.terrain.stack import TerrainStack
+
+    stores = embedded_stores()
+    if kind == "big-dem":
+        stores = [*stores, big_dem_store(big_size)]
+    return TerrainStack.from_stores(stores)
+
+
+class Bench:
+    """A headless GL context, an offscreen target and a plugin session on some terrain.
+
+    The registry uses in-memory settings: every provider starts from its defaults and the
+    user's saved plugin settings are neither read nor written.
+    """
+
+    def __init__(self, terrain, size: tuple[int, int], lod: str = "chunked-sse") -> None:
+        from globeview.plugins.registry import PluginRegistry
+        from globeview.plugins.session import GlobeSession
+        from globeview.plugins.settings import MemorySettings
+        from globeview.render.offscreen import OffscreenTarget, create_headless_context
+
+        self.ctx = create_headless_context()
+        self.size = (int(size[0]), int(size[1]))
+        self.target = OffscreenTarget(self.ctx, self.size)
+        registry = PluginRegistry(MemorySettings())
+        registry.discover()
+        self.session = GlobeSession(self.ctx, terrain, registry=registry, lod=lod)
+        self.terrain = terrain
+
+    @property
+    def gl_renderer(self) -> str:
+        return str(self.ctx.info.get("GL_RENDERER", "?"))
+
+    def providers(self) -> list[str]:
+        return sorted(self.session.lod_providers())
+
+    def use(self, lod: str, tau: float, **settings) -> None:
+        """Make ``lod`` active with threshold ``tau`` and the given settings (others default)."""
+        s = self.session
+        s.set_lod(lod)
+        s.tau_px = float(tau)
+        prov = s.lod_providers()[lod]
+        values = {st.name: st.default for st in prov.settings}
+        values.update({k: v for k, v in settings.items() if k in values})
+        s.registry.invoke(prov, "configure", values)
+        s.reset_lod()
+
+    def set_pose(self, pose: Pose | tuple) -> None:
+        from globeview.render.camera import Camera
+
+        p = pose.as_tuple() if isinstance(pose, Pose) else tuple(pose)
+        self.session.camera = Camera.from_lonlat(*p)
+
+    def frame(self):
+        """Render one frame; returns (FrameResult, wall milliseconds around render())."""
+        t0 = time.perf_counter()
+        r = self.session.render(self.target.fbo, self.size)
+        return r, (time.perf_counter() - t0) * 1e3
+
+    def grow_pool(self, capacity: int) -> None:
+        """Replace the renderer by one with ``capacity`` tile slots (for full-resolution
+        references that draw more tiles than the interactive pool holds)."""
+        from globeview.render.renderer import GlobeRenderer
+
+        s = self.session
+        if s.renderer.pool.capacity >= capacity:
+            return
+        old = s.renderer
+        settings = old.settings
+        s.renderer = GlobeRenderer(self.ctx, self.terrain, capacity=capacity)
+        s.renderer.settings = settings
+
+    def gl_objects(self) -> dict[str, int]:
+        """GL objects the renderer holds that we can see (moderngl has no object counter):
+        buffers, textures, VAOs and programs reachable from the renderer, the pool and the
+        overlay set, plus the resident tile count."""
+        import moderngl
+
+        seen: set[int] = set()
+        counts = {"buffers": 0, "textures": 0, "vaos": 0, "programs": 0}
+        kinds = (
+            (moderngl.Buffer, "buffers"),
+            (moderngl.Texture, "textures"),
+            (moderngl.TextureArray, "textures"),
+            (moderngl.VertexArray, "vaos"),
+            (moderngl.Program, "programs"),
+        )
+
+        def walk(obj, depth: int) -> None:
+            if id(obj) in seen or depth > 3:
+                return
+            seen.add(id(obj))
+            for cls, name in kinds:
+                if isinstance(obj, cls):
+                    counts[name] += 1
+                    return
+            if isinstance(obj, dict):
+                for v in obj.values():
+                    walk(v, depth + 1)
+            elif isinstance(obj, list | tuple):
+                for v in obj:
+                    walk(v, depth + 1)
+            elif hasattr(obj, "__dict__") and type(obj).__module__.startswith("globeview"):
+                for v in vars(obj).values():
+                    walk(v, depth + 1)
+
+        walk(self.session.renderer, 0)
+        counts["resident_tiles"] = self.session.renderer.pool.resident_count
+        return counts
+
+    def release(self) -> None:
+        self.target.release()
+        self.ctx.release()
+
+
+@dataclass
+class FrameRecord:
+    """Figures of one flight frame (one CSV row)."""
+
+    frame: int
+    t: float
+    lon: float
+    lat: float
+    height: float
+    heading: float
+    pitch: float
+    frame_ms: float
+    lod_ms: float
+    draw_ms: float
+    triangles: int
+    tiles_drawn: int
+    tiles_culled_frustum: int
+    tiles_culled_horizon: int
+    tiles_loading: int
+    tiles_uploaded: int
+    max_sse_px: float
+    resident_tiles: int
+    rss_mb: float
+
+
+CSV_COLUMNS = [f.name for f in fields(FrameRecord)]
+
+
+def fly(bench: Bench, flight: Flight, times: np.ndarray, warm: bool = True) -> list[FrameRecord]:
+    """Render the flight at ``times``; with ``warm`` the first pose is rendered once before
+    (uploads its tiles) so frame 0 measures drawing, not the first load."""
+    out: list[FrameRecord] = []
+    if warm and len(times):
+        bench.set_pose(flight.pose(float(times[0])))
+        bench.frame()
+        bench.session.reset_lod()
+    for i, t in enumerate(times):
+        pose = flight.pose(float(t))
+        bench.set_pose(pose)
+        r, wall = bench.frame()
+        st = r.stats
+        out.append(
+            FrameRecord(
+                frame=i,
+                t=round(float(t), 4),
+                lon=pose.lon,
+                lat=pose.lat,
+                height=pose.height,
+                heading=pose.heading,
+                pitch=pose.pitch,
+                frame_ms=wall,
+                lod_ms=st.lod_ms,
+                draw_ms=st.draw_ms,
+                triangles=st.triangles,
+                tiles_drawn=st.tiles_drawn,
+                tiles_culled_frustum=st.tiles_culled_frustum,
+                tiles_culled_horizon=st.tiles_culled_horizon,
+                tiles_loading=st.tiles_loading,
+                tiles_uploaded=st.tiles_uploaded,
+                max_sse_px=st.max_sse_px,
+                resident_tiles=bench.session.renderer.pool.resident_count,
+                rss_mb=rss_mb(),
+            )
+        )
+    return out
+
+
+def write_csv(rows: list, path: str | Path, columns: list[str] | None = None) -> Path:
+    """Write dataclass rows (or dicts) as CSV with a header; returns the path."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    dicts = [asdict(r) if hasattr(r, "__dataclass_fields__") else dict(r) for r in rows]
+    cols = columns or (list(dicts[0]) if dicts else CSV_COLUMNS)
+    with p.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=cols, extrasaction="ignore")
+        w.writeheader()
+        for d in dicts:
+            w.writerow({k: (f"{v:.4f}" if isinstance(v, float) else v) for k, v in d.items()})
+    return p
+
+
+def summary(rows: list[FrameRecord]) -> dict[str, float]:
+    """Medians (and worst cases) of a flight."""
+    if not rows:
+        return {}
+    fm = [r.frame_ms for r in rows]
+    return {
+        "frames": len(rows),
+        "frame_ms_median": statistics.median(fm),
+        "frame_ms_p95": float(np.percentile(fm, 95)),
+        "fps_median": 1e3 / statistics.median(fm),
+        "lod_ms_median": statistics.median(r.lod_ms for r in rows),
+        "draw_ms_median": statistics.median(r.draw_ms for r in rows),
+        "triangles_median": statistics.median(r.triangles for r in rows),
+        "tiles_median": statistics.median(r.tiles_drawn for r in rows),
+        "max_sse_px": max(r.max_sse_px for r in rows),
+        "rss_mb_last": rows[-1].rss_mb,
+    }
+
+
+def machine(gl_renderer: str) -> str:
+    """One line describing the machine: CPU, cores usable, GL renderer, Python, date."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return (
+        f"{cpu}, {cores} cores usable, GL renderer {gl_renderer}, Python "
+        f"{platform.python_version()}, {time.strftime('%Y-%m-%d %H:%M %Z')}"
+    )
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise GlobeviewError(f"--size must look like 1280x720, not {text!r}") from None
+    if not (16 <= w <= 8192 and 16 <= h <= 8192):
+        raise GlobeviewError(f"--size {text} is out of range (16..8192 pixels a side)")
+    return w, h

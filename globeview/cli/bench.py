@@ -1,0 +1,154 @@
+"""`globeview bench`: scripted camera flights, the papers' experiments, performance budgets
+and a memory soak (headless, EGL). Figures depend on the machine: every output names it."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest="bench_command", metavar="ACTION", required=True)
+
+    p = sub.add_parser("flight", help="render a camera path frame by frame and record figures")
+    p.add_argument("path", help="flight JSON file, or a shipped flight's name (canyon_run)")
+    p.add_argument("--lod", default="chunked-sse", help="LOD provider plugin")
+    p.add_argument("--tau", type=float, default=2.0, help="screen-space error, pixels")
+    p.add_argument("--size", default="1280x720", help="WIDTHxHEIGHT in pixels")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--frames", type=int, help="frames evenly spaced over the path (default 30)")
+    g.add_argument("--fps", type=float, help="sample the path at this rate instead")
+    p.add_argument("--csv", help="write one row per frame to this CSV file")
+
+    p = sub.add_parser("experiments", help="the papers' experiments: CSV, PNG plots, report.md")
+    p.add_argument("--out", default="benchmarks/out/experiments", help="output folder")
+    p.add_argument("--quick", action="store_true", help="2 taus, 1 frame each, 160x90, embedded")
+    p.add_argument("--size", help="WIDTHxHEIGHT (default 640x360; --quick: 160x90)")
+    p.add_argument("--frames", type=int, help="timed frames per point (default 3)")
+    p.add_argument(
+        "--flight",
+        help="take the view from this flight's midpoint (default: big_dem; --quick: canyon_run)",
+    )
+    p.add_argument("--lod", action="append", help="only this provider (repeatable)")
+
+    p = sub.add_parser("check", help="fly the standard flight and compare with the targets")
+    p.add_argument("--quick", action="store_true", help="embedded canyon run, 160x90, 3 frames")
+    p.add_argument("--frames", type=int, default=30, help="flight frames (default 30)")
+    p.add_argument("--strict", action="store_true", help="exit 1 when a target fails")
+    p.add_argument("--csv", help="write the flight's per-frame CSV here")
+
+    p = sub.add_parser("soak", help="fly in loops; report RSS drift and GL object counts")
+    p.add_argument("--frames", type=int, default=200, help="frames in all (default 200)")
+    p.add_argument("--size", default="320x180", help="WIDTHxHEIGHT in pixels")
+    p.add_argument("--lod", default="chunked-sse", help="LOD provider plugin")
+
+
+def run(args: argparse.Namespace) -> int:
+    return {
+        "flight": _flight,
+        "experiments": _experiments,
+        "check": _check,
+        "soak": _soak,
+    }[args.bench_command](args)
+
+
+def _flight(args: argparse.Namespace) -> int:
+    from globeview.bench.flight import Flight, resolve_flight
+    from globeview.bench.harness import (
+        Bench,
+        fly,
+        load_terrain,
+        machine,
+        parse_size,
+        summary,
+        write_csv,
+    )
+
+    flight = Flight.load(resolve_flight(args.path))
+    size = parse_size(args.size)
+    times = flight.times(frames=args.frames if args.fps is None else None, fps=args.fps)
+    if args.frames is None and args.fps is None:
+        times = flight.times(frames=30)
+    bench = Bench(load_terrain(flight.terrain), size, lod=args.lod)
+    try:
+        bench.use(args.lod, args.tau)
+        print(f"machine: {machine(bench.gl_renderer)}")
+        print(
+            f"flight {flight.name!r}: {len(times)} frames over {flight.duration:g} s, "
+            f"{size[0]}x{size[1]}, {args.lod}, tau {args.tau:g} px, terrain {flight.terrain}"
+        )
+        rows = fly(bench, flight, times)
+    finally:
+        bench.release()
+    if args.csv:
+        print(f"wrote {write_csv(rows, args.csv)}")
+    s = summary(rows)
+    print(
+        f"frame_ms median {s['frame_ms_median']:.1f} p95 {s['frame_ms_p95']:.1f} "
+        f"({s['fps_median']:.1f} fps); lod_ms median {s['lod_ms_median']:.2f}; "
+        f"triangles median {s['triangles_median']:.0f}; tiles median {s['tiles_median']:.0f}; "
+        f"max SSE {s['max_sse_px']:.2f} px; RSS {s['rss_mb_last']:.0f} MB"
+    )
+    return 0
+
+
+def _experiments(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from globeview.bench.experiments import QUICK_TAUS, TAUS, run_experiments, standard_view
+    from globeview.bench.flight import Flight, resolve_flight
+    from globeview.bench.harness import Bench, load_terrain, parse_size
+
+    size = parse_size(args.size or ("160x90" if args.quick else "640x360"))
+    flight = Flight.load(resolve_flight(args.flight or ("canyon_run" if args.quick else "big_dem")))
+    frames = args.frames or (1 if args.quick else 3)
+    bench = Bench(load_terrain(flight.terrain), size)
+    try:
+        res = run_experiments(
+            bench,
+            standard_view(flight),
+            Path(args.out),
+            taus=QUICK_TAUS if args.quick else TAUS,
+            frames=frames,
+            view_name=f"{flight.name} midpoint",
+            providers=args.lod,
+        )
+    finally:
+        bench.release()
+    for f in ("tau_sweep.csv", "table1.csv", "report.md"):
+        print(f"wrote {Path(args.out) / f}")
+    for f in res["files"]:
+        print(f"wrote {f}")
+    return 0
+
+
+def _check(args: argparse.Namespace) -> int:
+    from globeview.bench.check import run_check
+
+    verdicts = run_check(frames=args.frames, quick=args.quick, csv=args.csv)
+    for v in verdicts:
+        print(v.line())
+    failed = sum(not v.holds for v in verdicts)
+    print(f"{len(verdicts) - failed} of {len(verdicts)} targets hold")
+    return 1 if (args.strict and failed) else 0
+
+
+def _soak(args: argparse.Namespace) -> int:
+    from globeview.bench.harness import parse_size
+    from globeview.bench.soak import run_soak
+
+    res = run_soak(frames=args.frames, size=parse_size(args.size), lod=args.lod)
+    print("frame  lap  RSS MB  buffers textures vaos programs resident_tiles")
+    for s in res["samples"]:
+        print(
+            f"{s['frame']:5d} {s['lap']:4d} {s['rss_mb']:7.1f} {s['buffers']:8d} "
+            f"{s['textures']:8d} {s['vaos']:4d} {s['programs']:8d} {s['resident_tiles']:14d}"
+        )
+    if not res["warmup_complete"]:
+        print("too few frames to finish the warm-up lap: no drift figure (use more --frames)")
+        return 0
+    print(
+        f"RSS after warm-up {res['rss_after_warmup']:.1f} MB, last {res['rss_last']:.1f} MB, "
+        f"drift {res['rss_drift_mb']:+.1f} MB; GL objects "
+        f"{'stable' if res['gl_objects_stable'] else 'CHANGED'}"
+    )
+    return 0

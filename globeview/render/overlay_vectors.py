@@ -1,0 +1,236 @@
+"""Polylines draped on the current LOD mesh, drawn as screen-space-wide quads.
+
+How a line stays on the terrain (TREND §5.2: vectors must follow the LOD mesh actually drawn):
+each densified vertex takes its height **from the drawn tile at the drawn index stride**
+(`globeview.terrain.vectors.drape_heights`, bilinear on that stride's grid), recomputed when
+the render set changes; so when the LOD coarsens the line comes down with the mesh instead of
+floating above it, and when it refines the line rises with it instead of sinking. Between the
+densified vertices, and where a provider triangulates differently from the bilinear grid
+(stitched edges, quadtree-clod's own triangles), the line and the mesh may differ by a fraction
+of the tile's geometric error; a small depth bias (a fixed fraction of the view distance in the
+logarithmic depth, i.e. the same relative pull at every distance) hides that while terrain in
+front of the line still occludes it. Positions are sent as float32 hi/lo pairs of absolute ECEF
+(emulated double precision), the eye likewise, so no re-upload is needed while the camera moves.
+
+Only segments whose two ends lie in drawn tiles are uploaded (vectors paged by tile). The
+active tool's displacement (`view.displace`) is applied on the CPU to the vertices, every frame
+while a displacement is active.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from importlib import resources
+
+import moderngl
+import numpy as np
+
+from globeview.geodesy import WGS84, lonlat_to_ecef
+from globeview.render.render_set import RenderSet
+from globeview.render.view_state import ViewState
+from globeview.terrain.vectors import Polylines, drape_heights
+
+#: Coarser line levels are used while their segments span fewer pixels than this.
+SEGMENT_PX = 6.0
+#: Depth pull toward the eye, as a fraction of the view distance.
+DEPTH_BIAS_FRACTION = 0.004
+
+
+def shader(name: str) -> str:
+    return resources.files("globeview.render").joinpath("shaders", name).read_text()
+
+
+def render_set_strides(render_set: RenderSet) -> np.ndarray:
+    """(N,) index stride each drawn tile uses (1 for providers' custom triangulations)."""
+    if len(render_set.keys) == 0:
+        return np.ones(0, np.int64)
+    table = np.array([v.stride for v in render_set.variants], dtype=np.int64)
+    strides = table[render_set.variant_ids]
+    if render_set.custom_indices:
+        strides = strides.copy()
+        strides[np.array(sorted(render_set.custom_indices), np.int64)] = 1
+    return strides
+
+
+def render_set_signature(render_set: RenderSet, exaggeration: float) -> tuple:
+    """A hashable stand-in for 'the same mesh': keys, strides and exaggeration."""
+    keys = np.ascontiguousarray(render_set.keys, np.int64)
+    return (keys.tobytes(), render_set_strides(render_set).tobytes(), float(exaggeration))
+
+
+def split_hi_lo(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """float64 (..., 3) -> float32 hi and lo parts with hi + lo == p to ~1e-9 relative."""
+    hi = p.astype(np.float32)
+    lo = (p - hi.astype(np.float64)).astype(np.float32)
+    return hi, lo
+
+
+def view_uniforms(view: ViewState) -> dict[str, object]:
+    """Uniforms shared by the overlay shaders (camera, projection, eye hi/lo, depth)."""
+    eye_hi, eye_lo = split_hi_lo(np.asarray(view.eye, np.float64))
+    w, h = view.viewport
+    return {
+        "u_rot": view.rotation.T.astype("f4").tobytes(),
+        "u_proj": view.proj.T.astype("f4").tobytes(),
+        "u_eye_hi": tuple(float(v) for v in eye_hi),
+        "u_eye_lo": tuple(float(v) for v in eye_lo),
+        "u_viewport": (float(w), float(h)),
+        "u_log_far": 1.0 / math.log2(1.0 + view.far),
+        "u_depth_bias": -math.log2(1.0 - DEPTH_BIAS_FRACTION) / math.log2(1.0 + view.far),
+        # metres per pixel at unit distance
+        "u_px_m": 2.0 * math.tan(math.radians(view.fovy_deg) / 2.0) / h,
+    }
+
+
+def set_uniforms(program: moderngl.Program, uni: dict[str, object]) -> None:
+    for name, value in uni.items():
+        if name in program:
+            if isinstance(value, bytes):
+                program[name].write(value)
+            else:
+                program[name].value = value
+
+
+@dataclass
+class LineStyle:
+    """Colour (RGBA 0..1), width in screen pixels, dash length in pixels (0 = solid)."""
+
+    color: tuple[float, float, float, float] = (1.0, 0.9, 0.2, 1.0)
+    width_px: float = 2.0
+    dash_px: float = 0.0
+
+
+class VectorOverlay:
+    """One vector layer on the GPU.
+
+    Args:
+        ctx: moderngl context; lines: densified polylines (lon/lat degrees); style: LineStyle.
+    """
+
+    FLOATS = 15  # A hi, A lo, B hi, B lo (3 each), along A, along B (m), spare
+
+    def __init__(
+        self,
+        ctx: moderngl.Context,
+        lines: Polylines,
+        style: LineStyle | None = None,
+        name: str = "vectors",
+        coarser: list[tuple[float, Polylines]] | None = None,
+    ) -> None:
+        self.ctx = ctx
+        self.name = name
+        self.style = style or LineStyle()
+        self.visible = True
+        # Levels of detail of the line work: (max segment m, lines), finest first; the draw
+        # uses the coarsest whose segments stay under SEGMENT_PX pixels at the eye's altitude.
+        self.levels = [(0.0, lines), *sorted(coarser or [], key=lambda t: t[0])]
+        self._prep = [self._prepare(ly) for _, ly in self.levels]
+        self.level = 0
+        self.lines, self._a, self._b, self._along = self._prep[0]
+        n_max = max(len(p[1]) for p in self._prep)
+        self.program = ctx.program(
+            vertex_shader=shader("overlay_line.vert"), fragment_shader=shader("overlay_line.frag")
+        )
+        self.buffer = ctx.buffer(reserve=max(n_max, 1) * self.FLOATS * 4, dynamic=True)
+        self.vao = ctx.vertex_array(
+            self.program,
+            [
+                (
+                    self.buffer,
+                    "3f 3f 3f 3f 1f 1f 1x4/i",
+                    "in_a_hi",
+                    "in_a_lo",
+                    "in_b_hi",
+                    "in_b_lo",
+                    "in_along_a",
+                    "in_along_b",
+                )
+            ],
+        )
+        self._sig: tuple | None = None
+        self.count = 0
+
+    @staticmethod
+    def _prepare(lines: Polylines):
+        a, b = lines.segments()
+        # Length along each polyline (chords on the ellipsoid), metres, for dashes.
+        base = lonlat_to_ecef(lines.lon, lines.lat, 0.0)
+        along = np.zeros(len(lines.lon))
+        along[b] = np.linalg.norm(base[b] - base[a], axis=1)
+        along = np.cumsum(along)
+        along = along - np.repeat(along[lines.starts[:-1]], np.diff(lines.starts))
+        return lines, a, b, along
+
+    def choose_level(self, view: ViewState) -> int:
+        """Index of the coarsest level whose segments span at most SEGMENT_PX pixels on the
+        ground below the eye."""
+        alt = max(float(np.linalg.norm(view.eye)) - WGS84.b, 1.0)
+        m_per_px = alt * 2.0 * math.tan(math.radians(view.fovy_deg) / 2.0) / view.viewport[1]
+        ok = [i for i, (sp, _) in enumerate(self.levels) if sp <= SEGMENT_PX * m_per_px]
+        return max(ok)
+
+    def update(self, view: ViewState, render_set: RenderSet, terrain, exaggeration: float) -> int:
+        """Recompute heights on the drawn mesh and upload the visible segments if the mesh (or
+        a displacement, or the line level) changed; returns the number of segments to draw."""
+        level = self.choose_level(view)
+        sig = (*render_set_signature(render_set, exaggeration), level)
+        if sig == self._sig and view.displace is None:
+            return self.count
+        self._sig = sig
+        self.level = level
+        self.lines, self._a, self._b, self._along = self._prep[level]
+        lon, lat = self.lines.lon, self.lines.lat
+        h, drawn, _ = drape_heights(
+            terrain.heights, render_set.keys, render_set_strides(render_set), lon, lat
+        )
+        pts = lonlat_to_ecef(lon, lat, h * exaggeration)
+        if view.displace is not None:
+            pts = np.asarray(view.displace(pts), np.float64)
+        keep = drawn[self._a] & drawn[self._b]
+        a, b = self._a[keep], self._b[keep]
+        hi, lo = split_hi_lo(pts)
+        data = np.concatenate(
+            [
+                hi[a],
+                lo[a],
+                hi[b],
+                lo[b],
+                self._along[a, None],
+                self._along[b, None],
+                np.zeros((len(a), 1)),
+            ],
+            axis=1,
+        ).astype(np.float32)
+        if data.nbytes > self.buffer.size:
+            self.buffer.orphan(data.nbytes)
+        if len(a):
+            self.buffer.write(data.tobytes())
+        self.count = len(a)
+        return self.count
+
+    def draw(self, view: ViewState, render_set: RenderSet, terrain, exaggeration: float) -> int:
+        if not self.visible:
+            return 0
+        n = self.update(view, render_set, terrain, exaggeration)
+        if n == 0:
+            return 0
+        uni = view_uniforms(view)
+        uni.update(
+            u_color=tuple(float(c) for c in self.style.color),
+            u_width=float(self.style.width_px),
+            u_dash=float(self.style.dash_px),
+            u_inv_axes2=(1.0 / WGS84.a**2, 1.0 / WGS84.a**2, 1.0 / WGS84.b**2),
+        )
+        set_uniforms(self.program, uni)
+        self.ctx.enable(moderngl.DEPTH_TEST | moderngl.BLEND)
+        self.ctx.blend_func = moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA
+        self.ctx.depth_func = "<="
+        self.vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=n)
+        self.ctx.disable(moderngl.BLEND)
+        self.ctx.depth_func = "<"
+        return n
+
+    def release(self) -> None:
+        for obj in (self.vao, self.buffer, self.program):
+            obj.release()

@@ -1,0 +1,261 @@
+"""Vector data for draping: GeoJSON reading, geodesic densification, heights on the LOD mesh.
+
+- `read_geojson_lines`: LineString / MultiLineString / Polygon / MultiPolygon outlines as
+  polylines of WGS84 lon/lat degrees (polygon rings closed). `read_geojson_points`: Point /
+  MultiPoint features with a name.
+- `densify`: inserts points along each segment's geodesic (pyproj.Geod, WGS84) so no piece is
+  longer than ``max_segment_m``; vectorised over all segments.
+- `drape_heights`: each point's height **on the mesh actually drawn** (TREND §5.2): the drawn
+  tile containing it (any level of the render set) and that tile's heights sampled at the
+  drawn index stride, interpolated bilinearly on that stride's grid; points in no drawn tile
+  are flagged. Vectorised over points; one `heights(key)` call per drawn tile that holds points.
+- `bin_by_tile`: the quadtree key of points at a level (object paging, TREND §5.1.2).
+
+Pure numpy/pyproj: no GL.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from pyproj import Geod
+
+from globeview.errors import GlobeviewError
+from globeview.terrain.quadtree import key_for_lonlat, tile_bounds_arrays
+
+GEOD = Geod(ellps="WGS84")
+
+
+class VectorError(GlobeviewError):
+    """A vector file cannot be used (unreadable, not GeoJSON, no usable geometry, ...)."""
+
+
+@dataclass
+class Polylines:
+    """Polylines as flat arrays: points ``lon``, ``lat`` (degrees) and ``starts`` (P + 1,)
+    offsets of each polyline's first point (the last entry = number of points)."""
+
+    lon: np.ndarray
+    lat: np.ndarray
+    starts: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.starts) - 1
+
+    def segments(self) -> tuple[np.ndarray, np.ndarray]:
+        """Index pairs (a, b) of consecutive points within each polyline."""
+        idx = np.arange(len(self.lon) - 1)
+        last = np.zeros(len(self.lon), bool)
+        last[self.starts[1:] - 1] = True
+        keep = ~last[:-1]
+        return idx[keep], idx[keep] + 1
+
+
+def _load(path: str | Path) -> dict:
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise VectorError(f"{p.name}: cannot read ({exc.strerror or exc})") from None
+    if not text.strip():
+        raise VectorError(f"{p.name}: the file is empty")
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise VectorError(f"{p.name}: not valid GeoJSON ({exc.msg} at line {exc.lineno})") from None
+    if not isinstance(doc, dict) or "type" not in doc:
+        raise VectorError(f"{p.name}: not a GeoJSON object (no 'type')")
+    crs = doc.get("crs")
+    if crs is not None:
+        name = str((crs.get("properties") or {}).get("name", "")) if isinstance(crs, dict) else ""
+        if not any(k in name.upper() for k in ("CRS84", "4326", "WGS84", "WGS 84")):
+            raise VectorError(
+                f"{p.name}: unsupported CRS {name or crs!r}; GeoJSON must be WGS84 lon/lat"
+            )
+    return doc
+
+
+def _features(doc: dict) -> list[dict]:
+    t = doc.get("type")
+    if t == "FeatureCollection":
+        return [f for f in doc.get("features") or [] if isinstance(f, dict)]
+    if t == "Feature":
+        return [doc]
+    return [{"type": "Feature", "geometry": doc, "properties": {}}]
+
+
+def _rings(geom: dict) -> list:
+    t = geom.get("type")
+    c = geom.get("coordinates")
+    if t == "LineString":
+        return [c]
+    if t == "MultiLineString":
+        return list(c)
+    if t == "Polygon":
+        return list(c)
+    if t == "MultiPolygon":
+        return [ring for poly in c for ring in poly]
+    if t == "GeometryCollection":
+        return [r for g in geom.get("geometries") or [] for r in _rings(g)]
+    return []
+
+
+def read_geojson_lines(path: str | Path) -> Polylines:
+    """Line and polygon-outline geometry of a GeoJSON file as `Polylines` (lon/lat degrees)."""
+    name = Path(path).name
+    doc = _load(path)
+    parts: list[np.ndarray] = []
+    for f in _features(doc):
+        geom = f.get("geometry")
+        if not isinstance(geom, dict):
+            continue
+        for ring in _rings(geom):
+            try:
+                a = np.asarray(ring, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise VectorError(
+                    f"{name}: malformed coordinates in a {geom.get('type')}"
+                ) from None
+            if a.ndim != 2 or a.shape[1] < 2:
+                raise VectorError(f"{name}: malformed coordinates in a {geom.get('type')}")
+            if len(a) >= 2:
+                parts.append(a[:, :2])
+    if not parts:
+        raise VectorError(f"{name}: no LineString or Polygon geometry to draw")
+    pts = np.concatenate(parts)
+    if not (np.all(np.abs(pts[:, 0]) <= 540.0) and np.all(np.abs(pts[:, 1]) <= 90.0)):
+        raise VectorError(f"{name}: coordinates are not WGS84 lon/lat degrees")
+    starts = np.concatenate([[0], np.cumsum([len(p) for p in parts])]).astype(np.int64)
+    return Polylines(pts[:, 0].copy(), pts[:, 1].copy(), starts)
+
+
+def read_geojson_points(path: str | Path) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Point / MultiPoint features: lon, lat (degrees) and each point's ``name`` property."""
+    name = Path(path).name
+    doc = _load(path)
+    lon: list[float] = []
+    lat: list[float] = []
+    names: list[str] = []
+    for f in _features(doc):
+        geom = f.get("geometry") or {}
+        props = f.get("properties") or {}
+        t = geom.get("type")
+        coords = [geom.get("coordinates")] if t == "Point" else geom.get("coordinates") or []
+        if t not in ("Point", "MultiPoint"):
+            continue
+        for c in coords:
+            if not isinstance(c, list | tuple) or len(c) < 2:
+                raise VectorError(f"{name}: malformed Point coordinates")
+            lon.append(float(c[0]))
+            lat.append(float(c[1]))
+            names.append(str(props.get("name", "")))
+    if not lon:
+        raise VectorError(f"{name}: no Point geometry")
+    return np.array(lon), np.array(lat), names
+
+
+def densify(lines: Polylines, max_segment_m: float) -> Polylines:
+    """Insert points along geodesics so no segment is longer than ``max_segment_m`` metres."""
+    a, b = lines.segments()
+    lon, lat = lines.lon, lines.lat
+    az, _, dist = GEOD.inv(lon[a], lat[a], lon[b], lat[b])
+    dist = np.asarray(dist)
+    n_sub = np.maximum(np.ceil(dist / max_segment_m).astype(np.int64), 1)
+    # Output: for every point, itself; after every segment's start, n_sub - 1 extra points.
+    extra = np.zeros(len(lon), np.int64)
+    extra[a] = n_sub - 1
+    out_starts = np.concatenate([[0], np.cumsum(extra + 1)])
+    total = int(out_starts[-1])
+    new_lon = np.empty(total)
+    new_lat = np.empty(total)
+    new_lon[out_starts[:-1]] = lon
+    new_lat[out_starts[:-1]] = lat
+    seg_of = np.repeat(np.arange(len(a)), n_sub - 1)
+    if len(seg_of):
+        k = np.arange(len(seg_of)) - np.repeat(np.cumsum(n_sub - 1) - (n_sub - 1), n_sub - 1) + 1
+        frac = k / n_sub[seg_of]
+        flon, flat, _ = GEOD.fwd(
+            lon[a][seg_of], lat[a][seg_of], np.asarray(az)[seg_of], dist[seg_of] * frac
+        )
+        pos = out_starts[a][seg_of] + k
+        # Keep longitudes continuous with the segment start (no jump across +-180).
+        flon = np.asarray(flon)
+        flon = flon + 360.0 * np.round((lon[a][seg_of] - flon) / 360.0)
+        new_lon[pos] = flon
+        new_lat[pos] = flat
+    return Polylines(new_lon, new_lat, out_starts[lines.starts])
+
+
+def bin_by_tile(level: int, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
+    """(N, 3) int64 keys (level, x, y) of the tiles at ``level`` containing the points."""
+    x, y = key_for_lonlat(level, lon, lat)
+    x = np.asarray(x, np.int64).reshape(-1)
+    y = np.asarray(y, np.int64).reshape(-1)
+    return np.stack([np.full_like(x, level), x, y], axis=1)
+
+
+def _codes(level: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    return (np.asarray(level, np.int64) << 58) | (np.asarray(y, np.int64) << 29) | x
+
+
+def drape_heights(
+    heights: Callable[[tuple[int, int, int]], np.ndarray],
+    keys: np.ndarray,
+    strides: np.ndarray,
+    lon: np.ndarray,
+    lat: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Heights (m) of points on the drawn LOD mesh.
+
+    Args:
+        heights: tile key -> (size, size) node heights (`TerrainStack.heights`).
+        keys: (T, 3) drawn tiles; strides: (T,) their index strides (1 = every node).
+        lon, lat: (N,) points, degrees.
+
+    Returns:
+        h (N,) metres (0 where not drawn), drawn (N,) bool, tile (N,) row into ``keys`` (-1).
+    """
+    lon = np.asarray(lon, np.float64)
+    lat = np.asarray(lat, np.float64)
+    n = len(lon)
+    h = np.zeros(n)
+    tile = np.full(n, -1, np.int64)
+    keys = np.asarray(keys, np.int64).reshape(-1, 3)
+    if len(keys) == 0 or n == 0:
+        return h, np.zeros(n, bool), tile
+    codes = _codes(keys[:, 0], keys[:, 1], keys[:, 2])
+    order = np.argsort(codes)
+    sorted_codes = codes[order]
+    wrapped = (lon + 180.0) % 360.0 - 180.0
+    wrapped = np.where(lon == 180.0, 180.0, wrapped)
+    for level in np.unique(keys[:, 0]):
+        todo = tile < 0
+        if not todo.any():
+            break
+        x, y = key_for_lonlat(int(level), wrapped[todo], lat[todo])
+        c = _codes(np.full(len(x), level), np.asarray(x), np.asarray(y))
+        pos = np.minimum(np.searchsorted(sorted_codes, c), len(sorted_codes) - 1)
+        hit = sorted_codes[pos] == c
+        idx = np.nonzero(todo)[0]
+        tile[idx[hit]] = order[pos[hit]]
+    drawn = tile >= 0
+    for t in np.unique(tile[drawn]):
+        sel = tile == t
+        level, x, y = (int(v) for v in keys[t])
+        s = max(int(strides[t]), 1)
+        grid = heights((level, x, y))[::s, ::s].astype(np.float64)
+        w, so, e, no = (float(v) for v in tile_bounds_arrays(level, x, y))
+        m = grid.shape[0] - 1
+        cc = np.clip((wrapped[sel] - w) / (e - w) * m, 0.0, m)
+        rr = np.clip((no - lat[sel]) / (no - so) * m, 0.0, m)
+        c0 = np.minimum(np.floor(cc).astype(np.int64), m - 1)
+        r0 = np.minimum(np.floor(rr).astype(np.int64), m - 1)
+        fc, fr = cc - c0, rr - r0
+        top = grid[r0, c0] * (1 - fc) + grid[r0, c0 + 1] * fc
+        bot = grid[r0 + 1, c0] * (1 - fc) + grid[r0 + 1, c0 + 1] * fc
+        h[sel] = top * (1 - fr) + bot * fr
+    return h, drawn, tile
