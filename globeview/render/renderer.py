@@ -26,6 +26,7 @@ from globeview.render.colour_ramp import ramp_texture_data
 from globeview.render.overlay_imagery import OverlaySet  # overlays:
 from globeview.render.render_set import FrameStats, RenderSet
 from globeview.render.tile_indices import IndexVariant
+from globeview.render.tile_loader import TileLoader, substitute_missing
 from globeview.render.tile_mesh import FLOATS_PER_VERTEX, TileMesh, build_tile_mesh
 from globeview.render.tile_pool import IndexPool, TilePool
 from globeview.render.view_state import ViewState
@@ -98,6 +99,11 @@ class GlobeRenderer:
         self.ramp.repeat_x = False
         self._build_vao()
         self.last_view: ViewState | None = None
+        # Interactive use (the window) loads tiles on worker threads and uploads at most
+        # upload_budget per frame; headless renders load everything before drawing.
+        self.async_loading = False
+        self.upload_budget = 12
+        self.loader: TileLoader | None = None
         # overlays: imagery drape (texture array parallel to the pool), vectors, point objects.
         self.overlays = OverlaySet(ctx, capacity)
 
@@ -160,12 +166,33 @@ class GlobeRenderer:
         skirt = 3.0 * float(np.nanmax(meta.stride_error)) + 0.01 * edge_m + 10.0
         return build_tile_mesh(bounds, heights, skirt)
 
-    def ensure_resident(self, keys: np.ndarray) -> int:
-        """Upload the tiles of ``keys`` that are not on the GPU yet; returns how many."""
+    def _check_terrain_version(self) -> None:
         if self.terrain.version != self._terrain_version:
             self.pool.invalidate()
+            if self.loader is not None:
+                self.loader.cancel_all()
             self._terrain_version = self.terrain.version
+
+    def ensure_resident(self, keys: np.ndarray) -> int:
+        """Upload the tiles of ``keys`` that are not on the GPU yet; returns how many."""
+        self._check_terrain_version()
         return self.pool.load(keys, self.build_mesh)
+
+    def _load_async(self, render_set: RenderSet) -> tuple[RenderSet, int, int]:
+        """Upload a few finished tiles, stand in ancestors for the missing ones and queue
+        them (see tile_loader.py). Returns the render set to draw, tiles uploaded, loading."""
+        self._check_terrain_version()
+        if self.loader is None:
+            self.loader = TileLoader(self.build_mesh)
+        ready = self.loader.take_ready(self.upload_budget)
+        if ready:
+            meshes = dict(ready)
+            ready_keys = np.array([k for k, _ in ready], dtype=np.int64)
+            self.pool.load(ready_keys, meshes.__getitem__, protect=render_set.keys)
+        drawn, missing = substitute_missing(render_set, lambda k: self.pool.slots_of(k) >= 0)
+        if len(missing):
+            self.loader.request(missing)
+        return drawn, len(ready), self.loader.pending
 
     # -- drawing -----------------------------------------------------------------------------
     def draw(
@@ -174,7 +201,10 @@ class GlobeRenderer:
         """Draw a render set into ``target`` and return the frame's figures."""
         t0 = time.perf_counter()
         stats = FrameStats()
-        uploaded = self.ensure_resident(render_set.keys)
+        if self.async_loading:
+            render_set, uploaded, stats.tiles_loading = self._load_async(render_set)
+        else:
+            uploaded = self.ensure_resident(render_set.keys)
         slots = self.pool.slots_of(render_set.keys)
         # Draw near tiles first so the depth test rejects hidden fragments early.
         order = np.argsort(np.linalg.norm(self.pool.centers[slots] - view.eye, axis=1))
@@ -261,8 +291,9 @@ class GlobeRenderer:
         stats.frame_ms = stats.draw_ms + stats.lod_ms
         stats.tiles_culled_frustum = int(render_set.stats.get("tiles_culled_frustum", 0))
         stats.tiles_culled_horizon = int(render_set.stats.get("tiles_culled_horizon", 0))
-        if render_set.error_px is not None and len(render_set.error_px):
-            stats.max_sse_px = float(np.max(render_set.error_px))
+        if render_set.error_px is not None:
+            finite = render_set.error_px[np.isfinite(render_set.error_px)]
+            stats.max_sse_px = float(finite.max()) if len(finite) else 0.0
         self.last_view = view
         return stats
 
@@ -316,6 +347,8 @@ class GlobeRenderer:
         ):
             obj.release()
         self.overlays.release()  # overlays:
+        if self.loader is not None:
+            self.loader.shutdown()
 
 
 def tile_bounds_tuple(key: tuple[int, int, int]) -> tuple[float, float, float, float]:

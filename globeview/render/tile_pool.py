@@ -114,16 +114,22 @@ class TilePool:
         return int(np.count_nonzero(self.codes >= 0))
 
     # -- loading -----------------------------------------------------------------------------
-    def load(self, keys: KeyArray, build: Callable[[tuple[int, int, int]], TileMesh]) -> int:
+    def load(
+        self,
+        keys: KeyArray,
+        build: Callable[[tuple[int, int, int]], TileMesh],
+        protect: KeyArray | None = None,
+    ) -> int:
         """Make the given keys resident, building meshes with ``build(key)``; returns how many
-        tiles were uploaded. Evicts least-recently-used slots not among ``keys``."""
+        tiles were uploaded. Evicts least-recently-used slots not among ``keys`` (nor among
+        ``protect``: tiles the frame still draws)."""
         keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
         missing = keys[self.slots_of(keys) < 0]
         if len(missing) == 0:
             return 0
         missing = np.unique(missing, axis=0)
         protected = np.zeros(self.capacity, dtype=bool)
-        have = self.slots_of(keys)
+        have = self.slots_of(keys if protect is None else np.concatenate([keys, protect]))
         protected[have[have >= 0]] = True
         order = np.argsort(np.where(self.codes < 0, -1, self.last_used), kind="stable")
         free = order[~protected[order]]

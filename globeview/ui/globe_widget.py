@@ -22,6 +22,8 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import replace
 
 import moderngl
@@ -236,6 +238,8 @@ class GlobeWidget(QOpenGLWidget):
             self.lod = DEFAULT_LOD if DEFAULT_LOD in available else next(iter(available))
         scene = GlobeSession(self.ctx, self.terrain, self.camera, self.registry, self.lod)
         scene.renderer.settings = self.settings
+        # Tiles load on worker threads; frames draw ancestors until they arrive.
+        scene.renderer.async_loading = True
         scene.tau_px = self.tau_px
         self.scene = scene
         self.navigator = Navigator(scene, self.pick, self.viewport_px, self._camera_moved)
@@ -415,6 +419,21 @@ class GlobeWidget(QOpenGLWidget):
             self.set_tool(None)
             self._anim.stop()
             self.toolDeactivated.emit()
+
+    @contextmanager
+    def gl_current(self) -> Iterator[None]:
+        """Make this widget's GL context current for the block (for creating or releasing GL
+        objects outside paintGL, e.g. attaching overlay layers); a no-op when it already is
+        (inside initializeGL / paintGL and their signals)."""
+        ctx = self.context()
+        if ctx is None or QOpenGLContext.currentContext() is ctx:
+            yield
+            return
+        self.makeCurrent()
+        try:
+            yield
+        finally:
+            self.doneCurrent()
 
     def grab_image(self) -> QImage:
         """The current frame as an image (renders one if needed)."""

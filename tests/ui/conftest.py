@@ -62,6 +62,11 @@ def make_window(qtbot, tmp_path, embedded, errors_shown, monkeypatch):
         win.show()
         qtbot.waitExposed(win)
         qtbot.waitUntil(lambda: win.globe.frames > 0, timeout=20000)
+        # Tiles stream in on worker threads: wait until the view is complete.
+        qtbot.waitUntil(
+            lambda: win.globe.last_stats is not None and win.globe.last_stats.tiles_loading == 0,
+            timeout=30000,
+        )
         windows.append(win)
         return win
 
@@ -93,6 +98,7 @@ def wait_frame(qtbot):
         n = window.globe.frames
         window.globe.request_frame()
         qtbot.waitUntil(lambda: window.globe.frames > n, timeout=10000)
+        qtbot.waitUntil(lambda: window.globe.last_stats.tiles_loading == 0, timeout=30000)
 
     return wait
 

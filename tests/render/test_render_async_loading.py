@@ -1,0 +1,63 @@
+"""Interactive (asynchronous) tile loading: frames never show holes or overlaps while tiles
+load, and once everything has loaded the image equals the synchronous render."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from globeview.render.camera import Camera
+from globeview.render.render_set import RenderSet
+from globeview.render.tile_indices import IndexVariant
+from globeview.render.tile_loader import substitute_missing
+
+pytestmark = pytest.mark.gl
+
+
+def test_substitution_replaces_missing_tiles_by_their_resident_ancestor() -> None:
+    keys = np.array([[3, 4, 2], [3, 5, 2], [3, 4, 3], [3, 5, 3], [2, 0, 0]])
+    rs = RenderSet(keys, np.zeros(5, np.int64), [IndexVariant()], error_px=np.ones(5))
+    resident = {(2, 2, 1), (2, 0, 0), (3, 4, 2)}  # (3, 5, 2) and the others are missing
+
+    out, missing = substitute_missing(
+        rs, lambda k: np.array([tuple(map(int, r)) in resident for r in k], dtype=bool)
+    )
+    got = {tuple(map(int, r)) for r in out.keys}
+    # The parent (2, 2, 1) stands in for its four children, even the resident one (no overlap);
+    # the unrelated tile stays.
+    assert got == {(2, 2, 1), (2, 0, 0)}
+    assert {tuple(map(int, r)) for r in missing} == {(3, 5, 2), (3, 4, 3), (3, 5, 3)}
+    assert len(out.variant_ids) == len(out.keys) == len(out.error_px)
+
+
+def test_async_frames_converge_to_the_synchronous_image(scene, targets) -> None:
+    """Render a view synchronously, then with background loading from an empty pool: frames
+    come back at once while tiles load, and once loading is done the image is exactly the
+    synchronous one."""
+    size = (256, 192)
+    target = targets(size)
+    scene.camera = Camera.from_lonlat(-71.3, 44.2, 60000.0, 0.0, -50.0)
+    scene.renderer.settings.background = (1.0, 0.0, 1.0)
+    try:
+        scene.render(target.fbo, size)
+        reference = target.read_rgb()
+
+        scene.renderer.pool.invalidate()
+        scene.renderer.async_loading = True
+        loading_seen = False
+        deadline = time.monotonic() + 60.0
+        while True:
+            result = scene.render(target.fbo, size)
+            img = target.read_rgb()
+            loading_seen |= result.stats.tiles_loading > 0
+            if result.stats.tiles_drawn and result.stats.tiles_loading == 0:
+                break
+            assert time.monotonic() < deadline, "tiles never finished loading"
+            time.sleep(0.02)
+        assert loading_seen
+        assert np.array_equal(img, reference)
+    finally:
+        scene.renderer.async_loading = False
+        scene.renderer.settings.background = (0.0, 0.0, 0.0)
