@@ -86,7 +86,8 @@ class GlobeRenderer:
         self.indices.on_realloc = self._build_vao
         self._terrain_version = terrain.version
         self._hook: DisplacementHook | None = None
-        self.program = self._compile(None)
+        self._features = (False, False, True)  # imagery, hillshade, fog
+        self.program = self._compile(None, self._features)
         self.instances = ctx.buffer(reserve=capacity * 7 * 4, dynamic=True)
         self.commands = ctx.buffer(reserve=capacity * 5 * 4, dynamic=True)
         # Providers that triangulate each tile themselves (quadtree-clod) write their indices
@@ -97,7 +98,8 @@ class GlobeRenderer:
         self.ramp = ctx.texture((ramp.shape[1], 1), 3, ramp.tobytes(), dtype="f1")
         self.ramp.filter = (moderngl.LINEAR, moderngl.LINEAR)
         self.ramp.repeat_x = False
-        self._build_vao()
+        self.vao, self.custom_vao = self._make_vaos(self.program)
+        self._variants = {self._features: (self.program, self.vao, self.custom_vao)}
         self.last_view: ViewState | None = None
         # Interactive use (the window) loads tiles on worker threads and uploads at most
         # upload_budget per frame; headless renders load everything before drawing.
@@ -108,44 +110,82 @@ class GlobeRenderer:
         self.overlays = OverlaySet(ctx, capacity)
 
     # -- shader program and displacement hooks --------------------------------------------
-    def _compile(self, hook: DisplacementHook | None) -> moderngl.Program:
+    # The fragment shader's optional parts (imagery drape, hillshade, fog) are compiled in or
+    # out with #defines rather than switched by uniforms: llvmpipe shades a 4x4 block for
+    # both sides of a uniform branch, so a disabled drape still cost its texture fetch (about
+    # a third of a full-screen frame). Variants are compiled on first use and kept.
+    def _compile(
+        self, hook: DisplacementHook | None, features: tuple[bool, bool, bool]
+    ) -> moderngl.Program:
         vert = load_shader("terrain.vert")
         if hook is not None:
             vert = vert.replace("//GV_DISPLACE_DECLS", hook.glsl)
             vert = vert.replace(
                 "//GV_DISPLACE_CALL", "rel = gv_displace(rel, up, in_h * u_exag, in_center_rel);"
             )
-        return self.ctx.program(vertex_shader=vert, fragment_shader=load_shader("terrain.frag"))
+        frag = load_shader("terrain.frag")
+        names = ("GV_IMAGERY", "GV_HILLSHADE", "GV_FOG")
+        defines = "".join(f"#define {n} 1\n" for n, on in zip(names, features, strict=True) if on)
+        head, rest = frag.split("\n", 1)  # the #version line stays first
+        return self.ctx.program(vertex_shader=vert, fragment_shader=f"{head}\n{defines}{rest}")
+
+    def _use_features(self, features: tuple[bool, bool, bool]) -> None:
+        if features == self._features:
+            return
+        cached = self._variants.get(features)
+        if cached is None:
+            program = self._compile(self._hook, features)
+            cached = (program, *self._make_vaos(program))
+            self._variants[features] = cached
+        self.program, self.vao, self.custom_vao = cached
+        self._features = features
 
     def set_displacement_hook(self, hook: DisplacementHook | None) -> None:
         """Install (or remove, with None) a vertex displacement hook. Raises
         moderngl.Error if the hook's GLSL does not compile; the previous program stays."""
-        program = self._compile(hook)
-        self.program.release()
-        self.program = program
+        program = self._compile(hook, self._features)
+        self._release_variants()
         self._hook = hook
-        self._build_vao()
+        self.program = program
+        self.vao, self.custom_vao = self._make_vaos(program)
+        self._variants = {self._features: (self.program, self.vao, self.custom_vao)}
 
-    def _build_vao(self) -> None:
+    def _release_variants(self) -> None:
+        for program, vao, custom_vao in self._variants.values():
+            vao.release()
+            custom_vao.release()
+            program.release()
+        self._variants = {}
+
+    def _make_vaos(self, program: moderngl.Program):
         content = [
             (self.pool.vbo, "3f 1f 2f", "in_pos", "in_h", "in_uv"),
             (self.instances, "3f 3f 1f/i", "in_center_rel", "in_center", "in_layer"),
         ]
         # skip_errors: a shader variant may not use every attribute.
-        self.vao = self.ctx.vertex_array(
-            self.program,
+        vao = self.ctx.vertex_array(
+            program,
             content,
             index_buffer=self.indices.buffer,
             index_element_size=4,
             skip_errors=True,
         )
-        self.custom_vao = self.ctx.vertex_array(
-            self.program,
+        custom_vao = self.ctx.vertex_array(
+            program,
             content,
             index_buffer=self.custom_ibo,
             index_element_size=4,
             skip_errors=True,
         )
+        return vao, custom_vao
+
+    def _build_vao(self) -> None:
+        """Rebuild the vertex arrays after an index buffer was reallocated."""
+        for key, (program, vao, custom_vao) in list(self._variants.items()):
+            vao.release()
+            custom_vao.release()
+            self._variants[key] = (program, *self._make_vaos(program))
+        self.program, self.vao, self.custom_vao = self._variants[self._features]
 
     def _write_custom_indices(self, idx: np.ndarray) -> None:
         data = idx.astype(np.uint32).tobytes()
@@ -250,6 +290,9 @@ class GlobeRenderer:
             ccmds[:, 2] = starts
             self.custom_commands.write(ccmds.tobytes())
 
+        self._use_features(
+            (self.overlays.imagery.active, bool(self.settings.hillshade), bool(self.settings.fog))
+        )
         self._set_uniforms(view)
         target.use()
         bg = self.settings.background
@@ -335,10 +378,8 @@ class GlobeRenderer:
                     p[name].value = value
 
     def release(self) -> None:
+        self._release_variants()
         for obj in (
-            self.vao,
-            self.custom_vao,
-            self.program,
             self.instances,
             self.commands,
             self.custom_ibo,

@@ -53,7 +53,11 @@ def run(files: Sequence[str] = (), settings: QSettings | None = None) -> int:
     """Open the window with the embedded data plus ``files``; returns the exit code."""
     logging.basicConfig(level=logging.WARNING, format="globeview: %(levelname)s: %(message)s")
     app = create_application()
-    window = MainWindow(embedded_terrain(), settings or QSettings(ORGANIZATION, APPLICATION))
+    window = MainWindow(
+        embedded_terrain(),
+        settings or QSettings(ORGANIZATION, APPLICATION),
+        embedded_overlays=True,
+    )
     previous = install_excepthook(window.errors)
     try:
         window.show()

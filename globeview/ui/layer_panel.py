@@ -1,4 +1,5 @@
-"""The layer panel: the DEM layers of the `TerrainStack`, topmost first.
+"""The layer panel: the overlays (imagery, thematic, vectors, points: `OverlayPanel`) in
+their own group on top, then the DEM layers of the `TerrainStack`, topmost first.
 
 Each row has a visibility checkbox; rows reorder by drag and drop or the ↑/↓ buttons (the
 top row wins where layers overlap); "Zoom to" flies the camera over a layer and "Remove"
@@ -10,6 +11,7 @@ from __future__ import annotations
 from PyQt6.QtCore import Qt, pyqtSignal
 from PyQt6.QtWidgets import (
     QAbstractItemView,
+    QGroupBox,
     QHBoxLayout,
     QListWidget,
     QListWidgetItem,
@@ -19,6 +21,7 @@ from PyQt6.QtWidgets import (
 )
 
 from globeview.terrain.stack import TerrainStack
+from globeview.ui.overlay_panel import OverlayPanel
 
 NAME_ROLE = Qt.ItemDataRole.UserRole
 
@@ -73,10 +76,19 @@ class LayerPanel(QWidget):
         buttons = QHBoxLayout()
         for b in (self.up_button, self.down_button, self.zoom_button, self.remove_button):
             buttons.addWidget(b)
+        #: The overlay layers (bound to the session once the globe's GL is up).
+        self.overlays = OverlayPanel()
+        overlay_box = QGroupBox("Overlays")
+        overlay_box.setObjectName("overlays-group")
+        QVBoxLayout(overlay_box).addWidget(self.overlays)
+        terrain_box = QGroupBox("Terrain (DEM)")
+        terrain_layout = QVBoxLayout(terrain_box)
+        terrain_layout.addWidget(self.list)
+        terrain_layout.addLayout(buttons)
         layout = QVBoxLayout(self)
         layout.setContentsMargins(4, 4, 4, 4)
-        layout.addWidget(self.list)
-        layout.addLayout(buttons)
+        layout.addWidget(overlay_box)
+        layout.addWidget(terrain_box)
         self.refresh()
 
     # -- view of the model ----------------------------------------------------------------

@@ -4,7 +4,16 @@ stack, scene, camera, plugin registry) and holds no algorithm of its own.
 
 The Tools toolbar and menu list the enabled tool plugins (rebuilt when plugins are enabled or
 disabled) as checkable actions, at most one active; the collapse tool has the shortcut C and
-its own controls (ratio slider, Expand/Collapse button), configured through the registry."""
+its own controls (ratio slider, Expand/Collapse button), configured through the registry.
+
+Overlays (imagery, thematic rasters, vectors, points) live in the session
+(``GlobeSession.overlay_layers``) and are listed in the layer panel's "Overlays" group. File >
+Open Overlay… opens any raster or GeoJSON as an overlay (a single-band raster becomes a
+thematic drape); File > Open DEM… opens terrain; drag and drop, recent files and the command
+line decide by content (`classify_path`): GeoJSON and RGB(A)/paletted rasters are overlays,
+single-band numeric rasters and tile store folders are DEMs. With ``embedded_overlays`` the
+window starts with the Natural Earth borders shown and the Blue Marble drape listed but
+hidden (the hypsometric relief is what a person sees first; one tick shows the imagery)."""
 
 from __future__ import annotations
 
@@ -56,6 +65,14 @@ DEM_FILTER = (
     "DEM rasters (*.tif *.tiff *.hgt *.dem *.asc *.img *.vrt *.nc *.bil *.dt0 *.dt1 *.dt2);;"
     "All files (*)"
 )
+OVERLAY_FILTER = (
+    "Overlays (*.geojson *.json *.tif *.tiff *.png *.jpg *.jpeg *.jp2 *.img *.vrt *.asc);;"
+    "GeoJSON vectors and points (*.geojson *.json);;"
+    "Rasters: imagery or thematic (*.tif *.tiff *.png *.jpg *.jpeg *.jp2 *.img *.vrt *.asc);;"
+    "All files (*)"
+)
+#: The embedded Blue Marble drape's layer name (listed, hidden at start).
+BLUE_MARBLE = "bluemarble_2048x1024.tif"
 #: Exaggeration slider: tenths, 0.1x .. 50x.
 EXAG_MAX_TENTHS = 500
 #: The collapse tool's contribution name, its shortcut, and its ratio slider (hundredths).
@@ -76,6 +93,8 @@ class MainWindow(QMainWindow):
         show_error: how modal error messages are shown (default: a message box); tests
             inject a recorder so no dialog blocks.
         camera: the initial camera (default: the whole globe).
+        embedded_overlays: add the embedded overlays once the globe is up (country borders
+            shown, Blue Marble imagery listed but hidden).
     """
 
     def __init__(
@@ -85,8 +104,12 @@ class MainWindow(QMainWindow):
         registry: PluginRegistry | None = None,
         show_error=None,
         camera: Camera | None = None,
+        embedded_overlays: bool = False,
     ) -> None:
         super().__init__()
+        self._embedded_overlays = embedded_overlays
+        #: Overlay files asked for before the globe's GL (and session) existed.
+        self._pending_overlays: list[str] = []
         self.setWindowTitle("globeview")
         self.setAcceptDrops(True)
         self.qsettings = settings or QSettings("globeview", "globeview")
@@ -178,6 +201,13 @@ class MainWindow(QMainWindow):
         self.open_action.setShortcut(QKeySequence.StandardKey.Open)
         self.open_action.triggered.connect(self.open_dialog)
         file_menu.addAction(self.open_action)
+        self.open_overlay_action = QAction("Open &Overlay…", self)
+        self.open_overlay_action.setShortcut(QKeySequence("Ctrl+Shift+O"))
+        self.open_overlay_action.setToolTip(
+            "Drape imagery or a thematic raster, or show GeoJSON lines or points"
+        )
+        self.open_overlay_action.triggered.connect(self.open_overlay_dialog)
+        file_menu.addAction(self.open_overlay_action)
         self.recent_menu = file_menu.addMenu("Open &Recent")
         self.export_action = QAction("&Export Image…", self)
         self.export_action.setShortcut(QKeySequence("Ctrl+E"))
@@ -356,6 +386,8 @@ class MainWindow(QMainWindow):
     def _connect(self) -> None:
         g = self.globe
         g.sceneReady.connect(self.plugins.bind)
+        g.sceneReady.connect(self._scene_ready)
+        self.layer_panel.overlays.changed.connect(g.request_frame)
         g.frameRendered.connect(self.status.show_frame)
         g.frameRendered.connect(lambda *_: self.plugins.after_frame())
         g.frameRendered.connect(self._camera_changed)
@@ -461,14 +493,90 @@ class MainWindow(QMainWindow):
     def open_dialog(self) -> None:
         start = str(Path(self.recent_files()[0]).parent) if self.recent_files() else ""
         paths, _ = QFileDialog.getOpenFileNames(self, "Open DEM", start, DEM_FILTER)
-        self.open_paths(paths)
+        self.open_dems(paths)
 
     def open_paths(self, paths: list[str] | tuple[str, ...]) -> None:
-        """Open DEM files (or tile store folders) in the background: the same path the Open
-        dialog, drag and drop, recent files and the command line take."""
+        """Open files deciding by content (`classify_path`): DEMs and tile store folders load
+        in the background, overlays are added at once. The path drag and drop, recent files
+        and the command line take; a file of neither kind reports its one-line error."""
+        for p in paths:
+            if not p:
+                continue
+            try:
+                kind = classify_path(p)
+            except GlobeviewError as exc:
+                self.errors.error(exc)
+                continue
+            if kind == "overlay":
+                self.open_overlay(str(p))
+            else:
+                self.open_dems([str(p)])
+
+    def open_dems(self, paths: list[str] | tuple[str, ...]) -> None:
+        """Open DEM files (or tile store folders) in the background (File > Open DEM…)."""
         for p in paths:
             if p:
                 self.loader.load(str(p))
+
+    # -- overlays ----------------------------------------------------------------------------
+    def open_overlay_dialog(self) -> None:
+        """File > Open Overlay…: rasters (imagery or thematic) and GeoJSON."""
+        start = str(Path(self.recent_files()[0]).parent) if self.recent_files() else ""
+        paths, _ = QFileDialog.getOpenFileNames(self, "Open Overlay", start, OVERLAY_FILTER)
+        self.open_overlays(paths)
+
+    def open_overlays(self, paths: list[str] | tuple[str, ...]) -> list:
+        """Open files as overlays (the Open Overlay dialog's path); returns the layers added."""
+        layers = [self.open_overlay(str(p)) for p in paths if p]
+        return [ly for ly in layers if ly is not None]
+
+    def open_overlay(self, path: str) -> Any:
+        """Add a raster or GeoJSON file as an overlay layer (its type decided by content) on
+        top of the overlays; a bad file reports its one-line error and changes nothing.
+        Returns the layer (None on error, or while the globe is not up yet: then it is added
+        once it is)."""
+        scene = self.globe.scene
+        if scene is None:
+            self._pending_overlays.append(str(path))
+            return None
+        try:
+            with self.globe.gl_current():
+                layer = scene.add_overlay(str(path))
+        except Exception as exc:
+            self.errors.error(exc, "" if isinstance(exc, GlobeviewError) else "opening overlay")
+            self.layer_panel.overlays.refresh()
+            return None
+        self.layer_panel.overlays.refresh()
+        self.layer_panel.overlays.select(layer)
+        self.status.notice(f"added {layer.kind} overlay {layer.name}")
+        if layer.kind != "thematic":  # reopened from the recent list by content
+            self.add_recent(path)
+        self.globe.request_frame()
+        return layer
+
+    def overlay_layers(self) -> list:
+        """The session's overlay layers, bottom first ([] before the globe is up)."""
+        return self.layer_panel.overlays.layers()
+
+    def _scene_ready(self, scene: Any) -> None:
+        """The session exists (GL is current): bind the overlay panel, add the embedded
+        overlays (Blue Marble hidden) and any overlays asked for before."""
+        panel = self.layer_panel.overlays
+        panel.bind(scene, self.globe.gl_current)
+        if self._embedded_overlays:
+            self._embedded_overlays = False
+            try:
+                with self.globe.gl_current():
+                    layers = scene.add_embedded_overlays(imagery=True)
+                    for layer in layers:
+                        if layer.kind in ("imagery", "thematic"):
+                            layer.set_visible(scene.renderer, False)
+            except Exception as exc:
+                self.errors.error(exc, "adding the embedded overlays")
+            panel.refresh()
+        pending, self._pending_overlays = self._pending_overlays, []
+        for path in pending:
+            self.open_overlay(path)
 
     def _load_started(self, path: str) -> None:
         self.load_label.setText(f"Opening {Path(path).name}…")
@@ -574,6 +682,23 @@ class MainWindow(QMainWindow):
 
     def last_error(self) -> UserMessage | None:
         return self.errors.history[-1] if self.errors.history else None
+
+
+def classify_path(path: str | Path) -> str:
+    """'dem' or 'overlay' for a file dropped or opened without saying which: tile store
+    folders, DEM-only formats and single-band numeric rasters are DEMs; GeoJSON and RGB(A) or
+    paletted rasters are overlays. Raises `GlobeviewError` (one line) for anything else."""
+    from globeview.plugins.builtin.layers import detect_layer_type
+
+    p = Path(path)
+    if p.is_dir():
+        return "dem"
+    if not p.exists():
+        raise GlobeviewError(f"file not found: {p}")
+    if p.suffix.lower() in (".hgt", ".dem", ".bil", ".dt0", ".dt1", ".dt2", ".nc"):
+        return "dem"
+    kind = detect_layer_type(p)
+    return "dem" if kind == "thematic" else "overlay"
 
 
 def _float(value: object, default: float) -> float:

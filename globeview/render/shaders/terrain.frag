@@ -54,26 +54,32 @@ void main() {
     n = normalize(u_exag * (n - nu * up) + nu * up);
 
     vec3 albedo = texture(u_ramp, vec2(clamp((h - u_ramp_lo) / (u_ramp_hi - u_ramp_lo), 0.0, 1.0), 0.5)).rgb;
+#ifdef GV_IMAGERY
     if (u_imagery_on > 0.5) {  // overlays: node uv -> tile fraction -> interior texels
         vec2 t = (v_uv * u_tile_nodes - 0.5) / (u_tile_nodes - 1.0);
         vec2 iuv = (1.0 + t * (u_imagery_size - 2.0)) / u_imagery_size;
         vec4 img = texture(u_imagery, vec3(iuv, v_layer)) * u_imagery_opacity;
         albedo = albedo * (1.0 - img.a) + img.rgb;
     }
+#endif
 
     vec3 light = u_light;
+#ifdef GV_HILLSHADE
     if (u_hillshade) {
         vec3 east = normalize(cross(vec3(0.0, 0.0, 1.0), up) + vec3(1e-9, 0.0, 0.0));
         vec3 north = cross(up, east);
         light = normalize(0.5 * (-east + north) + 0.7071 * up);
     }
+#endif
     float diffuse = max(dot(n, light), 0.0);
     vec3 color = albedo * (0.35 + 0.75 * diffuse);
 
     // Interpolating 1.0 across a triangle can give 0.99999994: snap it back to exactly 1 so
     // a hook that shades nothing changes no pixel.
     color *= min(v_shade + 1e-3, 1.0);
-    float dist = length(v_rel);
-    float fog = smoothstep(u_fog_start, u_fog_end, dist);
-    f_color = vec4(mix(color, u_fog_color, fog * 0.6), 1.0);
+#ifdef GV_FOG
+    float fog = smoothstep(u_fog_start, u_fog_end, length(v_rel));
+    color = mix(color, u_fog_color, fog * 0.6);
+#endif
+    f_color = vec4(color, 1.0);
 }

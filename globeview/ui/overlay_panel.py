@@ -1,0 +1,382 @@
+"""The overlay panel: the session's overlay layers (imagery, thematic, vectors, points),
+topmost first.
+
+Each row has a visibility checkbox; rows reorder by drag and drop or the ↑/↓ buttons (the
+session's ``overlay_layers`` is reordered and every layer re-attached, so the imagery drape
+composes in the listed order); "Remove" drops a layer. Below the list, the selected layer's
+style: opacity for imagery/thematic drapes, colour and width (vectors) or size (points).
+Every edit goes to the layer objects of `globeview.plugins.builtin.layers` and emits
+``changed`` so the view redraws; nothing here draws.
+
+Vectors and points are always drawn over the imagery drape (they are separate passes); the
+order matters among drapes and among line layers.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
+from typing import Any
+
+from PyQt6.QtCore import Qt, pyqtSignal
+from PyQt6.QtGui import QColor
+from PyQt6.QtWidgets import (
+    QAbstractItemView,
+    QColorDialog,
+    QDoubleSpinBox,
+    QHBoxLayout,
+    QLabel,
+    QListWidget,
+    QListWidgetItem,
+    QPushButton,
+    QSlider,
+    QVBoxLayout,
+    QWidget,
+)
+
+ID_ROLE = Qt.ItemDataRole.UserRole
+DRAPE_KINDS = ("imagery", "thematic")
+#: Short labels of the layer kinds shown in the rows.
+KIND_LABELS = {"imagery": "imagery", "thematic": "thematic", "vector": "lines", "points": "points"}
+
+
+class OverlayList(QListWidget):
+    """A list whose internal drag-and-drop moves report the new order."""
+
+    reordered = pyqtSignal()
+
+    def dropEvent(self, event) -> None:
+        super().dropEvent(event)
+        self.reordered.emit()
+
+
+def layer_visible(layer: Any) -> bool:
+    """Whether an overlay layer is shown (drapes: their imagery layer's flag; vectors and
+    points: their GPU overlay's flag while attached)."""
+    if layer.kind in DRAPE_KINDS:
+        return bool(layer.layer.visible)
+    overlay = getattr(layer, "_overlay", None)
+    return True if overlay is None else bool(overlay.visible)
+
+
+def layer_opacity(layer: Any) -> float:
+    """A drape's opacity 0..1 (1 for vectors and points)."""
+    return float(layer.layer.opacity) if layer.kind in DRAPE_KINDS else 1.0
+
+
+class OverlayPanel(QWidget):
+    """Lists a session's overlay layers and edits visibility, order, opacity, style and
+    membership. Unbound (no session yet) it shows an empty, disabled list.
+
+    Signals:
+        changed(): an overlay changed (redraw).
+    """
+
+    changed = pyqtSignal()
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.session: Any = None
+        self._gl: Callable[[], AbstractContextManager] = nullcontext
+        self._updating = False
+        self._by_id: dict[int, Any] = {}
+
+        self.list = OverlayList()
+        self.list.setObjectName("overlay-list")
+        self.list.setDragDropMode(QAbstractItemView.DragDropMode.InternalMove)
+        self.list.setDefaultDropAction(Qt.DropAction.MoveAction)
+        self.list.setSelectionMode(QAbstractItemView.SelectionMode.SingleSelection)
+        self.list.setToolTip(
+            "Tick to show an overlay; drag to reorder (drapes: the top one is composed last; "
+            "lines and points are always drawn over the drapes)"
+        )
+        self.list.setMaximumHeight(140)
+        self.list.itemChanged.connect(self._item_changed)
+        self.list.reordered.connect(self._sync_order)
+        self.list.currentRowChanged.connect(lambda _row: self._update_controls())
+
+        self.up_button = QPushButton("↑")
+        self.up_button.setToolTip("Move the overlay up")
+        self.down_button = QPushButton("↓")
+        self.down_button.setToolTip("Move the overlay down")
+        self.remove_button = QPushButton("Remove")
+        self.remove_button.setToolTip("Take the overlay off the globe")
+        self.up_button.clicked.connect(lambda: self.move_selected(-1))
+        self.down_button.clicked.connect(lambda: self.move_selected(+1))
+        self.remove_button.clicked.connect(self.remove_selected)
+        buttons = QHBoxLayout()
+        for b in (self.up_button, self.down_button, self.remove_button):
+            buttons.addWidget(b)
+
+        # Style of the selected layer: opacity (drapes), colour + width/size (lines, points).
+        self.opacity_label = QLabel("Opacity")
+        self.opacity_slider = QSlider(Qt.Orientation.Horizontal)
+        self.opacity_slider.setRange(0, 100)
+        self.opacity_slider.setToolTip("Opacity of the selected drape (0..100 %)")
+        self.opacity_value = QLabel()
+        self.opacity_value.setMinimumWidth(36)
+        self.opacity_slider.valueChanged.connect(self._opacity_changed)
+        self.color_button = QPushButton("Colour…")
+        self.color_button.setToolTip("Colour of the selected lines or points")
+        self.color_button.clicked.connect(self.choose_color)
+        self.width_label = QLabel("Width")
+        self.width_spin = QDoubleSpinBox()
+        self.width_spin.setRange(0.5, 40.0)
+        self.width_spin.setSingleStep(0.5)
+        self.width_spin.setDecimals(1)
+        self.width_spin.setSuffix(" px")
+        self.width_spin.valueChanged.connect(self._width_changed)
+        style = QHBoxLayout()
+        for w in (
+            self.opacity_label,
+            self.opacity_slider,
+            self.opacity_value,
+            self.color_button,
+            self.width_label,
+            self.width_spin,
+        ):
+            style.addWidget(w)
+
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        layout.addWidget(self.list)
+        layout.addLayout(buttons)
+        layout.addLayout(style)
+        self.refresh()
+
+    # -- model ----------------------------------------------------------------------------
+    def bind(self, session: Any, gl: Callable[[], AbstractContextManager] | None = None) -> None:
+        """Show ``session``'s overlays; ``gl()`` makes the GL context current around attach /
+        detach (they create and release GL objects)."""
+        self.session = session
+        self._gl = gl or nullcontext
+        self.refresh()
+
+    @property
+    def renderer(self) -> Any:
+        return None if self.session is None else self.session.renderer
+
+    def layers(self) -> list:
+        """The session's overlay layers, bottom first."""
+        return [] if self.session is None else list(self.session.overlay_layers)
+
+    def names(self) -> list[str]:
+        """Overlay names as listed, topmost first."""
+        return [self.layer_at(r).name for r in range(self.list.count())]
+
+    def layer_at(self, row: int) -> Any:
+        return self._by_id[self.list.item(row).data(ID_ROLE)]
+
+    def find(self, name: str) -> Any:
+        """The topmost overlay layer called ``name`` (None if there is none)."""
+        return next((ly for ly in reversed(self.layers()) if ly.name == name), None)
+
+    def selected_layer(self) -> Any:
+        row = self.list.currentRow()
+        return None if row < 0 else self.layer_at(row)
+
+    def refresh(self) -> None:
+        """Rebuild the rows from the session (keeps the selection)."""
+        current = self.selected_layer()
+        self._updating = True
+        try:
+            self.list.clear()
+            self._by_id = {}
+            for layer in reversed(self.layers()):
+                self._by_id[id(layer)] = layer
+                item = QListWidgetItem(f"{layer.name}  ({KIND_LABELS.get(layer.kind, layer.kind)})")
+                item.setData(ID_ROLE, id(layer))
+                flags = item.flags() | Qt.ItemFlag.ItemIsUserCheckable
+                flags |= Qt.ItemFlag.ItemIsDragEnabled
+                item.setFlags(flags & ~Qt.ItemFlag.ItemIsDropEnabled)
+                item.setCheckState(
+                    Qt.CheckState.Checked if layer_visible(layer) else Qt.CheckState.Unchecked
+                )
+                item.setToolTip(f"{layer.kind} overlay {layer.name}")
+                self.list.addItem(item)
+                if layer is current:
+                    self.list.setCurrentItem(item)
+        finally:
+            self._updating = False
+        self.list.setEnabled(self.session is not None)
+        self._update_controls()
+
+    def select(self, layer: Any) -> None:
+        for r in range(self.list.count()):
+            if self.layer_at(r) is layer:
+                self.list.setCurrentRow(r)
+                return
+
+    def _update_controls(self) -> None:
+        row = self.list.currentRow()
+        layer = self.selected_layer()
+        self.up_button.setEnabled(row > 0)
+        self.down_button.setEnabled(0 <= row < self.list.count() - 1)
+        self.remove_button.setEnabled(layer is not None)
+        drape = layer is not None and layer.kind in DRAPE_KINDS
+        styled = layer is not None and layer.kind in ("vector", "points")
+        for w in (self.opacity_label, self.opacity_slider, self.opacity_value):
+            w.setVisible(drape)
+        for w in (self.color_button, self.width_label, self.width_spin):
+            w.setVisible(styled)
+        self._updating = True
+        try:
+            if drape:
+                pct = round(layer_opacity(layer) * 100)
+                self.opacity_slider.setValue(pct)
+                self.opacity_value.setText(f"{pct} %")
+            if styled:
+                self.width_label.setText("Width" if layer.kind == "vector" else "Size")
+                self.width_spin.setValue(float(_size_of(layer)))
+                self._show_color(layer.color)
+        finally:
+            self._updating = False
+
+    def _show_color(self, rgba: tuple) -> None:
+        c = QColor.fromRgbF(*(float(v) for v in rgba[:3]))
+        text = "#000" if c.lightnessF() > 0.5 else "#fff"
+        self.color_button.setStyleSheet(f"background-color: {c.name()}; color: {text};")
+
+    # -- edits ----------------------------------------------------------------------------
+    def set_visible(self, layer: Any, visible: bool) -> None:
+        """Tick or untick an overlay's checkbox (as a user click would)."""
+        for r in range(self.list.count()):
+            if self.layer_at(r) is layer:
+                self.list.item(r).setCheckState(
+                    Qt.CheckState.Checked if visible else Qt.CheckState.Unchecked
+                )
+
+    def _item_changed(self, item: QListWidgetItem) -> None:
+        if self._updating or self.renderer is None:
+            return
+        layer = self._by_id[item.data(ID_ROLE)]
+        layer.set_visible(self.renderer, item.checkState() == Qt.CheckState.Checked)
+        self.changed.emit()
+
+    def set_opacity(self, layer: Any, opacity: float) -> None:
+        """Set a drape's opacity (0..1); the slider follows when it is selected."""
+        if layer.kind not in DRAPE_KINDS or self.renderer is None:
+            return
+        layer.set_opacity(self.renderer, opacity)
+        if layer is self.selected_layer():
+            self._update_controls()
+        self.changed.emit()
+
+    def _opacity_changed(self, pct: int) -> None:
+        self.opacity_value.setText(f"{pct} %")
+        layer = self.selected_layer()
+        if self._updating or layer is None:
+            return
+        self.set_opacity(layer, pct / 100.0)
+
+    def set_color(self, layer: Any, color: QColor) -> None:
+        """Set a vector/points layer's colour (effective on the next frame)."""
+        if layer.kind not in ("vector", "points"):
+            return
+        rgba = (color.redF(), color.greenF(), color.blueF(), color.alphaF())
+        _restyle(layer, self.renderer, color=rgba)
+        if layer is self.selected_layer():
+            self._show_color(rgba)
+        self.changed.emit()
+
+    def choose_color(self) -> None:
+        """Pick the selected layer's colour with a colour dialog."""
+        layer = self.selected_layer()
+        if layer is None or layer.kind not in ("vector", "points"):
+            return
+        initial = QColor.fromRgbF(*(float(v) for v in layer.color))
+        alpha = QColorDialog.ColorDialogOption.ShowAlphaChannel
+        color = QColorDialog.getColor(initial, self, f"Colour of {layer.name}", alpha)
+        if color.isValid():
+            self.set_color(layer, color)
+
+    def set_width(self, layer: Any, px: float) -> None:
+        """Line width (vectors) or placemark size (points), in pixels."""
+        if layer.kind == "vector":
+            _restyle(layer, self.renderer, width_px=float(px))
+        elif layer.kind == "points":
+            _restyle(layer, self.renderer, size_px=float(px))
+        else:
+            return
+        if layer is self.selected_layer():
+            self._update_controls()
+        self.changed.emit()
+
+    def _width_changed(self, px: float) -> None:
+        layer = self.selected_layer()
+        if self._updating or layer is None:
+            return
+        self.set_width(layer, px)
+
+    def _sync_order(self) -> None:
+        """Make the session's order follow the list's (after a drag)."""
+        order = [self.layer_at(r) for r in reversed(range(self.list.count()))]
+        self._reorder(order)
+
+    def move_selected(self, delta: int) -> None:
+        """Move the selected row by ``delta`` rows (negative: up, i.e. on top)."""
+        row = self.list.currentRow()
+        new = row + delta
+        if row < 0 or not (0 <= new < self.list.count()):
+            return
+        listed = [self.layer_at(r) for r in range(self.list.count())]
+        listed.insert(new, listed.pop(row))
+        self._reorder(list(reversed(listed)))
+        self.select(listed[new])
+
+    def _reorder(self, order: list) -> None:
+        """Put the session's overlays in ``order`` (bottom first) and re-attach them all, so
+        the renderer's drape and line order follow (visibility is kept)."""
+        if self.session is None or order == self.layers():
+            self.refresh()
+            return
+        shown = {id(ly): layer_visible(ly) for ly in order}
+        with self._gl():
+            for layer in self.layers():
+                layer.detach(self.renderer)
+            self.session.overlay_layers[:] = order
+            for layer in order:
+                layer.attach(self.renderer)
+                if not shown[id(layer)]:
+                    layer.set_visible(self.renderer, False)
+        self.refresh()
+        self.changed.emit()
+
+    def remove_selected(self) -> None:
+        layer = self.selected_layer()
+        if layer is not None:
+            self.remove(layer)
+
+    def remove(self, layer: Any) -> None:
+        """Take an overlay off the globe and out of the session."""
+        if self.session is None:
+            return
+        with self._gl():
+            self.session.remove_overlay(layer)
+        self.refresh()
+        self.changed.emit()
+
+
+def _size_of(layer: Any) -> float:
+    return float(layer.width_px if layer.kind == "vector" else layer.size_px)
+
+
+def _restyle(layer: Any, renderer: Any, **style: Any) -> None:
+    """Change a vector/points layer's style attributes and its attached GPU overlay's (lines
+    read colour, width and dash every frame; points their colour, their size on re-upload).
+    Uses the layer's own ``set_style(renderer, **style)`` when it has one."""
+    setter = getattr(layer, "set_style", None)
+    if callable(setter) and renderer is not None:
+        setter(renderer, **style)
+        return
+    for key, value in style.items():
+        setattr(layer, key, value)
+    overlay = getattr(layer, "_overlay", None)
+    if overlay is not None:
+        for key, value in style.items():
+            if hasattr(overlay.style, key):
+                setattr(overlay.style, key, value)
+        if "size_px" in style and hasattr(overlay, "_sig"):
+            # Point sizes are baked into the instance data, uploaded when the drawn mesh
+            # changes: forget the mesh signature so the next frame re-uploads them.
+            overlay._sig = None
