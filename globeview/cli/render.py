@@ -168,6 +168,7 @@ def run(args: argparse.Namespace) -> int:
     scene.reset_lod()  # measure a full selection, not a cache hit
     result = scene.render(target.fbo, size)
     result.stats.tiles_uploaded = first.stats.tiles_uploaded
+    scene.draw_tool_overlay(target.fbo, result.view)  # e.g. the collapse's fold lines
 
     out = Path(args.out)
     tmp = out.with_name(out.name + ".tmp")

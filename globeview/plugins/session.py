@@ -50,6 +50,8 @@ class GlobeSession(GlobeScene):
         self.registry = registry
         self.active_tool: str | None = None
         self.overlay_layers: list = []
+        self._tool_overlay = None  # ToolOverlayRenderer, made on first use
+        self._marker_heights: dict[tuple[float, float, float], float] = {}
         # Plugins get redraw/status hooks, not the GL renderer: headless they are recorded,
         # and the window attaches its own (redraw = widget.update, status = status bar).
         self.hooks = NullRendererHooks()
@@ -205,3 +207,56 @@ class GlobeSession(GlobeScene):
     def remove_overlay(self, layer) -> None:
         layer.detach(self.renderer)
         self.overlay_layers.remove(layer)
+
+    def release_gl(self) -> None:
+        """Release the GL objects the session owns (with its context current)."""
+        if self._tool_overlay is not None:
+            self._tool_overlay.release()
+            self._tool_overlay = None
+        self.renderer.release()
+
+    # -- the active tool's overlay (markers, fold lines) ----------------------------------------
+    def draw_tool_overlay(self, fbo: moderngl.Framebuffer, view=None) -> int:
+        """Draw the active tool's overlay primitives over the frame just rendered into
+        ``fbo`` (the window and the CLI both call this); returns the instances drawn."""
+        tool = self.tool()
+        view = view if view is not None else (self.last.view if self.last else None)
+        if tool is None or view is None:
+            return 0
+        prims = self.registry.invoke(tool, "overlay", view, default=None) or []
+        if not prims:
+            return 0
+        if self._tool_overlay is None:
+            from globeview.render.overlay_tools import ToolOverlayRenderer
+
+            self._tool_overlay = ToolOverlayRenderer(self.ctx)
+        prims = [self._drape_marker(p) for p in prims]
+        displace = self._displace if self.renderer._hook is not None else None
+        return self._tool_overlay.draw(view, prims, fbo, displace)
+
+    def _drape_marker(self, prim):
+        """A marker on the ellipsoid (height < 1 m) lifted to the terrain surface (with the
+        exaggeration), so it marks the ground the user clicked in oblique views too."""
+        from dataclasses import replace
+
+        from globeview.geodesy import lonlat_to_ecef
+
+        pos = getattr(prim, "position", None)
+        if pos is None:
+            return prim
+        lon, lat, h = (float(v) for v in np.asarray(ecef_to_lonlat(np.asarray(pos))).ravel())
+        if abs(h) >= 1.0 or not self.terrain.visible_layers:
+            return prim
+        exag = float(self.settings.exaggeration)
+        key = (round(lon, 9), round(lat, 9), exag)
+        ground = self._marker_heights.get(key)
+        if ground is None:
+            try:
+                ground = float(self.terrain.height_at(lon, lat)) * exag
+            except GlobeviewError:  # no data there: keep it on the ellipsoid
+                ground = 0.0
+            if len(self._marker_heights) > 256:
+                self._marker_heights.clear()
+            self._marker_heights[key] = ground
+        new = tuple(float(v) for v in np.asarray(lonlat_to_ecef(lon, lat, ground)).ravel())
+        return replace(prim, position=new)

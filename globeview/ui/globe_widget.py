@@ -40,12 +40,10 @@ from PyQt6.QtGui import (
 from PyQt6.QtOpenGLWidgets import QOpenGLWidget
 from PyQt6.QtWidgets import QWidget
 
-from globeview.geodesy import ecef_to_lonlat, lonlat_to_ecef
 from globeview.plugins.api import KeyEvent, PointerEvent
 from globeview.plugins.registry import PluginRegistry
 from globeview.plugins.session import DEFAULT_LOD, GlobeSession
 from globeview.render.camera import Camera
-from globeview.render.overlay_tools import ToolOverlayRenderer
 from globeview.render.picking import Pick
 from globeview.render.render_set import FrameStats
 from globeview.render.renderer import RenderSettings
@@ -197,13 +195,11 @@ class GlobeWidget(QOpenGLWidget):
         self._settle.setInterval(150)
         self._settle.timeout.connect(self.update)
         # Tools: animation repaints, the pending left click, overlay drawing.
-        self.tool_overlay: ToolOverlayRenderer | None = None
         self.overlay_drawn = 0
         self._anim = QTimer(self)
         self._anim.setInterval(ANIMATION_INTERVAL_MS)
         self._anim.timeout.connect(self.update)
         self._click: tuple[float, float] | None = None  # left press a tool may get as a click
-        self._marker_heights: dict[tuple[float, float, float], float] = {}
 
     # -- model wiring ----------------------------------------------------------------------
     def set_tau(self, tau_px: float) -> None:
@@ -243,7 +239,6 @@ class GlobeWidget(QOpenGLWidget):
         scene.tau_px = self.tau_px
         self.scene = scene
         self.navigator = Navigator(scene, self.pick, self.viewport_px, self._camera_moved)
-        self.tool_overlay = ToolOverlayRenderer(self.ctx)
         log.info("OpenGL %s on %s", self.ctx.info["GL_VERSION"], self.ctx.info["GL_RENDERER"])
         self.sceneReady.emit(scene)
 
@@ -343,38 +338,9 @@ class GlobeWidget(QOpenGLWidget):
     def _draw_tool_overlay(self, fbo: moderngl.Framebuffer, view) -> None:
         """Draw the active tool's overlay primitives over the terrain just drawn."""
         self.overlay_drawn = 0
-        tool = self.active_tool()
-        if tool is None or self.tool_overlay is None or self.scene is None:
+        if self.active_tool() is None or self.scene is None:
             return
-        prims = self.scene.registry.invoke(tool, "overlay", view, default=None) or []
-        if not prims:
-            return
-        prims = [self._drape_marker(p) for p in prims]
-        displace = self.scene._displace if self.scene.renderer._hook is not None else None
-        self.overlay_drawn = self.tool_overlay.draw(view, prims, fbo, displace)
-
-    def _drape_marker(self, prim):
-        """A marker on the ellipsoid (height < 1 m) lifted to the terrain surface (with the
-        exaggeration), so it marks the ground the user clicked in oblique views too."""
-        pos = getattr(prim, "position", None)
-        if pos is None or self.scene is None:
-            return prim
-        lon, lat, h = (float(v) for v in np.asarray(ecef_to_lonlat(np.asarray(pos))).ravel())
-        if abs(h) >= 1.0 or not self.terrain.visible_layers:
-            return prim
-        exag = float(self.settings.exaggeration)
-        key = (round(lon, 9), round(lat, 9), exag)
-        ground = self._marker_heights.get(key)
-        if ground is None:
-            try:
-                ground = float(self.terrain.height_at(lon, lat)) * exag
-            except Exception:  # no data there: keep it on the ellipsoid
-                ground = 0.0
-            if len(self._marker_heights) > 256:
-                self._marker_heights.clear()
-            self._marker_heights[key] = ground
-        new = tuple(float(v) for v in np.asarray(lonlat_to_ecef(lon, lat, ground)).ravel())
-        return replace(prim, position=new)
+        self.overlay_drawn = self.scene.draw_tool_overlay(fbo, view)
 
     def _pointer_event(
         self,
@@ -579,10 +545,7 @@ class GlobeWidget(QOpenGLWidget):
         if self.scene is not None and self.context() is not None:
             self.makeCurrent()
             try:
-                if self.tool_overlay is not None:
-                    self.tool_overlay.release()
-                    self.tool_overlay = None
-                self.scene.renderer.release()
+                self.scene.release_gl()
             finally:
                 self.doneCurrent()
         self.scene = None

@@ -51,12 +51,10 @@ class OverlayList(QListWidget):
 
 
 def layer_visible(layer: Any) -> bool:
-    """Whether an overlay layer is shown (drapes: their imagery layer's flag; vectors and
-    points: their GPU overlay's flag while attached)."""
+    """Whether an overlay layer is shown (drapes: their imagery layer's flag)."""
     if layer.kind in DRAPE_KINDS:
         return bool(layer.layer.visible)
-    overlay = getattr(layer, "_overlay", None)
-    return True if overlay is None else bool(overlay.visible)
+    return bool(layer.visible)
 
 
 def layer_opacity(layer: Any) -> float:
@@ -362,21 +360,5 @@ def _size_of(layer: Any) -> float:
 
 
 def _restyle(layer: Any, renderer: Any, **style: Any) -> None:
-    """Change a vector/points layer's style attributes and its attached GPU overlay's (lines
-    read colour, width and dash every frame; points their colour, their size on re-upload).
-    Uses the layer's own ``set_style(renderer, **style)`` when it has one."""
-    setter = getattr(layer, "set_style", None)
-    if callable(setter) and renderer is not None:
-        setter(renderer, **style)
-        return
-    for key, value in style.items():
-        setattr(layer, key, value)
-    overlay = getattr(layer, "_overlay", None)
-    if overlay is not None:
-        for key, value in style.items():
-            if hasattr(overlay.style, key):
-                setattr(overlay.style, key, value)
-        if "size_px" in style and hasattr(overlay, "_sig"):
-            # Point sizes are baked into the instance data, uploaded when the drawn mesh
-            # changes: forget the mesh signature so the next frame re-uploads them.
-            overlay._sig = None
+    """Change a vector/points layer's style (colour, width, size) for the next frame."""
+    layer.set_style(renderer, **style)

@@ -72,7 +72,10 @@ class ImageryOverlayLayer:
         renderer.overlays.imagery.add(self.layer)
 
     def detach(self, renderer) -> None:
-        renderer.overlays.imagery.remove(self.layer.name)
+        # By identity: two drapes of the same file are two layers.
+        stack = renderer.overlays.imagery
+        stack.layers = [ly for ly in stack.layers if ly is not self.layer]
+        stack.changed()
 
     def set_visible(self, renderer, visible: bool) -> None:
         self.layer.visible = bool(visible)
@@ -94,6 +97,7 @@ class VectorLayer:
     dash_px: float = 0.0
     kind: str = "vector"
     coarser: list = field(default_factory=list)  # (max segment m, Polylines), for far views
+    visible: bool = True
     _overlay: Any = field(default=None, repr=False)
 
     def attach(self, renderer) -> None:
@@ -103,7 +107,12 @@ class VectorLayer:
         self._overlay = VectorOverlay(
             renderer.ctx, self.lines, style, self.name, coarser=self.coarser
         )
+        self._overlay.visible = self.visible
         renderer.overlays.vectors.append(self._overlay)
+
+    def set_style(self, renderer, **style: Any) -> None:
+        """Change colour (RGBA 0..1), width_px or dash_px; takes effect on the next frame."""
+        _restyle(self, style)
 
     def detach(self, renderer) -> None:
         if self._overlay is not None:
@@ -112,8 +121,9 @@ class VectorLayer:
             self._overlay = None
 
     def set_visible(self, renderer, visible: bool) -> None:
+        self.visible = bool(visible)
         if self._overlay is not None:
-            self._overlay.visible = bool(visible)
+            self._overlay.visible = self.visible
 
 
 @dataclass
@@ -130,6 +140,7 @@ class PointsLayer:
     color: tuple[float, float, float, float] = (1.0, 0.25, 0.15, 1.0)
     labels: bool = True
     kind: str = "points"
+    visible: bool = True
     _overlay: Any = field(default=None, repr=False)
 
     def attach(self, renderer) -> None:
@@ -141,7 +152,12 @@ class PointsLayer:
         self._overlay = PointOverlay(
             renderer.ctx, self.lon, self.lat, self.names, style, name=self.name
         )
+        self._overlay.visible = self.visible
         renderer.overlays.points.append(self._overlay)
+
+    def set_style(self, renderer, **style: Any) -> None:
+        """Change colour, size_px or scale_m; takes effect on the next frame."""
+        _restyle(self, style)
 
     def detach(self, renderer) -> None:
         if self._overlay is not None:
@@ -150,8 +166,22 @@ class PointsLayer:
             self._overlay = None
 
     def set_visible(self, renderer, visible: bool) -> None:
+        self.visible = bool(visible)
         if self._overlay is not None:
-            self._overlay.visible = bool(visible)
+            self._overlay.visible = self.visible
+
+
+def _restyle(layer: Any, style: dict[str, Any]) -> None:
+    for k, v in style.items():
+        if not hasattr(layer, k):
+            raise ValueError(f"{type(layer).__name__} has no style {k!r}")
+        setattr(layer, k, v)
+    ov = layer._overlay
+    if ov is not None:
+        for k, v in style.items():
+            if hasattr(ov.style, k):
+                setattr(ov.style, k, v)
+        ov._sig = None  # instance data baked from the style: rebuild on the next frame
 
 
 # -- layer types (the plugin's contributions) --------------------------------------------------
