@@ -90,6 +90,11 @@ def embedded_dem_paths() -> list[Path]:
     return [EMBEDDED_DATA_DIR / n for n in names]
 
 
+def _metres(v: float) -> str:
+    """A length for people: '92.6 m', '3.71 km'."""
+    return f"{v / 1000:.3g} km" if abs(v) >= 1000 else f"{v:.3g} m"
+
+
 @dataclass(frozen=True)
 class DemInfo:
     """What a DEM holds. Angles in degrees (WGS84 lon/lat), distances in metres.
@@ -130,7 +135,7 @@ class DemInfo:
             f"  CRS         {self.crs}",
             f"  footprint   W {w:.6f}  S {s:.6f}  E {e:.6f}  N {n:.6f} (degrees, WGS84)",
             f"  resolution  {self.res_deg[0]:.6g} x {self.res_deg[1]:.6g} deg"
-            f" (~{self.res_m[0]:.4g} x {self.res_m[1]:.4g} m at centre)",
+            f" (~{_metres(self.res_m[0])} x {_metres(self.res_m[1])} at centre)",
             f"  registration {'pixel-is-point (grid)' if self.pixel_is_point else 'pixel-is-area'}",
             f"  nodata      {'none declared' if self.nodata is None else _fmt(self.nodata)}",
         ]

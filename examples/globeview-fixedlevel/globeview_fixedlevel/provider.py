@@ -73,7 +73,9 @@ class FixedLevelProvider(LodProvider):
         """Masks (frustum-visible, horizon-visible) and the bounding points and margins."""
         w, s, e, n = tile_bounds_arrays(level, x, y)
         hmin, hmax = self._height_range(terrain, level, x, y)
-        pts, margin = tile_bounding_points(w, s, e, n, hmin, hmax, view.exaggeration)
+        pts, margin = tile_bounding_points(
+            w, s, e, n, hmin, hmax, view.exaggeration, view.displace
+        )
         in_frustum = frustum_visible(view, pts, margin)
         above_horizon = horizon_visible(view, w, s, e, n, hmax, view.exaggeration)
         return in_frustum, above_horizon, pts, margin
