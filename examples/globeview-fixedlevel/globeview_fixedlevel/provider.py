@@ -4,6 +4,12 @@ The simplest LOD provider that is still useful to compare against: no refinement
 only culling. Visibility is decided level by level from the two level-0 tiles down, so a tile
 hidden by the frustum or the horizon never has its children tested (the work is bounded by
 the visible tiles, not by the 2^(2L+1) tiles of the level).
+
+Under a displacement (a tool's ``view.displace``, e.g. the terrain collapse) culling tests the
+displaced bounding points. No crack can open along the collapse's fold lines: every tile is
+drawn at the same level and at stride 1 (already the finest index buffer), so neighbours share
+every edge vertex and the displaced mesh stays closed; a long edge across a fold is drawn as a
+chord (the fold looks coarse at a coarse level), but both sides draw the same chord.
 """
 
 from __future__ import annotations
@@ -73,9 +79,7 @@ class FixedLevelProvider(LodProvider):
         """Masks (frustum-visible, horizon-visible) and the bounding points and margins."""
         w, s, e, n = tile_bounds_arrays(level, x, y)
         hmin, hmax = self._height_range(terrain, level, x, y)
-        pts, margin = tile_bounding_points(
-            w, s, e, n, hmin, hmax, view.exaggeration, view.displace
-        )
+        pts, margin = tile_bounding_points(w, s, e, n, hmin, hmax, view.exaggeration, view.displace)
         in_frustum = frustum_visible(view, pts, margin)
         above_horizon = horizon_visible(view, w, s, e, n, hmax, view.exaggeration)
         return in_frustum, above_horizon, pts, margin

@@ -33,6 +33,7 @@ Per frame (`clod_frame`):
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,7 +49,8 @@ class TileClod:
     """A tile's CLOD data, fixed for one (tile, exaggeration).
 
     origin: (3,) ECEF of the ENU origin (m); basis: (3, 3) rows E, N, U in ECEF.
-    pos: (size, size, 3) float64 node positions in the ENU frame (m, heights x exaggeration).
+    pos: (size, size, 3) float64 node positions in the ENU frame (m, heights x exaggeration;
+        displaced when built with a displacement: where they are drawn).
     err: (size, size) vertex error E_v (m): 3-D distance between the node and the midpoint of
         the two nodes it interpolates at its level (the diagonal for block centres: the larger
         of the two diagonals); 0 at the tile corners.
@@ -74,8 +76,19 @@ def n_block_levels(size: int) -> int:
     return levels
 
 
-def tile_clod(key: tuple[int, int, int], heights: np.ndarray, exaggeration: float) -> TileClod:
-    """Precompute a tile's vertex errors, block error maxima and block radii (vectorised)."""
+def tile_clod(
+    key: tuple[int, int, int],
+    heights: np.ndarray,
+    exaggeration: float,
+    displace: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> TileClod:
+    """Precompute a tile's vertex errors, block error maxima and block radii (vectorised).
+
+    ``displace`` (a ViewState's CPU displacement, (M, 3) -> (M, 3) ECEF) moves the nodes where
+    the vertex shader draws them before anything is measured: the vertex errors then include
+    how far the displacement bends the surface away from straight edges (the collapse's fold
+    lines), and radii and distances are those of the drawn geometry, so blocks a fold crosses
+    refine like rough terrain (no gap opens along the fold)."""
     level, x, y = key
     size = heights.shape[0]
     n = size - 1
@@ -86,7 +99,9 @@ def tile_clod(key: tuple[int, int, int], heights: np.ndarray, exaggeration: floa
     origin = np.asarray(lonlat_to_ecef(mid_lon, mid_lat, 0.0), dtype=np.float64).reshape(3)
     basis = enu_basis(mid_lon, mid_lat)
     h = heights.astype(np.float64) * exaggeration
-    ecef = lonlat_to_ecef(lon_g, lat_g, h)
+    ecef = np.asarray(lonlat_to_ecef(lon_g, lat_g, h), dtype=np.float64)
+    if displace is not None:
+        ecef = np.asarray(displace(ecef.reshape(-1, 3)), dtype=np.float64).reshape(ecef.shape)
     pos = (ecef - origin) @ basis.T  # (size, size, 3) in ENU
 
     err = np.zeros((size, size))

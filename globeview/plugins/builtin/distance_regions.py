@@ -22,6 +22,16 @@ Per frame:
    share every edge vertex: no T-junction, no crack. Tiles of different levels do not share
    heights (the coarser one is a wavelet approximation), so they meet behind skirts.
 
+Displacement (a tool's ``view.displace``, e.g. the terrain collapse): culling uses the
+displaced bounding points, and the collapse's fold lines, where the displacement is not
+affine, bend the drawn surface away from long straight edges, so a ring's resolution alone
+would leave gaps between tiles a fold crosses. The bend over a tile
+(`culling.displacement_chord_error_m`, scaled to each stride's edge length) is therefore
+projected to pixels like chunked-sse's error: tiles where it exceeds tau at stride 1 refine
+beyond their ring's level, and an accepted tile takes no stride coarser than the one that
+keeps it within tau. The region test then covers the whole displaced lattice (its bounding
+box, grown by the bend) rather than its four corners. With no displacement nothing changes.
+
 Departures from the paper (see each place for the why): the speed factor divides the
 resolution (coarser when moving fast, as §2 intends; the printed formula multiplies);
 Tile_Size / Mesh_Grid_Size is 4 (a 256 px imagery tile over our 64-cell mesh tile); the
@@ -43,7 +53,9 @@ from globeview.geodesy import WGS84, enu_basis, lonlat_to_ecef
 from globeview.plugins.api import LodProvider, Setting
 from globeview.plugins.builtin.chunked_sse import MAX_LEVEL, stride_errors_m
 from globeview.render.culling import (
+    LATTICE,
     bounding_distance,
+    displacement_chord_error_m,
     frustum_visible,
     horizon_visible,
     tile_bounding_points,
@@ -261,6 +273,16 @@ def render_set_from_tiles(
     return rs
 
 
+def _bounding_quads(points: np.ndarray, grow: np.ndarray) -> np.ndarray:
+    """(N, 4, 2) counter-clockwise axis-aligned boxes around each tile's 2-D points
+    (N, K, 2), grown by ``grow`` (N,) metres on every side."""
+    lo = points.min(axis=1) - grow[:, None]
+    hi = points.max(axis=1) + grow[:, None]
+    return np.stack(
+        [lo, np.stack([hi[:, 0], lo[:, 1]], 1), hi, np.stack([lo[:, 0], hi[:, 1]], 1)], axis=1
+    )
+
+
 def _push_budget(refine: np.ndarray, score: np.ndarray, room: int, fanout: int) -> np.ndarray:
     """Limit refinement so the drawn tiles stay within the budget: refine the worst first."""
     n_ref = int(np.count_nonzero(refine))
@@ -323,7 +345,10 @@ def select_regions(
             break
         w, s, e, n = tile_bounds_arrays(level, x, y)
         meta = terrain.metadata(level, x, y)
-        pts, margin = tile_bounding_points(w, s, e, n, meta.hmin, meta.hmax, exag, view.displace)
+        pts_true, margin = tile_bounding_points(w, s, e, n, meta.hmin, meta.hmax, exag)
+        pts = pts_true
+        if view.displace is not None:
+            pts = np.asarray(view.displace(pts.reshape(-1, 3)), dtype=np.float64).reshape(pts.shape)
         vis_f = frustum_visible(view, pts, margin)
         vis_h = horizon_visible(view, w, s, e, n, meta.hmax, exag)
         # Ground-plane footprint of each tile in the nadir ENU frame: the lattice points
@@ -346,6 +371,12 @@ def select_regions(
         # horizon; big tiles (curvature) and the nadir's own tile always pass.
         quad_idx = np.array([0, 2, 8, 6])  # lattice corners (NW, NE, SE, SW) at the lowest h
         quads = enu[:, quad_idx, :2]
+        bend = np.zeros(len(x))
+        if view.displace is not None:
+            # Displaced, the four corners no longer span the footprint (a fold bends its
+            # sides): test the box around every lattice point, grown by the bend.
+            bend = displacement_chord_error_m(view.displace, pts_true)
+            quads = _bounding_quads(enu[:, : enu.shape[1] // 2, :2], bend)
         in_reg = polygons_overlap(region, quads) | (level < 4) | (d == 0.0)
         keep = vis_f & vis_h & in_reg & (ring < far_ring)
         culled_f += int(np.count_nonzero(~vis_f))
@@ -354,19 +385,35 @@ def select_regions(
         culled_c += int(np.count_nonzero(vis_f & vis_h & in_reg & (ring >= far_ring)))
         if not keep.any():
             break
-        x, y, ring = x[keep], y[keep], ring[keep]
+        x, y, ring, bend = x[keep], y[keep], ring[keep], bend[keep]
         err = stride_errors_m(level, meta.stride_error[keep], exag, size)
         dist = bounding_distance(view, pts[keep], margin[keep])
         res = ring_resolution(ring, r_m)
         spacing = float(node_spacing_m(level, size))
         refine = (spacing > res) & (level < MAX_LEVEL)
+        score = spacing / res
+        bend_ok = None
+        if view.displace is not None:
+            # The fold's bend at each stride, in pixels (chunked-sse's measure): refine where
+            # even stride 1 leaves more than tau, else cap the stride where it stays within.
+            frac = np.minimum(1.0, 2.0 ** np.arange(N_STRIDES) * (LATTICE - 1) / (size - 1))
+            bend_px = bend[:, None] * frac[None, :] * (view.sse_factor / dist)[:, None]
+            err = err + bend[:, None] * frac[None, :]
+            bend_ok = bend_px <= view.tau_px
+            refine |= ~bend_ok[:, 0] & (level < MAX_LEVEL)
+            score = np.maximum(score, bend_px[:, 0] / view.tau_px)
         room = st.max_tiles - drawn - int(np.count_nonzero(~refine))
-        refine = _push_budget(refine, spacing / res, room, 4)
+        refine = _push_budget(refine, score, room, 4)
         acc = ~refine
         if acc.any():
             # The coarsest power-of-two stride whose cell is still within the ring's R_m.
             k = np.floor(np.log2(np.maximum(res[acc] / spacing, 1.0))).astype(np.int64)
             k = np.clip(k, 0, min(N_STRIDES - 1, int(math.log2(size - 1))))
+            if bend_ok is not None:
+                # ... and whose chord error across a fold projects within tau.
+                ok = bend_ok[acc]
+                k_bend = np.where(ok.any(axis=1), N_STRIDES - 1 - np.argmax(ok[:, ::-1], 1), 0)
+                k = np.minimum(k, k_bend)
             out_keys.append(np.stack([np.full(len(k), level), x[acc], y[acc]], axis=1))
             out_stride.append(k)
             out_err.append(err[acc][np.arange(len(k)), k] * view.sse_factor / dist[acc])

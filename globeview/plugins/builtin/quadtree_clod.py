@@ -19,6 +19,15 @@ the height part of every error). The whole frame's result is reused while the ti
 settings and the view's projection are unchanged, the view direction turned by less than
 ``reuse_turn_deg`` and the eye moved by less than ``reuse_fraction`` of its distance to the
 nearest tile: the same index arrays are handed on (``stats["clod_cache_hits"]`` counts).
+
+Displacement (a tool's ``view.displace``, e.g. the terrain collapse). The collapse is not affine
+at its fold lines: a long edge across a fold is drawn as a straight chord while a finer
+neighbour follows the fold, and a gap opens. The tiles come from `chunked_sse.select_tiles`,
+which already adds the fold's bend to each tile's error; inside the tiles, the CLOD data are
+then built from the *displaced* nodes (`clod_mesh.tile_clod`), so a vertex's error includes
+the bend and blocks a fold crosses refine until the chord error projects below tau. Those
+tiles are cached per displacement (a fingerprint: the displacement of a fixed set of probe
+points); with no displacement nothing changes and nothing extra is computed.
 """
 
 from __future__ import annotations
@@ -26,9 +35,11 @@ from __future__ import annotations
 import math
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 
 import numpy as np
 
+from globeview.geodesy import lonlat_to_ecef
 from globeview.plugins.api import LodProvider, Setting
 from globeview.plugins.builtin.chunked_sse import ChunkedSettings, select_tiles
 from globeview.plugins.builtin.clod_mesh import (
@@ -44,6 +55,26 @@ from globeview.terrain.stack import TerrainStack
 
 #: Tiles whose CLOD data stays cached (about 170 kB each for 65 x 65 tiles).
 TILE_CACHE = 1500
+
+
+def _probe_points(n: int = 64) -> np.ndarray:
+    """(n, 3) ECEF points spread over the globe (a Fibonacci lattice at sea level)."""
+    k = np.arange(n) + 0.5
+    lat = np.degrees(np.arcsin(1.0 - 2.0 * k / n))
+    lon = (np.degrees(np.pi * (1.0 + 5.0**0.5) * k) + 180.0) % 360.0 - 180.0
+    return np.asarray(lonlat_to_ecef(lon, lat, 0.0), dtype=np.float64).reshape(n, 3)
+
+
+#: Points whose displaced positions identify a displacement (`displacement_fingerprint`).
+PROBES = _probe_points()
+
+
+def displacement_fingerprint(displace: Callable[[np.ndarray], np.ndarray] | None) -> bytes:
+    """A cache key for a displacement: the bytes of where it moves `PROBES` (b"" for none).
+    Two displacements that agree on every probe point share their cached CLOD tiles."""
+    if displace is None:
+        return b""
+    return np.asarray(displace(PROBES), dtype=np.float64).round(3).tobytes()
 
 
 class QuadtreeClodProvider(LodProvider):
@@ -107,13 +138,21 @@ class QuadtreeClodProvider(LodProvider):
         self.last_frame: ClodFrame | None = None
 
     # -- tile data -------------------------------------------------------------------------
-    def _tile(self, terrain: TerrainStack, key: tuple[int, int, int], exag: float) -> TileClod:
-        ck = (key, exag)
+    def _tile(
+        self,
+        terrain: TerrainStack,
+        key: tuple[int, int, int],
+        exag: float,
+        displace: Callable[[np.ndarray], np.ndarray] | None = None,
+        dkey: bytes = b"",
+    ) -> TileClod:
+        """A tile's CLOD data (cached per exaggeration and displacement fingerprint ``dkey``)."""
+        ck = (key, exag, dkey)
         hit = self._tiles.get(ck)
         if hit is not None:
             self._tiles.move_to_end(ck)
             return hit
-        data = tile_clod(key, terrain.heights(key), exag)
+        data = tile_clod(key, terrain.heights(key), exag, displace)
         self._tiles[ck] = data
         while len(self._tiles) > TILE_CACHE:
             self._tiles.popitem(last=False)
@@ -143,9 +182,11 @@ class QuadtreeClodProvider(LodProvider):
         )
         keys = base.keys
         exag = float(view.exaggeration)
+        dkey = displacement_fingerprint(view.displace)
         sig = (
             tau,
             exag,
+            dkey,
             tuple(view.viewport),
             float(view.fovy_deg),
             tuple(sorted(v.items())),
@@ -163,7 +204,7 @@ class QuadtreeClodProvider(LodProvider):
             rs.stats["lod_ms"] = (time.perf_counter() - t0) * 1e3
             return rs
 
-        rs = self._build(view, terrain, keys, base, tau, exag)
+        rs = self._build(view, terrain, keys, base, tau, exag, dkey)
         rs.stats["clod_cache_hits"] = self.cache_hits
         rs.stats["clod_reused"] = 0
         rs.stats["lod_ms"] = (time.perf_counter() - t0) * 1e3
@@ -193,12 +234,16 @@ class QuadtreeClodProvider(LodProvider):
         base: RenderSet,
         tau: float,
         exag: float,
+        dkey: bytes = b"",
     ) -> RenderSet:
         if len(keys) == 0:
             rs = RenderSet.empty()
             rs.stats.update(base.stats)
             return rs
-        tiles = [self._tile(terrain, (int(a), int(b), int(c)), exag) for a, b, c in keys]
+        tiles = [
+            self._tile(terrain, (int(a), int(b), int(c)), exag, view.displace, dkey)
+            for a, b, c in keys
+        ]
         origins = np.stack([t.origin for t in tiles])
         bases = np.stack([t.basis for t in tiles])
         eye_local, planes_local = view.in_local_frames(origins, bases)

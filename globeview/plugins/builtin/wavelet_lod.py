@@ -34,6 +34,12 @@ fewer triangles). Here:
   drawn with the coarsest index stride whose error (height error x exaggeration + chord sag)
   projects within tau; flat tiles (static error below the floor) take the coarsest stride
   whose *height* error is still below the floor and whose sag projects within tau.
+- **Displacement** (a tool's ``view.displace``, e.g. the terrain collapse): culling uses the
+  displaced bounding points, and the bend of the displacement over a tile (the collapse's
+  fold lines; `culling.displacement_chord_error_m`, scaled to each stride's edge length) is
+  added to the geometry error like the chord sag: a tile whose bend projects beyond tau at
+  stride 1 splits, and a stride is only as coarse as keeps it within tau, so long edges
+  never cut across a fold and no gap opens between tiles. Nothing changes without one.
 - **Crack sewing** (Zhang Fig. 4): same-level neighbours of different strides are stitched
   (`IndexVariant.edge_strides`: the finer tile's edge uses the coarser one's vertices);
   neighbours of different levels meet behind skirts (their heights differ: different wavelet
@@ -52,8 +58,10 @@ from globeview.plugins.api import LodProvider, Setting
 from globeview.plugins.builtin.chunked_sse import MAX_LEVEL, stride_errors_m
 from globeview.plugins.builtin.distance_regions import _push_budget, render_set_from_tiles
 from globeview.render.culling import (
+    LATTICE,
     bounding_distance,
     chord_sag,
+    displacement_chord_error_m,
     frustum_visible,
     horizon_visible,
     tile_bounding_points,
@@ -120,7 +128,10 @@ def select_wavelet(
             break
         w, s, e, n = tile_bounds_arrays(level, x, y)
         meta = terrain.metadata(level, x, y)
-        pts, margin = tile_bounding_points(w, s, e, n, meta.hmin, meta.hmax, exag, view.displace)
+        pts_true, margin = tile_bounding_points(w, s, e, n, meta.hmin, meta.hmax, exag)
+        pts = pts_true
+        if view.displace is not None:
+            pts = np.asarray(view.displace(pts.reshape(-1, 3)), dtype=np.float64).reshape(pts.shape)
         vis_f = frustum_visible(view, pts, margin)
         vis_h = horizon_visible(view, w, s, e, n, meta.hmax, exag)
         culled_f += int(np.count_nonzero(~vis_f))
@@ -137,6 +148,12 @@ def select_wavelet(
         dynamic = static * exag * px_per_m
         node_deg = 180.0 / 2**level / (size - 1)
         sag_px = float(chord_sag(node_deg)) * px_per_m
+        if view.displace is not None:
+            # The displacement's bend (fold lines) counts as geometry, like the sag.
+            bend = displacement_chord_error_m(view.displace, pts_true[keep])
+            frac = np.minimum(1.0, 2.0 ** np.arange(N_STRIDES) * (LATTICE - 1) / (size - 1))
+            total = total + bend[:, None] * frac[None, :]
+            sag_px = sag_px + bend * frac[0] * px_per_m
         rough = static > st.static_m
         finer = meta.has_finer[keep]
         want = (rough & (dynamic > tau) & finer) | (sag_px > tau)
