@@ -86,9 +86,42 @@ class ImageryOverlayLayer:
         renderer.overlays.imagery.changed()
 
 
+class _GpuOverlayLayer:
+    """What vector and point layers share: a GPU overlay object (``_overlay``) kept in one of
+    the renderer's overlay lists (``_list``), shown or hidden, restyled live."""
+
+    _list = ""  # "vectors" or "points": the renderer.overlays list the overlay lives in
+    visible: bool
+    _overlay: Any
+
+    def _make_overlay(self, renderer) -> Any:
+        raise NotImplementedError
+
+    def attach(self, renderer) -> None:
+        self._overlay = self._make_overlay(renderer)
+        self._overlay.visible = self.visible
+        getattr(renderer.overlays, self._list).append(self._overlay)
+
+    def detach(self, renderer) -> None:
+        if self._overlay is not None:
+            getattr(renderer.overlays, self._list).remove(self._overlay)
+            self._overlay.release()
+            self._overlay = None
+
+    def set_visible(self, renderer, visible: bool) -> None:
+        self.visible = bool(visible)
+        if self._overlay is not None:
+            self._overlay.visible = self.visible
+
+    def set_style(self, renderer, **style: Any) -> None:
+        """Change style attributes (colour, width_px, size_px, ...); next frame."""
+        _restyle(self, style)
+
+
 @dataclass
-class VectorLayer:
-    """Polylines (densified along geodesics) with a line style."""
+class VectorLayer(_GpuOverlayLayer):
+    """Polylines (densified along geodesics) with a line style: colour RGBA 0..1, width and
+    dash length in pixels."""
 
     name: str
     lines: Polylines
@@ -99,36 +132,19 @@ class VectorLayer:
     coarser: list = field(default_factory=list)  # (max segment m, Polylines), for far views
     visible: bool = True
     _overlay: Any = field(default=None, repr=False)
+    _list = "vectors"
 
-    def attach(self, renderer) -> None:
+    def _make_overlay(self, renderer) -> Any:
         from globeview.render.overlay_vectors import LineStyle, VectorOverlay
 
         style = LineStyle(self.color, self.width_px, self.dash_px)
-        self._overlay = VectorOverlay(
-            renderer.ctx, self.lines, style, self.name, coarser=self.coarser
-        )
-        self._overlay.visible = self.visible
-        renderer.overlays.vectors.append(self._overlay)
-
-    def set_style(self, renderer, **style: Any) -> None:
-        """Change colour (RGBA 0..1), width_px or dash_px; takes effect on the next frame."""
-        _restyle(self, style)
-
-    def detach(self, renderer) -> None:
-        if self._overlay is not None:
-            renderer.overlays.vectors.remove(self._overlay)
-            self._overlay.release()
-            self._overlay = None
-
-    def set_visible(self, renderer, visible: bool) -> None:
-        self.visible = bool(visible)
-        if self._overlay is not None:
-            self._overlay.visible = self.visible
+        return VectorOverlay(renderer.ctx, self.lines, style, self.name, coarser=self.coarser)
 
 
 @dataclass
-class PointsLayer:
-    """Point objects: placemarks with labels, or boxes/cones (kind in overlay_points.KINDS)."""
+class PointsLayer(_GpuOverlayLayer):
+    """Point objects: placemarks with labels, or boxes/cones (kind in overlay_points.KINDS);
+    size in pixels for placemarks, scale in metres for objects."""
 
     name: str
     lon: np.ndarray
@@ -142,33 +158,15 @@ class PointsLayer:
     kind: str = "points"
     visible: bool = True
     _overlay: Any = field(default=None, repr=False)
+    _list = "points"
 
-    def attach(self, renderer) -> None:
+    def _make_overlay(self, renderer) -> Any:
         from globeview.render.overlay_points import PointOverlay, PointStyle
 
         style = PointStyle(
             self.object_kind, self.size_px, self.scale_m, self.color, labels=self.labels
         )
-        self._overlay = PointOverlay(
-            renderer.ctx, self.lon, self.lat, self.names, style, name=self.name
-        )
-        self._overlay.visible = self.visible
-        renderer.overlays.points.append(self._overlay)
-
-    def set_style(self, renderer, **style: Any) -> None:
-        """Change colour, size_px or scale_m; takes effect on the next frame."""
-        _restyle(self, style)
-
-    def detach(self, renderer) -> None:
-        if self._overlay is not None:
-            renderer.overlays.points.remove(self._overlay)
-            self._overlay.release()
-            self._overlay = None
-
-    def set_visible(self, renderer, visible: bool) -> None:
-        self.visible = bool(visible)
-        if self._overlay is not None:
-            self._overlay.visible = self.visible
+        return PointOverlay(renderer.ctx, self.lon, self.lat, self.names, style, name=self.name)
 
 
 def _restyle(layer: Any, style: dict[str, Any]) -> None:
