@@ -72,9 +72,31 @@ def frustum_visible(view: ViewState, points: np.ndarray, margin: np.ndarray) -> 
     # Work relative to the eye: keeps the products small and exact enough in float64.
     rel = points - view.eye
     d_eye = planes[:, :3] @ view.eye + planes[:, 3]
-    dist = np.einsum("nkj,pj->npk", rel, planes[:, :3]) + d_eye[None, :, None]
-    outside = np.all(dist < -margin[:, None, None], axis=2)
-    return ~np.any(outside, axis=1)
+    # Every point outside a plane <=> the farthest-inside point is outside it; adding d_eye
+    # after the max gives the same float as before it (rounding is monotonic).
+    dist = np.einsum("nkj,pj->npk", rel, planes[:, :3]).max(axis=2) + d_eye
+    outside = dist < -margin[:, None]
+    return ~outside.any(axis=1)
+
+
+def horizon_cap(view: ViewState) -> float | None:
+    """The central angle (radians) a viewer at the eye's height sees ground out to over the
+    semi-minor-axis sphere, acos(b / (b + h)); None when the eye is at or below the
+    ellipsoid (nothing is hidden). The camera-dependent half of `horizon_visible`."""
+    h0 = view.eye_lonlat_h[2]
+    if h0 <= 0.0:
+        return None
+    r = WGS84.b
+    return math.acos(r / (r + h0))
+
+
+def horizon_peak_angle(hmax: np.ndarray, exaggeration: float = 1.0) -> np.ndarray:
+    """How much further (central angle, radians) a peak of height ``hmax`` (times the
+    exaggeration) shows over the horizon, acos(b / (b + H)): the camera-independent half of
+    `horizon_visible`, which a caller may cache per tile."""
+    r = WGS84.b
+    peak = np.maximum(np.asarray(hmax, dtype=np.float64) * exaggeration, 0.0)
+    return np.arccos(r / (r + peak))
 
 
 def horizon_visible(
@@ -95,13 +117,11 @@ def horizon_visible(
     anywhere on the ellipsoid, so the test never hides a visible tile. (Testing a few sample
     points of a tile, Cesium-style, fails for big tiles whose interior holds the nadir.)
     """
-    lon0, lat0, h0 = view.eye_lonlat_h
-    r = WGS84.b
-    if h0 <= 0.0:
+    cap = horizon_cap(view)
+    if cap is None:
         return np.ones(len(west), dtype=bool)
-    cap = math.acos(r / (r + h0))
-    peak = np.maximum(np.asarray(hmax, dtype=np.float64) * exaggeration, 0.0)
-    cap_total = cap + np.arccos(r / (r + peak))
+    lon0, lat0, _ = view.eye_lonlat_h
+    cap_total = cap + horizon_peak_angle(hmax, exaggeration)
     return box_angular_distance(lon0, lat0, west, south, east, north) <= cap_total
 
 
@@ -118,26 +138,46 @@ def box_angular_distance(
     Inside the box's longitudes the nearest point is on the same meridian; otherwise it lies
     on the nearer bounding meridian at latitude atan(tan(lat0) / cos(dlon)), clamped to the
     box (the foot of the perpendicular great circle)."""
+    west = np.asarray(west, dtype=np.float64)
+    east = np.asarray(east, dtype=np.float64)
+    return box_angular_distance_pre(
+        lon0,
+        lat0,
+        np.stack([west, east]),
+        np.radians(east - west),
+        np.radians(south),
+        np.radians(north),
+    )
+
+
+def box_angular_distance_pre(
+    lon0: float,
+    lat0: float,
+    west_east: np.ndarray,
+    span: np.ndarray,
+    south_rad: np.ndarray,
+    north_rad: np.ndarray,
+) -> np.ndarray:
+    """`box_angular_distance` from the boxes' camera-independent parts, precomputed (and
+    cacheable per tile): ``west_east`` (2, N) the west and east edges (degrees), ``span``
+    radians(east - west), and the south / north edges in radians.
+
+    Both bounding meridians are handled in one (2, N) pass; clamps are written as
+    minimum(maximum()) (what np.clip computes, with less call overhead)."""
     p0 = math.radians(lat0)
-    dw = np.radians((lon0 - west + 180.0) % 360.0 - 180.0)  # offset east of the west edge
-    de = np.radians((lon0 - east + 180.0) % 360.0 - 180.0)
-    span = np.radians(east - west)
+    # Offsets east of the west (row 0) and of the east edge (row 1), radians.
+    d = np.radians((lon0 - west_east + 180.0) % 360.0 - 180.0)
+    dw = d[0]
     inside = (dw >= 0.0) & (dw <= span) | (span >= 2 * math.pi - 1e-12)
-    s_r, n_r = np.radians(south), np.radians(north)
-
-    def to_meridian(dlon: np.ndarray) -> np.ndarray:
-        lat_star = np.arctan2(math.tan(p0) if abs(p0) < math.pi / 2 else 1e12, np.cos(dlon))
-        lat_c = np.clip(lat_star, s_r, n_r)
-        return _central_angle(p0, lat_c, dlon)
-
-    same_meridian = np.abs(p0 - np.clip(p0, s_r, n_r))
-    other = np.minimum(to_meridian(dw), to_meridian(de))
+    # Nearest point on each bounding meridian: the foot of the perpendicular great circle.
+    cos_d = np.cos(d)
+    lat_star = np.arctan2(math.tan(p0) if abs(p0) < math.pi / 2 else 1e12, cos_d)
+    lat_c = np.minimum(np.maximum(lat_star, south_rad), north_rad)
+    c = math.sin(p0) * np.sin(lat_c) + math.cos(p0) * np.cos(lat_c) * cos_d
+    ang = np.arccos(np.minimum(np.maximum(c, -1.0), 1.0))
+    other = np.minimum(ang[0], ang[1])
+    same_meridian = np.abs(p0 - np.minimum(np.maximum(p0, south_rad), north_rad))
     return np.where(inside, same_meridian, other)
-
-
-def _central_angle(lat1: float, lat2: np.ndarray, dlon: np.ndarray) -> np.ndarray:
-    c = math.sin(lat1) * np.sin(lat2) + math.cos(lat1) * np.cos(lat2) * np.cos(dlon)
-    return np.arccos(np.clip(c, -1.0, 1.0))
 
 
 def bounding_distance(view: ViewState, points: np.ndarray, margin: np.ndarray) -> np.ndarray:
