@@ -11,6 +11,7 @@ uniform float u_depth_bias;
 uniform sampler2D u_rects;     // (labels x 1) RGBA32F: x0, y0, width, height in atlas pixels
 uniform vec2 u_atlas_size;
 uniform float u_offset_px;
+uniform vec3 u_inv_axes2;      // (1/a^2, 1/a^2, 1/b^2): the ellipsoid normal's direction
 
 in vec3 in_hi;
 in vec3 in_lo;
@@ -21,7 +22,8 @@ in float in_label;
 out vec2 v_tex;
 
 void main() {
-    vec3 cam = u_rot * ((in_hi - u_eye_hi) + (in_lo - u_eye_lo));
+    vec3 rel = (in_hi - u_eye_hi) + (in_lo - u_eye_lo);  // anchor - eye, metres
+    vec3 cam = u_rot * rel;
     vec4 c = u_proj * vec4(cam, 1.0);
     float w = max(-cam.z, 1e-6);
     vec4 r = texelFetch(u_rects, ivec2(int(in_label + 0.5), 0), 0);
@@ -32,5 +34,9 @@ void main() {
     gl_Position = vec4((px / u_viewport * 2.0 - 1.0) * c.w, 0.0, c.w);
     gl_Position.z = ((2.0 * log2(1.0 + w) * u_log_far - 1.0) - 2.0 * u_depth_bias) * c.w;
     v_tex = (r.xy + vec2(corner.x, 1.0 - corner.y) * r.zw) / u_atlas_size;
-    if (cam.z >= 0.0) gl_Position = vec4(2.0, 2.0, 2.0, 1.0);
+    // Labels have no depth test (they stand beside their point, over nearer terrain), so hide
+    // those whose point is past the ellipsoid's horizon: its ground normal faces away.
+    vec3 normal = normalize(in_hi * u_inv_axes2);
+    bool behind = dot(normal, -rel) < -1e-3 * length(rel);
+    if (cam.z >= 0.0 || behind) gl_Position = vec4(2.0, 2.0, 2.0, 1.0);
 }
