@@ -37,3 +37,8 @@ def open_or_ingest(source: Path, progress: bool = False) -> TileStore:
 def embedded_stores(progress: bool = False) -> list[TileStore]:
     """Stores of the embedded DEMs: the global base first, then the regional samples."""
     return [open_or_ingest(p, progress=progress) for p in embedded_dem_paths()]
+
+
+def embedded_stores_ready() -> bool:
+    """Whether every embedded DEM already has a store in the cache (no ingest to wait for)."""
+    return all((store_path_for(p) / "manifest.json").exists() for p in embedded_dem_paths())

@@ -43,8 +43,15 @@ def create_application(argv: Sequence[str] | None = None) -> QApplication:
 
 def embedded_terrain() -> TerrainStack:
     """The embedded DEMs as a stack (ingested into the cache on first use)."""
-    from globeview.terrain.embedded import embedded_stores
+    import sys
 
+    from globeview.terrain.embedded import embedded_stores, embedded_stores_ready
+
+    if not embedded_stores_ready():
+        print(
+            "globeview: preparing the embedded terrain (first run only, a few seconds)...",
+            file=sys.stderr,
+        )
     stores = embedded_stores()
     return TerrainStack.from_stores(stores, [s.path.name for s in stores])
 
