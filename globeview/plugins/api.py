@@ -319,6 +319,12 @@ class Tool(_Contribution):
     float32). ``displacement_numpy`` applies the same mapping on the CPU to ECEF points; the
     host uses it for picking (inverting by fixed-point iteration) and overlays. A source
     that fails to compile disables the tool's plugin (reported, not fatal).
+
+    LOD providers refine tiles where the displacement bends straight triangle edges (a kink
+    would open cracks between tiles drawn at different strides). By default the host measures
+    that bend exactly (`culling.displacement_chord_error_m`: three displacements of every
+    candidate tile's bounding lattice, every frame); a tool that knows where its map is
+    (nearly) rigid overrides ``displacement_bend_m`` with a cheap conservative bound.
     """
 
     def on_mouse(self, event: PointerEvent) -> bool:
@@ -349,6 +355,26 @@ class Tool(_Contribution):
         """The inverse of ``displacement_numpy``: maps drawn (displaced) ECEF points back to
         the true ones, so picks report real coordinates. Identity by default."""
         return np.asarray(points_ecef, dtype=np.float64)
+
+    def displacement_key(self) -> object | None:
+        """Optional: a hashable summary of the current displacement (e.g. the collapse's
+        points and ratio); equal keys promise the same ``displacement_numpy``, so LOD
+        providers may cache displaced tile data across frames under it (``ViewState.
+        displacement_key``). None (the default): providers fingerprint the displacement."""
+        return None
+
+    def displacement_bend_m(
+        self, points_ecef: np.ndarray, displaced: np.ndarray | None = None
+    ) -> np.ndarray | None:
+        """Optional: an upper bound (m) of how far ``displacement_numpy`` bends straight edges
+        over tile bounding lattices ``points_ecef`` (N, K, 3) true ECEF (2 heights x L x L,
+        `culling.tile_bounding_points`), per tile (N,): it must be >=
+        ``culling.displacement_chord_error_m(displacement_numpy, points_ecef)``, and should be
+        (near) zero where the map is (nearly) rigid. ``displaced`` is
+        ``displacement_numpy(points_ecef)`` when the provider already has it. The host uses
+        it only if a tool overrides this method; returning None falls back to the exact
+        measure."""
+        return None
 
     def deactivate(self) -> None:
         """Called when the tool stops being the active tool (drop transient state)."""

@@ -12,7 +12,7 @@ import numpy as np
 
 from globeview.errors import GlobeviewError
 from globeview.geodesy import ecef_to_lonlat
-from globeview.plugins.api import NullRendererHooks
+from globeview.plugins.api import NullRendererHooks, Tool
 from globeview.plugins.registry import PluginRegistry
 from globeview.render.camera import Camera
 from globeview.render.picking import Pick
@@ -140,14 +140,42 @@ class GlobeSession(GlobeScene):
             return points
         return self.registry.invoke(tool, "displacement_numpy", points, default=points)
 
+    def _bend(self, points: np.ndarray, displaced: np.ndarray | None = None) -> np.ndarray:
+        """The active tool's bend bound (`Tool.displacement_bend_m`); the exact measure when
+        it returns None or its plugin has failed."""
+        from globeview.render.culling import displacement_chord_error_m
+
+        tool = self.tool()
+        bend = None
+        if tool is not None:
+            bend = self.registry.invoke(tool, "displacement_bend_m", points, displaced)
+        if bend is None:
+            return displacement_chord_error_m(self._displace, points, displaced)
+        return np.asarray(bend, dtype=np.float64)
+
     def view_state(self, viewport: tuple[int, int]):
+        """The base view, plus the active tool's CPU displacement (``displace``), its
+        ``displacement_key()`` if it has one and, when the tool overrides
+        `Tool.displacement_bend_m`, its bend bound (``displacement_bend``)."""
         view = super().view_state(viewport)
         tool = self.tool()
         if tool is None or self.renderer._hook is None:
             return view
         from dataclasses import replace
 
-        return replace(view, displace=self._displace)
+        own_bend = getattr(type(tool), "displacement_bend_m", None) not in (
+            None,
+            Tool.displacement_bend_m,
+        )
+        key = None
+        if callable(getattr(tool, "displacement_key", None)):  # tools need not subclass Tool
+            key = self.registry.invoke(tool, "displacement_key")
+        return replace(
+            view,
+            displace=self._displace,
+            displacement_bend=self._bend if own_bend else None,
+            displacement_key=key,
+        )
 
     def render(self, fbo: moderngl.Framebuffer, viewport: tuple[int, int]) -> FrameResult:
         tool = self.tool()

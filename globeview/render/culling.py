@@ -190,7 +190,20 @@ def bounding_distance(view: ViewState, points: np.ndarray, margin: np.ndarray) -
     return np.maximum(d, 1.0)
 
 
-def displacement_chord_error_m(displace, points: np.ndarray) -> np.ndarray:
+def _lattice_edges(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Indices (E,) into a bounding lattice (K = 2 x L x L points, `tile_bounding_points`)
+    of the two ends of every edge between neighbouring points of its lower surface."""
+    k = points.shape[1]
+    side = round(math.sqrt(k // 2))
+    idx = np.arange(side * side).reshape(side, side)
+    ia = np.concatenate([idx[:, :-1].ravel(), idx[:-1, :].ravel()])
+    ib = np.concatenate([idx[:, 1:].ravel(), idx[1:, :].ravel()])
+    return ia, ib
+
+
+def displacement_chord_error_m(
+    displace, points: np.ndarray, displaced: np.ndarray | None = None
+) -> np.ndarray:
     """How far a displacement bends straight edges: for tiles' bounding lattices ``points``
     (N, K, 3) ECEF laid out as (2 heights x L x L) like `culling.tile_bounding_points`, the
     largest distance (m) between the displaced midpoint of two neighbouring lattice points
@@ -198,13 +211,40 @@ def displacement_chord_error_m(displace, points: np.ndarray) -> np.ndarray:
     displacement. A triangle edge spanning the same length deviates about this much from
     the displaced surface (linearly less for shorter edges, at a fold's kink), so an LOD
     provider can add it to the tile's geometric error to refine where the fold would open
-    gaps between neighbouring tiles drawn at different strides."""
+    gaps between neighbouring tiles drawn at different strides.
+
+    ``displaced`` (N, K, 3), when the caller already has ``displace(points)``, is reused for
+    the edges' ends: only the midpoints are displaced then."""
     pts = np.asarray(points, dtype=np.float64)
-    n, k, _ = pts.shape
-    side = round(math.sqrt(k // 2))
-    grid = pts.reshape(n, 2, side, side, 3)[:, 0]  # the lower surface suffices
-    a = np.concatenate([grid[:, :, :-1].reshape(n, -1, 3), grid[:, :-1, :].reshape(n, -1, 3)], 1)
-    b = np.concatenate([grid[:, :, 1:].reshape(n, -1, 3), grid[:, 1:, :].reshape(n, -1, 3)], 1)
+    n = pts.shape[0]
+    if n == 0:
+        return np.zeros(0)
+    ia, ib = _lattice_edges(pts)
+    a, b = pts[:, ia], pts[:, ib]
     mid = 0.5 * (a + b)
-    da, db, dm = (np.asarray(displace(v.reshape(-1, 3))).reshape(v.shape) for v in (a, b, mid))
+    if displaced is None:
+        da, db, dm = (np.asarray(displace(v.reshape(-1, 3))).reshape(v.shape) for v in (a, b, mid))
+    else:
+        disp = np.asarray(displaced, dtype=np.float64)
+        da, db = disp[:, ia], disp[:, ib]
+        dm = np.asarray(displace(mid.reshape(-1, 3)), dtype=np.float64).reshape(mid.shape)
     return np.max(np.linalg.norm(dm - 0.5 * (da + db), axis=-1), axis=1)
+
+
+def displacement_bend_m(
+    view: ViewState, points: np.ndarray, displaced: np.ndarray | None = None
+) -> np.ndarray:
+    """The bend (m) of ``view.displace`` over tiles' bounding lattices ``points`` (N, K, 3),
+    per tile (N,): what an LOD provider adds to a tile's geometric error (scaled by stride).
+
+    Uses the active tool's cheap conservative bound (``view.displacement_bend``, e.g. the
+    collapse's, nonzero in practice only for tiles a fold line crosses) when it has one, else
+    the exact `displacement_chord_error_m`. ``displaced`` = ``view.displace(points)`` when
+    the caller already has it (saves displacing the lattice again). Zeros without a
+    displacement."""
+    pts = np.asarray(points, dtype=np.float64)
+    if view.displace is None or len(pts) == 0:
+        return np.zeros(len(pts))
+    if view.displacement_bend is not None:
+        return np.asarray(view.displacement_bend(pts, displaced), dtype=np.float64)
+    return displacement_chord_error_m(view.displace, pts, displaced)

@@ -35,6 +35,15 @@ class ViewState:
         displace: the active tool's vertex displacement on the CPU, (N, 3) ECEF -> (N, 3) ECEF
             (e.g. the terrain collapse), or None. LOD providers apply it to tile bounding
             points so culling and screen-space error see the terrain where it is drawn.
+        displacement_bend: the active tool's cheap bound of how far ``displace`` bends straight
+            edges, ``(points (N, K, 3), displaced (N, K, 3) | None) -> (N,)`` metres per
+            tile bounding lattice (`Tool.displacement_bend_m`), or None: LOD providers then
+            use the exact `culling.displacement_chord_error_m`. Call it through
+            `culling.displacement_bend_m`, which picks.
+        displacement_key: a hashable summary of ``displace`` from the tool
+            (``displacement_key()``, e.g. the collapse's points and ratio): equal keys promise
+            the same displacement, so providers may cache displaced tile data across frames
+            under it; None when the tool gives none (providers then fingerprint ``displace``).
     """
 
     eye: np.ndarray
@@ -49,6 +58,10 @@ class ViewState:
     exaggeration: float = 1.0
     frame_rate_hz: float = 30.0
     displace: Callable[[np.ndarray], np.ndarray] | None = field(default=None, compare=False)
+    displacement_bend: Callable[[np.ndarray, np.ndarray | None], np.ndarray] | None = field(
+        default=None, compare=False
+    )
+    displacement_key: object | None = field(default=None, compare=False)
     extras: dict = field(default_factory=dict, compare=False)
 
     @classmethod

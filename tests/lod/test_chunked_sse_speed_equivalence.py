@@ -265,6 +265,33 @@ def test_displaced_views_match_reference(terrain, name, displace) -> None:
             _assert_same(select_tiles(view, terrain), want, f"{name} displaced call {i}")
 
 
+def test_displacement_change_invalidates_displaced_cache(terrain) -> None:
+    """Displaced lattices and bends are cached per displacement across frames: switching the
+    displacement (or its bend measure) under a camera must recompute, not reuse them."""
+    base = _view(*VIEWS["alps-oblique"])
+    steps = [
+        dict(displace=_fold),
+        dict(displace=_rotate_z),
+        dict(displace=lambda p: _rotate_z(p, 3e-4), displacement_key=("rot", 3e-4)),
+        dict(displace=_fold),
+        dict(
+            displace=_fold,
+            displacement_bend=lambda p, d: displacement_chord_error_m(_fold, p) + 50.0,
+        ),
+        dict(displace=_fold),
+    ]
+    for i, kw in enumerate(steps):
+        view = dataclasses.replace(base, **kw)
+        want = _reference_select_tiles(view, terrain)
+        if "displacement_bend" in kw:  # the oracle knows the exact measure only
+            got = select_tiles(view, terrain)
+            same_keys = np.array_equal(got.keys, want.keys)
+            assert not same_keys or not np.allclose(got.error_px, want.error_px), i
+            continue
+        for j in range(2):
+            _assert_same(select_tiles(view, terrain), want, f"step {i} call {j}")
+
+
 def test_moving_camera_matches_reference(terrain) -> None:
     """A flight with changing exaggeration and settings: the caches see hits, misses,
     invalidation (exaggeration changes) and views revisited."""

@@ -39,13 +39,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from globeview.geodesy import lonlat_to_ecef
 from globeview.plugins.api import LodProvider, Setting
 from globeview.render.culling import (
     LATTICE,
     bounding_distance,
     box_angular_distance_pre,
     chord_sag,
-    displacement_chord_error_m,
+    displacement_bend_m,
     frustum_visible,
     horizon_cap,
     horizon_peak_angle,
@@ -119,6 +120,12 @@ class _LevelTiles:
     errors (m, exaggerated, chord sag included); ``finer`` whether finer data exists below;
     ``child`` (cap, 4) the children's slots in the order (2x, 2y), (2x+1, 2y), (2x, 2y+1),
     (2x+1, 2y+1).
+
+    With a displacement (a tool's ``view.displace``) also ``dpts``, the displaced lattice, and
+    ``bend``, the displacement's bend over it (NaN: not computed yet), for the displacement
+    identified by ``dkey`` (`displacement_key`): a still collapse displaces each tile's
+    lattice and measures its bend once, not every frame; any other displacement (the
+    collapse animating) recomputes them.
     """
 
     def __init__(self) -> None:
@@ -132,6 +139,41 @@ class _LevelTiles:
         self.err = np.empty((0, N_STRIDES))
         self.finer = np.empty(0, dtype=bool)
         self.child = np.empty((0, 4), dtype=np.int64)
+        self.dkey: tuple | None = None
+        self.dpts = np.empty((0, _N_PTS, 3))
+        self.dvalid = np.empty(0, dtype=bool)
+        self.bend = np.empty(0)
+
+    def sync_displacement(self, dkey: tuple) -> None:
+        """Forget the displaced lattices and bends unless they are for displacement ``dkey``."""
+        if dkey != self.dkey:
+            self.dkey = dkey
+            self.dvalid[:] = False
+            self.bend[:] = np.nan
+
+    def displaced(self, slots: np.ndarray, displace) -> np.ndarray:
+        """The displaced bounding lattices (M, _N_PTS, 3) of ``slots``, computing the misses."""
+        valid = self.dvalid.take(slots)
+        if not valid.all():
+            miss = np.unique(slots[~valid])
+            pts = self.pts.take(miss, axis=0)
+            d = np.asarray(displace(pts.reshape(-1, 3)), dtype=np.float64)
+            self.dpts[miss] = d.reshape(pts.shape)
+            self.dvalid[miss] = True
+        return self.dpts.take(slots, axis=0)
+
+    def bends(self, slots: np.ndarray, view: ViewState) -> np.ndarray:
+        """The displacement's bend (m) over the lattices of ``slots`` (`displaced` already
+        called for them), computing the misses with `culling.displacement_bend_m`."""
+        bend = self.bend.take(slots)
+        miss = np.isnan(bend)
+        if miss.any():
+            ms = np.unique(slots[miss])
+            self.bend[ms] = displacement_bend_m(
+                view, self.pts.take(ms, axis=0), self.dpts.take(ms, axis=0)
+            )
+            bend = self.bend.take(slots)
+        return bend
 
     def find(self, codes: np.ndarray) -> np.ndarray:
         """Slots of the tiles with these codes; -1 for those not cached."""
@@ -154,6 +196,8 @@ class _LevelTiles:
         self.err[n : n + m] = facts["err"]
         self.finer[n : n + m] = facts["finer"]
         self.child[n : n + m] = -1
+        self.dvalid[n : n + m] = False
+        self.bend[n : n + m] = np.nan
         order = np.argsort(codes)
         at = np.searchsorted(self.codes, codes[order])
         self.codes = np.insert(self.codes, at, codes[order])
@@ -178,6 +222,7 @@ class _LevelTiles:
         self.xy, self.child = grown(self.xy), grown(self.child)
         self.pts, self.centre = grown(self.pts), grown(self.centre)
         self.err, self.finer = grown(self.err), grown(self.finer)
+        self.dpts, self.dvalid, self.bend = grown(self.dpts), grown(self.dvalid), grown(self.bend)
 
 
 def _tile_facts(
@@ -278,6 +323,29 @@ class _TileCache:
 
 
 _TILE_CACHE = _TileCache()
+
+
+def _probe_points(n: int = 64) -> np.ndarray:
+    """(n, 3) ECEF points spread over the globe (a Fibonacci lattice, 0 and 5 km high)."""
+    k = np.arange(n) + 0.5
+    lat = np.degrees(np.arcsin(1.0 - 2.0 * k / n))
+    lon = (np.degrees(np.pi * (1.0 + 5.0**0.5) * k) + 180.0) % 360.0 - 180.0
+    h = np.where(np.arange(n) % 2 == 0, 0.0, 5000.0)
+    return np.asarray(lonlat_to_ecef(lon, lat, h), dtype=np.float64).reshape(n, 3)
+
+
+_PROBES = _probe_points()
+
+
+def displacement_key(view: ViewState) -> tuple | None:
+    """Identifies ``view.displace`` (and which bend measure the view carries) for the caches:
+    the tool's ``view.displacement_key`` and the exact bytes of where the displacement moves
+    a fixed set of probe points (None: no displacement). Without a tool key, a displacement
+    that moves no probe point differently (a local one elsewhere) would pass for the same."""
+    if view.displace is None:
+        return None
+    moved = np.asarray(view.displace(_PROBES), dtype=np.float64).tobytes()
+    return (view.displacement_key, moved, view.displacement_bend is not None)
 
 
 def select_tiles(
@@ -411,6 +479,7 @@ def _walk(
     k_px = view.sse_factor
     eye = view.eye
     displace = view.displace
+    dkey = displacement_key(view)
     cap = horizon_cap(view)  # None: eye at or below the ellipsoid, nothing hidden
     u0 = None
     if cap is not None and cap > 1e3 * _HORIZON_TOL:
@@ -436,9 +505,8 @@ def _walk(
                 pts = lv.pts.take(slots.take(ai), axis=0)
                 vis_f[ai] = frame.exact(pts, c[_MARGIN].take(ai))
         else:
-            pts_true = lv.pts.take(slots, axis=0)
-            pts = displace(pts_true.reshape(-1, 3))
-            pts = np.asarray(pts, dtype=np.float64).reshape(pts_true.shape)
+            lv.sync_displacement(dkey)
+            pts = lv.displaced(slots, displace)
             vis_f = frustum_visible(view, pts, c[_MARGIN])
         # The horizon test only matters for tiles inside the frustum.
         fi = vis_f.nonzero()[0]
@@ -466,7 +534,7 @@ def _walk(
             # A displacement that bends the surface (the collapse's fold lines) bends it away
             # from straight triangle edges: count that as geometric error, shrinking with the
             # stride, so tiles across a fold refine and no gap opens between them.
-            bend = displacement_chord_error_m(displace, pts_true[fi])
+            bend = lv.bends(ks, view)
             err = err + bend[:, None] * bend_frac[None, :]
             dist = bounding_distance(view, pts[fi], c[_MARGIN])
         px_per_m = k_px / dist

@@ -266,6 +266,15 @@ class CollapseTool(Tool):
         pts = np.asarray(points_ecef, dtype=np.float64)
         return pts if f is None else f.forward(pts)
 
+    def displacement_bend_m(
+        self, points_ecef: np.ndarray, displaced: np.ndarray | None = None
+    ) -> np.ndarray:
+        """A cheap upper bound of the collapse's bend per tile bounding lattice (N, K, 3) ->
+        (N,) m: `CollapseFrame.bend_bound_m` (exact only for tiles a fold line crosses)."""
+        f = self.frame()
+        pts = np.asarray(points_ecef, dtype=np.float64)
+        return np.zeros(len(pts)) if f is None else f.bend_bound_m(pts, displaced)
+
     def displacement_inverse_numpy(self, points_ecef: np.ndarray) -> np.ndarray:
         """Drawn ECEF points (N, 3) -> true ones (exact inverse of ``displacement_numpy``)."""
         f = self.frame()

@@ -32,10 +32,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
 from globeview.geodesy import WGS84, ecef_to_lonlat, lonlat_to_ecef
+from globeview.render.culling import displacement_chord_error_m
 
 __all__ = ["CollapseFrame", "rotate_about"]
 
@@ -44,6 +46,19 @@ MIN_SEPARATION_M = 0.5
 #: A and B must be less than this far apart (radians of geocentric angle): near-antipodal
 #: points have no unique great circle, and the far-side taper needs room.
 MAX_ANGLE_RAD = math.radians(170.0)
+
+#: Margin (rad) on a tile's geocentric along-axis angles for the foot point's (the map's psi
+#: differs from the point's own direction by the geodetic-geocentric deflection, <= 0.0034
+#: rad, times height / distance from the normal's axis; `BEND_RHO_MIN` keeps that small).
+BEND_PSI_MARGIN = 2e-3
+#: Tiles closer than this fraction of R_M to the A-B plane's normal axis get the exact bend.
+BEND_RHO_MIN = 0.05
+#: Ellipsoid term of the smooth-region bend bound (`CollapseFrame.bend_bound_m`), calibrated
+#: with a wide safety factor against the exact measure (tests/collapse/test_collapse_bend.py).
+BEND_ELLIPSOID_K = 0.05
+#: Batches of fewer tiles than this (or with a quarter or more crossed by a kink) get the
+#: exact measure throughout: cheaper there than the bound, and never larger.
+BEND_EXACT_BELOW = 64
 
 _A2 = WGS84.a**2
 _B2 = WGS84.b**2
@@ -206,6 +221,76 @@ class CollapseFrame:
     def inverse(self, points_ecef: np.ndarray) -> np.ndarray:
         """Drawn (collapsed) ECEF points (..., 3) back to the true ones (exact inverse)."""
         return self._move(points_ecef, inverse=True)
+
+    # -- bend bound for LOD providers ---------------------------------------------------------
+    def bend_bound_m(self, points: np.ndarray, displaced: np.ndarray | None = None) -> np.ndarray:
+        """A cheap upper bound (m, (N,)) of `culling.displacement_chord_error_m` of `forward`
+        over tile bounding lattices ``points`` (N, K, 3) (true ECEF); ``displaced`` =
+        ``forward(points)`` if the caller has it. See docs/collapse.md ("Cracks").
+
+        The lattice's geocentric along-axis angles (no foot points: cheap) give each tile's psi
+        range; the straight edges between lattice points stay inside it (psi is monotonic
+        along a chord). Tiles whose range, widened by ``BEND_PSI_MARGIN``, avoids the kinks
+        (|psi| = psi0 and psi_k) lie where the map is smooth: on a sphere it is
+        (rho, psi, z) -> (rho, g psi + const, z) about the A-B plane's normal, whose second
+        derivative is at most |1 - g^2| / rho (g = r inside the zone, 1 outside, the taper's
+        stretch beyond psi_k), so an edge of length L bends at most L^2 / 8 of that; the
+        ellipsoid adds ``BEND_ELLIPSOID_K`` * (shift + |1 - g|) / rho. Those tiles get the
+        bound; the others (a kink inside, the antipodal half-meridian, close to the normal's
+        axis) get the exact measure, displacing only their edges' midpoints. Small batches and
+        batches with many kinked tiles get the exact measure throughout (``BEND_EXACT_BELOW``):
+        numpy's per-call overhead, not the points, is what costs there."""
+        pts = np.asarray(points, dtype=np.float64)
+        n = pts.shape[0]
+        if n == 0 or self.ratio == 1.0 or self.psi0 == 0.0:
+            return np.zeros(n)
+        k = pts.shape[1] // 2
+        low = pts[:, :k]  # the lower surface, as the exact measure
+        xy = low @ self._mt
+        psi = np.arctan2(xy[..., 1], xy[..., 0])
+        lo, hi = psi.min(axis=1), psi.max(axis=1)
+        p0, pk, r = self.psi0, self.psi_k, self.ratio
+        eps = BEND_PSI_MARGIN
+        shift = (1.0 - r) * p0
+        g_taper = 1.0 + shift / (math.pi - pk)
+        knots = np.array([-pk, -p0, p0, pk])
+        hits = (lo[:, None] <= knots + eps) & (hi[:, None] >= knots - eps)
+        kinked = hits.any(axis=1) | (hi - lo >= math.pi)  # a kink inside, or the wrap at pi
+        if n < BEND_EXACT_BELOW or 4 * np.count_nonzero(kinked) >= n:
+            # Few tiles, or many crossed by a kink: one exact call costs less than the bound's
+            # extra numpy calls (per-call overhead dominates small arrays) and is tighter.
+            return displacement_chord_error_m(self.forward, pts, displaced)
+        side = round(math.sqrt(k))
+        idx = np.arange(k).reshape(side, side)
+        ia = np.concatenate([idx[:, :-1].ravel(), idx[:-1, :].ravel()])
+        ib = np.concatenate([idx[:, 1:].ravel(), idx[1:, :].ravel()])
+        d = low[:, ia] - low[:, ib]
+        edge = np.sqrt(np.max(np.einsum("nej,nej->ne", d, d), axis=1))
+        # rho is 1-Lipschitz: every edge point is within edge / 2 of a lattice point.
+        rho = np.sqrt(np.min(np.einsum("nkj,nkj->nk", xy, xy), axis=1)) - 0.5 * edge
+        a_lo = np.where((lo <= 0.0) & (hi >= 0.0), 0.0, np.minimum(np.abs(lo), np.abs(hi)))
+        a_hi = np.maximum(np.abs(lo), np.abs(hi)) + eps
+        g_max_dev = np.where(a_hi > pk, np.maximum(g_taper - 1.0, 0.0), 0.0)
+        touches_zone = a_lo <= p0 + eps
+        c_in = np.where(touches_zone, 1.0 - r * r, 0.0)
+        c_taper = np.where(a_hi > pk, g_taper * g_taper - 1.0, 0.0)
+        dev = np.maximum(np.where(touches_zone, 1.0 - r, 0.0), g_max_dev)
+        curv = np.maximum(c_in, c_taper) + BEND_ELLIPSOID_K * (shift + dev)
+        exact = kinked | (rho <= BEND_RHO_MIN * self.r_m)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out = edge * edge / 8.0 * curv / rho
+        rest = exact.nonzero()[0]
+        if len(rest) == n:
+            return displacement_chord_error_m(self.forward, pts, displaced)
+        if len(rest):
+            disp = None if displaced is None else np.asarray(displaced).take(rest, axis=0)
+            out[rest] = displacement_chord_error_m(self.forward, pts.take(rest, axis=0), disp)
+        return out
+
+    @cached_property
+    def _mt(self) -> np.ndarray:
+        """(3, 2) columns m, t: ECEF -> coordinates in the A-B great circle's plane."""
+        return np.stack([self.m, self.t], axis=1)
 
     # -- overlays ---------------------------------------------------------------------------
     def edge_line(self, psi: float, half_extent_rad: float, n_points: int = 64) -> np.ndarray:

@@ -22,15 +22,15 @@ Per frame:
    share every edge vertex: no T-junction, no crack. Tiles of different levels do not share
    heights (the coarser one is a wavelet approximation), so they meet behind skirts.
 
-Displacement (a tool's ``view.displace``, e.g. the terrain collapse): culling uses the
-displaced bounding points, and the collapse's fold lines, where the displacement is not
-affine, bend the drawn surface away from long straight edges, so a ring's resolution alone
-would leave gaps between tiles a fold crosses. The bend over a tile
-(`culling.displacement_chord_error_m`, scaled to each stride's edge length) is therefore
-projected to pixels like chunked-sse's error: tiles where it exceeds tau at stride 1 refine
-beyond their ring's level, and an accepted tile takes no stride coarser than the one that
-keeps it within tau. The region test then covers the whole displaced lattice (its bounding
-box, grown by the bend) rather than its four corners. With no displacement nothing changes.
+Displacement (a tool's ``view.displace``, e.g. the terrain collapse): culling uses the displaced
+bounding points, and the collapse's fold lines, where the displacement is not affine, bend the drawn
+surface away from long straight edges, so a ring's resolution alone would leave gaps between tiles a
+fold crosses. The bend over a tile (`culling.displacement_bend_m`: the tool's cheap bound, or the
+exact measure; scaled to each stride's edge length) is therefore projected to pixels like
+chunked-sse's error: tiles where it exceeds tau at stride 1 refine beyond their ring's level, and an
+accepted tile takes no stride coarser than the one that keeps it within tau. The region test then
+covers the whole displaced lattice (its bounding box, grown by the bend) rather than its four
+corners. With no displacement nothing changes.
 
 Departures from the paper (see each place for the why): the speed factor divides the
 resolution (coarser when moving fast, as §2 intends; the printed formula multiplies);
@@ -55,7 +55,7 @@ from globeview.plugins.builtin.chunked_sse import MAX_LEVEL, stride_errors_m
 from globeview.render.culling import (
     LATTICE,
     bounding_distance,
-    displacement_chord_error_m,
+    displacement_bend_m,
     frustum_visible,
     horizon_visible,
     tile_bounding_points,
@@ -375,7 +375,7 @@ def select_regions(
         if view.displace is not None:
             # Displaced, the four corners no longer span the footprint (a fold bends its
             # sides): test the box around every lattice point, grown by the bend.
-            bend = displacement_chord_error_m(view.displace, pts_true)
+            bend = displacement_bend_m(view, pts_true, pts)
             quads = _bounding_quads(enu[:, : enu.shape[1] // 2, :2], bend)
         in_reg = polygons_overlap(region, quads) | (level < 4) | (d == 0.0)
         keep = vis_f & vis_h & in_reg & (ring < far_ring)

@@ -36,7 +36,7 @@ fewer triangles). Here:
   whose *height* error is still below the floor and whose sag projects within tau.
 - **Displacement** (a tool's ``view.displace``, e.g. the terrain collapse): culling uses the
   displaced bounding points, and the bend of the displacement over a tile (the collapse's
-  fold lines; `culling.displacement_chord_error_m`, scaled to each stride's edge length) is
+  fold lines; `culling.displacement_bend_m`, scaled to each stride's edge length) is
   added to the geometry error like the chord sag: a tile whose bend projects beyond tau at
   stride 1 splits, and a stride is only as coarse as keeps it within tau, so long edges
   never cut across a fold and no gap opens between tiles. Nothing changes without one.
@@ -61,7 +61,7 @@ from globeview.render.culling import (
     LATTICE,
     bounding_distance,
     chord_sag,
-    displacement_chord_error_m,
+    displacement_bend_m,
     frustum_visible,
     horizon_visible,
     tile_bounding_points,
@@ -150,7 +150,7 @@ def select_wavelet(
         sag_px = float(chord_sag(node_deg)) * px_per_m
         if view.displace is not None:
             # The displacement's bend (fold lines) counts as geometry, like the sag.
-            bend = displacement_chord_error_m(view.displace, pts_true[keep])
+            bend = displacement_bend_m(view, pts_true[keep], pts[keep])
             frac = np.minimum(1.0, 2.0 ** np.arange(N_STRIDES) * (LATTICE - 1) / (size - 1))
             total = total + bend[:, None] * frac[None, :]
             sag_px = sag_px + bend * frac[0] * px_per_m
