@@ -15,6 +15,9 @@ HAVE_DISPLAY = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY
 def pytest_collection_modifyitems(config, items):
     if HAVE_DISPLAY and os.environ.get("QT_QPA_PLATFORM", "xcb") != "offscreen":
         return
+    if os.environ.get("GLOBEVIEW_REQUIRE_DISPLAY") == "1":
+        # ./test starts Xvfb: a missing display there is a broken set-up, not a reason to skip.
+        raise pytest.UsageError("the window tests need a display (./test runs them under Xvfb)")
     skip = pytest.mark.skip(reason="needs a display with OpenGL (run under xvfb-run)")
     for item in items:
         if "gui" in item.keywords and "tests/ui" in str(item.fspath).replace(os.sep, "/"):
