@@ -5,16 +5,20 @@ rendering test. Run plain `pytest` on a machine without EGL and those tests skip
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 
 import pytest
+
+PROBE = "from globeview.render.offscreen import create_headless_context as c; c().release()"
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:
     if os.environ.get("GLOBEVIEW_REQUIRE_GL") != "1":
         return
-    from globeview.render.offscreen import RenderError, create_headless_context
-
-    try:
-        create_headless_context().release()
-    except RenderError as exc:
-        pytest.exit(f"headless OpenGL is required by ./test: {exc}", returncode=1)
+    # Probe in a child process: once a thread of this process has had an EGL context current,
+    # libglvnd will not make Qt's GLX context current here (the window tests need that).
+    probe = subprocess.run([sys.executable, "-c", PROBE], capture_output=True, text=True)
+    if probe.returncode != 0:
+        reason = (probe.stderr.strip().splitlines() or ["unknown error"])[-1]
+        pytest.exit(f"headless OpenGL is required by ./test: {reason}", returncode=1)
