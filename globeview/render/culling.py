@@ -8,11 +8,14 @@ that covers how far the curved surface can bulge between lattice points (the cho
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from globeview.geodesy import WGS84, lonlat_to_ecef
 from globeview.render.view_state import ViewState
+from globeview.terrain.quadtree import tile_bounds_arrays
+from globeview.terrain.stack import TerrainStack, TileMetadata
 
 #: Lattice points per tile side for bounding volumes.
 LATTICE = 3
@@ -248,3 +251,47 @@ def displacement_bend_m(
     if view.displacement_bend is not None:
         return np.asarray(view.displacement_bend(pts, displaced), dtype=np.float64)
     return displacement_chord_error_m(view.displace, pts, displaced)
+
+
+@dataclass
+class LevelCandidates:
+    """One level's candidate tiles with their bounds (degrees), metadata, bounding lattice
+    before (``pts_true``) and after (``pts``) the view's displacement, margins (m), and the
+    frustum / horizon visibility masks."""
+
+    west: np.ndarray
+    south: np.ndarray
+    east: np.ndarray
+    north: np.ndarray
+    meta: TileMetadata
+    pts_true: np.ndarray
+    pts: np.ndarray
+    margin: np.ndarray
+    in_frustum: np.ndarray
+    above_horizon: np.ndarray
+
+
+def cull_level(
+    view: ViewState, terrain: TerrainStack, level: int, x: np.ndarray, y: np.ndarray
+) -> LevelCandidates:
+    """The per-level step LOD providers share: tile bounds, metadata, bounding lattice (moved
+    by ``view.displace``), and frustum and horizon culling, for tiles (level, x, y)."""
+    exag = view.exaggeration
+    w, s, e, n = tile_bounds_arrays(level, x, y)
+    meta = terrain.metadata(level, x, y)
+    pts_true, margin = tile_bounding_points(w, s, e, n, meta.hmin, meta.hmax, exag)
+    pts = pts_true
+    if view.displace is not None:
+        pts = np.asarray(view.displace(pts.reshape(-1, 3)), dtype=np.float64).reshape(pts.shape)
+    return LevelCandidates(
+        w,
+        s,
+        e,
+        n,
+        meta,
+        pts_true,
+        pts,
+        margin,
+        frustum_visible(view, pts, margin),
+        horizon_visible(view, w, s, e, n, meta.hmax, exag),
+    )

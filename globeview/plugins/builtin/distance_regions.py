@@ -55,15 +55,12 @@ from globeview.plugins.builtin.chunked_sse import MAX_LEVEL, stride_errors_m
 from globeview.render.culling import (
     LATTICE,
     bounding_distance,
+    cull_level,
     displacement_bend_m,
-    frustum_visible,
-    horizon_visible,
-    tile_bounding_points,
 )
 from globeview.render.render_set import RenderSet
 from globeview.render.tile_indices import IndexVariant
 from globeview.render.view_state import ViewState
-from globeview.terrain.quadtree import tile_bounds_arrays
 from globeview.terrain.stack import N_STRIDES, TerrainStack
 
 #: Metres per degree of latitude (mean), to turn node spacings into metres.
@@ -343,14 +340,10 @@ def select_regions(
     for level in range(MAX_LEVEL + 1):
         if len(x) == 0:
             break
-        w, s, e, n = tile_bounds_arrays(level, x, y)
-        meta = terrain.metadata(level, x, y)
-        pts_true, margin = tile_bounding_points(w, s, e, n, meta.hmin, meta.hmax, exag)
-        pts = pts_true
-        if view.displace is not None:
-            pts = np.asarray(view.displace(pts.reshape(-1, 3)), dtype=np.float64).reshape(pts.shape)
-        vis_f = frustum_visible(view, pts, margin)
-        vis_h = horizon_visible(view, w, s, e, n, meta.hmax, exag)
+        cand = cull_level(view, terrain, level, x, y)
+        w, s, e, n, meta = cand.west, cand.south, cand.east, cand.north, cand.meta
+        pts_true, pts, margin = cand.pts_true, cand.pts, cand.margin
+        vis_f, vis_h = cand.in_frustum, cand.above_horizon
         # Ground-plane footprint of each tile in the nadir ENU frame: the lattice points
         # (first half of pts: lowest height) and the nearest point of the lon/lat box.
         enu = (pts - nadir) @ basis.T  # (N, K, 3)

@@ -61,14 +61,11 @@ from globeview.render.culling import (
     LATTICE,
     bounding_distance,
     chord_sag,
+    cull_level,
     displacement_bend_m,
-    frustum_visible,
-    horizon_visible,
-    tile_bounding_points,
 )
 from globeview.render.render_set import RenderSet
 from globeview.render.view_state import ViewState
-from globeview.terrain.quadtree import tile_bounds_arrays
 from globeview.terrain.stack import N_STRIDES, TerrainStack
 
 
@@ -126,14 +123,10 @@ def select_wavelet(
     for level in range(MAX_LEVEL + 1):
         if len(x) == 0:
             break
-        w, s, e, n = tile_bounds_arrays(level, x, y)
-        meta = terrain.metadata(level, x, y)
-        pts_true, margin = tile_bounding_points(w, s, e, n, meta.hmin, meta.hmax, exag)
-        pts = pts_true
-        if view.displace is not None:
-            pts = np.asarray(view.displace(pts.reshape(-1, 3)), dtype=np.float64).reshape(pts.shape)
-        vis_f = frustum_visible(view, pts, margin)
-        vis_h = horizon_visible(view, w, s, e, n, meta.hmax, exag)
+        cand = cull_level(view, terrain, level, x, y)
+        meta = cand.meta
+        pts_true, pts, margin = cand.pts_true, cand.pts, cand.margin
+        vis_f, vis_h = cand.in_frustum, cand.above_horizon
         culled_f += int(np.count_nonzero(~vis_f))
         culled_h += int(np.count_nonzero(vis_f & ~vis_h))
         keep = vis_f & vis_h
