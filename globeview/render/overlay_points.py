@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import moderngl
 import numpy as np
 
-from globeview.geodesy import WGS84, lonlat_to_ecef
+from globeview.geodesy import lonlat_to_ecef
 from globeview.render.overlay_vectors import (
     render_set_signature,
     render_set_strides,
@@ -25,7 +25,7 @@ from globeview.render.overlay_vectors import (
     view_uniforms,
 )
 from globeview.render.render_set import RenderSet
-from globeview.render.view_state import ViewState
+from globeview.render.view_state import INV_AXES2, ViewState
 from globeview.terrain.vectors import drape_heights
 
 KINDS = ("placemark", "box", "cone")
@@ -243,7 +243,7 @@ class PointOverlay:
         uni = view_uniforms(view)
         uni.update(
             u_color=tuple(float(c) for c in self.style.color),
-            u_inv_axes2=(1.0 / WGS84.a**2, 1.0 / WGS84.a**2, 1.0 / WGS84.b**2),
+            u_inv_axes2=INV_AXES2,
             u_light=tuple(float(v) for v in view.rotation[2]),
         )
         ctx = self.ctx

@@ -27,8 +27,7 @@ from typing import Any
 import moderngl
 import numpy as np
 
-from globeview.geodesy import WGS84
-from globeview.render.view_state import ViewState
+from globeview.render.view_state import INV_AXES2, ViewState
 
 #: Floats per instance: a (3), b (3), colour (4), size, kind.
 FLOATS = 12
@@ -44,7 +43,7 @@ def facing_eye(points_ecef: np.ndarray, eye: np.ndarray) -> np.ndarray:
     """(N,) bool: the ellipsoid normal at each point (N, 3) faces the eye, i.e. the point is
     on the near side of the ellipsoid's horizon (a small tolerance keeps points at the limb)."""
     p = np.asarray(points_ecef, np.float64).reshape(-1, 3)
-    inv = np.array([1.0 / WGS84.a**2, 1.0 / WGS84.a**2, 1.0 / WGS84.b**2])
+    inv = np.array(INV_AXES2)
     normal = p * inv
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
     to_eye = np.asarray(eye, np.float64) - p

@@ -28,7 +28,7 @@ import numpy as np
 
 from globeview.geodesy import WGS84, lonlat_to_ecef
 from globeview.render.render_set import RenderSet
-from globeview.render.view_state import ViewState
+from globeview.render.view_state import INV_AXES2, ViewState
 from globeview.terrain.vectors import Polylines, drape_heights
 
 #: Coarser line levels are used while their segments span fewer pixels than this.
@@ -220,7 +220,7 @@ class VectorOverlay:
             u_color=tuple(float(c) for c in self.style.color),
             u_width=float(self.style.width_px),
             u_dash=float(self.style.dash_px),
-            u_inv_axes2=(1.0 / WGS84.a**2, 1.0 / WGS84.a**2, 1.0 / WGS84.b**2),
+            u_inv_axes2=INV_AXES2,
         )
         set_uniforms(self.program, uni)
         self.ctx.enable(moderngl.DEPTH_TEST | moderngl.BLEND)

@@ -29,7 +29,7 @@ from globeview.render.tile_indices import IndexVariant
 from globeview.render.tile_loader import TileLoader, substitute_missing
 from globeview.render.tile_mesh import FLOATS_PER_VERTEX, TileMesh, build_tile_mesh
 from globeview.render.tile_pool import IndexPool, TilePool
-from globeview.render.view_state import ViewState
+from globeview.render.view_state import INV_AXES2, ViewState
 from globeview.terrain.quadtree import tile_bounds
 from globeview.terrain.stack import TerrainStack
 
@@ -346,7 +346,7 @@ class GlobeRenderer:
         uni["u_rot"] = view.rotation.T.astype("f4").tobytes()
         uni["u_proj"] = view.proj.T.astype("f4").tobytes()
         uni["u_exag"] = float(s.exaggeration)
-        uni["u_inv_axes2"] = (1.0 / WGS84.a**2, 1.0 / WGS84.a**2, 1.0 / WGS84.b**2)
+        uni["u_inv_axes2"] = INV_AXES2
         uni["u_heights"] = 0
         uni["u_normals"] = 1
         uni["u_ramp"] = 2

@@ -13,7 +13,12 @@ from functools import cached_property
 
 import numpy as np
 
+from globeview.geodesy import WGS84
 from globeview.render.camera import Camera
+
+#: (1/a², 1/a², 1/b²) of WGS84: shaders scale an ECEF position by it to get the direction of
+#: the geodetic normal there (the gradient of the ellipsoid equation).
+INV_AXES2 = (1.0 / WGS84.a**2, 1.0 / WGS84.a**2, 1.0 / WGS84.b**2)
 
 
 @dataclass(frozen=True)
