@@ -79,3 +79,87 @@ def test_cli_no_crs_then_crs_flag(tmp_path: Path) -> None:
     r = _run("info", "--crs", "EPSG:32610", str(p))
     assert r.returncode == 0, r.stderr
     assert "EPSG:32610" in r.stdout
+
+
+# ---- hostile input (issue #13): one line on stderr, exit 2; or a truthful summary --------------
+
+
+def _geo_tif(path: Path, arr: np.ndarray, **profile: object) -> Path:
+    prof: dict[str, object] = {
+        "driver": "GTiff",
+        "width": arr.shape[-1],
+        "height": arr.shape[-2],
+        "count": 1,
+        "dtype": arr.dtype.name,
+        "crs": "EPSG:4326",
+        "transform": Affine(0.01, 0, 5.0, 0, -0.01, 45.0),
+    }
+    prof.update(profile)
+    with rasterio.open(path, "w", **prof) as ds:
+        ds.write(arr[None])
+    return path
+
+
+def test_cli_reports_masked_samples(tmp_path: Path) -> None:
+    a = np.linspace(100, 2000, 400, dtype=np.float32).reshape(20, 20)
+    a[5:10, 5:10] = np.inf
+    a[0, 0] = 1e30
+    p = _geo_tif(tmp_path / "garbage.tif", a)
+    r = _run("info", str(p))
+    assert r.returncode == 0 and r.stderr == "", r.stderr  # no RuntimeWarning chatter
+    assert "masked      26 samples (non-finite or outside -12000..9000 m)" in r.stdout
+    assert "heights     104.762 .. 2000" in r.stdout  # a[0, 0] (100) was the 1e30
+    rows = json.loads(_run("info", "--json", str(p)).stdout)
+    assert rows[0]["masked_samples"] == 26
+
+
+def test_cli_unknown_crs_is_one_line(tmp_path: Path) -> None:
+    p = _geo_tif(tmp_path / "a.tif", np.ones((5, 5), np.float32))
+    r = _run("info", "--crs", "EPSG:999999", str(p))
+    _assert_one_line_error(r, "unknown CRS 'EPSG:999999'")
+    assert "ERROR 1" not in r.stderr  # PROJ's own chatter stays out
+
+
+def test_cli_directory_and_complex(tmp_path: Path) -> None:
+    _assert_one_line_error(_run("info", str(tmp_path)), "is a directory, not a DEM file")
+    c = _geo_tif(tmp_path / "c.tif", np.ones((5, 5), np.complex64))
+    r = _run("info", str(c))
+    _assert_one_line_error(r, "has complex samples; a DEM needs real heights")
+    assert "ComplexWarning" not in r.stderr
+
+
+def test_cli_polar_stereographic_resolution_in_km(tmp_path: Path) -> None:
+    # 1 km cells around the south pole: degrees of longitude per cell are meaningless there
+    p = _geo_tif(
+        tmp_path / "antarctica.tif",
+        np.full((100, 100), 2500, np.float32),
+        crs="EPSG:3031",
+        transform=Affine(1000, 0, -50_000, 0, -1000, 50_000),
+    )
+    r = _run("info", str(p))
+    assert r.returncode == 0, r.stderr
+    line = next(x for x in r.stdout.splitlines() if x.strip().startswith("resolution"))
+    assert line.split()[1:5] == ["1", "km", "x", "1"] and "deg" not in line and "e+" not in line
+
+
+def test_cli_cf_netcdf_assumed_wgs84(tmp_path: Path) -> None:
+    import rasterio.shutil
+    from rasterio.io import MemoryFile
+
+    a = np.arange(36 * 18, dtype=np.float32).reshape(18, 36)
+    p = tmp_path / "etopo_like.nc"
+    with MemoryFile() as mf:
+        with mf.open(
+            driver="GTiff",
+            width=36,
+            height=18,
+            count=1,
+            dtype="float32",
+            transform=Affine(10, 0, -180, 0, -10, 90),
+        ) as ds:
+            ds.write(a[None])
+        with mf.open() as src:
+            rasterio.shutil.copy(src, p, driver="netCDF")
+    r = _run("info", str(p))
+    assert r.returncode == 0, r.stderr
+    assert "CRS         EPSG:4326 (assumed from CF lat/lon axes)" in r.stdout

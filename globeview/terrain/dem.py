@@ -1,15 +1,20 @@
 """Reading DEM rasters: metadata (`DemInfo`) and resampled height grids in WGS84 lon/lat.
 
 Any raster GDAL reads, in any CRS, is opened with `open_dem`; `Dem.read_grid` returns heights at
-the nodes of a regular geographic grid (longitude/latitude in degrees on WGS84, heights in the
-raster's vertical units, normally metres), reprojected with `rasterio.warp.reproject`. Reading is
+the nodes of a regular geographic grid (longitude/latitude in degrees on WGS84, heights in
+metres: the band's scale/offset applied and feet converted), reprojected with
+`rasterio.warp.reproject`. Reading is
 windowed: only the source window a request needs is read, so rasters larger than RAM can be read
 window by window.
 
 Quirks of real data handled here (see data/README.md):
 - pixel-is-point grids (SRTM, ETOPO5): GDAL already places samples at cell centres, so the
   footprint is GDAL's bounds shrunk by half a cell;
-- undeclared fill values (Crater Lake's -32767) are detected and treated as nodata;
+- undeclared fill values (Crater Lake's -32767, a block of -9999 or -999) are detected and
+  treated as nodata; +-inf and heights outside MIN_HEIGHT_M..MAX_HEIGHT_M are nodata too and
+  counted (`DemInfo.masked_samples`);
+- CF grids (GEBCO, ETOPO 2022 netCDF) with lat/lon axes in degrees and no CRS are WGS84;
+- complex samples, latitudes beyond +-90 and unusable paths are refused in one line;
 - global grids wrap across the antimeridian and grids reaching a pole are extended to it;
 - interior voids (nodata surrounded by data) are filled; nodata touching the edge of what was
   read is left as NaN (outside the footprint).
@@ -17,7 +22,11 @@ Quirks of real data handled here (see data/README.md):
 
 from __future__ import annotations
 
+import errno
 import math
+import os
+import re
+import stat
 import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -30,6 +39,7 @@ import rasterio
 import rasterio.errors
 import rasterio.features
 import rasterio.fill
+import rasterio.io
 import rasterio.warp
 from affine import Affine
 from pyproj import Geod
@@ -70,10 +80,62 @@ _SCAN_BLOCK_PIXELS = 4_000_000
 _DECIMATED_PIXELS = 4_000_000
 # Extra source cells read around a request so void detection sees a void's surroundings.
 _VOID_MARGIN = 32
-# Values commonly used as fill without being declared as nodata.
-_COMMON_FILLS = (-9999.0, -32767.0, -32768.0, -3.4028234663852886e38, 3.4028234663852886e38)
-# A fill candidate must be at least this large in magnitude (no real elevation reaches it).
-_MIN_FILL_MAGNITUDE = 9999.0
+# Physically possible heights on Earth, in metres after scale/offset and vertical units are
+# applied: the Challenger Deep is -10 935 m and Everest 8 849 m; the margins allow for
+# ellipsoidal vs geoid heights and datum differences. Anything outside (and +-inf) is garbage or
+# an undeclared fill: it is treated as nodata and counted in `DemInfo.masked_samples`.
+MIN_HEIGHT_M = -12_000.0
+MAX_HEIGHT_M = 9_000.0
+_LIMITS_TEXT = f"non-finite or outside {MIN_HEIGHT_M:.0f}..{MAX_HEIGHT_M:.0f} m"
+# Raw values conventionally used as fill without being declared as nodata (with the dtype's
+# extremes): netCDF's default fill and the float extremes included.
+_FLT_MAX = float(np.finfo(np.float32).max)
+_DBL_MAX = float(np.finfo(np.float64).max)
+_COMMON_FILLS = (
+    -999.0,
+    -9999.0,
+    -32767.0,
+    -32768.0,
+    -99999.0,
+    32767.0,
+    65535.0,
+    9.969209968386869e36,
+    -_FLT_MAX,
+    _FLT_MAX,
+    -_DBL_MAX,
+    _DBL_MAX,
+)
+# A candidate fill that is a possible height (-999 m, -9999 m) is a fill only when it is an
+# exact-repeat plateau of at least this many samples...
+_MIN_FILL_PLATEAU = 4
+# ...lying below (or above) all other data by a gap of at least this many metres and this
+# fraction of the data's range: real terrain is continuous, a fill sits apart from it.
+_MIN_FILL_GAP_M = 10.0
+_MIN_FILL_GAP_FRACTION = 0.02
+# Vertical units -> metres per unit (lower-case names as GDAL and PROJ spell them).
+_US_FOOT = 1200.0 / 3937.0
+_UNIT_FACTORS = {
+    "m": 1.0,
+    "metre": 1.0,
+    "meter": 1.0,
+    "metres": 1.0,
+    "meters": 1.0,
+    "ft": 0.3048,
+    "foot": 0.3048,
+    "feet": 0.3048,
+    "international foot": 0.3048,
+    "us survey foot": _US_FOOT,
+    "us-ft": _US_FOOT,
+    "ftus": _US_FOOT,
+    "us_survey_foot": _US_FOOT,
+    "dm": 0.1,
+    "cm": 0.01,
+    "mm": 0.001,
+    "km": 1000.0,
+}
+# CF units of latitude / longitude axes (CF conventions 4.1, 4.2).
+_CF_LAT_UNITS = {"degrees_north", "degree_north", "degree_n", "degrees_n", "degreen", "degreesn"}
+_CF_LON_UNITS = {"degrees_east", "degree_east", "degree_e", "degrees_e", "degreee", "degreese"}
 
 # Metres per degree on WGS84, used only for approximate resolutions in `DemInfo`.
 _GEOD = Geod(ellps="WGS84")
@@ -91,7 +153,9 @@ def embedded_dem_paths() -> list[Path]:
 
 
 def _metres(v: float) -> str:
-    """A length for people: '92.6 m', '3.71 km'."""
+    """A length for people: '92.6 m', '3.71 km', '1113 km'."""
+    if abs(v) >= 1e6:
+        return f"{v / 1000:.0f} km"
     return f"{v / 1000:.3g} km" if abs(v) >= 1000 else f"{v:.3g} m"
 
 
@@ -123,24 +187,56 @@ class DemInfo:
     crosses_antimeridian: bool
     reaches_pole: bool
     wraps_longitude: bool = False  # footprint spans all 360 degrees of longitude
+    # Every undeclared fill found (raw values), most frequent first; fill_value is the first.
+    fill_values: tuple[float, ...] = ()
+    fill_samples: int = 0  # samples holding one of fill_values (from the value scan)
+    # Samples treated as nodata because they are +-inf or outside MIN_HEIGHT_M..MAX_HEIGHT_M
+    # (after scale/offset and units); declared nodata, NaN and undeclared fills not included.
+    # Approximate (from the decimated scan) when range_exact is False.
+    masked_samples: int = 0
+    crs_assumed: str | None = None  # why the CRS was assumed, e.g. "CF lat/lon axes"
+    height_scale_m: float = 1.0  # metres per unit of the stored heights (0.3048 for feet)
+    # Pixel size in the raster's projected CRS, in metres (None for geographic CRSs).
+    res_crs_m: tuple[float, float] | None = None
 
     def summary(self) -> str:
         """A multi-line description for people."""
         w, s, e, n = self.bounds_lonlat
-        units = self.vertical_units or "unknown units"
+        if self.height_scale_m != 1.0:
+            units = f"m (converted from {self.vertical_units})"
+        else:
+            units = self.vertical_units or "unknown units (taken as m)"
         approx = "" if self.range_exact else " (approximate, from a decimated read)"
+        assumed = f" (assumed from {self.crs_assumed})" if self.crs_assumed else ""
+        if self.res_crs_m is not None:
+            # Degrees of a projected grid mean little (near a pole one cell spans many
+            # degrees of longitude): the grid's own spacing and the ground distance instead.
+            res = (
+                f"{_metres(self.res_crs_m[0])} x {_metres(self.res_crs_m[1])} (projected grid;"
+                f" ~{_metres(self.res_m[0])} x {_metres(self.res_m[1])} on the ground at centre)"
+            )
+        else:
+            res = (
+                f"{self.res_deg[0]:.6g} x {self.res_deg[1]:.6g} deg"
+                f" (~{_metres(self.res_m[0])} x {_metres(self.res_m[1])} at centre)"
+            )
         lines = [
             f"{self.path}",
             f"  format      {self.driver}, {self.width} x {self.height} pixels, {self.dtype}",
-            f"  CRS         {self.crs}",
+            f"  CRS         {self.crs}{assumed}",
             f"  footprint   W {w:.6f}  S {s:.6f}  E {e:.6f}  N {n:.6f} (degrees, WGS84)",
-            f"  resolution  {self.res_deg[0]:.6g} x {self.res_deg[1]:.6g} deg"
-            f" (~{_metres(self.res_m[0])} x {_metres(self.res_m[1])} at centre)",
+            f"  resolution  {res}",
             f"  registration {'pixel-is-point (grid)' if self.pixel_is_point else 'pixel-is-area'}",
             f"  nodata      {'none declared' if self.nodata is None else _fmt(self.nodata)}",
         ]
-        if self.fill_value is not None:
-            lines.append(f"  fill value  {_fmt(self.fill_value)} (undeclared; treated as nodata)")
+        if self.fill_values:
+            vals = ", ".join(_fmt(v) for v in self.fill_values)
+            label = "fill values" if len(self.fill_values) > 1 else "fill value "
+            lines.append(
+                f"  {label} {vals} (undeclared; treated as nodata; {self.fill_samples} samples)"
+            )
+        if self.masked_samples:
+            lines.append(f"  masked      {self.masked_samples} samples ({_LIMITS_TEXT})")
         lines.append(f"  heights     {self.vmin:.6g} .. {self.vmax:.6g} {units}{approx}")
         if self.band_count > 1:
             lines.append(f"  bands       {self.band_count}; band 1 is used as elevation")
@@ -164,13 +260,87 @@ class DemInfo:
 
 
 def _fmt(v: float) -> str:
-    return f"{v:.0f}" if float(v).is_integer() else f"{v:.6g}"
+    """A raw value for people: '-9999', '0.5', '9.96921e+36' (huge integers in g format)."""
+    return f"{v:.0f}" if float(v).is_integer() and abs(v) < 1e7 else f"{v:.6g}"
 
 
 def _short(exc: BaseException) -> str:
-    """First line of a rasterio/GDAL message, without GDAL's trailing noise."""
+    """First line of a rasterio/GDAL message, without GDAL's trailing noise.
+
+    rasterio's "See previous exception for details" points at the GDAL error that explains
+    the failure (e.g. a VRT's missing source): that one is shown instead.
+    """
+    while "previous exception" in str(exc) and (exc.__cause__ or exc.__context__):
+        exc = exc.__cause__ or exc.__context__  # type: ignore[assignment]
     text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
     return text if len(text) <= 200 else text[:197] + "..."
+
+
+# GDAL connection strings (NETCDF:"f.nc":z, HDF5:..., /vsizip/a.zip/b.tif) name no plain file.
+_GDAL_NAME = re.compile(r"^(/vsi[a-z0-9_]+/|[A-Za-z][A-Za-z0-9_]+:)")
+
+
+def _check_path(path: Path) -> None:
+    """One-line DemError for a path that cannot be a DEM file: missing, a dangling link or a
+    link loop, a directory, empty, or not a regular file (a FIFO would block GDAL's open)."""
+    if _GDAL_NAME.match(str(path)):
+        return
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise DemError(f"{path} is a symbolic link loop, not a DEM file") from None
+        if os.path.islink(path):
+            raise DemError(
+                f"DEM file not found: {path} (a symbolic link to {os.readlink(path)},"
+                " which does not exist)"
+            ) from None
+        if exc.errno in (errno.ENOENT, errno.ENOTDIR):
+            raise DemError(f"DEM file not found: {path}") from None
+        raise DemError(f"cannot read {path}: {exc.strerror}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise DemError(f"{path} is a directory, not a DEM file")
+    if not stat.S_ISREG(st.st_mode):
+        raise DemError(f"cannot read {path} as a raster: not a regular file")
+    if st.st_size == 0:
+        raise DemError(f"{path} is empty (0 bytes), not a DEM raster")
+
+
+def _parse_crs(text: str) -> CRS:
+    """A user's CRS (EPSG:n, WKT, PROJ string) or a one-line DemError.
+
+    Parsed inside a rasterio environment so that PROJ's own "ERROR 1: ..." goes to logging
+    instead of stderr: the user sees only the DemError's line.
+    """
+    try:
+        with rasterio.Env():
+            return CRS.from_user_input(text)
+    except (rasterio.errors.CRSError, ValueError):
+        raise DemError(f"unknown CRS {text!r} (use e.g. EPSG:4326 or EPSG:32610)") from None
+
+
+def _cf_geographic(ds: rasterio.io.DatasetReader) -> bool:
+    """Whether the dataset's metadata names CF latitude and longitude axes in degrees
+    (GDAL's netCDF driver reports e.g. ``lat#units=degrees_north``)."""
+    units = {v.strip().lower() for k, v in ds.tags().items() if k.lower().endswith("#units")}
+    return bool(units & _CF_LAT_UNITS) and bool(units & _CF_LON_UNITS)
+
+
+def _unit_factor(ds: rasterio.io.DatasetReader, crs: CRS) -> tuple[str | None, float]:
+    """(declared vertical unit, metres per unit): band 1's unit, else the UNITS tag, else the
+    vertical axis of a compound CRS. Undeclared or unrecognised units are taken as metres."""
+    units = ds.units[0] if ds.units and ds.units[0] else ds.tags().get("UNITS") or None
+    if units:
+        return units, _UNIT_FACTORS.get(units.strip().lower(), 1.0)
+    try:
+        pc = pyproj.CRS.from_wkt(crs.to_wkt())
+    except pyproj.exceptions.CRSError:
+        return None, 1.0
+    for sub in pc.sub_crs_list:
+        if sub.is_vertical and sub.axis_info:
+            ax = sub.axis_info[0]
+            return ax.unit_name, float(ax.unit_conversion_factor or 1.0)
+    return None, 1.0
 
 
 class Dem:
@@ -182,10 +352,7 @@ class Dem:
 
     def __init__(self, path: Path, crs_override: str | None = None) -> None:
         self.path = path
-        if not path.exists():
-            raise DemError(f"DEM file not found: {path}")
-        if path.is_dir():
-            raise DemError(f"{path} is a directory, not a DEM raster")
+        _check_path(path)
         try:
             with warnings.catch_warnings():
                 # A raster without geotransform is reported below as a DemError instead.
@@ -203,63 +370,122 @@ class Dem:
 
     def _setup(self, crs_override: str | None) -> None:
         ds = self._ds
-        if crs_override is not None:
-            try:
-                self.crs = CRS.from_user_input(crs_override)
-            except (rasterio.errors.CRSError, ValueError):
+        self._check_contents()
+        t = ds.transform
+        if t == Affine.identity():
+            if ds.gcps[0]:
                 raise DemError(
-                    f"not a valid CRS: {crs_override!r} (use e.g. EPSG:4326 or EPSG:32610)"
-                ) from None
-        elif ds.crs is None or not ds.crs.to_wkt():
+                    f"{self.path} is georeferenced by ground control points only; warp it to a"
+                    " regular grid first (e.g. gdalwarp -t_srs EPSG:4326)"
+                )
+            raise DemError(f"{self.path} has no georeferencing (no geotransform)")
+        self.crs_assumed: str | None = None
+        if crs_override is not None:
+            self.crs = _parse_crs(crs_override)
+        elif ds.crs is not None and ds.crs.to_wkt():
+            self.crs = ds.crs
+        elif _cf_geographic(ds):
+            # GEBCO, ETOPO 2022 and other CF grids: lat/lon axes in degrees and no grid_mapping.
+            self.crs, self.crs_assumed = WGS84, "CF lat/lon axes"
+        else:
             raise DemError(
                 f"{self.path} has no coordinate reference system; supply one with "
                 "--crs EPSG:XXXX (e.g. --crs EPSG:4326 for lon/lat degrees)"
             )
-        else:
-            self.crs = ds.crs
-        if ds.transform == Affine.identity() and not ds.gcps[0]:
-            raise DemError(f"{self.path} has no georeferencing (no geotransform)")
         if ds.width < 2 or ds.height < 2:
             raise DemError(f"{self.path} is {ds.width}x{ds.height} pixels: too small to be a DEM")
-        self.transform: Affine = ds.transform
+        self.transform: Affine = t
         self.nodata: float | None = None if ds.nodata is None else float(ds.nodata)
         self.pixel_is_point = str(ds.tags().get("AREA_OR_POINT", "")).lower() == "point"
-        t = self.transform
+        if self.crs.is_geographic:
+            self._check_latitudes()
         # Geographic north-up sources get the wrap/pole-aware path.
         self._geo_fast = bool(self.crs.is_geographic) and t.b == 0 and t.d == 0 and t.e < 0
         self.wraps_longitude = self._geo_fast and math.isclose(
             abs(t.a) * ds.width, 360.0, rel_tol=1e-6
         )
-        self.fill_value, vmin, vmax, self.range_exact = self._scan_values()
-        self.vmin, self.vmax = vmin, vmax
+        # Stored value -> metres: raw * _scale + _offset (scale/offset and vertical units).
+        self.vertical_units, unit_m = _unit_factor(ds, self.crs)
+        self.height_scale_m = unit_m
+        self._scale = float(ds.scales[0] if ds.scales else 1.0) * unit_m
+        self._offset = float(ds.offsets[0] if ds.offsets else 0.0) * unit_m
+        scan = self._scan_values()
+        self.fill_values, self.fill_samples, self.masked_samples = scan[:3]
+        self.fill_value = self.fill_values[0] if self.fill_values else None
+        self.vmin, self.vmax, self.range_exact = scan[3:]
         self._info: DemInfo | None = None
         self._pole_values: dict[float, float] = {}
+
+    def _check_contents(self) -> None:
+        """Refuse what has no single real-valued band 1: containers of several grids, complex
+        samples, VRTs whose sources are missing."""
+        ds = self._ds
+        if ds.count == 0:
+            subs = ds.subdatasets
+            if subs:
+                names = ", ".join(subs[:3]) + (", ..." if len(subs) > 3 else "")
+                raise DemError(
+                    f"{self.path} holds {len(subs)} grids, not one; name the elevation grid,"
+                    f" e.g. {names}"
+                )
+            raise DemError(f"{self.path} has no raster bands")
+        if "complex" in ds.dtypes[0]:
+            raise DemError(f"{self.path} has complex samples; a DEM needs real heights")
+        if ds.driver == "VRT":
+            for f in ds.files[1:]:
+                if not f.startswith("/vsi") and not os.path.exists(f):
+                    raise DemError(f"{self.path} refers to {f}, which does not exist")
+
+    def _check_latitudes(self) -> None:
+        """Sample centres of a geographic raster must lie within +-90 degrees of latitude.
+
+        GDAL's edges of a node grid that has rows on the poles (netCDF GEBCO/ETOPO) stick out
+        half a cell past +-90: that is fine, the centres are on the poles. Centres beyond mean
+        the georeferencing is not lon/lat degrees at all, so the raster is refused rather than
+        clipped (clipping would silently place its rows at wrong latitudes).
+        """
+        ds, t = self._ds, self._ds.transform
+        lats = [(t @ (c, r))[1] for c in (0.5, ds.width - 0.5) for r in (0.5, ds.height - 0.5)]
+        tol = max(1e-9, 1e-6 * math.hypot(t.d, t.e))
+        worst = max(lats, key=abs)
+        if abs(worst) > 90.0 + tol:
+            raise DemError(
+                f"{self.path} places samples at latitude {worst:.6g}, beyond +-90 degrees: its"
+                f" georeferencing is not lon/lat degrees (wrong CRS {_crs_label(self.crs)}?"
+                " supply one with --crs)"
+            )
 
     def _blocks(self) -> Iterator[Window]:
         rows = max(1, _SCAN_BLOCK_PIXELS // self._ds.width)
         for r0 in range(0, self._ds.height, rows):
             yield Window(0, r0, self._ds.width, min(rows, self._ds.height - r0))
 
-    def _scan_values(self) -> tuple[float | None, float, float, bool]:
-        """Detect an undeclared fill value and the value range over valid data.
+    def _scan_values(self) -> tuple[tuple[float, ...], int, int, float, float, bool]:
+        """One pass over band 1: undeclared fills, masked samples and the valid value range.
 
-        A candidate (the dtype's extremes or a common fill) is a fill when it occurs, has a
-        magnitude of at least 9999 and lies outside the range of all other valid values: a real
-        elevation of -9999 m amid bathymetry reaching -10 000 m is data, not fill.
+        Returns (fill values, samples holding them, masked samples, vmin, vmax, exact), the
+        range in metres. A candidate (a conventional fill or a dtype extreme) present in the
+        data is an undeclared fill when it is not a possible height (it would be masked anyway:
+        it is then reported as the fill it is), or when it is an exact-repeat plateau of at
+        least `_MIN_FILL_PLATEAU` samples set apart from all other data by a clear gap: -999 in
+        a DEM of heights 100..2000 is fill; -999 amid depths reaching -5 000 m, or next to
+        -998, is data. Values that are only possible heights (0, -28, -430) are never
+        candidates, so flat lakes and the Dead Sea stay. A dtype extreme that is a possible
+        height (0 of uint16, -128 of int8) is not a candidate either: it cannot be told
+        from a real sea level or shallow depth.
         """
         ds = self._ds
         dtype = np.dtype(ds.dtypes[0])
         cands = set(_COMMON_FILLS)
         if dtype.kind in "iu":
             info = np.iinfo(dtype)
-            cands |= {float(info.min), float(info.max)}
-        elif dtype.kind == "f":
-            cands |= {float(np.finfo(dtype).min), float(np.finfo(dtype).max)}
+            ext = {float(info.min), float(info.max)}
+        else:
+            ext = {float(np.finfo(dtype).min), float(np.finfo(dtype).max)}
+        cands |= {c for c in ext if not self._possible(c)}
         if self.nodata is not None:
             cands.discard(self.nodata)
-        cand_arr = np.array(
-            sorted(c for c in cands if abs(c) >= _MIN_FILL_MAGNITUDE), dtype=np.float64
-        )
+        cand_arr = np.array(sorted(cands), dtype=np.float64)
         exact = ds.width * ds.height <= EXACT_RANGE_MAX_PIXELS
         if exact:
             arrays: Iterator[np.ndarray] = (self._read_raw(w) for w in self._blocks())
@@ -268,29 +494,59 @@ class Dem:
             shape = (max(2, int(ds.height / f)), max(2, int(ds.width / f)))
             arrays = iter([self._read_raw(None, out_shape=shape)])
         counts = np.zeros(cand_arr.size, dtype=np.int64)
+        masked = 0
         lo, hi = math.inf, -math.inf
         for a in arrays:
-            v = a[np.isfinite(a)]
+            v = a[~np.isnan(a)]  # NaN is nodata by convention: not counted as masked
             if self.nodata is not None:
                 v = v[v != self.nodata]
             is_c = np.isin(v, cand_arr)
-            if cand_arr.size:
+            if cand_arr.size and is_c.any():
                 counts += np.count_nonzero(v[is_c, None] == cand_arr[None, :], axis=0)
-            rest = v[~is_c]
-            if rest.size:
-                lo, hi = min(lo, float(rest.min())), max(hi, float(rest.max()))
-        fill = None
-        for c, n in zip(cand_arr, counts, strict=True):
-            if n and not (lo <= c <= hi):
-                fill = float(c)
-                break
-        # Other present candidates that are not fills are real data and widen the range.
-        for c, n in zip(cand_arr, counts, strict=True):
-            if n and (fill is None or c != fill):
-                lo, hi = min(lo, float(c)), max(hi, float(c))
+            h = self._to_metres(v[~is_c])
+            ok = (h >= MIN_HEIGHT_M) & (h <= MAX_HEIGHT_M)  # False for +-inf and NaN
+            masked += int(h.size - np.count_nonzero(ok))
+            if ok.any():
+                lo, hi = min(lo, float(h[ok].min())), max(hi, float(h[ok].max()))
+        fills: list[tuple[int, float]] = []
+        present = [(float(c), int(n)) for c, n in zip(cand_arr, counts, strict=True) if n]
+        for c, n in present:
+            if not self._possible(c) or self._is_fill_plateau(c, n, lo, hi):
+                fills.append((n, c))
+        # Candidates that are not fills are real data: they widen the range.
+        for c, _n in present:
+            if all(c != fc for _, fc in fills):
+                h = float(self._to_metres(np.array([c]))[0])
+                lo, hi = min(lo, h), max(hi, h)
         if not math.isfinite(lo):
-            raise DemError(f"{self.path} holds no valid data (every pixel is nodata or NaN)")
-        return fill, lo, hi, exact
+            raise DemError(
+                f"{self.path} holds no valid data (every pixel is nodata, NaN, fill or"
+                f" {_LIMITS_TEXT})"
+            )
+        fills.sort(key=lambda nc: (-nc[0], nc[1]))
+        fill_values = tuple(c for _, c in fills)
+        return fill_values, sum(n for n, _ in fills), masked, lo, hi, exact
+
+    def _to_metres(self, raw: np.ndarray) -> np.ndarray:
+        """Stored values -> heights in metres (scale, offset and vertical units applied)."""
+        if self._scale == 1.0 and self._offset == 0.0:
+            return raw
+        with np.errstate(over="ignore", invalid="ignore"):
+            return raw * self._scale + self._offset
+
+    def _possible(self, raw: float) -> bool:
+        """Whether a stored value is a physically possible height."""
+        h = float(self._to_metres(np.array([raw], dtype=np.float64))[0])
+        return MIN_HEIGHT_M <= h <= MAX_HEIGHT_M
+
+    def _is_fill_plateau(self, raw: float, n: int, lo: float, hi: float) -> bool:
+        """Whether a possible-height candidate (-999, -9999) present n times is a fill: a
+        plateau set apart from the other data's range lo..hi (metres) by a clear gap."""
+        if n < _MIN_FILL_PLATEAU or not math.isfinite(lo):
+            return False
+        h = float(self._to_metres(np.array([raw], dtype=np.float64))[0])
+        gap = lo - h if h < lo else h - hi if h > hi else 0.0
+        return gap >= max(_MIN_FILL_GAP_M, _MIN_FILL_GAP_FRACTION * (hi - lo))
 
     def _read_raw(
         self, window: Window | None, out_shape: tuple[int, int] | None = None
@@ -312,13 +568,16 @@ class Dem:
         return self._info
 
     def _footprint_native(self) -> tuple[float, float, float, float]:
-        """(left, bottom, right, top) of where samples are, in the source CRS."""
+        """(left, bottom, right, top) of where samples are, in the source CRS.
+
+        From the four corners through the geotransform, so rotated and south-up grids get
+        their true extent (rasterio's ``bounds`` assume a north-up grid).
+        """
         ds = self._ds
-        left, bottom, right, top = ds.bounds
-        if self.pixel_is_point:
-            hx, hy = abs(self.transform.a) / 2.0, abs(self.transform.e) / 2.0
-            left, right, bottom, top = left + hx, right - hx, bottom + hy, top - hy
-        return left, bottom, right, top
+        h = 0.5 if self.pixel_is_point else 0.0
+        corners = [self.transform @ (c, r) for c in (h, ds.width - h) for r in (h, ds.height - h)]
+        xs, ys = zip(*corners)
+        return min(xs), min(ys), max(xs), max(ys)
 
     def _make_info(self) -> DemInfo:
         ds = self._ds
@@ -368,7 +627,11 @@ class Dem:
             res_deg = (dx, dy)
         reaches_pole = north >= 90.0 - dy * 1.0001 or south <= -90.0 + dy * 1.0001
         crs_txt = _crs_label(self.crs)
-        units = ds.units[0] if ds.units and ds.units[0] else ds.tags().get("UNITS") or None
+        res_crs_m = None
+        if not self.crs.is_geographic:
+            t = self.transform
+            unit = float(self.crs.linear_units_factor[1]) if self.crs.linear_units else 1.0
+            res_crs_m = (math.hypot(t.a, t.d) * unit, math.hypot(t.b, t.e) * unit)
         return DemInfo(
             path=str(self.path),
             driver=ds.driver,
@@ -385,11 +648,17 @@ class Dem:
             vmin=self.vmin,
             vmax=self.vmax,
             range_exact=self.range_exact,
-            vertical_units=units,
+            vertical_units=self.vertical_units,
             pixel_is_point=self.pixel_is_point,
             crosses_antimeridian=bool(crosses),
             reaches_pole=bool(reaches_pole),
             wraps_longitude=bool(self.wraps_longitude),
+            fill_values=self.fill_values,
+            fill_samples=self.fill_samples,
+            masked_samples=self.masked_samples,
+            crs_assumed=self.crs_assumed,
+            height_scale_m=self.height_scale_m,
+            res_crs_m=res_crs_m,
         )
 
     # ---- reading -------------------------------------------------------------------------
@@ -581,18 +850,22 @@ class Dem:
         return arr, win_t
 
     def _read_window(self, window: Window, f: int) -> np.ndarray:
-        """Band 1 of a window as float32, decimated by f, nodata and fill as NaN."""
+        """Band 1 of a window as float32 metres, decimated by f; nodata, undeclared fills,
+        +-inf and impossible heights as NaN."""
         shape = (max(1, math.ceil(window.height / f)), max(1, math.ceil(window.width / f)))
-        # Averaging would mix an undeclared fill into real heights: use nearest then.
-        rs = Resampling.nearest if (f == 1 or self.fill_value is not None) else Resampling.average
+        # Averaging would mix a fill or a garbage value into real heights: use nearest then.
+        clean = not self.fill_values and not self.masked_samples
+        rs = Resampling.average if (f > 1 and clean) else Resampling.nearest
         try:
             a = self._ds.read(1, window=window, out_shape=shape, resampling=rs, masked=True)
         except rasterio.errors.RasterioError as exc:
             raise DemError(f"{self.path} is corrupt or truncated: {_short(exc)}") from None
-        arr = a.astype(np.float32).filled(np.nan)
-        if self.fill_value is not None:
-            arr[arr == np.float32(self.fill_value)] = np.nan
-        return arr
+        raw = a.astype(np.float64).filled(np.nan)
+        if self.fill_values:
+            raw[np.isin(raw, self.fill_values)] = np.nan
+        h = self._to_metres(raw)
+        h[~((h >= MIN_HEIGHT_M) & (h <= MAX_HEIGHT_M))] = np.nan
+        return h.astype(np.float32)
 
     def _clean(self, arr: np.ndarray) -> np.ndarray:
         """Fill interior voids: NaN regions that do not touch the edge of what was read."""

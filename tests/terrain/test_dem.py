@@ -270,7 +270,7 @@ def test_no_crs_says_how_to_supply_one(tmp_path: Path) -> None:
 def test_invalid_crs_override(tmp_path: Path) -> None:
     arr = np.ones((10, 10), dtype=np.float32)
     p = _write(tmp_path / "a.tif", arr, crs="EPSG:4326", transform=Affine(1, 0, 0, 0, -1, 10))
-    assert "not a valid CRS" in _bad_dem_error(p, crs="EPSG:nonsense")
+    assert "unknown CRS 'EPSG:nonsense'" in _bad_dem_error(p, crs="EPSG:nonsense")
 
 
 def test_all_nodata_and_all_nan(tmp_path: Path) -> None:
