@@ -278,12 +278,28 @@ def _short(exc: BaseException) -> str:
 
 # GDAL connection strings (NETCDF:"f.nc":z, HDF5:..., /vsizip/a.zip/b.tif) name no plain file.
 _GDAL_NAME = re.compile(r"^(/vsi[a-z0-9_]+/|[A-Za-z][A-Za-z0-9_]+:)")
+# Subdataset prefixes that are not driver names.
+_SUBDATASET_PREFIXES = {"HDF4_SDS", "HDF4_EOS", "HDF5", "GTIFF_DIR", "NITF_IM", "NETCDF"}
+
+
+def _is_gdal_name(text: str) -> bool:
+    """Whether a path is a GDAL connection string: /vsi... or DRIVER:... with a prefix GDAL
+    knows (a file that merely has a colon in its name is not one)."""
+    m = _GDAL_NAME.match(text)
+    if not m:
+        return False
+    if text.startswith("/vsi"):
+        return True
+    prefix = m.group(1)[:-1].upper()
+    with rasterio.Env() as env:
+        drivers = {d.upper() for d in env.drivers()}
+    return prefix in drivers or prefix in _SUBDATASET_PREFIXES
 
 
 def _check_path(path: Path) -> None:
     """One-line DemError for a path that cannot be a DEM file: missing, a dangling link or a
     link loop, a directory, empty, or not a regular file (a FIFO would block GDAL's open)."""
-    if _GDAL_NAME.match(str(path)):
+    if not os.path.lexists(path) and _is_gdal_name(str(path)):
         return
     try:
         st = os.stat(path)
@@ -520,8 +536,8 @@ class Dem:
                 lo, hi = min(lo, h), max(hi, h)
         if not math.isfinite(lo):
             raise DemError(
-                f"{self.path} holds no valid data (every pixel is nodata, NaN, fill or"
-                f" {_LIMITS_TEXT})"
+                f"{self.path} holds no valid data (every pixel is nodata, a fill, NaN, infinite"
+                f" or outside {MIN_HEIGHT_M:.0f}..{MAX_HEIGHT_M:.0f} m)"
             )
         fills.sort(key=lambda nc: (-nc[0], nc[1]))
         fill_values = tuple(c for _, c in fills)

@@ -409,3 +409,55 @@ def test_gcp_only_raster_refused(tmp_path: Path) -> None:
     ) as ds:
         ds.write(BASE[None])
     assert "ground control points" in _error(p)
+
+
+def test_vertical_crs_in_us_feet(tmp_path: Path) -> None:
+    # WGS 84 + NAVD88 height (ftUS): the vertical CRS declares the unit, not the band
+    import pyproj
+    from rasterio.crs import CRS
+
+    crs = CRS.from_wkt(pyproj.CRS("EPSG:4326+6360").to_wkt())
+    p = _write(tmp_path / "navd88ft.tif", np.full((100, 100), 20_000.0, np.float32), crs=crs)
+    with open_dem(p) as dem:
+        assert dem.info.masked_samples == 0
+        assert dem.info.vmax == pytest.approx(20_000 * 1200 / 3937)
+    np.testing.assert_allclose(_grid(p), 20_000 * 1200 / 3937, rtol=1e-6)
+
+
+def test_netcdf_with_several_grids_names_them(tmp_path: Path) -> None:
+    p = tmp_path / "two.nc"
+    with MemoryFile() as mf:
+        with mf.open(
+            driver="GTiff",
+            height=18,
+            width=36,
+            count=2,
+            dtype="float32",
+            transform=Affine(10, 0, -180, 0, -10, 90),
+        ) as ds:
+            ds.write(np.stack([np.full((18, 36), 5.0), np.full((18, 36), 7.0)]).astype("f4"))
+        with mf.open() as src:
+            rasterio.shutil.copy(src, p, driver="netCDF")
+    msg = _error(p)
+    assert "holds 2 grids" in msg and f"netcdf:{p}:Band1" in msg
+    # the connection string it suggests opens the one grid (GDAL names are not plain files)
+    with open_dem(f'NETCDF:"{p}":Band2') as dem:
+        assert dem.info.crs_assumed == "CF lat/lon axes" and dem.info.vmax == 7.0
+
+
+def test_colon_in_a_missing_file_name_is_not_a_gdal_name(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    p = Path("a:b.tif")  # relative, like `globeview info a:b.tif`
+    assert _error(p) == "DEM file not found: a:b.tif"
+    _write(p, BASE)
+    with open_dem(p) as dem:
+        assert dem.info.vmax == 2080
+
+
+def test_all_garbage_is_no_valid_data(tmp_path: Path) -> None:
+    a = np.full((10, 10), np.inf, np.float32)
+    a[:5] = 1e30
+    msg = _error(_write(tmp_path / "garbage.tif", a))
+    assert "holds no valid data" in msg and "-12000..9000 m" in msg
