@@ -1,5 +1,6 @@
-"""Errors never crash the window: user errors show their one-line message, bugs show
-"Unexpected error" with the details folded away, and everything goes to the log.
+"""Errors never crash the window: user errors show their one-line message, bugs show one
+line, "Unexpected error (...); details in <log file>", and the traceback goes to that log
+file (never into a dialog, never onto stderr).
 
 `ErrorReporter` is the one place the UI reports problems. Its ``show`` callable (a modal
 message box by default) is injectable, so tests record messages instead of blocking on a
@@ -11,9 +12,11 @@ from __future__ import annotations
 
 import logging
 import sys
+import time
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from types import TracebackType
 
 from PyQt6.QtCore import QObject, pyqtSignal
@@ -22,6 +25,18 @@ from PyQt6.QtWidgets import QMessageBox, QWidget
 from globeview.errors import GlobeviewError
 
 log = logging.getLogger("globeview.ui")
+
+#: The log file's name, in globeview's cache folder (``$GLOBEVIEW_CACHE_DIR`` when set).
+LOG_NAME = "globeview.log"
+#: The log file is started again once it grows past this many bytes.
+LOG_MAX_BYTES = 1 << 20
+
+
+def default_log_file() -> Path:
+    """Where the window writes tracebacks: ``<cache dir>/globeview.log``."""
+    from globeview.terrain.embedded import cache_dir
+
+    return cache_dir() / LOG_NAME
 
 
 @dataclass(frozen=True)
@@ -33,17 +48,34 @@ class UserMessage:
     details: str = ""
 
 
-def describe(exc: BaseException, context: str = "") -> UserMessage:
-    """The message shown for ``exc``: a `GlobeviewError`'s own one-line text, or "Unexpected
-    error" with the traceback as details for anything else (a bug)."""
+def describe(exc: BaseException, context: str = "", log_file: Path | None = None) -> UserMessage:
+    """The message shown for ``exc``: a `GlobeviewError`'s own one-line text, or for anything
+    else (a bug) "Unexpected error (Type: message)" naming ``log_file``, where the traceback
+    is written (`ErrorReporter.error` writes it). The text is always one line; the dialog
+    never carries a traceback."""
     prefix = f"{context}: " if context else ""
     if isinstance(exc, GlobeviewError):
         line = " ".join(str(exc).split()) or type(exc).__name__
         return UserMessage("globeview", prefix + line)
-    details = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
     summary = " ".join(str(exc).split())
     text = f"{prefix}Unexpected error ({type(exc).__name__}{': ' + summary if summary else ''})"
-    return UserMessage("globeview: unexpected error", text, details)
+    where = f"details in {log_file}" if log_file is not None else "details in the log"
+    return UserMessage("globeview: unexpected error", f"{text}; {where}")
+
+
+def write_traceback(log_file: Path, exc: BaseException, text: str) -> bool:
+    """Append ``text`` and ``exc``'s traceback to ``log_file`` (starting it again past
+    `LOG_MAX_BYTES`); returns False when the file cannot be written."""
+    tb = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
+    stamp = time.strftime("%Y-%m-%d %H:%M:%S")
+    try:
+        log_file.parent.mkdir(parents=True, exist_ok=True)
+        mode = "w" if log_file.exists() and log_file.stat().st_size > LOG_MAX_BYTES else "a"
+        with log_file.open(mode, encoding="utf-8") as f:
+            f.write(f"{stamp} ERROR {text}\n{tb}\n")
+    except OSError:
+        return False
+    return True
 
 
 def message_box(parent: QWidget | None, msg: UserMessage) -> None:
@@ -60,6 +92,8 @@ class ErrorReporter(QObject):
     Args:
         show: called with each modal `UserMessage` (default: `message_box`).
         parent: the widget dialogs belong to.
+        log_file: where tracebacks of unexpected errors go (default: `default_log_file`,
+            decided on first use); user errors are logged there as one line too.
 
     Signals:
         notified(str): a non-modal one-line notice (the status bar shows it).
@@ -73,20 +107,37 @@ class ErrorReporter(QObject):
         self,
         show: Callable[[UserMessage], None] | None = None,
         parent: QWidget | None = None,
+        log_file: Path | None = None,
     ) -> None:
         super().__init__(parent)
         self._parent = parent
         self.show: Callable[[UserMessage], None] = show or (lambda m: message_box(parent, m))
         self.history: list[UserMessage] = []
         self._showing = False
+        self._log_file = log_file
+
+    @property
+    def log_file(self) -> Path:
+        """The log file tracebacks go to."""
+        if self._log_file is None:
+            self._log_file = default_log_file()
+        return self._log_file
 
     def error(self, exc: BaseException, context: str = "") -> UserMessage:
-        """Report an exception in a dialog (and the log)."""
-        msg = describe(exc, context)
+        """Report an exception in a dialog (one line) and the log; a bug's traceback goes to
+        the log file only."""
         if isinstance(exc, GlobeviewError):
+            msg = describe(exc, context)
             log.warning("%s", msg.text)
+            self._log_line(msg.text)
         else:
-            log.error("%s\n%s", msg.text, msg.details)
+            msg = describe(exc, context, self.log_file)
+            if not write_traceback(self.log_file, exc, msg.text):
+                # The log file cannot be written: the traceback goes to the logger instead.
+                msg = describe(exc, context)
+                log.error("%s", msg.text, exc_info=exc)
+            else:
+                log.error("%s", msg.text)
         self._record(msg)
         if not self._showing:  # never stack dialogs when one error triggers another
             self._showing = True
@@ -99,9 +150,18 @@ class ErrorReporter(QObject):
     def notify(self, text: str) -> None:
         """A non-modal notice: one line in the status bar and the log."""
         log.warning("%s", text)
+        self._log_line(text)
         msg = UserMessage("globeview", text)
         self._record(msg)
         self.notified.emit(text)
+
+    def _log_line(self, text: str) -> None:
+        try:
+            self.log_file.parent.mkdir(parents=True, exist_ok=True)
+            with self.log_file.open("a", encoding="utf-8") as f:
+                f.write(f"{time.strftime('%Y-%m-%d %H:%M:%S')} WARNING {text}\n")
+        except OSError:
+            pass  # the logger has it; a read-only cache must not break error reporting
 
     def _record(self, msg: UserMessage) -> None:
         self.history.append(msg)

@@ -116,9 +116,46 @@ def test_excepthook_shows_errors_instead_of_aborting(make_window, errors_shown):
     finally:
         sys.excepthook = previous
     assert errors_shown[0].text == "x.tif has no CRS" and not errors_shown[0].details
-    assert errors_shown[1].text.startswith("Unexpected error")
-    assert "Traceback" in errors_shown[1].details and "Traceback" not in errors_shown[1].text
+    # A bug: one line naming the log file; the traceback goes there, never into the dialog.
+    bug = errors_shown[1]
+    assert bug.text.startswith("Unexpected error (ZeroDivisionError: division by zero)")
+    assert "\n" not in bug.text and "Traceback" not in bug.text and not bug.details
+    log_file = win.errors.log_file
+    assert f"details in {log_file}" in bug.text
+    logged = log_file.read_text()
+    assert "Traceback" in logged and "ZeroDivisionError: division by zero" in logged
+    assert "x.tif has no CRS" in logged and logged.count("Traceback") == 1
     assert win.isVisible()
+
+
+def test_excepthook_in_a_qt_slot_reaches_the_reporter_not_stderr(make_window, errors_shown, capfd):
+    """An exception escaping a real Qt slot (a timer callback) goes through the hook: one
+    dialog line, the traceback in the log file, nothing on stderr."""
+    from PyQt6.QtCore import QTimer
+    from PyQt6.QtWidgets import QApplication
+
+    from globeview.ui.errors import install_excepthook
+
+    win = make_window()
+    capfd.readouterr()
+    previous = install_excepthook(win.errors)
+
+    def slot() -> None:
+        {}["missing key"]
+
+    try:
+        QTimer.singleShot(0, slot)
+        for _ in range(20):
+            QApplication.processEvents()
+            if errors_shown:
+                break
+    finally:
+        sys.excepthook = previous
+    assert len(errors_shown) == 1
+    assert errors_shown[0].text.startswith("Unexpected error (KeyError")
+    assert "details in" in errors_shown[0].text and not errors_shown[0].details
+    assert "missing key" in win.errors.log_file.read_text()
+    assert "Traceback" not in capfd.readouterr().err
 
 
 def test_gui_without_display_prints_one_line(tmp_path):
