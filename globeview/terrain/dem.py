@@ -236,7 +236,8 @@ class DemInfo:
                 f"  {label} {vals} (undeclared; treated as nodata; {self.fill_samples} samples)"
             )
         if self.masked_samples:
-            lines.append(f"  masked      {self.masked_samples} samples ({_LIMITS_TEXT})")
+            about = "" if self.range_exact else "~"  # counted in the decimated read
+            lines.append(f"  masked      {about}{self.masked_samples} samples ({_LIMITS_TEXT})")
         lines.append(f"  heights     {self.vmin:.6g} .. {self.vmax:.6g} {units}{approx}")
         if self.band_count > 1:
             lines.append(f"  bands       {self.band_count}; band 1 is used as elevation")
@@ -513,7 +514,8 @@ class Dem:
         masked = 0
         lo, hi = math.inf, -math.inf
         for a in arrays:
-            v = a[~np.isnan(a)]  # NaN is nodata by convention: not counted as masked
+            # NaN is nodata by convention: not counted as masked (integers have none).
+            v = a[~np.isnan(a)] if dtype.kind == "f" else a.ravel()
             if self.nodata is not None:
                 v = v[v != self.nodata]
             is_c = np.isin(v, cand_arr)
