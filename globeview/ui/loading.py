@@ -13,8 +13,10 @@ keyword whose exception aborts the build, this loader uses it (see `_ingest_kwar
 
 from __future__ import annotations
 
+import errno
 import inspect
 import logging
+import os
 import threading
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -30,6 +32,21 @@ log = logging.getLogger("globeview.ui")
 
 class LoadCancelled(Exception):
     """Raised inside the worker (through the progress hook) to abort an ingest."""
+
+
+def missing_path_error(path: str | Path) -> GlobeviewError:
+    """The one-line error for a path that cannot be opened because it does not resolve: a
+    symbolic link loop, a dangling symbolic link, or a plain missing file."""
+    p = Path(path)
+    if p.is_symlink():
+        try:
+            p.resolve(strict=True)
+        except (RuntimeError, OSError) as exc:
+            # A loop: RuntimeError up to Python 3.12, OSError(ELOOP) from 3.13.
+            if isinstance(exc, RuntimeError) or exc.errno == errno.ELOOP:
+                return GlobeviewError(f"{p} is a symbolic link loop (it never reaches a file)")
+            return GlobeviewError(f"{p} is a broken symbolic link (to {os.readlink(p)})")
+    return GlobeviewError(f"file not found: {p}")
 
 
 def open_store(path: str | Path, on_progress=None) -> TileStore:
@@ -48,7 +65,7 @@ def open_store(path: str | Path, on_progress=None) -> TileStore:
             return TileStore.open(p)
         raise GlobeviewError(f"{p} is a folder but not a globeview tile store")
     if not p.exists():
-        raise GlobeviewError(f"file not found: {p}")
+        raise missing_path_error(p)
     out = store_path_for(p)
     out.parent.mkdir(parents=True, exist_ok=True)
     ingest([p], out, **_ingest_kwargs(ingest, on_progress))

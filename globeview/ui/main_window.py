@@ -53,7 +53,7 @@ from globeview.terrain.store import TileStore
 from globeview.ui.errors import ErrorReporter, UserMessage
 from globeview.ui.globe_widget import GlobeWidget
 from globeview.ui.layer_panel import LayerPanel
-from globeview.ui.loading import DemLoader
+from globeview.ui.loading import DemLoader, missing_path_error
 from globeview.ui.plugin_host import PluginHost, QSettingsBackend
 from globeview.ui.plugin_panel import PluginPanel
 from globeview.ui.status import StatusBar
@@ -694,7 +694,7 @@ def classify_path(path: str | Path) -> str:
     if p.is_dir():
         return "dem"
     if not p.exists():
-        raise GlobeviewError(f"file not found: {p}")
+        raise missing_path_error(p)
     if p.suffix.lower() in (".hgt", ".dem", ".bil", ".dt0", ".dt1", ".dt2", ".nc"):
         return "dem"
     kind = detect_layer_type(p)

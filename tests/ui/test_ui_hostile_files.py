@@ -1,0 +1,230 @@
+"""Hostile input through the window's open path (issue #13), under a real display.
+
+Every bad file opened the way File > Open, drag and drop and the command line open files
+(`MainWindow.open_paths`) must give exactly one one-line message (no "Unexpected error", no
+traceback on stderr), leave nothing half-written in the cache, never touch a user's folder,
+and the globe must keep drawing afterwards. Inputs are made here with rasterio and numpy.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.gui
+
+#: Longest a bad file may take to be refused (the ingest of a tiny raster takes ~1 s).
+REFUSE_TIMEOUT_MS = 60000
+
+
+def _write_tif(path: Path, z: np.ndarray, crs: str | None = "EPSG:4326", **kw) -> Path:
+    import rasterio
+    from affine import Affine
+
+    h, w = z.shape
+    with rasterio.open(
+        path,
+        "w",
+        driver="GTiff",
+        width=w,
+        height=h,
+        count=1,
+        dtype=z.dtype,
+        crs=crs,
+        transform=Affine(1.0 / w, 0.0, 10.0, 0.0, -1.0 / h, 46.0),
+        **kw,
+    ) as ds:
+        ds.write(z, 1)
+    return path
+
+
+def _hill(n: int = 64) -> np.ndarray:
+    yy, xx = np.mgrid[0:n, 0:n]
+    r2 = (xx - n / 2) ** 2 + (yy - n / 2) ** 2
+    return (1500.0 * np.exp(-r2 / (2 * (n / 6) ** 2))).astype(np.float32)
+
+
+def _vrt(path: Path, width: int, height: int, source: str | None) -> Path:
+    src = ""
+    if source is not None:
+        src = (
+            "<SimpleSource><SourceFilename relativeToVRT='0'>"
+            f"{source}</SourceFilename><SourceBand>1</SourceBand></SimpleSource>"
+        )
+    path.write_text(
+        f'<VRTDataset rasterXSize="{width}" rasterYSize="{height}">'
+        "<SRS>EPSG:4326</SRS>"
+        f"<GeoTransform>-180, {360.0 / width!r}, 0, 90, 0, {-180.0 / height!r}</GeoTransform>"
+        f'<VRTRasterBand dataType="Float32" band="1">{src}</VRTRasterBand>'
+        "</VRTDataset>"
+    )
+    return path
+
+
+def _damaged_store(tmp: Path) -> Path:
+    """A real store whose finest level file was swapped for another valid GeoTIFF."""
+    from globeview.terrain.ingest import ingest
+
+    store = tmp / "hill_store"
+    ingest([_write_tif(tmp / "hill_src.tif", _hill(256))], store)
+    levels = sorted(store.glob("level_*.tif"))
+    assert len(levels) >= 2
+    _write_tif(levels[-1], np.full((300, 200), 7.0, np.float32))
+    return store
+
+
+def _symlink_loop(tmp: Path) -> Path:
+    a, b = tmp / "loop_a.tif", tmp / "loop_b.tif"
+    a.symlink_to(b)
+    b.symlink_to(a)
+    return a
+
+
+def _unrelated_manifest(tmp: Path) -> Path:
+    folder = tmp / "my_project"
+    folder.mkdir()
+    (folder / "manifest.json").write_text('{"name": "my web app", "version": "1.2.3"}\n')
+    (folder / "notes.txt").write_text("my own notes\n")
+    return folder
+
+
+#: name -> function(tmp_path) -> the path to open.
+BAD_INPUTS: dict[str, Callable[[Path], Path]] = {
+    "zero-byte file": lambda t: (t / "empty.tif", (t / "empty.tif").write_bytes(b""))[0],
+    "text named .tif": lambda t: (
+        t / "notes.tif",
+        (t / "notes.tif").write_text("this is not a raster\n" * 20),
+    )[0],
+    "folder, not a store": lambda t: (t / "photos", (t / "photos").mkdir())[0],
+    "folder with an unrelated manifest.json": _unrelated_manifest,
+    "GeoTIFF without CRS": lambda t: _write_tif(t / "nocrs.tif", _hill(), crs=None),
+    "all-NaN raster": lambda t: _write_tif(t / "allnan.tif", np.full((64, 64), np.nan, np.float32)),
+    "complex raster": lambda t: _write_tif(
+        t / "complex.tif", (_hill() + 1j * _hill()).astype(np.complex64)
+    ),
+    "VRT of 2 000 000 x 1 000 000 pixels": lambda t: _vrt(
+        t / "huge.vrt", 2_000_000, 1_000_000, None
+    ),
+    "dangling VRT": lambda t: _vrt(t / "dangling.vrt", 64, 64, str(t / "gone.tif")),
+    "damaged store (level file swapped)": _damaged_store,
+    "symlink loop": _symlink_loop,
+    "unicode path, no CRS": lambda t: _write_tif(t / "Zürich_高度_💥.tif", _hill(), crs=None),
+}
+
+
+#: What the one line must say for some cases (lower case): the cause, in the user's terms.
+EXPECTED_WORDS = {
+    "folder, not a store": "not a globeview tile store",
+    "folder with an unrelated manifest.json": "not a globeview tile store",
+    "GeoTIFF without CRS": "coordinate reference system",
+    "all-NaN raster": "no valid data",
+    "complex raster": "complex",
+    "dangling VRT": "gone.tif",
+    "damaged store (level file swapped)": "re-run",
+    "symlink loop": "symbolic link loop",
+    "unicode path, no CRS": "coordinate reference system",
+}
+
+
+def _snapshot(folder: Path) -> dict[str, bytes]:
+    return {
+        str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()
+    }
+
+
+def _cache_leftovers(cache: Path) -> list[str]:
+    """Half-built stores (``.building-*``) anywhere under the cache."""
+    if not cache.exists():
+        return []
+    return sorted(str(p) for p in cache.rglob("*") if ".building-" in p.name)
+
+
+def _wait_refused(qtbot, win, n_before: int) -> None:
+    qtbot.waitUntil(
+        lambda: len(win.errors.history) > n_before and not win.loader.busy,
+        timeout=REFUSE_TIMEOUT_MS,
+    )
+
+
+@pytest.mark.parametrize("case", list(BAD_INPUTS))
+def test_bad_input_gives_one_line_and_the_globe_keeps_drawing(
+    case, make_window, errors_shown, wait_frame, qtbot, tmp_path, capfd
+):
+    inputs = tmp_path / "inputs"
+    inputs.mkdir()
+    path = BAD_INPUTS[case](inputs)
+    user_files = _snapshot(inputs)
+    win = make_window()
+    capfd.readouterr()  # start of the part under test
+    n_msgs, n_frames = len(win.errors.history), win.globe.frames
+    layers = [ly.name for ly in win.terrain.layers]
+
+    win.open_paths([str(path)])
+    _wait_refused(qtbot, win, n_msgs)
+
+    new = win.errors.history[n_msgs:]
+    assert len(new) == 1, [m.text for m in new]
+    msg = new[0]
+    assert "\n" not in msg.text and msg.text.strip()
+    assert "Unexpected error" not in msg.text and not msg.details, msg.text
+    assert path.name in msg.text, msg.text
+    assert EXPECTED_WORDS.get(case, "").lower() in msg.text.lower(), msg.text
+    assert errors_shown == [msg]  # the one message is the dialog's
+    assert [ly.name for ly in win.terrain.layers] == layers
+    # The user's files are untouched (every byte), and nothing half-built is left.
+    assert _snapshot(inputs) == user_files
+    assert _cache_leftovers(Path(os.environ["GLOBEVIEW_CACHE_DIR"])) == []
+    # The window keeps drawing: frames after the error, with terrain in them.
+    wait_frame(win)
+    wait_frame(win)
+    assert win.globe.frames >= n_frames + 2
+    assert win.globe.last_stats.triangles > 0
+    err = capfd.readouterr().err
+    assert "Traceback" not in err, err
+
+
+def test_unicode_path_dem_opens(make_window, qtbot, tmp_path, errors_shown):
+    path = _write_tif(tmp_path / "Zürich_高度_💥.tif", _hill())
+    win = make_window()
+    win.open_paths([str(path)])
+    qtbot.waitUntil(
+        lambda: path.stem in [ly.name for ly in win.terrain.layers], timeout=REFUSE_TIMEOUT_MS
+    )
+    assert errors_shown == []
+    assert win.recent_files()[0] == str(path)
+
+
+def test_cancelled_ingest_leaves_no_store_and_no_partial_folder(make_window, qtbot, tmp_path):
+    """Cancel from the status bar's Cancel button while the ingest is running: the worker
+    stops at its next progress step; no `.building-*` folder and no store remain."""
+    from globeview.terrain.embedded import store_path_for
+
+    # Big enough for many progress steps (each a window of work).
+    path = _write_tif(tmp_path / "bigger.tif", np.tile(_hill(256), (8, 8)))
+    win = make_window()
+    cancelled: list[str] = []
+    win.loader.cancelled.connect(cancelled.append)
+    loaded: list[str] = []
+    win.loader.loaded.connect(lambda p, _s: loaded.append(p))
+    progress: list[tuple[int, int]] = []
+
+    def on_progress(done: int, total: int) -> None:
+        progress.append((done, total))
+        if done >= 1 and win.cancel_button.isVisible():
+            win.cancel_button.click()  # as the user would
+
+    win.loader.progress.connect(on_progress)
+    win.open_paths([str(path)])
+    qtbot.waitUntil(lambda: bool(cancelled or loaded), timeout=REFUSE_TIMEOUT_MS)
+    qtbot.waitUntil(lambda: not win.loader.busy, timeout=REFUSE_TIMEOUT_MS)
+    assert cancelled == [str(path)] and loaded == []
+    assert any(t > 1 and d < t for d, t in progress), progress  # it was cancelled midway
+    cache = Path(os.environ["GLOBEVIEW_CACHE_DIR"])
+    assert _cache_leftovers(cache) == []
+    assert not store_path_for(path).exists()
+    assert "bigger" not in [ly.name for ly in win.terrain.layers]
+    assert win.load_bar.isHidden() and win.cancel_button.isHidden()
