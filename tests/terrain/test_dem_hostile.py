@@ -464,3 +464,12 @@ def test_all_garbage_is_no_valid_data(tmp_path: Path) -> None:
     a[:5] = 1e30
     msg = _error(_write(tmp_path / "garbage.tif", a))
     assert "holds no valid data" in msg and "-12000..9000 m" in msg
+
+
+def test_south_up_grid(tmp_path: Path) -> None:
+    # rows from south to north (positive y pixel size), as some ASCII and netCDF grids come
+    p = _write(tmp_path / "southup.tif", BASE, transform=Affine(0.01, 0, 5.0, 0, 0.01, 44.0))
+    with open_dem(p) as dem:
+        assert dem.info.bounds_lonlat == pytest.approx((5, 44, 6, 45))  # south < north
+        g = dem.read_grid(5.005, 44.995, 0.01, 0.01, 100, 100)
+    np.testing.assert_array_equal(g, BASE[::-1])
