@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -33,7 +34,8 @@ def run(args: argparse.Namespace) -> int:
         wavelet=args.wavelet,
         crs=args.crs,
         force=args.force,
-        progress=not args.quiet,
+        # A bar only on a terminal: piped or logged, tqdm's redraws would be many lines.
+        progress=not args.quiet and sys.stderr.isatty(),
     )
     if result.up_to_date:
         print(f"{result.path}: store is up to date")

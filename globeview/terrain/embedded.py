@@ -3,11 +3,12 @@ store in the user's cache directory (re-ingesting an unchanged source is a no-op
 
 from __future__ import annotations
 
+import hashlib
 import os
 from pathlib import Path
 
 from globeview.terrain.dem import embedded_dem_paths
-from globeview.terrain.store import TileStore
+from globeview.terrain.store import TileStore, identify
 
 
 def cache_dir() -> Path:
@@ -20,8 +21,12 @@ def cache_dir() -> Path:
 
 
 def store_path_for(source: Path) -> Path:
-    """Where the store of an ingested DEM lives in the cache."""
-    return cache_dir() / "stores" / source.stem
+    """Where the store of an ingested DEM lives in the cache: ``stores/STEM-HASH``, HASH a
+    short digest of the resolved absolute path, so a/dem.tif and b/dem.tif get two stores
+    (keyed by the stem alone, the second replaced the first while it was open)."""
+    resolved = Path(source).expanduser().resolve()
+    digest = hashlib.sha256(os.fsencode(resolved)).hexdigest()[:12]
+    return cache_dir() / "stores" / f"{resolved.stem}-{digest}"
 
 
 def open_or_ingest(source: Path, progress: bool = False) -> TileStore:
@@ -41,4 +46,4 @@ def embedded_stores(progress: bool = False) -> list[TileStore]:
 
 def embedded_stores_ready() -> bool:
     """Whether every embedded DEM already has a store in the cache (no ingest to wait for)."""
-    return all((store_path_for(p) / "manifest.json").exists() for p in embedded_dem_paths())
+    return all(identify(store_path_for(p)).is_current for p in embedded_dem_paths())

@@ -31,12 +31,17 @@ row to the same constant, so this is consistent with the pyramid.)
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import json
 import math
 import os
+import re
 import shutil
+import signal
+import sys
 import tempfile
+import threading
 import uuid
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -46,11 +51,31 @@ import numpy as np
 import rasterio
 from rasterio.windows import Window
 
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - not POSIX: no stale-build cleaning
+    fcntl = None  # type: ignore[assignment]
+
 from globeview import __version__
 from globeview.errors import DemError, StoreError
 from globeview.terrain.dem import Dem, open_dem
 from globeview.terrain.levels import LevelGrid, read_level_nodes
-from globeview.terrain.quadtree import DEFAULT_TILE_N, level_shape, tiles_covering
+from globeview.terrain.quadtree import (
+    DEFAULT_TILE_N,
+    level_shape,
+    tile_size_deg,
+    tiles_covering,
+)
+from globeview.terrain.store import (
+    FORMAT_VERSION,
+    MANIFEST_NAME,
+    RASTER_ERRORS,
+    STORE_FORMAT,
+    StoreIdentity,
+    identify,
+    is_store_file,
+    read_manifest,
+)
 from globeview.terrain.tile_errors import (
     cell_max,
     cell_min,
@@ -74,8 +99,6 @@ __all__ = [
     "ingest",
 ]
 
-FORMAT_VERSION = 2
-MANIFEST_NAME = "manifest.json"
 STRIDES = (2, 4, 8, 16, 32, 64)
 MAX_LEVEL_LIMIT = 22  # 180/2^22/64 degrees ~ 7 mm at the equator: far past any DEM
 TILE_N_RANGE = (1, 10)
@@ -146,7 +169,12 @@ def _column_mask(level: int, bounds: tuple[float, float, float, float], wraps: b
     w, s, e, n = bounds
     if wraps:
         w, e = -180.0, 180.0
-    xs, ys = tiles_covering(level, w, s, e, n)
+    # Columns and rows from two thin bands: the full product (tiles_covering's meshgrid) of
+    # a fine global level has hundreds of millions of tiles (GBs) before any size check.
+    eps = tile_size_deg(level) * 1e-3
+    mid = (s + n) / 2.0
+    xs, _ = tiles_covering(level, w, max(mid - eps, -90.0), e, min(mid + eps, 90.0))
+    _, ys = tiles_covering(level, w, s, w + min(eps, (e - w) % 360.0 or eps), n)
     mask = np.zeros(ncols, dtype=bool)
     mask[xs] = True
     return mask, int(ys.min()), int(ys.max())
@@ -238,6 +266,7 @@ class _Builder:
         self.grids = self._plan_extents()
         self.stats: dict[int, _LevelStats] = {}
         self.pole: dict[str, float | None] = {"north": None, "south": None}
+        self.writes = 0  # window writes so far (the fault-injection points)
 
     # -- planning ---------------------------------------------------------------------------
 
@@ -411,6 +440,8 @@ class _Builder:
                 # Write the half-open part; the last window row/column also writes its edge.
                 hh = h if by + kty == grid.ny else h - 1
                 ww = w if bx + ktx == grid.nx else w - 1
+                self.writes += 1
+                _fault_point(self.writes)
                 dst.write(arr[:hh, :ww], 1, window=Window(bx * s_n, by * s_n, ww, hh))
                 self.tick(1)
         st.pole = {k: (v if self._pole_row_in(grid, k) else None) for k, v in self.pole.items()}
@@ -528,6 +559,7 @@ class _Builder:
             )
         fine = self.grids[self.max_level]
         return {
+            "format": STORE_FORMAT,
             "format_version": FORMAT_VERSION,
             "created_by": f"globeview {__version__}",
             "sources": source_records,
@@ -574,31 +606,322 @@ def _union_bounds(sources: Sequence[_Source]) -> list[float]:
 
 
 # ---------------------------------------------------------------------------------------------
+# Safety: what --out is, build folders and their locks, GDAL's chatter, faults
+
+
+def _owned_by_cache(out: Path) -> bool:
+    """Whether ``out`` is one of globeview's cached stores (rebuilt silently on a format
+    change: globeview owns them)."""
+    from globeview.terrain.embedded import cache_dir
+
+    try:
+        return out.parent.resolve() == (cache_dir() / "stores").resolve()
+    except OSError:
+        return False
+
+
+def _check_target(out: Path, force: bool) -> StoreIdentity:
+    """What ``out`` is; StoreError when it must not be written (never modifies anything).
+
+    Only a positively identified globeview store (see `store.identify`) may be replaced,
+    and only one holding nothing but store files: a folder with somebody's manifest.json
+    and their files is refused, not one byte of it changes.
+    """
+    ident = identify(out)
+    if ident.kind == "file":
+        raise StoreError(f"{out} exists and is not a directory; choose another --out")
+    if ident.kind == "foreign":
+        raise StoreError(f"{out} is not a globeview store, refusing to overwrite it")
+    if ident.is_globeview and ident.extra is not None:
+        raise StoreError(
+            f"{out} is a globeview store but also holds {ident.extra!r}, which globeview did "
+            "not write; refusing to replace it"
+        )
+    if ident.is_globeview and not ident.is_current and not force and not _owned_by_cache(out):
+        v = ident.version
+        newer = isinstance(v, int) and not isinstance(v, bool) and v > FORMAT_VERSION
+        who = "a newer globeview" if newer else "an older globeview"
+        raise StoreError(
+            f"{out} is a store of {who} (format version {str(v)[:20]}; this one writes "
+            f"{FORMAT_VERSION}); rebuild it with --force"
+        )
+    return ident
+
+
+# Names of build leftovers next to a store NAME: .NAME.lock-T (held with flock while a build
+# runs), .NAME.building-T (the store being built), .NAME.old-T (the replaced store between the
+# two renames of a commit). Versions before the locks used mkdtemp's 8-character suffixes.
+_LEFTOVER = re.compile(r"^\.(?P<name>.+)\.(?P<kind>lock|building|old)-(?P<tok>[0-9a-f]{12})$")
+_LEGACY_LEFTOVER = re.compile(r"^\.(?P<name>.+)\.(?P<kind>building|old)-(?P<tok>[a-z0-9_]{8})$")
+
+
+def _leftover_path(parent: Path, name: str, kind: str, tok: str) -> Path:
+    return parent / f".{name}.{kind}-{tok}"
+
+
+def _only_store_files(d: Path) -> bool:
+    try:
+        return all(is_store_file(e.name) and e.is_file() for e in d.iterdir())
+    except OSError:
+        return False
+
+
+def _remove_store_dir(d: Path) -> None:
+    """Remove a store folder file by file, only the files globeview writes; a folder that
+    holds anything else is left as it is (never a user's file lost, even in a race)."""
+    try:
+        for e in d.iterdir():
+            if is_store_file(e.name) and e.is_file():
+                e.unlink()
+        d.rmdir()
+    except OSError:
+        pass
+
+
+def _try_lock(path: Path) -> int | None:
+    """fd holding an exclusive flock on ``path`` if nobody holds it, else None."""
+    try:
+        fd = os.open(path, os.O_RDWR)
+    except OSError:
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        # Still the same file (an owner deletes its lock last; a new one may reuse the name)?
+        if os.stat(path).st_ino == os.fstat(fd).st_ino:
+            return fd
+    except OSError:
+        pass
+    os.close(fd)
+    return None
+
+
+def clean_stale_builds(parent: Path) -> list[str]:
+    """Remove what dead ingests left in ``parent``; returns the names removed or restored.
+
+    Liveness is the build's flock: the kernel drops it when its process dies however it
+    dies (kill -9, OOM killer), so unlike a recorded pid it cannot be fooled by pid reuse
+    and needs no /proc. A live build's folders are never touched. A replaced store that a
+    dead commit left as .NAME.old-T is moved back when NAME is missing, else removed (store
+    files only).
+    """
+    if fcntl is None:
+        return []
+    try:
+        entries = [e.name for e in parent.iterdir()]
+    except OSError:
+        return []
+    tokens: dict[tuple[str, str], set[str]] = {}
+    for n in entries:
+        m = _LEFTOVER.match(n) or _LEGACY_LEFTOVER.match(n)
+        if m:
+            tokens.setdefault((m["name"], m["tok"]), set()).add(m["kind"])
+    done = []
+    for (name, tok), _kinds in sorted(tokens.items()):
+        lock = _leftover_path(parent, name, "lock", tok)
+        fd = _try_lock(lock) if lock.exists() else None
+        if lock.exists() and fd is None:
+            continue  # a live build (or one that just started): not ours to touch
+        try:
+            old = _leftover_path(parent, name, "old", tok)
+            if old.is_dir():
+                out = parent / name
+                if not out.exists() and not out.is_symlink():
+                    os.replace(old, out)
+                    done.append(f"restored {out}")
+                elif _only_store_files(old):
+                    _remove_store_dir(old)
+                    done.append(old.name)
+            building = _leftover_path(parent, name, "building", tok)
+            if building.is_dir() and _only_store_files(building):
+                shutil.rmtree(building, ignore_errors=True)
+                done.append(building.name)
+            if fd is not None:
+                lock.unlink(missing_ok=True)
+        except OSError:
+            pass
+        finally:
+            if fd is not None:
+                os.close(fd)
+    return done
+
+
+@contextlib.contextmanager
+def _build_folder(parent: Path, name: str) -> Iterator[tuple[Path, str]]:
+    """A fresh .NAME.building-T folder in ``parent`` and its token, locked while the context
+    lasts; the folder is removed on the way out (it is gone already after a commit)."""
+    fd = -1
+    for _ in range(20):
+        tok = uuid.uuid4().hex[:12]
+        lock = _leftover_path(parent, name, "lock", tok)
+        fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_RDWR, 0o644)
+        if fcntl is None:
+            break
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        try:
+            if os.stat(lock).st_ino == os.fstat(fd).st_ino:
+                break  # a cleaner did not remove it between our create and our lock
+        except FileNotFoundError:
+            pass
+        os.close(fd)
+        fd = -1
+    if fd < 0:
+        raise StoreError(f"cannot lock a build folder in {parent}")
+    building = _leftover_path(parent, name, "building", tok)
+    try:
+        building.mkdir()
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(building, 0o777 & ~umask)
+        yield building, tok
+    finally:
+        shutil.rmtree(building, ignore_errors=True)
+        lock.unlink(missing_ok=True)
+        os.close(fd)
+
+
+# GDAL's libtiff prints write errors ("_tiffWriteProc: No space left on device.") straight to
+# file descriptor 2 from its compression threads, bypassing rasterio's error handler and
+# CPL_LOG, so only a descriptor-level redirect keeps them off the terminal. What was
+# captured is replayed afterwards except these lines (anything else printed meanwhile, by
+# another thread of the process, still appears).
+_GDAL_NOISE = re.compile(r"^(_tiff\w+|TIFF\w+|ERROR \d+|Warning \d+|\w+\.tif:).*$")
+_stderr_lock = threading.Lock()
+_stderr_depth = 0
+_stderr_saved: int | None = None
+_stderr_file = None
+
+
+@contextlib.contextmanager
+def _gdal_quiet() -> Iterator[list[str]]:
+    """Redirect fd 2 for the block; yields a list that receives the dropped GDAL lines."""
+    global _stderr_depth, _stderr_saved, _stderr_file
+    dropped: list[str] = []
+    with _stderr_lock:
+        if _stderr_depth == 0:
+            try:
+                sys.stderr.flush()
+                _stderr_file = tempfile.TemporaryFile()  # noqa: SIM115 - closed on exit
+                _stderr_saved = os.dup(2)
+                os.dup2(_stderr_file.fileno(), 2)
+            except (OSError, ValueError):
+                _stderr_file, _stderr_saved = None, None
+        _stderr_depth += 1
+    try:
+        yield dropped
+    finally:
+        with _stderr_lock:
+            _stderr_depth -= 1
+            if _stderr_depth == 0 and _stderr_saved is not None and _stderr_file is not None:
+                with contextlib.suppress(OSError, ValueError):
+                    sys.stderr.flush()
+                os.dup2(_stderr_saved, 2)
+                os.close(_stderr_saved)
+                _stderr_file.seek(0)
+                text = _stderr_file.read().decode("utf-8", "replace")
+                _stderr_file.close()
+                _stderr_saved, _stderr_file = None, None
+                keep = []
+                for line in text.splitlines():
+                    (dropped if _GDAL_NOISE.match(line) else keep).append(line)
+                if keep:
+                    with contextlib.suppress(OSError, ValueError):
+                        sys.stderr.write("\n".join(keep) + "\n")
+
+
+def _tty_stderr() -> object | None:
+    """A stream on the real stderr (for the progress bar while fd 2 is redirected)."""
+    if _stderr_saved is None:
+        return None
+    return os.fdopen(os.dup(_stderr_saved), "w", closefd=True)
+
+
+# Fault injection for tests (works without root): GLOBEVIEW_INGEST_FAULT="KIND@N" makes the
+# N-th window write of a build (or the point named N, see `_fault_point`) fail: ENOSPC,
+# EROFS (OSError), INTERRUPT (KeyboardInterrupt) or KILL (SIGKILL to this process, as
+# `kill -9` at a known point).
+FAULT_ENV = "GLOBEVIEW_INGEST_FAULT"
+
+
+def _fault_point(point: int | str) -> None:
+    """Fail here if GLOBEVIEW_INGEST_FAULT names this point (a window-write count, or
+    "manifest" before the manifest is written, "commit" between a commit's two renames)."""
+    spec = os.environ.get(FAULT_ENV)
+    if not spec:
+        return
+    kind, _, at = spec.partition("@")
+    if at != str(point):
+        return
+    kind = kind.upper()
+    if kind in ("ENOSPC", "EROFS"):
+        code = getattr(errno, kind)
+        raise OSError(code, os.strerror(code))
+    if kind == "INTERRUPT":
+        raise KeyboardInterrupt
+    if kind == "KILL":
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
+def _disk_full(dropped: list[str], where: Path) -> bool:
+    """Whether a failed raster write was the disk filling up: libtiff said so, or there is
+    not room for one more compressed block."""
+    if any("No space left" in line or "Disk quota" in line for line in dropped):
+        return True
+    try:
+        st = os.statvfs(where)
+        return st.f_bavail * st.f_frsize < 1 << 20
+    except OSError:
+        return False
+
+
+def _store_megabytes(grids: dict[int, LevelGrid]) -> int:
+    """Uncompressed size of the level rasters, MB (an upper bound of what the store needs)."""
+    return max(1, math.ceil(sum(g.width * g.height * 4 for g in grids.values()) / 1e6))
+
+
+# Per-tile metadata: hmin/hmax/error/6 stride floats as float64 arrays during the build, then
+# as Python floats in nested lists and JSON text for the manifest (and again when a store is
+# opened). Measured ~600 bytes/tile at that peak (1 Mi tiles: 700 MB), so 512 Ki tiles
+# (~315 MB) keeps an ingest, with its 96 MB GDAL cache and windows, under the stated ~512 MB.
+MAX_TILES = 1 << 19
+_BYTES_PER_TILE = 600
+
+
+def _check_size(grids: dict[int, LevelGrid], sources: Sequence[_Source], tile_n: int) -> None:
+    """Refuse up front (one line) a pyramid whose tile metadata would not fit the bound."""
+    total = sum(g.nx * g.ny for g in grids.values())
+    if total <= MAX_TILES:
+        return
+    l_max = max(grids)
+    fit = max(
+        (
+            lv
+            for lv in range(l_max + 1)
+            if sum(grids[k].nx * grids[k].ny for k in range(lv + 1)) <= MAX_TILES
+        ),
+        default=0,
+    )
+    fine = grids[l_max]
+    src = min(sources, key=lambda s: s.res)
+    info = src.dem.info
+    gb = total * _BYTES_PER_TILE / 1e9
+    raise StoreError(
+        f"{src.path} is {info.width}x{info.height} pixels: its finest level {l_max} would have "
+        f"{fine.nx * fine.ny} tiles ({total} in all, about {gb:.1f} GB of metadata); the "
+        f"limit is {MAX_TILES} tiles: use --max-level {fit} or a larger --tile-n"
+    )
+
+
+# ---------------------------------------------------------------------------------------------
 # Public entry point
 
 
-def _check_target(out: Path) -> dict | None:
-    """Existing manifest of ``out`` if it is a store; None if absent/empty; StoreError if it
-    is something else."""
-    if not out.exists():
-        return None
-    if not out.is_dir():
-        raise StoreError(f"{out} exists and is not a directory; choose another --out")
-    manifest = out / MANIFEST_NAME
-    if not manifest.exists():
-        if any(out.iterdir()):
-            raise StoreError(
-                f"{out} exists and is not a globeview store (no {MANIFEST_NAME}); "
-                "refusing to overwrite it"
-            )
-        return None
-    try:
-        data = json.loads(manifest.read_text())
-        if not isinstance(data, dict) or "format_version" not in data:
-            raise ValueError
-        return data
-    except (ValueError, OSError, UnicodeDecodeError):
-        return {}  # a damaged store: rebuilt in place
+def _check_sources(paths: Sequence[Path]) -> None:
+    """One wording with `globeview.terrain.dem.open_dem` for missing files and folders."""
+    for p in paths:
+        if p.is_dir():
+            raise DemError(f"{p} is a directory, not a DEM file")
+        if not p.is_file():
+            raise DemError(f"DEM file not found: {p}")
 
 
 def ingest(
@@ -620,12 +943,13 @@ def ingest(
             where they overlap, the one with the finer pixels wins).
         out: store directory. Built in a temporary sibling and renamed into place when
             complete, so a failure never leaves a store that looks valid; an existing store is
-            kept intact until the new one is ready.
+            kept intact until the new one is ready. Only an empty folder or a globeview store
+            (holding nothing but store files) is ever replaced.
         tile_n: tiles have (2^tile_n + 1)^2 samples.
         max_level: finest level (default: from the finest source's resolution).
         wavelet: PyWavelets name of the low-pass used for coarser levels.
         crs: CRS for every source (overrides or supplies a missing one).
-        force: rebuild even if the store is up to date.
+        force: rebuild even if the store is up to date (or of another format version).
         progress: show a tqdm bar with ETA on stderr.
         on_progress: called as ``on_progress(done, total)`` after each window of work (for a
             GUI progress bar); an exception it raises aborts the build (cancel) and, like any
@@ -633,7 +957,8 @@ def ingest(
 
     Raises:
         DemError: a source cannot be used (unreadable, no CRS, all nodata, ...).
-        StoreError: bad parameters or an output location that cannot be used.
+        StoreError: bad parameters, an output location that cannot be used, a disk that
+            fills up, or a pyramid too large for the memory bound.
     """
     import time
 
@@ -647,18 +972,21 @@ def ingest(
     lowpass_kernel(wavelet)  # WaveletError (a GlobeviewError) for a bad name
     out_path = Path(out).absolute()
     parent = out_path.parent
-    existing = _check_target(out_path)
+    # First what dead ingests left here: a store that a killed commit had moved aside is put
+    # back before anything looks at --out.
+    clean_stale_builds(parent)
+    ident = _check_target(out_path, force)
     if not parent.is_dir():
         raise StoreError(f"the folder for the store does not exist: {parent}")
 
     src_paths = [Path(p).absolute() for p in sources]
-    for p in src_paths:
-        if not p.is_file():
-            raise DemError(f"DEM file not found: {p}")
+    _check_sources(src_paths)
     records = [{"path": str(p), "size": p.stat().st_size, "sha256": _sha256(p)} for p in src_paths]
     params = {"tile_n": tile_n, "max_level": max_level, "wavelet": wavelet, "crs": crs}
-    if existing and not force and _same_inputs(existing, records, params):
-        return IngestResult(out_path, True, int(existing.get("max_level", 0)), 0.0)
+    if ident.is_current and not force:
+        existing = read_manifest(out_path)
+        if existing is not None and _same_inputs(existing, records, params):
+            return IngestResult(out_path, True, int(existing.get("max_level", 0)), 0.0)
 
     with contextlib.ExitStack() as stack:
         # A fixed GDAL block cache for everything below, the sources' value scan included.
@@ -686,14 +1014,14 @@ def ingest(
         for s in srcs:
             s.level = min(s.level, l_max)
         srcs.sort(key=lambda s: s.res)  # finest first: it wins where it has data
+        builder = _Builder(srcs, tile_n, l_max, wavelet, parent, lambda n=1: None)
+        _check_size(builder.grids, srcs, tile_n)
 
         try:
-            tmp = Path(tempfile.mkdtemp(prefix=f".{out_path.name}.building-", dir=parent))
+            tmp, tok = stack.enter_context(_build_folder(parent, out_path.name))
         except OSError as exc:
             raise StoreError(f"cannot write the store in {parent}: {exc.strerror}") from None
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes it private; a store is an ordinary folder
+        dropped = stack.enter_context(_gdal_quiet())
         try:
             with _progress(progress) as bar:
                 done = [0]
@@ -704,26 +1032,44 @@ def ingest(
                         done[0] += n
                         on_progress(done[0], total)
 
-                builder = _Builder(srcs, tile_n, l_max, wavelet, tmp, step)
+                builder.out_dir, builder.tick = tmp, step
                 total = builder.total_steps()
                 bar.total = total
                 bar.refresh()
                 builder.build()
             manifest = builder.manifest(params, records)
+            _fault_point("manifest")
             part = tmp / (MANIFEST_NAME + ".part")
             part.write_text(json.dumps(manifest, separators=(",", ":")))
             os.replace(part, tmp / MANIFEST_NAME)
-            _commit(tmp, out_path)
-        except OSError as exc:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise StoreError(f"cannot write the store {out_path}: {exc.strerror or exc}") from None
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
+            _commit(tmp, out_path, tok)
+        except (OSError, *RASTER_ERRORS) as exc:
+            raise _write_error(exc, dropped, out_path, parent, builder.grids) from None
     return IngestResult(out_path, False, l_max, time.perf_counter() - t_start)
 
 
+def _write_error(
+    exc: BaseException, dropped: list[str], out: Path, parent: Path, grids: dict[int, LevelGrid]
+) -> StoreError:
+    """One line for a failed build (the building folder is removed by `_build_folder`)."""
+    if isinstance(exc, StoreError):
+        return exc
+    code = getattr(exc, "errno", None)
+    if code in (errno.ENOSPC, errno.EDQUOT) or (
+        isinstance(exc, RASTER_ERRORS) and _disk_full(dropped, parent)
+    ):
+        return StoreError(f"disk full writing {out} (needs about {_store_megabytes(grids)} MB)")
+    if code == errno.EROFS or any("Read-only file system" in line for line in dropped):
+        return StoreError(f"cannot write the store {out}: {parent} is on a read-only file system")
+    text = getattr(exc, "strerror", None) or str(exc).strip().splitlines()[0:1]
+    if isinstance(text, list):
+        text = text[0] if text else type(exc).__name__
+    return StoreError(f"cannot write the store {out}: {text}")
+
+
 def _same_inputs(manifest: dict, records: list[dict], params: dict) -> bool:
+    """Whether the store was built from the same content (sha256 and size of each source,
+    in order) with the same parameters: where the sources live does not matter."""
     try:
         if manifest.get("format_version") != FORMAT_VERSION or manifest.get("params") != params:
             return False
@@ -733,19 +1079,26 @@ def _same_inputs(manifest: dict, records: list[dict], params: dict) -> bool:
     return old == [(r["sha256"], r["size"]) for r in records]
 
 
-def _commit(tmp: Path, out: Path) -> None:
-    """Move the finished store into place; an old store is replaced only at the very end."""
-    if out.exists():
-        old = out.parent / f".{out.name}.old-{uuid.uuid4().hex[:8]}"
-        os.replace(out, old)
-        try:
-            os.replace(tmp, out)
-        except BaseException:
-            os.replace(old, out)
-            raise
-        shutil.rmtree(old, ignore_errors=True)
-    else:
+def _commit(tmp: Path, out: Path, tok: str) -> None:
+    """Move the finished store into place. ``out`` is checked again now (a build takes
+    time): an old store is moved aside, the new one renamed in, and only then is the old
+    one removed; if the second rename fails the old store is put back."""
+    ident = identify(out)
+    if ident.kind in ("absent", "empty"):
+        # rename(2) replaces an empty folder atomically and fails on a non-empty one.
         os.replace(tmp, out)
+        return
+    if not ident.is_globeview or ident.extra is not None:
+        raise StoreError(f"{out} changed during the build and is not a globeview store now")
+    old = _leftover_path(out.parent, out.name, "old", tok)
+    os.replace(out, old)
+    try:
+        _fault_point("commit")
+        os.replace(tmp, out)
+    except BaseException:
+        os.replace(old, out)
+        raise
+    _remove_store_dir(old)
 
 
 class _NoBar:
@@ -765,8 +1118,11 @@ def _progress(enabled: bool) -> Iterator:
         return
     from tqdm import tqdm
 
-    bar = tqdm(total=0, unit="win", desc="ingest", dynamic_ncols=True)
+    tty = _tty_stderr()  # fd 2 is redirected during the build (see _gdal_quiet)
+    bar = tqdm(total=0, unit="win", desc="ingest", dynamic_ncols=True, file=tty)
     try:
         yield bar
     finally:
         bar.close()
+        if tty is not None:
+            tty.close()

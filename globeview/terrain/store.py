@@ -6,12 +6,20 @@ A store is a directory with ``manifest.json`` and one grid-registered GeoTIFF pe
 ((x - x0) mod 2^(L+1))*2^n, where (x0, y0, nx, ny) is the level's tile extent.
 
 Heights are metres; tile metadata (``error``, ``hmin``, ``hmax``, stride errors) are metres.
+
+A store is recognised *positively*: its manifest carries ``"format": "globeview-tile-store"``
+and a ``format_version``, which only globeview writes. Anything else with a ``manifest.json``
+is somebody else's folder (`identify` says which), and `TileStore.open` checks the manifest's
+types and every level file's shape, geotransform and dtype before it serves a tile, so a
+damaged store is one `StoreError` line, never a traceback.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import math
+import re
 import threading
 from collections import OrderedDict
 from collections.abc import Iterable
@@ -21,45 +29,183 @@ from types import TracebackType
 
 import numpy as np
 import rasterio
+from rasterio.errors import RasterioError
 from rasterio.windows import Window
 
 from globeview.errors import StoreError
 from globeview.terrain.levels import LevelGrid
-from globeview.terrain.quadtree import TileKey
+from globeview.terrain.quadtree import TileKey, level_shape
 
-__all__ = ["FORMAT_VERSION", "TileStore"]
+__all__ = [
+    "FORMAT_VERSION",
+    "MANIFEST_NAME",
+    "STORE_FORMAT",
+    "StoreIdentity",
+    "TileStore",
+    "identify",
+    "is_store_file",
+    "read_manifest",
+]
 
-FORMAT_VERSION = 2
+STORE_FORMAT = "globeview-tile-store"
+# 3: the manifest carries ``format`` (positive recognition). 2 had no marker.
+FORMAT_VERSION = 3
 MANIFEST_NAME = "manifest.json"
 DEFAULT_CACHE_TILES = 256
+MAX_LEVEL_LIMIT = 22  # as globeview.terrain.ingest: 180/2^22/64 degrees, far past any DEM
+TILE_N_RANGE = (1, 10)
+
+# Errors GDAL raises through rasterio on a bad file: rasterio's own and the CPLE_* family.
+try:
+    from rasterio._err import CPLE_BaseError as _CPLE
+except ImportError:  # pragma: no cover - rasterio's private module moved
+    _CPLE = RasterioError
+RASTER_ERRORS: tuple[type[BaseException], ...] = (RasterioError, _CPLE)
+
+# Files globeview writes in a store (GDAL may add a .aux.xml next to a level).
+_STORE_FILE = re.compile(r"^(manifest\.json(\.part)?|level_\d\d\.tif(\.aux\.xml)?)$")
+# Everything that can go wrong reading untrusted JSON into numbers and arrays.
+_MANIFEST_ERRORS = (
+    KeyError,
+    TypeError,
+    ValueError,
+    OverflowError,
+    AttributeError,
+    IndexError,
+    RecursionError,
+)
+
+
+def is_store_file(name: str) -> bool:
+    """Whether ``name`` is a file name globeview writes inside a store."""
+    return bool(_STORE_FILE.match(name))
+
+
+class StoreIdentity:
+    """What a path is, as far as stores go (see `identify`).
+
+    kind: "absent" | "file" | "empty" (an empty folder) | "store" (a globeview store of
+    ``version``, marker present) | "legacy" (a globeview store of format 2, written before
+    the marker existed: recognised by its manifest *and* holding only store files) |
+    "foreign" (anything else: never modified).
+    """
+
+    def __init__(self, kind: str, version: object = None, extra: str | None = None) -> None:
+        self.kind = kind
+        self.version = version
+        self.extra = extra  # a file that is not a store file, when there is one
+
+    @property
+    def is_globeview(self) -> bool:
+        return self.kind in ("store", "legacy")
+
+    @property
+    def is_current(self) -> bool:
+        return self.kind == "store" and self.version == FORMAT_VERSION
+
+
+def read_manifest(path: Path) -> dict | None:
+    """The manifest of ``path`` as a dict, or None if missing/unreadable/not an object."""
+    try:
+        data = json.loads((path / MANIFEST_NAME).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def identify(path: str | Path) -> StoreIdentity:
+    """Classify ``path`` without modifying anything (reads the manifest only)."""
+    p = Path(path)
+    if not p.exists() and not p.is_symlink():
+        return StoreIdentity("absent")
+    if p.is_symlink() or not p.is_dir():
+        return StoreIdentity("file")
+    try:
+        names = sorted(e.name for e in p.iterdir())
+    except OSError:
+        return StoreIdentity("foreign")
+    if not names:
+        return StoreIdentity("empty")
+    extra = next((n for n in names if not is_store_file(n)), None)
+    man = read_manifest(p)
+    if man is None:
+        return StoreIdentity("foreign", extra=extra)
+    if man.get("format") == STORE_FORMAT:
+        return StoreIdentity("store", man.get("format_version"), extra)
+    created = man.get("created_by")
+    if (
+        man.get("format_version") == 2
+        and isinstance(created, str)
+        and created.startswith("globeview ")
+        and extra is None
+    ):
+        return StoreIdentity("legacy", 2)
+    return StoreIdentity("foreign", extra=extra)
+
+
+def _int(v: object, name: str, lo: int, hi: int) -> int:
+    """An integer manifest value in [lo, hi] (bools and floats are not integers here)."""
+    if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+        raise ValueError(f"{name} must be an integer in {lo}..{hi}, got {str(v)[:40]}")
+    return v
+
+
+def _float(v: object, name: str, none_ok: bool = False) -> float | None:
+    """A finite number from the manifest (None allowed when ``none_ok``)."""
+    if v is None and none_ok:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ValueError(f"{name} must be a finite number, got {str(v)[:40]}")
+    return float(v)
+
+
+def _poles(v: object, name: str) -> dict[str, float | None]:
+    if v is None:
+        return {}
+    if not isinstance(v, dict):
+        raise ValueError(f"{name} must be an object")
+    return {str(k): _float(h, f"{name}.{k}", none_ok=True) for k, h in v.items()}
 
 
 class _Level:
     """Per-level metadata as numpy arrays (ny, nx); NaN where a tile has no data."""
 
-    def __init__(self, entry: dict, tile_n: int, n_strides: int) -> None:
+    def __init__(self, index: int, entry: dict, tile_n: int, n_strides: int) -> None:
+        if not isinstance(entry, dict):
+            raise ValueError(f"level {index} is not an object")
         ext = entry["extent"]
-        self.grid = LevelGrid(
-            int(entry["level"]),
-            tile_n,
-            int(ext["x0"]),
-            int(ext["y0"]),
-            int(ext["nx"]),
-            int(ext["ny"]),
-        )
+        if not isinstance(ext, dict):
+            raise ValueError(f"level {index}: extent is not an object")
+        lv = _int(entry["level"], f"level {index}: level", index, index)
+        ncols, nrows = level_shape(lv)
+        x0 = _int(ext["x0"], f"level {lv}: x0", 0, ncols - 1)
+        y0 = _int(ext["y0"], f"level {lv}: y0", 0, nrows - 1)
+        nx = _int(ext["nx"], f"level {lv}: nx", 1, ncols)
+        ny = _int(ext["ny"], f"level {lv}: ny", 1, nrows - y0)
+        self.grid = LevelGrid(lv, tile_n, x0, y0, nx, ny)
         shape = (self.grid.ny, self.grid.nx)
-        self.file: str = entry["file"]
-        self.sha256: str = entry.get("sha256", "")
+        # Only the name globeview writes: a manifest must not point outside its store.
+        if entry["file"] != self.grid.file_name:
+            raise ValueError(f"level {lv}: file {str(entry['file'])[:60]!r} is not its level file")
+        self.file: str = self.grid.file_name
+        sha = entry.get("sha256", "")
+        self.sha256: str = sha if isinstance(sha, str) else ""
         self.error = _array(entry["error"], shape)
         self.hmin = _array(entry["hmin"], shape)
         self.hmax = _array(entry["hmax"], shape)
         stride = _array(entry["stride_error"], (*shape, n_strides), nested_null=True)
         self.stride = stride
-        self.pole_heights: dict[str, float | None] = dict(entry.get("pole_heights") or {})
-        self.level_error = entry.get("level_error")
+        self.pole_heights = _poles(entry.get("pole_heights"), f"level {lv}: pole_heights")
+        self.level_error = _float(entry.get("level_error"), f"level {lv}: level_error", True)
+        if (self.level_error is not None and self.level_error < 0) or (
+            (self.error < 0).any() or (self.stride < 0).any()
+        ):
+            raise ValueError(f"level {lv}: negative tile errors")
 
 
 def _array(data: list, shape: tuple[int, ...], nested_null: bool = False) -> np.ndarray:
+    if not isinstance(data, list):
+        raise ValueError(f"expected a list of shape {shape}")
     if nested_null:
         # Rows hold either a list of strides or null: expand nulls to NaN rows.
         n = shape[-1]
@@ -69,7 +215,32 @@ def _array(data: list, shape: tuple[int, ...], nested_null: bool = False) -> np.
         a = a.reshape(shape)
     if a.shape != shape:
         raise ValueError(f"array of shape {a.shape}, expected {shape}")
+    if np.isinf(a).any():
+        raise ValueError("infinite tile metadata")
     return a
+
+
+def _short(exc: BaseException) -> str:
+    """First line of an exception's message, at most 160 characters."""
+    text = str(exc).strip()
+    text = text.splitlines()[0] if text else type(exc).__name__
+    return text if len(text) <= 160 else text[:157] + "..."
+
+
+def _check_level_file(path: Path, ds: rasterio.DatasetReader, grid: LevelGrid) -> None:
+    """StoreError unless ``ds`` is the raster the manifest describes for ``grid``."""
+    want = grid.transform
+    if (
+        (ds.width, ds.height) != (grid.width, grid.height)
+        or ds.count != 1
+        or ds.dtypes[0] != "float32"
+        or not ds.transform.almost_equals(want, precision=grid.d * 1e-6)
+    ):
+        raise StoreError(
+            f"{path} does not match the store's manifest ({ds.width}x{ds.height} "
+            f"{ds.dtypes[0]}, expected {grid.width}x{grid.height} float32 at the level's "
+            "geotransform); re-run globeview ingest --force"
+        )
 
 
 class TileStore:
@@ -91,21 +262,29 @@ class TileStore:
         self.path = path
         self.manifest = manifest
         try:
-            self.tile_n = int(manifest["tile_n"])
-            self.max_level = int(manifest["max_level"])
-            self.strides: tuple[int, ...] = tuple(int(s) for s in manifest["strides"])
-            self.bounds = tuple(float(v) for v in manifest["bounds"])
-            self.pole_heights: dict[str, float | None] = dict(manifest.get("pole_heights") or {})
-            self._levels = [_Level(e, self.tile_n, len(self.strides)) for e in manifest["levels"]]
-        except (KeyError, TypeError, ValueError) as exc:
-            raise StoreError(f"{path}: damaged {MANIFEST_NAME} ({exc})") from None
-        if len(self._levels) != self.max_level + 1 or any(
-            lv.grid.level != i for i, lv in enumerate(self._levels)
-        ):
-            raise StoreError(f"{path}: damaged {MANIFEST_NAME} (levels do not match max_level)")
+            self.tile_n = _int(manifest["tile_n"], "tile_n", *TILE_N_RANGE)
+            self.max_level = _int(manifest["max_level"], "max_level", 0, MAX_LEVEL_LIMIT)
+            strides = manifest["strides"]
+            if not isinstance(strides, list) or not 0 < len(strides) <= 16:
+                raise ValueError("strides must be a short list")
+            self.strides: tuple[int, ...] = tuple(_int(s, "stride", 1, 1 << 20) for s in strides)
+            bounds = manifest["bounds"]
+            if not isinstance(bounds, list) or len(bounds) != 4:
+                raise ValueError("bounds must be 4 numbers")
+            self.bounds = tuple(_float(v, "bounds") for v in bounds)
+            self.pole_heights: dict[str, float | None] = _poles(
+                manifest.get("pole_heights"), "pole_heights"
+            )
+            levels = manifest["levels"]
+            if not isinstance(levels, list) or len(levels) != self.max_level + 1:
+                raise ValueError("levels do not match max_level")
+            self._levels = [
+                _Level(i, e, self.tile_n, len(self.strides)) for i, e in enumerate(levels)
+            ]
+        except _MANIFEST_ERRORS as exc:
+            raise StoreError(f"{path}: damaged {MANIFEST_NAME} ({_short(exc)})") from None
         for lv in self._levels:
-            if not (path / lv.file).is_file():
-                raise StoreError(f"{path}: level file {lv.file} is missing; re-run the ingest")
+            self._open_level(lv).close()
         self.tile_size = (1 << self.tile_n) + 1
         self._cache: OrderedDict[TileKey, np.ndarray] = OrderedDict()
         self._cache_tiles = max(1, int(cache_tiles))
@@ -132,16 +311,19 @@ class TileStore:
         if not mpath.is_file():
             raise StoreError(f"{p} is not a globeview tile store (no {MANIFEST_NAME})")
         try:
-            manifest = json.loads(mpath.read_text())
-        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            manifest = json.loads(mpath.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
             raise StoreError(f"{mpath}: unreadable manifest ({type(exc).__name__})") from None
         if not isinstance(manifest, dict):
             raise StoreError(f"{mpath}: unreadable manifest (not a JSON object)")
+        ident = identify(p)
+        if not ident.is_globeview:
+            raise StoreError(f"{p} is not a globeview tile store ({MANIFEST_NAME} is not ours)")
         version = manifest.get("format_version")
         if version != FORMAT_VERSION:
             raise StoreError(
-                f"{p}: store format version {version!r} is not supported (this globeview "
-                f"reads version {FORMAT_VERSION}); re-run globeview ingest"
+                f"{p}: store format version {str(version)[:20]} is not supported (this "
+                f"globeview reads version {FORMAT_VERSION}); re-run globeview ingest --force"
             )
         return cls(p, manifest, cache_tiles)
 
@@ -214,6 +396,22 @@ class TileStore:
 
     # -- heights -------------------------------------------------------------------------------
 
+    def _open_level(self, lv: _Level) -> rasterio.DatasetReader:
+        """Open a level raster, checked against the manifest (StoreError naming the file)."""
+        path = self.path / lv.file
+        if not path.is_file():
+            raise StoreError(f"{path}: level file is missing; re-run globeview ingest --force")
+        try:
+            ds = rasterio.open(path)
+        except RASTER_ERRORS as exc:
+            raise StoreError(f"{path} is damaged: {_short(exc)}") from None
+        try:
+            _check_level_file(path, ds, lv.grid)
+        except BaseException:
+            ds.close()
+            raise
+        return ds
+
     def _dataset(self, level: int) -> rasterio.DatasetReader:
         """This thread's handle on a level raster (GDAL datasets are not thread-safe)."""
         handles = getattr(self._local, "handles", None)
@@ -221,10 +419,7 @@ class TileStore:
             handles = self._local.handles = {}
         ds = handles.get(level)
         if ds is None:
-            try:
-                ds = rasterio.open(self.path / self._levels[level].file)
-            except rasterio.errors.RasterioIOError as exc:
-                raise StoreError(f"cannot read level {level} of {self.path}: {exc}") from None
+            ds = self._open_level(self._levels[level])
             handles[level] = ds
             with self._lock:
                 self._all_handles.append(ds)
@@ -240,12 +435,15 @@ class TileStore:
         if not bool(inside):
             return out
         n = grid.tile_nodes
+        ds = self._dataset(key.level)
         try:
-            out[:] = self._dataset(key.level).read(
-                1, window=Window(int(ix) * n, int(iy) * n, size, size)
-            )
-        except rasterio.errors.RasterioIOError as exc:
-            raise StoreError(f"cannot read tile {tuple(key)} of {self.path}: {exc}") from None
+            out[:] = ds.read(1, window=Window(int(ix) * n, int(iy) * n, size, size))
+        except (*RASTER_ERRORS, ValueError) as exc:
+            # A level file damaged (truncated, rewritten) after the store was opened.
+            raise StoreError(
+                f"cannot read tile {tuple(key)} from {self.path / self._levels[key.level].file}: "
+                f"{_short(exc)}"
+            ) from None
         return out
 
     def heights(self, key: TileKey | tuple[int, int, int]) -> np.ndarray:

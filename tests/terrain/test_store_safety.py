@@ -1,0 +1,323 @@
+"""A store is recognised positively and checked before use: ingest never overwrites what it
+did not write, and a damaged store is one StoreError line, never a traceback."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rasterio
+from affine import Affine
+
+from globeview.errors import StoreError
+from globeview.terrain.embedded import open_or_ingest, store_path_for
+from globeview.terrain.ingest import ingest
+from globeview.terrain.quadtree import TileKey
+from globeview.terrain.store import FORMAT_VERSION, STORE_FORMAT, TileStore, identify
+
+ROOT = Path(__file__).resolve().parents[2]
+DATA = ROOT / "data"
+GLOBEVIEW = Path(sys.executable).parent / "globeview"
+SMALL = DATA / "craterlake-elev-16bit-30m.tif"
+
+
+def _cli(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [str(GLOBEVIEW), *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, **(env or {})},
+    )
+
+
+def _snapshot(d: Path) -> dict[str, bytes | None]:
+    """Every path under d (folders too) with its bytes: 'not one byte changes'."""
+    return {
+        str(p.relative_to(d)): (p.read_bytes() if p.is_file() else None)
+        for p in sorted(d.rglob("*"))
+    }
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("st") / "store"
+    ingest([SMALL], out)
+    return out
+
+
+def _copy(store: Path, tmp_path: Path) -> Path:
+    dst = tmp_path / "copy"
+    shutil.copytree(store, dst)
+    return dst
+
+
+# -- never overwrite what globeview did not write ----------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "manifest",
+    [
+        '{"a": 1}',
+        "garbage, not JSON",
+        "",
+        '{"format_version": 2}',
+        json.dumps({"format_version": FORMAT_VERSION, "levels": []}),
+        '["format", "globeview-tile-store"]',
+    ],
+)
+def test_foreign_folder_with_a_manifest_is_refused(tmp_path: Path, manifest: str) -> None:
+    mine = tmp_path / "mine"
+    (mine / "sub").mkdir(parents=True)
+    (mine / "manifest.json").write_text(manifest)
+    (mine / "thesis.docx").write_text("precious")
+    (mine / "sub" / "data.csv").write_text("1,2,3")
+    before = _snapshot(mine)
+    for extra in ([], ["--force"]):
+        r = _cli("ingest", str(SMALL), "--out", str(mine), "--quiet", *extra)
+        assert r.returncode == 2
+        assert r.stderr.strip().splitlines() == [
+            f"globeview: error: {mine} is not a globeview store, refusing to overwrite it"
+        ]
+        assert _snapshot(mine) == before
+    with pytest.raises(StoreError, match=r"not a globeview tile store|unreadable manifest"):
+        TileStore.open(mine)
+
+
+def test_store_holding_a_user_file_is_not_replaced(store: Path, tmp_path: Path) -> None:
+    s = _copy(store, tmp_path)
+    (s / "notes.txt").write_text("mine")
+    before = _snapshot(s)
+    r = _cli("ingest", str(SMALL), "--out", str(s), "--quiet", "--force")
+    assert r.returncode == 2 and "notes.txt" in r.stderr and len(r.stderr.splitlines()) == 1
+    assert _snapshot(s) == before
+    TileStore.open(s).close()  # still a store to read
+
+
+def _legacy(s: Path) -> None:
+    """Rewrite a store's manifest as format 2 wrote it (no marker)."""
+    man = json.loads((s / "manifest.json").read_text())
+    del man["format"]
+    man["format_version"] = 2
+    (s / "manifest.json").write_text(json.dumps(man))
+
+
+def test_older_store_needs_force_then_is_rebuilt(store: Path, tmp_path: Path) -> None:
+    s = _copy(store, tmp_path)
+    _legacy(s)
+    assert identify(s).kind == "legacy"
+    with pytest.raises(StoreError, match="format version 2 is not supported"):
+        TileStore.open(s)
+    before = _snapshot(s)
+    r = _cli("ingest", str(SMALL), "--out", str(s), "--quiet")
+    assert r.returncode == 2 and len(r.stderr.splitlines()) == 1
+    assert "older globeview (format version 2" in r.stderr and "--force" in r.stderr
+    assert _snapshot(s) == before
+    r = _cli("ingest", str(SMALL), "--out", str(s), "--quiet", "--force")
+    assert r.returncode == 0, r.stderr
+    TileStore.open(s).close()
+    assert [p.name for p in tmp_path.iterdir()] == ["copy"]
+
+
+def test_newer_store_is_refused_without_force(store: Path, tmp_path: Path) -> None:
+    s = _copy(store, tmp_path)
+    man = json.loads((s / "manifest.json").read_text())
+    man["format_version"] = FORMAT_VERSION + 1
+    (s / "manifest.json").write_text(json.dumps(man))
+    r = _cli("ingest", str(SMALL), "--out", str(s), "--quiet")
+    assert r.returncode == 2 and "newer globeview" in r.stderr
+    with pytest.raises(StoreError, match="not supported"):
+        TileStore.open(s)
+
+
+def test_cached_store_of_another_version_is_rebuilt_silently(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(tmp_path / "cache"))
+    open_or_ingest(SMALL).close()
+    _legacy(store_path_for(SMALL))
+    with open_or_ingest(SMALL) as st:  # globeview owns its cache: no --force needed
+        assert st.manifest["format"] == STORE_FORMAT
+        assert st.manifest["format_version"] == FORMAT_VERSION
+
+
+def test_manifest_has_the_marker(store: Path) -> None:
+    man = json.loads((store / "manifest.json").read_text())
+    assert man["format"] == STORE_FORMAT and man["format_version"] == FORMAT_VERSION
+
+
+# -- the cache keys stores by the DEM's full path ----------------------------------------------
+
+
+def _dem(path: Path, height: float) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    z = np.full((50, 60), height, np.float32) + np.arange(60, dtype=np.float32)
+    with rasterio.open(
+        path,
+        "w",
+        driver="GTiff",
+        width=60,
+        height=50,
+        count=1,
+        dtype="float32",
+        crs="EPSG:4326",
+        transform=Affine(0.01, 0, 7.0, 0, -0.01, 46.0),
+    ) as ds:
+        ds.write(z, 1)
+    return path
+
+
+def test_two_dems_with_one_file_name_get_two_stores(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(tmp_path / "cache"))
+    a = _dem(tmp_path / "a" / "dem.tif", 1000.0)
+    b = _dem(tmp_path / "b" / "dem.tif", 3000.0)
+    assert store_path_for(a) != store_path_for(b)
+    assert store_path_for(a) == store_path_for(tmp_path / "a" / ".." / "a" / "dem.tif")
+    with open_or_ingest(a) as sa, open_or_ingest(b) as sb:
+        lv = sa.max_level
+        key = next(
+            TileKey(lv, x, y)
+            for y in range(2**lv)
+            for x in range(2 ** (lv + 1))
+            if sa.has_data(lv, x, y)
+        )
+        ha, hb = sa.heights(key), sb.heights(key)  # the first is still readable
+        assert 900 < np.nanmin(ha) < 1100 and 2900 < np.nanmin(hb) < 3100
+    # Ingesting both through the CLI into the cache: both stores stay.
+    r = _cli("ingest", str(a), "--out", str(store_path_for(a)), "--quiet")
+    assert r.returncode == 0 and "up to date" in r.stdout
+    assert sorted(p.name.split("-")[0] for p in (tmp_path / "cache" / "stores").iterdir()) == [
+        "dem",
+        "dem",
+    ]
+
+
+# -- damaged stores ------------------------------------------------------------------------------
+
+
+def test_level_file_swapped_for_another_valid_geotiff(store: Path, tmp_path: Path) -> None:
+    s = _copy(store, tmp_path)
+    shutil.copy(s / "level_04.tif", s / "level_03.tif")
+    with pytest.raises(StoreError, match=r"level_03\.tif does not match"):
+        TileStore.open(s)
+
+
+@pytest.mark.parametrize("damage", ["truncated", "garbage", "missing", "empty", "folder"])
+def test_damaged_level_file_is_a_store_error(store: Path, tmp_path: Path, damage: str) -> None:
+    s = _copy(store, tmp_path)
+    f = s / "level_06.tif"
+    data = f.read_bytes()
+    if damage == "truncated":
+        f.write_bytes(data[: len(data) // 2])
+    elif damage == "garbage":
+        f.write_bytes(os.urandom(len(data)))
+    elif damage == "missing":
+        f.unlink()
+    elif damage == "empty":
+        f.write_bytes(b"")
+    else:
+        f.unlink()
+        f.mkdir()
+    # A truncated file may open: reading its tiles must fail then.
+    with pytest.raises(StoreError) as exc, TileStore.open(s) as st:
+        for y in range(2**6):
+            for x in range(2**7):
+                if st.has_data(6, x, y):
+                    st.heights(TileKey(6, x, y))
+    assert "level_06.tif" in str(exc.value) and "\n" not in str(exc.value)
+
+
+def test_damage_after_open_is_a_store_error(store: Path, tmp_path: Path) -> None:
+    s = _copy(store, tmp_path)
+    with TileStore.open(s) as st:
+        lv = st.max_level
+        g = st.level_grid(lv)
+        f = s / g.file_name
+        size = f.stat().st_size
+        with f.open("r+b") as fh:  # in place: the same inode, now half gone
+            fh.truncate(size // 3)
+        keys = [
+            TileKey(lv, (g.x0 + ix) % g.ncols, g.y0 + iy)
+            for iy in range(g.ny)
+            for ix in range(g.nx)
+        ]
+        with pytest.raises(StoreError, match=g.file_name):
+            for k in keys:
+                st.heights(k)
+
+
+def _mutations(man: dict) -> list[tuple[str, dict]]:
+    """Manifests with one thing wrong: keys deleted, wrong types, NaN, huge numbers."""
+    out = []
+    bad_values = [None, "x", [], {}, -1, 10**30, 1e308, math.nan, True, [1, 2]]
+    for key in man:
+        m = json.loads(json.dumps(man))
+        del m[key]
+        out.append((f"del {key}", m))
+        for v in bad_values:
+            m = json.loads(json.dumps(man))
+            m[key] = v
+            out.append((f"{key}={v!r}", m))
+    level = man["levels"][-1]
+    for key in level:
+        m = json.loads(json.dumps(man))
+        del m["levels"][-1][key]
+        out.append((f"del levels[-1].{key}", m))
+        for v in bad_values:
+            m = json.loads(json.dumps(man))
+            m["levels"][-1][key] = v
+            out.append((f"levels[-1].{key}={v!r}", m))
+    for key in level["extent"]:
+        for v in [None, -5, 10**12, 2.5, "1", math.nan]:
+            m = json.loads(json.dumps(man))
+            m["levels"][-1]["extent"][key] = v
+            out.append((f"extent.{key}={v!r}", m))
+    for field in ("error", "hmin", "stride_error"):
+        m = json.loads(json.dumps(man))
+        m["levels"][-1][field] = m["levels"][-1][field][:-1]  # one row short
+        out.append((f"{field} short", m))
+        m = json.loads(json.dumps(man))
+        m["levels"][-1][field][0][0] = "high"
+        out.append((f"{field} string cell", m))
+    m = json.loads(json.dumps(man))
+    m["levels"][-1]["file"] = "../../../etc/passwd"
+    out.append(("file outside", m))
+    return out
+
+
+def test_fuzzed_manifest_is_always_one_store_error(store: Path, tmp_path: Path) -> None:
+    s = _copy(store, tmp_path)
+    man = json.loads((store / "manifest.json").read_text())
+    # Fields the reader does not use may be anything; every other mutation must be refused.
+    unused = {"created_by", "sources", "params", "tile_size", "wavelet", "finest_extent"}
+    unused |= {f"levels[-1].{k}" for k in ("node_spacing_deg", "sha256")}
+    nullable = {"pole_heights", "levels[-1].pole_heights", "levels[-1].level_error"}
+    accepted = []
+    for name, m in _mutations(man):
+        (s / "manifest.json").write_text(json.dumps(m))
+        try:
+            TileStore.open(s).close()
+            accepted.append(name)
+        except StoreError as exc:
+            assert "\n" not in str(exc), name
+        except Exception as exc:
+            pytest.fail(f"{name}: {type(exc).__name__}: {exc}")
+    for name in accepted:
+        key = name.removeprefix("del ").split("=")[0]
+        value = name.partition("=")[2]
+        ok = key in unused or (key in nullable and (name.startswith("del ") or value == "None"))
+        ok |= "pole_heights" in key and value == "{}"  # no pole heights recorded
+        ok |= key == "levels[-1].level_error" and value in (
+            "1000000000000000000000000000000",
+            "1e+308",
+        )
+        assert ok, name
