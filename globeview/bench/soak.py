@@ -69,3 +69,172 @@ def run_soak(
         "warmup_complete": len(samples) > warm,
     }
     return res
+
+
+# -- open-render-close cycles ------------------------------------------------------------------
+
+#: The open-close soak's target: RSS growth (MB) from the warm-up cycle to the last one.
+OPEN_CLOSE_DRIFT_TARGET_MB = 1.0
+
+
+def open_close_cycle(
+    store_paths: list,
+    size: tuple[int, int] = (160, 90),
+    lod: str = "chunked-sse",
+    ctx=None,
+) -> dict:
+    """One cycle as an application opening and closing a globe would: open the tile stores,
+    stack them, make a headless context, a session, render one frame, then release everything
+    (session GL objects, offscreen target, context, stores). With ``ctx`` given the cycle
+    draws in that context and leaves it open (to tell the context's own cost from the rest).
+    Returns what the frame drew and weak references to the cycle's big objects (dead once it
+    is really released)."""
+    import weakref
+
+    from globeview.plugins.registry import PluginRegistry
+    from globeview.plugins.session import GlobeSession
+    from globeview.plugins.settings import MemorySettings
+    from globeview.render.offscreen import OffscreenTarget, create_headless_context
+    from globeview.terrain.stack import TerrainStack
+    from globeview.terrain.store import TileStore
+
+    stores = [TileStore.open(p) for p in store_paths]
+    own_ctx = ctx is None
+    ctx = create_headless_context() if own_ctx else ctx
+    try:
+        terrain = TerrainStack.from_stores(stores)
+        target = OffscreenTarget(ctx, size)
+        registry = PluginRegistry(MemorySettings()).discover()
+        session = GlobeSession(ctx, terrain, registry=registry, lod=lod)
+        result = session.render(target.fbo, size)
+        refs = {
+            "session": weakref.ref(session),
+            "renderer": weakref.ref(session.renderer),
+            "terrain": weakref.ref(terrain),
+            "registry": weakref.ref(registry),
+            **({"context": weakref.ref(ctx)} if own_ctx else {}),
+            **{f"store {s.path.name}": weakref.ref(s) for s in stores},
+        }
+        triangles = int(result.stats.triangles)
+        session.release_gl()
+        target.release()
+    finally:
+        if own_ctx:
+            ctx.release()
+        for s in stores:
+            s.close()
+    return {"triangles": triangles, "refs": refs}
+
+
+def unreleased_gl_objects(root: object, max_depth: int = 8) -> list[str]:
+    """Attribute paths (``renderer.pool.vbo``) of the moderngl objects reachable from ``root``
+    through globeview objects, dicts, lists, tuples and sets that are not released yet (the
+    context itself and framebuffers are skipped: their owner releases them)."""
+    import moderngl
+
+    seen: set[int] = set()
+    found: list[str] = []
+
+    def walk(obj: object, path: str, depth: int) -> None:
+        if id(obj) in seen or depth > max_depth:
+            return
+        seen.add(id(obj))
+        if isinstance(obj, moderngl.Context | moderngl.Framebuffer):
+            return
+        mglo = getattr(obj, "mglo", None)
+        if type(obj).__module__.startswith("moderngl"):
+            if mglo is not None and not isinstance(mglo, moderngl.InvalidObject):
+                found.append(path)
+            return
+        if isinstance(obj, dict):
+            for k, v in obj.items():
+                walk(v, f"{path}[{k!r}]", depth + 1)
+        elif isinstance(obj, list | tuple | set | frozenset):
+            for i, v in enumerate(obj):
+                walk(v, f"{path}[{i}]", depth + 1)
+        elif type(obj).__module__.startswith("globeview") and hasattr(obj, "__dict__"):
+            for k, v in vars(obj).items():
+                walk(v, f"{path}.{k}", depth + 1)
+
+    walk(root, type(root).__name__, 0)
+    return found
+
+
+def gl_context_count() -> int:
+    """moderngl contexts alive in this process (released or not; a leak keeps them)."""
+    import moderngl
+
+    return sum(1 for o in gc.get_objects() if isinstance(o, moderngl.Context))
+
+
+def type_counts() -> dict[str, int]:
+    """Live gc-tracked objects by type name (for diffs between two cycles)."""
+    counts: dict[str, int] = {}
+    for o in gc.get_objects():
+        name = type(o).__qualname__
+        mod = type(o).__module__
+        key = f"{mod}.{name}" if mod not in ("builtins",) else name
+        counts[key] = counts.get(key, 0) + 1
+    return counts
+
+
+def run_open_close(
+    cycles: int = 200,
+    size: tuple[int, int] = (160, 90),
+    lod: str = "chunked-sse",
+    warmup: int = 20,
+    every: int = 10,
+    log=print,
+) -> dict:
+    """``cycles`` open-render-close cycles on the embedded stores; samples RSS every
+    ``every`` cycles. The drift is RSS at the last cycle minus RSS after ``warmup`` cycles
+    (allocator arenas, GDAL's block cache and Mesa's shader cache fill during the warm-up);
+    it also diffs gc object counts by type between those two points and reports which of the
+    last cycle's objects are still alive after it was released."""
+    from globeview.terrain.embedded import embedded_stores
+
+    stores = embedded_stores()  # ingest once (a no-op when the cache is ready)
+    paths = [s.path for s in stores]
+    for s in stores:
+        s.close()
+    del stores
+    samples: list[dict] = []
+    counts_warm: dict[str, int] = {}
+    alive: list[str] = []
+    for i in range(1, cycles + 1):
+        out = open_close_cycle(paths, size, lod)
+        del out["refs"]
+        if i == warmup:
+            gc.collect()
+            counts_warm = type_counts()
+        if i % every == 0 or i in (1, warmup, cycles):
+            gc.collect()
+            samples.append({"cycle": i, "rss_mb": rss_mb(), "contexts": gl_context_count()})
+            log(
+                f"cycle {i:4d}  RSS {samples[-1]['rss_mb']:7.1f} MB  contexts alive "
+                f"{samples[-1]['contexts']}"
+            )
+    last = open_close_cycle(paths, size, lod)
+    gc.collect()
+    alive = sorted(name for name, ref in last["refs"].items() if ref() is not None)
+    counts_last = type_counts()
+    grown = {
+        k: counts_last.get(k, 0) - counts_warm.get(k, 0)
+        for k in set(counts_last) | set(counts_warm)
+        if counts_last.get(k, 0) != counts_warm.get(k, 0)
+    }
+    at_warm = next(s for s in samples if s["cycle"] >= warmup)
+    drift = samples[-1]["rss_mb"] - at_warm["rss_mb"]
+    return {
+        "samples": samples,
+        "cycles": cycles,
+        "warmup": warmup,
+        "rss_after_warmup": at_warm["rss_mb"],
+        "rss_last": samples[-1]["rss_mb"],
+        "rss_drift_mb": drift,
+        "per_cycle_mb": drift / max(1, cycles - warmup),
+        "alive_after_release": alive,
+        "object_growth": dict(sorted(grown.items(), key=lambda kv: -abs(kv[1]))[:15]),
+        "target_mb": OPEN_CLOSE_DRIFT_TARGET_MB,
+        "target_met": drift <= OPEN_CLOSE_DRIFT_TARGET_MB,
+    }

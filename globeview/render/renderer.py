@@ -385,6 +385,12 @@ class GlobeRenderer:
             self.custom_ibo,
             self.custom_commands,
             self.ramp,
+            # The tile pool and the index pool: ~100 MB that would outlive the session in a
+            # context that is kept (a window, a script rendering many globes).
+            self.pool.vbo,
+            self.pool.height_tex,
+            self.pool.normal_tex,
+            self.indices.buffer,
         ):
             obj.release()
         self.overlays.release()  # overlays:
