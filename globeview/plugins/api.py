@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 from collections.abc import MutableMapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -93,7 +94,8 @@ class Setting:
     def coerce(self, value: Any) -> Any:
         """``value`` converted to this setting's type and clamped to its bounds.
 
-        Raises ValueError for a value that cannot be converted or a choice not offered.
+        Raises ValueError for a value that cannot be converted (also NaN, infinity, a bool
+        for a number) or a choice not offered.
         """
         if self.type == "bool":
             if isinstance(value, str):
@@ -111,7 +113,16 @@ class Setting:
             return v
         if self.type not in ("int", "float"):
             raise ValueError(f"setting {self.name!r}: unknown type {self.type!r}")
-        num: float | int = int(value) if self.type == "int" else float(value)
+        if isinstance(value, bool):  # True is not the number 1 to a user
+            raise ValueError(f"setting {self.name!r}: {value!r} is not a number")
+        try:
+            num: float | int = float(value)
+            if not math.isfinite(num):
+                raise ValueError(f"setting {self.name!r}: {value!r} is not a finite number")
+            if self.type == "int":
+                num = int(value) if isinstance(value, int) else int(num)
+        except (OverflowError, TypeError) as exc:
+            raise ValueError(f"setting {self.name!r}: {value!r:.40} is not a number") from exc
         if self.min is not None and num < self.min:
             num = type(num)(self.min)
         if self.max is not None and num > self.max:
@@ -125,8 +136,8 @@ def resolve_settings(settings: Sequence[Setting], values: dict[str, Any]) -> dic
     out: dict[str, Any] = {}
     for s in settings:
         out[s.name] = s.default
-        if s.name in values:
-            with contextlib.suppress(TypeError, ValueError):
+        if isinstance(values, dict) and s.name in values:
+            with contextlib.suppress(TypeError, ValueError, OverflowError):
                 out[s.name] = s.coerce(values[s.name])
     return out
 

@@ -49,6 +49,20 @@ _TARGET_RE = re.compile(rf"^{_DOTTED}:{_DOTTED}$")
 _RESOURCE_RE = re.compile(rf"^({_DOTTED}):([\w.-]+\.toml)$")
 _VERSION_RE = re.compile(r"^(\d+)\.(\d+)$")
 _KINDS = tuple(k.value for k in PluginKind)
+#: Largest manifest file read (a real one is well under 4 KiB).
+MAX_MANIFEST_BYTES = 64 * 1024
+#: Longest value of each string field (hostile manifests carry megabyte strings).
+_MAX_FIELD_CHARS = {"description": 2000, "label": 200}
+_DEFAULT_MAX_FIELD_CHARS = 200
+
+
+def _short(value: Any, limit: int = 60) -> str:
+    """``repr(value)`` cut to ``limit`` characters, for error messages."""
+    try:
+        text = repr(value)
+    except Exception:
+        text = f"<{type(value).__name__}>"
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 class ManifestError(GlobeviewError):
@@ -119,21 +133,30 @@ def _str_field(data: dict[str, Any], key: str, where: str, required: bool = True
         raise ManifestError(f"{where}field {key!r} must be a string, got {type(value).__name__}")
     if required and not value.strip():
         raise ManifestError(f"{where}field {key!r} is empty")
+    limit = _MAX_FIELD_CHARS.get(key, _DEFAULT_MAX_FIELD_CHARS)
+    if len(value) > limit:
+        raise ManifestError(f"{where}field {key!r} is {len(value)} characters (at most {limit})")
+    if any(ch in value for ch in "\n\r\x00") and key != "description":
+        raise ManifestError(f"{where}field {key!r} must be one line")
     return value
 
 
 def _kind(value: Any, where: str) -> PluginKind:
-    if value not in _KINDS:
-        raise ManifestError(f"{where}unknown kind {value!r} (expected one of {', '.join(_KINDS)})")
+    if not isinstance(value, str) or value not in _KINDS:
+        raise ManifestError(
+            f"{where}unknown kind {_short(value)} (expected one of {', '.join(_KINDS)})"
+        )
     return PluginKind(value)
 
 
 def parse_manifest(data: dict[str, Any], path: Path | None = None) -> Manifest:
     """Validate a manifest's decoded TOML and return it; ManifestError names the first fault."""
+    if not isinstance(data, dict):
+        raise ManifestError("a manifest must be a TOML table")
     name = _str_field(data, "name", "")
     if not _NAME_RE.match(name):
         raise ManifestError(
-            f"plugin name {name!r} must be lower-case letters, digits, '-', '_' or '.'"
+            f"plugin name {_short(name)} must be lower-case letters, digits, '-', '_' or '.'"
         )
     version = _str_field(data, "version", "")
     description = _str_field(data, "description", "")
@@ -154,6 +177,8 @@ def parse_manifest(data: dict[str, Any], path: Path | None = None) -> Manifest:
         raise ManifestError("missing required field 'contributions' (one [[contributions]] table)")
     if not isinstance(raw_contribs, list) or not raw_contribs:
         raise ManifestError("'contributions' must be a non-empty array of tables")
+    if len(raw_contribs) > 256:
+        raise ManifestError(f"{len(raw_contribs)} contributions (at most 256)")
     contribs: list[Contribution] = []
     seen: set[str] = set()
     for i, c in enumerate(raw_contribs):
@@ -163,7 +188,7 @@ def parse_manifest(data: dict[str, Any], path: Path | None = None) -> Manifest:
         cname = _str_field(c, "name", where)
         if not _NAME_RE.match(cname):
             raise ManifestError(
-                f"{where}name {cname!r} must be lower-case letters, digits, '-', '_' or '.'"
+                f"{where}name {_short(cname)} must be lower-case letters, digits, '-', '_' or '.'"
             )
         if cname in seen:
             raise ManifestError(f"{where}duplicate contribution name {cname!r}")
@@ -174,7 +199,8 @@ def parse_manifest(data: dict[str, Any], path: Path | None = None) -> Manifest:
         target = _str_field(c, "target", where)
         if not _TARGET_RE.match(target):
             raise ManifestError(
-                f"{where}target {target!r} is not 'module:attribute' (e.g. 'pkg.mod:Provider')"
+                f"{where}target {_short(target)} is not 'module:attribute' "
+                "(e.g. 'pkg.mod:Provider')"
             )
         label = _str_field(c, "label", where, required=False) or cname
         contribs.append(Contribution(cname, ckind, target, label))
@@ -185,13 +211,22 @@ def read_manifest(path: str | Path) -> Manifest:
     """Read and validate a manifest file. Errors are ManifestError naming the file."""
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        with p.open("rb") as f:
+            raw = f.read(MAX_MANIFEST_BYTES + 1)
     except OSError as exc:
         raise ManifestError(f"{p}: cannot read manifest ({exc.strerror or exc})") from None
+    if len(raw) > MAX_MANIFEST_BYTES:
+        raise ManifestError(f"{p}: manifest larger than {MAX_MANIFEST_BYTES // 1024} KiB")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ManifestError(f"{p}: not UTF-8 text (byte {exc.start})") from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ManifestError(f"{p}: not valid TOML ({exc})") from None
+        raise ManifestError(f"{p}: not valid TOML ({_short(str(exc), 120)})") from None
+    except RecursionError:  # arrays nested thousands deep
+        raise ManifestError(f"{p}: not valid TOML (nested too deeply)") from None
     try:
         return parse_manifest(data, p)
     except ManifestError as exc:
@@ -205,18 +240,18 @@ def locate_manifest(reference: str) -> Path:
     executing it) and follows the remaining package names as directories, so no plugin code
     runs. Raises ManifestError when the reference is malformed or the file is absent.
     """
-    m = _RESOURCE_RE.match(reference.strip())
+    m = _RESOURCE_RE.match(reference.strip()) if len(reference) < 500 else None
     if m is None:
         raise ManifestError(
-            f"entry point value {reference!r} must be 'package:manifest.toml' "
+            f"entry point value {_short(reference)} must be 'package:manifest.toml' "
             "(a TOML file inside the package)"
         )
     package, resource = m.group(1), m.group(2)
     top, *rest = package.split(".")
     try:
         spec = importlib.util.find_spec(top)
-    except (ImportError, ValueError) as exc:
-        raise ManifestError(f"cannot locate package {top!r}: {exc}") from None
+    except Exception as exc:  # a broken finder or package metadata: this plugin's problem
+        raise ManifestError(f"cannot locate package {top!r}: {_short(str(exc), 120)}") from None
     if spec is None:
         raise ManifestError(f"package {top!r} of manifest {reference!r} is not installed")
     locations = list(spec.submodule_search_locations or [])

@@ -14,6 +14,14 @@ displacement shader that does not compile) is reported with `report_failure`. A 
 not persisted: the next start tries the plugin again. The user's enable/disable choices are
 persisted in the settings backend (``plugins/enabled``); plugins the user never touched are
 enabled (built-in or installed with pip alike).
+
+Isolation covers every `BaseException` raised by plugin code — ``SystemExit``,
+``GeneratorExit``, a ``KeyboardInterrupt`` the plugin raises itself — except a real Ctrl-C: the
+host installs a SIGINT handler (`install_sigint_marker`) that counts the signals it delivers,
+and a KeyboardInterrupt escaping plugin code is re-raised only when a SIGINT arrived during
+that call. Frame-path calls (``budgeted=True``) are timed; see `Budget`. The failure is logged
+as one line at WARNING on ``globeview.plugins`` and its traceback at DEBUG (and kept on the
+record, `PluginRecord.traceback`), so a terminal sees one line, never a traceback.
 """
 
 from __future__ import annotations
@@ -22,7 +30,10 @@ import contextlib
 import importlib
 import importlib.metadata as md
 import logging
-import sys
+import math
+import signal
+import threading
+import time
 import traceback
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -39,7 +50,18 @@ from globeview.plugins.settings import (
     default_settings,
 )
 
-__all__ = ["ENTRY_POINT_GROUP", "LoadedContribution", "PluginRecord", "PluginRegistry"]
+__all__ = [
+    "BUDGET_MS_KEY",
+    "BUDGET_OVERRUNS_KEY",
+    "BUDGET_POLICY_KEY",
+    "ENTRY_POINT_GROUP",
+    "Budget",
+    "LoadedContribution",
+    "PluginRecord",
+    "PluginRegistry",
+    "PluginTimeout",
+    "install_sigint_marker",
+]
 
 #: Entry point group plugins register under.
 ENTRY_POINT_GROUP = "globeview.plugins"
@@ -59,10 +81,89 @@ _REQUIRED_METHODS: dict[PluginKind, tuple[str, ...]] = {
 }
 
 
+#: Settings keys of the frame-path time budget (see `Budget`).
+BUDGET_MS_KEY = "plugins/budget_ms"
+BUDGET_OVERRUNS_KEY = "plugins/budget_overruns"
+BUDGET_POLICY_KEY = "plugins/budget_policy"
+#: Longest error text kept on a record or logged (hostile plugins raise huge messages).
+MAX_MESSAGE_CHARS = 300
+
+
+class PluginTimeout(Exception):
+    """A plugin's frame-path calls overran the time budget too many times in a row."""
+
+
 def describe_exception(exc: BaseException) -> str:
-    """``"ExcType: message"`` on one line."""
-    msg = " ".join(str(exc).split())
-    return f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__
+    """``"ExcType: message"`` on one line, at most `MAX_MESSAGE_CHARS` characters."""
+    try:
+        msg = " ".join(str(exc).split())
+    except Exception:  # a plugin's exception whose __str__ itself raises
+        msg = "<unprintable message>"
+    text = f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__
+    if len(text) > MAX_MESSAGE_CHARS:
+        text = text[: MAX_MESSAGE_CHARS - 3] + "..."
+    return text
+
+
+# -- telling a real Ctrl-C from a KeyboardInterrupt raised by plugin code ----------------------
+_sigint_count = 0
+_sigint_lock = threading.Lock()
+_marker_installed = False
+
+
+def _counting_sigint_handler(signum: int, frame: Any) -> None:
+    """SIGINT handler: count the signal, then raise KeyboardInterrupt as Python's default
+    handler does."""
+    global _sigint_count
+    _sigint_count += 1
+    raise KeyboardInterrupt
+
+
+def install_sigint_marker() -> bool:
+    """Make Ctrl-C countable, so `PluginRegistry.call` can tell the user's interrupt (re-raised)
+    from a KeyboardInterrupt that plugin code raised itself (a plugin failure).
+
+    Replaces Python's default SIGINT handler (`signal.default_int_handler`) by one that counts
+    the signal and then raises KeyboardInterrupt exactly as the default does. Leaves any other
+    handler (SIG_DFL, SIG_IGN, an application's own) alone: with those a Ctrl-C raises no
+    KeyboardInterrupt into plugin code. Only possible from the main thread; idempotent.
+    Returns True when the counting handler is in place.
+    """
+    global _marker_installed
+    with _sigint_lock:
+        if _marker_installed:
+            return signal.getsignal(signal.SIGINT) is _counting_sigint_handler
+        if threading.current_thread() is not threading.main_thread():
+            return False
+        try:
+            if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+                return False
+            signal.signal(signal.SIGINT, _counting_sigint_handler)
+        except (ValueError, OSError):  # not the main interpreter / no signals here
+            return False
+        _marker_installed = True
+        return True
+
+
+def sigint_count() -> int:
+    """How many SIGINTs the counting handler has delivered in this process."""
+    return _sigint_count
+
+
+@dataclass
+class Budget:
+    """The time budget of frame-path plugin calls (``select``, a tool's per-frame hooks).
+
+    Attributes:
+        ms: milliseconds one call may take (<= 0: no budget).
+        overruns: consecutive overruns after which the ``disable`` policy disables the plugin.
+        policy: 'disable' (the window: a slow provider would freeze it) or 'warn' (headless
+            renders and benchmarks: one warning line per plugin, the plugin keeps running).
+    """
+
+    ms: float = 250.0
+    overruns: int = 5
+    policy: Literal["warn", "disable"] = "warn"
 
 
 @dataclass
@@ -97,8 +198,11 @@ class PluginRecord:
     enabled: bool = True
     status: Status = "ok"
     error: str | None = None
+    traceback: str | None = field(default=None, repr=False)
     context: PluginContext | None = field(default=None, repr=False)
     loaded: dict[str, LoadedContribution] = field(default_factory=dict, repr=False)
+    overruns: int = field(default=0, repr=False)
+    budget_warned: bool = field(default=False, repr=False)
 
     @property
     def version(self) -> str:
@@ -119,6 +223,7 @@ class PluginRecord:
             "enabled": self.enabled,
             "status": self.status,
             "error": self.error,
+            "traceback": self.traceback,
             "builtin": self.builtin,
             "source": self.source,
             "contributions": [
@@ -136,6 +241,8 @@ class PluginRegistry:
             (default: the JSON file in the user's config directory).
         scene, terrain, camera, renderer: what `PluginContext` hands plugins; `attach`
             changes them later.
+        budget_policy: what a frame-path overrun does unless the settings say otherwise
+            (``plugins/budget_policy``): 'warn' (default; headless) or 'disable' (the window).
     """
 
     def __init__(
@@ -146,8 +253,11 @@ class PluginRegistry:
         terrain: Any = None,
         camera: Any = None,
         renderer: RendererHooks | None = None,
+        budget_policy: Literal["warn", "disable"] = "warn",
     ) -> None:
         self.settings: SettingsBackend = settings if settings is not None else default_settings()
+        install_sigint_marker()
+        self.budget = self._read_budget(budget_policy)
         self._host: dict[str, Any] = {
             "scene": scene,
             "terrain": terrain,
@@ -160,6 +270,21 @@ class PluginRegistry:
         self._owners: dict[int, tuple[str, Any]] = {}
         self._live: set[int] = set()
 
+    def _read_budget(self, default_policy: Literal["warn", "disable"]) -> Budget:
+        """The `Budget` from the settings (``plugins/budget_ms``, ``plugins/budget_overruns``,
+        ``plugins/budget_policy``); values of the wrong type or range are ignored."""
+        b = Budget(policy=default_policy)
+        ms = self.settings.get(BUDGET_MS_KEY)
+        if isinstance(ms, int | float) and not isinstance(ms, bool) and math.isfinite(ms):
+            b.ms = float(ms)
+        n = self.settings.get(BUDGET_OVERRUNS_KEY)
+        if isinstance(n, int) and not isinstance(n, bool) and n >= 1:
+            b.overruns = n
+        policy = self.settings.get(BUDGET_POLICY_KEY)
+        if policy in ("warn", "disable"):
+            b.policy = policy
+        return b
+
     # -- discovery ---------------------------------------------------------------------------
     def discover(self, paths: Iterable[str | Path] = ()) -> PluginRegistry:
         """Find the plugins of the entry point group (and manifest files in ``paths``).
@@ -171,30 +296,42 @@ class PluginRegistry:
         self._owners = {}
         self._live = set()
         seen: set[tuple[str, str]] = set()
-        eps = sorted(
-            md.entry_points(group=ENTRY_POINT_GROUP),
-            key=lambda e: (_dist_name(e) != BUILTIN_DISTRIBUTION, e.name),
-        )
+        try:
+            eps = sorted(
+                md.entry_points(group=ENTRY_POINT_GROUP),
+                key=lambda e: (_dist_name(e) != BUILTIN_DISTRIBUTION, e.name),
+            )
+        except Exception as exc:  # a damaged installed distribution's metadata
+            log.warning("plugin discovery failed: %s", describe_exception(exc))
+            log.debug("plugin discovery failed", exc_info=True)
+            eps = []
         for ep in eps:
             if (ep.name, ep.value) in seen:  # the same distribution found twice on sys.path
                 continue
             seen.add((ep.name, ep.value))
-            dist = ep.dist
-            source = f"{dist.metadata['Name']} {dist.version}" if dist else ep.value
-            builtin = _dist_name(ep) == BUILTIN_DISTRIBUTION
             try:
-                manifest = read_manifest(locate_manifest(ep.value))
-                if manifest.name != ep.name:
-                    raise ManifestError(
-                        f"entry point name {ep.name!r} differs from manifest name {manifest.name!r}"
-                    )
-            except ManifestError as exc:
-                self._add_invalid(ep.name, source, str(exc), builtin)
-                continue
-            self._add(manifest, source, builtin)
+                self._discover_one(ep)
+            except Exception as exc:  # hostile metadata: one plugin's problem, not discovery's
+                self._add_invalid(_clip(ep.name), ep.value, describe_exception(exc), False)
         for p in paths:
             self.add_path(p)
         return self
+
+    def _discover_one(self, ep: md.EntryPoint) -> None:
+        dist = ep.dist
+        source = f"{dist.metadata['Name']} {dist.version}" if dist else ep.value
+        builtin = _dist_name(ep) == BUILTIN_DISTRIBUTION
+        try:
+            manifest = read_manifest(locate_manifest(ep.value))
+            if manifest.name != ep.name:
+                raise ManifestError(
+                    f"entry point name {_clip(ep.name)!r} differs from manifest name "
+                    f"{manifest.name!r}"
+                )
+        except ManifestError as exc:
+            self._add_invalid(_clip(ep.name), source, str(exc), builtin)
+            return
+        self._add(manifest, source, builtin)
 
     def add_path(self, path: str | Path) -> PluginRecord:
         """Register the plugin described by a manifest file (its targets must be importable
@@ -221,9 +358,10 @@ class PluginRegistry:
         return rec
 
     def _add_invalid(self, name: str, source: str, error: str, builtin: bool) -> PluginRecord:
+        error = _clip(" ".join(error.split()), MAX_MESSAGE_CHARS)
         rec = PluginRecord(name, None, source, builtin, False, "failed", error)
         self.records[name] = rec
-        log.error("plugin %s disabled: invalid manifest: %s", name, error)
+        log.warning("plugin %s disabled: invalid manifest: %s", name, error)
         return rec
 
     # -- state -------------------------------------------------------------------------------
@@ -263,7 +401,8 @@ class PluginRegistry:
         if rec.manifest is None:
             return rec
         self._store_choice(name, True)
-        rec.enabled, rec.status, rec.error = True, "ok", None
+        rec.enabled, rec.status, rec.error, rec.traceback = True, "ok", None, None
+        rec.overruns, rec.budget_warned = 0, False
         return rec
 
     def disable(self, name: str) -> PluginRecord:
@@ -281,10 +420,18 @@ class PluginRegistry:
         for lc in rec.loaded.values():
             self._live.discard(id(lc.instance))
             if isinstance(lc.instance, Tool):
+                before = _sigint_count
                 try:
                     lc.instance.deactivate()
-                except Exception:  # a failing cleanup must not stop the unload
-                    log.exception("plugin %s: deactivate failed", rec.name)
+                except BaseException as exc:  # a failing cleanup must not stop the unload
+                    if _is_user_interrupt(exc, before):
+                        raise
+                    log.debug(
+                        "plugin %s: deactivate failed: %s",
+                        rec.name,
+                        describe_exception(exc),
+                        exc_info=True,
+                    )
         rec.loaded.clear()
 
     # -- host objects --------------------------------------------------------------------
@@ -331,6 +478,7 @@ class PluginRegistry:
         if name in rec.loaded:
             return rec.loaded[name].instance
         contrib = rec.manifest.contribution(name)
+        before = _sigint_count
         try:
             module = importlib.import_module(contrib.module)
             factory: Any = module
@@ -354,7 +502,9 @@ class PluginRegistry:
             if callable(configure):
                 stored = self.settings.get(f"plugins/{plugin}/contributions/{name}", {})
                 configure(stored if isinstance(stored, dict) else {})
-        except Exception as exc:
+        except BaseException as exc:  # SystemExit from an import is the plugin's fault too
+            if _is_user_interrupt(exc, before):
+                raise
             self.report_failure(plugin, exc)
             return None
         rec.loaded[name] = LoadedContribution(plugin, name, contrib.kind, contrib.label, instance)
@@ -387,6 +537,47 @@ class PluginRegistry:
                 names.add(c.name)
                 out.append(rec.loaded[c.name])
         return out
+
+    def find(self, kind: PluginKind | str, name: str) -> Any | None:
+        """The contribution ``name`` of ``kind``, loading only the plugin that declares it
+        (the manifests say which), so asking for one provider imports no other plugin.
+
+        The same precedence as `contributions`: the first enabled plugin declaring it wins;
+        if that one fails to load, the next one declaring it is tried. None if no enabled
+        plugin provides it."""
+        kind = PluginKind(kind)
+        for rec in list(self.records.values()):
+            if rec.manifest is None or not rec.enabled or rec.status != "ok":
+                continue
+            if any(c.kind == kind and c.name == name for c in rec.manifest.contributions):
+                instance = self.load_contribution(rec.name, name)
+                if instance is not None:
+                    return instance
+        return None
+
+    def offers(self, kind: PluginKind | str, name: str) -> bool:
+        """True when an enabled plugin's manifest declares contribution ``name`` of ``kind``
+        (nothing is imported)."""
+        kind = PluginKind(kind)
+        return any(
+            rec.manifest is not None
+            and rec.enabled
+            and rec.status == "ok"
+            and any(c.kind == kind and c.name == name for c in rec.manifest.contributions)
+            for rec in self.records.values()
+        )
+
+    def declared(self, kind: PluginKind | str) -> list[str]:
+        """Names of the contributions of ``kind`` the enabled plugins declare (from their
+        manifests; nothing is imported), in precedence order without duplicates."""
+        kind = PluginKind(kind)
+        names: dict[str, None] = {}
+        for rec in self.records.values():
+            if rec.manifest is not None and rec.enabled and rec.status == "ok":
+                for c in rec.manifest.contributions:
+                    if c.kind == kind:
+                        names.setdefault(c.name)
+        return list(names)
 
     def lod_providers(self) -> dict[str, LodProvider]:
         """Contribution name -> LOD provider, from the enabled plugins."""
@@ -428,27 +619,74 @@ class PluginRegistry:
         *args: Any,
         default: Any = None,
         user_errors: bool = False,
+        budgeted: bool = False,
         **kwargs: Any,
     ) -> T | Any:
         """Run ``fn(*args, **kwargs)`` — plugin code — isolated.
 
         Returns ``default`` without calling when the plugin is not active, and when ``fn``
-        raises: the plugin is then disabled for the session (`report_failure`). With
-        ``user_errors``, a `GlobeviewError` (bad input the user gave, e.g. a broken file to a
-        layer type's ``open``) propagates to the caller instead: the plugin is not at fault.
+        raises any `BaseException` (SystemExit, GeneratorExit, a KeyboardInterrupt of its
+        own...): the plugin is then disabled for the session (`report_failure`). Only a real
+        Ctrl-C — a SIGINT delivered while ``fn`` ran, see `install_sigint_marker` — is
+        re-raised. With ``user_errors``, a `GlobeviewError` (bad input the user gave, e.g. a
+        broken file to a layer type's ``open``) propagates to the caller instead: the plugin
+        is not at fault. With ``budgeted`` (frame-path calls) the call is timed against
+        `budget` (see `Budget`).
         """
         if not self.is_active(plugin_name):
             return default
+        before = _sigint_count
+        t0 = time.perf_counter()
         try:
-            return fn(*args, **kwargs)
-        except GlobeviewError:
+            result = fn(*args, **kwargs)
+        except GlobeviewError as exc:
             if user_errors:
                 raise
-            self.report_failure(plugin_name, sys.exc_info()[1])  # type: ignore[arg-type]
-            return default
-        except Exception as exc:
             self.report_failure(plugin_name, exc)
             return default
+        except BaseException as exc:
+            if _is_user_interrupt(exc, before):
+                raise
+            self.report_failure(plugin_name, exc)
+            return default
+        if budgeted:
+            self._check_budget(plugin_name, fn, (time.perf_counter() - t0) * 1e3)
+        return result
+
+    def _check_budget(self, plugin_name: str, fn: Any, ms: float) -> None:
+        """Count a frame-path call of ``ms`` milliseconds against the budget: after
+        ``budget.overruns`` consecutive overruns the 'disable' policy disables the plugin;
+        the 'warn' policy logs one warning per plugin and session."""
+        b = self.budget
+        rec = self.records.get(plugin_name)
+        if rec is None or b.ms <= 0:
+            return
+        if ms <= b.ms:
+            rec.overruns = 0
+            return
+        rec.overruns += 1
+        what = f"{getattr(fn, '__name__', 'call')}()"
+        if b.policy == "disable":
+            if rec.overruns >= b.overruns:
+                self.report_failure(
+                    plugin_name,
+                    PluginTimeout(
+                        f"{what} took {ms:.0f} ms, over the {b.ms:g} ms budget "
+                        f"({BUDGET_MS_KEY}) {rec.overruns} calls in a row"
+                    ),
+                )
+        elif not rec.budget_warned:
+            rec.budget_warned = True
+            log.warning(
+                "plugin %s: %s took %.0f ms, over the %g ms frame budget (%s); "
+                "kept running (%s is 'warn')",
+                plugin_name,
+                what,
+                ms,
+                b.ms,
+                BUDGET_MS_KEY,
+                BUDGET_POLICY_KEY,
+            )
 
     def invoke(
         self,
@@ -457,6 +695,7 @@ class PluginRegistry:
         *args: Any,
         default: Any = None,
         user_errors: bool = False,
+        budgeted: bool = False,
         **kwargs: Any,
     ) -> Any:
         """``call`` a method of a loaded contribution, e.g.
@@ -471,21 +710,49 @@ class PluginRegistry:
         if not callable(fn):
             self.report_failure(plugin, TypeError(f"{type(instance).__name__} has no {method}()"))
             return default
-        return self.call(plugin, fn, *args, default=default, user_errors=user_errors, **kwargs)
+        return self.call(
+            plugin,
+            fn,
+            *args,
+            default=default,
+            user_errors=user_errors,
+            budgeted=budgeted,
+            **kwargs,
+        )
 
-    def select(self, provider: LodProvider, view: Any, terrain: Any) -> Any | None:
-        """``provider.select(view, terrain)`` isolated, checking it returned a RenderSet.
+    def select(
+        self,
+        provider: LodProvider,
+        view: Any,
+        terrain: Any,
+        check: Callable[[Any], None] | None = None,
+    ) -> Any | None:
+        """``provider.select(view, terrain)`` isolated and timed (frame path), checking it
+        returned a RenderSet — and, with ``check`` (e.g. `RenderSet.validate` with the
+        renderer's limits), a valid one: ``check`` raising fails the provider's plugin.
 
         Returns None when the provider failed (the host then falls back to another)."""
         from globeview.render.render_set import RenderSet
 
-        result = self.invoke(provider, "select", view, terrain, default=None)
-        if result is not None and not isinstance(result, RenderSet):
+        failed = object()
+        result = self.invoke(provider, "select", view, terrain, default=failed, budgeted=True)
+        if result is failed:
+            return None
+        if not isinstance(result, RenderSet):
             self.report_failure(
                 self.owner_of(provider),
                 TypeError(f"select() returned {type(result).__name__}, not a RenderSet"),
             )
             return None
+        if check is not None:
+            before = _sigint_count
+            try:
+                check(result)  # may run plugin code: a RenderSet subclass's properties
+            except BaseException as exc:
+                if _is_user_interrupt(exc, before):
+                    raise
+                self.report_failure(self.owner_of(provider), exc)
+                return None
         return result
 
     def report_failure(self, plugin_name: str, exc: BaseException) -> None:
@@ -494,14 +761,32 @@ class PluginRegistry:
         dropped, and the error logged with its traceback. The persisted choice is unchanged."""
         rec = self.records.get(plugin_name)
         message = describe_exception(exc)
-        tb = "".join(traceback.format_exception(exc)).rstrip()
-        log.error("plugin %s failed and was disabled: %s\n%s", plugin_name, message, tb)
+        try:
+            tb = "".join(traceback.format_exception(exc)).rstrip()
+        except Exception:  # a hostile exception object
+            tb = message
+        # One WARNING line (the host carries on; a terminal sees exactly this line); the
+        # traceback at DEBUG and on the record (`plugins list --json`, the plugin panel).
+        log.warning("plugin %s failed and was disabled: %s", plugin_name, message)
+        log.debug("plugin %s failure traceback:\n%s", plugin_name, tb)
         if rec is None:
             return
         self._unload(rec)
         rec.enabled = False
         rec.status = "failed"
         rec.error = message
+        rec.traceback = tb
+
+
+def _is_user_interrupt(exc: BaseException, sigints_before: int) -> bool:
+    """True for a KeyboardInterrupt from a SIGINT delivered since ``sigints_before`` was read
+    (the user's Ctrl-C); False for one plugin code raised itself, and for anything else."""
+    return isinstance(exc, KeyboardInterrupt) and _sigint_count != sigints_before
+
+
+def _clip(text: str, limit: int = 100) -> str:
+    """``text`` cut to ``limit`` characters (hostile names and values are huge)."""
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def _dist_name(ep: md.EntryPoint) -> str:

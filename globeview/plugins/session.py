@@ -1,18 +1,29 @@
 """`GlobeSession`: the headless application model — a `GlobeScene` whose LOD provider and
 tools come from the plugin registry, each call isolated (a failing plugin is disabled and the
 session falls back to the built-in `chunked-sse`). The CLI's headless renders and the Qt
-window both drive a session."""
+window both drive a session.
+
+The session is the host boundary: what plugin code returns is checked before the renderer or
+another plugin uses it — the provider's `RenderSet` every frame (`RenderSet.validate`), a
+tool's displaced points, bend bounds, uniforms, overlay primitives and cache key, a layer
+type's layer — and garbage fails the plugin that returned it (one line, see
+`PluginRegistry.report_failure`). Only the contributions in use are loaded: choosing a
+provider, tool or layer type imports that plugin alone (`PluginRegistry.find`).
+"""
 
 from __future__ import annotations
 
 import logging
+import math
+from collections.abc import Hashable
+from numbers import Real
 
 import moderngl
 import numpy as np
 
 from globeview.errors import GlobeviewError
 from globeview.geodesy import ecef_to_lonlat
-from globeview.plugins.api import NullRendererHooks, Tool
+from globeview.plugins.api import Marker, NullRendererHooks, PluginKind, Polyline, Tool
 from globeview.plugins.registry import PluginRegistry
 from globeview.render.camera import Camera
 from globeview.render.picking import Pick
@@ -60,49 +71,74 @@ class GlobeSession(GlobeScene):
 
     # -- LOD providers -------------------------------------------------------------------------
     def lod_providers(self) -> dict:
-        """Name -> provider of every enabled LOD plugin contribution."""
+        """Name -> provider of every enabled LOD plugin contribution (imports them all: for
+        listing; the frame path loads only the active one)."""
         return self.registry.lod_providers()
 
     def set_lod(self, name: str) -> None:
-        """Make ``name`` the active LOD provider (takes effect on the next frame)."""
-        providers = self.lod_providers()
-        if name not in providers:
-            known = ", ".join(sorted(providers)) or "none"
-            raise GlobeviewError(f"no enabled LOD provider named {name!r} (available: {known})")
-        self.lod_name = name
+        """Make ``name`` the active LOD provider (takes effect on the next frame). Imports
+        only the plugin that provides it.
+
+        A name no enabled plugin declares is the user's error (`GlobeviewError`). A provider
+        whose plugin fails to load is the plugin's: the registry reports it in one line and
+        the session falls back to `DEFAULT_LOD`, as it does for a provider failing later."""
+        if self.registry.find(PluginKind.LOD, name) is not None:
+            self.lod_name = name
+            return
+        declared_by_failed = any(
+            rec.status == "failed"
+            and rec.manifest is not None
+            and any(c.kind == PluginKind.LOD and c.name == name for c in rec.manifest.contributions)
+            for rec in self.registry
+        )
+        if declared_by_failed and name != DEFAULT_LOD:
+            log.info("LOD provider %s failed to load; using %s", name, DEFAULT_LOD)
+            self.set_lod(DEFAULT_LOD)
+            return
+        known = ", ".join(sorted(self.registry.declared(PluginKind.LOD))) or "none"
+        raise GlobeviewError(f"no enabled LOD provider named {name!r} (available: {known})")
 
     def reset_lod(self) -> None:
         """Make the active provider forget its per-view cache (before a measured frame)."""
-        provider = self.lod_providers().get(self.lod_name)
+        provider = self.registry.find(PluginKind.LOD, self.lod_name)
         if provider is not None:
             self.registry.invoke(provider, "reset")
 
+    def _check_render_set(self, rs: RenderSet) -> None:
+        """`RenderSet.validate` against this renderer's tiles (raises InvalidRenderSet)."""
+        rs.validate(self.renderer.size, self.renderer.pool.verts_per_tile)
+
     def _select(self, view: ViewState, terrain: TerrainStack) -> RenderSet:
-        providers = self.lod_providers()
-        provider = providers.get(self.lod_name)
+        provider = self.registry.find(PluginKind.LOD, self.lod_name)
         if provider is not None:
-            rs = self.registry.select(provider, view, terrain)
+            rs = self.registry.select(provider, view, terrain, check=self._check_render_set)
             if rs is not None:
                 return rs
-            log.warning("LOD provider %s failed; falling back to %s", self.lod_name, DEFAULT_LOD)
-        fallback = self.lod_providers().get(DEFAULT_LOD)
-        if fallback is not None and self.lod_name != DEFAULT_LOD:
+        # The registry already reported the failure in one line; this is detail.
+        log.info("LOD provider %s unavailable; falling back to %s", self.lod_name, DEFAULT_LOD)
+        if self.lod_name != DEFAULT_LOD:
             self.lod_name = DEFAULT_LOD
-            rs = self.registry.select(fallback, view, terrain)
-            if rs is not None:
-                return rs
+            fallback = self.registry.find(PluginKind.LOD, DEFAULT_LOD)
+            if fallback is not None:
+                rs = self.registry.select(fallback, view, terrain, check=self._check_render_set)
+                if rs is not None:
+                    return rs
         return RenderSet.empty()
 
     # -- tools ---------------------------------------------------------------------------------
     def tools(self) -> dict:
-        """Name -> tool of every enabled tool plugin contribution."""
+        """Name -> tool of every enabled tool plugin contribution (imports them all)."""
         return self.registry.tools()
+
+    def find_tool(self, name: str):
+        """The enabled tool ``name`` (importing only its plugin), or None."""
+        return self.registry.find(PluginKind.TOOL, name)
 
     def activate_tool(self, name: str | None) -> None:
         """Make ``name`` the active tool (None: no tool). A tool's displacement hook is
         compiled into the terrain shader now; if it does not compile the tool's plugin is
         disabled and reported, and the terrain keeps the plain shader."""
-        if name is not None and name not in self.tools():
+        if name is not None and self.find_tool(name) is None:
             raise GlobeviewError(f"no enabled tool named {name!r}")
         previous = self.tool()
         if previous is not None and name != self.active_tool:
@@ -110,6 +146,9 @@ class GlobeSession(GlobeScene):
         self.active_tool = name
         tool = self.tool()
         glsl = self.registry.invoke(tool, "displacement_glsl") if tool is not None else None
+        if glsl is not None and not isinstance(glsl, str):
+            self._fail(tool, f"displacement_glsl() returned {type(glsl).__name__}, not GLSL text")
+            glsl = None
         if not glsl:
             if self.renderer._hook is not None:
                 self.renderer.set_displacement_hook(None)
@@ -127,18 +166,43 @@ class GlobeSession(GlobeScene):
         """The active tool object, or None (also None once its plugin has failed)."""
         if self.active_tool is None:
             return None
-        tool = self.tools().get(self.active_tool)
+        tool = self.find_tool(self.active_tool)
         if tool is None:  # its plugin was disabled or failed
             self.active_tool = None
             if self.renderer._hook is not None:
                 self.renderer.set_displacement_hook(None)
         return tool
 
+    # -- checks of what tools return (garbage fails the tool's plugin, not the caller) -------
+    def _fail(self, contribution, problem: str) -> None:
+        """Fail the plugin of ``contribution`` for returning garbage (``problem``, one line)."""
+        self.registry.report_failure(self.registry.owner_of(contribution), TypeError(problem))
+
+    def _checked_points(self, tool, out, points: np.ndarray, what: str) -> np.ndarray | None:
+        """``out`` as float64 points shaped like ``points`` and finite wherever ``points``
+        is; otherwise the tool's plugin fails and None comes back."""
+        try:
+            arr = np.asarray(out, dtype=np.float64)
+        except Exception:
+            arr = None
+        if arr is None or arr.shape != points.shape:
+            got = "something else" if arr is None else f"shape {arr.shape}"
+            self._fail(tool, f"{what}() returned {got} for points of shape {points.shape}")
+            return None
+        if not np.isfinite(arr).all() and (~np.isfinite(arr) & np.isfinite(points)).any():
+            self._fail(tool, f"{what}() returned NaN or infinite coordinates")
+            return None
+        return arr
+
     def _displace(self, points: np.ndarray) -> np.ndarray:
         tool = self.tool()
         if tool is None:
             return points
-        return self.registry.invoke(tool, "displacement_numpy", points, default=points)
+        out = self.registry.invoke(tool, "displacement_numpy", points, default=None)
+        if out is None:
+            return points
+        arr = self._checked_points(tool, out, np.asarray(points), "displacement_numpy")
+        return points if arr is None else arr
 
     def _bend(self, points: np.ndarray, displaced: np.ndarray | None = None) -> np.ndarray:
         """The active tool's bend bound (`Tool.displacement_bend_m`); the exact measure when
@@ -149,9 +213,20 @@ class GlobeSession(GlobeScene):
         bend = None
         if tool is not None:
             bend = self.registry.invoke(tool, "displacement_bend_m", points, displaced)
-        if bend is None:
-            return displacement_chord_error_m(self._displace, points, displaced)
-        return np.asarray(bend, dtype=np.float64)
+        if bend is not None:
+            try:
+                arr = np.asarray(bend, dtype=np.float64)
+            except Exception:
+                arr = None
+            want = np.shape(points)[:1]
+            if arr is None or arr.shape != want or not (np.isfinite(arr) & (arr >= 0)).all():
+                got = "something else" if arr is None else f"shape {arr.shape}"
+                self._fail(
+                    tool, f"displacement_bend_m() returned {got}, not {want} finite bends >= 0"
+                )
+            else:
+                return arr
+        return displacement_chord_error_m(self._displace, points, displaced)
 
     def view_state(self, viewport: tuple[int, int]):
         """The base view, plus the active tool's CPU displacement (``displace``), its
@@ -170,6 +245,9 @@ class GlobeSession(GlobeScene):
         key = None
         if callable(getattr(tool, "displacement_key", None)):  # tools need not subclass Tool
             key = self.registry.invoke(tool, "displacement_key")
+            if key is not None and not _hashable(key):
+                self._fail(tool, f"displacement_key() returned an unhashable {type(key).__name__}")
+                return super().view_state(viewport)
         return replace(
             view,
             displace=self._displace,
@@ -182,8 +260,13 @@ class GlobeSession(GlobeScene):
         hook = self.renderer._hook
         if tool is not None and hook is not None:
             view = self.view_state(viewport)
-            uniforms = self.registry.invoke(tool, "displacement_uniforms", view, default=None)
-            if uniforms is None:  # the tool failed: drop its hook this frame
+            uniforms = self.registry.invoke(
+                tool, "displacement_uniforms", view, default=None, budgeted=True
+            )
+            problem = _uniforms_problem(uniforms) if uniforms is not None else None
+            if problem is not None:
+                self._fail(tool, f"displacement_uniforms() returned {problem}")
+            if uniforms is None or problem is not None:  # the tool failed: drop its hook
                 self.renderer.set_displacement_hook(None)
             else:
                 hook.uniforms = dict(uniforms)
@@ -195,10 +278,12 @@ class GlobeSession(GlobeScene):
         tool = self.tool()
         if p is None or tool is None or self.renderer._hook is None:
             return p
-        true = self.registry.invoke(
-            tool, "displacement_inverse_numpy", p.ecef[None, :], default=p.ecef[None, :]
-        )
-        ecef = np.asarray(true, dtype=np.float64).reshape(3)
+        drawn = p.ecef[None, :]
+        true = self.registry.invoke(tool, "displacement_inverse_numpy", drawn, default=None)
+        arr = None
+        if true is not None:
+            arr = self._checked_points(tool, true, drawn, "displacement_inverse_numpy")
+        ecef = (drawn if arr is None else arr).reshape(3)
         lon, lat, h = ecef_to_lonlat(ecef)
         return Pick(ecef, float(lon), float(lat), float(h), p.on_terrain)
 
@@ -209,13 +294,27 @@ class GlobeSession(GlobeScene):
         from globeview.plugins.builtin.layers import detect_layer_type
 
         kind = detect_layer_type(str(path))
-        layer_type = self.registry.layer_types().get(kind)
+        layer_type = self.registry.find(PluginKind.LAYER, kind)
         if layer_type is None:
             raise GlobeviewError(f"no enabled layer plugin opens {kind} files ({path})")
-        layer = self.registry.invoke(layer_type, "open", str(path), user_errors=True, **style)
-        if layer is None:
-            raise GlobeviewError(f"the layer plugin failed to open {path} (see the plugin list)")
-        layer.attach(self.renderer)
+        owner = self.registry.owner_of(layer_type)
+        failed = object()
+        layer = self.registry.invoke(
+            layer_type, "open", str(path), default=failed, user_errors=True, **style
+        )
+        if layer is not failed and not all(
+            callable(getattr(layer, m, None)) for m in ("attach", "detach")
+        ):
+            self._fail(layer_type, f"open() returned {type(layer).__name__}, not a layer")
+            layer = failed
+        if layer is not failed:
+            attached = self.registry.call(owner, layer.attach, self.renderer, default=failed)
+            if attached is failed:
+                layer = failed
+        if layer is failed:
+            rec = self.registry.records.get(owner)
+            why = rec.error if rec is not None and rec.error else "failed"
+            raise GlobeviewError(f"layer plugin {owner} could not open {path}: {why}")
         self.overlay_layers.append(layer)
         return layer
 
@@ -251,8 +350,14 @@ class GlobeSession(GlobeScene):
         view = view if view is not None else (self.last.view if self.last else None)
         if tool is None or view is None:
             return 0
-        prims = self.registry.invoke(tool, "overlay", view, default=None) or []
-        if not prims:
+        prims = self.registry.invoke(tool, "overlay", view, default=None, budgeted=True)
+        if not isinstance(prims, list | tuple) or not prims:
+            if prims is not None and not isinstance(prims, list | tuple):
+                self._fail(tool, f"overlay() returned {type(prims).__name__}, not a list")
+            return 0
+        problem = _overlay_problem(prims)
+        if problem is not None:
+            self._fail(tool, f"overlay() returned {problem}")
             return 0
         if self._tool_overlay is None:
             from globeview.render.overlay_tools import ToolOverlayRenderer
@@ -288,3 +393,58 @@ class GlobeSession(GlobeScene):
             self._marker_heights[key] = ground
         new = tuple(float(v) for v in np.asarray(lonlat_to_ecef(lon, lat, ground)).ravel())
         return replace(prim, position=new)
+
+
+#: Most overlay primitives a tool may draw in one frame.
+MAX_OVERLAY_PRIMITIVES = 100_000
+
+
+def _hashable(value: object) -> bool:
+    if not isinstance(value, Hashable):
+        return False
+    try:
+        hash(value)
+    except Exception:
+        return False
+    return True
+
+
+def _finite_numbers(values: object, lengths: tuple[int, ...]) -> bool:
+    """True for a real number (``1 in lengths``) or a sequence of ``lengths`` finite reals."""
+    if isinstance(values, Real) and not isinstance(values, bool):
+        return 1 in lengths and math.isfinite(values)
+    if not isinstance(values, tuple | list) or len(values) not in lengths:
+        return False
+    return all(isinstance(v, Real) and not isinstance(v, bool) and math.isfinite(v) for v in values)
+
+
+def _uniforms_problem(uniforms: object) -> str | None:
+    """What is wrong with a tool's ``displacement_uniforms`` result, or None."""
+    if not isinstance(uniforms, dict):
+        return f"{type(uniforms).__name__}, not a dict"
+    for name, value in uniforms.items():
+        if not isinstance(name, str) or not name.startswith("gv_u_"):
+            return f"uniform name {name!r:.40} (names start with 'gv_u_')"
+        if not _finite_numbers(value, (1, 2, 3, 4)):
+            return f"{name}={value!r:.40}, not a finite float or 2-4 finite floats"
+    return None
+
+
+def _overlay_problem(prims: list | tuple) -> str | None:
+    """What is wrong with a tool's ``overlay`` primitives, or None."""
+    if len(prims) > MAX_OVERLAY_PRIMITIVES:
+        return f"{len(prims)} primitives (at most {MAX_OVERLAY_PRIMITIVES})"
+    for p in prims:
+        if isinstance(p, Marker):
+            if not _finite_numbers(tuple(p.position), (3,)):
+                return f"a Marker at {p.position!r:.60}, not 3 finite ECEF coordinates"
+        elif isinstance(p, Polyline):
+            try:
+                pts = np.asarray(p.points, dtype=np.float64)
+            except Exception:
+                return "a Polyline whose points are not numbers"
+            if pts.ndim != 2 or pts.shape[1] != 3 or not np.isfinite(pts).all():
+                return f"a Polyline with points of shape {pts.shape}, not finite (N, 3)"
+        else:
+            return f"a {type(p).__name__}, not a Marker or Polyline"
+    return None

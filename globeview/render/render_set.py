@@ -1,12 +1,36 @@
-"""What an LOD provider hands the renderer each frame, and what the renderer reports back."""
+"""What an LOD provider hands the renderer each frame, and what the renderer reports back.
+
+`RenderSet.validate` is the host's check at the plugin boundary: a provider's render set is
+validated every frame before the renderer touches it (vectorised numpy, a few tens of
+microseconds for a full frame), so garbage from a plugin fails that plugin instead of the
+renderer.
+"""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+from numbers import Real
 
 import numpy as np
 
 from globeview.render.tile_indices import IndexVariant
+
+#: Deepest quadtree level a key may have: the tile pool packs keys into int64 codes with
+#: x, y < 2^29 (tile_pool.key_codes), and level 28 has 2^29 columns.
+MAX_KEY_LEVEL = 28
+#: Most tiles one render set may hold. The GPU pool holds far fewer (768 by default); this
+#: only bounds what the host is willing to even look at (a bug returning 10^7 keys).
+MAX_TILES = 65_536
+#: Most distinct index variants per render set (each is built once and cached on the GPU).
+MAX_VARIANTS = 1024
+#: Stats the renderer reads as numbers.
+_NUMERIC_STATS = ("lod_ms", "tiles_culled_frustum", "tiles_culled_horizon")
+_POLES = (None, "north", "south", "both")
+
+
+class InvalidRenderSet(ValueError):
+    """A render set an LOD provider returned is malformed (one-line message saying what)."""
 
 
 @dataclass
@@ -34,8 +58,13 @@ class RenderSet:
     stats: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        self.keys = np.asarray(self.keys, dtype=np.int64).reshape(-1, 3)
-        self.variant_ids = np.asarray(self.variant_ids, dtype=np.int64).reshape(-1)
+        keys = _as_int64(self.keys, "keys")
+        if keys.size == 0:
+            keys = keys.reshape(0, 3)
+        elif keys.ndim != 2 or keys.shape[1] != 3:
+            raise ValueError(f"keys must be (N, 3) rows (level, x, y), not shape {keys.shape}")
+        self.keys = keys
+        self.variant_ids = _as_int64(self.variant_ids, "variant_ids").reshape(-1)
         if len(self.variant_ids) != len(self.keys):
             raise ValueError("one variant id per tile")
 
@@ -45,6 +74,150 @@ class RenderSet:
     @classmethod
     def empty(cls) -> RenderSet:
         return cls(np.empty((0, 3), np.int64), np.empty(0, np.int64), [])
+
+    def validate(self, tile_size: int, verts_per_tile: int | None = None) -> None:
+        """Raise `InvalidRenderSet` unless the renderer can draw this set safely.
+
+        Checks (all vectorised over the tiles): ``keys`` an (N, 3) integer array with
+        N <= `MAX_TILES`, level in 0..`MAX_KEY_LEVEL`, x in [0, 2^(level+1)), y in
+        [0, 2^level); ``variant_ids`` (N,) integers indexing ``variants``; every variant an
+        `IndexVariant` whose stride (and edge strides, multiples of it) divides the tile's
+        ``tile_size - 1`` cells, with a known pole; ``custom_indices`` rows in [0, N) holding
+        1-D integer triangle lists (a multiple of 3 long) within the tile's
+        ``verts_per_tile`` vertices; ``error_px`` None or (N,) real numbers, not NaN;
+        ``stats`` a dict whose renderer-read entries are finite numbers.
+        """
+        n_cells = tile_size - 1
+        keys, ids = self.keys, self.variant_ids
+        if not isinstance(keys, np.ndarray) or keys.ndim != 2 or keys.shape[1:] != (3,):
+            raise InvalidRenderSet(f"keys must be an (N, 3) array, not {_describe(keys)}")
+        n = keys.shape[0]
+        if n > MAX_TILES:
+            raise InvalidRenderSet(f"{n} tiles, more than the {MAX_TILES} a frame may have")
+        if keys.dtype.kind not in "iu":
+            raise InvalidRenderSet(f"keys must be integers, not {keys.dtype}")
+        if not isinstance(ids, np.ndarray) or ids.shape != (n,) or ids.dtype.kind not in "iu":
+            raise InvalidRenderSet(
+                f"variant_ids must be ({n},) integers (one per tile), not {_describe(ids)}"
+            )
+        variants = self.variants
+        if not isinstance(variants, list | tuple):
+            raise InvalidRenderSet(f"variants must be a list, not {type(variants).__name__}")
+        if len(variants) > MAX_VARIANTS:
+            raise InvalidRenderSet(f"{len(variants)} index variants (at most {MAX_VARIANTS})")
+        if n:
+            level, x, y = keys[:, 0].astype(np.int64), keys[:, 1], keys[:, 2]
+            bad = (level < 0) | (level > MAX_KEY_LEVEL)
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise InvalidRenderSet(
+                    f"tile {i}: level {int(keys[i, 0])} outside 0..{MAX_KEY_LEVEL}"
+                )
+            rows = np.left_shift(1, level)
+            bad = (x < 0) | (x >= 2 * rows) | (y < 0) | (y >= rows)
+            if bad.any():
+                i = int(np.argmax(bad))
+                lv, kx, ky = (int(v) for v in keys[i])
+                raise InvalidRenderSet(
+                    f"tile {i}: ({lv}, {kx}, {ky}) outside level {lv}'s {2 << lv} x {1 << lv} tiles"
+                )
+            lo, hi = int(ids.min()), int(ids.max())
+            if lo < 0 or hi >= len(variants):
+                raise InvalidRenderSet(
+                    f"variant id {lo if lo < 0 else hi} does not index the {len(variants)} variants"
+                )
+        for v in variants:
+            _check_variant(v, n_cells)
+        self._validate_custom(n, verts_per_tile)
+        err = self.error_px
+        if err is not None:
+            if not isinstance(err, np.ndarray) or err.shape != (n,) or err.dtype.kind not in "iuf":
+                raise InvalidRenderSet(f"error_px must be ({n},) numbers, not {_describe(err)}")
+            if np.isnan(err).any():
+                raise InvalidRenderSet("error_px holds NaN")
+        if not isinstance(self.stats, dict):
+            raise InvalidRenderSet(f"stats must be a dict, not {type(self.stats).__name__}")
+        for k in _NUMERIC_STATS:
+            v = self.stats.get(k, 0.0)
+            if not isinstance(v, Real) or isinstance(v, bool) or not math.isfinite(v):
+                raise InvalidRenderSet(f"stats[{k!r}] must be a finite number, not {v!r:.40}")
+
+    def _validate_custom(self, n: int, verts_per_tile: int | None) -> None:
+        custom = self.custom_indices
+        if not isinstance(custom, dict):
+            raise InvalidRenderSet(f"custom_indices must be a dict, not {type(custom).__name__}")
+        if not custom:
+            return
+        if len(custom) > n:
+            raise InvalidRenderSet(f"{len(custom)} custom index lists for {n} tiles")
+        chunks = []
+        for row, idx in custom.items():
+            if not isinstance(row, int | np.integer) or not 0 <= row < n:
+                raise InvalidRenderSet(f"custom_indices row {row!r:.40} is not a tile 0..{n - 1}")
+            if not isinstance(idx, np.ndarray) or idx.ndim != 1 or idx.dtype.kind not in "iu":
+                raise InvalidRenderSet(
+                    f"custom_indices[{row}] must be a 1-D integer array, not {_describe(idx)}"
+                )
+            if len(idx) % 3:
+                raise InvalidRenderSet(f"custom_indices[{row}] length {len(idx)} is not 3k")
+            chunks.append(idx)
+        both = np.concatenate(chunks) if chunks else np.empty(0, np.int64)
+        if len(both) and (
+            int(both.min()) < 0
+            or (verts_per_tile is not None and int(both.max()) >= verts_per_tile)
+        ):
+            raise InvalidRenderSet(
+                f"custom_indices outside the tile's {verts_per_tile} vertices "
+                f"({int(both.min())}..{int(both.max())})"
+            )
+
+
+def _as_int64(values: object, name: str) -> np.ndarray:
+    """``values`` as an int64 array; ValueError for non-integral numbers (NaN, 2.5) and for
+    non-numbers, instead of numpy's silent cast (NaN becomes -2^63 with a RuntimeWarning)."""
+    a = np.asarray(values)
+    if a.dtype.kind in "iu":
+        return a.astype(np.int64, copy=False)
+    if a.dtype.kind == "b" or (a.size == 0 and a.dtype.kind == "f"):
+        return a.astype(np.int64)
+    if a.dtype.kind == "f":
+        if not np.isfinite(a).all() or (a != np.round(a)).any() or np.abs(a).max() >= 2**62:
+            raise ValueError(f"{name} must be integers, not values such as NaN or 2.5")
+        return a.astype(np.int64)
+    raise ValueError(f"{name} must be integers, not {a.dtype}")
+
+
+def _describe(a: object) -> str:
+    """A short description of what a provider handed over, for messages."""
+    if isinstance(a, np.ndarray):
+        return f"a {a.dtype} array of shape {a.shape}"
+    return type(a).__name__
+
+
+def _check_variant(v: object, n_cells: int) -> None:
+    """Raise InvalidRenderSet unless ``v`` is an IndexVariant the tile can be drawn with."""
+    if not isinstance(v, IndexVariant):
+        raise InvalidRenderSet(f"a variant is a {type(v).__name__}, not an IndexVariant")
+    s = v.stride
+    if not isinstance(s, int | np.integer) or isinstance(s, bool) or s < 1 or n_cells % s:
+        raise InvalidRenderSet(f"stride {s!r:.40} does not divide the tile's {n_cells} cells")
+    if v.pole not in _POLES:
+        raise InvalidRenderSet(f"pole {v.pole!r:.40} is not one of {_POLES}")
+    if v.edge_strides is not None:
+        es = v.edge_strides
+        if not isinstance(es, tuple) or len(es) != 4:
+            raise InvalidRenderSet(f"edge_strides {es!r:.60} is not 4 strides")
+        for e in es:
+            ok = isinstance(e, int | np.integer) and not isinstance(e, bool)
+            if not ok or e < 1 or e % s or n_cells % e:
+                raise InvalidRenderSet(
+                    f"edge stride {e!r:.40} is not a multiple of stride {s} dividing "
+                    f"{n_cells} cells"
+                )
+    try:
+        hash(v)  # the index pool caches variants by value
+    except TypeError as exc:
+        raise InvalidRenderSet(f"variant is not hashable ({exc})") from None
 
 
 @dataclass

@@ -72,15 +72,21 @@ def test_import_failure(healthy: PluginSite, caplog: pytest.LogCaptureFixture) -
     )
     reg = _registry()
     assert reg.get("bad-import").status == "ok"  # discovery did not import it
-    with caplog.at_level(logging.ERROR, logger="globeview.plugins"):
+    with caplog.at_level(logging.DEBUG, logger="globeview.plugins"):
         providers = reg.lod_providers()
     rec = reg.get("bad-import")
     assert "bad-import" not in providers
     assert rec.status == "failed" and not rec.enabled
     assert rec.error == "ModuleNotFoundError: No module named 'gvt_module_that_does_not_exist'"
+    # One line at ERROR (what a terminal shows); the traceback at DEBUG and on the record.
+    errors = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert errors == [f"plugin bad-import failed and was disabled: {rec.error}"]
     assert any(
-        "bad-import" in r.getMessage() and "Traceback" in r.getMessage() for r in caplog.records
+        "bad-import" in r.getMessage() and "Traceback" in r.getMessage()
+        for r in caplog.records
+        if r.levelno == logging.DEBUG
     )
+    assert "Traceback" in rec.traceback and "gvt_module_that_does_not_exist" in rec.traceback
     _assert_others_fine(reg, "bad-import")
 
 
