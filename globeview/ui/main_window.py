@@ -129,7 +129,9 @@ class MainWindow(QMainWindow):
 
         # Plugins
         if registry is None:
-            registry = PluginRegistry(QSettingsBackend(self.qsettings))
+            # Interactive: a plugin call overrunning the frame budget again and again would
+            # freeze the window, so it is disabled (headless runs only warn).
+            registry = PluginRegistry(QSettingsBackend(self.qsettings), budget_policy="disable")
         self.plugins = PluginHost(registry, self)
         self.plugins.notice.connect(self.errors.notify)
         if len(registry) == 0:
