@@ -213,7 +213,9 @@ def test_complex_samples_refused(tmp_path: Path, dtype: str) -> None:
     assert msg == f"{p} has complex samples; a DEM needs real heights"
 
 
-@pytest.mark.parametrize("dtype", ["int8", "uint8", "uint32", "int32", "float64"])
+@pytest.mark.parametrize(
+    "dtype", ["int8", "uint8", "int16", "uint16", "uint32", "int32", "int64", "uint64", "float64"]
+)
 def test_other_dtypes_read(tmp_path: Path, dtype: str) -> None:
     a = ((ROWS + COLS) // 2).astype(dtype)  # 0 .. 99 fits every type
     p = _write(tmp_path / f"{dtype}.tif", a)
