@@ -30,6 +30,47 @@ from globeview.geodesy import WGS84, ecef_to_lonlat, enu_basis, lonlat_to_ecef
 MIN_HEIGHT_M = 2.0
 #: Highest camera height the navigation operations allow (m).
 MAX_HEIGHT_M = 1.0e8
+#: Heights (m above the ellipsoid) a camera may be placed at: from below the deepest ocean
+#: trench (about -11 km) to far beyond the Moon; outside it the view is meaningless and the
+#: clip planes and float32 eye-relative positions stop working.
+HEIGHT_RANGE_M = (-12000.0, 1.0e9)
+#: Vertical fields of view (degrees) a camera accepts: 0 collapses the projection, 180
+#: makes it infinite.
+FOV_RANGE_DEG = (1.0, 170.0)
+
+
+def check_number(name: str, value: float, lo: float, hi: float, unit: str = "") -> float:
+    """``value`` as a float if it is finite and within ``lo..hi``; otherwise ValueError with
+    one line naming ``name`` and the valid range (e.g. "latitude must be a finite number in
+    -90..90 deg, not nan"). The CLI prefixes the option name; the window shows it as is."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, not {value!r}") from None
+    if not (math.isfinite(v) and lo <= v <= hi):
+        span = f" in {lo:g}..{hi:g}{unit}" if math.isfinite(lo) or math.isfinite(hi) else ""
+        raise ValueError(f"{name} must be a finite number{span}, not {v:g}")
+    return v
+
+
+def check_finite(name: str, value: float) -> float:
+    """``value`` as a float if it is finite, else ValueError naming ``name``."""
+    return check_number(name, value, -math.inf, math.inf)
+
+
+def check_lonlat_hpr(
+    lon: float, lat: float, height: float, heading: float, pitch: float, roll: float
+) -> tuple[float, float, float, float, float, float]:
+    """Validate a camera placement; returns it with lon in -180..180 and heading and roll in
+    0..360 (huge but finite angles are reduced, not refused). ValueError, one line, for
+    non-finite values, |lat| > 90, a height outside `HEIGHT_RANGE_M` or |pitch| > 90."""
+    lon = check_finite("longitude", lon)
+    lat = check_number("latitude", lat, -90.0, 90.0, " deg")
+    height = check_number("height", height, *HEIGHT_RANGE_M, " m")
+    heading = check_finite("heading", heading) % 360.0
+    pitch = check_number("pitch", pitch, -90.0, 90.0, " deg")
+    roll = check_finite("roll", roll) % 360.0
+    return (lon + 180.0) % 360.0 - 180.0, lat, height, heading, pitch, roll
 
 
 def rotation_about(axis: np.ndarray, angle_rad: float) -> np.ndarray:
@@ -80,6 +121,11 @@ class Camera:
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
     fovy_deg: float = 45.0
 
+    def __post_init__(self) -> None:
+        self.fovy_deg = check_number("field of view", self.fovy_deg, *FOV_RANGE_DEG, " deg")
+        if not np.all(np.isfinite(self.eye)) or not np.all(np.isfinite(self.rotation)):
+            raise ValueError("camera position and orientation must be finite numbers")
+
     # -- construction and read-back ---------------------------------------------------------
     @classmethod
     def from_lonlat(
@@ -92,7 +138,12 @@ class Camera:
         roll: float = 0.0,
         fovy_deg: float = 45.0,
     ) -> Camera:
-        """A camera at (lon, lat, height) looking along (heading, pitch, roll), all degrees."""
+        """A camera at (lon, lat, height) looking along (heading, pitch, roll), all degrees.
+
+        ValueError (one line, naming the value and its valid range) for non-finite values,
+        |lat| > 90, |pitch| > 90, a height outside `HEIGHT_RANGE_M` or a field of view
+        outside `FOV_RANGE_DEG`; see `check_lonlat_hpr`.
+        """
         cam = cls(fovy_deg=fovy_deg)
         cam.set_lonlat(lon, lat, height, heading, pitch, roll)
         return cam
@@ -106,6 +157,10 @@ class Camera:
         pitch: float = -90.0,
         roll: float = 0.0,
     ) -> None:
+        """Place and orient the camera (see `from_lonlat`; same validation)."""
+        lon, lat, height, heading, pitch, roll = check_lonlat_hpr(
+            lon, lat, height, heading, pitch, roll
+        )
         self.eye = np.asarray(lonlat_to_ecef(lon, lat, height), dtype=np.float64).reshape(3)
         self.rotation = _orientation(lon, lat, heading, pitch, roll)
 
