@@ -79,6 +79,120 @@ def parse_floats(text: str, name: str, lengths: tuple[int, ...]) -> list[float]:
     return vals
 
 
+def checked(option: str, check, *values):
+    """``check(*values)``, its ValueError turned into a one-line error naming ``option``
+    (the model's checks say what is wrong and the valid range; the CLI adds the option)."""
+    from globeview.errors import GlobeviewError
+
+    try:
+        return check(*values)
+    except ValueError as exc:
+        msg = str(exc)
+        bare = option.lstrip("-")
+        if msg.startswith(bare + " "):  # "tau must be ..." -> "--tau must be ..."
+            raise GlobeviewError(option + msg[len(bare) :]) from None
+        raise GlobeviewError(f"{option}: {msg}") from None
+
+
+def parse_camera(text: str) -> tuple[float, ...]:
+    """--camera LON,LAT,HEIGHT[,HEADING,PITCH[,ROLL]], validated like `Camera.from_lonlat`."""
+    from globeview.render.camera import check_lonlat_hpr
+
+    vals = parse_floats(text, "--camera", (3, 5, 6))
+    vals += [0.0, -90.0, 0.0][len(vals) - 3 :]
+    return checked("--camera", check_lonlat_hpr, *vals)
+
+
+def parse_background(text: str) -> tuple[float, float, float]:
+    """--background R,G,B, each a finite number in 0..1."""
+    from globeview.render.camera import check_number
+
+    vals = parse_floats(text, "--background", (3,))
+    return tuple(  # type: ignore[return-value]
+        checked("--background", check_number, name, v, 0.0, 1.0)
+        for name, v in zip(("red", "green", "blue"), vals, strict=True)
+    )
+
+
+def parse_collapse(text: str) -> tuple[float, float, float, float, float | None]:
+    """--collapse LONA,LATA,LONB,LATB[,RATIO]: finite longitudes, latitudes in -90..90 and a
+    ratio in 0.001..1 (the tool itself refuses near-antipodal pairs)."""
+    from globeview.render.camera import check_finite, check_number
+
+    vals = parse_floats(text, "--collapse", (4, 5))
+    lon_a = checked("--collapse", check_finite, "longitude of A", vals[0])
+    lat_a = checked("--collapse", check_number, "latitude of A", vals[1], -90.0, 90.0, " deg")
+    lon_b = checked("--collapse", check_finite, "longitude of B", vals[2])
+    lat_b = checked("--collapse", check_number, "latitude of B", vals[3], -90.0, 90.0, " deg")
+    ratio = None
+    if len(vals) == 5:
+        ratio = checked("--collapse", check_number, "ratio", vals[4], 0.001, 1.0)
+    return lon_a, lat_a, lon_b, lat_b, ratio
+
+
+def check_view_args(args: argparse.Namespace) -> dict:
+    """Every view argument validated before anything is loaded or drawn: a bad one is a
+    one-line `GlobeviewError` stating the valid range (not a traceback from deep in the
+    LOD selection). Returns the parsed values."""
+    from globeview.render.camera import FOV_RANGE_DEG, check_number
+    from globeview.render.view_state import check_exaggeration, check_tau
+
+    return {
+        "size": parse_size(args.size),
+        "fov": checked("--fov", check_number, "field of view", args.fov, *FOV_RANGE_DEG, " deg"),
+        "tau": checked("--tau", check_tau, args.tau),
+        "exaggeration": checked("--exaggeration", check_exaggeration, args.exaggeration),
+        "camera": parse_camera(args.camera) if args.camera else None,
+        "background": parse_background(args.background) if args.background else None,
+        "collapse": parse_collapse(args.collapse) if args.collapse else None,
+    }
+
+
+def check_outputs(args: argparse.Namespace):
+    """(png, stats or None) paths, checked before any work (see `fileio.check_output_file`)."""
+    import os
+
+    from globeview.errors import GlobeviewError
+    from globeview.fileio import check_output_file
+
+    out = check_output_file(args.out, "--out", (".png",))
+    stats = check_output_file(args.stats, "--stats") if args.stats is not None else None
+    if stats is not None and os.path.abspath(stats) == os.path.abspath(out):
+        raise GlobeviewError("--stats and --out name the same file")
+    return out, stats
+
+
+def check_cache_writable(sources: list[str]) -> None:
+    """Refuse in one line, before rendering, when DEMs must be ingested into a cache folder
+    that cannot be written (a read-only mount, no permission). Stores already in the cache
+    are read, so a read-only cache that holds them all is fine."""
+    from pathlib import Path
+
+    from globeview.errors import GlobeviewError
+    from globeview.fileio import writable_folder_problem
+    from globeview.terrain.embedded import cache_dir, embedded_stores_ready, store_path_for
+
+    dems = [Path(s) for s in sources if not Path(s).is_dir()]
+    if sources:
+        needed = any(not (store_path_for(p) / "manifest.json").exists() for p in dems)
+    else:
+        needed = not embedded_stores_ready()
+    if not needed:
+        return
+    problem = writable_folder_problem(cache_dir())
+    if problem is not None:
+        raise GlobeviewError(cache_message(problem))
+
+
+def cache_message(problem: str) -> str:
+    from globeview.terrain.embedded import cache_dir
+
+    return (
+        f"cannot write the tile cache {cache_dir()} ({problem}); set GLOBEVIEW_CACHE_DIR to "
+        "a writable folder"
+    )
+
+
 def open_sources(sources: list[str], crs: str | None):
     """Tile stores for the given stores/DEMs (DEMs ingested into the cache)."""
     from pathlib import Path
@@ -111,10 +225,6 @@ def open_sources(sources: list[str], crs: str | None):
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-    import os
-    from pathlib import Path
-
     from PIL import Image
 
     from globeview.errors import GlobeviewError
@@ -123,28 +233,32 @@ def run(args: argparse.Namespace) -> int:
     from globeview.render.offscreen import OffscreenTarget, create_headless_context
     from globeview.terrain.stack import TerrainStack
 
-    size = parse_size(args.size)
-    stores = open_sources(args.sources, args.crs)
+    # Everything the user typed is checked before the first tile is read: a bad value or an
+    # unwritable output fails at once, in one line, and nothing is written.
+    v = check_view_args(args)
+    size = v["size"]
+    out, stats_path = check_outputs(args)
+    check_cache_writable(args.sources)
+    stores = open_sources_in_cache(args.sources, args.crs)
     terrain = TerrainStack.from_stores(stores)
-    if args.camera:
-        cam_vals = parse_floats(args.camera, "--camera", (3, 5, 6))
-        camera = Camera.from_lonlat(*cam_vals, fovy_deg=args.fov)
+    if v["camera"] is not None:
+        camera = Camera.from_lonlat(*v["camera"], fovy_deg=v["fov"])
     elif args.sources:
-        camera = camera_for_bounds(*stores[-1].bounds, fovy_deg=args.fov)
+        camera = camera_for_bounds(*stores[-1].bounds, fovy_deg=v["fov"])
     else:
-        camera = Camera.from_lonlat(0.0, 20.0, 2.0e7, 0.0, -90.0, fovy_deg=args.fov)
+        camera = Camera.from_lonlat(0.0, 20.0, 2.0e7, 0.0, -90.0, fovy_deg=v["fov"])
 
     ctx = create_headless_context()
     target = OffscreenTarget(ctx, size)
     scene = GlobeSession(ctx, terrain, camera, lod=args.lod)
-    scene.tau_px = args.tau
+    scene.tau_px = v["tau"]
     s = scene.settings
-    s.exaggeration = args.exaggeration
+    s.exaggeration = v["exaggeration"]
     s.wireframe = args.wireframe
     s.hillshade = args.hillshade
     s.fog = not args.no_fog
-    if args.background:
-        s.background = tuple(parse_floats(args.background, "--background", (3,)))
+    if v["background"] is not None:
+        s.background = v["background"]
     if not args.no_borders or args.imagery:
         if args.no_borders:
             scene.add_embedded_overlays(imagery=True)
@@ -153,13 +267,12 @@ def run(args: argparse.Namespace) -> int:
             scene.add_embedded_overlays(imagery=args.imagery)
     for path in args.layer:
         scene.add_overlay(path)
-    if args.collapse:
-        vals = parse_floats(args.collapse, "--collapse", (4, 5))
+    if v["collapse"] is not None:
         tool = scene.tools().get("collapse")
         if tool is None:
             raise GlobeviewError("the collapse tool plugin is not enabled")
         try:
-            tool.set_points(*vals[:4], vals[4] if len(vals) == 5 else None)
+            tool.set_points(*v["collapse"])
         except ValueError as exc:
             raise GlobeviewError(f"--collapse: {exc}") from None
         scene.activate_tool("collapse")
@@ -170,15 +283,44 @@ def run(args: argparse.Namespace) -> int:
     result.stats.tiles_uploaded = first.stats.tiles_uploaded
     scene.draw_tool_overlay(target.fbo, result.view)  # e.g. the collapse's fold lines
 
-    out = Path(args.out)
-    tmp = out.with_name(out.name + ".tmp")
-    Image.fromarray(target.read_rgb()).save(tmp, format="PNG")
-    os.replace(tmp, out)
-    if args.stats:
-        Path(args.stats).write_text(json.dumps(result.stats.as_dict(), indent=2) + "\n")
+    write_outputs(Image.fromarray(target.read_rgb()), result.stats.as_dict(), out, stats_path)
     st = result.stats
+    degraded = st.extra.get("degraded")
     print(
         f"wrote {out} ({size[0]}x{size[1]}): {st.triangles} triangles, {st.tiles_drawn} tiles, "
         f"{st.frame_ms:.1f} ms/frame, max screen-space error {st.max_sse_px:.2f} px"
+        + (f"; degraded: {degraded}" if degraded else "")
     )
     return 0
+
+
+def open_sources_in_cache(sources: list[str], crs: str | None):
+    """`open_sources`, with a cache folder that turns out unwritable (read-only, full) said
+    in one line that tells how to point the cache elsewhere."""
+    import errno
+
+    from globeview.errors import GlobeviewError
+    from globeview.fileio import describe_os_error
+
+    try:
+        return open_sources(sources, crs)
+    except OSError as exc:
+        if exc.errno in (errno.EROFS, errno.EACCES, errno.EPERM, errno.ENOSPC, errno.EDQUOT):
+            message = cache_message(describe_os_error(exc, exc.filename or ""))
+            raise GlobeviewError(message) from None
+        raise
+
+
+def write_outputs(image, stats: dict, out, stats_path) -> None:
+    """The PNG and the stats JSON, all-or-nothing (`fileio.atomic_outputs`): both are written
+    to temporaries first and only then moved into place, so a full disk or Ctrl-C leaves
+    neither a half PNG nor a PNG without its stats."""
+    import json
+
+    from globeview.fileio import atomic_outputs
+
+    targets = [out] if stats_path is None else [out, stats_path]
+    with atomic_outputs(targets) as temps:
+        image.save(temps[0], format="PNG")
+        if stats_path is not None:
+            temps[1].write_text(json.dumps(stats, indent=2) + "\n")
