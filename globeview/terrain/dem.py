@@ -396,6 +396,8 @@ class Dem:
                     " regular grid first (e.g. gdalwarp -t_srs EPSG:4326)"
                 )
             raise DemError(f"{self.path} has no georeferencing (no geotransform)")
+        if not (abs(t.determinant) > 0 and all(math.isfinite(v) for v in t[:6])):
+            raise DemError(f"{self.path} has a degenerate geotransform (zero pixel size): {t[:6]}")
         self.crs_assumed: str | None = None
         if crs_override is not None:
             self.crs = _parse_crs(crs_override)
@@ -633,6 +635,13 @@ class Dem:
             lons, lats = list(xs), list(ys)
         else:
             lons, lats = rasterio.warp.transform(self.crs, WGS84, list(xs), list(ys))
+        bounds_ok = all(math.isfinite(v) for v in (west, south, east, north))
+        if not (bounds_ok and all(math.isfinite(v) and abs(v) <= 90.0 for v in lats)):
+            # PROJ gives inf for coordinates outside the CRS's domain (a UTM easting of 1e9).
+            raise DemError(
+                f"cannot place {self.path} on the globe: its coordinates are outside what"
+                f" {_crs_label(self.crs)} can map (wrong CRS? supply one with --crs)"
+            )
         _, _, dist_x = _GEOD.inv(lons[0], lats[0], lons[1], lats[1])
         _, _, dist_y = _GEOD.inv(lons[0], lats[0], lons[2], lats[2])
         res_m = (float(dist_x), float(dist_y))

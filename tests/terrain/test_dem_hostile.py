@@ -475,3 +475,24 @@ def test_south_up_grid(tmp_path: Path) -> None:
         assert dem.info.bounds_lonlat == pytest.approx((5, 44, 6, 45))  # south < north
         g = dem.read_grid(5.005, 44.995, 0.01, 0.01, 100, 100)
     np.testing.assert_array_equal(g, BASE[::-1])
+
+
+def test_coordinates_outside_the_crs_domain(tmp_path: Path) -> None:
+    # a UTM easting of 1e9 m: PROJ maps it to inf; one line instead of a math domain error
+    t = Affine(100, 0, 1e9, 0, -100, 1e9)
+    p = _write(tmp_path / "far.tif", BASE, crs="EPSG:32610", transform=t)
+    msg = _error(p)
+    assert "cannot place" in msg and "EPSG:32610" in msg and "--crs" in msg
+
+
+def test_degenerate_geotransform(tmp_path: Path) -> None:
+    p = tmp_path / "flat.vrt"
+    _write(tmp_path / "src.tif", BASE)
+    p.write_text(
+        '<VRTDataset rasterXSize="100" rasterYSize="100"><SRS>EPSG:4326</SRS>'
+        "<GeoTransform>5.0, 0.01, 0, 45.0, 0, 0</GeoTransform>"
+        '<VRTRasterBand dataType="Float32" band="1"><SimpleSource>'
+        '<SourceFilename relativeToVRT="1">src.tif</SourceFilename>'
+        "<SourceBand>1</SourceBand></SimpleSource></VRTRasterBand></VRTDataset>"
+    )
+    assert "degenerate geotransform" in _error(p)
