@@ -31,6 +31,7 @@ import importlib
 import importlib.metadata as md
 import logging
 import math
+import os
 import signal
 import threading
 import time
@@ -157,8 +158,9 @@ class Budget:
     Attributes:
         ms: milliseconds one call may take (<= 0: no budget).
         overruns: consecutive overruns after which the ``disable`` policy disables the plugin.
-        policy: 'disable' (the window: a slow provider would freeze it) or 'warn' (headless
-            renders and benchmarks: one warning line per plugin, the plugin keeps running).
+        policy: what ``overruns`` consecutive overruns do: 'disable' the plugin (the window:
+            a slow provider would freeze it) or 'warn' (headless renders and benchmarks: one
+            warning line per plugin, the plugin keeps running).
     """
 
     ms: float = 250.0
@@ -665,26 +667,28 @@ class PluginRegistry:
             rec.overruns = 0
             return
         rec.overruns += 1
+        if rec.overruns < b.overruns:  # one slow call (a cold cache) is no verdict
+            return
         what = f"{getattr(fn, '__name__', 'call')}()"
         if b.policy == "disable":
-            if rec.overruns >= b.overruns:
-                self.report_failure(
-                    plugin_name,
-                    PluginTimeout(
-                        f"{what} took {ms:.0f} ms, over the {b.ms:g} ms budget "
-                        f"({BUDGET_MS_KEY}) {rec.overruns} calls in a row"
-                    ),
-                )
+            self.report_failure(
+                plugin_name,
+                PluginTimeout(
+                    f"{what} took {ms:.0f} ms, over the {b.ms:g} ms budget "
+                    f"({BUDGET_MS_KEY}) {rec.overruns} calls in a row"
+                ),
+            )
         elif not rec.budget_warned:
             rec.budget_warned = True
             log.warning(
-                "plugin %s: %s took %.0f ms, over the %g ms frame budget (%s); "
-                "kept running (%s is 'warn')",
+                "plugin %s: %s took %.0f ms, over the %g ms frame budget (%s) %d calls in a "
+                "row; kept running (%s is 'warn')",
                 plugin_name,
                 what,
                 ms,
                 b.ms,
                 BUDGET_MS_KEY,
+                rec.overruns,
                 BUDGET_POLICY_KEY,
             )
 
@@ -766,8 +770,10 @@ class PluginRegistry:
         except Exception:  # a hostile exception object
             tb = message
         # One WARNING line (the host carries on; a terminal sees exactly this line); the
-        # traceback at DEBUG and on the record (`plugins list --json`, the plugin panel).
-        log.warning("plugin %s failed and was disabled: %s", plugin_name, message)
+        # traceback at DEBUG, in the log file and on the record (`plugins list --json`).
+        where = _append_failure_log(plugin_name, tb)
+        details = f" (details in {where})" if where is not None else ""
+        log.warning("plugin %s failed and was disabled: %s%s", plugin_name, message, details)
         log.debug("plugin %s failure traceback:\n%s", plugin_name, tb)
         if rec is None:
             return
@@ -776,6 +782,40 @@ class PluginRegistry:
         rec.status = "failed"
         rec.error = message
         rec.traceback = tb
+
+
+#: Log file of plugin failures: globeview.log in the cache folder, where the CLI and the window
+#: write internal errors too (``$GLOBEVIEW_CACHE_DIR``, else ``$XDG_CACHE_HOME/globeview``,
+#: else ``~/.cache/globeview``; computed here so the registry does not import the terrain).
+LOG_NAME = "globeview.log"
+#: Size past which the log is moved to ``globeview.log.1`` before appending.
+LOG_MAX_BYTES = 4 * 1024 * 1024
+
+
+def failure_log_path() -> Path:
+    """Where plugin failure tracebacks are appended (see `LOG_NAME`)."""
+    env = os.environ.get("GLOBEVIEW_CACHE_DIR")
+    if env:
+        return Path(env) / LOG_NAME
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "globeview" / LOG_NAME
+
+
+def _append_failure_log(plugin_name: str, tb: str) -> Path | None:
+    """Append a plugin failure's traceback to the log; best effort (None when the log cannot
+    be written: a read-only cache must not turn a plugin failure into a host failure)."""
+    path = failure_log_path()
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with contextlib.suppress(OSError):
+            if path.stat().st_size > LOG_MAX_BYTES:
+                os.replace(path, path.with_name(LOG_NAME + ".1"))
+        stamp = time.strftime("%Y-%m-%d %H:%M:%S")
+        with path.open("a", encoding="utf-8", errors="replace") as f:
+            f.write(f"{stamp} plugin {plugin_name} failed and was disabled:\n{tb}\n\n")
+    except OSError:
+        return None
+    return path
 
 
 def _is_user_interrupt(exc: BaseException, sigints_before: int) -> bool:

@@ -291,15 +291,21 @@ def test_headless_budget_policy_warns_once_and_keeps_the_plugin(
     plugin_site: PluginSite, headless_view, caplog: pytest.LogCaptureFixture
 ) -> None:
     add_lod(plugin_site, "sluggish", "time.sleep(0.15)\nreturn RenderSet.empty()", "import time")
-    reg = registry(MemorySettings({BUDGET_MS_KEY: 100}))  # policy: the headless default, warn
+    # policy: the headless default, warn
+    reg = registry(MemorySettings({BUDGET_MS_KEY: 100, BUDGET_OVERRUNS_KEY: 3}))
     assert reg.budget.policy == "warn"
     provider = reg.lod_providers()["sluggish"]
+    view = headless_view(0.0, 0.0, 1e7)
     with caplog.at_level(logging.WARNING, logger="globeview.plugins"):
-        for _ in range(6):
-            assert reg.select(provider, headless_view(0.0, 0.0, 1e7), None) is not None
+        for _ in range(2):  # fewer overruns than the limit: no verdict yet
+            assert reg.select(provider, view, None) is not None
+        assert caplog.records == []
+        for _ in range(4):
+            assert reg.select(provider, view, None) is not None
     assert reg.get("sluggish").status == "ok"
     lines = [r.getMessage() for r in caplog.records]
     assert len(lines) == 1 and "sluggish" in lines[0] and "100 ms" in lines[0]
+    assert "3 calls in a row" in lines[0]
 
 
 def test_budget_settings_of_the_wrong_type_are_ignored() -> None:

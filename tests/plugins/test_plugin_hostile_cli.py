@@ -94,6 +94,12 @@ def test_render_with_a_broken_provider_completes_with_the_fallback(
     assert proc.stdout.startswith("wrote ")
     assert np.array_equal(np.asarray(Image.open(out)), reference_png)
     assert not list(tmp_path.glob("*.tmp"))
+    # The full traceback went to the log file the line names.
+    log = Path(lines[0].rsplit("(details in ", 1)[1].rstrip(")"))
+    entry = log.read_text().rsplit(f"plugin {name} failed and was disabled:", 1)[1]
+    assert reason in entry
+    if "raise" in body:  # raised by plugin code: the traceback reaches into it
+        assert "Traceback (most recent call last)" in entry and "impl.py" in entry
 
 
 @pytest.mark.gl
