@@ -56,3 +56,46 @@ def test_bad_input_is_one_line_nonzero(tmp_path: Path) -> None:
     assert r.returncode != 0
     assert len(r.stderr.strip().splitlines()) == 1 and "error" in r.stderr
     assert not (tmp_path / "s").exists()
+
+
+GLOBEVIEW = Path(sys.executable).parent / "globeview"
+
+
+def _cli(*argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [str(GLOBEVIEW), "ingest", *argv], capture_output=True, text=True, timeout=120
+    )
+
+
+def test_directory_and_missing_source_wording(tmp_path: Path) -> None:
+    # One wording with `globeview info` (open_dem): "is a directory, not a DEM file".
+    out = tmp_path / "s"
+    r = _cli(str(tmp_path), "--out", str(out))
+    assert r.returncode == 2
+    assert r.stderr.splitlines() == [f"globeview: error: {tmp_path} is a directory, not a DEM file"]
+    r = _cli(str(tmp_path / "nope.tif"), "--out", str(out))
+    assert r.returncode == 2
+    assert r.stderr.splitlines() == [
+        f"globeview: error: DEM file not found: {tmp_path / 'nope.tif'}"
+    ]
+    assert not out.exists()
+
+
+def test_out_that_is_a_file_or_a_link(tmp_path: Path) -> None:
+    src = str(DATA / "topobathy_vancouver.tif")
+    f = tmp_path / "report.pdf"
+    f.write_text("mine")
+    r = _cli(src, "--out", str(f))
+    assert r.returncode == 2 and "not a directory" in r.stderr and len(r.stderr.splitlines()) == 1
+    assert f.read_text() == "mine"
+    (tmp_path / "real").mkdir()
+    (tmp_path / "link").symlink_to(tmp_path / "real")
+    r = _cli(src, "--out", str(tmp_path / "link"))
+    assert r.returncode == 2 and "symbolic link" in r.stderr
+    assert list((tmp_path / "real").iterdir()) == []
+
+
+def test_not_a_tty_means_no_progress_lines(tmp_path: Path) -> None:
+    r = _cli(str(DATA / "topobathy_vancouver.tif"), "--out", str(tmp_path / "s"))
+    assert r.returncode == 0 and r.stderr == ""
+    assert r.stdout.count("\n") == 1 and "levels 0.." in r.stdout

@@ -37,11 +37,11 @@ def rss_mb() -> float:
 def big_dem_store(size: int = BIG_DEM_SIZE, progress: bool = True):
     """The tile store of the synthetic-detail benchmark DEM (benchmarks/make_big_dem.py),
     generating and ingesting it under benchmarks/cache/ the first time."""
-    from globeview.terrain.store import TileStore
+    from globeview.terrain.store import TileStore, identify
 
     cache = ROOT / "benchmarks" / "cache"
     store = cache / f"store_{size}"
-    if (store / "manifest.json").exists():
+    if identify(store).is_current:  # a store of an older format is rebuilt below
         return TileStore.open(store)
     script = ROOT / "benchmarks" / "make_big_dem.py"
     if not script.exists():
@@ -58,7 +58,7 @@ def big_dem_store(size: int = BIG_DEM_SIZE, progress: bool = True):
     if progress:
         print(f"generating the {size}x{size} benchmark DEM (synthetic detail) ...", flush=True)
     src = make(size, quiet=not progress)
-    ingest([src], store, progress=progress)
+    ingest([src], store, progress=progress, force=True)  # the bench's own cache
     return TileStore.open(store)
 
 

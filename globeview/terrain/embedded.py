@@ -35,8 +35,20 @@ def open_or_ingest(source: Path, progress: bool = False) -> TileStore:
 
     out = store_path_for(source)
     out.parent.mkdir(parents=True, exist_ok=True)
+    _drop_stem_keyed_store(source)
     ingest([source], out, progress=progress)
     return TileStore.open(out)
+
+
+def _drop_stem_keyed_store(source: Path) -> None:
+    """Remove the cache's format-2 store of ``source`` (keyed by the file stem alone, before
+    stores were keyed by path): globeview owns the cache, and only a store positively
+    identified as globeview's, holding store files only, is removed."""
+    from globeview.terrain.ingest import _remove_store_dir
+
+    old = cache_dir() / "stores" / Path(source).stem
+    if identify(old).kind == "legacy":
+        _remove_store_dir(old)
 
 
 def embedded_stores(progress: bool = False) -> list[TileStore]:

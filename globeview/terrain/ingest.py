@@ -629,7 +629,8 @@ def _check_target(out: Path, force: bool) -> StoreIdentity:
     """
     ident = identify(out)
     if ident.kind == "file":
-        raise StoreError(f"{out} exists and is not a directory; choose another --out")
+        what = "a symbolic link" if out.is_symlink() else "not a directory"
+        raise StoreError(f"{out} exists and is {what}; choose another --out")
     if ident.kind == "foreign":
         raise StoreError(f"{out} is not a globeview store, refusing to overwrite it")
     if ident.is_globeview and ident.extra is not None:

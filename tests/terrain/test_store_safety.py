@@ -321,3 +321,20 @@ def test_fuzzed_manifest_is_always_one_store_error(store: Path, tmp_path: Path) 
             "1e+308",
         )
         assert ok, name
+
+
+def test_stem_keyed_cache_store_of_format_2_is_dropped(
+    store: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(tmp_path / "cache"))
+    old = tmp_path / "cache" / "stores" / SMALL.stem  # where format 2 cached it
+    shutil.copytree(store, old)
+    _legacy(old)
+    foreign = tmp_path / "cache" / "stores" / "dem"  # same place, not a globeview store
+    foreign.mkdir()
+    (foreign / "manifest.json").write_text("{}")
+    open_or_ingest(SMALL).close()
+    assert not old.exists()
+    _dem(tmp_path / "x" / "dem.tif", 5.0)
+    open_or_ingest(tmp_path / "x" / "dem.tif").close()
+    assert (foreign / "manifest.json").read_text() == "{}"
