@@ -228,11 +228,29 @@ class GlobeRenderer:
         if ready:
             meshes = dict(ready)
             ready_keys = np.array([k for k, _ in ready], dtype=np.int64)
-            self.pool.load(ready_keys, meshes.__getitem__, protect=render_set.keys)
+            # partial: near the pool's capacity, finished tiles that do not fit wait (they
+            # are requested again) rather than failing the frame.
+            self.pool.load(ready_keys, meshes.__getitem__, protect=render_set.keys, partial=True)
         drawn, missing = substitute_missing(render_set, lambda k: self.pool.slots_of(k) >= 0)
         if len(missing):
             self.loader.request(missing)
         return drawn, len(ready), self.loader.pending
+
+    def _fit_pool(self, render_set: RenderSet, stats: FrameStats) -> RenderSet:
+        """The render set itself when the pool holds all its tiles; otherwise a coarser one
+        that fits (`coarsen_to_fit`), with the degrade stated in the frame's stats
+        (``degraded``: a sentence; ``tiles_coarsened``: tiles replaced by ancestors)."""
+        capacity = self.pool.capacity
+        wanted = len(render_set)
+        if wanted <= capacity:
+            return render_set
+        fitted, replaced = coarsen_to_fit(render_set, capacity)
+        stats.extra["degraded"] = (
+            f"tile pool: {wanted} tiles wanted, {capacity} slots; drew coarser tiles "
+            f"({len(fitted)} tiles)"
+        )
+        stats.extra["tiles_coarsened"] = replaced
+        return fitted
 
     # -- drawing -----------------------------------------------------------------------------
     def draw(
@@ -241,6 +259,7 @@ class GlobeRenderer:
         """Draw a render set into ``target`` and return the frame's figures."""
         t0 = time.perf_counter()
         stats = FrameStats()
+        render_set = self._fit_pool(render_set, stats)
         if self.async_loading:
             render_set, uploaded, stats.tiles_loading = self._load_async(render_set)
         else:
@@ -396,6 +415,94 @@ class GlobeRenderer:
         self.overlays.release()  # overlays:
         if self.loader is not None:
             self.loader.shutdown()
+
+
+def coarsen_to_fit(render_set: RenderSet, capacity: int) -> tuple[RenderSet, int]:
+    """A render set of at most ``capacity`` tiles covering what ``render_set`` covers, made by
+    replacing groups of sibling tiles by their parent, deepest level first and, within a
+    level, the groups drawn with the smallest screen-space error first (they lose the least).
+
+    A view can want more tiles than the GPU pool has slots (tiny tau, a huge window, a strong
+    exaggeration): drawing coarser is better than failing the frame. Replacing the deepest
+    tiles by their parents never makes tiles overlap (no tile of the set lies below them).
+    Parents are drawn at full resolution with skirts (their own index variant); their
+    ``error_px`` is estimated as twice their children's largest (one level coarser roughly
+    doubles the geometric error). Returns the new set and how many tiles were replaced.
+    """
+    keys = render_set.keys
+    n = len(keys)
+    err = (
+        np.asarray(render_set.error_px, dtype=np.float64).copy()
+        if render_set.error_px is not None and len(render_set.error_px) == n
+        else np.zeros(n)
+    )
+    err = np.where(np.isfinite(err), err, 0.0)
+    rows = np.arange(n)  # row in the input set, -1 for a parent made here
+    replaced = 0
+    while len(keys) > capacity:
+        level = int(keys[:, 0].max())
+        if level == 0:
+            break  # cannot happen for a pool of more than two slots
+        at = np.nonzero(keys[:, 0] == level)[0]
+        parents = np.stack([keys[at, 0] - 1, keys[at, 1] >> 1, keys[at, 2] >> 1], axis=1)
+        uniq, group = np.unique(parents, axis=0, return_inverse=True)
+        group = group.reshape(-1)
+        counts = np.bincount(group, minlength=len(uniq))
+        group_err = np.zeros(len(uniq))
+        np.maximum.at(group_err, group, err[at])
+        # Cheapest first: smallest error, then the most tiles saved.
+        order = np.lexsort((-counts, group_err))
+        need = len(keys) - capacity
+        saved = np.cumsum(counts[order] - 1)
+        if saved[-1] >= need:
+            chosen = order[: int(np.searchsorted(saved, need)) + 1]
+            chosen = chosen[counts[chosen] > 1]
+        else:
+            chosen = order  # the whole level goes; the next pass coarsens the level above
+        take = np.zeros(len(uniq), dtype=bool)
+        take[chosen] = True
+        drop = at[take[group]]
+        keep = np.ones(len(keys), dtype=bool)
+        keep[drop] = False
+        replaced += len(drop)
+        keys = np.concatenate([keys[keep], uniq[take]])
+        err = np.concatenate([err[keep], 2.0 * group_err[take]])
+        rows = np.concatenate([rows[keep], np.full(int(take.sum()), -1)])
+    return _rebuild_render_set(render_set, keys, rows, err), replaced
+
+
+def _rebuild_render_set(
+    render_set: RenderSet, keys: np.ndarray, rows: np.ndarray, err: np.ndarray
+) -> RenderSet:
+    """The render set of ``keys``: rows taken from ``render_set`` (``rows`` >= 0) keep their
+    variant and custom indices; new parent tiles (``rows`` == -1) get a full-resolution
+    variant with skirts and the pole fans their position needs."""
+    variants = list(render_set.variants)
+    variant_ids = np.zeros(len(keys), dtype=np.int64)
+    old = rows >= 0
+    variant_ids[old] = render_set.variant_ids[rows[old]]
+    new = np.nonzero(~old)[0]
+    if len(new):
+        lv, y = keys[new, 0], keys[new, 2]
+        pole_code = (y == 0).astype(np.int64) + 2 * (y == (1 << lv) - 1)
+        poles = (None, "north", "south", "both")
+        for code in np.unique(pole_code):
+            variant = IndexVariant(stride=1, skirts=True, pole=poles[int(code)])
+            if variant not in variants:
+                variants.append(variant)
+            variant_ids[new[pole_code == code]] = variants.index(variant)
+    custom = {}
+    for new_row, old_row in enumerate(rows):
+        if old_row >= 0 and int(old_row) in render_set.custom_indices:
+            custom[new_row] = render_set.custom_indices[int(old_row)]
+    return RenderSet(
+        keys,
+        variant_ids,
+        variants,
+        custom_indices=custom,
+        error_px=err if render_set.error_px is not None else None,
+        stats=dict(render_set.stats),
+    )
 
 
 def tile_bounds_tuple(key: tuple[int, int, int]) -> tuple[float, float, float, float]:

@@ -119,10 +119,16 @@ class TilePool:
         keys: KeyArray,
         build: Callable[[tuple[int, int, int]], TileMesh],
         protect: KeyArray | None = None,
+        partial: bool = False,
     ) -> int:
         """Make the given keys resident, building meshes with ``build(key)``; returns how many
         tiles were uploaded. Evicts least-recently-used slots not among ``keys`` (nor among
-        ``protect``: tiles the frame still draws)."""
+        ``protect``: tiles the frame still draws).
+
+        More missing keys than evictable slots is a RuntimeError (the renderer coarsens a
+        render set to the capacity first, see `renderer.coarsen_to_fit`), unless ``partial``:
+        then as many as fit are loaded (tiles finished in the background that the frame can
+        do without) and the rest are left out."""
         keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
         missing = keys[self.slots_of(keys) < 0]
         if len(missing) == 0:
@@ -133,6 +139,8 @@ class TilePool:
         protected[have[have >= 0]] = True
         order = np.argsort(np.where(self.codes < 0, -1, self.last_used), kind="stable")
         free = order[~protected[order]]
+        if len(missing) > len(free) and partial:
+            missing = missing[: len(free)]
         if len(missing) > len(free):
             raise RuntimeError(
                 f"tile pool too small: {len(missing)} tiles to load, {len(free)} slots free"
