@@ -260,3 +260,56 @@ def test_fly_forward_moves_along_the_view() -> None:
     cam.fly_forward(1.0e4)
     np.testing.assert_allclose(cam.eye, eye0, atol=1e-6)
     assert cam.height == pytest.approx(3000.0, abs=1e-6)
+
+
+# -- hostile values (issue #13): the model refuses them, whoever sets them -------------------
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        ((math.nan, 0.0, 1e7), "longitude"),
+        ((math.inf, 0.0, 1e7), "longitude"),
+        ((0.0, 95.0, 1e7), "latitude must be a finite number in -90..90 deg, not 95"),
+        ((0.0, math.nan, 1e7), "latitude"),
+        ((0.0, 0.0, -12001.0), "height"),
+        ((0.0, 0.0, 1.1e9), "height"),
+        ((0.0, 0.0, math.inf), "height"),
+        ((0.0, 0.0, 1e7, math.nan, -90.0), "heading"),
+        ((0.0, 0.0, 1e7, 0.0, -91.0), "pitch"),
+        ((0.0, 0.0, 1e7, 0.0, -90.0, -math.inf), "roll"),
+    ],
+)
+def test_from_lonlat_refuses_non_finite_and_out_of_range(args: tuple, needle: str) -> None:
+    with pytest.raises(ValueError, match=needle):
+        Camera.from_lonlat(*args)
+
+
+@pytest.mark.parametrize("fov", [0.0, -10.0, 170.5, math.nan])
+def test_camera_refuses_a_degenerate_field_of_view(fov: float) -> None:
+    with pytest.raises(ValueError, match="field of view"):
+        Camera.from_lonlat(0.0, 0.0, 1e7, fovy_deg=fov)
+
+
+def test_extreme_but_valid_placements_give_a_finite_view() -> None:
+    for args in [(540.0, 90.0, -12000.0), (-1e9, -90.0, 1e9, 1e300, 90.0, -7e15)]:
+        cam = Camera.from_lonlat(*args)
+        view = ViewState.from_camera(cam, VIEWPORT)
+        assert np.all(np.isfinite(view.proj)) and np.all(np.isfinite(view.frustum_planes))
+        lon = cam.lonlat_hpr()[0]
+        assert -180.0 <= lon <= 180.0
+
+
+@pytest.mark.parametrize(
+    ("kw", "needle"),
+    [
+        ({"tau_px": 0.0}, "tau"),
+        ({"tau_px": -1.0}, "tau"),
+        ({"tau_px": math.nan}, "tau"),
+        ({"exaggeration": math.inf}, "exaggeration"),
+        ({"exaggeration": -1.0}, "exaggeration"),
+        ({"exaggeration": 1e9}, "exaggeration"),
+    ],
+)
+def test_view_state_refuses_bad_tau_and_exaggeration(kw: dict, needle: str) -> None:
+    cam = Camera.from_lonlat(0.0, 0.0, 1e7)
+    with pytest.raises(ValueError, match=needle):
+        ViewState.from_camera(cam, VIEWPORT, **kw)
