@@ -116,7 +116,9 @@ def _validate(args: argparse.Namespace) -> int:
     path = Path(target)
     reg = PluginRegistry(MemorySettings())
     try:
-        if path.suffix == ".toml" or path.is_file():
+        # A path (a file, a directory, /dev/null, anything with a slash) is read as a
+        # manifest file, so the reason names the file; a bare word is a plugin name.
+        if path.suffix == ".toml" or path.exists() or "/" in target or "\\" in target:
             manifest = read_manifest(path)
             reg.add_path(path)
         else:

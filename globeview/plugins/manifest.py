@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import importlib.util
 import re
+import stat
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -211,6 +212,10 @@ def read_manifest(path: str | Path) -> Manifest:
     """Read and validate a manifest file. Errors are ManifestError naming the file."""
     p = Path(path)
     try:
+        # A FIFO or device would block or stream forever: only regular files are read.
+        if not stat.S_ISREG(p.stat().st_mode):
+            kind = "a directory" if p.is_dir() else "not a regular file"
+            raise ManifestError(f"{p}: cannot read manifest ({kind})")
         with p.open("rb") as f:
             raw = f.read(MAX_MANIFEST_BYTES + 1)
     except OSError as exc:

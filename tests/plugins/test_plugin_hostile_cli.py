@@ -205,3 +205,24 @@ def test_plugins_validate_other_is_quiet_about_broken_plugins(
     assert listed.returncode == 0 and "Traceback" not in listed.stderr
     row = next(line for line in listed.stdout.splitlines() if line.startswith("boom "))
     assert "failed" in row and "SystemExit: 1" in row
+
+
+def test_plugins_validate_hostile_manifest_files(plugin_site: PluginSite, tmp_path: Path) -> None:
+    fifo = tmp_path / "fifo.toml"
+    os.mkfifo(fifo)  # opening it for reading would block forever
+    latin1 = tmp_path / "latin1.toml"
+    latin1.write_bytes(b'name = "caf\xe9"\n')
+    big = tmp_path / "big.toml"
+    big.write_text('name = "x"\ndescription = "' + "d" * 10_000_000 + '"\n')
+    cases = {
+        str(fifo): "not a regular file",
+        "/dev/null": "not a regular file",
+        str(tmp_path): "a directory",
+        str(latin1): "not UTF-8",
+        str(big): "larger than 64 KiB",
+    }
+    for target, reason in cases.items():
+        proc = globeview(plugin_site, tmp_path, "plugins", "validate", target)
+        lines = stderr_lines(proc)
+        assert proc.returncode == 2, (target, proc.stderr)
+        assert len(lines) == 1 and lines[0].startswith("invalid: ") and reason in lines[0], lines
