@@ -488,10 +488,10 @@ class Dem:
         it is then reported as the fill it is), or when it is an exact-repeat plateau of at
         least `_MIN_FILL_PLATEAU` samples set apart from all other data by a clear gap: -999 in
         a DEM of heights 100..2000 is fill; -999 amid depths reaching -5 000 m, or next to
-        -998, is data. Values that are only possible heights (0, -28, -430) are never
-        candidates, so flat lakes and the Dead Sea stay. A dtype extreme that is a possible
-        height (0 of uint16, -128 of int8) is not a candidate either: it cannot be told
-        from a real sea level or shallow depth.
+        -998, is data; a raster of nothing but -9999 is all fill. Values that are only possible
+        heights (0, -28, -430) are never candidates, so flat lakes and the Dead Sea stay. A
+        dtype extreme that is a possible height (0 of uint16, -128 of int8) is not a candidate
+        either: it cannot be told from a real sea level or shallow depth.
         """
         ds = self._ds
         dtype = np.dtype(ds.dtypes[0])
@@ -562,7 +562,9 @@ class Dem:
     def _is_fill_plateau(self, raw: float, n: int, lo: float, hi: float) -> bool:
         """Whether a possible-height candidate (-999, -9999) present n times is a fill: a
         plateau set apart from the other data's range lo..hi (metres) by a clear gap."""
-        if n < _MIN_FILL_PLATEAU or not math.isfinite(lo):
+        if not math.isfinite(lo):
+            return True  # nothing else in the raster: all of it is the fill, no terrain
+        if n < _MIN_FILL_PLATEAU:
             return False
         h = float(self._to_metres(np.array([raw], dtype=np.float64))[0])
         gap = lo - h if h < lo else h - hi if h > hi else 0.0

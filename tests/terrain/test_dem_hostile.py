@@ -496,3 +496,10 @@ def test_degenerate_geotransform(tmp_path: Path) -> None:
         "<SourceBand>1</SourceBand></SimpleSource></VRTRasterBand></VRTDataset>"
     )
     assert "degenerate geotransform" in _error(p)
+
+
+def test_raster_of_only_a_conventional_fill_has_no_data(tmp_path: Path) -> None:
+    p = _write(tmp_path / "allfill.tif", np.full((10, 10), -9999.0, np.float32))
+    assert "holds no valid data" in _error(p)
+    q = _write(tmp_path / "all999.tif", np.full((10, 10), -999, np.int16))
+    assert "holds no valid data" in _error(q)
