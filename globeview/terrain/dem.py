@@ -348,7 +348,10 @@ def _unit_factor(ds: rasterio.io.DatasetReader, crs: CRS) -> tuple[str | None, f
     vertical axis of a compound CRS. Undeclared or unrecognised units are taken as metres."""
     units = ds.units[0] if ds.units and ds.units[0] else ds.tags().get("UNITS") or None
     if units:
-        return units, _UNIT_FACTORS.get(units.strip().lower(), 1.0)
+        name = units.strip().lower()
+        # "feet above MSL", "m a.s.l.": the unit is the first word when the whole is unknown
+        first = name.split()[0] if name.split() else name
+        return units, _UNIT_FACTORS.get(name, _UNIT_FACTORS.get(first, 1.0))
     try:
         pc = pyproj.CRS.from_wkt(crs.to_wkt())
     except pyproj.exceptions.CRSError:

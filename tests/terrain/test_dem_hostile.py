@@ -130,6 +130,10 @@ def test_feet_are_converted_to_metres(tmp_path: Path) -> None:
     assert "converted from ft" in info.summary()
     g = _grid(p)
     assert g[50, 10] == pytest.approx(6096.0) and g[50, 90] == pytest.approx(304.8)
+    with rasterio.open(p, "r+") as ds:
+        ds.units = ("feet above MSL",)  # a CF-style long unit: the first word is the unit
+    with open_dem(p) as dem:
+        assert dem.info.vmax == pytest.approx(6096.0)
 
 
 # ---- undeclared fills ------------------------------------------------------------------------
