@@ -257,6 +257,27 @@ def test_argparse_errors_are_one_line(tmp_path: Path, args: tuple[str, ...]) -> 
     assert one_error_line(res).startswith("globeview: error: ")
 
 
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (("flight", "canyon_run", "--tau", "-1"), "--tau"),
+        (("flight", "canyon_run", "--frames", "0"), "--frames"),
+        (("flight", "canyon_run", "--fps", "nan"), "--fps"),
+        (("flight", "canyon_run", "--fps", "-3"), "--fps"),
+        (("soak", "--frames", "-5"), "--frames"),
+        (("check", "--frames", "0"), "--frames"),
+        (("experiments", "--quick", "--out", "/dev/null"), "not a folder"),
+        (("flight", "canyon_run", "--csv", "/nonexistent/x.csv"), "does not exist"),
+    ],
+)
+def test_bench_arguments_are_checked_before_running(
+    tmp_path: Path, args: tuple[str, ...], needle: str
+) -> None:
+    res = globeview("bench", *args, cache=tmp_path / "c")
+    assert needle in one_error_line(res)
+    assert res.stdout == ""  # refused before the machine line, before any frame
+
+
 def test_help_still_prints_usage(tmp_path: Path) -> None:
     res = globeview("render", "--help", cache=tmp_path / "c")
     assert res.returncode == 0 and "--camera" in res.stdout

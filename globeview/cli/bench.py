@@ -6,24 +6,77 @@ from __future__ import annotations
 import argparse
 
 
+def positive_int(text: str) -> int:
+    """argparse type: a whole number >= 1 (frame counts)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number, not {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, not {value}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0 (rates)."""
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, not {text!r}") from None
+    if not (math.isfinite(value) and 0.0 < value <= 1000.0):
+        raise argparse.ArgumentTypeError(f"must be a finite number in (0, 1000], not {text}")
+    return value
+
+
+def tau(text: str) -> float:
+    """argparse type: a screen-space error threshold, checked like the view checks it."""
+    from globeview.render.view_state import check_tau
+
+    try:
+        return check_tau(float(text))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _check_output_args(args: argparse.Namespace) -> None:
+    """Output paths checked before a benchmark runs for minutes (see fileio)."""
+    import os
+
+    from globeview.errors import GlobeviewError
+    from globeview.fileio import check_output_file, writable_folder_problem
+
+    if getattr(args, "csv", None):
+        check_output_file(args.csv, "--csv", (".csv",))
+    if args.bench_command == "experiments":
+        if os.path.exists(args.out) and not os.path.isdir(args.out):
+            raise GlobeviewError(f"--out {args.out} exists and is not a folder")
+        problem = writable_folder_problem(args.out)
+        if problem is not None:
+            raise GlobeviewError(f"--out {args.out}: {problem}")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="bench_command", metavar="ACTION", required=True)
 
     p = sub.add_parser("flight", help="render a camera path frame by frame and record figures")
     p.add_argument("path", help="flight JSON file, or a shipped flight's name (canyon_run)")
     p.add_argument("--lod", default="chunked-sse", help="LOD provider plugin")
-    p.add_argument("--tau", type=float, default=2.0, help="screen-space error, pixels")
+    p.add_argument("--tau", type=tau, default=2.0, help="screen-space error, pixels")
     p.add_argument("--size", default="1280x720", help="WIDTHxHEIGHT in pixels")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--frames", type=int, help="frames evenly spaced over the path (default 30)")
-    g.add_argument("--fps", type=float, help="sample the path at this rate instead")
+    g.add_argument(
+        "--frames", type=positive_int, help="frames evenly spaced over the path (default 30)"
+    )
+    g.add_argument("--fps", type=positive_float, help="sample the path at this rate instead")
     p.add_argument("--csv", help="write one row per frame to this CSV file")
 
     p = sub.add_parser("experiments", help="the papers' experiments: CSV, PNG plots, report.md")
     p.add_argument("--out", default="benchmarks/out/experiments", help="output folder")
     p.add_argument("--quick", action="store_true", help="2 taus, 1 frame each, 160x90, embedded")
     p.add_argument("--size", help="WIDTHxHEIGHT (default 640x360; --quick: 160x90)")
-    p.add_argument("--frames", type=int, help="timed frames per point (default 3)")
+    p.add_argument("--frames", type=positive_int, help="timed frames per point (default 3)")
     p.add_argument(
         "--flight",
         help="take the view from this flight's midpoint (default: big_dem; --quick: canyon_run)",
@@ -32,17 +85,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     p = sub.add_parser("check", help="fly the standard flight and compare with the targets")
     p.add_argument("--quick", action="store_true", help="embedded canyon run, 160x90, 3 frames")
-    p.add_argument("--frames", type=int, default=30, help="flight frames (default 30)")
+    p.add_argument("--frames", type=positive_int, default=30, help="flight frames (default 30)")
     p.add_argument("--strict", action="store_true", help="exit 1 when a target fails")
     p.add_argument("--csv", help="write the flight's per-frame CSV here")
 
     p = sub.add_parser("soak", help="fly in loops; report RSS drift and GL object counts")
-    p.add_argument("--frames", type=int, default=200, help="frames in all (default 200)")
+    p.add_argument("--frames", type=positive_int, default=200, help="frames in all (default 200)")
     p.add_argument("--size", default="320x180", help="WIDTHxHEIGHT in pixels")
     p.add_argument("--lod", default="chunked-sse", help="LOD provider plugin")
 
 
 def run(args: argparse.Namespace) -> int:
+    _check_output_args(args)
     return {
         "flight": _flight,
         "experiments": _experiments,
