@@ -19,9 +19,11 @@ from globeview.render.tile_indices import IndexVariant
 #: Deepest quadtree level a key may have: the tile pool packs keys into int64 codes with
 #: x, y < 2^29 (tile_pool.key_codes), and level 28 has 2^29 columns.
 MAX_KEY_LEVEL = 28
-#: Most tiles one render set may hold. The GPU pool holds far fewer (768 by default); this
-#: only bounds what the host is willing to even look at (a bug returning 10^7 keys).
-MAX_TILES = 65_536
+#: Most tiles one render set may hold: 21x the GPU pool's default 768 slots (a set larger
+#: than the pool is drawn coarser, see renderer.py, which costs about 2 s a frame for 65 536
+#: tiles on llvmpipe), and 16 384 tiles of 65^2 nodes are 69 million vertices, more than
+#: any sane frame. Bounds what a buggy provider (10^7 keys) can cost the frame.
+MAX_TILES = 16_384
 #: Most distinct index variants per render set (each is built once and cached on the GPU).
 MAX_VARIANTS = 1024
 #: Stats the renderer reads as numbers.
