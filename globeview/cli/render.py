@@ -268,7 +268,7 @@ def run(args: argparse.Namespace) -> int:
     for path in args.layer:
         scene.add_overlay(path)
     if v["collapse"] is not None:
-        tool = scene.tools().get("collapse")
+        tool = scene.find_tool("collapse")  # imports the collapse plugin only
         if tool is None:
             raise GlobeviewError("the collapse tool plugin is not enabled")
         try:

@@ -157,6 +157,19 @@ def test_render_imports_only_the_plugins_it_uses(plugin_site: PluginSite, tmp_pa
     assert proc.returncode == 0, proc.stderr
     assert out.exists() and stderr_lines(proc) == []
     assert not [k for k, m in markers.items() if m.exists()]
+    # Using the collapse tool loads that tool's plugin, not every tool plugin.
+    folded = globeview(
+        plugin_site,
+        tmp_path / "config",
+        "render",
+        "--collapse=-10,0,10,0",
+        "--size",
+        SIZE,
+        "--out",
+        str(tmp_path / "folded.png"),
+    )
+    assert folded.returncode == 0 and stderr_lines(folded) == [], folded.stderr
+    assert not [k for k, m in markers.items() if m.exists()]
     # The same command through the CLI's entry function, listing the modules it imported.
     listing = tmp_path / "modules.txt"
     code = (
