@@ -49,7 +49,9 @@ def run(args: argparse.Namespace) -> int:
 
 @contextlib.contextmanager
 def _quiet_plugin_log() -> Iterator[None]:
-    """Keep plugin failure tracebacks off the terminal: the table reports them."""
+    """Keep plugin failure lines off the terminal (the table reports them), and whatever
+    plugin code prints while it is imported off stdout (``list --json`` must stay JSON)."""
+    import io
     import logging
 
     logger = logging.getLogger("globeview.plugins")
@@ -58,7 +60,8 @@ def _quiet_plugin_log() -> Iterator[None]:
     logger.propagate = False
     logger.addHandler(handler)
     try:
-        yield
+        with contextlib.redirect_stdout(io.StringIO()):
+            yield
     finally:
         logger.removeHandler(handler)
         logger.propagate = saved

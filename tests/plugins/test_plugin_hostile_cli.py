@@ -239,3 +239,20 @@ def test_plugins_validate_hostile_manifest_files(plugin_site: PluginSite, tmp_pa
         lines = stderr_lines(proc)
         assert proc.returncode == 2, (target, proc.stderr)
         assert len(lines) == 1 and lines[0].startswith("invalid: ") and reason in lines[0], lines
+
+
+def test_plugins_list_check_stays_json_and_validate_import_is_one_line(
+    plugin_site: PluginSite, tmp_path: Path
+) -> None:
+    import json
+
+    noisy = "print('hello from a plugin import')\nraise SystemExit(7)\n"
+    plugin_site.add("gvt_noisy", manifest("noisy", "gvt_noisy"), {"impl": noisy})
+    listed = globeview(plugin_site, tmp_path, "plugins", "list", "--json", "--check")
+    assert listed.returncode == 0 and listed.stderr == "", listed.stderr
+    rows = {r["name"]: r for r in json.loads(listed.stdout)}
+    assert rows["noisy"]["status"] == "failed" and rows["noisy"]["error"] == "SystemExit: 7"
+    assert "Traceback" in rows["noisy"]["traceback"]
+    checked = globeview(plugin_site, tmp_path, "plugins", "validate", "noisy", "--import")
+    assert checked.returncode == 2 and checked.stdout == ""
+    assert stderr_lines(checked) == ["invalid: noisy: SystemExit: 7"]
