@@ -225,13 +225,15 @@ def _one_line(text: str) -> str:
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = os.environ.get(DEBUG_ENV, "") not in ("", "0")
-    quiet_libraries(debug)
-    argv = route_bare_files(join_negative_values(argv))
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if args.command is None:
-        args = parser.parse_args(["gui", *argv])
-    try:
+    command = "globeview"
+    try:  # parsing too: Ctrl-C while the subcommand modules import is still one line
+        quiet_libraries(debug)
+        argv = route_bare_files(join_negative_values(argv))
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        if args.command is None:
+            args = parser.parse_args(["gui", *argv])
+        command = f"globeview {args.command}"
         return int(args._run(args) or 0)
     except GlobeviewError as exc:
         print(f"globeview: error: {_one_line(str(exc))}", file=sys.stderr)
@@ -247,7 +249,7 @@ def main(argv: list[str] | None = None) -> int:
         if debug:
             raise
         print(
-            f"globeview: error: out of memory while running `globeview {args.command}` "
+            f"globeview: error: out of memory while running `{command}` "
             "(try a smaller --size, fewer or smaller DEMs)",
             file=sys.stderr,
         )

@@ -162,6 +162,23 @@ def check_outputs(args: argparse.Namespace):
     return out, stats
 
 
+def check_inputs(args: argparse.Namespace) -> None:
+    """Sources and --layer files exist, checked before the first (slow) ingest."""
+    from pathlib import Path
+
+    from globeview.errors import GlobeviewError
+
+    for src in args.sources:
+        if not Path(src).exists():
+            raise GlobeviewError(f"DEM file not found: {src}")
+    for layer in args.layer:
+        p = Path(layer)
+        if p.is_dir():
+            raise GlobeviewError(f"--layer {layer} is a directory, not a layer file")
+        if not p.is_file():
+            raise GlobeviewError(f"--layer {layer}: no such file")
+
+
 def check_cache_writable(sources: list[str]) -> None:
     """Refuse in one line, before rendering, when DEMs must be ingested into a cache folder
     that cannot be written (a read-only mount, no permission). Stores already in the cache
@@ -238,6 +255,7 @@ def run(args: argparse.Namespace) -> int:
     v = check_view_args(args)
     size = v["size"]
     out, stats_path = check_outputs(args)
+    check_inputs(args)
     check_cache_writable(args.sources)
     stores = open_sources_in_cache(args.sources, args.crs)
     terrain = TerrainStack.from_stores(stores)
