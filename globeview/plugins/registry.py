@@ -298,15 +298,9 @@ class PluginRegistry:
         self._owners = {}
         self._live = set()
         seen: set[tuple[str, str]] = set()
-        try:
-            eps = sorted(
-                md.entry_points(group=ENTRY_POINT_GROUP),
-                key=lambda e: (_dist_name(e) != BUILTIN_DISTRIBUTION, e.name),
-            )
-        except Exception as exc:  # a damaged installed distribution's metadata
-            log.warning("plugin discovery failed: %s", describe_exception(exc))
-            log.debug("plugin discovery failed", exc_info=True)
-            eps = []
+        eps = sorted(
+            _plugin_entry_points(), key=lambda e: (_dist_name(e) != BUILTIN_DISTRIBUTION, e.name)
+        )
         for ep in eps:
             if (ep.name, ep.value) in seen:  # the same distribution found twice on sys.path
                 continue
@@ -321,7 +315,10 @@ class PluginRegistry:
 
     def _discover_one(self, ep: md.EntryPoint) -> None:
         dist = ep.dist
-        source = f"{dist.metadata['Name']} {dist.version}" if dist else ep.value
+        try:
+            source = f"{dist.metadata['Name']} {dist.version}" if dist else ep.value
+        except Exception:  # unreadable METADATA: the entry point still names the manifest
+            source = ep.value
         builtin = _dist_name(ep) == BUILTIN_DISTRIBUTION
         try:
             manifest = read_manifest(locate_manifest(ep.value))
@@ -363,7 +360,9 @@ class PluginRegistry:
         error = _clip(" ".join(error.split()), MAX_MESSAGE_CHARS)
         rec = PluginRecord(name, None, source, builtin, False, "failed", error)
         self.records[name] = rec
-        log.warning("plugin %s disabled: invalid manifest: %s", name, error)
+        # INFO, not WARNING: every command discovers every plugin, and a broken one nobody
+        # asked for must not print into unrelated commands; `plugins list` shows it.
+        log.info("plugin %s disabled: invalid manifest: %s", name, error)
         return rec
 
     # -- state -------------------------------------------------------------------------------
@@ -829,8 +828,34 @@ def _clip(text: str, limit: int = 100) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
+def _plugin_entry_points() -> list[md.EntryPoint]:
+    """The entry points of group `ENTRY_POINT_GROUP`, read distribution by distribution: one
+    installed distribution with unreadable metadata (not UTF-8, malformed) is skipped with a
+    one-line warning instead of hiding every plugin (`importlib.metadata.entry_points` reads
+    them all at once and raises)."""
+    out: list[md.EntryPoint] = []
+    try:
+        dists = list(md.distributions())
+    except Exception as exc:
+        log.warning("plugin discovery failed: %s", describe_exception(exc))
+        return out
+    for dist in dists:
+        try:
+            out.extend(ep for ep in dist.entry_points if ep.group == ENTRY_POINT_GROUP)
+        except Exception as exc:
+            where = getattr(dist, "_path", None) or "a distribution"
+            log.info(
+                "plugins of %s skipped: unreadable metadata: %s", where, describe_exception(exc)
+            )
+    return out
+
+
 def _dist_name(ep: md.EntryPoint) -> str:
-    dist = ep.dist
-    if dist is None:
+    """The normalised name of the distribution of ``ep`` ("" when unknown or unreadable)."""
+    try:
+        dist = ep.dist
+        if dist is None:
+            return ""
+        return (dist.metadata["Name"] or "").lower().replace("_", "-")
+    except Exception:
         return ""
-    return (dist.metadata["Name"] or "").lower().replace("_", "-")

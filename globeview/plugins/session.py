@@ -96,6 +96,17 @@ class GlobeSession(GlobeScene):
             self.set_lod(DEFAULT_LOD)
             return
         known = ", ".join(sorted(self.registry.declared(PluginKind.LOD))) or "none"
+        rec = self.registry.records.get(name)
+        if rec is not None and rec.status == "failed":  # e.g. its manifest is invalid
+            raise GlobeviewError(
+                f"no enabled LOD provider named {name!r}: plugin {name} failed: {rec.error} "
+                f"(available: {known})"
+            )
+        if rec is not None and not rec.enabled:
+            raise GlobeviewError(
+                f"LOD provider {name!r} is disabled; `globeview plugins enable {name}` "
+                f"(available: {known})"
+            )
         raise GlobeviewError(f"no enabled LOD provider named {name!r} (available: {known})")
 
     def reset_lod(self) -> None:

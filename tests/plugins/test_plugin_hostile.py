@@ -454,3 +454,31 @@ def test_non_utf8_manifest_fails_that_plugin(plugin_site: PluginSite) -> None:
     reg = registry()
     assert "not UTF-8" in reg.get("latin1").error
     assert reg.get("chunked-sse").status == "ok"
+
+
+def test_a_distribution_with_unreadable_metadata_hides_no_other_plugin(
+    plugin_site: PluginSite,
+) -> None:
+    plugin_site.add("gvt_fine", manifest("fine", "gvt_fine"), {"impl": lod_source("return 1")})
+    broken = plugin_site.root / "gvt_broken-1.0.dist-info"
+    broken.mkdir()
+    (broken / "METADATA").write_text("Metadata-Version: 2.1\nName: gvt-broken\nVersion: 1.0\n")
+    (broken / "entry_points.txt").write_bytes(b"[globeview.plugins]\nbroken = \xff\xfe:x.toml\n")
+    garbled = plugin_site.root / "gvt_garbled-1.0.dist-info"
+    garbled.mkdir()
+    (garbled / "METADATA").write_bytes(b"\xff\xfe\x00")
+    (garbled / "entry_points.txt").write_text("[globeview.plugins]\ngarbled = json:x.toml\n")
+    reg = registry()
+    assert reg.get("fine").status == "ok" and reg.get("chunked-sse").status == "ok"
+    assert "broken" not in reg
+    assert reg.get("garbled").status == "failed"  # its manifest is not in 'json'
+
+
+def test_requested_provider_of_a_failed_plugin_is_named_in_the_error(
+    plugin_site: PluginSite, gl
+) -> None:
+    plugin_site.add("gvt_nover", "", entry_name="no-version")
+    (plugin_site.root / "gvt_nover" / "globeview.toml").write_text('name = "no-version"\n')
+    reg = registry()
+    with pytest.raises(GlobeviewError, match=r"plugin no-version failed: .*'version'"):
+        session(gl, reg, "no-version")
