@@ -49,7 +49,8 @@ def main() -> int:
     print(
         f"RSS after {res['warmup']} cycles {res['rss_after_warmup']:.1f} MB, after "
         f"{res['cycles']}: {res['rss_last']:.1f} MB; drift {res['rss_drift_mb']:+.2f} MB "
-        f"({res['per_cycle_mb'] * 1e3:+.1f} kB per cycle)"
+        f"({res['per_cycle_mb'] * 1e3:+.1f} kB per cycle; RSS sampled after malloc_trim, "
+        f"untrimmed drift {res['rss_raw_drift_mb']:+.2f} MB)"
     )
     print(f"GL contexts alive at the end: {res['samples'][-1]['contexts']}")
     print(f"objects of the last cycle alive after release: {res['alive_after_release'] or 'none'}")

@@ -12,8 +12,20 @@ class RenderError(GlobeviewError):
     """OpenGL is not available or not capable enough."""
 
 
+#: A released headless context kept for the next `create_headless_context` (at most one).
+#: moderngl 5.13 never frees a context's own bookkeeping (its C dealloc drops none of its
+#: references: ~40 kB per context), so a process that opens and closes globes again and again
+#: grew by that much per globe; handing contexts back with `release_headless_context` reuses one.
+_SPARE: list[moderngl.Context] = []
+
+
 def create_headless_context() -> moderngl.Context:
-    """A moderngl context without a display (EGL; Mesa llvmpipe works with no GPU)."""
+    """A moderngl context without a display (EGL; Mesa llvmpipe works with no GPU): the one
+    handed back by `release_headless_context` when there is one, else a new one."""
+    if _SPARE:
+        ctx = _SPARE.pop()
+        ctx.__enter__()  # make it current on this thread again (no __exit__: it stays current)
+        return ctx
     try:
         ctx = moderngl.create_standalone_context(backend="egl", require=330)
     except Exception as exc:  # moderngl raises plain Exception subclasses from glcontext
@@ -22,7 +34,30 @@ def create_headless_context() -> moderngl.Context:
             f"({str(exc).splitlines()[0] if str(exc) else type(exc).__name__}); "
             "install Mesa's EGL (Debian: libegl1 libegl-mesa0 libgl1-mesa-dri)"
         ) from None
+    ctx.extra = {"globeview_headless": True}
     return ctx
+
+
+def release_headless_context(ctx: moderngl.Context) -> None:
+    """Close a context from `create_headless_context` once everything made in it has been
+    released (session.release_gl, target.release): it is kept, with its state back to the
+    defaults, for the next `create_headless_context`, instead of being destroyed (see
+    `_SPARE`). Any other context, or one more than the spare, is released."""
+    if _SPARE or not (isinstance(ctx.extra, dict) and ctx.extra.get("globeview_headless")):
+        ctx.release()
+        return
+    ctx.enable_only(moderngl.NOTHING)
+    ctx.depth_func = "<"
+    ctx.blend_func = moderngl.DEFAULT_BLENDING
+    ctx.blend_equation = moderngl.FUNC_ADD
+    ctx.wireframe = False
+    ctx.front_face = "ccw"
+    ctx.cull_face = "back"
+    ctx.polygon_offset = (0.0, 0.0)
+    ctx.point_size = 1.0
+    ctx.line_width = 1.0
+    ctx.finish()
+    _SPARE.append(ctx)
 
 
 class OffscreenTarget:

@@ -80,3 +80,51 @@ def test_a_closed_cycle_leaves_nothing_of_it_reachable(store_paths):
         and any(str(p) in o.name for p in store_paths)
     ]
     assert open_datasets == []
+
+
+def test_a_handed_back_headless_context_is_reused_and_draws_the_same(store_paths):
+    """moderngl leaks ~40 kB per context it creates; `release_headless_context` keeps the
+    context for the next globe instead, reset so that the next render is pixel-identical."""
+    import numpy as np
+
+    from globeview.plugins.registry import PluginRegistry
+    from globeview.plugins.session import GlobeSession
+    from globeview.plugins.settings import MemorySettings
+    from globeview.render.camera import Camera
+    from globeview.render.offscreen import (
+        OffscreenTarget,
+        create_headless_context,
+        release_headless_context,
+    )
+    from globeview.terrain.stack import TerrainStack
+    from globeview.terrain.store import TileStore
+
+    def render(wireframe: bool) -> tuple[object, np.ndarray]:
+        stores = [TileStore.open(p) for p in store_paths]
+        ctx = create_headless_context()
+        target = OffscreenTarget(ctx, (120, 80))
+        session = GlobeSession(
+            ctx,
+            TerrainStack.from_stores(stores),
+            camera=Camera.from_lonlat(-71.3, 44.2, 60000.0, 30.0, -40.0),
+            registry=PluginRegistry(MemorySettings()).discover(),
+        )
+        session.renderer.settings.wireframe = wireframe  # leaves GL state behind it
+        session.render(target.fbo, (120, 80))
+        rgb = target.read_rgb()
+        session.release_gl()
+        target.release()
+        release_headless_context(ctx)
+        for s in stores:
+            s.close()
+        return ctx, rgb
+
+    first_ctx, _ = render(wireframe=True)
+    again_ctx, plain = render(wireframe=False)
+    assert again_ctx is first_ctx
+    fresh = create_headless_context()
+    assert fresh is first_ctx
+    fresh.release()  # a plain release destroys it: the next one is new
+    new_ctx, new_plain = render(wireframe=False)
+    assert new_ctx is not first_ctx
+    assert np.array_equal(plain, new_plain)
