@@ -12,7 +12,7 @@ from globeview.render.camera import Camera
 from globeview.render.picking import Pick, pick
 from globeview.render.render_set import FrameStats, RenderSet
 from globeview.render.renderer import GlobeRenderer
-from globeview.render.view_state import ViewState
+from globeview.render.view_state import ViewState, check_tau
 from globeview.terrain.stack import TerrainStack
 
 LodFunction = Callable[[ViewState, TerrainStack], RenderSet]
@@ -56,6 +56,17 @@ class GlobeScene:
         self.speed_mps = 0.0
         self.last: FrameResult | None = None
         self._last_fbo: moderngl.Framebuffer | None = None
+
+    @property
+    def tau_px(self) -> float:
+        """Screen-space error threshold (pixels)."""
+        return self._tau_px
+
+    @tau_px.setter
+    def tau_px(self, value: float) -> None:
+        # Refused where it is set (ValueError, one line with the valid range), so neither the
+        # window nor a plugin can leave a NaN or zero tau for the next frame to trip over.
+        self._tau_px = check_tau(value)
 
     @property
     def settings(self):

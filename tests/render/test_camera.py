@@ -313,3 +313,12 @@ def test_view_state_refuses_bad_tau_and_exaggeration(kw: dict, needle: str) -> N
     cam = Camera.from_lonlat(0.0, 0.0, 1e7)
     with pytest.raises(ValueError, match=needle):
         ViewState.from_camera(cam, VIEWPORT, **kw)
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("tau", [0.0, -1.0, math.nan, math.inf])
+def test_scene_tau_setter_refuses_bad_values(scene, tau: float) -> None:
+    before = scene.tau_px
+    with pytest.raises(ValueError, match="tau"):
+        scene.tau_px = tau
+    assert scene.tau_px == before
