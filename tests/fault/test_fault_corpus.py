@@ -1,0 +1,366 @@
+"""Issue #13, fault injection: every corpus input through `globeview info`, `ingest` and
+`render` as real subprocesses; outputs into a foreign folder, full and read-only disks, and
+kill -9 during an ingest.
+
+The contract: the exit status the case expects; on failure exactly one stderr line
+``globeview: error: ...`` (no traceback, no GDAL/PROJ chatter); no leftovers (``*.tmp``,
+``.*.building-*``, ``.*.old-*``) and no store that looks valid after a failure; the inputs
+untouched; for valid inputs a PNG with the terrain where it belongs.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from .contract import (
+    DATA,
+    MAGENTA_ARG,
+    assert_exit,
+    assert_one_error_line,
+    assert_quiet_success,
+    centre_block,
+    corpus_cases,
+    fill_disk,
+    globeview_argv,
+    leftovers,
+    remount_readonly,
+    terrain_kind,
+    tree_digest,
+    valid_looking_stores,
+)
+from .corpus import LAND, Case
+
+pytestmark = pytest.mark.slow
+
+CASES = {c.name: c for c in corpus_cases()}
+SIZE = "96x64"
+
+
+def _corpus_root() -> Path:
+    return next(c.path for c in CASES.values() if c.name == "float32").parent
+
+
+def _check_failure(case: Case, res, work, out: Path | None = None) -> None:
+    assert_one_error_line(res, case.error_substring)
+    assert not leftovers(work.cwd, work.cache), leftovers(work.cwd, work.cache)
+    assert not valid_looking_stores(work.cache), "a failed command left a store in the cache"
+    if out is not None:
+        assert not out.exists(), f"{out} exists after a failure\n{res.describe()}"
+
+
+# ---------------------------------------------------------------------------------------------
+# The corpus x the three commands
+
+
+@pytest.fixture(scope="module")
+def corpus_snapshot() -> dict[str, str]:
+    return tree_digest(_corpus_root())
+
+
+def _inputs_untouched(snapshot: dict[str, str]) -> None:
+    # GDAL likes to drop .aux.xml files beside rasters it has computed statistics for.
+    assert tree_digest(_corpus_root()) == snapshot, "the command wrote beside its input"
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_info(name: str, work, corpus_snapshot) -> None:
+    case = CASES[name]
+    res = work.run("info", str(case.path))
+    assert_exit(res, case.expected("info"))
+    if res.returncode == 0:
+        assert_quiet_success(res)
+        assert res.stdout.strip(), "info printed nothing"
+    else:
+        _check_failure(case, res, work)
+    _inputs_untouched(corpus_snapshot)
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_ingest(name: str, work, corpus_snapshot) -> None:
+    case = CASES[name]
+    out = work.cwd / "store"
+    res = work.run("ingest", str(case.path), "--out", str(out))
+    assert_exit(res, case.expected("ingest"))
+    if res.returncode == 0:
+        assert_quiet_success(res)
+        assert (out / "manifest.json").is_file()
+        assert not leftovers(work.cwd), leftovers(work.cwd)
+        from globeview.terrain.store import TileStore
+
+        store = TileStore.open(out)
+        _w, s, _e, n = store.bounds
+        assert -90.0 <= s < n <= 90.0, store.bounds
+    else:
+        _check_failure(case, res, work, out)
+    _inputs_untouched(corpus_snapshot)
+
+
+def _read_png(path: Path) -> np.ndarray:
+    return np.asarray(Image.open(path).convert("RGB"))
+
+
+def _look_down_at(work, case: Case, lon: float, lat: float, png: Path) -> str:
+    """Render ``case`` from 30 km straight above (lon, lat); what the image centre shows."""
+    res = work.run(
+        "render",
+        str(case.path),
+        "--out",
+        str(png),
+        f"--camera={lon},{lat},30000,0,-90",
+        "--no-borders",
+        "--size",
+        SIZE,
+        "--background",
+        MAGENTA_ARG,
+    )
+    assert_quiet_success(res)
+    return terrain_kind(centre_block(_read_png(png)))
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("name", CASES)
+def test_render(name: str, work, corpus_snapshot) -> None:
+    """Default camera (it frames the source's footprint): the image centre shows the terrain;
+    then cameras 30 km straight above the probe (the terrain is there), places beyond the
+    footprint (bare ellipsoid) and fill (never drawn as heights)."""
+    case = CASES[name]
+    png, stats = work.cwd / "x.png", work.cwd / "s.json"
+    common = ("--size", SIZE, "--background", MAGENTA_ARG)
+    res = work.run("render", str(case.path), "--out", str(png), "--stats", str(stats), *common)
+    assert_exit(res, case.expected("render"))
+    if res.returncode != 0:
+        _check_failure(case, res, work, png)
+        assert not stats.exists()
+        _inputs_untouched(corpus_snapshot)
+        return
+    assert_quiet_success(res)
+    assert not leftovers(work.cwd, work.cache), leftovers(work.cwd, work.cache)
+    rgb = _read_png(png)
+    assert rgb.shape == (64, 96, 3)
+    assert json.loads(stats.read_text())["tiles_drawn"] > 0
+    seen = terrain_kind(centre_block(rgb))
+    assert seen == case.kind, f"image centre (default camera) shows {seen}, not {case.kind}"
+
+    assert case.probe is not None
+    checks = [(case.probe, {case.kind})]
+    checks += [(place, {"other"}) for place in case.outside]
+    checks += [(place, {LAND, "other"}) for place in case.fill_places]
+    wrong = []
+    for i, ((lon, lat), allowed) in enumerate(checks):
+        seen = _look_down_at(work, case, lon, lat, work.cwd / f"look{i}.png")
+        if seen not in allowed:
+            wrong.append(f"({lon:.3f}, {lat:.3f}) shows {seen}, not {sorted(allowed)}")
+    assert not wrong, "seen from 30 km straight above: " + "; ".join(wrong)
+    _inputs_untouched(corpus_snapshot)
+
+
+# ---------------------------------------------------------------------------------------------
+# Outputs that belong to someone else
+
+
+def _user_folder(root: Path, with_manifest: bool) -> Path:
+    d = root / "my_project"
+    (d / "photos").mkdir(parents=True)
+    (d / "photos" / "summit.jpg").write_bytes(bytes(range(256)) * 40)
+    (d / "notes.txt").write_text("do not lose me\n")
+    if with_manifest:
+        (d / "manifest.json").write_text(json.dumps({"name": "my project", "version": 7}))
+    return d
+
+
+@pytest.mark.parametrize("with_manifest", [True, False], ids=["manifest", "no_manifest"])
+def test_ingest_into_a_user_folder_leaves_it_untouched(work, with_manifest: bool) -> None:
+    """`--out` naming a folder of user files (with an unrelated manifest.json, or none): exit
+    2, every file byte for byte as it was, nothing added beside it."""
+    folder = _user_folder(work.cwd, with_manifest)
+    before = tree_digest(work.cwd)
+    res = work.run("ingest", str(CASES["float32"].path), "--out", str(folder))
+    assert_one_error_line(res)
+    assert tree_digest(work.cwd) == before
+
+
+def test_ingest_onto_a_user_file_leaves_it_untouched(work) -> None:
+    target = work.cwd / "thesis.docx"
+    target.write_bytes(b"PK\x03\x04 my thesis")
+    before = tree_digest(work.cwd)
+    res = work.run("ingest", str(CASES["float32"].path), "--out", str(target))
+    assert_one_error_line(res)
+    assert tree_digest(work.cwd) == before
+
+
+def test_render_of_a_user_folder_with_a_manifest_fails_cleanly(work) -> None:
+    """A folder holding an unrelated manifest.json given to render as a store."""
+    folder = _user_folder(work.cwd, with_manifest=True)
+    before = tree_digest(work.cwd)
+    res = work.run("render", str(folder), "--out", "x.png", "--size", SIZE)
+    assert_one_error_line(res)
+    assert tree_digest(work.cwd) == before
+
+
+def test_render_out_is_a_folder(work) -> None:
+    folder = _user_folder(work.cwd, with_manifest=False)
+    before = tree_digest(work.cwd)
+    res = work.run("render", str(CASES["float32"].path), "--out", str(folder), "--size", SIZE)
+    assert_one_error_line(res)
+    assert tree_digest(work.cwd) == before
+
+
+# ---------------------------------------------------------------------------------------------
+# Full and read-only disks (small tmpfs mounts)
+
+
+def test_ingest_on_a_full_disk(work, mount_tmpfs) -> None:
+    """Room for the first levels only (the store needs ~60 kB): ENOSPC midway."""
+    disk = mount_tmpfs("full", size="256k")
+    fill_disk(disk, leave_bytes=24 * 1024)
+    before = tree_digest(disk)
+    res = work.run("ingest", str(CASES["float32"].path), "--out", str(disk / "store"))
+    assert_one_error_line(res)
+    assert tree_digest(disk) == before, "the failed ingest left something on the disk"
+
+
+def test_render_on_a_full_disk(work, mount_tmpfs) -> None:
+    disk = mount_tmpfs("full", size="256k")
+    fill_disk(disk)
+    before = tree_digest(disk)
+    res = work.run(
+        "render",
+        str(CASES["float32"].path),
+        "--out",
+        str(disk / "x.png"),
+        "--stats",
+        str(disk / "s.json"),
+        "--size",
+        SIZE,
+    )
+    assert_one_error_line(res)
+    assert tree_digest(disk) == before
+
+
+def test_ingest_on_a_read_only_disk(work, mount_tmpfs) -> None:
+    disk = mount_tmpfs("ro", readonly=True)
+    res = work.run("ingest", str(CASES["float32"].path), "--out", str(disk / "store"))
+    assert_one_error_line(res)
+    assert tree_digest(disk) == {}
+    assert not leftovers(work.cwd, work.cache)
+
+
+def test_render_on_a_read_only_disk(work, mount_tmpfs) -> None:
+    disk = mount_tmpfs("ro", readonly=True)
+    res = work.run(
+        "render",
+        str(CASES["float32"].path),
+        "--out",
+        str(disk / "x.png"),
+        "--stats",
+        str(disk / "s.json"),
+        "--size",
+        SIZE,
+    )
+    assert_one_error_line(res)
+    assert tree_digest(disk) == {}
+
+
+def test_render_stats_on_a_read_only_disk(work, mount_tmpfs) -> None:
+    """The PNG can be written, the stats cannot: exit 2 in one line, no temporary files."""
+    disk = mount_tmpfs("ro", readonly=True)
+    res = work.run(
+        "render",
+        str(CASES["float32"].path),
+        "--out",
+        str(work.cwd / "x.png"),
+        "--stats",
+        str(disk / "s.json"),
+        "--size",
+        SIZE,
+    )
+    assert_one_error_line(res)
+    assert tree_digest(disk) == {}
+    assert not leftovers(work.cwd, work.cache)
+
+
+def test_render_with_a_read_only_cache(work, mount_tmpfs) -> None:
+    """GLOBEVIEW_CACHE_DIR on a read-only disk: rendering a DEM (which ingests it into the
+    cache) fails in one line and writes nothing."""
+    disk = mount_tmpfs("cache", size="1m")
+    (disk / "stores").mkdir()
+    remount_readonly(disk)
+    before = tree_digest(disk)
+    png = work.cwd / "x.png"
+    res = work.run(
+        "render", str(CASES["float32"].path), "--out", str(png), "--size", SIZE, cache=disk
+    )
+    assert_one_error_line(res)
+    assert tree_digest(disk) == before
+    assert not png.exists() and not leftovers(work.cwd)
+
+
+# ---------------------------------------------------------------------------------------------
+# kill -9 during an ingest, then the same ingest again
+
+
+KILL_CASES = [
+    # (seed, when): "start" kills 0.05..1.5 s after the command starts (imports, hashing,
+    # opening the DEM, building); "build" kills 0..0.8 s after its work folder appears;
+    # "replace" does the same to `ingest --force` over a complete store (the old-store swap).
+    *((seed, "start") for seed in (1, 2, 3)),
+    *((seed, "build") for seed in (4, 5, 6)),
+    *((seed, "replace") for seed in (7, 8)),
+]
+
+
+def _wait_for_work_folder(parent: Path, proc: subprocess.Popen, limit_s: float = 30.0) -> None:
+    end = time.monotonic() + limit_s
+    while time.monotonic() < end and proc.poll() is None:
+        if any(".building-" in p.name for p in parent.iterdir()):
+            return
+        time.sleep(0.005)
+
+
+@pytest.mark.parametrize(("seed", "when"), KILL_CASES)
+def test_ingest_killed_then_rerun(work, seed: int, when: str) -> None:
+    """SIGKILL at a seeded random moment of an ingest, then the same ingest again: exit 0, a
+    store that opens, and nothing left of the killed run."""
+    from globeview.terrain.store import TileStore
+
+    src = DATA / "N44W072.hgt"
+    out = work.cwd / "store"
+    rng = random.Random(seed)
+    extra = []
+    if when == "replace":
+        assert_quiet_success(work.run("ingest", str(src), "--out", str(out), "--quiet"))
+        extra = ["--force"]
+    env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(work.cache)}
+    argv = [*globeview_argv(), "ingest", str(src), "--out", str(out), "--quiet", *extra]
+    proc = subprocess.Popen(
+        argv, cwd=work.cwd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+    try:
+        if when == "start":
+            delay = rng.uniform(0.05, 1.5)
+        else:
+            _wait_for_work_folder(work.cwd, proc)
+            delay = rng.uniform(0.0, 0.8)
+        time.sleep(delay)
+        proc.send_signal(signal.SIGKILL)
+    finally:
+        proc.wait(timeout=60)
+    # Whatever the kill left, a store that is there must be complete.
+    if (out / "manifest.json").exists():
+        TileStore.open(out)
+
+    res = work.run("ingest", str(src), "--out", str(out), "--quiet")
+    assert_quiet_success(res)
+    store = TileStore.open(out)
+    assert store.max_level >= 1
+    assert not leftovers(work.cwd), f"killed {when} + {delay:.2f} s: {leftovers(work.cwd)}"
