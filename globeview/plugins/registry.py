@@ -593,12 +593,16 @@ class PluginRegistry:
         return {c.name: c.instance for c in self.contributions(PluginKind.LAYER)}
 
     def configure(self, instance: Any, values: dict[str, Any]) -> None:
-        """Persist a contribution's setting values and apply them (isolated)."""
+        """Persist a contribution's setting values and apply them (isolated). Does nothing
+        for a contribution whose plugin has failed or been disabled since (the UI may still
+        hold it)."""
         plugin = self.owner_of(instance)
         rec = self.get(plugin)
-        name = next(n for n, lc in rec.loaded.items() if lc.instance is instance)
+        name = next((n for n, lc in rec.loaded.items() if lc.instance is instance), None)
+        if name is None or id(instance) not in self._live:
+            return
         self.settings.set(f"plugins/{plugin}/contributions/{name}", dict(values))
-        self.call(plugin, instance.configure, values)
+        self.invoke(instance, "configure", values)
 
     # -- isolation ---------------------------------------------------------------------------
     def owner_of(self, instance: Any) -> str:

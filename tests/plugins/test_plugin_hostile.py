@@ -482,3 +482,42 @@ def test_requested_provider_of_a_failed_plugin_is_named_in_the_error(
     reg = registry()
     with pytest.raises(GlobeviewError, match=r"plugin no-version failed: .*'version'"):
         session(gl, reg, "no-version")
+
+
+def test_configure_raising_systemexit_fails_the_plugin_and_stale_configure_is_ignored(
+    plugin_site: PluginSite,
+) -> None:
+    src = lod_source("return RenderSet.empty()").replace(
+        "    calls = 0\n",
+        "    calls = 0\n"
+        "    def configure(self, values):\n"
+        "        if values.get('boom'):\n"
+        "            raise SystemExit('configure')\n",
+    )
+    plugin_site.add("gvt_conf2", manifest("conf2", "gvt_conf2"), {"impl": src})
+    reg = registry()
+    provider = reg.lod_providers()["conf2"]
+    reg.configure(provider, {"boom": True})
+    assert reg.get("conf2").error == "SystemExit: configure"
+    reg.configure(provider, {"boom": True})  # a stale reference: nothing happens
+    assert reg.get("chunked-sse").status == "ok"
+
+
+def test_render_set_subclass_whose_attributes_raise_fails_the_plugin(
+    plugin_site: PluginSite, headless_view
+) -> None:
+    prelude = (
+        "class Sneaky(RenderSet):\n"
+        "    @property\n"
+        "    def custom_indices(self):\n"
+        "        raise SystemExit('gotcha')\n"
+        "    @custom_indices.setter\n"
+        "    def custom_indices(self, value):\n"
+        "        pass\n"
+    )
+    add_lod(plugin_site, "sneaky", "return Sneaky([[0, 0, 0]], [0], [IndexVariant()])", prelude)
+    reg = registry()
+    provider = reg.lod_providers()["sneaky"]
+    check = lambda rs: rs.validate(65, None)  # noqa: E731
+    assert reg.select(provider, headless_view(0.0, 0.0, 1e7), None, check=check) is None
+    assert reg.get("sneaky").error == "SystemExit: gotcha"
