@@ -93,6 +93,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", type=positive_int, default=200, help="frames in all (default 200)")
     p.add_argument("--size", default="320x180", help="WIDTHxHEIGHT in pixels")
     p.add_argument("--lod", default="chunked-sse", help="LOD provider plugin")
+    p.add_argument(
+        "--cycles",
+        type=positive_int,
+        help="instead of flying: N open-render-close cycles (stores, context, session, one "
+        "frame, release); RSS drift after the warm-up (20 cycles), target <= 1 MB",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -190,6 +196,8 @@ def _soak(args: argparse.Namespace) -> int:
     from globeview.bench.harness import parse_size
     from globeview.bench.soak import run_soak
 
+    if args.cycles is not None:
+        return _soak_cycles(args)
     res = run_soak(frames=args.frames, size=parse_size(args.size), lod=args.lod)
     print("frame  lap  RSS MB  buffers textures vaos programs resident_tiles")
     for s in res["samples"]:
@@ -205,4 +213,22 @@ def _soak(args: argparse.Namespace) -> int:
         f"drift {res['rss_drift_mb']:+.1f} MB; GL objects "
         f"{'stable' if res['gl_objects_stable'] else 'CHANGED'}"
     )
+    return 0
+
+
+def _soak_cycles(args: argparse.Namespace) -> int:
+    """`bench soak --cycles N`: the open-render-close soak (benchmarks/bench_open_close.py)."""
+    from globeview.bench.harness import parse_size
+    from globeview.bench.soak import run_open_close
+
+    warmup = max(1, min(20, args.cycles - 1))
+    res = run_open_close(args.cycles, parse_size(args.size), args.lod, warmup)
+    print(
+        f"RSS after {warmup} cycles {res['rss_after_warmup']:.1f} MB, after {args.cycles}: "
+        f"{res['rss_last']:.1f} MB; drift {res['rss_drift_mb']:+.2f} MB "
+        f"({res['per_cycle_mb'] * 1e3:+.1f} kB per cycle)"
+    )
+    print(f"objects of the last cycle alive after release: {res['alive_after_release'] or 'none'}")
+    verdict = "met" if res["target_met"] else "NOT met"
+    print(f"target: drift <= {res['target_mb']:g} MB: {verdict}")
     return 0

@@ -128,3 +128,16 @@ def test_a_handed_back_headless_context_is_reused_and_draws_the_same(store_paths
     new_ctx, new_plain = render(wireframe=False)
     assert new_ctx is not first_ctx
     assert np.array_equal(plain, new_plain)
+
+
+def test_bench_soak_cycles_prints_drift_and_verdict(capsys):
+    import argparse
+
+    from globeview.cli import bench
+
+    parser = argparse.ArgumentParser(prog="globeview bench")
+    bench.add_arguments(parser)
+    assert bench.run(parser.parse_args(["soak", "--cycles", "3", "--size", "64x48"])) == 0
+    out = capsys.readouterr().out
+    assert "drift" in out and "objects of the last cycle alive after release: none" in out
+    assert "target: drift <= 1 MB" in out
