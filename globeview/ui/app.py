@@ -52,8 +52,15 @@ def embedded_terrain() -> TerrainStack:
             "globeview: preparing the embedded terrain (first run only, a few seconds)...",
             file=sys.stderr,
         )
-    stores = embedded_stores()
-    return TerrainStack.from_stores(stores, [s.path.name for s in stores])
+    return embedded_stack(embedded_stores())
+
+
+def embedded_stack(stores: list) -> TerrainStack:
+    """The embedded stores (in `embedded_stores` order) as a stack whose layers are named
+    after their DEMs (etopo20), not after their cache folders (etopo20-<hash>)."""
+    from globeview.terrain.dem import embedded_dem_paths
+
+    return TerrainStack.from_stores(stores, [p.stem for p in embedded_dem_paths()])
 
 
 def run(files: Sequence[str] = (), settings: QSettings | None = None) -> int:

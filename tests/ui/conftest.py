@@ -46,7 +46,7 @@ def make_window(qtbot, tmp_path, embedded, errors_shown, monkeypatch):
 
     from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.settings import MemorySettings
-    from globeview.terrain.stack import TerrainStack
+    from globeview.ui.app import embedded_stack
     from globeview.ui.main_window import MainWindow
 
     monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(tmp_path / "cache"))
@@ -58,7 +58,7 @@ def make_window(qtbot, tmp_path, embedded, errors_shown, monkeypatch):
         )
         if registry is None:
             registry = PluginRegistry(MemorySettings()).discover()
-        terrain = TerrainStack.from_stores(embedded, [s.path.name for s in embedded])
+        terrain = embedded_stack(embedded)  # the stack the app opens with
         win = MainWindow(terrain, settings, registry, show_error=errors_shown.append, **kw)
         qtbot.addWidget(win)
         win.resize(1000, 700)
