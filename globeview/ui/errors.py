@@ -10,7 +10,9 @@ turn into an abort) to the reporter.
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
 import sys
 import time
 import traceback
@@ -23,20 +25,15 @@ from PyQt6.QtCore import QObject, pyqtSignal
 from PyQt6.QtWidgets import QMessageBox, QWidget
 
 from globeview.errors import GlobeviewError
+from globeview.plugins.registry import LOG_MAX_BYTES, failure_log_path
 
 log = logging.getLogger("globeview.ui")
 
-#: The log file's name, in globeview's cache folder (``$GLOBEVIEW_CACHE_DIR`` when set).
-LOG_NAME = "globeview.log"
-#: The log file is started again once it grows past this many bytes.
-LOG_MAX_BYTES = 1 << 20
-
 
 def default_log_file() -> Path:
-    """Where the window writes tracebacks: ``<cache dir>/globeview.log``."""
-    from globeview.terrain.embedded import cache_dir
-
-    return cache_dir() / LOG_NAME
+    """Where the window writes tracebacks: the log file plugin failures go to too
+    (``globeview.log`` in the cache folder, see `globeview.plugins.registry.failure_log_path`)."""
+    return failure_log_path()
 
 
 @dataclass(frozen=True)
@@ -64,14 +61,16 @@ def describe(exc: BaseException, context: str = "", log_file: Path | None = None
 
 
 def write_traceback(log_file: Path, exc: BaseException, text: str) -> bool:
-    """Append ``text`` and ``exc``'s traceback to ``log_file`` (starting it again past
+    """Append ``text`` and ``exc``'s traceback to ``log_file`` (moved to ``.1`` first past
     `LOG_MAX_BYTES`); returns False when the file cannot be written."""
     tb = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
     stamp = time.strftime("%Y-%m-%d %H:%M:%S")
     try:
         log_file.parent.mkdir(parents=True, exist_ok=True)
-        mode = "w" if log_file.exists() and log_file.stat().st_size > LOG_MAX_BYTES else "a"
-        with log_file.open(mode, encoding="utf-8") as f:
+        with contextlib.suppress(OSError):  # the registry's policy: one old log is kept
+            if log_file.stat().st_size > LOG_MAX_BYTES:
+                os.replace(log_file, log_file.with_name(log_file.name + ".1"))
+        with log_file.open("a", encoding="utf-8", errors="replace") as f:
             f.write(f"{stamp} ERROR {text}\n{tb}\n")
     except OSError:
         return False

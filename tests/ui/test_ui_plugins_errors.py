@@ -179,3 +179,107 @@ def test_gui_without_display_prints_one_line(tmp_path):
     lines = [ln for ln in (proc.stdout + proc.stderr).splitlines() if ln.strip()]
     assert len(lines) == 1
     assert "display" in lines[0] and "globeview render" in lines[0]
+
+
+FAULTY_MANIFEST = """
+name = "{name}"
+version = "0.1.0"
+description = "An LOD provider that misbehaves on its first frame."
+kinds = ["lod"]
+api_version = "1.0"
+
+[[contributions]]
+name = "{name}"
+kind = "lod"
+target = "{module}.provider:Provider"
+label = "Faulty"
+"""
+
+FAULTY_MODULE = """
+import numpy as np
+
+from globeview.plugins.api import LodProvider
+from globeview.plugins.builtin.chunked_sse import ChunkedSseProvider
+
+CALLS = []
+
+
+class Provider(LodProvider):
+    name = "{name}"
+
+    def __init__(self, context=None):
+        super().__init__(context)
+        self.inner = ChunkedSseProvider(context)
+
+    def select(self, view, terrain):
+        CALLS.append(1)
+        {body}
+"""
+
+#: name -> (select body, words the plugin's recorded reason must contain)
+FAULTS = {
+    "sysexit-lod": ("raise SystemExit(3)", "SystemExit"),
+    # A RenderSet whose variant ids point past its variants (and a level-40 key): it passes
+    # isinstance, so only the host's validation stands between it and the renderer.
+    "garbage-lod": (
+        "rs = self.inner.select(view, terrain)\n"
+        "        rs.variant_ids = np.full(len(rs.keys), 999, dtype=np.int64)\n"
+        "        rs.keys = rs.keys.copy(); rs.keys[0, 0] = 40\n"
+        "        return rs",
+        "InvalidRenderSet",
+    ),
+}
+
+
+@pytest.mark.parametrize("fault", list(FAULTS))
+def test_faulty_provider_is_failed_in_the_panel_and_frames_keep_coming(
+    fault, make_window, plugin_site, wait_frame, capfd
+):
+    """A provider raising SystemExit, or returning a garbage render set, in the window: its
+    plugin shows as failed with the reason in the plugins panel, the LOD falls back to
+    chunked-sse, it is not called again (frames do not keep paying for it), the globe keeps
+    drawing, and nothing reaches stderr."""
+    import importlib
+
+    from globeview.plugins.registry import PluginRegistry
+    from globeview.plugins.settings import MemorySettings
+
+    body, words = FAULTS[fault]
+    module = fault.replace("-", "_")
+    plugin_site.add(
+        module,
+        FAULTY_MANIFEST.format(name=fault, module=module),
+        {"provider": FAULTY_MODULE.format(name=fault, body=body)},
+    )
+    registry = PluginRegistry(MemorySettings()).discover()
+    win = make_window(registry=registry)
+    capfd.readouterr()
+    panel = win.plugin_panel
+    idx = panel.lod_combo.findData(fault)
+    assert idx >= 0
+    panel.lod_combo.setCurrentIndex(idx)  # as the user would
+    wait_frame(win)
+    calls = importlib.import_module(f"{module}.provider").CALLS
+    assert len(calls) == 1
+
+    rec = registry.get(fault)
+    assert rec.status == "failed" and words in rec.error and rec.error
+    row = next(
+        panel.tree.topLevelItem(i)
+        for i in range(panel.tree.topLevelItemCount())
+        if panel.tree.topLevelItem(i).text(0) == fault
+    )
+    assert row.text(3).startswith("failed") and rec.error in row.text(3)
+    assert win.globe.scene.lod_name == "chunked-sse"
+    assert panel.lod_combo.currentData() == "chunked-sse"
+    assert any(fault in m.text for m in win.errors.history)
+    assert not any("Unexpected error" in m.text for m in win.errors.history)
+
+    n = win.globe.frames
+    for _ in range(3):
+        win.globe.camera.fly_yaw(0.01)
+        wait_frame(win)
+    assert win.globe.frames >= n + 3
+    assert win.globe.last_stats.triangles > 0
+    assert len(calls) == 1  # failed once, never asked again
+    assert "Traceback" not in capfd.readouterr().err
