@@ -107,7 +107,7 @@ class GlobeSession(GlobeScene):
                 f"LOD provider {name!r} is disabled; `globeview plugins enable {name}` "
                 f"(available: {known})"
             )
-        raise GlobeviewError(f"no enabled LOD provider named {name!r} (available: {known})")
+        raise GlobeviewError(f"no enabled LOD provider named {name!r:.80} (available: {known})")
 
     def reset_lod(self) -> None:
         """Make the active provider forget its per-view cache (before a measured frame)."""
@@ -150,7 +150,7 @@ class GlobeSession(GlobeScene):
         compiled into the terrain shader now; if it does not compile the tool's plugin is
         disabled and reported, and the terrain keeps the plain shader."""
         if name is not None and self.find_tool(name) is None:
-            raise GlobeviewError(f"no enabled tool named {name!r}")
+            raise GlobeviewError(f"no enabled tool named {name!r:.80}")
         previous = self.tool()
         if previous is not None and name != self.active_tool:
             self.registry.invoke(previous, "deactivate")

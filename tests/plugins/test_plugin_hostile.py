@@ -521,3 +521,10 @@ def test_render_set_subclass_whose_attributes_raise_fails_the_plugin(
     check = lambda rs: rs.validate(65, None)  # noqa: E731
     assert reg.select(provider, headless_view(0.0, 0.0, 1e7), None, check=check) is None
     assert reg.get("sneaky").error == "SystemExit: gotcha"
+
+
+@pytest.mark.gl
+def test_unknown_provider_name_error_is_short(gl) -> None:
+    with pytest.raises(GlobeviewError) as info:
+        session(gl, registry(), "x" * 100_000)
+    assert len(str(info.value)) < 300 and "no enabled LOD provider" in str(info.value)
