@@ -99,3 +99,31 @@ def test_not_a_tty_means_no_progress_lines(tmp_path: Path) -> None:
     r = _cli(str(DATA / "topobathy_vancouver.tif"), "--out", str(tmp_path / "s"))
     assert r.returncode == 0 and r.stderr == ""
     assert r.stdout.count("\n") == 1 and "levels 0.." in r.stdout
+
+
+def test_odd_sources_and_out_parents_are_one_line(tmp_path: Path) -> None:
+    src = str(DATA / "topobathy_vancouver.tif")
+    r = _cli("/dev/zero", "--out", str(tmp_path / "s"))
+    assert r.stderr.splitlines() == [
+        "globeview: error: /dev/zero is not a regular file, not a DEM file"
+    ]
+    f = tmp_path / "notes.txt"
+    f.write_text("mine")
+    r = _cli(src, "--out", str(f / "s"))
+    assert r.returncode == 2
+    assert r.stderr.splitlines() == [f"globeview: error: {f} is not a folder; choose another --out"]
+
+
+def test_max_level_past_the_natural_level(tmp_path: Path) -> None:
+    # Was an internal error (argmax of an empty sequence): the levels between had no extent.
+    from globeview.terrain.store import TileStore
+
+    out = tmp_path / "s"
+    r = _cli(str(DATA / "topobathy_vancouver.tif"), "--out", str(out), "--max-level", "9")
+    assert r.returncode == 0, r.stderr
+    with TileStore.open(out) as st:
+        assert st.max_level == 9
+        st.verify()
+    r = _cli(str(DATA / "topobathy_vancouver.tif"), "--out", str(out), "--max-level", "22")
+    assert r.returncode == 2 and len(r.stderr.splitlines()) == 1
+    assert "--max-level 22 would have" in r.stderr and "the limit is" in r.stderr

@@ -887,7 +887,7 @@ MAX_TILES = 1 << 19
 _BYTES_PER_TILE = 600
 
 
-def _check_size(grids: dict[int, LevelGrid], sources: Sequence[_Source], tile_n: int) -> None:
+def _check_size(grids: dict[int, LevelGrid], sources: Sequence[_Source], chosen: bool) -> None:
     """Refuse up front (one line) a pyramid whose tile metadata would not fit the bound."""
     total = sum(g.nx * g.ny for g in grids.values())
     if total <= MAX_TILES:
@@ -905,10 +905,14 @@ def _check_size(grids: dict[int, LevelGrid], sources: Sequence[_Source], tile_n:
     src = min(sources, key=lambda s: s.res)
     info = src.dem.info
     gb = total * _BYTES_PER_TILE / 1e9
+    what = (
+        f"--max-level {l_max}"
+        if chosen
+        else f"{src.path} is {info.width}x{info.height} pixels: its finest level {l_max}"
+    )
     raise StoreError(
-        f"{src.path} is {info.width}x{info.height} pixels: its finest level {l_max} would have "
-        f"{fine.nx * fine.ny} tiles ({total} in all, about {gb:.1f} GB of metadata); the "
-        f"limit is {MAX_TILES} tiles: use --max-level {fit} or a larger --tile-n"
+        f"{what} would have {fine.nx * fine.ny} tiles ({total} in all, about {gb:.1f} GB of "
+        f"metadata); the limit is {MAX_TILES} tiles: use --max-level {fit} or a larger --tile-n"
     )
 
 
@@ -921,8 +925,10 @@ def _check_sources(paths: Sequence[Path]) -> None:
     for p in paths:
         if p.is_dir():
             raise DemError(f"{p} is a directory, not a DEM file")
-        if not p.is_file():
+        if not p.exists():
             raise DemError(f"DEM file not found: {p}")
+        if not p.is_file():
+            raise DemError(f"{p} is not a regular file, not a DEM file")
 
 
 def ingest(
@@ -978,6 +984,8 @@ def ingest(
     clean_stale_builds(parent)
     ident = _check_target(out_path, force)
     if not parent.is_dir():
+        if parent.exists():
+            raise StoreError(f"{parent} is not a folder; choose another --out")
         raise StoreError(f"the folder for the store does not exist: {parent}")
 
     src_paths = [Path(p).absolute() for p in sources]
@@ -1011,12 +1019,16 @@ def ingest(
                     rec,
                 )
             )
-        l_max = max(s.level for s in srcs) if max_level is None else max_level
+        natural = max(s.level for s in srcs)
+        l_max = natural if max_level is None else max_level
         for s in srcs:
-            s.level = min(s.level, l_max)
+            # Clamped to L_max; past the finest natural level (--max-level above it) the
+            # finest sources supply the extra levels, resampled (the levels between would
+            # otherwise have no extent at all).
+            s.level = l_max if s.level == natural else min(s.level, l_max)
         srcs.sort(key=lambda s: s.res)  # finest first: it wins where it has data
         builder = _Builder(srcs, tile_n, l_max, wavelet, parent, lambda n=1: None)
-        _check_size(builder.grids, srcs, tile_n)
+        _check_size(builder.grids, srcs, chosen=max_level is not None)
 
         try:
             tmp, tok = stack.enter_context(_build_folder(parent, out_path.name))
