@@ -72,6 +72,7 @@ from globeview.terrain.store import (
     RASTER_ERRORS,
     STORE_FORMAT,
     StoreIdentity,
+    TileStore,
     identify,
     is_store_file,
     read_manifest,
@@ -994,7 +995,7 @@ def ingest(
     params = {"tile_n": tile_n, "max_level": max_level, "wavelet": wavelet, "crs": crs}
     if ident.is_current and not force:
         existing = read_manifest(out_path)
-        if existing is not None and _same_inputs(existing, records, params):
+        if existing is not None and _same_inputs(existing, records, params) and _usable(out_path):
             return IngestResult(out_path, True, int(existing.get("max_level", 0)), 0.0)
 
     with contextlib.ExitStack() as stack:
@@ -1078,6 +1079,16 @@ def _write_error(
     if isinstance(text, list):
         text = text[0] if text else type(exc).__name__
     return StoreError(f"cannot write the store {out}: {text}")
+
+
+def _usable(store: Path) -> bool:
+    """Whether a store opens (manifest and level files checked, see `TileStore.open`): a
+    damaged one is rebuilt rather than called up to date."""
+    try:
+        TileStore.open(store).close()
+    except StoreError:
+        return False
+    return True
 
 
 def _same_inputs(manifest: dict, records: list[dict], params: dict) -> bool:

@@ -334,9 +334,12 @@ class TileStore:
         """
         for lv in self._levels:
             h = hashlib.sha256()
-            with (self.path / lv.file).open("rb") as f:
-                for chunk in iter(lambda f=f: f.read(1 << 20), b""):
-                    h.update(chunk)
+            try:
+                with (self.path / lv.file).open("rb") as f:
+                    for chunk in iter(lambda f=f: f.read(1 << 20), b""):
+                        h.update(chunk)
+            except OSError as exc:
+                raise StoreError(f"cannot read {self.path / lv.file}: {exc.strerror}") from None
             if h.hexdigest() != lv.sha256:
                 raise StoreError(f"{self.path / lv.file} is damaged (checksum mismatch)")
 

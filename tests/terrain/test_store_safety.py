@@ -338,3 +338,22 @@ def test_stem_keyed_cache_store_of_format_2_is_dropped(
     _dem(tmp_path / "x" / "dem.tif", 5.0)
     open_or_ingest(tmp_path / "x" / "dem.tif").close()
     assert (foreign / "manifest.json").read_text() == "{}"
+
+
+def test_reingest_rebuilds_a_damaged_store_instead_of_calling_it_up_to_date(
+    store: Path, tmp_path: Path
+) -> None:
+    s = _copy(store, tmp_path)
+    shutil.copy(s / "level_04.tif", s / "level_03.tif")
+    r = _cli("ingest", str(SMALL), "--out", str(s), "--quiet")
+    assert r.returncode == 0 and "up to date" not in r.stdout
+    with TileStore.open(s) as st:
+        st.verify()
+
+
+def test_verify_names_a_level_file_removed_after_open(store: Path, tmp_path: Path) -> None:
+    s = _copy(store, tmp_path)
+    with TileStore.open(s) as st:
+        (s / "level_02.tif").unlink()
+        with pytest.raises(StoreError, match=r"level_02\.tif"):
+            st.verify()
