@@ -549,3 +549,4 @@ class GlobeWidget(QOpenGLWidget):
             finally:
                 self.doneCurrent()
         self.scene = None
+        self.navigator = None  # it holds the session

@@ -680,6 +680,9 @@ class MainWindow(QMainWindow):
         self.globe.flight.stop()
         self.loader.shutdown()
         self.globe.release_gl()
+        # Nothing may keep the released session (and its terrain caches) alive.
+        self.plugins.unbind()
+        self.layer_panel.overlays.bind(None)
         super().closeEvent(event)
 
     def last_error(self) -> UserMessage | None:

@@ -134,6 +134,12 @@ class PluginHost(QObject):
         self._apply()
         self.refresh()
 
+    def unbind(self) -> None:
+        """Forget the session (its window closed): plugin contexts stop handing it out, so
+        nothing here keeps the released session, its renderer and terrain caches alive."""
+        self.session = None
+        self.registry.attach(scene=None)
+
     def _apply(self) -> None:
         if self.session is None:
             return
