@@ -67,7 +67,13 @@ def open_store(path: str | Path, on_progress=None) -> TileStore:
     if not p.exists():
         raise missing_path_error(p)
     out = store_path_for(p)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # $GLOBEVIEW_CACHE_DIR under a file, a read-only home, ...
+        raise GlobeviewError(
+            f"cannot ingest {p.name}: the cache folder {out.parent} cannot be made "
+            f"({exc.strerror or exc}); set GLOBEVIEW_CACHE_DIR to a writable folder"
+        ) from None
     ingest([p], out, **_ingest_kwargs(ingest, on_progress))
     return TileStore.open(out)
 

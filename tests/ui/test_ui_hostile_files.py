@@ -228,3 +228,22 @@ def test_cancelled_ingest_leaves_no_store_and_no_partial_folder(make_window, qtb
     assert not store_path_for(path).exists()
     assert "bigger" not in [ly.name for ly in win.terrain.layers]
     assert win.load_bar.isHidden() and win.cancel_button.isHidden()
+
+
+def test_unusable_cache_folder_is_one_line_not_an_internal_error(
+    make_window, errors_shown, qtbot, tmp_path, monkeypatch, wait_frame
+):
+    """$GLOBEVIEW_CACHE_DIR under a regular file: opening a DEM cannot ingest it; the user
+    is told where and why in one line (not "Unexpected error")."""
+    path = _write_tif(tmp_path / "fine.tif", _hill())
+    win = make_window()
+    (tmp_path / "a_file").write_text("x")
+    monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(tmp_path / "a_file" / "cache"))
+    n = len(win.errors.history)
+    win.open_paths([str(path)])
+    _wait_refused(qtbot, win, n)
+    new = win.errors.history[n:]
+    assert len(new) == 1 and errors_shown == new
+    assert "Unexpected error" not in new[0].text and "\n" not in new[0].text
+    assert "fine.tif" in new[0].text and str(tmp_path / "a_file") in new[0].text
+    wait_frame(win)
