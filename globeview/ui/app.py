@@ -12,6 +12,7 @@ from PyQt6.QtCore import QSettings
 from PyQt6.QtGui import QSurfaceFormat
 from PyQt6.QtWidgets import QApplication
 
+from globeview.errors import GlobeviewError
 from globeview.terrain.stack import TerrainStack
 from globeview.ui.errors import install_excepthook
 from globeview.ui.globe_widget import surface_format
@@ -45,8 +46,18 @@ def embedded_terrain() -> TerrainStack:
     """The embedded DEMs as a stack (ingested into the cache on first use)."""
     import sys
 
-    from globeview.terrain.embedded import embedded_stores, embedded_stores_ready
+    from globeview.terrain.dem import embedded_dem_paths
+    from globeview.terrain.embedded import embedded_stores, embedded_stores_ready, store_path_for
 
+    # Check the cache folder first: a bad one is one line, before any "preparing" line.
+    stores_dir = store_path_for(embedded_dem_paths()[0]).parent
+    try:
+        stores_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise GlobeviewError(
+            f"cannot prepare the embedded terrain: the cache folder {stores_dir} cannot be "
+            f"made ({exc.strerror or exc}); set GLOBEVIEW_CACHE_DIR to a writable folder"
+        ) from None
     if not embedded_stores_ready():
         print(
             "globeview: preparing the embedded terrain (first run only, a few seconds)...",

@@ -247,3 +247,18 @@ def test_unusable_cache_folder_is_one_line_not_an_internal_error(
     assert "Unexpected error" not in new[0].text and "\n" not in new[0].text
     assert "fine.tif" in new[0].text and str(tmp_path / "a_file") in new[0].text
     wait_frame(win)
+
+
+def test_gui_with_an_unusable_cache_folder_prints_one_line_and_exits_2(tmp_path):
+    """`globeview gui` when the embedded terrain cannot be prepared: one line, status 2."""
+    import subprocess
+    import sys
+
+    (tmp_path / "a_file").write_text("x")
+    env = dict(os.environ, GLOBEVIEW_CACHE_DIR=str(tmp_path / "a_file" / "cache"))
+    exe = Path(sys.executable).with_name("globeview")
+    proc = subprocess.run([str(exe), "gui"], env=env, capture_output=True, text=True, timeout=120)
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert proc.returncode == 2, proc.stderr
+    assert len(lines) == 1 and lines[0].startswith("globeview: error: "), proc.stderr
+    assert str(tmp_path / "a_file") in lines[0]
