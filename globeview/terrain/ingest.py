@@ -839,8 +839,8 @@ def _tty_stderr() -> object | None:
 
 # Fault injection for tests (works without root): GLOBEVIEW_INGEST_FAULT="KIND@N" makes the
 # N-th window write of a build (or the point named N, see `_fault_point`) fail: ENOSPC,
-# EROFS (OSError), INTERRUPT (KeyboardInterrupt) or KILL (SIGKILL to this process, as
-# `kill -9` at a known point).
+# EROFS or any errno name (OSError), INTERRUPT (KeyboardInterrupt) or KILL (SIGKILL to this
+# process, as `kill -9` at a known point).
 FAULT_ENV = "GLOBEVIEW_INGEST_FAULT"
 
 
@@ -854,7 +854,7 @@ def _fault_point(point: int | str) -> None:
     if at != str(point):
         return
     kind = kind.upper()
-    if kind in ("ENOSPC", "EROFS"):
+    if kind.startswith("E") and isinstance(getattr(errno, kind, None), int):
         code = getattr(errno, kind)
         raise OSError(code, os.strerror(code))
     if kind == "INTERRUPT":
@@ -1075,6 +1075,10 @@ def _write_error(
         return StoreError(f"disk full writing {out} (needs about {_store_megabytes(grids)} MB)")
     if code == errno.EROFS or any("Read-only file system" in line for line in dropped):
         return StoreError(f"cannot write the store {out}: {parent} is on a read-only file system")
+    if isinstance(exc, OSError) and not isinstance(exc, RASTER_ERRORS) and exc.errno:
+        from globeview.fileio import describe_os_error  # the wording of every output file
+
+        return StoreError(describe_os_error(exc, out))
     text = getattr(exc, "strerror", None) or str(exc).strip().splitlines()[0:1]
     if isinstance(text, list):
         text = text[0] if text else type(exc).__name__

@@ -158,6 +158,15 @@ def test_injected_read_only_is_one_line(tmp_path: Path) -> None:
     assert _leftovers(tmp_path) == [] and not (tmp_path / "s").exists()
 
 
+@pytest.mark.parametrize(
+    ("fault", "needle"), [("EIO@2", "Input/output error"), ("EACCES@manifest", "permission denied")]
+)
+def test_other_os_errors_are_one_line(tmp_path: Path, fault: str, needle: str) -> None:
+    r = _cli("ingest", str(SMALL), "--out", str(tmp_path / "s"), env={FAULT_ENV: fault})
+    assert needle in _one_error_line(r)
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_interrupt_during_build_leaves_nothing(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
