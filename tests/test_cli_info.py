@@ -163,3 +163,35 @@ def test_cli_cf_netcdf_assumed_wgs84(tmp_path: Path) -> None:
     r = _run("info", str(p))
     assert r.returncode == 0, r.stderr
     assert "CRS         EPSG:4326 (assumed from CF lat/lon axes)" in r.stdout
+
+
+def test_cli_paths_that_are_not_dems_are_one_line_each(tmp_path: Path) -> None:
+    import os
+
+    empty = tmp_path / "empty.tif"
+    empty.write_bytes(b"")
+    loop = tmp_path / "loop.tif"
+    os.symlink(tmp_path / "loop2.tif", loop)
+    os.symlink(loop, tmp_path / "loop2.tif")
+    fifo = tmp_path / "pipe.tif"
+    os.mkfifo(fifo)  # GDAL would wait on it forever
+    vrt = tmp_path / "mosaic.vrt"
+    vrt.write_text(
+        '<VRTDataset rasterXSize="10" rasterYSize="10"><SRS>EPSG:4326</SRS>'
+        "<GeoTransform>5.0, 0.01, 0, 45.0, 0, -0.01</GeoTransform>"
+        '<VRTRasterBand dataType="Float32" band="1"><SimpleSource>'
+        '<SourceFilename relativeToVRT="1">tile_gone.tif</SourceFilename>'
+        "<SourceBand>1</SourceBand></SimpleSource></VRTRasterBand></VRTDataset>"
+    )
+    lat95 = _geo_tif(
+        tmp_path / "lat95.tif", np.ones((10, 10), np.float32), transform=Affine(1, 0, 0, 0, -1, 95)
+    )
+    cases = [
+        (empty, "is empty (0 bytes)"),
+        (loop, "symbolic link loop"),
+        (fifo, "not a regular file"),
+        (vrt, "tile_gone.tif, which does not exist"),
+        (lat95, "beyond +-90 degrees"),
+    ]
+    for path, needle in cases:
+        _assert_one_line_error(_run("info", str(path)), needle)
