@@ -427,7 +427,8 @@ def coarsen_to_fit(render_set: RenderSet, capacity: int) -> tuple[RenderSet, int
     tiles by their parents never makes tiles overlap (no tile of the set lies below them).
     Parents are drawn at full resolution with skirts (their own index variant); their
     ``error_px`` is estimated as twice their children's largest (one level coarser roughly
-    doubles the geometric error). Returns the new set and how many tiles were replaced.
+    doubles the geometric error). Returns the new set and how many of the input's tiles were
+    replaced (are drawn through an ancestor).
     """
     keys = render_set.keys
     n = len(keys)
@@ -438,7 +439,6 @@ def coarsen_to_fit(render_set: RenderSet, capacity: int) -> tuple[RenderSet, int
     )
     err = np.where(np.isfinite(err), err, 0.0)
     rows = np.arange(n)  # row in the input set, -1 for a parent made here
-    replaced = 0
     while len(keys) > capacity:
         level = int(keys[:, 0].max())
         if level == 0:
@@ -464,10 +464,10 @@ def coarsen_to_fit(render_set: RenderSet, capacity: int) -> tuple[RenderSet, int
         drop = at[take[group]]
         keep = np.ones(len(keys), dtype=bool)
         keep[drop] = False
-        replaced += len(drop)
         keys = np.concatenate([keys[keep], uniq[take]])
         err = np.concatenate([err[keep], 2.0 * group_err[take]])
         rows = np.concatenate([rows[keep], np.full(int(take.sum()), -1)])
+    replaced = n - int(np.count_nonzero(rows >= 0))
     return _rebuild_render_set(render_set, keys, rows, err), replaced
 
 

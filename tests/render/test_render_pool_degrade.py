@@ -156,3 +156,10 @@ def test_cli_overflowing_view_renders_and_says_it_degraded(tmp_path: Path) -> No
     assert "drew coarser tiles" in data["degraded"]
     assert "degraded: tile pool" in res.stdout
     assert out.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_replaced_counts_input_tiles_once_over_several_levels() -> None:
+    keys = full_cover(4)  # 512 tiles
+    rs = RenderSet(keys, np.zeros(len(keys), np.int64), [IndexVariant()])
+    fitted, replaced = coarsen_to_fit(rs, 10)  # down to level 1 (8 tiles)
+    assert len(fitted) == 8 and replaced == 512
