@@ -46,6 +46,7 @@ import uuid
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TextIO
 
 import numpy as np
 import rasterio
@@ -236,11 +237,41 @@ def _profile(grid: LevelGrid) -> dict:
     }
 
 
-def _nan_to_none(a: np.ndarray) -> list:
-    """Nested lists with None for NaN (JSON null)."""
-    obj = a.astype(object)
-    obj[np.isnan(a)] = None
-    return obj.tolist()
+def _write_json_array(f: TextIO, a: np.ndarray) -> None:
+    """Write compact JSON of an array (NaN as null) to ``f``, one row at a time.
+
+    Nested Python lists of a whole level (``json.dumps(a.tolist())``) cost ~32 bytes a
+    number, several hundred bytes a tile: at a million tiles, more than the memory bound.
+    Row by row, the peak is one row.
+    """
+    rows = [a] if a.ndim <= 1 else a
+    if a.ndim > 1:
+        f.write("[")
+    for i, row in enumerate(rows):
+        if i:
+            f.write(",")
+        f.write(json.dumps(row.tolist(), separators=(",", ":")).replace("NaN", "null"))
+    if a.ndim > 1:
+        f.write("]")
+
+
+class _ArraySlots:
+    """Placeholders for arrays in a manifest dict, streamed as JSON text by `write`."""
+
+    def __init__(self) -> None:
+        self.arrays: list[np.ndarray] = []
+
+    def add(self, a: np.ndarray) -> str:
+        self.arrays.append(a)
+        return f"\x00array{len(self.arrays) - 1}\x00"
+
+    def write(self, obj: dict, f: TextIO) -> None:
+        parts = re.split(r'"\\u0000array(\d+)\\u0000"', json.dumps(obj, separators=(",", ":")))
+        for i, part in enumerate(parts):
+            if i % 2:
+                _write_json_array(f, self.arrays[int(part)])
+            else:
+                f.write(part)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -531,7 +562,9 @@ class _Builder:
             raise DemError(f"no valid heights in {names}: every sample is nodata")
         self._errors()
 
-    def manifest(self, params: dict, source_records: list[dict]) -> dict:
+    def write_manifest(self, params: dict, source_records: list[dict], f: TextIO) -> None:
+        """Write the manifest as compact JSON (streamed: see `_write_json_array`)."""
+        slots = _ArraySlots()
         levels = []
         for lv in range(self.max_level + 1):
             g, st = self.grids[lv], self.stats[lv]
@@ -549,17 +582,17 @@ class _Builder:
                     "file": g.file_name,
                     "extent": g.to_dict(),
                     "node_spacing_deg": g.d,
-                    "error": _nan_to_none(err),
-                    "hmin": _nan_to_none(np.where(has, round_sig_down(st.hmin), np.nan)),
-                    "hmax": _nan_to_none(np.where(has, round_sig_up(st.hmax), np.nan)),
-                    "stride_error": _nan_to_none(stride),
+                    "error": slots.add(err),
+                    "hmin": slots.add(np.where(has, round_sig_down(st.hmin), np.nan)),
+                    "hmax": slots.add(np.where(has, round_sig_up(st.hmax), np.nan)),
+                    "stride_error": slots.add(stride),
                     "level_error": level_error,
                     "pole_heights": st.pole,
                     "sha256": st.sha256,
                 }
             )
         fine = self.grids[self.max_level]
-        return {
+        manifest = {
             "format": STORE_FORMAT,
             "format_version": FORMAT_VERSION,
             "created_by": f"globeview {__version__}",
@@ -575,6 +608,7 @@ class _Builder:
             "pole_heights": dict(self.pole),
             "levels": levels,
         }
+        slots.write(manifest, f)
 
 
 def _union_bounds(sources: Sequence[_Source]) -> list[float]:
@@ -880,10 +914,11 @@ def _store_megabytes(grids: dict[int, LevelGrid]) -> int:
     return max(1, math.ceil(sum(g.width * g.height * 4 for g in grids.values()) / 1e6))
 
 
-# Per-tile metadata: hmin/hmax/error/6 stride floats as float64 arrays during the build, then
-# as Python floats in nested lists and JSON text for the manifest (and again when a store is
-# opened). Measured ~600 bytes/tile at that peak (1 Mi tiles: 700 MB), so 512 Ki tiles
-# (~315 MB) keeps an ingest, with its 96 MB GDAL cache and windows, under the stated ~512 MB.
+# Per-tile metadata: hmin/hmax/error/6 stride floats, float64 arrays during the build (~72
+# bytes a tile, ~250 more for the rounding temporaries of the manifest, which is streamed to
+# its file row by row). Opening a store parses the manifest into Python lists first: ~600
+# bytes a tile (1 Mi tiles: 610 MB measured). 512 Ki tiles keep both under the stated ~512 MB
+# with the 96 MB GDAL cache.
 MAX_TILES = 1 << 19
 _BYTES_PER_TILE = 600
 
@@ -1051,10 +1086,10 @@ def ingest(
                 bar.total = total
                 bar.refresh()
                 builder.build()
-            manifest = builder.manifest(params, records)
             _fault_point("manifest")
             part = tmp / (MANIFEST_NAME + ".part")
-            part.write_text(json.dumps(manifest, separators=(",", ":")))
+            with part.open("w", encoding="utf-8") as f:
+                builder.write_manifest(params, records, f)
             os.replace(part, tmp / MANIFEST_NAME)
             _commit(tmp, out_path, tok)
         except (OSError, *RASTER_ERRORS) as exc:

@@ -381,3 +381,17 @@ def test_bad_parameters(tmp_path: Path) -> None:
         with pytest.raises(GlobeviewError):
             ingest([src], tmp_path / "x", **kw)
         assert not (tmp_path / "x").exists()
+
+
+def test_manifest_arrays_are_streamed_as_the_same_json() -> None:
+    import io
+
+    rng = np.random.default_rng(3)
+    for shape in [(3, 4), (2, 5, 6), (1, 1), (0, 3)]:
+        a = rng.random(shape) * 1e4
+        a.flat[:: max(1, a.size // 3)] = np.nan
+        f = io.StringIO()
+        ingest_mod._write_json_array(f, a)
+        want = a.astype(object)
+        want[np.isnan(a)] = None
+        assert json.loads(f.getvalue()) == want.tolist()
