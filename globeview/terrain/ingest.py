@@ -839,7 +839,7 @@ def _gdal_quiet() -> Iterator[list[str]]:
                 _stderr_file = tempfile.TemporaryFile()  # noqa: SIM115 - closed on exit
                 _stderr_saved = os.dup(2)
                 os.dup2(_stderr_file.fileno(), 2)
-            except (OSError, ValueError):
+            except (OSError, ValueError, AttributeError):  # no fd 2, or sys.stderr is None
                 _stderr_file, _stderr_saved = None, None
         _stderr_depth += 1
     try:
@@ -848,7 +848,7 @@ def _gdal_quiet() -> Iterator[list[str]]:
         with _stderr_lock:
             _stderr_depth -= 1
             if _stderr_depth == 0 and _stderr_saved is not None and _stderr_file is not None:
-                with contextlib.suppress(OSError, ValueError):
+                with contextlib.suppress(OSError, ValueError, AttributeError):
                     sys.stderr.flush()
                 os.dup2(_stderr_saved, 2)
                 os.close(_stderr_saved)
@@ -860,7 +860,7 @@ def _gdal_quiet() -> Iterator[list[str]]:
                 for line in text.splitlines():
                     (dropped if _GDAL_NOISE.match(line) else keep).append(line)
                 if keep:
-                    with contextlib.suppress(OSError, ValueError):
+                    with contextlib.suppress(OSError, ValueError, AttributeError):
                         sys.stderr.write("\n".join(keep) + "\n")
 
 
