@@ -331,6 +331,7 @@ def test_netcdf_with_crs_is_not_marked_assumed(tmp_path: Path) -> None:
         assert "assumed" not in dem.info.summary()
 
 
+@pytest.mark.filterwarnings("ignore::rasterio.errors.NotGeoreferencedWarning")  # the premise
 def test_no_georeferencing_still_refused(tmp_path: Path) -> None:
     p = tmp_path / "plain.tif"
     with rasterio.open(p, "w", driver="GTiff", width=10, height=10, count=1, dtype="float32") as ds:
