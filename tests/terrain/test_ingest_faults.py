@@ -10,6 +10,7 @@ import random
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -84,18 +85,19 @@ def test_kill9_at_a_random_time_then_reingest_is_clean(
     tmp_path: Path, clean_errors: list, seed: int
 ) -> None:
     out = tmp_path / "s"
-    delay = random.Random(seed).uniform(0.4, 1.5)
+    rng = random.Random(seed)
     p = subprocess.Popen(
         [str(GLOBEVIEW), "ingest", str(SMALL), "--out", str(out), "--quiet"],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
-    try:
-        p.wait(timeout=delay)
-    except subprocess.TimeoutExpired:
-        p.send_signal(signal.SIGKILL)
-        p.wait()
-    r = _cli("ingest", str(SMALL), "--out", str(out), "--quiet", "--force")
+    # Kill it while it builds: once its build folder exists, after a random part of a build.
+    while p.poll() is None and not any(".building-" in n for n in _leftovers(tmp_path)):
+        time.sleep(0.005)
+    time.sleep(rng.uniform(0.0, 0.3))
+    p.send_signal(signal.SIGKILL)
+    p.wait()
+    r = _cli("ingest", str(SMALL), "--out", str(out), "--quiet")
     assert r.returncode == 0, r.stderr
     assert _leftovers(tmp_path) == []
     with TileStore.open(out) as st:
