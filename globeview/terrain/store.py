@@ -316,7 +316,7 @@ class TileStore:
             raise StoreError(f"{mpath}: unreadable manifest ({type(exc).__name__})") from None
         if not isinstance(manifest, dict):
             raise StoreError(f"{mpath}: unreadable manifest (not a JSON object)")
-        ident = identify(p)
+        ident = identify(p.resolve())  # a symlink to a store reads as the store
         if not ident.is_globeview:
             raise StoreError(f"{p} is not a globeview tile store ({MANIFEST_NAME} is not ours)")
         version = manifest.get("format_version")

@@ -357,3 +357,9 @@ def test_verify_names_a_level_file_removed_after_open(store: Path, tmp_path: Pat
         (s / "level_02.tif").unlink()
         with pytest.raises(StoreError, match=r"level_02\.tif"):
             st.verify()
+
+
+def test_a_symlink_to_a_store_opens(store: Path, tmp_path: Path) -> None:
+    (tmp_path / "link").symlink_to(store)
+    with TileStore.open(tmp_path / "link") as st:
+        assert st.max_level >= 0
