@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 import rasterio
 import rasterio.warp
+import rasterio.windows
 from affine import Affine
 from rasterio.crs import CRS
 from rasterio.enums import Resampling
@@ -38,6 +39,10 @@ from globeview.terrain.quadtree import TileKey, tile_bounds
 
 WGS84_CRS = CRS.from_epsg(4326)
 DEFAULT_TEX_SIZE = 256
+#: Most source pixels a side one texel may gather in a warp. Beyond it (a global view over a
+#: huge raster: 2 000 000 pixels wide puts ~4 000 x 4 000 under one texel) GDAL's warper asks
+#: for gigabytes, so the tile's window is first read decimated (overviews used when present).
+MAX_SOURCE_PER_TEXEL = 64
 
 #: A terrain hillshade ramp: grey levels (value in 0..1 = shade).
 GREY_RAMP: tuple[tuple[float, tuple[int, int, int]], ...] = (
@@ -173,10 +178,12 @@ class RasterImagery:
             dst = np.zeros((ds.count, t, t), np.float32)
             src_nodata = nodata
             with self._lock:
+                src = self._decimated(key)
                 for b in range(ds.count):
                     rasterio.warp.reproject(
-                        rasterio.band(ds, b + 1),
+                        rasterio.band(ds, b + 1) if src is None else src[0][b],
                         dst[b],
+                        src_transform=None if src is None else src[1],
                         src_crs=self.crs,
                         dst_transform=dst_t,
                         dst_crs=WGS84_CRS,
@@ -195,9 +202,11 @@ class RasterImagery:
             return np.ascontiguousarray(np.round(out).astype(np.uint8).transpose(1, 2, 0))
         dst = np.full((t, t), np.nan, np.float32)
         with self._lock:
+            src = self._decimated(key)
             rasterio.warp.reproject(
-                rasterio.band(ds, 1),
+                rasterio.band(ds, 1) if src is None else src[0][0],
                 dst,
+                src_transform=None if src is None else src[1],
                 src_crs=self.crs,
                 dst_transform=dst_t,
                 dst_crs=WGS84_CRS,
@@ -214,6 +223,31 @@ class RasterImagery:
             return out
         rgb = ramp_lookup(dst, self.ramp)
         return np.concatenate([rgb, (valid * 255).astype(np.uint8)[..., None]], axis=-1)
+
+    def _decimated(self, key: TileKeyLike) -> tuple[np.ndarray, Affine] | None:
+        """None when the tile can warp straight from the file (its source window is at most
+        `MAX_SOURCE_PER_TEXEL` x tex_size pixels a side); else (bands, transform): that window
+        read at 2 x tex_size pixels a side (nearest: GDAL streams it, using overviews when
+        there are), nodata as NaN, so one texel never gathers thousands of pixels a side."""
+        ds = self.ds
+        try:
+            b = rasterio.warp.transform_bounds(WGS84_CRS, self.crs, *tile_bounds(TileKey(*key)))
+            win = ds.window(*b).intersection(rasterio.windows.Window(0, 0, ds.width, ds.height))
+        except Exception:  # no overlap, or bounds the CRS cannot take: warp as before
+            return None
+        t = self.tex_size
+        if max(win.width, win.height) <= MAX_SOURCE_PER_TEXEL * t:
+            return None
+        scale = max(win.width, win.height) / (2 * t)
+        shape = (max(1, round(win.height / scale)), max(1, round(win.width / scale)))
+        data = ds.read(
+            window=win, out_shape=(ds.count, *shape), masked=True, resampling=Resampling.nearest
+        )
+        bands = data.astype(np.float32).filled(np.nan)
+        transform = ds.window_transform(win) * Affine.scale(
+            win.width / shape[1], win.height / shape[0]
+        )
+        return bands, transform
 
     def close(self) -> None:
         self.ds.close()

@@ -67,6 +67,8 @@ def _load(path: str | Path) -> dict:
         doc = json.loads(text)
     except json.JSONDecodeError as exc:
         raise VectorError(f"{p.name}: not valid GeoJSON ({exc.msg} at line {exc.lineno})") from None
+    except RecursionError:  # [[[[...]]]] thousands deep: the parser's stack, not a bug here
+        raise VectorError(f"{p.name}: not valid GeoJSON (nested too deeply)") from None
     if not isinstance(doc, dict) or "type" not in doc:
         raise VectorError(f"{p.name}: not a GeoJSON object (no 'type')")
     crs = doc.get("crs")

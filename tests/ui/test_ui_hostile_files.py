@@ -262,3 +262,98 @@ def test_gui_with_an_unusable_cache_folder_prints_one_line_and_exits_2(tmp_path)
     assert proc.returncode == 2, proc.stderr
     assert len(lines) == 1 and lines[0].startswith("globeview: error: "), proc.stderr
     assert str(tmp_path / "a_file") in lines[0]
+
+
+#: File > Open Overlay… with hostile files: name -> function(tmp_path) -> path.
+BAD_OVERLAYS: dict[str, Callable[[Path], Path]] = {
+    "zero-byte .geojson": lambda t: (t / "e.geojson", (t / "e.geojson").write_bytes(b""))[0],
+    "JSON list, not GeoJSON": lambda t: (t / "l.geojson", (t / "l.geojson").write_text("[1,2]"))[0],
+    "GeoJSON with garbage coordinates": lambda t: (
+        t / "g.geojson",
+        (t / "g.geojson").write_text(
+            '{"type":"FeatureCollection","features":[{"type":"Feature","properties":{},'
+            '"geometry":{"type":"LineString","coordinates":[["a","b"],[null,3]]}}]}'
+        ),
+    )[0],
+    "deeply nested JSON": lambda t: (
+        t / "n.geojson",
+        (t / "n.geojson").write_text("[" * 100000 + "]" * 100000),
+    )[0],
+    "binary .geojson (not UTF-8)": lambda t: (
+        t / "b.geojson",
+        (t / "b.geojson").write_bytes(b'{"type": "\xff\xfe\x00garbage'),
+    )[0],
+    "text named .png": lambda t: (t / "p.png", (t / "p.png").write_text("not a png"))[0],
+    "dangling VRT overlay": lambda t: _vrt(t / "dangling_ov.vrt", 64, 64, str(t / "gone.tif")),
+    "symlink loop": _symlink_loop,
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_OVERLAYS))
+def test_bad_overlay_gives_one_line_and_the_globe_keeps_drawing(
+    case, make_window, errors_shown, wait_frame, tmp_path, capfd
+):
+    inputs = tmp_path / "inputs"
+    inputs.mkdir()
+    path = BAD_OVERLAYS[case](inputs)
+    win = make_window()
+    capfd.readouterr()
+    n_msgs, overlays = len(win.errors.history), list(win.overlay_layers())
+    assert win.open_overlays([str(path)]) == []
+    new = win.errors.history[n_msgs:]
+    assert len(new) == 1, [m.text for m in new]
+    assert "\n" not in new[0].text and "Unexpected error" not in new[0].text, new[0].text
+    assert path.name in new[0].text, new[0].text
+    assert errors_shown == new
+    assert win.overlay_layers() == overlays
+    n = win.globe.frames
+    wait_frame(win)
+    assert win.globe.frames > n and win.globe.last_stats.triangles > 0
+    assert "Traceback" not in capfd.readouterr().err
+
+
+def test_export_to_an_unwritable_path_is_one_line(make_window, errors_shown, tmp_path):
+    win = make_window()
+    folder = tmp_path / "taken.png"
+    folder.mkdir()  # a folder where the image should go
+    for target in (folder, tmp_path / "no_such_dir" / "x.png"):
+        n = len(win.errors.history)
+        assert win.export_image(str(target)) is False
+        new = win.errors.history[n:]
+        assert len(new) == 1 and str(target) in new[0].text and "\n" not in new[0].text
+    assert folder.is_dir() and not any(folder.iterdir())
+
+
+def test_huge_overlay_raster_drapes_in_bounded_memory(tmp_path):
+    """A 2 000 000 x 1 000 000 pixel raster as a drape: a whole-globe tile put ~4 000 x 4 000
+    source pixels under each texel and GDAL's warper asked for gigabytes (the window was
+    killed). Under a 3 GB address-space limit the tile must still come out."""
+    import subprocess
+    import sys
+
+    path = _vrt(tmp_path / "huge_overlay.vrt", 2_000_000, 1_000_000, None)
+    code = (
+        "import resource, sys\n"
+        "resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))\n"
+        "from globeview.terrain.imagery import RasterImagery\n"
+        "im = RasterImagery(sys.argv[1])\n"
+        "for key in ((0, 0, 0), (0, 1, 0), (1, 1, 0)):\n"
+        "    assert im.tile_rgba(key).shape == (im.tex_size, im.tex_size, 4)\n"
+        "print('ok')\n"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code, str(path)], capture_output=True, text=True, timeout=300
+    )
+    assert proc.returncode == 0 and proc.stdout.strip() == "ok", proc.stderr[-2000:]
+
+
+def test_huge_overlay_in_the_window_keeps_drawing(make_window, errors_shown, wait_frame, tmp_path):
+    path = _vrt(tmp_path / "huge_overlay.vrt", 2_000_000, 1_000_000, None)
+    win = make_window()
+    n = len(win.errors.history)
+    layers = win.open_overlays([str(path)])
+    assert len(layers) == 1
+    wait_frame(win)
+    wait_frame(win)
+    assert not any("drawing failed" in m.text for m in win.errors.history[n:])
+    assert errors_shown == [] and win.globe.last_stats.triangles > 0

@@ -279,6 +279,8 @@ def detect_layer_type(path: str | Path) -> str:
             doc = json.loads(p.read_text(encoding="utf-8"))
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise VectorError(f"{p.name}: not valid GeoJSON ({exc})") from None
+        except RecursionError:  # [[[[...]]]] thousands deep
+            raise VectorError(f"{p.name}: not valid GeoJSON (nested too deeply)") from None
         types = set()
         feats = doc.get("features", [doc]) if isinstance(doc, dict) else []
         for f in feats:
