@@ -17,6 +17,7 @@ Run as a script to write the corpus for manual runs::
 
 from __future__ import annotations
 
+import math
 import struct
 import sys
 import warnings
@@ -28,6 +29,7 @@ import rasterio
 import rasterio.errors
 from affine import Affine
 from pyproj import Transformer
+from rasterio.control import GroundControlPoint
 
 COMMANDS = ("info", "ingest", "render")
 
@@ -50,6 +52,8 @@ class Case:
             (case-insensitive), e.g. the hint ``--crs``.
         probe: for valid inputs, (lon, lat) degrees where the terrain must be drawn.
         kind: what the probe must show: LAND or WATER.
+        extra_probes: more (lon, lat, kind) places; DEMs that are part land, part sea put
+            one on each so a mirrored, flipped or shifted grid is caught.
         outside: places (lon, lat) where the render must show no terrain at all: beyond the
             footprint (terrain wrapped round the globe, mirrored or shifted shows there) or
             far from it (terrain wrapped round the globe, mirrored or shifted shows there).
@@ -66,6 +70,7 @@ class Case:
     error_substring: str | None = None
     probe: tuple[float, float] | None = None
     kind: str = LAND
+    extra_probes: tuple[tuple[float, float, str], ...] = ()
     outside: tuple[tuple[float, float], ...] = ()
     fill_places: tuple[tuple[float, float], ...] = ()
     note: str = ""
@@ -101,6 +106,7 @@ def write_raster(
     dtype: str | None = None,
     nodata: float | None = None,
     driver: str = "GTiff",
+    gcps: list | None = None,
 ) -> Path:
     """Write (h, w) or (bands, h, w) ``bands`` as a raster; returns ``path``."""
     a = np.asarray(bands)
@@ -120,6 +126,8 @@ def write_raster(
         profile["crs"] = crs
     if nodata is not None:
         profile["nodata"] = nodata
+    if gcps is not None:
+        profile["gcps"] = gcps
     path.parent.mkdir(parents=True, exist_ok=True)
     with warnings.catch_warnings():
         # A raster without geotransform is a corpus case, written on purpose.
@@ -127,6 +135,20 @@ def write_raster(
         with rasterio.open(path, "w", **profile) as ds:
             ds.write(a.astype(dtype))
     return path
+
+
+def with_sea(z: np.ndarray, rows: slice, cols: slice) -> np.ndarray:
+    """A copy of ``z`` with the sea bed (-100..-120 m) in ``z[rows, cols]``."""
+    out = np.array(z, dtype=np.float64)
+    out[rows, cols] = seabed(*out.shape)[rows, cols]
+    return out
+
+
+def pixel_lonlat(transform: Affine, crs: str, row: float, col: float) -> tuple[float, float]:
+    """(lon, lat) degrees of the centre of pixel (row, col) of a grid in ``crs``."""
+    x, y = transform @ (col + 0.5, row + 0.5)
+    lon, lat = Transformer.from_crs(crs, "EPSG:4326", always_xy=True).transform(x, y)
+    return float((lon + 180.0) % 360.0 - 180.0), float(lat)
 
 
 def geo_transform(west: float, north: float, dlon: float, dlat: float) -> Affine:
@@ -351,62 +373,97 @@ def _valid(root: Path) -> list[Case]:
     )
     add(
         "rotated_pixels",
-        write_raster(root / "rotated.tif", plateau(60, 80), rot, "EPSG:32632", dtype="float32"),
+        write_raster(
+            root / "rotated.tif",
+            with_sea(plateau(60, 80), slice(None), slice(60, None)),
+            rot,
+            "EPSG:32632",
+            dtype="float32",
+        ),
         ALPS_CENTRE,
-        "rotated pixels: UTM 32N, 1 km pixels, geotransform turned by 20 deg",
+        "rotated pixels: UTM 32N, 1 km pixels, geotransform turned by 20 deg; sea in the "
+        "last quarter of the columns",
+        extra_probes=(
+            (*pixel_lonlat(rot, "EPSG:32632", 8, 72), WATER),
+            (*pixel_lonlat(rot, "EPSG:32632", 52, 72), WATER),
+            (*pixel_lonlat(rot, "EPSG:32632", 8, 8), LAND),
+            (*pixel_lonlat(rot, "EPSG:32632", 52, 8), LAND),
+        ),
+    )
+    # South-up: the geotransform's rows run north (positive pixel height); sea in the south.
+    south_up = geo_transform(8.0, 45.5, 2.0 / W, -1.5 / H)
+    add(
+        "south_up",
+        write_raster(
+            root / "south_up.tif",
+            with_sea(plateau(H, W), slice(0, 15), slice(None)),
+            south_up,
+            "EPSG:4326",
+            dtype="float32",
+        ),
+        ALPS_CENTRE,
+        "rows stored south to north (positive pixel height); sea along the south edge",
+        extra_probes=((9.0, 45.6, WATER), (9.0, 46.9, LAND)),
     )
     add(
         "antimeridian_4326",
         write_raster(
             root / "antimeridian_4326.tif",
-            plateau(60, 80),
+            with_sea(plateau(60, 80), slice(None), slice(60, None)),
             geo_transform(179.0, 66.0, 2.0 / 80, 1.5 / 60),
             "EPSG:4326",
             dtype="float32",
         ),
         (180.0, 65.25),
-        "EPSG:4326 across the antimeridian: longitudes 179..181",
+        "EPSG:4326 across the antimeridian: longitudes 179..181; sea east of 180.5",
+        extra_probes=((179.4, 65.25, LAND), (-179.25, 65.25, WATER)),
         outside=((-90.0, 65.25), (178.0, 65.25), (-178.0, 65.25)),
     )
+    pdc = centred_transform("EPSG:3832", 180.0, -17.0, 80, 60, 2000.0)
     add(
         "antimeridian_3832",
         write_raster(
             root / "antimeridian_3832.tif",
-            plateau(60, 80),
-            centred_transform("EPSG:3832", 180.0, -17.0, 80, 60, 2000.0),
+            with_sea(plateau(60, 80), slice(None), slice(60, None)),
+            pdc,
             "EPSG:3832",
             dtype="float32",
         ),
         (180.0, -17.0),
-        "EPSG:3832 (PDC Mercator) across the antimeridian near Fiji, 2 km pixels",
+        "EPSG:3832 (PDC Mercator) across the antimeridian near Fiji, 2 km pixels; sea in "
+        "the eastern quarter",
+        extra_probes=(
+            (*pixel_lonlat(pdc, "EPSG:3832", 30, 15), LAND),
+            (*pixel_lonlat(pdc, "EPSG:3832", 30, 72), WATER),
+        ),
         outside=((-90.0, -17.0), (178.0, -17.0), (-178.0, -17.0)),
     )
-    add(
-        "north_pole_3413",
-        write_raster(
-            root / "north_pole_3413.tif",
-            plateau(100, 100),
-            centred_transform("EPSG:3413", 0.0, 90.0, 100, 100, 10000.0),
-            "EPSG:3413",
-            dtype="float32",
-        ),
-        (0.0, 88.0),
-        "NSIDC north polar stereographic, 1000 km square around the pole",
-        outside=((0.0, 70.0), (0.0, -88.0)),
-    )
-    add(
-        "south_pole_3031",
-        write_raster(
-            root / "south_pole_3031.tif",
-            plateau(100, 100),
-            centred_transform("EPSG:3031", 0.0, -90.0, 100, 100, 10000.0),
-            "EPSG:3031",
-            dtype="float32",
-        ),
-        (0.0, -88.0),
-        "Antarctic polar stereographic, 1000 km square around the pole",
-        outside=((0.0, -70.0), (0.0, 88.0)),
-    )
+    # Polar caps: 1000 km squares centred on the pole, sea in one quadrant (away from the
+    # probe and from the default camera's view of the footprint centre at longitude 0).
+    for name, crs, pole, sea_rows in (
+        ("north_pole_3413", "EPSG:3413", 90.0, slice(0, 50)),
+        ("south_pole_3031", "EPSG:3031", -90.0, slice(50, None)),
+    ):
+        t = centred_transform(crs, 0.0, pole, 100, 100, 10000.0)
+        sea_row = 25 if sea_rows.start == 0 else 75
+        add(
+            name,
+            write_raster(
+                root / f"{name}.tif",
+                with_sea(plateau(100, 100), sea_rows, slice(50, None)),
+                t,
+                crs,
+                dtype="float32",
+            ),
+            (0.0, math.copysign(88.0, pole)),
+            f"{crs} polar stereographic, 1000 km square around the pole, one quadrant sea",
+            extra_probes=(
+                (*pixel_lonlat(t, crs, sea_row, 75), WATER),
+                (*pixel_lonlat(t, crs, 100 - sea_row, 75), LAND),
+                (*pixel_lonlat(t, crs, sea_row, 25), LAND),
+            ),
+            outside=((0.0, math.copysign(70.0, pole)), (0.0, -math.copysign(88.0, pole))),
+        )
     add(
         "global_past_poles",
         write_raster(
@@ -511,6 +568,19 @@ def _invalid(root: Path) -> list[Case]:
         "no_geotransform",
         write_raster(root / "no_transform.tif", base, None, "EPSG:4326", dtype="float32"),
         "a GeoTIFF with a CRS but no geotransform",
+    )
+    corners = [(0, 0, 8.0, 47.0), (0, W, 10.0, 47.0), (H, 0, 8.0, 45.5), (H, W, 10.0, 45.5)]
+    add(
+        "gcps_only",
+        write_raster(
+            root / "gcps_only.tif",
+            base,
+            None,
+            "EPSG:4326",
+            dtype="float32",
+            gcps=[GroundControlPoint(r, c, x, y) for r, c, x, y in corners],
+        ),
+        "georeferenced by ground control points only (no geotransform)",
     )
     add(
         "lat_beyond_90",

@@ -109,11 +109,12 @@ def _read_png(path: Path) -> np.ndarray:
     return np.asarray(Image.open(path).convert("RGB"))
 
 
-def _look_down_at(work, case: Case, lon: float, lat: float, png: Path) -> str:
+def _look_down_at(work, case: Case, lon: float, lat: float, png: Path, *extra: str) -> str:
     """Render ``case`` from 30 km straight above (lon, lat); what the image centre shows."""
     res = work.run(
         "render",
         str(case.path),
+        *extra,
         "--out",
         str(png),
         f"--camera={lon},{lat},30000,0,-90",
@@ -153,6 +154,7 @@ def test_render(name: str, work, corpus_snapshot) -> None:
 
     assert case.probe is not None
     checks = [(case.probe, {case.kind})]
+    checks += [((lon, lat), {kind}) for lon, lat, kind in case.extra_probes]
     checks += [(place, {"other"}) for place in case.outside]
     checks += [(place, {LAND, "other"}) for place in case.fill_places]
     wrong = []
@@ -162,6 +164,23 @@ def test_render(name: str, work, corpus_snapshot) -> None:
             wrong.append(f"({lon:.3f}, {lat:.3f}) shows {seen}, not {sorted(allowed)}")
     assert not wrong, "seen from 30 km straight above: " + "; ".join(wrong)
     _inputs_untouched(corpus_snapshot)
+
+
+@pytest.mark.parametrize("command", ["info", "ingest", "render"])
+def test_the_no_crs_hint_works(work, command: str) -> None:
+    """The no-CRS error says to add --crs; doing so makes the same file work (the terrain
+    lands where the hinted CRS puts it)."""
+    case = CASES["no_crs"]
+    if command == "info":
+        res = work.run("info", str(case.path), "--crs", "EPSG:4326")
+    elif command == "ingest":
+        res = work.run("ingest", str(case.path), "--out", "store", "--crs", "EPSG:4326")
+    else:
+        lon, lat = CASES["float32"].probe or (0.0, 0.0)
+        seen = _look_down_at(work, case, lon, lat, work.cwd / "x.png", "--crs", "EPSG:4326")
+        assert seen == LAND
+        return
+    assert_quiet_success(res)
 
 
 # ---------------------------------------------------------------------------------------------
