@@ -159,6 +159,9 @@ def atomic_outputs(targets: Sequence[str | os.PathLike]) -> Iterator[list[Path]]
     writes each completely. On a normal exit every temporary replaces its target; if the body
     raises anything (Ctrl-C included) or a write fails, every temporary is removed and no
     target is touched. OS errors become a one-line `OutputError`; other exceptions propagate.
+    (Only the final renames are not all-or-nothing together: they run after every byte is
+    on disk and a rename within a folder needs no space, so only a folder vanishing or
+    changing permission between two renames could leave the first target replaced.)
 
     Example::
 
