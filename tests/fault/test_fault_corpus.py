@@ -234,6 +234,60 @@ def test_render_out_is_a_folder(work) -> None:
     assert tree_digest(work.cwd) == before
 
 
+def _copy_of(case_name: str, folder: Path) -> Path:
+    src = CASES[case_name].path
+    dst = folder / src.name
+    dst.write_bytes(src.read_bytes())
+    return dst
+
+
+def test_ingest_out_is_its_own_source(work) -> None:
+    """`ingest dem.tif --out dem.tif` (a typo): exit 2, the DEM intact."""
+    dem = _copy_of("float32", work.cwd)
+    before = tree_digest(work.cwd)
+    res = work.run("ingest", str(dem), "--out", str(dem))
+    assert_one_error_line(res)
+    assert tree_digest(work.cwd) == before
+
+
+@pytest.mark.gl
+def test_render_out_is_its_own_source(work) -> None:
+    """`render dem.tif --out dem.tif` (a typo) must not replace the DEM by a picture of it."""
+    dem = _copy_of("float32", work.cwd)
+    before = tree_digest(work.cwd)
+    res = work.run("render", str(dem), "--out", str(dem), "--size", SIZE)
+    assert_one_error_line(res)
+    assert tree_digest(work.cwd) == before
+
+
+def test_ingest_with_one_bad_source_among_good_ones(work) -> None:
+    """A valid DEM and a broken one together: exit 2 naming the broken one, no store."""
+    bad = CASES["truncated"].path
+    out = work.cwd / "store"
+    res = work.run("ingest", str(CASES["float32"].path), str(bad), "--out", str(out))
+    assert_one_error_line(res, bad.name)
+    assert not out.exists() and not leftovers(work.cwd)
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("name", ["text_file", "zero_byte", "directory", "symlink_loop", "missing"])
+def test_render_with_a_bad_overlay(work, name: str) -> None:
+    """`render --layer X` with a hostile overlay file: exit 2 in one line, no PNG."""
+    png = work.cwd / "x.png"
+    res = work.run(
+        "render",
+        str(CASES["float32"].path),
+        "--layer",
+        str(CASES[name].path),
+        "--out",
+        str(png),
+        "--size",
+        SIZE,
+    )
+    assert_one_error_line(res)
+    assert not png.exists() and not leftovers(work.cwd, work.cache)
+
+
 # ---------------------------------------------------------------------------------------------
 # Full and read-only disks (small tmpfs mounts)
 
