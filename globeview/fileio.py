@@ -94,13 +94,33 @@ def check_output_file(
     if not text.strip():
         raise OutputError(f"{option} needs a file name")
     p = Path(text)
+    try:
+        return _check_output_file(p, option, suffixes)
+    except OSError as exc:  # e.g. ENAMETOOLONG or ELOOP from stat() on the name itself
+        raise OutputError(f"{option}: {describe_os_error(exc, p)}") from None
+
+
+#: Bytes a temporary's name adds to its target's (``.NAME.PID-XXXXXXXX.tmp``).
+_TEMP_NAME_EXTRA = 24
+
+
+def _check_output_file(p: Path, option: str, suffixes: Sequence[str]) -> Path:
+    folder = p.parent if str(p.parent) else Path(".")
+    try:
+        name_max = os.pathconf(folder, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        name_max = 255
+    if len(os.fsencode(p.name)) + _TEMP_NAME_EXTRA > name_max:
+        raise OutputError(
+            f"{option} {p}: file name too long (at most {name_max - _TEMP_NAME_EXTRA} bytes)"
+        )
     if p.is_dir():
         raise OutputError(f"{option} {p} is a directory; give a file name, e.g. {p / 'out'}")
     if p.exists() and not p.is_file():
         raise OutputError(f"{option} {p} exists and is not a regular file")
     if suffixes and p.suffix.lower() not in suffixes:
         raise OutputError(f"{option} {p} must end in {' or '.join(suffixes)}")
-    problem = _folder_problem(p.parent if str(p.parent) else Path("."))
+    problem = _folder_problem(folder)
     if problem is not None:
         raise OutputError(f"{option} {p}: {problem}")
     return p

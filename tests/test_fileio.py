@@ -76,6 +76,10 @@ def test_check_output_file(tmp_path: Path) -> None:
     ]
     (tmp_path / "f").write_text("")
     cases.append((tmp_path / "f" / "x.png", "is not a folder"))
+    # Too long for the temporary beside it (ENAMETOOLONG after the render), or for the
+    # file system at all (stat() itself fails).
+    cases.append((tmp_path / ("a" * 240 + ".png"), "file name too long"))
+    cases.append((tmp_path / ("a" * 300 + ".png"), "file name too long"))
     for path, needle in cases:
         with pytest.raises(OutputError, match=needle):
             check_output_file(path, "--out", (".png",))
