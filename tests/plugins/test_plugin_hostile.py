@@ -528,3 +528,33 @@ def test_unknown_provider_name_error_is_short(gl) -> None:
     with pytest.raises(GlobeviewError) as info:
         session(gl, registry(), "x" * 100_000)
     assert len(str(info.value)) < 300 and "no enabled LOD provider" in str(info.value)
+
+
+def test_failure_traceback_goes_to_the_log_file_the_line_names(
+    plugin_site: PluginSite, headless_view, _failure_log_in_tmp: Path, caplog
+) -> None:
+    add_lod(plugin_site, "logged", "raise SystemExit('bye')")
+    reg = registry()
+    with caplog.at_level(logging.WARNING, logger="globeview.plugins"):
+        reg.select(reg.lod_providers()["logged"], headless_view(0.0, 0.0, 1e7), None)
+    (line,) = [r.getMessage() for r in caplog.records]
+    assert line.endswith(f"(details in {_failure_log_in_tmp})")
+    text = _failure_log_in_tmp.read_text()
+    assert "plugin logged failed and was disabled:" in text
+    assert "Traceback (most recent call last)" in text and "SystemExit: bye" in text
+
+
+def test_an_unwritable_log_costs_only_the_details_suffix(
+    plugin_site: PluginSite, headless_view, monkeypatch, caplog
+) -> None:
+    from globeview.plugins import registry as registry_module
+
+    blocker = plugin_site.root / "not-a-dir"
+    blocker.write_text("")
+    monkeypatch.setattr(registry_module, "failure_log_path", lambda: blocker / "globeview.log")
+    add_lod(plugin_site, "unlogged", "raise ValueError('nope')")
+    reg = registry()
+    with caplog.at_level(logging.WARNING, logger="globeview.plugins"):
+        reg.select(reg.lod_providers()["unlogged"], headless_view(0.0, 0.0, 1e7), None)
+    lines = [r.getMessage() for r in caplog.records]
+    assert lines == ["plugin unlogged failed and was disabled: ValueError: nope"]
