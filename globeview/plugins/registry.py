@@ -86,6 +86,9 @@ _REQUIRED_METHODS: dict[PluginKind, tuple[str, ...]] = {
 BUDGET_MS_KEY = "plugins/budget_ms"
 BUDGET_OVERRUNS_KEY = "plugins/budget_overruns"
 BUDGET_POLICY_KEY = "plugins/budget_policy"
+#: Methods called on the UI thread every frame or input event: timed against the budget
+#: (`invoke`). Not ``displacement_numpy``: providers call it inside their own ``select``.
+FRAME_PATH_METHODS = frozenset({"select", "overlay", "displacement_uniforms", "on_mouse", "on_key"})
 #: Longest error text kept on a record or logged (hostile plugins raise huge messages).
 MAX_MESSAGE_CHARS = 300
 
@@ -702,14 +705,17 @@ class PluginRegistry:
         *args: Any,
         default: Any = None,
         user_errors: bool = False,
-        budgeted: bool = False,
+        budgeted: bool | None = None,
         **kwargs: Any,
     ) -> Any:
         """``call`` a method of a loaded contribution, e.g.
         ``registry.invoke(tool, "on_mouse", event, default=False)``.
 
         Returns ``default`` for an object whose plugin was disabled or failed since (the host
-        may still hold it), without calling it."""
+        may still hold it), without calling it. ``budgeted`` defaults to whether ``method``
+        is one of `FRAME_PATH_METHODS` (timed against the budget)."""
+        if budgeted is None:
+            budgeted = method in FRAME_PATH_METHODS
         plugin = self.owner_of(instance)
         if id(instance) not in self._live:
             return default

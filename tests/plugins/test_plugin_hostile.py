@@ -558,3 +558,30 @@ def test_an_unwritable_log_costs_only_the_details_suffix(
         reg.select(reg.lod_providers()["unlogged"], headless_view(0.0, 0.0, 1e7), None)
     lines = [r.getMessage() for r in caplog.records]
     assert lines == ["plugin unlogged failed and was disabled: ValueError: nope"]
+
+
+def test_slow_tool_event_handler_is_disabled_under_the_disable_policy(
+    plugin_site: PluginSite,
+) -> None:
+    from globeview.plugins.api import PointerEvent
+
+    src = (
+        "import time\nfrom globeview.plugins.api import Tool\n"
+        "class SlowTool(Tool):\n"
+        "    def on_mouse(self, event):\n"
+        "        time.sleep(0.15)\n"
+        "        return True\n"
+    )
+    plugin_site.add(
+        "gvt_slowtool", manifest("slow-tool", "gvt_slowtool", "tool", "SlowTool"), {"impl": src}
+    )
+    reg = registry(
+        MemorySettings({BUDGET_MS_KEY: 100, BUDGET_OVERRUNS_KEY: 2}), budget_policy="disable"
+    )
+    tool = reg.tools()["slow-tool"]
+    event = PointerEvent(1, 2, "move")
+    assert reg.invoke(tool, "on_mouse", event, default=False) is True
+    assert reg.invoke(tool, "on_mouse", event, default=False) is True
+    rec = reg.get("slow-tool")
+    assert rec.status == "failed" and rec.error.startswith("PluginTimeout: on_mouse() took")
+    assert reg.invoke(tool, "on_mouse", event, default=False) is False  # not called again
