@@ -437,3 +437,59 @@ def test_ingest_killed_then_rerun(work, seed: int, when: str) -> None:
     store = TileStore.open(out)
     assert store.max_level >= 1
     assert not leftovers(work.cwd), f"killed {when} + {delay:.2f} s: {leftovers(work.cwd)}"
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13])
+def test_ingest_interrupted_by_ctrl_c(work, seed: int) -> None:
+    """SIGINT (Ctrl-C) while the store is being built: exit 130 with one line, no store and no
+    work folder left."""
+    out = work.cwd / "store"
+    env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(work.cache)}
+    argv = [*globeview_argv(), "ingest", str(DATA / "N44W072.hgt"), "--out", str(out)]
+    proc = subprocess.Popen(
+        argv, cwd=work.cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    _wait_for_work_folder(work.cwd, proc)
+    time.sleep(random.Random(seed).uniform(0.0, 0.5))
+    if proc.poll() is not None:
+        pytest.skip("the ingest finished before the interrupt (machine too fast for this seed)")
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    lines = [ln for ln in err.decode("utf-8", "replace").splitlines() if ln.strip()]
+    # The progress bar shares stderr; the last line must be the one message.
+    assert proc.returncode == 130, err
+    assert lines and lines[-1].split("\r")[-1].strip().startswith("globeview: interrupted"), err
+    assert b"Traceback" not in err
+    assert not out.exists() and not leftovers(work.cwd)
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("seed", [21, 22])
+def test_render_killed_while_ingesting_then_rerun(work, seed: int) -> None:
+    """kill -9 during render's first-time ingest of a DEM into the cache, then the same render:
+    exit 0, a PNG, and nothing of the killed run left in the cache."""
+    png = work.cwd / "x.png"
+    args = ["render", str(DATA / "N44W072.hgt"), "--out", str(png), "--size", SIZE]
+    env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(work.cache)}
+    proc = subprocess.Popen(
+        [*globeview_argv(), *args],
+        cwd=work.cwd,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    stores = work.cache / "stores"
+    end = time.monotonic() + 30.0
+    while time.monotonic() < end and proc.poll() is None and not stores.is_dir():
+        time.sleep(0.005)
+    if stores.is_dir():
+        _wait_for_work_folder(stores, proc)
+    time.sleep(random.Random(seed).uniform(0.0, 0.8))
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=60)
+    png.unlink(missing_ok=True)
+
+    res = work.run(*args)
+    assert_quiet_success(res)
+    assert png.is_file()
+    assert not leftovers(work.cwd, work.cache), leftovers(work.cwd, work.cache)
