@@ -7,6 +7,7 @@ import hashlib
 import os
 from pathlib import Path
 
+from globeview.errors import StoreError
 from globeview.terrain.dem import embedded_dem_paths
 from globeview.terrain.store import TileStore, identify
 
@@ -34,7 +35,12 @@ def open_or_ingest(source: Path, progress: bool = False) -> TileStore:
     from globeview.terrain.ingest import ingest
 
     out = store_path_for(source)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise StoreError(
+            f"cannot create the store cache {out.parent}: {exc.strerror or exc}"
+        ) from None
     _drop_stem_keyed_store(source)
     ingest([source], out, progress=progress)
     return TileStore.open(out)

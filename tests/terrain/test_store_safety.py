@@ -363,3 +363,14 @@ def test_a_symlink_to_a_store_opens(store: Path, tmp_path: Path) -> None:
     (tmp_path / "link").symlink_to(store)
     with TileStore.open(tmp_path / "link") as st:
         assert st.max_level >= 0
+
+
+def test_cache_that_cannot_be_created_is_a_store_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    blocker = tmp_path / "cache"
+    blocker.write_text("a file where the cache folder should be")
+    monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(blocker))
+    with pytest.raises(StoreError, match="cannot create the store cache"):
+        open_or_ingest(SMALL)
+    assert blocker.read_text().startswith("a file")
