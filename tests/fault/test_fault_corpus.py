@@ -50,6 +50,16 @@ def _corpus_root() -> Path:
     return next(c.path for c in CASES.values() if c.name == "float32").parent
 
 
+def _strict_json(text: str, what: str):
+    """Parse ``text`` as standard JSON: NaN and Infinity (which Python's json writes and
+    other readers reject) fail the test, naming ``what``."""
+
+    def reject(token: str):
+        raise AssertionError(f"{what} holds {token}, which is not JSON")
+
+    return json.loads(text, parse_constant=reject)
+
+
 def _check_failure(case: Case, res, work, out: Path | None = None) -> None:
     assert_one_error_line(res, case.error_substring)
     assert not leftovers(work.cwd, work.cache), leftovers(work.cwd, work.cache)
@@ -80,6 +90,9 @@ def test_info(name: str, work, corpus_snapshot) -> None:
     if res.returncode == 0:
         assert_quiet_success(res)
         assert res.stdout.strip(), "info printed nothing"
+        res = work.run("info", "--json", str(case.path))
+        assert_quiet_success(res)
+        _strict_json(res.stdout, "info --json")
     else:
         _check_failure(case, res, work)
     _inputs_untouched(corpus_snapshot)
@@ -94,6 +107,7 @@ def test_ingest(name: str, work, corpus_snapshot) -> None:
     if res.returncode == 0:
         assert_quiet_success(res)
         assert (out / "manifest.json").is_file()
+        _strict_json((out / "manifest.json").read_text(), "the store's manifest.json")
         assert not leftovers(work.cwd), leftovers(work.cwd)
         from globeview.terrain.store import TileStore
 
@@ -148,7 +162,7 @@ def test_render(name: str, work, corpus_snapshot) -> None:
     assert not leftovers(work.cwd, work.cache), leftovers(work.cwd, work.cache)
     rgb = _read_png(png)
     assert rgb.shape == (64, 96, 3)
-    assert json.loads(stats.read_text())["tiles_drawn"] > 0
+    assert _strict_json(stats.read_text(), "render --stats")["tiles_drawn"] > 0
     seen = terrain_kind(centre_block(rgb))
     assert seen == case.kind, f"image centre (default camera) shows {seen}, not {case.kind}"
 
