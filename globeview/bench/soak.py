@@ -119,14 +119,16 @@ def open_close_cycle(
             **{f"store {s.path.name}": weakref.ref(s) for s in stores},
         }
         triangles = int(result.stats.triangles)
+        gl_live = len(unreleased_gl_objects(session))
         session.release_gl()
+        gl_left = unreleased_gl_objects(session)
         target.release()
     finally:
         if own_ctx:
             release_headless_context(ctx)
         for s in stores:
             s.close()
-    return {"triangles": triangles, "refs": refs}
+    return {"triangles": triangles, "refs": refs, "gl_objects": gl_live, "gl_left": gl_left}
 
 
 def unreleased_gl_objects(root: object, max_depth: int = 8) -> list[str]:
@@ -259,6 +261,8 @@ def run_open_close(
         "rss_raw_drift_mb": samples[-1]["rss_raw_mb"] - at_warm["rss_raw_mb"],
         "per_cycle_mb": drift / max(1, cycles - warmup),
         "alive_after_release": alive,
+        "gl_objects_per_session": last["gl_objects"],
+        "gl_objects_left_after_release": last["gl_left"],
         "object_growth": dict(sorted(grown.items(), key=lambda kv: -abs(kv[1]))[:15]),
         "target_mb": OPEN_CLOSE_DRIFT_TARGET_MB,
         "target_met": drift <= OPEN_CLOSE_DRIFT_TARGET_MB,

@@ -244,7 +244,7 @@ class RasterImagery:
             window=win, out_shape=(ds.count, *shape), masked=True, resampling=Resampling.nearest
         )
         bands = data.astype(np.float32).filled(np.nan)
-        transform = ds.window_transform(win) * Affine.scale(
+        transform = ds.window_transform(win) @ Affine.scale(
             win.width / shape[1], win.height / shape[0]
         )
         return bands, transform
