@@ -553,7 +553,7 @@ def _invalid(root: Path) -> list[Case]:
     add(
         "complex64",
         write_raster(
-            root / "complex.tif", (base + 1j * base).astype(np.complex64), ALPS, "EPSG:4326"
+            root / "iq_samples.tif", (base + 1j * base).astype(np.complex64), ALPS, "EPSG:4326"
         ),
         "complex samples are not heights",
         error_substring="complex",
@@ -609,10 +609,11 @@ def _invalid(root: Path) -> list[Case]:
     folder.mkdir()
     (folder / "readme.txt").write_text("a folder, not a raster\n")
     add("directory", folder, "a directory")
-    a, b = root / "loop_a.tif", root / "loop_b.tif"
+    a, b = root / "ring_a.tif", root / "ring_b.tif"
     a.symlink_to(b)
     b.symlink_to(a)
-    add("symlink_loop", a, "two symlinks pointing at each other")
+    # "not found" would be wrong: the path is there, it just never reaches a file.
+    add("symlink_loop", a, "two symlinks pointing at each other", error_substring="loop")
     add("missing", root / "no_such_file.tif", "a path that does not exist")
     add(
         "dangling_vrt",
