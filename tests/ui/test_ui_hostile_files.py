@@ -357,3 +357,32 @@ def test_huge_overlay_in_the_window_keeps_drawing(make_window, errors_shown, wai
     wait_frame(win)
     assert not any("drawing failed" in m.text for m in win.errors.history[n:])
     assert errors_shown == [] and win.globe.last_stats.triangles > 0
+
+
+def test_a_drop_of_bad_and_good_files_reports_the_bad_and_opens_the_good(
+    make_window, errors_shown, qtbot, tmp_path
+):
+    bad = _write_tif(tmp_path / "nocrs.tif", _hill(), crs=None)
+    good = _write_tif(tmp_path / "good.tif", _hill())
+    empty = tmp_path / "empty.tif"
+    empty.write_bytes(b"")
+    win = make_window()
+    win.open_paths([str(empty), str(bad), str(good)])
+    qtbot.waitUntil(lambda: "good" in [ly.name for ly in win.terrain.layers], timeout=60000)
+    qtbot.waitUntil(lambda: not win.loader.busy, timeout=60000)
+    assert len(errors_shown) == 2
+    assert "empty.tif" in errors_shown[0].text and "nocrs.tif" in errors_shown[1].text
+    assert win.recent_files()[0] == str(good)
+
+
+def test_a_recent_file_deleted_since_is_one_line(make_window, errors_shown, qtbot, tmp_path):
+    good = _write_tif(tmp_path / "gone_later.tif", _hill())
+    win = make_window()
+    win.open_paths([str(good)])
+    qtbot.waitUntil(lambda: not win.loader.busy and bool(win.recent_files()), timeout=60000)
+    good.unlink()
+    action = next(a for a in win.recent_menu.actions() if a.text() == str(good))
+    action.trigger()  # File > Open Recent > the file
+    qtbot.waitUntil(lambda: bool(errors_shown), timeout=10000)
+    assert len(errors_shown) == 1
+    assert "gone_later.tif" in errors_shown[0].text and "Unexpected" not in errors_shown[0].text
