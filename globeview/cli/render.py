@@ -167,10 +167,11 @@ def check_inputs(args: argparse.Namespace) -> None:
     from pathlib import Path
 
     from globeview.errors import GlobeviewError
+    from globeview.terrain.dem import check_dem_path
 
     for src in args.sources:
-        if not Path(src).exists():
-            raise GlobeviewError(f"DEM file not found: {src}")
+        if not Path(src).is_dir():  # a folder is a store, checked when it is opened
+            check_dem_path(Path(src))
     for layer in args.layer:
         p = Path(layer)
         if p.is_dir():

@@ -297,7 +297,7 @@ def _is_gdal_name(text: str) -> bool:
     return prefix in drivers or prefix in _SUBDATASET_PREFIXES
 
 
-def _check_path(path: Path) -> None:
+def check_dem_path(path: Path) -> None:
     """One-line DemError for a path that cannot be a DEM file: missing, a dangling link or a
     link loop, a directory, empty, or not a regular file (a FIFO would block GDAL's open)."""
     if not os.path.lexists(path) and _is_gdal_name(str(path)):
@@ -318,7 +318,7 @@ def _check_path(path: Path) -> None:
     if stat.S_ISDIR(st.st_mode):
         raise DemError(f"{path} is a directory, not a DEM file")
     if not stat.S_ISREG(st.st_mode):
-        raise DemError(f"cannot read {path} as a raster: not a regular file")
+        raise DemError(f"{path} is not a regular file, not a DEM file")
     if st.st_size == 0:
         raise DemError(f"{path} is empty (0 bytes), not a DEM raster")
 
@@ -372,7 +372,7 @@ class Dem:
 
     def __init__(self, path: Path, crs_override: str | None = None) -> None:
         self.path = path
-        _check_path(path)
+        check_dem_path(path)
         try:
             with warnings.catch_warnings():
                 # A raster without geotransform is reported below as a DemError instead.

@@ -8,7 +8,7 @@ import os
 from pathlib import Path
 
 from globeview.errors import StoreError
-from globeview.terrain.dem import embedded_dem_paths
+from globeview.terrain.dem import check_dem_path, embedded_dem_paths
 from globeview.terrain.store import TileStore, identify
 
 
@@ -34,6 +34,7 @@ def open_or_ingest(source: Path, progress: bool = False) -> TileStore:
     """Open the cached store of ``source``, ingesting it first if it is missing or stale."""
     from globeview.terrain.ingest import ingest
 
+    check_dem_path(Path(source))  # a link loop cannot even be resolved to a cache key
     out = store_path_for(source)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)

@@ -59,7 +59,7 @@ except ImportError:  # pragma: no cover - not POSIX: no stale-build cleaning
 
 from globeview import __version__
 from globeview.errors import DemError, StoreError
-from globeview.terrain.dem import Dem, open_dem
+from globeview.terrain.dem import Dem, check_dem_path, open_dem
 from globeview.terrain.levels import LevelGrid, read_level_nodes
 from globeview.terrain.quadtree import (
     DEFAULT_TILE_N,
@@ -159,10 +159,28 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def _natural_level(res_deg: float, tile_n: int) -> int:
-    """Level whose node spacing 180/2^L/2^n is closest to res_deg (round of log2)."""
+def _natural_level(res_deg: float, tile_n: int, extent_deg: float | None = None) -> int:
+    """Level whose node spacing 180/2^L/2^n is closest to res_deg (round of log2).
+
+    ``extent_deg`` (the footprint's smaller side, degrees) raises the level for tiny sources:
+    a level's cells are drawn only where all four corner nodes hold data, so a footprint
+    narrower than two node spacings (a 2 x 2 raster of 0.5 deg pixels holds one level-2
+    node) would ingest fine and draw nothing. The spacing d = 180/2^L/2^n must satisfy
+    d <= extent/2, i.e. L >= log2(360 / (2^n * extent)); for any DEM of more than a few
+    pixels a side this is below the resolution's level and changes nothing.
+    """
     lv = round(math.log2(180.0 / ((1 << tile_n) * res_deg)))
+    if extent_deg is not None and extent_deg > 0:
+        lv = max(lv, math.ceil(math.log2(360.0 / ((1 << tile_n) * extent_deg))))
     return int(min(max(lv, 0), MAX_LEVEL_LIMIT))
+
+
+def _footprint_extent(info) -> float:
+    """Smaller side of a source's footprint in degrees (longitude span taken across the
+    antimeridian when the footprint crosses it)."""
+    w, s, e, n = info.bounds_lonlat
+    width = 360.0 if info.wraps_longitude else (e - w) % 360.0 or 360.0
+    return float(min(width, n - s))
 
 
 def _column_mask(level: int, bounds: tuple[float, float, float, float], wraps: bool) -> tuple:
@@ -957,14 +975,9 @@ def _check_size(grids: dict[int, LevelGrid], sources: Sequence[_Source], chosen:
 
 
 def _check_sources(paths: Sequence[Path]) -> None:
-    """One wording with `globeview.terrain.dem.open_dem` for missing files and folders."""
+    """Every source is a readable file, in `open_dem`'s words (before any hashing)."""
     for p in paths:
-        if p.is_dir():
-            raise DemError(f"{p} is a directory, not a DEM file")
-        if not p.exists():
-            raise DemError(f"DEM file not found: {p}")
-        if not p.is_file():
-            raise DemError(f"{p} is not a regular file, not a DEM file")
+        check_dem_path(p)
 
 
 def ingest(
@@ -1048,7 +1061,7 @@ def ingest(
                 _Source(
                     p,
                     dem,
-                    _natural_level(res, tile_n),
+                    _natural_level(res, tile_n, _footprint_extent(info)),
                     res,
                     info.bounds_lonlat,
                     bool(info.wraps_longitude),

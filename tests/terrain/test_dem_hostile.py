@@ -392,7 +392,7 @@ def test_not_rasters(tmp_path: Path) -> None:
     # a FIFO would block GDAL's open forever: refused before GDAL sees it
     fifo = tmp_path / "pipe.tif"
     os.mkfifo(fifo)
-    assert _error(fifo) == f"cannot read {fifo} as a raster: not a regular file"
+    assert _error(fifo) == f"{fifo} is not a regular file, not a DEM file"
 
 
 def test_unknown_crs_override(tmp_path: Path) -> None:
