@@ -312,7 +312,7 @@ def test_budget_settings_of_the_wrong_type_are_ignored() -> None:
     reg = PluginRegistry(
         MemorySettings({BUDGET_MS_KEY: "fast", BUDGET_OVERRUNS_KEY: -2, BUDGET_POLICY_KEY: 7})
     )
-    assert (reg.budget.ms, reg.budget.overruns, reg.budget.policy) == (250.0, 5, "warn")
+    assert (reg.budget.ms, reg.budget.overruns, reg.budget.policy) == (1000.0, 5, "warn")
 
 
 # -- other hooks: tools, layer types ------------------------------------------------------------
