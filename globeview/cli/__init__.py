@@ -29,6 +29,7 @@ from pathlib import Path
 
 from globeview import __version__
 from globeview.errors import GlobeviewError
+from globeview.paths import log_path
 
 # subcommand name -> module under globeview.cli, with a one-line help
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
@@ -51,7 +52,6 @@ _ENVIRONMENT_ERRNOS = frozenset(
     {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EMFILE}
 )
 DEBUG_ENV = "GLOBEVIEW_DEBUG"
-LOG_NAME = "globeview.log"
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -181,16 +181,6 @@ def quiet_libraries(debug: bool = False) -> _CliLog:
         root.setLevel(logging.DEBUG if debug else logging.INFO)
         logging.captureWarnings(True)
     return _handler
-
-
-def log_path() -> Path:
-    """Where an internal error's details go: ``globeview.log`` in the cache folder (see
-    `globeview.terrain.embedded.cache_dir`, computed here without importing the terrain)."""
-    env = os.environ.get("GLOBEVIEW_CACHE_DIR")
-    if env:
-        return Path(env) / LOG_NAME
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "globeview" / LOG_NAME
 
 
 def write_error_log(argv: list[str], exc: BaseException) -> Path | None:

@@ -188,7 +188,8 @@ def check_cache_writable(sources: list[str]) -> None:
 
     from globeview.errors import GlobeviewError
     from globeview.fileio import writable_folder_problem
-    from globeview.terrain.embedded import cache_dir, embedded_stores_ready, store_path_for
+    from globeview.paths import cache_dir
+    from globeview.terrain.embedded import embedded_stores_ready, store_path_for
 
     dems = [Path(s) for s in sources if not Path(s).is_dir()]
     if sources:
@@ -203,7 +204,7 @@ def check_cache_writable(sources: list[str]) -> None:
 
 
 def cache_message(problem: str) -> str:
-    from globeview.terrain.embedded import cache_dir
+    from globeview.paths import cache_dir
 
     return (
         f"cannot write the tile cache {cache_dir()} ({problem}); set GLOBEVIEW_CACHE_DIR to "

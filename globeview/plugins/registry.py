@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import Any, Literal, TypeVar
 
 from globeview.errors import GlobeviewError
+from globeview.paths import log_path
 from globeview.plugins.api import LodProvider, PluginContext, PluginKind, RendererHooks, Tool
 from globeview.plugins.manifest import Manifest, ManifestError, locate_manifest, read_manifest
 from globeview.plugins.settings import (
@@ -797,21 +798,14 @@ class PluginRegistry:
         rec.traceback = tb
 
 
-#: Log file of plugin failures: globeview.log in the cache folder, where the CLI and the window
-#: write internal errors too (``$GLOBEVIEW_CACHE_DIR``, else ``$XDG_CACHE_HOME/globeview``,
-#: else ``~/.cache/globeview``; computed here so the registry does not import the terrain).
-LOG_NAME = "globeview.log"
 #: Size past which the log is moved to ``globeview.log.1`` before appending.
 LOG_MAX_BYTES = 4 * 1024 * 1024
 
 
 def failure_log_path() -> Path:
-    """Where plugin failure tracebacks are appended (see `LOG_NAME`)."""
-    env = os.environ.get("GLOBEVIEW_CACHE_DIR")
-    if env:
-        return Path(env) / LOG_NAME
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "globeview" / LOG_NAME
+    """Where plugin failure tracebacks are appended: the log the CLI and the window write
+    internal errors to (`globeview.paths.log_path`)."""
+    return log_path()
 
 
 def _append_failure_log(plugin_name: str, tb: str) -> Path | None:
@@ -822,7 +816,7 @@ def _append_failure_log(plugin_name: str, tb: str) -> Path | None:
         path.parent.mkdir(parents=True, exist_ok=True)
         with contextlib.suppress(OSError):
             if path.stat().st_size > LOG_MAX_BYTES:
-                os.replace(path, path.with_name(LOG_NAME + ".1"))
+                os.replace(path, path.with_name(path.name + ".1"))
         stamp = time.strftime("%Y-%m-%d %H:%M:%S")
         with path.open("a", encoding="utf-8", errors="replace") as f:
             f.write(f"{stamp} plugin {plugin_name} failed and was disabled:\n{tb}\n\n")

@@ -8,17 +8,9 @@ import os
 from pathlib import Path
 
 from globeview.errors import StoreError
+from globeview.paths import cache_dir
 from globeview.terrain.dem import check_dem_path, embedded_dem_paths
 from globeview.terrain.store import TileStore, identify
-
-
-def cache_dir() -> Path:
-    """``$GLOBEVIEW_CACHE_DIR``, else ``$XDG_CACHE_HOME/globeview``, else ``~/.cache/globeview``."""
-    env = os.environ.get("GLOBEVIEW_CACHE_DIR")
-    if env:
-        return Path(env)
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "globeview"
 
 
 def store_path_for(source: Path) -> Path:

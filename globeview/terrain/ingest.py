@@ -665,7 +665,7 @@ def _union_bounds(sources: Sequence[_Source]) -> list[float]:
 def _owned_by_cache(out: Path) -> bool:
     """Whether ``out`` is one of globeview's cached stores (rebuilt silently on a format
     change: globeview owns them)."""
-    from globeview.terrain.embedded import cache_dir
+    from globeview.paths import cache_dir
 
     try:
         return out.parent.resolve() == (cache_dir() / "stores").resolve()
