@@ -85,6 +85,29 @@ def headless_view() -> Callable[..., ViewState]:
     return make_view
 
 
+def plugin_manifest(
+    name: str,
+    package: str,
+    kind: str = "lod",
+    attr: str = "Provider",
+    description: str = "test plugin",
+) -> str:
+    """The TOML manifest of a one-contribution plugin whose contribution is
+    ``package.impl:attr`` (for `PluginSite.add` and plugin tests)."""
+    return f"""
+        name = "{name}"
+        version = "0.0.1"
+        description = "{description}"
+        kinds = ["{kind}"]
+        api_version = "1.0"
+
+        [[contributions]]
+        name = "{name}"
+        kind = "{kind}"
+        target = "{package}.impl:{attr}"
+        """
+
+
 class PluginSite:
     """A directory on ``sys.path`` holding throwaway plugin distributions.
 

@@ -31,24 +31,13 @@ from globeview.plugins.registry import (
     install_sigint_marker,
 )
 from globeview.plugins.settings import MemorySettings
-from globeview.plugins.testing import PluginSite
+from globeview.plugins.testing import PluginSite, plugin_manifest
 
 SIZE = (96, 64)
 
 
 def manifest(name: str, package: str, kind: str = "lod", attr: str = "Provider") -> str:
-    return f"""
-        name = "{name}"
-        version = "0.0.1"
-        description = "hostile test plugin"
-        kinds = ["{kind}"]
-        api_version = "1.0"
-
-        [[contributions]]
-        name = "{name}"
-        kind = "{kind}"
-        target = "{package}.impl:{attr}"
-        """
+    return plugin_manifest(name, package, kind, attr, description="hostile test plugin")
 
 
 def lod_source(body: str, prelude: str = "") -> str:

@@ -11,23 +11,12 @@ import pytest
 from globeview.plugins.api import KeyEvent, PointerEvent
 from globeview.plugins.registry import PluginRegistry
 from globeview.plugins.settings import MemorySettings
-from globeview.plugins.testing import PluginSite
+from globeview.plugins.testing import PluginSite, plugin_manifest
 from globeview.render.render_set import RenderSet
 
 
 def _manifest(name: str, package: str, kind: str = "lod", attr: str = "Provider") -> str:
-    return f"""
-        name = "{name}"
-        version = "0.0.1"
-        description = "throwaway test plugin"
-        kinds = ["{kind}"]
-        api_version = "1.0"
-
-        [[contributions]]
-        name = "{name}"
-        kind = "{kind}"
-        target = "{package}.impl:{attr}"
-        """
+    return plugin_manifest(name, package, kind, attr, description="throwaway test plugin")
 
 
 GOOD_LOD = """
