@@ -1,0 +1,139 @@
+"""`globeview height LON,LAT [LON,LAT ...] [STORE|DEM ...]`: the heights of the composed
+terrain at points (issue #16).
+
+For each point: the ellipsoidal height h (metres above WGS84, what the globe draws), the EGM96
+geoid undulation N, the orthometric height H = h - N ("above sea level") and the layer that
+answered. With no sources the embedded data is queried, as `render` draws it; DEMs are
+ingested into the cache as `render` does. ``--json`` prints a JSON list of objects.
+
+A point is one argument ``LON,LAT`` in degrees; a negative longitude may be written as is
+(``globeview height -71.3033,44.2705 data/N44W072.hgt``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import re
+
+#: argparse takes an argument starting with '-' for an option unless it looks like a negative
+#: number; here anything shaped like a point (``-71.3,44.2``, ``-nan,1``) is such a number,
+#: so that it is read as a point (and a bad one refused as a point). No option has a comma.
+_NEGATIVE_ARG = re.compile(r"^-\d+$|^-\d*\.\d+$|^-[^-/\\][^/\\]*,[^/\\]*$")
+#: A token shaped like a point (a comma, no path separator): parsed as one or refused.
+_POINT_SHAPED = re.compile(r"^[^/\\]*,[^/\\]*$")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "items",
+        nargs="+",
+        metavar="LON,LAT|SOURCE",
+        help="points as LON,LAT in degrees, then tile stores or DEM files "
+        "(none: the embedded data)",
+    )
+    p.add_argument("--json", action="store_true", help="print a JSON list instead of a table")
+    # A point like -71.3,44.2 is a positional argument, not an unknown option (see above).
+    p._negative_number_matcher = _NEGATIVE_ARG
+
+
+def parse_point(text: str) -> tuple[float, float]:
+    """``"LON,LAT"`` -> (lon, lat) degrees; a `GlobeviewError` for anything else (not two
+    numbers, NaN/inf, latitude beyond ±90)."""
+    from globeview.errors import GlobeviewError
+
+    parts = text.split(",")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        lon, lat = float(parts[0]), float(parts[1])
+    except ValueError:
+        raise GlobeviewError(f"point {text!r}: expected LON,LAT in degrees") from None
+    if not (math.isfinite(lon) and math.isfinite(lat)):
+        raise GlobeviewError(f"point {text!r}: longitude and latitude must be finite numbers")
+    if abs(lat) > 90.0:
+        raise GlobeviewError(f"point {text!r}: latitude {lat:g} is outside -90..90")
+    return lon, lat
+
+
+def split_items(items: list[str]) -> tuple[list[tuple[float, float]], list[str]]:
+    """Points and sources from the positional arguments: a token shaped like ``A,B`` that is
+    not an existing path is a point (and must parse as one); anything else is a source."""
+    import os
+
+    from globeview.errors import GlobeviewError
+
+    points: list[tuple[float, float]] = []
+    sources: list[str] = []
+    for tok in items:
+        if _POINT_SHAPED.match(tok) and not os.path.exists(tok):
+            points.append(parse_point(tok))
+        else:
+            sources.append(tok)
+    if not points:
+        raise GlobeviewError("no point given: write at least one LON,LAT (degrees) first")
+    return points, sources
+
+
+def _layer_names(sources: list[str], stores: list) -> list[str]:
+    """Names the user recognises: a DEM's file name, a store's folder name, the embedded
+    DEMs' file names."""
+    from pathlib import Path
+
+    if sources:
+        return [
+            Path(s).name if not Path(s).is_dir() else st.path.name
+            for s, st in zip(sources, stores, strict=True)
+        ]
+    from globeview.terrain.embedded import embedded_dem_paths
+
+    return [p.name for p in embedded_dem_paths()]
+
+
+def format_table(answers: list) -> str:
+    rows = [("lon", "lat", "h (m ell.)", "N (m)", "H (m a.s.l.)", "layer")]
+    for a in answers:
+        rows.append(
+            (
+                f"{a.lon:.6f}",
+                f"{a.lat:.6f}",
+                f"{a.ellipsoidal:.2f}",
+                f"{a.undulation:.2f}",
+                f"{a.orthometric:.2f}",
+                a.layer,
+            )
+        )
+    widths = [max(len(r[i]) for r in rows) for i in range(5)]
+    lines = ["  ".join(c.rjust(w) for c, w in zip(r[:5], widths)) + f"  {r[5]}" for r in rows]
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    import json
+    from pathlib import Path
+
+    import numpy as np
+
+    from globeview.cli.render import check_cache_writable, open_sources_in_cache
+    from globeview.errors import GlobeviewError
+    from globeview.terrain.dem import check_dem_path
+    from globeview.terrain.height_query import query_heights
+    from globeview.terrain.stack import TerrainStack
+
+    points, sources = split_items(args.items)
+    for src in sources:  # every argument checked before the first (slow) ingest
+        if not Path(src).is_dir():
+            check_dem_path(Path(src))
+    check_cache_writable(sources)
+    stores = open_sources_in_cache(sources, None)
+    if not stores:
+        raise GlobeviewError("no terrain to query")
+    stack = TerrainStack.from_stores(stores, _layer_names(sources, stores))
+    lon = np.array([p[0] for p in points])
+    lat = np.array([p[1] for p in points])
+    answers = query_heights(stack, lon, lat)
+    if args.json:
+        print(json.dumps([a.to_dict() for a in answers], indent=2))
+    else:
+        print(format_table(answers))
+    return 0

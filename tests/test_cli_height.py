@@ -1,0 +1,110 @@
+"""`globeview height` end to end, in a subprocess like a user runs it (issue #16).
+
+The done-when check of the issue: at a White Mountains point the ellipsoidal height of the
+SRTM tile differs from the SRTM sample (orthometric, EGM96) by the geoid undulation there."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rasterio
+
+REPO = Path(__file__).resolve().parents[1]
+SRTM = REPO / "data" / "N44W072.hgt"
+
+
+@pytest.fixture(scope="module")
+def env(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+    return {**os.environ, "GLOBEVIEW_CACHE_DIR": str(tmp_path_factory.mktemp("cache"))}
+
+
+def _run(env: dict[str, str], *args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "globeview", *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+        cwd=REPO,
+    )
+
+
+def _srtm_bilinear(lon: float, lat: float) -> float:
+    """The SRTM samples (orthometric metres) around a point, bilinear, read with rasterio
+    (.hgt samples sit at pixel centres of its transform)."""
+    with rasterio.open(SRTM) as ds:
+        col, row = ~ds.transform * (lon, lat)
+        r, c = row - 0.5, col - 0.5
+        r0, c0 = int(np.floor(r)), int(np.floor(c))
+        a = ds.read(1, window=((r0, r0 + 2), (c0, c0 + 2))).astype(np.float64)
+    fr, fc = r - r0, c - c0
+    top = a[0, 0] * (1 - fc) + a[0, 1] * fc
+    bot = a[1, 0] * (1 - fc) + a[1, 1] * fc
+    return float(top * (1 - fr) + bot * fr)
+
+
+def test_done_when_ellipsoidal_is_srtm_plus_undulation(env: dict[str, str]) -> None:
+    from globeview.terrain.vdatum import egm96
+
+    # The issue's command as written (a negative longitude, no `--`), plus a point exactly on
+    # an SRTM sample (row 875, column 836 of the 1201 x 1201 grid).
+    on_sample = (-72.0 + 836 / 1200, 45.0 - 875 / 1200)
+    r = _run(
+        env,
+        "height",
+        "-71.3033,44.2705",
+        f"{on_sample[0]!r},{on_sample[1]!r}",
+        "data/N44W072.hgt",
+        "--json",
+    )
+    assert r.returncode == 0, r.stderr
+    rows = json.loads(r.stdout)
+    assert len(rows) == 2
+    geoid = egm96()
+    for row, (lon, lat) in zip(rows, [(-71.3033, 44.2705), on_sample], strict=True):
+        n = float(np.asarray(geoid.undulation(np.array([lon]), np.array([lat]))).reshape(-1)[0])
+        assert -40.0 < n < -15.0  # EGM96 in New Hampshire: about -27.5 m
+        srtm = _srtm_bilinear(lon, lat)
+        assert abs((row["ellipsoidal_m"] - srtm) - n) <= 0.1, (row, srtm, n)
+        assert row["geoid_undulation_m"] == pytest.approx(n, abs=1e-3)
+        assert row["orthometric_m"] == pytest.approx(row["ellipsoidal_m"] - n, abs=1e-6)
+        assert row["layer"] == "N44W072.hgt"
+
+
+def test_table_and_points_off_the_data(env: dict[str, str]) -> None:
+    r = _run(env, "height", "-71.3033,44.2705", "10,0", "data/N44W072.hgt")
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.strip().splitlines()
+    assert "m a.s.l." in lines[0] and "m ell." in lines[0]
+    assert lines[1].endswith("N44W072.hgt")
+    assert lines[2].endswith("none (ellipsoid)")
+    # Off every layer the surface is the ellipsoid: h = 0, H = -N.
+    h, n, big_h = (float(v) for v in lines[2].split()[2:5])
+    assert h == 0.0 and big_h == pytest.approx(-n, abs=0.011)
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["nan,44", "data/N44W072.hgt"], "finite"),
+        (["-nan,44", "data/N44W072.hgt"], "finite"),
+        (["-71.3,91", "data/N44W072.hgt"], "latitude"),
+        (["-71.3,abc", "data/N44W072.hgt"], "LON,LAT"),
+        (["1,2,3", "data/N44W072.hgt"], "LON,LAT"),
+        (["data/N44W072.hgt"], "no point"),
+        (["-71.3,44.2", "no_such_dem.tif"], "no_such_dem.tif"),
+    ],
+)
+def test_bad_input_is_one_line(env: dict[str, str], args: list[str], words: str) -> None:
+    r = _run(env, "height", *args)
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("globeview: error:"), r.stderr
+    assert words in lines[0]
+    assert r.stdout == ""
