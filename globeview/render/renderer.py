@@ -204,7 +204,9 @@ class GlobeRenderer:
         # Skirts must reach below any neighbour drawn at another level or stride: a few times
         # this tile's coarsest height error plus a little of its size.
         skirt = 3.0 * float(np.nanmax(meta.stride_error)) + 0.01 * edge_m + 10.0
-        return build_tile_mesh(bounds, heights, skirt)
+        # The apron (one node of the same-level neighbours around the tile) makes edge
+        # normals equal on both sides of a tile edge: no shading seams (issue #16).
+        return build_tile_mesh(bounds, heights, skirt, apron=self.terrain.heights_apron(key))
 
     def _check_terrain_version(self) -> None:
         if self.terrain.version != self._terrain_version:

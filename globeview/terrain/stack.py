@@ -211,6 +211,39 @@ class TerrainStack:
                 self._cache.pop(self._order.pop(0), None)
         return out
 
+    def heights_apron(self, key: tuple[int, int, int]) -> np.ndarray:
+        """The tile's composed heights with one node beyond each edge: (size + 2, size + 2)
+        float32 metres, row 0 north, for `build_tile_mesh`'s ``apron`` (normals at edge nodes
+        then see the neighbours' triangles, exactly as if the tile had no edge).
+
+        The ring comes from the 8 same-level neighbours, composed by `heights` (so through its
+        tile cache: neighbours drawn in the same view are usually already there); columns wrap
+        across the antimeridian. Beyond the poles there is no neighbour: the ring row is
+        extrapolated linearly from the two rows inside (its latitude is clamped to the pole by
+        the mesh builder anyway). Outside any data the neighbours are the ellipsoid (height 0),
+        which is what `heights` composes there too.
+        """
+        level, x, y = (int(key[0]), int(key[1]), int(key[2]))
+        ncols, nrows = 2 << level, 1 << level
+        size = self.tile_size
+        out = np.empty((size + 2, size + 2), dtype=np.float32)
+        # Neighbouring tiles share their edge nodes, so the node beyond our edge is the
+        # neighbour's second row/column (index 1 or -2), not its first.
+        dst = {-1: slice(0, 1), 0: slice(1, size + 1), 1: slice(size + 1, size + 2)}
+        src = {-1: slice(size - 2, size - 1), 0: slice(0, size), 1: slice(1, 2)}
+        for dy in (-1, 0, 1):
+            ny = y + dy
+            if not 0 <= ny < nrows:
+                continue
+            for dx in (-1, 0, 1):
+                h = self.heights((level, (x + dx) % ncols, ny))
+                out[dst[dy], dst[dx]] = h[src[dy], src[dx]]
+        if y == 0:
+            out[0] = 2.0 * out[1] - out[2]
+        if y == nrows - 1:
+            out[-1] = 2.0 * out[-2] - out[-3]
+        return out
+
     def _layer_heights(self, st: TileStore, key: tuple[int, int, int]) -> np.ndarray | None:
         level, x, y = key
         lm = st.max_level
