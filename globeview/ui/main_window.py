@@ -56,7 +56,10 @@ from globeview.ui.layer_panel import LayerPanel
 from globeview.ui.loading import DemLoader, missing_path_error
 from globeview.ui.plugin_host import PluginHost, QSettingsBackend
 from globeview.ui.plugin_panel import PluginPanel
-from globeview.ui.status import StatusBar
+from globeview.ui.status import ELLIPSOIDAL, ORTHOMETRIC, StatusBar
+
+#: QSettings key of the cursor height reference (`ORTHOMETRIC` or `ELLIPSOIDAL`).
+HEIGHT_REFERENCE_KEY = "view/height_reference"
 
 log = logging.getLogger("globeview.ui")
 
@@ -229,7 +232,21 @@ class MainWindow(QMainWindow):
         view_menu.addSeparator()
         view_menu.addAction(self.layer_dock.toggleViewAction())
         view_menu.addAction(self.plugin_dock.toggleViewAction())
+        view_menu.addSeparator()
+        # Cursor heights above the geoid (m a.s.l., the default) or the ellipsoid (m ell.).
+        self.ellipsoidal_action = QAction("&Ellipsoidal Heights (m ell.)", self)
+        self.ellipsoidal_action.setCheckable(True)
+        self.ellipsoidal_action.setToolTip(
+            "Show heights above the WGS84 ellipsoid instead of above the EGM96 geoid (sea level)"
+        )
+        self.ellipsoidal_action.toggled.connect(self._height_reference_changed)
+        view_menu.addAction(self.ellipsoidal_action)
         self._update_recent_menu()
+
+    def _height_reference_changed(self, ellipsoidal: bool) -> None:
+        reference = ELLIPSOIDAL if ellipsoidal else ORTHOMETRIC
+        self.status.set_height_reference(reference)
+        self.qsettings.setValue(HEIGHT_REFERENCE_KEY, reference)
 
     def _build_tools(self) -> None:
         """The Tools toolbar and menu (actions filled by `refresh_tools`)."""
@@ -434,6 +451,7 @@ class MainWindow(QMainWindow):
         self._exaggeration_changed(self.exag_slider.value())
         self.wire_check.setChecked(_bool(s.value("view/wireframe"), False))
         self.hill_check.setChecked(_bool(s.value("view/hillshade"), False))
+        self.ellipsoidal_action.setChecked(s.value(HEIGHT_REFERENCE_KEY) == ELLIPSOIDAL)
 
     def save_settings(self) -> None:
         s = self.qsettings
@@ -443,6 +461,7 @@ class MainWindow(QMainWindow):
         s.setValue("view/exaggeration", self.globe.settings.exaggeration)
         s.setValue("view/wireframe", self.globe.settings.wireframe)
         s.setValue("view/hillshade", self.globe.settings.hillshade)
+        s.setValue(HEIGHT_REFERENCE_KEY, self.status.height_reference)
         s.sync()
 
     # -- display ---------------------------------------------------------------------------

@@ -1,15 +1,31 @@
-"""The status bar: cursor position, camera altitude, frame figures, active LOD provider, and
-one-line notices (non-modal errors)."""
+"""The status bar: cursor position and height, camera altitude, frame figures, active LOD
+provider, and one-line notices (non-modal errors).
+
+Heights under the cursor (issue #16): picking returns the ellipsoidal height h the mesh holds;
+the bar shows, by the View menu's setting, the orthometric height H = h - N ("m a.s.l.", the
+default: what maps and SRTM call elevation) or h itself ("m ell."), N being the EGM96 geoid
+undulation at the picked lon/lat."""
 
 from __future__ import annotations
 
+import logging
+
+import numpy as np
 from PyQt6.QtWidgets import QLabel, QStatusBar, QWidget
 
+from globeview.errors import GlobeviewError
 from globeview.render.picking import Pick
 from globeview.render.render_set import FrameStats
 
+log = logging.getLogger("globeview.ui")
+
 #: How long a notice stays in the status bar (ms).
 NOTICE_MS = 10000
+
+#: The two height references of the cursor read-out and their unit labels.
+ORTHOMETRIC = "orthometric"
+ELLIPSOIDAL = "ellipsoidal"
+HEIGHT_UNITS = {ORTHOMETRIC: "m a.s.l.", ELLIPSOIDAL: "m ell."}
 
 
 def format_lonlat(lon: float, lat: float) -> str:
@@ -30,7 +46,9 @@ class StatusBar(QStatusBar):
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.cursor = QLabel("—")
-        self.cursor.setToolTip("Lon, lat and height above the ellipsoid under the cursor")
+        self.height_reference = ORTHOMETRIC
+        self._last_pick: Pick | None = None
+        self._geoid_failed = False
         self.altitude = QLabel("alt —")
         self.altitude.setToolTip("Camera height above the WGS84 ellipsoid")
         self.fps = QLabel("— fps")
@@ -41,13 +59,52 @@ class StatusBar(QStatusBar):
         self.lod.setToolTip("Active LOD provider")
         for w in (self.cursor, self.altitude, self.fps, self.triangles, self.tiles, self.lod):
             self.addPermanentWidget(w)
+        self._cursor_tooltip()
+
+    def set_height_reference(self, reference: str) -> None:
+        """Show cursor heights as `ORTHOMETRIC` (m a.s.l.) or `ELLIPSOIDAL` (m ell.)."""
+        if reference not in HEIGHT_UNITS:
+            raise ValueError(f"unknown height reference {reference!r}")
+        self.height_reference = reference
+        self._cursor_tooltip()
+        self.show_pick(self._last_pick)
+
+    def _cursor_tooltip(self) -> None:
+        above = (
+            "the EGM96 geoid (sea level)"
+            if self.height_reference == ORTHOMETRIC
+            else ("the WGS84 ellipsoid")
+        )
+        self.cursor.setToolTip(f"Lon, lat and height above {above} under the cursor")
+
+    def cursor_reading(self, pick: Pick) -> tuple[float, str]:
+        """The picked height (m) in the chosen reference and its unit label: h ("m ell."), or
+        H = h - N(lon, lat) ("m a.s.l."). Without a geoid (its grid unreadable) the bar says
+        "m ell." rather than label h as sea-level height; the cause is logged once."""
+        if self.height_reference == ELLIPSOIDAL:
+            return pick.height, HEIGHT_UNITS[ELLIPSOIDAL]
+        try:
+            from globeview.terrain.height_query import geoid_undulation
+
+            n = float(geoid_undulation(np.array([pick.lon]), np.array([pick.lat]))[0])
+        except (ImportError, OSError, GlobeviewError) as exc:
+            if not self._geoid_failed:
+                self._geoid_failed = True
+                log.warning("no geoid for sea-level heights, showing ellipsoidal: %s", exc)
+            return pick.height, HEIGHT_UNITS[ELLIPSOIDAL]
+        return pick.height - n, HEIGHT_UNITS[ORTHOMETRIC]
 
     def show_pick(self, pick: Pick | None) -> None:
+        self._last_pick = pick
         if pick is None:
             self.cursor.setText("—")
             return
         where = format_lonlat(pick.lon, pick.lat)
-        h = f"{pick.height:,.0f} m" if pick.on_terrain else "ellipsoid"
+        if pick.on_terrain:
+            value, unit = self.cursor_reading(pick)
+            h = f"{value:,.0f} {unit}"
+        else:
+            h = "ellipsoid"
         self.cursor.setText(f"{where}  {h}")
 
     def show_altitude(self, height_m: float) -> None:
