@@ -285,16 +285,23 @@ class GlobeSession(GlobeScene):
 
     def pick(self, x_px: float, y_px: float) -> Pick | None:
         """The true (un-displaced) terrain point under a pixel of the last frame."""
-        p = super().pick(x_px, y_px)
         tool = self.tool()
-        if p is None or tool is None or self.renderer._hook is None:
+        if tool is None or self.renderer._hook is None:
+            return super().pick(x_px, y_px)
+
+        def to_true(drawn: np.ndarray) -> np.ndarray:
+            true = self.registry.invoke(tool, "displacement_inverse_numpy", drawn, default=None)
+            arr = None
+            if true is not None:
+                arr = self._checked_points(tool, true, drawn, "displacement_inverse_numpy")
+            return drawn if arr is None else arr
+
+        # The pick is refined against the terrain the pixel shows (the true place's), not the
+        # DEM under the drawn place (issue #16: picked heights off by hundreds of metres).
+        p = super().pick(x_px, y_px, to_true)
+        if p is None:
             return p
-        drawn = p.ecef[None, :]
-        true = self.registry.invoke(tool, "displacement_inverse_numpy", drawn, default=None)
-        arr = None
-        if true is not None:
-            arr = self._checked_points(tool, true, drawn, "displacement_inverse_numpy")
-        ecef = (drawn if arr is None else arr).reshape(3)
+        ecef = to_true(p.ecef[None, :]).reshape(3)
         lon, lat, h = ecef_to_lonlat(ecef)
         return Pick(ecef, float(lon), float(lat), float(h), p.on_terrain)
 

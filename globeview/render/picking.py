@@ -68,24 +68,70 @@ def refine_on_terrain(
     t0: float,
     height_at: Callable[[float, float], float],
     steps: int = 8,
+    to_true: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> float:
     """Ray parameter t (m along the unit ``direction`` from the eye) where the ray meets the
-    terrain surface drawn at ``view.exaggeration``, starting from the estimate ``t0``."""
+    terrain surface drawn at ``view.exaggeration``, starting from the estimate ``t0``.
+
+    ``to_true`` maps drawn ECEF points (N, 3) to the true terrain points they show (a tool's
+    displacement inverse, e.g. the collapse): the terrain drawn at a place is then the terrain
+    of another place, so each step compares the true point's height with the DEM's height
+    at the true lon/lat and moves the drawn point by that gap (the displacements keep heights
+    above the ellipsoid, so the gap carries over)."""
     exag = view.exaggeration
+
+    def gap(t: float) -> tuple[float, float]:
+        """(signed height of the ray point above the drawn surface, the surface's height)."""
+        p = view.eye + t * direction
+        lon, lat, h = ecef_to_lonlat(p)
+        if to_true is None:
+            hd = height_at(float(lon), float(lat)) * exag
+        else:
+            tl, tb, th = ecef_to_lonlat(np.asarray(to_true(p[None, :]), dtype=np.float64)[0])
+            hd = float(h) + height_at(float(tl), float(tb)) * exag - float(th)
+        return float(h) - hd, hd
+
     best_t, best_f = t0, math.inf
+    above: float | None = None  # largest t seen above the surface
+    below: float | None = None  # smallest t seen below it
     t = t0
     for _ in range(steps):
-        lon, lat, h = ecef_to_lonlat(view.eye + t * direction)
-        hd = height_at(float(lon), float(lat)) * exag
-        f = abs(float(h) - hd)
-        if f < best_f:
-            best_t, best_f = t, f
-        if f < 0.01:
-            break
+        g, hd = gap(t)
+        if abs(g) < best_f:
+            best_t, best_f = t, abs(g)
+        if abs(g) < 0.01:
+            return t
+        if g > 0:
+            above = t if above is None else max(above, t)
+        else:
+            below = t if below is None else min(below, t)
         t_new = float(ray_ellipsoid_t(view.eye, direction, h=hd))
         if not math.isfinite(t_new):
             break
         t = t_new
+    # The fixed point did not settle (steep slopes, a tool's fold): bisect between a point
+    # above and one below the surface, found around the estimate if need be.
+    for d in (1.0, 10.0, 100.0, 1000.0):
+        if above is not None and below is not None:
+            break
+        for tt in (t0 - d, t0 + d):
+            if tt > 0:
+                g, _ = gap(tt)
+                if g > 0:
+                    above = tt if above is None else max(above, tt)
+                else:
+                    below = tt if below is None else min(below, tt)
+    if above is None or below is None or above >= below:
+        return best_t
+    lo, hi = above, below
+    for _ in range(48):
+        mid = 0.5 * (lo + hi)
+        g, _ = gap(mid)
+        if abs(g) < best_f:
+            best_t, best_f = mid, abs(g)
+        if abs(g) < 0.01 or hi - lo < 1e-3:
+            break
+        lo, hi = (mid, hi) if g > 0 else (lo, mid)
     return best_t
 
 
@@ -95,11 +141,14 @@ def pick(
     x_px: float,
     y_px: float,
     height_at: Callable[[float, float], float] | None = None,
+    to_true: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> Pick | None:
     """The point under pixel (x_px, y_px) (top-left origin; the pixel's centre is used).
 
-    ``height_at(lon, lat) -> metres`` (the composed DEM) refines the depth-buffer estimate
-    onto the terrain surface; heights are reported without exaggeration."""
+    ``height_at(lon, lat) -> metres`` (the composed DEM's ellipsoidal height h) refines the
+    depth-buffer estimate onto the terrain surface; heights are reported without
+    exaggeration, as h (the UI converts to orthometric). ``to_true``: see
+    `refine_on_terrain` (the returned point is still the drawn one)."""
     xi, yi = int(x_px), int(y_px)
     if not (0 <= xi < view.viewport[0] and 0 <= yi < view.viewport[1]):
         return None
@@ -109,7 +158,8 @@ def pick(
         p = unproject(view, xi + 0.5, yi + 0.5, depth)
         on_terrain = True
         if height_at is not None:
-            t = refine_on_terrain(view, ray, float(ray @ (p - view.eye)), height_at)
+            t0 = float(ray @ (p - view.eye))
+            t = refine_on_terrain(view, ray, t0, height_at, to_true=to_true)
             p = view.eye + t * ray
     else:
         p = np.asarray(ray_ellipsoid_intersection(view.eye, ray), dtype=np.float64)

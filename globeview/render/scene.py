@@ -90,10 +90,11 @@ class GlobeScene:
         self._last_fbo = fbo
         return self.last
 
-    def pick(self, x_px: float, y_px: float) -> Pick | None:
-        """The terrain point under a pixel of the last rendered frame."""
+    def pick(self, x_px: float, y_px: float, to_true=None) -> Pick | None:
+        """The terrain point under a pixel of the last rendered frame (``to_true``: drawn ->
+        true ECEF points of a displacing tool, see `picking.refine_on_terrain`)."""
         if self.last is None or self._last_fbo is None:
             return None
         terrain = self.terrain if self.terrain.visible_layers else None
         height_at = terrain.height_at if terrain is not None else None
-        return pick(self.last.view, self._last_fbo, x_px, y_px, height_at)
+        return pick(self.last.view, self._last_fbo, x_px, y_px, height_at, to_true)
