@@ -96,5 +96,11 @@ class GlobeScene:
         if self.last is None or self._last_fbo is None:
             return None
         terrain = self.terrain if self.terrain.visible_layers else None
-        height_at = terrain.height_at if terrain is not None else None
+        height_at = None
+        if terrain is not None:
+            # The surface the LOD converges to, the finest level (as `globeview height`
+            # answers); the default level is capped at 12 and Crater Lake's DEM has 13.
+            def height_at(lon: float, lat: float) -> float:
+                return terrain.height_at(lon, lat, level=terrain.max_level)
+
         return pick(self.last.view, self._last_fbo, x_px, y_px, height_at, to_true)
