@@ -108,3 +108,11 @@ def test_bad_input_is_one_line(env: dict[str, str], args: list[str], words: str)
     assert len(lines) == 1 and lines[0].startswith("globeview: error:"), r.stderr
     assert words in lines[0]
     assert r.stdout == ""
+
+
+def test_json_flag_may_stand_between_points_and_sources(env: dict[str, str]) -> None:
+    # argparse alone refused this: "unrecognized arguments: data/N44W072.hgt"
+    r = _run(env, "height", "-71.3033,44.2705", "--json", "10,0", "data/N44W072.hgt")
+    assert r.returncode == 0, r.stderr
+    rows = json.loads(r.stdout)
+    assert [row["layer"] for row in rows] == ["N44W072.hgt", "none (ellipsoid)"]

@@ -7,7 +7,7 @@ answered. With no sources the embedded data is queried, as `render` draws it; DE
 ingested into the cache as `render` does. ``--json`` prints a JSON list of objects.
 
 A point is one argument ``LON,LAT`` in degrees; a negative longitude may be written as is
-(``globeview height -71.3033,44.2705 data/N44W072.hgt``).
+(``globeview height -71.3033,44.2705 data/N44W072.hgt``); ``--json`` may stand anywhere.
 """
 
 from __future__ import annotations
@@ -33,8 +33,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "(none: the embedded data)",
     )
     p.add_argument("--json", action="store_true", help="print a JSON list instead of a table")
-    # A point like -71.3,44.2 is a positional argument, not an unknown option (see above).
+    # A point like -71.3,44.2 is a positional argument, not an unknown option (see above);
+    # argparse has no public hook for that.
     p._negative_number_matcher = _NEGATIVE_ARG
+    # argparse takes positionals in one run: `height PT --json DEM` left DEM "unrecognized".
+    # The flag is moved in front of the positionals, so it may stand anywhere.
+    cls_parse = type(p).parse_known_args
+
+    def parse_known_args(args=None, namespace=None):
+        if args is not None:
+            args = _flags_first(list(args))
+        return cls_parse(p, args, namespace)
+
+    p.parse_known_args = parse_known_args
+
+
+def _flags_first(args: list[str]) -> list[str]:
+    """``--json`` (the only flag) moved before the positionals (not past a ``--``)."""
+    end = args.index("--") if "--" in args else len(args)
+    flags = [a for a in args[:end] if a == "--json"]
+    rest = [a for a in args[:end] if a != "--json"]
+    return flags + rest + args[end:]
 
 
 def parse_point(text: str) -> tuple[float, float]:
