@@ -18,6 +18,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="CRS",
         help="CRS of the rasters when they lack one or declare a wrong one, e.g. EPSG:32610",
     )
+    parser.add_argument(
+        "--vdatum",
+        metavar="DATUM",
+        help="declare the rasters' vertical datum: ellipsoid or egm96 (default: from the CRS,"
+        " else EGM96)",
+    )
     parser.add_argument("--json", action="store_true", help="print a JSON list instead of text")
     parser.add_argument(
         "--embedded", action="store_true", help="describe the DEMs shipped in data/"
@@ -35,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
         paths = [*map(str, embedded_dem_paths()), *paths]
     infos = []
     for p in paths:
-        with open_dem(p, crs=args.crs) as dem:
+        with open_dem(p, crs=args.crs, vdatum=args.vdatum) as dem:
             infos.append(dem.info)
     if args.json:
         print(json.dumps([i.to_dict() for i in infos], indent=2))

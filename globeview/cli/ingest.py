@@ -18,6 +18,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--wavelet", default="bior2.2", help="low-pass wavelet for coarser levels")
     parser.add_argument("--crs", default=None, help="CRS of the sources, e.g. EPSG:4326")
+    parser.add_argument(
+        "--vdatum",
+        default=None,
+        metavar="DATUM",
+        help="vertical datum of the sources: ellipsoid or egm96 (default: from the CRS, SRTM"
+        " .hgt and mean-sea-level DEMs EGM96, else assumed EGM96); stores hold ellipsoidal"
+        " heights",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--force", action="store_true", help="rebuild even if up to date")
 
@@ -33,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
         max_level=args.max_level,
         wavelet=args.wavelet,
         crs=args.crs,
+        vdatum=args.vdatum,
         force=args.force,
         # A bar only on a terminal: piped or logged, tqdm's redraws would be many lines.
         progress=not args.quiet and sys.stderr.isatty(),

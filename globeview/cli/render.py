@@ -31,6 +31,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--stats", help="write the frame's figures as JSON to this file")
     parser.add_argument("--crs", help="CRS for DEM sources that lack one (e.g. EPSG:32610)")
     parser.add_argument(
+        "--vdatum",
+        metavar="DATUM",
+        help="vertical datum of the DEM sources: ellipsoid or egm96 (default: from the CRS,"
+        " else EGM96)",
+    )
+    parser.add_argument(
         "--lod", default="chunked-sse", help="LOD provider plugin (see `globeview plugins list`)"
     )
     parser.add_argument(
@@ -212,8 +218,9 @@ def cache_message(problem: str) -> str:
     )
 
 
-def open_sources(sources: list[str], crs: str | None):
-    """Tile stores for the given stores/DEMs (DEMs ingested into the cache)."""
+def open_sources(sources: list[str], crs: str | None, vdatum: str | None = None):
+    """Tile stores for the given stores/DEMs (DEMs ingested into the cache; ``crs`` and
+    ``vdatum`` apply to the DEMs, a store already holds ellipsoidal heights)."""
     from pathlib import Path
 
     from globeview.errors import GlobeviewError
@@ -230,13 +237,13 @@ def open_sources(sources: list[str], crs: str | None):
         elif p.is_dir():
             raise GlobeviewError(f"{p} is a directory but not a globeview tile store")
         else:
-            if crs:
+            if crs or vdatum:
                 from globeview.terrain.embedded import store_path_for
                 from globeview.terrain.ingest import ingest
 
                 out = store_path_for(p)
                 out.parent.mkdir(parents=True, exist_ok=True)
-                ingest([p], out, crs=crs)
+                ingest([p], out, crs=crs, vdatum=vdatum)
                 stores.append(TileStore.open(out))
             else:
                 stores.append(open_or_ingest(p))
@@ -259,7 +266,11 @@ def run(args: argparse.Namespace) -> int:
     out, stats_path = check_outputs(args)
     check_inputs(args)
     check_cache_writable(args.sources)
-    stores = open_sources_in_cache(args.sources, args.crs)
+    if args.vdatum is not None:
+        from globeview.terrain.vdatum import parse_vdatum
+
+        parse_vdatum(args.vdatum)  # "egm2008" or a typo: one line before any work
+    stores = open_sources_in_cache(args.sources, args.crs, args.vdatum)
     terrain = TerrainStack.from_stores(stores)
     if v["camera"] is not None:
         camera = Camera.from_lonlat(*v["camera"], fovy_deg=v["fov"])
@@ -314,7 +325,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def open_sources_in_cache(sources: list[str], crs: str | None):
+def open_sources_in_cache(sources: list[str], crs: str | None, vdatum: str | None = None):
     """`open_sources`, with a cache folder that turns out unwritable (read-only, full) said
     in one line that tells how to point the cache elsewhere."""
     import errno
@@ -323,7 +334,7 @@ def open_sources_in_cache(sources: list[str], crs: str | None):
     from globeview.fileio import describe_os_error
 
     try:
-        return open_sources(sources, crs)
+        return open_sources(sources, crs, vdatum)
     except OSError as exc:
         if exc.errno in (errno.EROFS, errno.EACCES, errno.EPERM, errno.ENOSPC, errno.EDQUOT):
             message = cache_message(describe_os_error(exc, exc.filename or ""))

@@ -198,6 +198,11 @@ class DemInfo:
     height_scale_m: float = 1.0  # metres per unit of the stored heights (0.3048 for feet)
     # Pixel size in the raster's projected CRS, in metres (None for geographic CRSs).
     res_crs_m: tuple[float, float] | None = None
+    # What the heights are measured from: "egm96" (orthometric, above the geoid) or "ellipsoid"
+    # (above WGS84), and where that came from, e.g. "from the CRS EPSG:5773", "SRTM .hgt
+    # default", "assumed", "--vdatum" (see `_vertical_datum`).
+    vertical_datum: str = "egm96"
+    vertical_datum_source: str = "assumed"
 
     def summary(self) -> str:
         """A multi-line description for people."""
@@ -239,6 +244,8 @@ class DemInfo:
             about = "" if self.range_exact else "~"  # counted in the decimated read
             lines.append(f"  masked      {about}{self.masked_samples} samples ({_LIMITS_TEXT})")
         lines.append(f"  heights     {self.vmin:.6g} .. {self.vmax:.6g} {units}{approx}")
+        datum = "WGS84 ellipsoid" if self.vertical_datum == "ellipsoid" else "EGM96 geoid"
+        lines.append(f"  vdatum      {datum} ({self.vertical_datum_source})")
         if self.band_count > 1:
             lines.append(f"  bands       {self.band_count}; band 1 is used as elevation")
         flags = []
@@ -363,6 +370,70 @@ def _unit_factor(ds: rasterio.io.DatasetReader, crs: CRS) -> tuple[str | None, f
     return None, 1.0
 
 
+# Vertical datums globeview converts from (names as on the command line): orthometric heights
+# above the EGM96 geoid, or ellipsoidal heights above WGS84 (what the tile stores hold).
+VDATUMS = ("ellipsoid", "egm96")
+# Vertical CRSs that are EGM96 heights (EPSG:5773 "EGM96 height").
+_EGM96_VERTICAL_EPSG = {5773}
+
+
+def _vertical_datum(
+    ds: rasterio.io.DatasetReader, crs: CRS, path: Path, override: str | None
+) -> tuple[str, str]:
+    """(datum, where it came from) for a DEM's heights.
+
+    Order: an explicit --vdatum; the CRS when it says (a geographic 3D CRS such as EPSG:4979
+    has ellipsoidal heights; a compound CRS names its vertical CRS); a default per recognised
+    source. Unknown DEMs are taken as EGM96: osgEarth defaults to the ellipsoid, but almost
+    every DEM a user has (SRTM, ETOPO, GEBCO, national DEMs) is orthometric, "above sea
+    level", and EGM96 is the best approximation of that we ship, within a metre or two of
+    national datums; taking them as ellipsoidal would leave them 20..100 m off.
+    """
+    if override is not None:
+        name = override.strip().lower()
+        if name == "egm2008":
+            raise DemError(
+                "vertical datum 'egm2008' is not available (its grid is not shipped with"
+                f" globeview); use one of {', '.join(VDATUMS)}"
+            )
+        if name not in VDATUMS:
+            raise DemError(f"unknown vertical datum {override!r}: use one of {', '.join(VDATUMS)}")
+        return name, "--vdatum"
+    try:
+        pc = pyproj.CRS.from_wkt(crs.to_wkt())
+    except pyproj.exceptions.CRSError:
+        pc = None
+    if pc is not None:
+        found = _datum_from_crs(pc)
+        if found is not None:
+            return found
+    if ds.driver == "SRTMHGT" or path.suffix.lower() == ".hgt":
+        return "egm96", "SRTM .hgt default"
+    text = " ".join([path.name, *map(str, ds.tags().values())]).lower()
+    if "etopo" in text or "sea level" in text or "msl" in text.split():
+        return "egm96", "mean sea level, taken as EGM96"
+    return "egm96", "assumed"
+
+
+def _datum_from_crs(pc: pyproj.CRS) -> tuple[str, str] | None:
+    """The vertical datum a CRS declares, or None when it declares none (2D)."""
+    if pc.is_compound:
+        for sub in pc.sub_crs_list:
+            if sub.is_vertical:
+                code = sub.to_epsg()
+                label = f"EPSG:{code}" if code else repr(sub.name)
+                if code in _EGM96_VERTICAL_EPSG or "egm96" in sub.name.lower():
+                    return "egm96", f"from the CRS {label}"
+                # Another geoid or national datum (EGM2008, NAVD88, ...): EGM96 is the closest
+                # surface we ship (they differ by a metre or two, not the geoid's tens).
+                return "egm96", f"from the CRS {label} {sub.name}, approximated by EGM96"
+        return None
+    if len(pc.axis_info) == 3 and (pc.is_geographic or pc.is_projected or pc.is_geocentric):
+        code = pc.to_epsg()
+        return "ellipsoid", f"from the CRS {f'EPSG:{code}' if code else repr(pc.name)}"
+    return None
+
+
 class Dem:
     """An open DEM raster (band 1 is elevation). Use `open_dem` to create one.
 
@@ -370,8 +441,11 @@ class Dem:
     goes through a general reprojection path.
     """
 
-    def __init__(self, path: Path, crs_override: str | None = None) -> None:
+    def __init__(
+        self, path: Path, crs_override: str | None = None, vdatum: str | None = None
+    ) -> None:
         self.path = path
+        self._vdatum_override = vdatum
         check_dem_path(path)
         try:
             with warnings.catch_warnings():
@@ -428,6 +502,9 @@ class Dem:
         )
         # Stored value -> metres: raw * _scale + _offset (scale/offset and vertical units).
         self.vertical_units, unit_m = _unit_factor(ds, self.crs)
+        self.vertical_datum, self.vertical_datum_source = _vertical_datum(
+            ds, self.crs, self.path, self._vdatum_override
+        )
         self.height_scale_m = unit_m
         self._scale = float(ds.scales[0] if ds.scales else 1.0) * unit_m
         self._offset = float(ds.offsets[0] if ds.offsets else 0.0) * unit_m
@@ -691,6 +768,8 @@ class Dem:
             crs_assumed=self.crs_assumed,
             height_scale_m=self.height_scale_m,
             res_crs_m=res_crs_m,
+            vertical_datum=self.vertical_datum,
+            vertical_datum_source=self.vertical_datum_source,
         )
 
     # ---- reading -------------------------------------------------------------------------
@@ -963,9 +1042,10 @@ def _wrap_lon(lon: float) -> float:
     return ((lon + 180.0) % 360.0) - 180.0
 
 
-def open_dem(path: str | Path, crs: str | None = None) -> Dem:
-    """Open a DEM raster (band 1 = elevation); `crs` overrides or supplies its CRS.
+def open_dem(path: str | Path, crs: str | None = None, vdatum: str | None = None) -> Dem:
+    """Open a DEM raster (band 1 = elevation); `crs` overrides or supplies its CRS, `vdatum`
+    ("ellipsoid" or "egm96") its vertical datum.
 
     Raises DemError with a one-line message for anything that cannot be used as a DEM.
     """
-    return Dem(Path(path), crs)
+    return Dem(Path(path), crs, vdatum)

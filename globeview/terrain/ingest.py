@@ -22,6 +22,12 @@ GDAL's block cache, not by the raster size):
    block by block and updates the per-tile maxima of every coarser level.
 5. The manifest is written last, then the temporary directory is renamed into place.
 
+Heights: stores hold ellipsoidal heights h (above WGS84). A source on the EGM96 geoid (its
+vertical datum from its CRS, a per-source default or ``vdatum``, see `Dem`) is converted
+h = H + N as it is read on a level grid, after nodata masking and the impossible-height limits
+(which apply to the source's own heights): N is sampled once per window on the window's
+regular lon/lat nodes (`Geoid.undulation_grid`). The manifest records each source's datum.
+
 Poles: the pole row of a level (lat = +-90) is a single point on the globe. When a level's
 pole row holds data, its finite nodes are all set to the mean of the finest level's pole row
 (computed once), at every level. (The odd-mirror wavelet approximation maps a constant pole
@@ -74,6 +80,7 @@ from globeview.terrain.store import (
     STORE_FORMAT,
     StoreIdentity,
     TileStore,
+    built_before_vdatums,
     identify,
     is_store_file,
     read_manifest,
@@ -133,6 +140,7 @@ class _Source:
     bounds: tuple[float, float, float, float]
     wraps: bool
     record: dict = field(default_factory=dict)
+    datum: str = "ellipsoid"  # "egm96": converted h = H + N when read
 
 
 @dataclass
@@ -149,6 +157,26 @@ class _LevelStats:
 
 # ---------------------------------------------------------------------------------------------
 # Small helpers
+
+
+def _window_undulation(west: float, north: float, d: float, w: int, h: int) -> np.ndarray:
+    """EGM96 N (m, float32) on a window's nodes: lon west + j*d, lat north - i*d (degrees)."""
+    from globeview.terrain.vdatum import egm96
+
+    lons = west + d * np.arange(w)
+    lats = north - d * np.arange(h)
+    return egm96().undulation_grid(lons, lats).astype(np.float32)
+
+
+def _datum_record(datum: str, source: str) -> dict:
+    """The manifest's account of a source's vertical datum and what ingest did with it."""
+    from globeview.terrain.vdatum import GEOID_FILE, egm96_sha256
+
+    if datum == "egm96":
+        how = f"converted to ellipsoidal heights with EGM96 ({GEOID_FILE} sha256 {egm96_sha256()})"
+    else:
+        how = "ellipsoidal heights, stored unchanged"
+    return {"vertical_datum": datum, "vertical_datum_source": source, "heights": how}
 
 
 def _sha256(path: Path) -> str:
@@ -359,6 +387,7 @@ class _Builder:
         north = 90.0 - gr0 * d
         south = north - (h - 1) * d
         west_n = (west + 180.0) % 360.0 - 180.0
+        undulation: np.ndarray | None = None  # N on this window's nodes, when a source needs it
         for s in self.sources:
             if s.level > max_source_level:
                 continue
@@ -370,6 +399,10 @@ class _Builder:
             if not _lon_overlaps(west - d, west + (w - 1) * d + d, s.bounds, s.wraps):
                 continue
             vals = s.dem.read_grid(west_n, north, d, d, w, h)
+            if s.datum == "egm96":
+                if undulation is None:
+                    undulation = _window_undulation(west, north, d, w, h)
+                vals = vals + undulation  # NaN (nodata) stays NaN
             np.copyto(out, vals, where=np.isnan(out))
 
     def _pole_values(self) -> None:
@@ -693,6 +726,11 @@ def _check_target(out: Path, force: bool) -> StoreIdentity:
         )
     if ident.is_globeview and not ident.is_current and not force and not _owned_by_cache(out):
         v = ident.version
+        if built_before_vdatums(v):
+            raise StoreError(
+                f"{out} is a store built before vertical datums (format version {v}, heights"
+                " not ellipsoidal); rebuild it with --force"
+            )
         newer = isinstance(v, int) and not isinstance(v, bool) and v > FORMAT_VERSION
         who = "a newer globeview" if newer else "an older globeview"
         raise StoreError(
@@ -988,6 +1026,7 @@ def ingest(
     max_level: int | None = None,
     wavelet: str = DEFAULT_WAVELET,
     crs: str | None = None,
+    vdatum: str | None = None,
     force: bool = False,
     progress: bool = False,
     on_progress: Callable[[int, int], None] | None = None,
@@ -1005,6 +1044,8 @@ def ingest(
         max_level: finest level (default: from the finest source's resolution).
         wavelet: PyWavelets name of the low-pass used for coarser levels.
         crs: CRS for every source (overrides or supplies a missing one).
+        vdatum: vertical datum of every source ("ellipsoid" or "egm96"), overriding what the
+            CRS or the source's kind says. Stored heights are always ellipsoidal.
         force: rebuild even if the store is up to date (or of another format version).
         progress: show a tqdm bar with ETA on stderr.
         on_progress: called as ``on_progress(done, total)`` after each window of work (for a
@@ -1040,7 +1081,17 @@ def ingest(
     src_paths = [Path(p).absolute() for p in sources]
     _check_sources(src_paths)
     records = [{"path": str(p), "size": p.stat().st_size, "sha256": _sha256(p)} for p in src_paths]
-    params = {"tile_n": tile_n, "max_level": max_level, "wavelet": wavelet, "crs": crs}
+    if vdatum is not None:
+        from globeview.terrain.vdatum import parse_vdatum
+
+        vdatum = parse_vdatum(vdatum).value  # one line for "egm2008" or a typo, before any work
+    params = {
+        "tile_n": tile_n,
+        "max_level": max_level,
+        "wavelet": wavelet,
+        "crs": crs,
+        "vdatum": vdatum,
+    }
     if ident.is_current and not force:
         existing = read_manifest(out_path)
         if existing is not None and _same_inputs(existing, records, params) and _usable(out_path):
@@ -1051,12 +1102,13 @@ def ingest(
         stack.enter_context(rasterio.Env(GDAL_CACHEMAX=_GDAL_CACHE_MB * 1024 * 1024))
         srcs = []
         for p, rec in zip(src_paths, records):
-            dem = stack.enter_context(open_dem(p, crs))
+            dem = stack.enter_context(open_dem(p, crs, vdatum))
             info = dem.info
             res = float(min(info.res_deg))
             if not (res > 0 and math.isfinite(res)):
                 raise DemError(f"{p} has no usable pixel size ({info.res_deg})")
             rec.update(crs=info.crs, bounds=list(info.bounds_lonlat), res_deg=list(info.res_deg))
+            rec.update(_datum_record(info.vertical_datum, info.vertical_datum_source))
             srcs.append(
                 _Source(
                     p,
@@ -1066,6 +1118,7 @@ def ingest(
                     info.bounds_lonlat,
                     bool(info.wraps_longitude),
                     rec,
+                    info.vertical_datum,
                 )
             )
         natural = max(s.level for s in srcs)

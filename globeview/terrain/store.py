@@ -42,14 +42,30 @@ __all__ = [
     "STORE_FORMAT",
     "StoreIdentity",
     "TileStore",
+    "built_before_vdatums",
     "identify",
     "is_store_file",
     "read_manifest",
 ]
 
 STORE_FORMAT = "globeview-tile-store"
-# 3: the manifest carries ``format`` (positive recognition). 2 had no marker.
-FORMAT_VERSION = 3
+# 4: heights are ellipsoidal (h = H + N, EGM96, converted at ingest; the manifest records each
+# source's vertical datum). 3: the manifest carries ``format`` (positive recognition), heights
+# were the sources' own (orthometric for most DEMs). 2 had no marker.
+FORMAT_VERSION = 4
+# The first version whose heights are ellipsoidal: older stores must never be mixed with newer.
+VDATUM_FORMAT_VERSION = 4
+
+
+def built_before_vdatums(version: object) -> bool:
+    """Whether a store of this format version holds unconverted (pre-datum) heights."""
+    return (
+        isinstance(version, int)
+        and not isinstance(version, bool)
+        and version < VDATUM_FORMAT_VERSION
+    )
+
+
 MANIFEST_NAME = "manifest.json"
 DEFAULT_CACHE_TILES = 256
 MAX_LEVEL_LIMIT = 22  # as globeview.terrain.ingest: 180/2^22/64 degrees, far past any DEM
@@ -320,6 +336,11 @@ class TileStore:
         if not ident.is_globeview:
             raise StoreError(f"{p} is not a globeview tile store ({MANIFEST_NAME} is not ours)")
         version = manifest.get("format_version")
+        if built_before_vdatums(version):
+            raise StoreError(
+                f"{p}: store built before vertical datums (format version {version}, heights"
+                " not ellipsoidal); rebuild it with globeview ingest --force"
+            )
         if version != FORMAT_VERSION:
             raise StoreError(
                 f"{p}: store format version {str(version)[:20]} is not supported (this "

@@ -212,7 +212,8 @@ def test_coarse_levels_are_the_wavelet_approximation(vancouver_store: Path) -> N
 def test_global_plus_regional(tmp_path: Path) -> None:
     out = tmp_path / "combo"
     van, eto = _data("topobathy_vancouver.tif"), _data("etopo20.tif")
-    ingest([eto, van], out)
+    # Declared ellipsoidal: this checks which source wins, not the datum (test_vdatum does).
+    ingest([eto, van], out, vdatum="ellipsoid")
     st = TileStore.open(out)
     g = st.level_grid(st.max_level)
     assert g.nx < g.ncols  # the finest level is regional
@@ -237,7 +238,7 @@ def test_antimeridian_and_non_square_pixels(tmp_path: Path) -> None:
     z = (1000 * np.sin(np.radians(lon))[None, :] * 50 + lat[:, None] * 10).astype(np.float32)
     src = _write_tif(tmp_path / "am.tif", z, Affine(0.05, 0, 170.0, 0, -0.1, 10.0))
     out = tmp_path / "am_store"
-    ingest([src], out)
+    ingest([src], out, vdatum="ellipsoid")  # heights as the source's: the seam is the point
     st = TileStore.open(out)
     lv = st.max_level
     w_, _, e_, _ = st.bounds

@@ -113,12 +113,12 @@ def test_older_store_needs_force_then_is_rebuilt(store: Path, tmp_path: Path) ->
     s = _copy(store, tmp_path)
     _legacy(s)
     assert identify(s).kind == "legacy"
-    with pytest.raises(StoreError, match="format version 2 is not supported"):
+    with pytest.raises(StoreError, match=r"built before vertical datums \(format version 2"):
         TileStore.open(s)
     before = _snapshot(s)
     r = _cli("ingest", str(SMALL), "--out", str(s), "--quiet")
     assert r.returncode == 2 and len(r.stderr.splitlines()) == 1
-    assert "older globeview (format version 2" in r.stderr and "--force" in r.stderr
+    assert "built before vertical datums (format version 2" in r.stderr and "--force" in r.stderr
     assert _snapshot(s) == before
     r = _cli("ingest", str(SMALL), "--out", str(s), "--quiet", "--force")
     assert r.returncode == 0, r.stderr
