@@ -370,9 +370,6 @@ def _unit_factor(ds: rasterio.io.DatasetReader, crs: CRS) -> tuple[str | None, f
     return None, 1.0
 
 
-# Vertical datums globeview converts from (names as on the command line): orthometric heights
-# above the EGM96 geoid, or ellipsoidal heights above WGS84 (what the tile stores hold).
-VDATUMS = ("ellipsoid", "egm96")
 # Vertical CRSs that are EGM96 heights (EPSG:5773 "EGM96 height").
 _EGM96_VERTICAL_EPSG = {5773}
 
@@ -390,15 +387,10 @@ def _vertical_datum(
     national datums; taking them as ellipsoidal would leave them 20..100 m off.
     """
     if override is not None:
-        name = override.strip().lower()
-        if name == "egm2008":
-            raise DemError(
-                "vertical datum 'egm2008' is not available (its grid is not shipped with"
-                f" globeview); use one of {', '.join(VDATUMS)}"
-            )
-        if name not in VDATUMS:
-            raise DemError(f"unknown vertical datum {override!r}: use one of {', '.join(VDATUMS)}")
-        return name, "--vdatum"
+        # vdatum imports this module (for the data folder): imported here, when needed.
+        from globeview.terrain.vdatum import parse_vdatum
+
+        return parse_vdatum(override).value, "--vdatum"
     try:
         pc = pyproj.CRS.from_wkt(crs.to_wkt())
     except pyproj.exceptions.CRSError:

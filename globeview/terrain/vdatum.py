@@ -49,7 +49,7 @@ class VerticalDatum(enum.Enum):
 
 VDATUM_CHOICES = tuple(d.value for d in VerticalDatum)
 # Datums people ask for that globeview knows of but does not ship a grid for.
-_NOT_SHIPPED = {"egm2008": "EGM2008 (its grid is not shipped with globeview)"}
+_NOT_SHIPPED = {"egm2008": "its grid is not shipped with globeview"}
 
 
 def parse_vdatum(name: str) -> VerticalDatum:
@@ -61,7 +61,7 @@ def parse_vdatum(name: str) -> VerticalDatum:
         pass
     if key in _NOT_SHIPPED:
         raise DemError(
-            f"vertical datum {name!r} is not available: {_NOT_SHIPPED[key]}; "
+            f"vertical datum {name!r} is not available ({_NOT_SHIPPED[key]}); "
             f"use one of {', '.join(VDATUM_CHOICES)}"
         )
     raise DemError(f"unknown vertical datum {name!r}: use one of {', '.join(VDATUM_CHOICES)}")

@@ -261,3 +261,21 @@ def test_cached_store_built_before_vdatums_is_rebuilt_silently(
     assert st.manifest["format_version"] == 4
     assert st.manifest["sources"][0]["vertical_datum"] == "egm96"
     st.close()
+
+
+def test_unreadable_geoid_is_one_line_and_no_store(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A damaged installation (geoid file truncated) fails the ingest in one DemError line and
+    leaves nothing behind."""
+    from globeview.terrain import vdatum
+
+    bad = tmp_path / "egm96_15.tif"
+    bad.write_bytes(vdatum.geoid_path().read_bytes()[:5000])
+    monkeypatch.setattr(vdatum, "geoid_path", lambda: bad)
+    monkeypatch.setattr(vdatum, "_cache", {})
+    with pytest.raises(DemError, match="cannot read the EGM96 geoid") as err:
+        ingest([_grid(tmp_path, "EPSG:4326")], tmp_path / "s")
+    assert "\n" not in str(err.value)
+    assert not (tmp_path / "s").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["egm96_15.tif", "g.tif"]  # no build
