@@ -26,23 +26,19 @@ TOLERANCE_M = 0.05
 
 
 @pytest.fixture(scope="module")
-def session():
+def session(gl_ctx, terrain):
+    """A plugin session on the render suite's one GL context (a second context made current
+    in this process breaks the other render tests) and the embedded terrain."""
     from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import MemorySettings
-    from globeview.render.offscreen import OffscreenTarget, RenderError, create_headless_context
-    from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
+    from globeview.render.offscreen import OffscreenTarget
 
-    try:
-        ctx = create_headless_context()
-    except RenderError as exc:  # pragma: no cover - depends on the machine
-        pytest.skip(f"no headless OpenGL: {exc}")
-    terrain = TerrainStack.from_stores(embedded_stores())
     reg = PluginRegistry(MemorySettings()).discover()
-    s = GlobeSession(ctx, terrain, Camera.from_lonlat(*WHITE_MOUNTAINS), registry=reg)
-    s.target = OffscreenTarget(ctx, SIZE)
-    return s
+    s = GlobeSession(gl_ctx, terrain, Camera.from_lonlat(*WHITE_MOUNTAINS), registry=reg)
+    s.target = OffscreenTarget(gl_ctx, SIZE)
+    yield s
+    s.activate_tool(None)
 
 
 def _picks(session, collapse=None, camera=WHITE_MOUNTAINS):
