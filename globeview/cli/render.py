@@ -241,7 +241,7 @@ def open_sources(sources: list[str], crs: str | None, vdatum: str | None = None)
                 from globeview.terrain.embedded import store_path_for
                 from globeview.terrain.ingest import ingest
 
-                out = store_path_for(p)
+                out = store_path_for(p, crs=crs, vdatum=vdatum)
                 out.parent.mkdir(parents=True, exist_ok=True)
                 ingest([p], out, crs=crs, vdatum=vdatum)
                 stores.append(TileStore.open(out))

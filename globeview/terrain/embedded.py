@@ -13,12 +13,20 @@ from globeview.terrain.dem import check_dem_path, embedded_dem_paths
 from globeview.terrain.store import TileStore, identify
 
 
-def store_path_for(source: Path) -> Path:
+def store_path_for(source: Path, *, crs: str | None = None, vdatum: str | None = None) -> Path:
     """Where the store of an ingested DEM lives in the cache: ``stores/STEM-HASH``, HASH a
     short digest of the resolved absolute path, so a/dem.tif and b/dem.tif get two stores
-    (keyed by the stem alone, the second replaced the first while it was open)."""
+    (keyed by the stem alone, the second replaced the first while it was open).
+
+    An explicit ``crs`` or ``vdatum`` makes other heights of the same file, so it keys a
+    store of its own too: re-opening a DEM with another datum never rebuilds the store a
+    window still draws from.
+    """
     resolved = Path(source).expanduser().resolve()
-    digest = hashlib.sha256(os.fsencode(resolved)).hexdigest()[:12]
+    key = os.fsencode(resolved)
+    if crs is not None or vdatum is not None:
+        key += f"|crs={crs}|vdatum={vdatum}".encode()
+    digest = hashlib.sha256(key).hexdigest()[:12]
     return cache_dir() / "stores" / f"{resolved.stem}-{digest}"
 
 

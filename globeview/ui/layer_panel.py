@@ -11,8 +11,10 @@ from __future__ import annotations
 from PyQt6.QtCore import Qt, pyqtSignal
 from PyQt6.QtWidgets import (
     QAbstractItemView,
+    QComboBox,
     QGroupBox,
     QHBoxLayout,
+    QLabel,
     QListWidget,
     QListWidgetItem,
     QPushButton,
@@ -21,6 +23,7 @@ from PyQt6.QtWidgets import (
 )
 
 from globeview.terrain.stack import TerrainStack
+from globeview.terrain.store import TileStore
 from globeview.ui.overlay_panel import OverlayPanel
 
 NAME_ROLE = Qt.ItemDataRole.UserRole
@@ -34,6 +37,29 @@ class LayerList(QListWidget):
     def dropEvent(self, event) -> None:
         super().dropEvent(event)
         self.reordered.emit()
+
+
+#: (label, --vdatum value) of the datum choice; None: what the file says.
+VDATUM_CHOICES: tuple[tuple[str, str | None], ...] = (
+    ("vertical datum from the file", None),
+    ("heights above the EGM96 geoid", "egm96"),
+    ("heights above the WGS84 ellipsoid", "ellipsoid"),
+)
+_DATUM_NAMES = {"egm96": "EGM96 geoid", "ellipsoid": "WGS84 ellipsoid"}
+
+
+def datum_text(store: TileStore) -> str:
+    """Where a store's heights came from, for people: "heights: EGM96 geoid (SRTM .hgt
+    default), stored above the ellipsoid" (one entry per source)."""
+    parts = []
+    for src in store.manifest.get("sources") or ():
+        if not isinstance(src, dict) or "vertical_datum" not in src:
+            continue
+        name = _DATUM_NAMES.get(str(src["vertical_datum"]), str(src["vertical_datum"]))
+        parts.append(f"{name} ({src.get('vertical_datum_source', 'unknown')})")
+    if not parts:
+        return "heights: vertical datum not recorded"
+    return f"heights: {'; '.join(parts)}, stored above the ellipsoid"
 
 
 class LayerPanel(QWidget):
@@ -73,6 +99,15 @@ class LayerPanel(QWidget):
         self.zoom_button.clicked.connect(self.zoom_selected)
         self.remove_button.clicked.connect(self.remove_selected)
 
+        #: Vertical datum of the DEMs opened next (``--vdatum`` of the command line).
+        self.vdatum_combo = QComboBox()
+        for label, value in VDATUM_CHOICES:
+            self.vdatum_combo.addItem(label, value)
+        self.vdatum_combo.setToolTip(
+            "Vertical datum of DEMs opened from now on: from the file (its CRS, or SRTM and "
+            "sea-level DEMs as EGM96), or declared. Heights are stored above the ellipsoid."
+        )
+
         buttons = QHBoxLayout()
         for b in (self.up_button, self.down_button, self.zoom_button, self.remove_button):
             buttons.addWidget(b)
@@ -85,6 +120,10 @@ class LayerPanel(QWidget):
         terrain_layout = QVBoxLayout(terrain_box)
         terrain_layout.addWidget(self.list)
         terrain_layout.addLayout(buttons)
+        datum_row = QHBoxLayout()
+        datum_row.addWidget(QLabel("Open DEMs as"))
+        datum_row.addWidget(self.vdatum_combo, 1)
+        terrain_layout.addLayout(datum_row)
         layout = QVBoxLayout(self)
         layout.setContentsMargins(4, 4, 4, 4)
         layout.addWidget(overlay_box)
@@ -114,7 +153,7 @@ class LayerPanel(QWidget):
                 w, s, e, n = layer.store.bounds
                 item.setToolTip(
                     f"{layer.store.path}\n{w:.3f}..{e:.3f}°E, {s:.3f}..{n:.3f}°N, "
-                    f"levels 0..{layer.store.max_level}"
+                    f"levels 0..{layer.store.max_level}\n{datum_text(layer.store)}"
                 )
                 self.list.addItem(item)
                 if layer.name == current:
@@ -122,6 +161,10 @@ class LayerPanel(QWidget):
         finally:
             self._updating = False
         self._update_buttons()
+
+    def vdatum(self) -> str | None:
+        """The vertical datum chosen for DEMs opened next (None: from the file)."""
+        return self.vdatum_combo.currentData()
 
     def selected_name(self) -> str | None:
         item = self.list.currentItem()

@@ -49,9 +49,10 @@ def missing_path_error(path: str | Path) -> GlobeviewError:
     return GlobeviewError(f"file not found: {p}")
 
 
-def open_store(path: str | Path, on_progress=None) -> TileStore:
+def open_store(path: str | Path, on_progress=None, vdatum: str | None = None) -> TileStore:
     """A tile store for ``path``: a store directory is opened as is; a DEM file is ingested
-    into the user cache once (an unchanged file opens instantly the next time).
+    into the user cache once (an unchanged file opens instantly the next time). ``vdatum``
+    ("egm96" or "ellipsoid") overrides the DEM's vertical datum (None: from the file).
 
     Raises:
         GlobeviewError: the path is neither a DEM globeview can read nor a tile store.
@@ -66,7 +67,7 @@ def open_store(path: str | Path, on_progress=None) -> TileStore:
         raise GlobeviewError(f"{p} is a folder but not a globeview tile store")
     if not p.exists():
         raise missing_path_error(p)
-    out = store_path_for(p)
+    out = store_path_for(p, vdatum=vdatum)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:  # $GLOBEVIEW_CACHE_DIR under a file, a read-only home, ...
@@ -74,7 +75,7 @@ def open_store(path: str | Path, on_progress=None) -> TileStore:
             f"cannot ingest {p.name}: the cache folder {out.parent} cannot be made "
             f"({exc.strerror or exc}); set GLOBEVIEW_CACHE_DIR to a writable folder"
         ) from None
-    ingest([p], out, **_ingest_kwargs(ingest, on_progress))
+    ingest([p], out, vdatum=vdatum, **_ingest_kwargs(ingest, on_progress))
     return TileStore.open(out)
 
 
@@ -108,7 +109,7 @@ class DemLoader(QObject):
     def __init__(self, parent: QObject | None = None) -> None:
         super().__init__(parent)
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="globeview-load")
-        self._queue: deque[str] = deque()
+        self._queue: deque[tuple[str, str | None]] = deque()
         self._current: str | None = None
         self._future: Future | None = None
         self._cancel = threading.Event()
@@ -118,9 +119,10 @@ class DemLoader(QObject):
     def busy(self) -> bool:
         return self._current is not None
 
-    def load(self, path: str | Path) -> None:
-        """Queue a file (or store folder) for loading."""
-        self._queue.append(str(path))
+    def load(self, path: str | Path, vdatum: str | None = None) -> None:
+        """Queue a file (or store folder) for loading; ``vdatum`` overrides a DEM's vertical
+        datum ("egm96", "ellipsoid"; None: from the file, see `globeview.terrain.vdatum`)."""
+        self._queue.append((str(path), vdatum))
         self._next()
 
     def cancel(self) -> None:
@@ -135,13 +137,14 @@ class DemLoader(QObject):
         if not self._queue:
             self.idle.emit()
             return
-        path = self._current = self._queue.popleft()
+        path, vdatum = self._queue.popleft()
+        self._current = path
         self._cancel.clear()
         self.started.emit(path)
         self.progress.emit(0, 0)
-        self._future = self._pool.submit(self._work, path)
+        self._future = self._pool.submit(self._work, path, vdatum)
 
-    def _work(self, path: str) -> None:
+    def _work(self, path: str, vdatum: str | None = None) -> None:
         """Worker thread: never touches widgets, only emits signals."""
 
         def hook(done: int, total: int) -> None:
@@ -150,7 +153,7 @@ class DemLoader(QObject):
             self.progress.emit(int(done), int(total))
 
         try:
-            store = open_store(path, hook)
+            store = open_store(path, hook, vdatum)
         except BaseException as exc:  # delivered to the UI thread, never lost
             self._done.emit(path, None, exc)
             return

@@ -535,9 +535,10 @@ class MainWindow(QMainWindow):
 
     def open_dems(self, paths: list[str] | tuple[str, ...]) -> None:
         """Open DEM files (or tile store folders) in the background (File > Open DEM…)."""
+        vdatum = self.layer_panel.vdatum()
         for p in paths:
             if p:
-                self.loader.load(str(p))
+                self.loader.load(str(p), vdatum)
 
     # -- overlays ----------------------------------------------------------------------------
     def open_overlay_dialog(self) -> None:

@@ -55,3 +55,54 @@ def test_cursor_height_orthometric_by_default_and_ellipsoidal_by_setting(
     win2 = make_window(camera=Camera.from_lonlat(*WHITE_MOUNTAINS), settings_path=settings)
     assert win2.ellipsoidal_action.isChecked()
     assert win2.status.height_reference == "ellipsoidal"
+
+
+def test_layer_panel_opens_a_dem_with_the_chosen_vertical_datum(make_window, small_dem, qtbot):
+    """Layers > "Open DEMs as": a DEM declared as ellipsoidal heights is stored unchanged, in a
+    cache store of its own (the default EGM96 store of the same file is another folder, so a
+    re-open never rebuilds a store in use); the row's tooltip says which datum it has."""
+    from globeview.terrain.embedded import store_path_for
+    from globeview.terrain.vdatum import egm96
+    from globeview.ui.layer_panel import VDATUM_CHOICES
+    from globeview.ui.loading import open_store
+
+    win = make_window()
+    combo = win.layer_panel.vdatum_combo
+    combo.setCurrentIndex([v for _, v in VDATUM_CHOICES].index("ellipsoid"))
+    win.open_paths([str(small_dem)])
+    qtbot.waitUntil(lambda: "hill" in [ly.name for ly in win.terrain.layers], timeout=60000)
+    layer = next(ly for ly in win.terrain.layers if ly.name == "hill")
+    assert layer.store.path != store_path_for(small_dem)
+    assert [s["vertical_datum"] for s in layer.store.manifest["sources"]] == ["ellipsoid"]
+    tip = win.layer_panel.list.item(0).toolTip()
+    assert "heights: WGS84 ellipsoid" in tip, tip
+
+    default = open_store(small_dem)  # the file's own datum: a plain GeoTIFF -> EGM96
+    assert default.path == store_path_for(small_dem)
+    key = (default.max_level, *_centre_tile(default))
+    ell, geo = layer.store.heights(key), default.heights(key)
+    lon, lat = _node_lonlat(default, key)
+    n = egm96().undulation(lon, lat)
+    data = np.isfinite(ell) & np.isfinite(geo)  # the tile reaches past the 1-degree DEM
+    assert data.sum() > 100
+    np.testing.assert_allclose((geo - ell)[data], n[data], atol=0.01)
+
+
+def _centre_tile(store) -> tuple[int, int]:
+    """(x, y) of the finest-level tile at the store's footprint centre."""
+    from globeview.terrain.quadtree import tiles_covering
+
+    w, s, e, n = store.bounds
+    lon, lat, eps = (w + e) / 2, (s + n) / 2, 1e-6
+    xs, ys = tiles_covering(store.max_level, lon - eps, lat - eps, lon + eps, lat + eps)
+    return int(xs[0]), int(ys[0])
+
+
+def _node_lonlat(store, key) -> tuple[np.ndarray, np.ndarray]:
+    """Longitudes and latitudes (degrees) of a tile's nodes, row 0 at its north edge."""
+    from globeview.terrain.quadtree import TileKey, tile_bounds
+
+    w, s, e, n = tile_bounds(TileKey(*key))
+    size = store.heights(key).shape[0]
+    lon, lat = np.meshgrid(np.linspace(w, e, size), np.linspace(n, s, size))
+    return lon, lat
