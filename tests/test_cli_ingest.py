@@ -127,3 +127,32 @@ def test_max_level_past_the_natural_level(tmp_path: Path) -> None:
     r = _cli(str(DATA / "topobathy_vancouver.tif"), "--out", str(out), "--max-level", "22")
     assert r.returncode == 2 and len(r.stderr.splitlines()) == 1
     assert "--max-level 22 would have" in r.stderr and "the limit is" in r.stderr
+
+
+def test_ingest_says_how_many_samples_were_read_as_nodata(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue #13: +-inf and impossible heights, and undeclared fills, are nodata, and ingest
+    says how many (the store holds less than the source)."""
+    import numpy as np
+    import rasterio
+    from affine import Affine
+
+    z = 500.0 + 50.0 * np.sin(np.arange(64 * 64, dtype=np.float64).reshape(64, 64) / 40.0)
+    z[0, :5] = np.inf  # 5 non-finite
+    z[10, 10:13] = 1e30  # 3 impossible
+    z[40:50, 40:50] = -9999.0  # 100 undeclared fill
+    src = tmp_path / "hostile.tif"
+    with rasterio.open(
+        src, "w", driver="GTiff", width=64, height=64, count=1, dtype="float32",
+        crs="EPSG:4326", transform=Affine(1 / 64, 0, 10.0, 0, -1 / 64, 46.0),
+    ) as ds:  # fmt: skip
+        ds.write(z.astype(np.float32), 1)
+    assert cli_ingest.run(_args(str(src), "--out", str(tmp_path / "s"), "--quiet")) == 0
+    out = capsys.readouterr().out
+    assert "read as nodata: 8 samples non-finite or outside -12000..9000 m" in out, out
+    assert "100 undeclared fill samples" in out, out
+    # A clean source says nothing of the kind.
+    clean = str(DATA / "topobathy_vancouver.tif")
+    assert cli_ingest.run(_args(clean, "--out", str(tmp_path / "c"), "--quiet")) == 0
+    assert "read as nodata" not in capsys.readouterr().out

@@ -50,4 +50,13 @@ def run(args: argparse.Namespace) -> int:
         print(f"{result.path}: store is up to date")
     elif not args.quiet:
         print(f"{result.path}: levels 0..{result.max_level} written in {result.seconds:.1f} s")
+    if not result.up_to_date and (result.masked_samples or result.fill_samples):
+        # Said even with --quiet: the store holds less than the source, and why.
+        from globeview.terrain.dem import MAX_HEIGHT_M, MIN_HEIGHT_M
+
+        print(
+            f"{result.path}: read as nodata: {result.masked_samples} samples non-finite or "
+            f"outside {MIN_HEIGHT_M:.0f}..{MAX_HEIGHT_M:.0f} m, {result.fill_samples} "
+            "undeclared fill samples"
+        )
     return 0

@@ -129,6 +129,11 @@ class IngestResult:
     up_to_date: bool
     max_level: int = 0
     seconds: float = 0.0
+    #: Source samples read as nodata because they were +-inf or impossible heights (outside
+    #: MIN_HEIGHT_M..MAX_HEIGHT_M of `globeview.terrain.dem`), and undeclared fill samples
+    #: (-9999 plateaus...), summed over the sources (from each source's value scan).
+    masked_samples: int = 0
+    fill_samples: int = 0
 
 
 @dataclass
@@ -1160,7 +1165,14 @@ def ingest(
             _commit(tmp, out_path, tok)
         except (OSError, *RASTER_ERRORS) as exc:
             raise _write_error(exc, dropped, out_path, parent, builder.grids) from None
-    return IngestResult(out_path, False, l_max, time.perf_counter() - t_start)
+    return IngestResult(
+        out_path,
+        False,
+        l_max,
+        time.perf_counter() - t_start,
+        masked_samples=sum(int(s.dem.info.masked_samples) for s in srcs),
+        fill_samples=sum(int(s.dem.info.fill_samples) for s in srcs),
+    )
 
 
 def _write_error(
