@@ -101,15 +101,19 @@ def test_small_regional_grid_clamps_instead_of_wrapping():
     assert g.undulation(5.0, 1.0) == pytest.approx(10.0)
 
 
-def test_agrees_with_proj_where_proj_has_the_egm96_grid(egm96):
-    """PROJ's EPSG:4326+5773 -> 4979 uses us_nga_egm96_15.tif, when installed."""
+def test_agrees_with_proj_vgridshift_on_the_raw_gtx(egm96):
+    """PROJ's own grid interpolation (``vgridshift``) of the original GTX file gives the same N
+    as our bilinear on the shipped GeoTIFF: an independent implementation and file format.
+    (PROJ's EPSG:4326+5773 -> 4979 would need its us_nga_egm96_15.tif, not installed here.)"""
     import pyproj
 
-    data = Path(pyproj.datadir.get_data_dir())
-    if not (data / "us_nga_egm96_15.tif").exists():
-        pytest.skip("PROJ has no us_nga_egm96_15.tif here")
-    t = pyproj.Transformer.from_crs("EPSG:4326+5773", "EPSG:4979", always_xy=True)
-    lon = np.array([-71.3033, 10.0, 179.9, -120.0])
-    lat = np.array([44.2705, -33.0, 60.0, 0.0])
-    _, _, h = t.transform(lon, lat, np.zeros(4))
-    np.testing.assert_allclose(egm96.undulation(lon, lat), h, atol=0.01)
+    _raw_gtx()  # skips only where shared/ is absent, as the other GTX checks do
+    t = pyproj.Transformer.from_pipeline(
+        "+proj=pipeline +step +proj=unitconvert +xy_in=deg +xy_out=rad "
+        f"+step +proj=vgridshift +grids={GTX} +multiplier=1 "
+        "+step +proj=unitconvert +xy_in=rad +xy_out=deg"
+    )
+    lon = np.array([-71.3033, 10.0, 179.9, -120.0, 0.1, 33.3, -179.99])
+    lat = np.array([44.2705, -33.0, 60.0, 0.0, 89.9, -77.7, -45.123])
+    _, _, h = t.transform(lon, lat, np.zeros(lon.size))
+    np.testing.assert_allclose(egm96.undulation(lon, lat), h, atol=1e-3)
