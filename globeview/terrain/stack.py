@@ -394,10 +394,9 @@ def upsample_subtile(anc: np.ndarray, f: int, dx: int, dy: int) -> np.ndarray:
 
 #: Width of a layer's border band as a fraction of its footprint's shorter side. The blend
 #: must depend on position only (tiles of every level then agree on the surface), so the band
-#: is a property of the layer, not of a tile or level. A twentieth of the footprint leaves the
-#: central 90 % of each axis untouched (a wider band also smoothed away the SRTM detail the
-#: LOD refines on) and still spreads the step between, e.g., 30 m data and the 20' base
-#: (hundreds of metres) over ~50-70 of the regional data's own nodes at its finest levels.
+#: is a property of the layer, not of a tile or level. A tenth of the footprint leaves the
+#: central 80 % of each axis untouched and spreads the step between, e.g., 30 m data and the
+#: 20' base over ~100 of the regional data's own nodes.
 BLEND_FRACTION = 0.05
 
 #: The coverage mask is read at the coarsest level with at least this many nodes across the
@@ -455,23 +454,8 @@ class BlendMask:
         self.step = (180.0 / 2**lv) / cells
         w0, _, _, n0 = (float(v) for v in tile_bounds_arrays(lv, grid.x0, grid.y0))
         r = max(1, round(self.band / self.step))
-        # Pad by the box radius and box-mean with an integral image. Beyond the raster there is
-        # no data, except that a footprint all the way round continues across +-180 (wrap)
-        # and one reaching a pole has no edge there (repeat the pole row).
-        west, south, east, north = st.bounds
-        dataf = data.astype(np.float64)
-        if east - west >= 360.0 - 1e-9 and data.shape[1] > 1:
-            ring = dataf[:, :-1]  # the last column repeats the first (-180 = +180)
-            reps = -(-(r + 1) // ring.shape[1])
-            tiled = np.concatenate([ring] * (2 * reps + 1), axis=1)
-            c0 = reps * ring.shape[1] - (r + 1)
-            dataf = tiled[:, c0 : c0 + dataf.shape[1] + 2 * (r + 1)]
-        else:
-            dataf = np.pad(dataf, ((0, 0), (r + 1, r + 1)))
-        top = "edge" if north >= 90.0 - 1e-9 else "constant"
-        bottom = "edge" if south <= -90.0 + 1e-9 else "constant"
-        dataf = np.pad(dataf, ((r + 1, 0), (0, 0)), mode=top)
-        pad = np.pad(dataf, ((0, r + 1), (0, 0)), mode=bottom)
+        # Pad by the box radius (no data beyond the raster) and box-mean with an integral image.
+        pad = np.pad(data.astype(np.float64), r + 1)
         ii = pad.cumsum(0).cumsum(1)
         k = 2 * r + 1
         box = ii[k:, k:] - ii[:-k, k:] - ii[k:, :-k] + ii[:-k, :-k]

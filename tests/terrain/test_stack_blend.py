@@ -154,15 +154,3 @@ def test_recorded_errors_bound_the_blended_surface(stores, name, level):
             assert err <= meta.stride_error[i, si] + 1e-3, (x, y, s, err, meta.stride_error[i])
             checked += 1
     assert checked
-
-
-def test_a_global_layer_has_no_band_at_the_antimeridian_or_the_poles(stores):
-    # A global layer over another (e.g. the base moved up) must not feather along +-180 or
-    # at the poles: those are not edges of its data.
-    mask = stack_mod.BlendMask(stores["etopo20"])
-    lon = np.array([-180.0, -179.99, 179.99, 180.0, 0.0, 0.0])
-    lat = np.array([0.0, 10.0, -10.0, 0.0, 89.99, -89.99])
-    np.testing.assert_array_equal(mask.sample(lon, lat), 1.0)
-    # ... while a regional layer's weight falls to ~0 on its edge.
-    srtm = stack_mod.BlendMask(stores["N44W072"])
-    assert srtm.sample(np.array([-71.0, -71.5]), np.array([44.5, 44.0])).max() < 0.01
