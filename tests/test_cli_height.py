@@ -39,7 +39,7 @@ def _srtm_bilinear(lon: float, lat: float) -> float:
     """The SRTM samples (orthometric metres) around a point, bilinear, read with rasterio
     (.hgt samples sit at pixel centres of its transform)."""
     with rasterio.open(SRTM) as ds:
-        col, row = ~ds.transform * (lon, lat)
+        col, row = ~ds.transform @ (lon, lat)
         r, c = row - 0.5, col - 0.5
         r0, c0 = int(np.floor(r)), int(np.floor(c))
         a = ds.read(1, window=((r0, r0 + 2), (c0, c0 + 2))).astype(np.float64)

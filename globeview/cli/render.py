@@ -186,20 +186,26 @@ def check_inputs(args: argparse.Namespace) -> None:
             raise GlobeviewError(f"--layer {layer}: no such file")
 
 
-def check_cache_writable(sources: list[str]) -> None:
+def check_cache_writable(
+    sources: list[str], crs: str | None = None, vdatum: str | None = None
+) -> None:
     """Refuse in one line, before rendering, when DEMs must be ingested into a cache folder
     that cannot be written (a read-only mount, no permission). Stores already in the cache
-    are read, so a read-only cache that holds them all is fine."""
+    (current ones, of the same --crs/--vdatum) are read, so a read-only cache that holds them
+    all is fine."""
     from pathlib import Path
 
     from globeview.errors import GlobeviewError
     from globeview.fileio import writable_folder_problem
     from globeview.paths import cache_dir
     from globeview.terrain.embedded import embedded_stores_ready, store_path_for
+    from globeview.terrain.store import identify
 
     dems = [Path(s) for s in sources if not Path(s).is_dir()]
     if sources:
-        needed = any(not (store_path_for(p) / "manifest.json").exists() for p in dems)
+        needed = any(
+            not identify(store_path_for(p, crs=crs, vdatum=vdatum)).is_current for p in dems
+        )
     else:
         needed = not embedded_stores_ready()
     if not needed:
@@ -265,7 +271,7 @@ def run(args: argparse.Namespace) -> int:
     size = v["size"]
     out, stats_path = check_outputs(args)
     check_inputs(args)
-    check_cache_writable(args.sources)
+    check_cache_writable(args.sources, args.crs, args.vdatum)
     if args.vdatum is not None:
         from globeview.terrain.vdatum import parse_vdatum
 
