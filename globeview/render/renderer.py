@@ -493,10 +493,15 @@ def _rebuild_render_set(
             if variant not in variants:
                 variants.append(variant)
             variant_ids[new[pole_code == code]] = variants.index(variant)
-    custom = {}
-    for new_row, old_row in enumerate(rows):
-        if old_row >= 0 and int(old_row) in render_set.custom_indices:
-            custom[new_row] = render_set.custom_indices[int(old_row)]
+    # Kept tiles' own index lists follow them to their new rows (a loop over the lists, not
+    # over every tile: each old row appears at most once in ``rows``).
+    new_of_old = np.full(len(render_set.keys), -1, dtype=np.int64)
+    new_of_old[rows[old]] = np.nonzero(old)[0]
+    custom = {
+        int(new_of_old[r]): idx
+        for r, idx in render_set.custom_indices.items()
+        if new_of_old[int(r)] >= 0
+    }
     return RenderSet(
         keys,
         variant_ids,

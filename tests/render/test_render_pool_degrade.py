@@ -71,6 +71,14 @@ def test_coarsen_to_fit_covers_the_same_ground_without_overlap(capacity: int) ->
     assert len(fitted.variant_ids) == len(fitted.keys)
     assert fitted.variant_ids.max() < len(fitted.variants)
     assert all(0 <= r < len(fitted) for r in fitted.custom_indices)
+    # A kept tile keeps its own index list (it follows the tile to its new row).
+    old_rows = {tuple(k): i for i, k in enumerate(rs.keys.tolist())}
+    for r, idx in fitted.custom_indices.items():
+        assert rs.custom_indices[old_rows[tuple(fitted.keys[r].tolist())]] is idx
+    kept = {tuple(k) for k in fitted.keys.tolist()}
+    for r in rs.custom_indices:
+        if tuple(rs.keys[r].tolist()) in kept:
+            assert any(idx is rs.custom_indices[r] for idx in fitted.custom_indices.values())
     assert fitted.error_px is not None and np.all(np.isfinite(fitted.error_px))
 
 
