@@ -32,24 +32,46 @@ from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
 
+from globeview.errors import GlobeviewError
+from globeview.plugins.geo import (
+    TerrainSample,
+    ecef_to_lonlat,
+    geodesic_direct,
+    geodesic_inverse,
+    geodesic_samples,
+    lonlat_to_ecef,
+    sample_terrain,
+)
+from globeview.plugins.tool_output import Plot, read_csv_columns
+
 if TYPE_CHECKING:
     from globeview.render.render_set import RenderSet
     from globeview.render.view_state import ViewState
 
 __all__ = [
     "API_VERSION",
+    "GlobeviewError",
     "KeyEvent",
     "LayerType",
     "LodProvider",
     "Marker",
     "Overlay",
+    "Plot",
     "PluginContext",
     "PluginKind",
     "PointerEvent",
     "Polyline",
     "RendererHooks",
     "Setting",
+    "TerrainSample",
     "Tool",
+    "ecef_to_lonlat",
+    "geodesic_direct",
+    "geodesic_inverse",
+    "geodesic_samples",
+    "lonlat_to_ecef",
+    "read_csv_columns",
+    "sample_terrain",
 ]
 
 #: The plugin API version this host implements ("MAJOR.MINOR").
