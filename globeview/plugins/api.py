@@ -18,11 +18,31 @@ pixel coordinates with the origin at the top-left of the view.
 Versioning: ``API_VERSION`` is ``MAJOR.MINOR``. A minor bump only adds (new optional hooks,
 new fields with defaults); a major bump may break plugins. A plugin's manifest declares the
 version it targets; it loads when the majors match and its minor is not newer than the host's.
+
+This module is the whole public surface: a plugin (and every built-in one, which the import
+contracts in pyproject.toml hold to it) imports from ``globeview.plugins.api`` only, besides
+numpy, the standard library and its own package. Besides the contribution bases and events
+defined here it re-exports, under the same names, what a provider, tool or layer builds with:
+
+- frames and results: `ViewState`, `RenderSet` (+ `InvalidRenderSet`, `MAX_TILES`,
+  `MAX_KEY_LEVEL`), `IndexVariant`;
+- the terrain: `TerrainStack` (``metadata``, ``heights``, ``height_at``, ``max_level``,
+  ``tile_size``, ``version``, ``layers``), `N_STRIDES`, and the quadtree's tile keys
+  `TileKey`, `level_shape`, `tile_bounds_arrays`, `node_lonlat`;
+- culling and error helpers the built-in providers use (`tile_bounding_points`,
+  `frustum_visible`, `horizon_visible`, `bounding_distance`, `cull_level`, `chord_sag`, ...);
+- geodesy on WGS84 (`WGS84`, `lonlat_to_ecef`, `ecef_to_lonlat`, `enu_basis`, geodesics);
+- errors: `GlobeviewError`, the base of every one-line user error.
+
+The renderer and terrain re-exports are imported on first use (PEP 562 ``__getattr__``), so
+reading a manifest, which imports this module for `API_VERSION`, does not load them.
+Delegating to another provider (e.g. wrapping chunked-sse): `PluginContext.lod_provider`.
 """
 
 from __future__ import annotations
 
 import contextlib
+import importlib
 import logging
 import math
 from collections.abc import MutableMapping, Sequence
@@ -42,15 +62,56 @@ from globeview.plugins.geo import (
     lonlat_to_ecef,
     sample_terrain,
 )
+from globeview.plugins.drawables import (  # noqa: I001
+    Lines,
+    Points,
+    RasterDrape,
+    RasterFile,
+    RasterInfo,
+    raster_info,
+)
 from globeview.plugins.tool_output import Plot, read_csv_columns
 
-if TYPE_CHECKING:
-    from globeview.render.render_set import RenderSet
+if TYPE_CHECKING:  # the lazy re-exports (`_REEXPORTS`), spelled out for type checkers
+    from globeview.geodesy import WGS84, enu_basis
+    from globeview.render.culling import (
+        LATTICE,
+        bounding_distance,
+        box_angular_distance_pre,
+        chord_sag,
+        cull_level,
+        displacement_bend_m,
+        displacement_chord_error_m,
+        frustum_visible,
+        horizon_cap,
+        horizon_peak_angle,
+        horizon_visible,
+        tile_bounding_points,
+    )
+    from globeview.render.render_set import MAX_KEY_LEVEL, MAX_TILES, InvalidRenderSet, RenderSet
+    from globeview.render.tile_indices import IndexVariant
+    from globeview.render.tile_mesh import node_lonlat
     from globeview.render.view_state import ViewState
+    from globeview.terrain.quadtree import TileKey, level_shape, tile_bounds_arrays
+    from globeview.terrain.stack import N_STRIDES, TerrainStack
 
 __all__ = [
     "API_VERSION",
+    "Lines",
+    "Points",
+    "RasterDrape",
+    "RasterFile",
+    "RasterInfo",
+    "raster_info",
+    "LATTICE",
+    "MAX_KEY_LEVEL",
+    "MAX_TILES",
+    "N_STRIDES",
+    "WGS84",
+    "DelegateProvider",
     "GlobeviewError",
+    "IndexVariant",
+    "InvalidRenderSet",
     "KeyEvent",
     "LayerType",
     "LodProvider",
@@ -61,18 +122,86 @@ __all__ = [
     "PluginKind",
     "PointerEvent",
     "Polyline",
+    "ProviderUnavailable",
+    "RenderSet",
     "RendererHooks",
     "Setting",
     "TerrainSample",
+    "TerrainStack",
+    "TileKey",
     "Tool",
+    "ViewState",
+    "bounding_distance",
+    "box_angular_distance_pre",
+    "chord_sag",
+    "cull_level",
+    "displacement_bend_m",
+    "displacement_chord_error_m",
     "ecef_to_lonlat",
+    "enu_basis",
+    "frustum_visible",
     "geodesic_direct",
     "geodesic_inverse",
     "geodesic_samples",
+    "horizon_cap",
+    "horizon_peak_angle",
+    "horizon_visible",
+    "level_shape",
     "lonlat_to_ecef",
+    "node_lonlat",
     "read_csv_columns",
     "sample_terrain",
+    "tile_bounding_points",
+    "tile_bounds_arrays",
 ]
+
+#: Public name -> the host module defining it. These names are the supported surface (the
+#: modules behind them are internals a plugin must not import; an import contract checks the
+#: built-ins and the example). Imported on first access, see the module docstring.
+_REEXPORTS: dict[str, str] = {
+    "WGS84": "globeview.geodesy",
+    "enu_basis": "globeview.geodesy",
+    "LATTICE": "globeview.render.culling",
+    "bounding_distance": "globeview.render.culling",
+    "box_angular_distance_pre": "globeview.render.culling",
+    "chord_sag": "globeview.render.culling",
+    "cull_level": "globeview.render.culling",
+    "displacement_bend_m": "globeview.render.culling",
+    "displacement_chord_error_m": "globeview.render.culling",
+    "frustum_visible": "globeview.render.culling",
+    "horizon_cap": "globeview.render.culling",
+    "horizon_peak_angle": "globeview.render.culling",
+    "horizon_visible": "globeview.render.culling",
+    "tile_bounding_points": "globeview.render.culling",
+    "MAX_KEY_LEVEL": "globeview.render.render_set",
+    "MAX_TILES": "globeview.render.render_set",
+    "InvalidRenderSet": "globeview.render.render_set",
+    "RenderSet": "globeview.render.render_set",
+    "IndexVariant": "globeview.render.tile_indices",
+    "node_lonlat": "globeview.render.tile_mesh",
+    "ViewState": "globeview.render.view_state",
+    "TileKey": "globeview.terrain.quadtree",
+    "level_shape": "globeview.terrain.quadtree",
+    "tile_bounds_arrays": "globeview.terrain.quadtree",
+    "N_STRIDES": "globeview.terrain.stack",
+    "TerrainStack": "globeview.terrain.stack",
+}
+
+
+def __getattr__(name: str) -> Any:
+    """A re-exported host name (`_REEXPORTS`), imported on first access and then kept in
+    this module's namespace."""
+    module = _REEXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_REEXPORTS))
+
 
 #: The plugin API version this host implements ("MAJOR.MINOR").
 API_VERSION = "1.0"
@@ -207,6 +336,9 @@ class PluginContext:
 
     The host may replace ``scene``, ``terrain`` and ``camera`` when the user opens data; a
     plugin should read them from the context when it needs them rather than keep copies.
+
+    ``host`` is the host's plugin registry (None in a bare context); plugins reach other
+    contributions through `lod_provider`, never through it directly.
     """
 
     name: str
@@ -216,6 +348,25 @@ class PluginContext:
     renderer: RendererHooks = field(default_factory=NullRendererHooks)
     settings: MutableMapping[str, Any] = field(default_factory=dict)
     logger: logging.Logger = field(default_factory=lambda: logging.getLogger("globeview.plugins"))
+    host: Any = field(default=None, repr=False, compare=False)
+
+    def lod_provider(self, name: str) -> DelegateProvider:
+        """The enabled LOD provider ``name`` (e.g. ``"chunked-sse"``), to delegate to.
+
+        Returns a `DelegateProvider`: its ``select`` runs the other provider through the
+        host, with the same isolation, time budget and type check as the host's own calls,
+        so a bug there fails *that* provider's plugin, not yours (your ``select`` then gets
+        `ProviderUnavailable`). The provider is looked up at every call: a plugin disabled
+        or failed later is noticed. Raises `ProviderUnavailable` (one line naming the
+        enabled providers) when no enabled plugin declares ``name``, and without a host.
+        """
+        host = self.host
+        if host is None:
+            raise ProviderUnavailable(f"no host to find LOD provider {name!r} in (bare context)")
+        if not host.offers(PluginKind.LOD, name):
+            enabled = ", ".join(host.declared(PluginKind.LOD)) or "none"
+            raise ProviderUnavailable(f"no enabled LOD provider {name!r} (enabled: {enabled})")
+        return DelegateProvider(host, name)
 
 
 class _Contribution:
@@ -263,6 +414,70 @@ class LodProvider(_Contribution):
     def reset(self) -> None:
         """Forget anything cached between frames (the next ``select`` computes afresh).
         The host calls it before measured frames; the default does nothing."""
+
+
+class ProviderUnavailable(Exception):
+    """The LOD provider a plugin delegates to is not there: disabled, failed, or never
+    installed (`PluginContext.lod_provider`). One-line message naming it and why."""
+
+
+class DelegateProvider:
+    """Another plugin's LOD provider as seen by a plugin that wraps it
+    (`PluginContext.lod_provider`).
+
+    ``select`` goes through the host's registry (`PluginRegistry.select`): isolated, timed
+    against the frame budget, and checked to return a `RenderSet`. The render set it returns
+    is the other provider's own (it may be cached by that provider and handed out again next
+    frame): copy the arrays you change instead of writing into them.
+    """
+
+    def __init__(self, host: Any, name: str) -> None:
+        self._host = host
+        #: The delegate's contribution name (e.g. "chunked-sse").
+        self.name = name
+        self._busy = False
+
+    def _instance(self) -> Any:
+        inner = self._host.find(PluginKind.LOD, self.name)
+        if inner is None:
+            raise ProviderUnavailable(f"LOD provider {self.name!r} is disabled or has failed")
+        return inner
+
+    @property
+    def values(self) -> dict[str, Any]:
+        """A copy of the delegate's current setting values."""
+        return dict(getattr(self._instance(), "values", {}))
+
+    def select(self, view: ViewState, terrain: Any) -> RenderSet:
+        """The delegate's render set for this frame. Raises `ProviderUnavailable` when it is
+        disabled, when it fails now (the message says why) and on a delegation cycle."""
+        if self._busy:  # A wraps B wraps A: fail this frame instead of recursing
+            raise ProviderUnavailable(f"delegation cycle through LOD provider {self.name!r}")
+        inner = self._instance()
+        self._busy = True
+        try:
+            rs = self._host.select(inner, view, terrain)
+        finally:
+            self._busy = False
+        if rs is None:
+            raise ProviderUnavailable(
+                f"LOD provider {self.name!r} failed: {_failure_reason(self._host, inner)}"
+            )
+        return rs
+
+    def reset(self) -> None:
+        """Ask the delegate to forget what it cached between frames (isolated)."""
+        inner = self._host.find(PluginKind.LOD, self.name)
+        if inner is not None:
+            self._host.invoke(inner, "reset")
+
+
+def _failure_reason(host: Any, instance: Any) -> str:
+    """The error the host recorded for the plugin of ``instance`` ("unknown" if none)."""
+    try:
+        return host.get(host.owner_of(instance)).error or "unknown"
+    except Exception:  # a host without records: the reason is in the log
+        return "unknown (see the log)"
 
 
 # -- tools -----------------------------------------------------------------------------------
@@ -369,6 +584,15 @@ class Tool(_Contribution):
 
     def on_key(self, event: KeyEvent) -> bool:
         """Handle a key event; True when consumed."""
+        return False
+
+    def place_points(self, points: Sequence[tuple[float, float]]) -> bool:
+        """Headless input (``globeview render --tool NAME --points ...``): the points
+        (lon, lat) in degrees a user would click, in order. Return True when the tool took
+        them (e.g. set its state at once, with no animation: a headless frame has no time);
+        False (the default) and the host clicks them instead: a left press and release
+        `PointerEvent` at each point's pixel, ``lonlat`` and ``picked`` on the terrain.
+        Raise `globeview.errors.GlobeviewError` (one line) for points the tool refuses."""
         return False
 
     def overlay(self, view: ViewState) -> list[Overlay]:

@@ -39,10 +39,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from globeview.geodesy import lonlat_to_ecef
-from globeview.plugins.api import LodProvider, Setting
-from globeview.render.culling import (
+from globeview.plugins.api import (
     LATTICE,
+    N_STRIDES,
+    IndexVariant,
+    LodProvider,
+    RenderSet,
+    Setting,
+    TerrainStack,
+    ViewState,
     bounding_distance,
     box_angular_distance_pre,
     chord_sag,
@@ -50,13 +55,10 @@ from globeview.render.culling import (
     frustum_visible,
     horizon_cap,
     horizon_peak_angle,
+    lonlat_to_ecef,
     tile_bounding_points,
+    tile_bounds_arrays,
 )
-from globeview.render.render_set import RenderSet
-from globeview.render.tile_indices import IndexVariant
-from globeview.render.view_state import ViewState
-from globeview.terrain.quadtree import tile_bounds_arrays
-from globeview.terrain.stack import N_STRIDES, TerrainStack
 
 #: Deepest level the walk goes to even where the data stops (curvature alone).
 MAX_LEVEL = 22

@@ -38,9 +38,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from globeview.geodesy import enu_basis, lonlat_to_ecef
-from globeview.render.tile_mesh import node_lonlat
-from globeview.terrain.quadtree import level_shape, tile_bounds_arrays
+from globeview.plugins.api import (
+    enu_basis,
+    level_shape,
+    lonlat_to_ecef,
+    node_lonlat,
+    tile_bounds_arrays,
+)
 
 
 # -- per-tile precomputation (first use of a tile, cached by the provider) ------------------

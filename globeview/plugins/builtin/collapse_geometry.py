@@ -36,8 +36,12 @@ from functools import cached_property
 
 import numpy as np
 
-from globeview.geodesy import WGS84, ecef_to_lonlat, lonlat_to_ecef
-from globeview.render.culling import displacement_chord_error_m
+from globeview.plugins.api import (
+    WGS84,
+    displacement_chord_error_m,
+    ecef_to_lonlat,
+    lonlat_to_ecef,
+)
 
 __all__ = ["CollapseFrame", "rotate_about"]
 

@@ -49,19 +49,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from globeview.geodesy import WGS84, enu_basis, lonlat_to_ecef
-from globeview.plugins.api import LodProvider, Setting
-from globeview.plugins.builtin.chunked_sse import MAX_LEVEL, stride_errors_m
-from globeview.render.culling import (
+from globeview.plugins.api import (
     LATTICE,
+    N_STRIDES,
+    WGS84,
+    IndexVariant,
+    LodProvider,
+    RenderSet,
+    Setting,
+    TerrainStack,
+    ViewState,
     bounding_distance,
     cull_level,
     displacement_bend_m,
+    enu_basis,
+    lonlat_to_ecef,
 )
-from globeview.render.render_set import RenderSet
-from globeview.render.tile_indices import IndexVariant
-from globeview.render.view_state import ViewState
-from globeview.terrain.stack import N_STRIDES, TerrainStack
+from globeview.plugins.builtin.chunked_sse import MAX_LEVEL, stride_errors_m
 
 #: Metres per degree of latitude (mean), to turn node spacings into metres.
 M_PER_DEG = math.pi * WGS84.a / 180.0
@@ -280,7 +284,7 @@ def _bounding_quads(points: np.ndarray, grow: np.ndarray) -> np.ndarray:
     )
 
 
-def _push_budget(refine: np.ndarray, score: np.ndarray, room: int, fanout: int) -> np.ndarray:
+def push_budget(refine: np.ndarray, score: np.ndarray, room: int, fanout: int) -> np.ndarray:
     """Limit refinement so the drawn tiles stay within the budget: refine the worst first."""
     n_ref = int(np.count_nonzero(refine))
     if n_ref * fanout <= room or n_ref == 0:
@@ -396,7 +400,7 @@ def select_regions(
             refine |= ~bend_ok[:, 0] & (level < MAX_LEVEL)
             score = np.maximum(score, bend_px[:, 0] / view.tau_px)
         room = st.max_tiles - drawn - int(np.count_nonzero(~refine))
-        refine = _push_budget(refine, score, room, 4)
+        refine = push_budget(refine, score, room, 4)
         acc = ~refine
         if acc.any():
             # The coarsest power-of-two stride whose cell is still within the ring's R_m.

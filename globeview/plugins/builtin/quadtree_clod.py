@@ -39,8 +39,14 @@ from collections.abc import Callable
 
 import numpy as np
 
-from globeview.geodesy import lonlat_to_ecef
-from globeview.plugins.api import LodProvider, Setting
+from globeview.plugins.api import (
+    LodProvider,
+    RenderSet,
+    Setting,
+    TerrainStack,
+    ViewState,
+    lonlat_to_ecef,
+)
 from globeview.plugins.builtin.chunked_sse import ChunkedSettings, select_tiles
 from globeview.plugins.builtin.clod_mesh import (
     ClodFrame,
@@ -49,9 +55,6 @@ from globeview.plugins.builtin.clod_mesh import (
     tile_clod,
     triangulate,
 )
-from globeview.render.render_set import RenderSet
-from globeview.render.view_state import ViewState
-from globeview.terrain.stack import TerrainStack
 
 #: Tiles whose CLOD data stays cached (about 170 kB each for 65 x 65 tiles).
 TILE_CACHE = 1500

@@ -54,19 +54,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from globeview.plugins.api import LodProvider, Setting
-from globeview.plugins.builtin.chunked_sse import MAX_LEVEL, stride_errors_m
-from globeview.plugins.builtin.distance_regions import _push_budget, render_set_from_tiles
-from globeview.render.culling import (
+from globeview.plugins.api import (
     LATTICE,
+    N_STRIDES,
+    LodProvider,
+    RenderSet,
+    Setting,
+    TerrainStack,
+    ViewState,
     bounding_distance,
     chord_sag,
     cull_level,
     displacement_bend_m,
 )
-from globeview.render.render_set import RenderSet
-from globeview.render.view_state import ViewState
-from globeview.terrain.stack import N_STRIDES, TerrainStack
+from globeview.plugins.builtin.chunked_sse import MAX_LEVEL, stride_errors_m
+from globeview.plugins.builtin.distance_regions import push_budget, render_set_from_tiles
 
 
 def stop_levels(m: int, max_level: int = MAX_LEVEL) -> np.ndarray:
@@ -156,7 +158,7 @@ def select_wavelet(
         # At a level that is no stop of the M-band ladder every survivor goes on.
         refine = want | forced | (~stops[level] & (level < MAX_LEVEL))
         room = st.max_tiles - drawn - int(np.count_nonzero(~refine))
-        refine = _push_budget(refine, np.maximum(dynamic, sag_px) + 1e9 * forced, room, 4)
+        refine = push_budget(refine, np.maximum(dynamic, sag_px) + 1e9 * forced, room, 4)
         acc = ~refine
         if acc.any():
             # Coarsest stride whose total error projects within tau; flat tiles also keep
