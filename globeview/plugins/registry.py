@@ -469,6 +469,7 @@ class PluginRegistry:
                 renderer=self._host["renderer"] or NullRendererHooks(),
                 settings=PluginSettings(self.settings, name),
                 logger=logging.getLogger(f"globeview.plugins.{name}"),
+                host=self,  # PluginContext.lod_provider delegates through this registry
             )
         return rec.context
 
