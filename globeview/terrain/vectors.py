@@ -4,7 +4,8 @@
   polylines of WGS84 lon/lat degrees (polygon rings closed). `read_geojson_points`: Point /
   MultiPoint features with a name.
 - `densify`: inserts points along each segment's geodesic (pyproj.Geod, WGS84) so no piece is
-  longer than ``max_segment_m``; vectorised over all segments.
+  longer than ``max_segment_m``; vectorised over all segments. `densify_rhumb` does the same
+  along rhumb lines (constant bearing; parallels stay parallels).
 - `drape_heights`: each point's height **on the mesh actually drawn** (TREND §5.2): the drawn
   tile containing it (any level of the render set) and that tile's heights sampled at the
   drawn index stride, interpolated bilinearly on that stride's grid; points in no drawn tile
@@ -189,6 +190,72 @@ def densify(lines: Polylines, max_segment_m: float) -> Polylines:
         flon = flon + 360.0 * np.round((lon[a][seg_of] - flon) / 360.0)
         new_lon[pos] = flon
         new_lat[pos] = flat
+    return Polylines(new_lon, new_lat, out_starts[lines.starts])
+
+
+#: Rhumb lines stop this close to a pole (degrees): the loxodrome spirals into it forever.
+RHUMB_MAX_LAT = 89.9
+
+
+def _isometric_lat(lat_deg: np.ndarray) -> np.ndarray:
+    """Isometric latitude psi (radians) on WGS84: the Mercator ordinate, in which rhumb lines
+    are straight."""
+    e = float(np.sqrt(GEOD.es))
+    s = np.sin(np.radians(lat_deg))
+    return np.arctanh(s) - e * np.arctanh(e * s)
+
+
+def _lat_from_isometric(psi: np.ndarray) -> np.ndarray:
+    """Inverse of `_isometric_lat` (degrees), by fixed-point iteration (converges to 1e-15
+    rad in under 10 steps: the correction is scaled by e^2)."""
+    e = float(np.sqrt(GEOD.es))
+    phi = np.arcsin(np.tanh(psi))
+    for _ in range(12):
+        phi = np.arcsin(np.tanh(psi + e * np.arctanh(e * np.sin(phi))))
+    return np.degrees(phi)
+
+
+def densify_rhumb(lines: Polylines, max_segment_m: float) -> Polylines:
+    """Insert points along rhumb lines (constant bearing: straight in Mercator) so no piece
+    is longer than about ``max_segment_m`` metres; a segment between two points of the same
+    latitude stays on that parallel exactly. Longitudes go the short way round (a segment
+    from 170 to -170 crosses the antimeridian) and stay continuous; latitudes are kept
+    within `RHUMB_MAX_LAT` of the equator."""
+    a, b = lines.segments()
+    lat = np.clip(lines.lat, -RHUMB_MAX_LAT, RHUMB_MAX_LAT)
+    dlon = (lines.lon[b] - lines.lon[a] + 180.0) % 360.0 - 180.0
+    # Unwrapped longitudes: each polyline continues from its first vertex by short steps.
+    step = np.zeros(len(lat))
+    step[b] = dlon
+    cum = np.cumsum(step)
+    first = np.repeat(lines.starts[:-1], np.diff(lines.starts))
+    lon = lines.lon[first] + cum - cum[first]
+    psi = _isometric_lat(lat)
+    dpsi = psi[b] - psi[a]
+    dphi = np.radians(lat[b] - lat[a])
+    # Length on the mean sphere: q = dphi / dpsi (cos lat along a parallel).
+    q = np.where(
+        np.abs(dpsi) > 1e-12, dphi / np.where(dpsi == 0, 1.0, dpsi), np.cos(np.radians(lat[a]))
+    )
+    dist = 6_371_008.8 * np.hypot(dphi, q * np.radians(dlon))
+    n_sub = np.maximum(np.ceil(dist / max_segment_m).astype(np.int64), 1)
+    extra = np.zeros(len(lon), np.int64)
+    extra[a] = n_sub - 1
+    out_starts = np.concatenate([[0], np.cumsum(extra + 1)])
+    total = int(out_starts[-1])
+    new_lon = np.empty(total)
+    new_lat = np.empty(total)
+    new_lon[out_starts[:-1]] = lon
+    new_lat[out_starts[:-1]] = lat
+    seg_of = np.repeat(np.arange(len(a)), n_sub - 1)
+    if len(seg_of):
+        k = np.arange(len(seg_of)) - np.repeat(np.cumsum(n_sub - 1) - (n_sub - 1), n_sub - 1) + 1
+        frac = k / n_sub[seg_of]
+        pos = out_starts[a][seg_of] + k
+        new_lon[pos] = lon[a][seg_of] + frac * dlon[seg_of]
+        same_lat = lat[a][seg_of] == lat[b][seg_of]
+        inner = _lat_from_isometric(psi[a][seg_of] + frac * dpsi[seg_of])
+        new_lat[pos] = np.where(same_lat, lat[a][seg_of], inner)
     return Polylines(new_lon, new_lat, out_starts[lines.starts])
 
 
