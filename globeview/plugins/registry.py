@@ -7,11 +7,14 @@ the host asks for it (`load_contribution`, `lod_providers`, `tools`, `layer_type
 if its plugin is enabled.
 
 Isolation: every call into plugin code goes through `PluginRegistry.call` (or `invoke`). An
-exception there marks the plugin 'failed' for this session (its contributions are dropped, so
-the host stops calling them), is logged with its traceback to the ``globeview.plugins``
-logger, and the call returns a default. A failure found by the host itself (e.g. a
-displacement shader that does not compile) is reported with `report_failure`. A failure is
-not persisted: the next start tries the plugin again. The user's enable/disable choices are
+exception there fails the **contribution** it came from for this session (that contribution is
+dropped, so the host stops calling it; the plugin's other contributions keep working and the
+plugin's status reads 'partial'), is logged with its traceback to the ``globeview.plugins``
+logger, and the call returns a default. Once every contribution of a plugin has failed, or
+when the failure cannot be pinned on one contribution (an invalid manifest), the plugin as a
+whole is 'failed'. A failure found by the host itself (e.g. a displacement shader that does
+not compile) is reported with `fail` (the contribution) or `report_failure`. A failure is not
+persisted: the next start tries the plugin again. The user's enable/disable choices are
 persisted in the settings backend (``plugins/enabled``); plugins the user never touched are
 enabled (built-in or installed with pip alike).
 
@@ -58,6 +61,7 @@ __all__ = [
     "BUDGET_POLICY_KEY",
     "ENTRY_POINT_GROUP",
     "Budget",
+    "ContributionFailure",
     "LoadedContribution",
     "PluginRecord",
     "PluginRegistry",
@@ -72,7 +76,8 @@ BUILTIN_DISTRIBUTION = "globeview"
 
 log = logging.getLogger("globeview.plugins")
 
-Status = Literal["ok", "disabled", "failed"]
+#: 'partial': enabled, and some (not all) of its contributions failed this session.
+Status = Literal["ok", "partial", "disabled", "failed"]
 T = TypeVar("T")
 
 # Methods a contribution of each kind must have.
@@ -188,6 +193,21 @@ class LoadedContribution:
 
 
 @dataclass
+class ContributionFailure:
+    """Why one contribution failed this session.
+
+    Attributes:
+        kind: the contribution's kind.
+        error: ``"ExcType: message"``, one line.
+        traceback: the full traceback text (also in the log file).
+    """
+
+    kind: PluginKind
+    error: str
+    traceback: str = field(default="", repr=False)
+
+
+@dataclass
 class PluginRecord:
     """What the registry knows about one plugin.
 
@@ -196,9 +216,13 @@ class PluginRecord:
         manifest: the validated manifest, or None when it could not be read.
         source: where it comes from: ``"<distribution> <version>"`` or a manifest path.
         builtin: shipped with globeview.
-        enabled: the user's choice (False also after a failure this session).
-        status: 'ok' (enabled, no failure), 'disabled' (by the user) or 'failed'.
-        error: ``"ExcType: message"`` (or the manifest problem) when status is 'failed'.
+        enabled: the user's choice (False also after the whole plugin failed this session).
+        status: 'ok' (enabled, no failure), 'partial' (enabled; some contributions failed,
+            the others work), 'disabled' (by the user) or 'failed' (nothing of it works).
+        error: when 'failed' or 'partial': ``"ExcType: message"`` (or the manifest problem);
+            for a plugin of several contributions, ``"NAME: ExcType: message"`` for each
+            failed contribution, joined by ``"; "``.
+        failures: contribution name -> `ContributionFailure`, for this session.
     """
 
     name: str
@@ -211,7 +235,9 @@ class PluginRecord:
     traceback: str | None = field(default=None, repr=False)
     context: PluginContext | None = field(default=None, repr=False)
     loaded: dict[str, LoadedContribution] = field(default_factory=dict, repr=False)
-    overruns: int = field(default=0, repr=False)
+    failures: dict[str, ContributionFailure] = field(default_factory=dict)
+    # Consecutive frame-budget overruns, per contribution ("" for calls not tied to one).
+    overruns: dict[str, int] = field(default_factory=dict, repr=False)
     budget_warned: bool = field(default=False, repr=False)
 
     @property
@@ -222,8 +248,20 @@ class PluginRecord:
     def kinds(self) -> tuple[str, ...]:
         return tuple(k.value for k in self.manifest.kinds) if self.manifest else ()
 
+    def contribution_status(self, name: str) -> Status:
+        """The state of contribution ``name``: 'failed' when it (or the whole plugin) failed,
+        'disabled' when the plugin is disabled, else 'ok'."""
+        if name in self.failures or self.status == "failed":
+            return "failed"
+        return "disabled" if not self.enabled else "ok"
+
+    def contribution_active(self, name: str) -> bool:
+        """True when the plugin is enabled, and neither it nor contribution ``name`` failed."""
+        return self.enabled and self.status in ("ok", "partial") and name not in self.failures
+
     def as_dict(self) -> dict[str, Any]:
-        """JSON-able summary (what ``globeview plugins list --json`` prints)."""
+        """JSON-able summary (what ``globeview plugins list --json`` prints); each
+        contribution carries its own ``status`` and ``error``."""
         return {
             "name": self.name,
             "version": self.version,
@@ -237,7 +275,14 @@ class PluginRecord:
             "builtin": self.builtin,
             "source": self.source,
             "contributions": [
-                {"name": c.name, "kind": c.kind.value, "target": c.target, "label": c.label}
+                {
+                    "name": c.name,
+                    "kind": c.kind.value,
+                    "target": c.target,
+                    "label": c.label,
+                    "status": self.contribution_status(c.name),
+                    "error": self.failures[c.name].error if c.name in self.failures else None,
+                }
                 for c in (self.manifest.contributions if self.manifest else ())
             ],
         }
@@ -275,9 +320,9 @@ class PluginRegistry:
             "renderer": renderer,
         }
         self.records: dict[str, PluginRecord] = {}
-        # id(instance) -> (plugin name, instance) of every contribution ever created (the
-        # reference keeps ids unique); _live holds the ids of those still loaded.
-        self._owners: dict[int, tuple[str, Any]] = {}
+        # id(instance) -> (plugin name, instance, contribution name) of every contribution
+        # ever created (the reference keeps ids unique); _live: the ids of those still loaded.
+        self._owners: dict[int, tuple[str, Any, str]] = {}
         self._live: set[int] = set()
 
     def _read_budget(self, default_policy: Literal["warn", "disable"]) -> Budget:
@@ -411,7 +456,8 @@ class PluginRegistry:
             return rec
         self._store_choice(name, True)
         rec.enabled, rec.status, rec.error, rec.traceback = True, "ok", None, None
-        rec.overruns, rec.budget_warned = 0, False
+        rec.failures.clear()
+        rec.overruns, rec.budget_warned = {}, False
         return rec
 
     def disable(self, name: str) -> PluginRecord:
@@ -425,8 +471,14 @@ class PluginRegistry:
             rec.status = "disabled"
         return rec
 
-    def _unload(self, rec: PluginRecord) -> None:
-        for lc in rec.loaded.values():
+    def _unload(self, rec: PluginRecord, only: str | None = None) -> None:
+        """Drop the loaded contributions of ``rec`` (only contribution ``only`` if given);
+        a tool is deactivated first."""
+        names = [only] if only is not None else list(rec.loaded)
+        for name in names:
+            lc = rec.loaded.pop(name, None)
+            if lc is None:
+                continue
             self._live.discard(id(lc.instance))
             if isinstance(lc.instance, Tool):
                 before = _sigint_count
@@ -441,7 +493,6 @@ class PluginRegistry:
                         describe_exception(exc),
                         exc_info=True,
                     )
-        rec.loaded.clear()
 
     # -- host objects --------------------------------------------------------------------
     def attach(self, **host: Any) -> None:
@@ -479,11 +530,12 @@ class PluginRegistry:
 
         Imports the target module, calls the factory with the plugin's context, checks the
         object has the methods of its kind, and applies the stored setting values
-        (``configure``). Returns None if the plugin is disabled or failed; any error on the
-        way fails the plugin (see `report_failure`) and returns None.
+        (``configure``). Returns None if the plugin is disabled or failed, or this contribution
+        failed; any error on the way fails this contribution (see `report_failure`) and
+        returns None — the plugin's other contributions are not affected.
         """
         rec = self.get(plugin)
-        if not rec.enabled or rec.status != "ok" or rec.manifest is None:
+        if rec.manifest is None or not rec.contribution_active(name):
             return None
         if name in rec.loaded:
             return rec.loaded[name].instance
@@ -515,10 +567,10 @@ class PluginRegistry:
         except BaseException as exc:  # SystemExit from an import is the plugin's fault too
             if _is_user_interrupt(exc, before):
                 raise
-            self.report_failure(plugin, exc)
+            self.report_failure(plugin, exc, contribution=name)
             return None
         rec.loaded[name] = LoadedContribution(plugin, name, contrib.kind, contrib.label, instance)
-        self._owners[id(instance)] = (plugin, instance)
+        self._owners[id(instance)] = (plugin, instance, name)
         self._live.add(id(instance))
         return instance
 
@@ -532,10 +584,10 @@ class PluginRegistry:
         out: list[LoadedContribution] = []
         names: set[str] = set()
         for rec in list(self.records.values()):
-            if rec.manifest is None or not rec.enabled or rec.status != "ok":
+            if rec.manifest is None:
                 continue
             for c in rec.manifest.contributions:
-                if c.kind != kind:
+                if c.kind != kind or not rec.contribution_active(c.name):
                     continue
                 if c.name in names:
                     log.warning(
@@ -543,7 +595,7 @@ class PluginRegistry:
                     )
                     continue
                 if self.load_contribution(rec.name, c.name) is None:
-                    break  # the plugin failed: skip the rest of it
+                    continue  # this contribution failed; the plugin's others still load
                 names.add(c.name)
                 out.append(rec.loaded[c.name])
         return out
@@ -557,7 +609,7 @@ class PluginRegistry:
         plugin provides it."""
         kind = PluginKind(kind)
         for rec in list(self.records.values()):
-            if rec.manifest is None or not rec.enabled or rec.status != "ok":
+            if rec.manifest is None or not rec.contribution_active(name):
                 continue
             if any(c.kind == kind and c.name == name for c in rec.manifest.contributions):
                 instance = self.load_contribution(rec.name, name)
@@ -571,8 +623,7 @@ class PluginRegistry:
         kind = PluginKind(kind)
         return any(
             rec.manifest is not None
-            and rec.enabled
-            and rec.status == "ok"
+            and rec.contribution_active(name)
             and any(c.kind == kind and c.name == name for c in rec.manifest.contributions)
             for rec in self.records.values()
         )
@@ -583,9 +634,9 @@ class PluginRegistry:
         kind = PluginKind(kind)
         names: dict[str, None] = {}
         for rec in self.records.values():
-            if rec.manifest is not None and rec.enabled and rec.status == "ok":
+            if rec.manifest is not None:
                 for c in rec.manifest.contributions:
-                    if c.kind == kind:
+                    if c.kind == kind and rec.contribution_active(c.name):
                         names.setdefault(c.name)
         return list(names)
 
@@ -605,10 +656,8 @@ class PluginRegistry:
         """Persist a contribution's setting values and apply them (isolated). Does nothing
         for a contribution whose plugin has failed or been disabled since (the UI may still
         hold it)."""
-        plugin = self.owner_of(instance)
-        rec = self.get(plugin)
-        name = next((n for n, lc in rec.loaded.items() if lc.instance is instance), None)
-        if name is None or id(instance) not in self._live:
+        plugin, name = self.contribution_of(instance)
+        if id(instance) not in self._live:
             return
         self.settings.set(f"plugins/{plugin}/contributions/{name}", dict(values))
         self.invoke(instance, "configure", values)
@@ -616,15 +665,27 @@ class PluginRegistry:
     # -- isolation ---------------------------------------------------------------------------
     def owner_of(self, instance: Any) -> str:
         """The name of the plugin that made a contribution object (loaded now or before)."""
+        return self.contribution_of(instance)[0]
+
+    def contribution_of(self, instance: Any) -> tuple[str, str]:
+        """(plugin name, contribution name) of a contribution object (loaded now or before)."""
         try:
-            return self._owners[id(instance)][0]
+            plugin, _instance, name = self._owners[id(instance)]
         except KeyError:
             raise KeyError(f"{instance!r} is not a loaded plugin contribution") from None
+        return plugin, name
 
     def is_active(self, name: str) -> bool:
-        """True when plugin ``name`` is enabled and has not failed."""
+        """True when plugin ``name`` is enabled and has not failed as a whole (it may have
+        failed contributions: status 'partial')."""
         rec = self.records.get(name)
-        return rec is not None and rec.enabled and rec.status == "ok"
+        return rec is not None and rec.enabled and rec.status in ("ok", "partial")
+
+    def contribution_active(self, plugin: str, name: str) -> bool:
+        """True when contribution ``name`` of plugin ``plugin`` may be called: the plugin is
+        enabled and neither it nor that contribution has failed."""
+        rec = self.records.get(plugin)
+        return rec is not None and rec.contribution_active(name)
 
     def call(
         self,
@@ -634,20 +695,25 @@ class PluginRegistry:
         default: Any = None,
         user_errors: bool = False,
         budgeted: bool = False,
+        contribution: str | None = None,
         **kwargs: Any,
     ) -> T | Any:
         """Run ``fn(*args, **kwargs)`` — plugin code — isolated.
 
-        Returns ``default`` without calling when the plugin is not active, and when ``fn``
-        raises any `BaseException` (SystemExit, GeneratorExit, a KeyboardInterrupt of its
-        own...): the plugin is then disabled for the session (`report_failure`). Only a real
-        Ctrl-C — a SIGINT delivered while ``fn`` ran, see `install_sigint_marker` — is
-        re-raised. With ``user_errors``, a `GlobeviewError` (bad input the user gave, e.g. a
-        broken file to a layer type's ``open``) propagates to the caller instead: the plugin
-        is not at fault. With ``budgeted`` (frame-path calls) the call is timed against
-        `budget` (see `Budget`).
+        Returns ``default`` without calling when the plugin (or ``contribution`` of it) is
+        not active, and when ``fn`` raises any `BaseException` (SystemExit, GeneratorExit, a
+        KeyboardInterrupt of its own...): ``contribution`` — or, without one, the whole
+        plugin — is then disabled for the session (`report_failure`). Only a real Ctrl-C — a
+        SIGINT delivered while ``fn`` ran, see `install_sigint_marker` — is re-raised. With
+        ``user_errors``, a `GlobeviewError` (bad input the user gave, e.g. a broken file to a
+        layer type's ``open``) propagates to the caller instead: the plugin is not at fault.
+        With ``budgeted`` (frame-path calls) the call is timed against `budget` (see
+        `Budget`).
         """
-        if not self.is_active(plugin_name):
+        if contribution is not None:
+            if not self.contribution_active(plugin_name, contribution):
+                return default
+        elif not self.is_active(plugin_name):
             return default
         before = _sigint_count
         t0 = time.perf_counter()
@@ -656,30 +722,35 @@ class PluginRegistry:
         except GlobeviewError as exc:
             if user_errors:
                 raise
-            self.report_failure(plugin_name, exc)
+            self.report_failure(plugin_name, exc, contribution=contribution)
             return default
         except BaseException as exc:
             if _is_user_interrupt(exc, before):
                 raise
-            self.report_failure(plugin_name, exc)
+            self.report_failure(plugin_name, exc, contribution=contribution)
             return default
         if budgeted:
-            self._check_budget(plugin_name, fn, (time.perf_counter() - t0) * 1e3)
+            ms = (time.perf_counter() - t0) * 1e3
+            self._check_budget(plugin_name, fn, ms, contribution)
         return result
 
-    def _check_budget(self, plugin_name: str, fn: Any, ms: float) -> None:
-        """Count a frame-path call of ``ms`` milliseconds against the budget: after
-        ``budget.overruns`` consecutive overruns the 'disable' policy disables the plugin;
-        the 'warn' policy logs one warning per plugin and session."""
+    def _check_budget(
+        self, plugin_name: str, fn: Any, ms: float, contribution: str | None = None
+    ) -> None:
+        """Count a frame-path call of ``ms`` milliseconds against the budget of
+        ``contribution`` (or of the plugin): after ``budget.overruns`` consecutive overruns
+        the 'disable' policy disables it; the 'warn' policy logs one warning per plugin and
+        session."""
         b = self.budget
         rec = self.records.get(plugin_name)
         if rec is None or b.ms <= 0:
             return
+        key = contribution or ""
         if ms <= b.ms:
-            rec.overruns = 0
+            rec.overruns[key] = 0
             return
-        rec.overruns += 1
-        if rec.overruns < b.overruns:  # one slow call (a cold cache) is no verdict
+        n = rec.overruns[key] = rec.overruns.get(key, 0) + 1
+        if n < b.overruns:  # one slow call (a cold cache) is no verdict
             return
         what = f"{getattr(fn, '__name__', 'call')}()"
         if b.policy == "disable":
@@ -687,8 +758,9 @@ class PluginRegistry:
                 plugin_name,
                 PluginTimeout(
                     f"{what} took {ms:.0f} ms, over the {b.ms:g} ms budget "
-                    f"({BUDGET_MS_KEY}) {rec.overruns} calls in a row"
+                    f"({BUDGET_MS_KEY}) {n} calls in a row"
                 ),
+                contribution=contribution,
             )
         elif not rec.budget_warned:
             rec.budget_warned = True
@@ -700,7 +772,7 @@ class PluginRegistry:
                 ms,
                 b.ms,
                 BUDGET_MS_KEY,
-                rec.overruns,
+                n,
                 BUDGET_POLICY_KEY,
             )
 
@@ -717,17 +789,31 @@ class PluginRegistry:
         """``call`` a method of a loaded contribution, e.g.
         ``registry.invoke(tool, "on_mouse", event, default=False)``.
 
-        Returns ``default`` for an object whose plugin was disabled or failed since (the host
-        may still hold it), without calling it. ``budgeted`` defaults to whether ``method``
-        is one of `FRAME_PATH_METHODS` (timed against the budget)."""
+        A failure (any exception, or no such method) fails that contribution only; the
+        plugin's other contributions keep working. Returns ``default`` for an object whose
+        contribution or plugin was disabled or failed since (the host may still hold it),
+        without calling it.
+
+        ``user_errors=True``: a `globeview.errors.GlobeviewError` raised by the method is the
+        user's bad input, not a plugin bug (e.g. a layer type's ``open`` given a broken
+        file): it propagates to the caller — which shows its one line — and the
+        contribution stays enabled. Any other exception still fails the contribution.
+        Use it only for methods whose input comes from the user (``open`` of a file).
+
+        ``budgeted`` defaults to whether ``method`` is one of `FRAME_PATH_METHODS` (timed
+        against the budget)."""
         if budgeted is None:
             budgeted = method in FRAME_PATH_METHODS
-        plugin = self.owner_of(instance)
+        plugin, name = self.contribution_of(instance)
         if id(instance) not in self._live:
             return default
         fn = getattr(instance, method, None)
         if not callable(fn):
-            self.report_failure(plugin, TypeError(f"{type(instance).__name__} has no {method}()"))
+            self.report_failure(
+                plugin,
+                TypeError(f"{type(instance).__name__} has no {method}()"),
+                contribution=name,
+            )
             return default
         return self.call(
             plugin,
@@ -736,8 +822,20 @@ class PluginRegistry:
             default=default,
             user_errors=user_errors,
             budgeted=budgeted,
+            contribution=name,
             **kwargs,
         )
+
+    def call_for(
+        self, instance: Any, fn: Callable[..., T], *args: Any, default: Any = None, **kwargs: Any
+    ) -> T | Any:
+        """`call` ``fn`` (plugin code that belongs to contribution object ``instance``, e.g.
+        a method of the layer a layer type opened), failing that contribution if it raises.
+        Takes `call`'s keyword arguments."""
+        plugin, name = self.contribution_of(instance)
+        if id(instance) not in self._live:
+            return default
+        return self.call(plugin, fn, *args, default=default, contribution=name, **kwargs)
 
     def select(
         self,
@@ -758,9 +856,8 @@ class PluginRegistry:
         if result is failed:
             return None
         if not isinstance(result, RenderSet):
-            self.report_failure(
-                self.owner_of(provider),
-                TypeError(f"select() returned {type(result).__name__}, not a RenderSet"),
+            self.fail(
+                provider, TypeError(f"select() returned {type(result).__name__}, not a RenderSet")
             )
             return None
         if check is not None:
@@ -770,33 +867,80 @@ class PluginRegistry:
             except BaseException as exc:
                 if _is_user_interrupt(exc, before):
                     raise
-                self.report_failure(self.owner_of(provider), exc)
+                self.fail(provider, exc)
                 return None
         return result
 
-    def report_failure(self, plugin_name: str, exc: BaseException) -> None:
-        """Mark a plugin failed after ``exc`` (raised by it, or found by the host such as a
-        shader compile error): status 'failed', error "ExcType: message", contributions
-        dropped, and the error logged with its traceback. The persisted choice is unchanged."""
+    def fail(self, instance: Any, exc: BaseException) -> None:
+        """Fail the contribution object ``instance`` after ``exc`` (found by the host, e.g.
+        garbage it returned or a shader of it that does not compile): `report_failure` for
+        that contribution only."""
+        plugin, name = self.contribution_of(instance)
+        self.report_failure(plugin, exc, contribution=name)
+
+    def report_failure(
+        self, plugin_name: str, exc: BaseException, contribution: str | None = None
+    ) -> None:
+        """Mark a contribution — or, without ``contribution``, the whole plugin — failed
+        after ``exc`` (raised by it, or found by the host such as a shader compile error).
+
+        A failed contribution is dropped and recorded in `PluginRecord.failures`; the
+        plugin's other contributions keep working and its status reads 'partial'. When no
+        contribution of the plugin is left working, or without ``contribution``, the plugin
+        is 'failed': all its contributions are dropped and it counts as disabled for the
+        session. The error is logged as one WARNING line, its traceback at DEBUG and in the
+        log file. The persisted enable choice is unchanged."""
         rec = self.records.get(plugin_name)
         message = describe_exception(exc)
         try:
             tb = "".join(traceback.format_exception(exc)).rstrip()
         except Exception:  # a hostile exception object
             tb = message
+        declared = (
+            {c.name: c for c in rec.manifest.contributions}
+            if rec is not None and rec.manifest is not None
+            else {}
+        )
+        if contribution is not None and contribution not in declared:
+            contribution = None  # not one of its contributions: blame the plugin
+        whole = contribution is None or set(declared) <= set(rec.failures) | {contribution}
         # One WARNING line (the host carries on; a terminal sees exactly this line); the
         # traceback at DEBUG, in the log file and on the record (`plugins list --json`).
-        where = _append_failure_log(plugin_name, tb)
+        if contribution is None or len(declared) == 1:
+            what = f"plugin {plugin_name}"
+        else:
+            what = f"plugin {plugin_name}: {declared[contribution].kind.value} {contribution}"
+        where = _append_failure_log(what, tb)
         details = f" (details in {where})" if where is not None else ""
-        log.warning("plugin %s failed and was disabled: %s%s", plugin_name, message, details)
-        log.debug("plugin %s failure traceback:\n%s", plugin_name, tb)
+        rest = "" if whole else "; its other contributions keep working"
+        log.warning("%s failed and was disabled: %s%s%s", what, message, rest, details)
+        log.debug("%s failure traceback:\n%s", what, tb)
         if rec is None:
             return
-        self._unload(rec)
-        rec.enabled = False
-        rec.status = "failed"
-        rec.error = message
+        if contribution is not None:
+            rec.failures[contribution] = ContributionFailure(
+                declared[contribution].kind, message, tb
+            )
         rec.traceback = tb
+        if whole:
+            self._unload(rec)
+            rec.enabled = False
+            rec.status = "failed"
+        else:
+            self._unload(rec, only=contribution)
+            rec.status = "partial"
+        rec.error = message if contribution is None else _failure_summary(rec, message)
+
+
+def _failure_summary(rec: PluginRecord, message: str) -> str:
+    """`PluginRecord.error` after a contribution failed with ``message``: the message for a
+    plugin of one contribution, else ``"NAME: error"`` of each failed contribution,
+    ``"; "``-joined."""
+    declared = len(rec.manifest.contributions) if rec.manifest is not None else 0
+    if declared <= 1 or not rec.failures:
+        return message
+    text = "; ".join(f"{name}: {f.error}" for name, f in rec.failures.items())
+    return _clip(text, 2 * MAX_MESSAGE_CHARS)
 
 
 #: Size past which the log is moved to ``globeview.log.1`` before appending.
@@ -809,8 +953,9 @@ def failure_log_path() -> Path:
     return log_path()
 
 
-def _append_failure_log(plugin_name: str, tb: str) -> Path | None:
-    """Append a plugin failure's traceback to the log; best effort (None when the log cannot
+def _append_failure_log(what: str, tb: str) -> Path | None:
+    """Append a plugin failure's traceback to the log under the heading ``what`` (``"plugin
+    NAME"`` or ``"plugin NAME: KIND CONTRIBUTION"``); best effort (None when the log cannot
     be written: a read-only cache must not turn a plugin failure into a host failure)."""
     path = failure_log_path()
     try:
@@ -820,7 +965,7 @@ def _append_failure_log(plugin_name: str, tb: str) -> Path | None:
                 os.replace(path, path.with_name(path.name + ".1"))
         stamp = time.strftime("%Y-%m-%d %H:%M:%S")
         with path.open("a", encoding="utf-8", errors="replace") as f:
-            f.write(f"{stamp} plugin {plugin_name} failed and was disabled:\n{tb}\n\n")
+            f.write(f"{stamp} {what} failed and was disabled:\n{tb}\n\n")
     except OSError:
         return None
     return path

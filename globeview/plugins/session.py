@@ -86,9 +86,13 @@ class GlobeSession(GlobeScene):
             self.lod_name = name
             return
         declared_by_failed = any(
-            rec.status == "failed"
-            and rec.manifest is not None
-            and any(c.kind == PluginKind.LOD and c.name == name for c in rec.manifest.contributions)
+            rec.manifest is not None
+            and any(
+                c.kind == PluginKind.LOD
+                and c.name == name
+                and rec.contribution_status(name) == "failed"
+                for c in rec.manifest.contributions
+            )
             for rec in self.registry
         )
         if declared_by_failed and name != DEFAULT_LOD:
@@ -168,7 +172,7 @@ class GlobeSession(GlobeScene):
         try:
             self.renderer.set_displacement_hook(DisplacementHook(owner, glsl))
         except Exception as exc:  # moderngl.Error: the plugin's GLSL failed to compile
-            self.registry.report_failure(owner, exc)
+            self.registry.fail(tool, exc)
             self.active_tool = None
             if self.renderer._hook is not None:
                 self.renderer.set_displacement_hook(None)
@@ -186,8 +190,9 @@ class GlobeSession(GlobeScene):
 
     # -- checks of what tools return (garbage fails the tool's plugin, not the caller) -------
     def _fail(self, contribution, problem: str) -> None:
-        """Fail the plugin of ``contribution`` for returning garbage (``problem``, one line)."""
-        self.registry.report_failure(self.registry.owner_of(contribution), TypeError(problem))
+        """Fail ``contribution`` (only it, not its plugin's others) for returning garbage
+        (``problem``, one line)."""
+        self.registry.fail(contribution, TypeError(problem))
 
     def _checked_points(self, tool, out, points: np.ndarray, what: str) -> np.ndarray | None:
         """``out`` as float64 points shaped like ``points`` and finite wherever ``points``
@@ -326,7 +331,9 @@ class GlobeSession(GlobeScene):
             self._fail(layer_type, f"open() returned {type(layer).__name__}, not a layer")
             layer = failed
         if layer is not failed:
-            attached = self.registry.call(owner, layer.attach, self.renderer, default=failed)
+            attached = self.registry.call_for(
+                layer_type, layer.attach, self.renderer, default=failed
+            )
             if attached is failed:
                 layer = failed
         if layer is failed:
