@@ -53,6 +53,14 @@ from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
 import numpy as np
 
 from globeview.errors import GlobeviewError
+from globeview.plugins.drawables import (
+    Lines,
+    Points,
+    RasterDrape,
+    RasterFile,
+    RasterInfo,
+    raster_info,
+)
 from globeview.plugins.geo import (
     TerrainSample,
     ecef_to_lonlat,
@@ -61,14 +69,6 @@ from globeview.plugins.geo import (
     geodesic_samples,
     lonlat_to_ecef,
     sample_terrain,
-)
-from globeview.plugins.drawables import (  # noqa: I001
-    Lines,
-    Points,
-    RasterDrape,
-    RasterFile,
-    RasterInfo,
-    raster_info,
 )
 from globeview.plugins.tool_output import Plot, read_csv_columns
 
@@ -97,12 +97,6 @@ if TYPE_CHECKING:  # the lazy re-exports (`_REEXPORTS`), spelled out for type ch
 
 __all__ = [
     "API_VERSION",
-    "Lines",
-    "Points",
-    "RasterDrape",
-    "RasterFile",
-    "RasterInfo",
-    "raster_info",
     "LATTICE",
     "MAX_KEY_LEVEL",
     "MAX_TILES",
@@ -114,6 +108,7 @@ __all__ = [
     "InvalidRenderSet",
     "KeyEvent",
     "LayerType",
+    "Lines",
     "LodProvider",
     "Marker",
     "Overlay",
@@ -121,8 +116,12 @@ __all__ = [
     "PluginContext",
     "PluginKind",
     "PointerEvent",
+    "Points",
     "Polyline",
     "ProviderUnavailable",
+    "RasterDrape",
+    "RasterFile",
+    "RasterInfo",
     "RenderSet",
     "RendererHooks",
     "Setting",
@@ -149,6 +148,7 @@ __all__ = [
     "level_shape",
     "lonlat_to_ecef",
     "node_lonlat",
+    "raster_info",
     "read_csv_columns",
     "sample_terrain",
     "tile_bounding_points",
