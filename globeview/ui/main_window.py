@@ -54,6 +54,7 @@ from globeview.ui.errors import ErrorReporter, UserMessage
 from globeview.ui.globe_widget import GlobeWidget
 from globeview.ui.layer_panel import LayerPanel
 from globeview.ui.loading import DemLoader, missing_path_error
+from globeview.ui.plot_dock import install_plot_dock
 from globeview.ui.plugin_host import PluginHost, QSettingsBackend
 from globeview.ui.plugin_panel import PluginPanel
 from globeview.ui.status import ELLIPSOIDAL, ORTHOMETRIC, StatusBar
@@ -159,6 +160,7 @@ class MainWindow(QMainWindow):
         self._build_tools()
         self._connect()
         self._restore()
+        self.plot_dock = install_plot_dock(self)  # shows the active tool's plot, if any
         self.globe.setFocus()
 
     # -- construction ----------------------------------------------------------------------

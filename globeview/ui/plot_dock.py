@@ -1,0 +1,325 @@
+"""The Plot dock: shows the plot the active tool publishes (`globeview.plugins.api.Plot`) and
+exports its table as CSV.
+
+Generic: any tool, built-in or installed, publishes a plot by defining ``plot()`` (see
+`globeview.plugins.tool_output`); the window knows no tool. After every frame `PlotDock.poll`
+asks the active tool for its plot (isolated through the registry, like every plugin call): a
+new `Plot` object is drawn and the dock shown; the same object again changes nothing; None
+(or no active tool) clears and hides the dock. Something that is not a `Plot` fails the
+tool's plugin with one line, as any bad value a plugin returns does.
+
+Drawing is plain QPainter (no plotting library in the app): axes with "nice" ticks, the curve
+broken at NaN (gaps), the title and axis labels. "Export CSV..." writes the plot's table
+atomically (`Plot.write_csv`, `globeview.fileio`); a failure is one line in a dialog and no
+file is written or changed.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from PyQt6.QtCore import QPointF, QRectF, Qt, QTimer
+from PyQt6.QtGui import QColor, QFont, QPainter, QPainterPath, QPaintEvent, QPen
+from PyQt6.QtWidgets import (
+    QDockWidget,
+    QFileDialog,
+    QHBoxLayout,
+    QLabel,
+    QPushButton,
+    QSizePolicy,
+    QVBoxLayout,
+    QWidget,
+)
+
+from globeview.errors import GlobeviewError
+from globeview.plugins.api import Plot
+
+log = logging.getLogger("globeview.ui")
+
+#: The curve's colour (also what the window test looks for).
+CURVE_RGB = (30, 144, 255)
+#: Plot margins in pixels: left (tick labels), right, top, bottom (tick labels + axis title).
+MARGINS = (64, 14, 10, 42)
+
+
+def nice_ticks(lo: float, hi: float, target: int = 6) -> np.ndarray:
+    """Tick values covering [lo, hi] at a 1-2-5 x 10^k step, about ``target`` of them."""
+    if not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
+        return np.array([lo]) if math.isfinite(lo) else np.array([])
+    raw = (hi - lo) / max(target - 1, 1)
+    mag = 10.0 ** math.floor(math.log10(raw))
+    step = next(m * mag for m in (1.0, 2.0, 5.0, 10.0) if m * mag >= raw)
+    first = math.ceil(lo / step - 1e-9) * step
+    return np.arange(first, hi + step * 1e-9, step)
+
+
+def _tick_text(v: float, step: float) -> str:
+    digits = max(0, -math.floor(math.log10(step))) if step > 0 else 0
+    return f"{v:,.{min(digits, 6)}f}"
+
+
+def data_range(values: np.ndarray) -> tuple[float, float] | None:
+    """(lo, hi) of the finite values, widened when flat; None when there are none."""
+    v = values[np.isfinite(values)]
+    if v.size == 0:
+        return None
+    lo, hi = float(v.min()), float(v.max())
+    if hi - lo < 1e-9 * max(1.0, abs(lo)):
+        pad = max(abs(lo) * 0.05, 1.0)
+        return lo - pad, hi + pad
+    return lo, hi
+
+
+class PlotView(QWidget):
+    """Draws one `Plot` (or a hint when there is none)."""
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.plot: Plot | None = None
+        self.setMinimumSize(320, 180)
+        self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
+
+    def set_plot(self, plot: Plot | None) -> None:
+        self.plot = plot
+        self.update()
+
+    def frame_rect(self) -> QRectF:
+        """The plotting area (inside the axes), widget pixels."""
+        left, right, top, bottom = MARGINS
+        return QRectF(
+            left, top, max(self.width() - left - right, 1), max(self.height() - top - bottom, 1)
+        )
+
+    def ranges(self) -> tuple[tuple[float, float], tuple[float, float]] | None:
+        """((x0, x1), (y0, y1)) the axes span, or None without a plot or finite y."""
+        p = self.plot
+        if p is None:
+            return None
+        xr, yr = data_range(p.x), data_range(p.y)
+        if xr is None or yr is None:
+            return None
+        return xr, yr
+
+    def data_to_px(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Widget pixel positions of data points (valid after `ranges` is not None)."""
+        r = self.ranges()
+        assert r is not None
+        (x0, x1), (y0, y1) = r
+        f = self.frame_rect()
+        px = f.left() + (np.asarray(x, np.float64) - x0) / (x1 - x0) * f.width()
+        py = f.bottom() - (np.asarray(y, np.float64) - y0) / (y1 - y0) * f.height()
+        return px, py
+
+    def paintEvent(self, event: QPaintEvent) -> None:
+        painter = QPainter(self)
+        try:
+            painter.setRenderHint(QPainter.RenderHint.Antialiasing)
+            painter.fillRect(self.rect(), QColor(255, 255, 255))
+            r = self.ranges()
+            if r is None:
+                painter.setPen(QColor(110, 110, 110))
+                text = "No plot: the active tool has published none" if self.plot is None else (
+                    "No data to plot (every value is missing)")  # fmt: skip
+                painter.drawText(self.rect(), Qt.AlignmentFlag.AlignCenter, text)
+                return
+            self._draw_axes(painter, *r)
+            self._draw_curve(painter)
+        finally:
+            painter.end()
+
+    def _draw_axes(
+        self, painter: QPainter, xr: tuple[float, float], yr: tuple[float, float]
+    ) -> None:
+        f = self.frame_rect()
+        fm = painter.fontMetrics()
+        grid, axis = QPen(QColor(225, 225, 225)), QPen(QColor(60, 60, 60))
+        for vals, horizontal in ((nice_ticks(*xr), True), (nice_ticks(*yr), False)):
+            step = float(vals[1] - vals[0]) if vals.size > 1 else 1.0
+            for v in vals:
+                if horizontal:
+                    px, _ = self.data_to_px(np.array([v]), np.array([yr[0]]))
+                    x = float(px[0])
+                    painter.setPen(grid)
+                    painter.drawLine(QPointF(x, f.top()), QPointF(x, f.bottom()))
+                    painter.setPen(axis)
+                    t = _tick_text(float(v), step)
+                    painter.drawText(
+                        QPointF(x - fm.horizontalAdvance(t) / 2, f.bottom() + fm.ascent() + 3), t
+                    )
+                else:
+                    _, py = self.data_to_px(np.array([xr[0]]), np.array([v]))
+                    y = float(py[0])
+                    painter.setPen(grid)
+                    painter.drawLine(QPointF(f.left(), y), QPointF(f.right(), y))
+                    painter.setPen(axis)
+                    t = _tick_text(float(v), step)
+                    painter.drawText(
+                        QPointF(f.left() - fm.horizontalAdvance(t) - 4, y + fm.ascent() / 2 - 1), t
+                    )
+        painter.setPen(axis)
+        painter.drawRect(f)
+        p = self.plot
+        assert p is not None
+        painter.drawText(
+            QRectF(f.left(), self.height() - fm.height() - 2, f.width(), fm.height()),
+            Qt.AlignmentFlag.AlignHCenter, p.x_label,
+        )  # fmt: skip
+        painter.save()
+        painter.translate(12, f.center().y())
+        painter.rotate(-90)
+        painter.drawText(QRectF(-f.height() / 2, -fm.ascent(), f.height(), fm.height()),
+                         Qt.AlignmentFlag.AlignHCenter, p.y_label)  # fmt: skip
+        painter.restore()
+
+    def _draw_curve(self, painter: QPainter) -> None:
+        p = self.plot
+        assert p is not None
+        px, py = self.data_to_px(p.x, p.y)
+        ok = np.isfinite(py)
+        path = QPainterPath()
+        pen_down = False
+        for x, y, good in zip(px.tolist(), py.tolist(), ok.tolist(), strict=True):
+            if not good:
+                pen_down = False
+            elif pen_down:
+                path.lineTo(x, y)
+            else:
+                path.moveTo(x, y)
+                pen_down = True
+        painter.setClipRect(self.frame_rect().adjusted(-2, -2, 2, 2))
+        pen = QPen(QColor(*CURVE_RGB), 2.0)
+        painter.setPen(pen)
+        painter.drawPath(path)
+        if ok.sum() == 1 or p.x.size == 1:  # a lone point is a dot, not an empty path
+            i = int(np.flatnonzero(ok)[0])
+            painter.setBrush(QColor(*CURVE_RGB))
+            painter.drawEllipse(QPointF(float(px[i]), float(py[i])), 3.0, 3.0)
+
+
+class PlotDock(QDockWidget):
+    """A dock showing the active tool's plot, with "Export CSV...".
+
+    Args:
+        parent: the main window.
+        report: called with an exception when an export fails (the window's
+            ``ErrorReporter.error``: a one-line dialog).
+        notice: called with a one-line text after a successful export (the status bar).
+    """
+
+    def __init__(
+        self,
+        parent: QWidget | None = None,
+        report: Callable[[BaseException], Any] | None = None,
+        notice: Callable[[str], Any] | None = None,
+    ) -> None:
+        super().__init__("Plot", parent)
+        self.setObjectName("dock-plot")
+        self._report = report or (lambda exc: log.warning("%s", exc))
+        self._notice = notice or (lambda text: None)
+        self.view = PlotView()
+        self.title = QLabel()
+        self.title.setWordWrap(True)
+        bold = QFont(self.title.font())
+        bold.setBold(True)
+        self.title.setFont(bold)
+        self.export_button = QPushButton("Export CSV\N{HORIZONTAL ELLIPSIS}")
+        self.export_button.setObjectName("plot-export")
+        self.export_button.setToolTip("Write the plotted table to a CSV file")
+        self.export_button.clicked.connect(self.export_dialog)
+        row = QHBoxLayout()
+        row.addWidget(self.title, 1)
+        row.addWidget(self.export_button)
+        box = QWidget()
+        lay = QVBoxLayout(box)
+        lay.setContentsMargins(4, 4, 4, 4)
+        lay.addLayout(row)
+        lay.addWidget(self.view, 1)
+        self.setWidget(box)
+        self.set_plot(None)
+
+    @property
+    def plot(self) -> Plot | None:
+        return self.view.plot
+
+    def set_plot(self, plot: Plot | None) -> None:
+        """Show ``plot`` (None: nothing; the export button is disabled)."""
+        self.view.set_plot(plot)
+        self.title.setText(plot.title if plot is not None else "")
+        self.export_button.setEnabled(plot is not None)
+
+    # -- the host side: ask the active tool --------------------------------------------------
+    def poll(self, registry: Any, tool: Any) -> None:
+        """Show the plot ``tool`` (the active tool, or None) publishes now, through
+        ``registry.invoke`` (isolated: a tool raising is disabled by the registry). A new
+        plot shows the dock; none clears and hides it."""
+        plot = None
+        if tool is not None and callable(getattr(tool, "plot", None)):
+            plot = registry.invoke(tool, "plot", default=None)
+            if plot is not None and not isinstance(plot, Plot):
+                # Garbage fails this contribution alone (its package's others keep working).
+                registry.fail(tool, TypeError(f"plot() returned {type(plot).__name__}, not a Plot"))
+                plot = None
+        if plot is self.plot:
+            return
+        self.set_plot(plot)
+        if plot is not None:
+            self.show()
+            self.raise_()
+        else:
+            self.hide()
+
+    # -- export ------------------------------------------------------------------------------
+    def export_dialog(self) -> None:
+        """Ask for a file name and export there."""
+        if self.plot is None:
+            return
+        path, _ = QFileDialog.getSaveFileName(
+            self, "Export plot as CSV", "profile.csv", "CSV files (*.csv);;All files (*)"
+        )
+        if path:
+            self.export_csv(path)
+
+    def export_csv(self, path: str) -> bool:
+        """Write the shown plot's table to ``path`` (atomically); a failure is reported as
+        one line and nothing is written. Returns whether the file was written."""
+        plot = self.plot
+        if plot is None:
+            return False
+        try:
+            plot.write_csv(path)
+        except GlobeviewError as exc:
+            self._report(exc)
+            return False
+        self._notice(f"wrote {path}")
+        return True
+
+
+def install_plot_dock(window: Any) -> PlotDock:
+    """Add a (hidden) Plot dock to the main window and poll the active tool after every
+    frame. ``window`` has ``globe`` (the `GlobeWidget`), ``plugins`` (the `PluginHost`),
+    ``errors`` (`ErrorReporter`) and ``status`` (`StatusBar`)."""
+    dock = PlotDock(window, window.errors.error, window.status.notice)
+    window.addDockWidget(Qt.DockWidgetArea.RightDockWidgetArea, dock)
+    dock.hide()
+    globe = window.globe
+    pending = [False]
+
+    def poll() -> None:
+        pending[0] = False
+        dock.poll(window.plugins.registry, globe.active_tool())
+
+    def after_frame(*_: Any) -> None:
+        # frameRendered is emitted inside paintGL: showing the dock there would resize the
+        # GL widget in the middle of its paint (a crash in the driver). Poll once the event
+        # loop is back, at most once per turn of it.
+        if not pending[0]:
+            pending[0] = True
+            QTimer.singleShot(0, poll)
+
+    globe.frameRendered.connect(after_frame)
+    globe.toolDeactivated.connect(after_frame)
+    return dock

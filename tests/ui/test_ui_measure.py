@@ -1,0 +1,131 @@
+"""The measure tool in the real window (issue #15): two clicks on the White Mountains measure,
+the status bar says the distance, the Plot dock shows the terrain profile (drawn with
+QPainter) and exports it as CSV; a failed export is one line in a dialog and writes nothing.
+A real window under a display, the real renderer and picking, the built-in plugin."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PyQt6.QtCore import QPoint, Qt
+
+from globeview.geodesy import lonlat_to_ecef
+from globeview.plugins.api import Plot, sample_terrain
+from globeview.render.camera import Camera
+from globeview.ui.plot_dock import CURVE_RGB
+
+pytestmark = pytest.mark.gui
+
+#: Over the Presidential Range from 60 km, looking down.
+VIEW = (-71.34, 44.27, 6.0e4)
+A = (-71.45, 44.23)
+B = (-71.22, 44.31)
+
+
+def to_widget(win, lon: float, lat: float) -> QPoint:
+    """Widget (logical) position of the terrain at (lon, lat) in the last frame."""
+    g = win.globe
+    h = float(sample_terrain(win.terrain, lon, lat).ellipsoidal[0])
+    p = np.asarray(lonlat_to_ecef(lon, lat, h), np.float64).reshape(1, 3)
+    x, y, _ = g.scene.last.view.project(p)[0]
+    r = g.devicePixelRatio()
+    return QPoint(round(x / r), round(y / r))
+
+
+def curve_pixels(dock) -> int:
+    """Pixels of the curve's colour in the Plot dock's drawing."""
+    img = dock.view.grab().toImage()
+    ptr = img.constBits()
+    ptr.setsize(img.sizeInBytes())
+    arr = np.frombuffer(ptr, np.uint8).reshape(img.height(), img.bytesPerLine())
+    bgra = arr[:, : img.width() * 4].reshape(img.height(), img.width(), 4)
+    rgb = bgra[..., [2, 1, 0]].astype(int)
+    return int((np.abs(rgb - np.array(CURVE_RGB)).max(axis=2) < 40).sum())
+
+
+def measured_window(make_window, qtbot, wait_frame):
+    win = make_window(camera=Camera.from_lonlat(*VIEW))
+    g = win.globe
+    assert not win.plot_dock.isVisible() and win.plot_dock.plot is None
+    win.tool_actions["measure"].trigger()
+    assert g.scene.active_tool == "measure"
+    for lon, lat in (A, B):
+        qtbot.mouseClick(g, Qt.MouseButton.LeftButton, pos=to_widget(win, lon, lat))
+        wait_frame(win)
+    qtbot.waitUntil(win.plot_dock.isVisible, timeout=5000)
+    return win
+
+
+def test_two_clicks_show_the_profile_and_export_it(
+    make_window, qtbot, wait_frame, tmp_path: Path, errors_shown
+) -> None:
+    win = measured_window(make_window, qtbot, wait_frame)
+    tool = win.globe.active_tool()
+    m = tool.measurement
+    # The picks landed where clicked (a pixel at 60 km is tens of metres).
+    assert np.allclose(m.a, A, atol=2e-3) and np.allclose(m.b, B, atol=2e-3)
+    assert 15e3 < m.distance_m < 25e3
+    assert "measure:" in win.status.currentMessage() and "geodesic" in win.status.currentMessage()
+    # The dock shows the tool's plot, drawn: the curve's colour is on screen.
+    plot = win.plot_dock.plot
+    assert isinstance(plot, Plot) and plot is tool.plot()
+    assert win.plot_dock.title.text() == plot.title
+    assert curve_pixels(win.plot_dock) > 100
+    # The profile is the window's terrain, orthometric (what `globeview height` prints).
+    want = sample_terrain(win.terrain, m.profile_lon, m.profile_lat).orthometric
+    np.testing.assert_allclose(m.profile_h_m, want, atol=1e-6)
+    assert m.profile_h_m.max() > 1000.0
+    # Export writes the table.
+    out = tmp_path / "profile.csv"
+    assert win.plot_dock.export_button.isEnabled()
+    assert win.plot_dock.export_csv(str(out))
+    with out.open(newline="") as f:
+        rows = list(csv.reader(f))
+    assert rows[0] == ["distance_m", "lon", "lat", "height_m"] and len(rows) == 257
+    assert np.array_equal(np.array(rows[1:], np.float64)[:, 3], m.profile_h_m)
+    assert win.status.currentMessage() == f"wrote {out}"
+    assert errors_shown == []
+    # A frame with nothing new keeps the same plot; leaving the tool hides the dock.
+    wait_frame(win)
+    assert win.plot_dock.plot is plot
+    win.set_tool(None)
+    wait_frame(win)
+    assert not win.plot_dock.isVisible() and win.plot_dock.plot is None
+
+
+def test_failed_export_is_a_one_line_dialog_and_writes_nothing(
+    make_window, qtbot, wait_frame, tmp_path: Path, errors_shown, monkeypatch
+) -> None:
+    win = measured_window(make_window, qtbot, wait_frame)
+    folder = tmp_path / "out"
+    folder.mkdir()
+    target = folder / "profile.csv"
+    target.write_text("keep me\n")
+    # A read-only file system (injected: the tests run as root, where chmod does not refuse).
+    monkeypatch.setenv("GLOBEVIEW_FAULT_WRITE", "erofs")
+    assert not win.plot_dock.export_csv(str(target))
+    monkeypatch.delenv("GLOBEVIEW_FAULT_WRITE")
+    # A folder where the file should be (a real failure).
+    assert not win.plot_dock.export_csv(str(folder))
+    texts = [m.text for m in errors_shown]
+    assert len(texts) == 2 and all("\n" not in t for t in texts)
+    assert "read-only" in texts[0] and str(target) in texts[0]
+    assert "directory" in texts[1]
+    assert target.read_text() == "keep me\n"
+    assert sorted(p.name for p in folder.iterdir()) == ["profile.csv"]  # no temporaries
+    assert win.plot_dock.isVisible()  # the window carries on
+
+
+def test_a_tool_returning_garbage_for_its_plot_is_failed_not_fatal(
+    make_window, qtbot, wait_frame, errors_shown
+) -> None:
+    win = measured_window(make_window, qtbot, wait_frame)
+    tool = win.globe.active_tool()
+    tool.plot = lambda: "not a plot"  # a buggy tool (the instance's plot, not the class's)
+    wait_frame(win)
+    qtbot.waitUntil(lambda: not win.plot_dock.isVisible(), timeout=5000)
+    rec = win.plugins.registry.get("measure")
+    assert rec.status == "failed" and "not a Plot" in (rec.error or "")
