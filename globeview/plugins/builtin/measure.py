@@ -170,6 +170,15 @@ class MeasureTool(Tool):
             return self._measure()
         return None
 
+    def place_points(self, points: Sequence[Sequence[float]]) -> bool:
+        """The host's headless entry (``globeview render --tool measure --points A;B``):
+        `set_points`, with refused points as a one-line `GlobeviewError` for the user."""
+        try:
+            self.set_points(points)
+        except ValueError as exc:
+            raise GlobeviewError(str(exc)) from None
+        return True
+
     @staticmethod
     def _checked(lon: Any, lat: Any) -> tuple[float, float]:
         try:
