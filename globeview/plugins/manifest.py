@@ -14,6 +14,15 @@ Format (all keys at the top level, plus one ``[[contributions]]`` table per cont
     target = "globeview_fixedlevel.provider:FixedLevelProvider"
     label = "Fixed level"                # optional, for menus
 
+A tool contribution may declare commands: buttons and menu entries (optionally with a
+keyboard shortcut) that call a method of the tool object, read here without importing it::
+
+    [[contributions.commands]]
+    name = "clear"                       # unique within the contribution
+    label = "Clear points"               # optional (default: the name)
+    shortcut = "Shift+X"                 # optional: modifiers Ctrl/Shift/Alt/Meta + one key
+    method = "clear"                     # a public method of the tool, called with no argument
+
 An entry point in group ``globeview.plugins`` points at the manifest as
 ``"package.path:file.toml"``: the manifest is the file ``file.toml`` inside the package's
 directory. It is located with `importlib.util.find_spec` on the top-level package (which finds
@@ -35,6 +44,7 @@ from globeview.errors import GlobeviewError
 from globeview.plugins.api import API_VERSION, PluginKind
 
 __all__ = [
+    "Command",
     "Contribution",
     "Manifest",
     "ManifestError",
@@ -55,6 +65,16 @@ MAX_MANIFEST_BYTES = 64 * 1024
 #: Longest value of each string field (hostile manifests carry megabyte strings).
 _MAX_FIELD_CHARS = {"description": 2000, "label": 200}
 _DEFAULT_MAX_FIELD_CHARS = 200
+#: Most commands one contribution may declare (a toolbar has room for a handful).
+MAX_COMMANDS = 32
+_METHOD_RE = re.compile(r"^[A-Za-z]\w{0,63}$")
+_MODIFIERS = ("Ctrl", "Shift", "Alt", "Meta")
+#: Named keys a shortcut may use besides one printable character (Qt's spelling).
+_NAMED_KEYS = frozenset(
+    [f"F{i}" for i in range(1, 25)]
+    + ["Space", "Tab", "Backspace", "Return", "Enter", "Ins", "Del", "Home", "End"]
+    + ["PgUp", "PgDown", "Left", "Right", "Up", "Down"]
+)
 
 
 def _short(value: Any, limit: int = 60) -> str:
@@ -71,13 +91,28 @@ class ManifestError(GlobeviewError):
 
 
 @dataclass(frozen=True)
+class Command:
+    """A tool's manifest-declared command: the window shows a button and a Tools menu entry
+    labelled ``label`` that call ``method`` (no arguments) on the tool object, activating the
+    tool first; ``shortcut`` (Qt's spelling, e.g. ``"C"``, ``"Ctrl+Shift+M"``; "" for none)
+    triggers it from the keyboard."""
+
+    name: str
+    label: str
+    method: str
+    shortcut: str = ""
+
+
+@dataclass(frozen=True)
 class Contribution:
-    """One thing a plugin adds: ``target`` is ``"module:attribute"`` of its factory."""
+    """One thing a plugin adds: ``target`` is ``"module:attribute"`` of its factory;
+    ``commands`` are a tool's declared commands (empty for other kinds)."""
 
     name: str
     kind: PluginKind
     target: str
     label: str = ""
+    commands: tuple[Command, ...] = ()
 
     @property
     def module(self) -> str:
@@ -150,6 +185,90 @@ def _kind(value: Any, where: str) -> PluginKind:
     return PluginKind(value)
 
 
+def normalize_shortcut(text: str) -> str:
+    """A shortcut in canonical form (``"ctrl+shift+m"`` -> ``"Ctrl+Shift+M"``: modifiers in
+    Ctrl, Shift, Alt, Meta order, then one key). Raises ValueError (one line) for anything
+    else: several keys, an unknown key name, a repeated modifier, or Escape (reserved: it
+    leaves the active tool)."""
+    if text == "+":
+        parts = ["+"]
+    elif text.endswith("++"):  # "Ctrl++": the plus key
+        parts = [*text[:-2].split("+"), "+"]
+    else:
+        parts = text.split("+")
+    *mods, key = parts
+    canon_mods: list[str] = []
+    for m in mods:
+        found = next((c for c in _MODIFIERS if c.lower() == m.strip().lower()), None)
+        if found is None:
+            raise ValueError(
+                f"shortcut {_short(text)}: {_short(m)} is not one of Ctrl, Shift, Alt, Meta"
+            )
+        if found in canon_mods:
+            raise ValueError(f"shortcut {_short(text)}: {found} given twice")
+        canon_mods.append(found)
+    key = key if key == " " else key.strip()
+    if key.lower() in ("esc", "escape"):
+        raise ValueError(f"shortcut {_short(text)}: Escape is reserved (it leaves the tool)")
+    if len(key) == 1 and key.isprintable() and key != " " and key.isascii():
+        key = key.upper()
+    else:
+        named = next((k for k in _NAMED_KEYS if k.lower() == key.lower()), None)
+        if named is None:
+            raise ValueError(
+                f"shortcut {_short(text)}: {_short(key)} is not one key "
+                "(a letter, digit or sign, F1..F24, Space, Tab, Return, Del, Home, Left, ...)"
+            )
+        key = named
+    order = sorted(canon_mods, key=_MODIFIERS.index)
+    return "+".join([*order, key])
+
+
+def _commands(raw: Any, kind: PluginKind, where: str) -> tuple[Command, ...]:
+    """The validated ``[[contributions.commands]]`` of one contribution."""
+    if raw is None:
+        return ()
+    if kind != PluginKind.TOOL:
+        raise ManifestError(f"{where}only tool contributions declare commands, not {kind.value}")
+    if not isinstance(raw, list):
+        raise ManifestError(
+            f"{where}'commands' must be an array of tables ([[contributions.commands]])"
+        )
+    if len(raw) > MAX_COMMANDS:
+        raise ManifestError(f"{where}{len(raw)} commands (at most {MAX_COMMANDS})")
+    out: list[Command] = []
+    for i, c in enumerate(raw):
+        at = f"{where}command {i + 1}: "
+        if not isinstance(c, dict):
+            raise ManifestError(
+                f"{at}must be a table with name, method and optional label, shortcut"
+            )
+        name = _str_field(c, "name", at)
+        if not _NAME_RE.match(name):
+            raise ManifestError(
+                f"{at}name {_short(name)} must be lower-case letters, digits, '-', '_' or '.'"
+            )
+        if any(o.name == name for o in out):
+            raise ManifestError(f"{at}duplicate command name {name!r}")
+        method = _str_field(c, "method", at)
+        if not _METHOD_RE.match(method):
+            raise ManifestError(
+                f"{at}method {_short(method)} must be the name of a public method of the tool"
+            )
+        label = _str_field(c, "label", at, required=False) or name
+        shortcut = _str_field(c, "shortcut", at, required=False)
+        if shortcut:
+            try:
+                shortcut = normalize_shortcut(shortcut)
+            except ValueError as exc:
+                raise ManifestError(f"{at}{exc}") from None
+        unknown = sorted(set(c) - {"name", "label", "method", "shortcut"})
+        if unknown:
+            raise ManifestError(f"{at}unknown field {_short(unknown[0])}")
+        out.append(Command(name, label, method, shortcut))
+    return tuple(out)
+
+
 def parse_manifest(data: dict[str, Any], path: Path | None = None) -> Manifest:
     """Validate a manifest's decoded TOML and return it; ManifestError names the first fault."""
     if not isinstance(data, dict):
@@ -204,7 +323,8 @@ def parse_manifest(data: dict[str, Any], path: Path | None = None) -> Manifest:
                 "(e.g. 'pkg.mod:Provider')"
             )
         label = _str_field(c, "label", where, required=False) or cname
-        contribs.append(Contribution(cname, ckind, target, label))
+        commands = _commands(c.get("commands"), ckind, where)
+        contribs.append(Contribution(cname, ckind, target, label, commands=commands))
     return Manifest(name, version, description, kinds, api_version, tuple(contribs), path)
 
 

@@ -161,6 +161,8 @@ class GlobeSession(GlobeScene):
         self.active_tool = name
         tool = self.tool()
         glsl = self.registry.invoke(tool, "displacement_glsl") if tool is not None else None
+        if tool is not None and self.tool() is None:
+            return  # displacement_glsl raised: the tool failed, and tool() left it
         if glsl is not None and not isinstance(glsl, str):
             self._fail(tool, f"displacement_glsl() returned {type(glsl).__name__}, not GLSL text")
             glsl = None

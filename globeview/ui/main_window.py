@@ -3,8 +3,12 @@ display and tools toolbars, menus, and the status bar. It wires widgets to the m
 stack, scene, camera, plugin registry) and holds no algorithm of its own.
 
 The Tools toolbar and menu list the enabled tool plugins (rebuilt when plugins are enabled or
-disabled) as checkable actions, at most one active; the collapse tool has the shortcut C and
-its own controls (ratio slider, Expand/Collapse button), configured through the registry.
+disabled) as checkable actions, at most one active. Everything else a tool shows is built from
+what it declares, the same for built-in and installed tools (no tool-specific code here): its
+`Setting`s become controls in the "Tool options" bar while it is active (changes persist
+through the registry like provider settings), and its manifest commands
+(``[[contributions.commands]]``) become actions — Tools menu entries, buttons in that bar and
+keyboard shortcuts — that activate the tool and call the declared method (`tool_options`).
 
 Overlays (imagery, thematic rasters, vectors, points) live in the session
 (``GlobeSession.overlay_layers``) and are listed in the layer panel's "Overlays" group. File >
@@ -34,7 +38,6 @@ from PyQt6.QtWidgets import (
     QCheckBox,
     QDockWidget,
     QFileDialog,
-    QHBoxLayout,
     QLabel,
     QLineEdit,
     QMainWindow,
@@ -58,6 +61,13 @@ from globeview.ui.plot_dock import install_plot_dock
 from globeview.ui.plugin_host import PluginHost, QSettingsBackend
 from globeview.ui.plugin_panel import PluginPanel
 from globeview.ui.status import ELLIPSOIDAL, ORTHOMETRIC, StatusBar
+from globeview.ui.tool_options import (
+    CommandSpec,
+    ToolOptionsBar,
+    portable,
+    reserved_shortcuts,
+    shortcut_clash,
+)
 
 #: QSettings key of the cursor height reference (`ORTHOMETRIC` or `ELLIPSOIDAL`).
 HEIGHT_REFERENCE_KEY = "view/height_reference"
@@ -79,11 +89,6 @@ OVERLAY_FILTER = (
 BLUE_MARBLE = "bluemarble_2048x1024.tif"
 #: Exaggeration slider: tenths, 0.1x .. 50x.
 EXAG_MAX_TENTHS = 500
-#: The collapse tool's contribution name, its shortcut, and its ratio slider (hundredths).
-COLLAPSE_TOOL = "collapse"
-TOOL_SHORTCUTS = {COLLAPSE_TOOL: "C"}
-RATIO_MIN_HUNDREDTHS = 5
-RATIO_MAX_HUNDREDTHS = 100
 
 
 class MainWindow(QMainWindow):
@@ -251,7 +256,8 @@ class MainWindow(QMainWindow):
         self.qsettings.setValue(HEIGHT_REFERENCE_KEY, reference)
 
     def _build_tools(self) -> None:
-        """The Tools toolbar and menu (actions filled by `refresh_tools`)."""
+        """The Tools toolbar and menu (actions filled by `refresh_tools`) and the Tool options
+        bar (the active tool's settings and command buttons)."""
         self.tools_toolbar = QToolBar("Tools", self)
         self.tools_toolbar.setObjectName("toolbar-tools")
         self.addToolBar(self.tools_toolbar)
@@ -259,27 +265,15 @@ class MainWindow(QMainWindow):
         self.tool_group = QActionGroup(self)
         self.tool_group.setExclusionPolicy(QActionGroup.ExclusionPolicy.ExclusiveOptional)
         self.tool_actions: dict[str, QAction] = {}
-        # The collapse tool's controls: ratio r and expand / collapse again.
-        self.collapse_controls = QWidget()
-        lay = QHBoxLayout(self.collapse_controls)
-        lay.setContentsMargins(4, 0, 0, 0)
-        lay.addWidget(QLabel("Ratio"))
-        self.ratio_slider = QSlider(Qt.Orientation.Horizontal)
-        self.ratio_slider.setRange(RATIO_MIN_HUNDREDTHS, RATIO_MAX_HUNDREDTHS)
-        self.ratio_slider.setMaximumWidth(140)
-        self.ratio_slider.setToolTip(
-            "Collapse ratio: the fraction of the A-B distance kept (1 = no collapse)"
-        )
-        self.ratio_label = QLabel()
-        self.ratio_label.setMinimumWidth(32)
-        self.expand_button = QPushButton("Expand")
-        self.expand_button.setToolTip("Expand the collapsed terrain back (E); again: collapse")
-        for w in (self.ratio_slider, self.ratio_label, self.expand_button):
-            lay.addWidget(w)
-        self.tools_toolbar.addSeparator()
-        self.collapse_controls_action = self.tools_toolbar.addWidget(self.collapse_controls)
-        self.ratio_slider.valueChanged.connect(self._ratio_changed)
-        self.expand_button.clicked.connect(self._expand_clicked)
+        #: "tool.command" -> the command's action (menu entry, button, shortcut).
+        self.command_actions: dict[str, QAction] = {}
+        self._command_specs: list[CommandSpec] = []
+        self.tool_options = ToolOptionsBar(self)
+        # A row of its own: the settings and buttons of any tool fit without overflowing
+        # into the toolbar's extension menu.
+        self.addToolBarBreak()
+        self.addToolBar(self.tool_options)
+        self.tool_options.settingEdited.connect(self._tool_setting_edited)
         self.refresh_tools()
 
     # -- tools -----------------------------------------------------------------------------
@@ -293,38 +287,145 @@ class MainWindow(QMainWindow):
             self.errors.notify(f"loading tools failed: {exc}")
             return {}
 
-    def collapse_tool(self) -> Any:
-        """The collapse tool object (enabled), or None."""
-        return self.plugins.registry.tools().get(COLLAPSE_TOOL)
+    def tool_commands(self) -> list[CommandSpec]:
+        """The commands the enabled tools declare in their manifests (the plugin whose tool
+        the registry uses for each name)."""
+        try:
+            loaded = self.plugins.registry.contributions("tool")
+        except Exception:  # reported by tool_labels
+            return []
+        specs: list[CommandSpec] = []
+        for lc in loaded:
+            manifest = self.plugins.registry.get(lc.plugin).manifest
+            if manifest is None:
+                continue
+            for cmd in manifest.contribution(lc.name).commands:
+                specs.append(CommandSpec(lc.plugin, lc.name, cmd))
+        return specs
 
     def refresh_tools(self) -> None:
-        """Rebuild the tool actions from the enabled tool plugins."""
+        """Rebuild the tool and command actions from the enabled tool plugins."""
         labels = self.tool_labels()
-        if set(labels) != set(self.tool_actions):
-            for act in self.tool_actions.values():
-                self.tool_group.removeAction(act)
-                self.tools_toolbar.removeAction(act)
-                self.tools_menu.removeAction(act)
-                act.deleteLater()
-            self.tool_actions = {}
+        specs = self.tool_commands()
+        if set(labels) != set(self.tool_actions) or specs != self._command_specs:
+            self._remove_tool_actions()
             first = self.tools_toolbar.actions()[0] if self.tools_toolbar.actions() else None
             for name, label in labels.items():
                 act = QAction(label, self)
                 act.setCheckable(True)
                 act.setObjectName(f"tool-{name}")
-                shortcut = TOOL_SHORTCUTS.get(name)
-                tip = label
-                if shortcut:
-                    act.setShortcut(QKeySequence(shortcut))
-                    tip += f" ({shortcut})"
-                act.setToolTip(tip + "; Escape leaves the tool")
                 act.triggered.connect(lambda checked, n=name: self.set_tool(n if checked else None))
                 self.tool_group.addAction(act)
                 self.tools_toolbar.insertAction(first, act)
                 self.tools_menu.addAction(act)
                 self.tool_actions[name] = act
+            self._command_specs = specs
+            self._build_command_actions(specs)
+            for name, label in labels.items():
+                keys = [
+                    f"{a.shortcut().toString()}: {a.text()}"
+                    for k, a in self.command_actions.items()
+                    if k.startswith(f"{name}.") and not a.shortcut().isEmpty()
+                ]
+                tip = label + (f" ({', '.join(keys)})" if keys else "")
+                self.tool_actions[name].setToolTip(tip + "; Escape leaves the tool")
         self.tools_menu.setEnabled(bool(self.tool_actions))
         self._sync_tools()
+
+    def _remove_tool_actions(self) -> None:
+        self.tool_options.show_tool(None)
+        for act in self.tool_actions.values():
+            self.tool_group.removeAction(act)
+            self.tools_toolbar.removeAction(act)
+            self.tools_menu.removeAction(act)
+            act.deleteLater()
+        for act in self.command_actions.values():
+            self.tools_menu.removeAction(act)
+            self.removeAction(act)
+            act.setShortcut(QKeySequence())  # it lingers until deleted: free its key now
+            act.deleteLater()
+        if getattr(self, "_commands_separator", None) is not None:
+            self.tools_menu.removeAction(self._commands_separator)
+            self._commands_separator = None
+        self.tool_actions = {}
+        self.command_actions = {}
+
+    def _build_command_actions(self, specs: list[CommandSpec]) -> None:
+        """One action per declared command: in the Tools menu, on the window (so its shortcut
+        works with any tool, or none, active) and as a button in the Tool options bar while
+        its tool is active. A shortcut another action or the navigation already uses is
+        dropped with a one-line notice; the command keeps working from its button."""
+        plugin_actions = set(self.tool_actions.values())
+        taken = reserved_shortcuts(
+            a for a in self.findChildren(QAction) if a not in plugin_actions and a.isVisible()
+        )
+        tools = self.plugins.registry.tools() if specs else {}
+        self._commands_separator = self.tools_menu.addSeparator() if specs else None
+        for spec in specs:
+            cmd = spec.command
+            tool = tools.get(spec.tool)
+            if not callable(getattr(tool, cmd.method, None)):
+                self._warn_command(
+                    spec, f"names no method {cmd.method}() of the tool; command left out"
+                )
+                continue
+            act = QAction(cmd.label, self)
+            act.setObjectName(f"command-{spec.key}")
+            tip = f"{cmd.label} ({self.tool_actions[spec.tool].text()})"
+            if cmd.shortcut:
+                owner = shortcut_clash(cmd.shortcut, taken)
+                if owner is None:
+                    act.setShortcut(QKeySequence(cmd.shortcut))
+                    taken[portable(cmd.shortcut)] = f"command {spec.key}"
+                    tip += f" [{cmd.shortcut}]"
+                else:
+                    self._warn_command(
+                        spec, f"shortcut {cmd.shortcut} is taken by {owner}; left without it"
+                    )
+            act.setToolTip(tip)
+            act.triggered.connect(lambda _checked=False, sp=spec: self.run_command(sp.key))
+            self.addAction(act)  # the shortcut works whichever tool is active
+            self.tools_menu.addAction(act)
+            self.command_actions[spec.key] = act
+
+    def _warn_command(self, spec: CommandSpec, what: str) -> None:
+        text = f"plugin {spec.plugin}: command {spec.key} {what}"
+        log.warning("%s", text)
+        self.errors.notify(text)
+
+    def run_command(self, key: str) -> bool:
+        """Run command ``"tool.command"``: activate its tool if needed, then call the declared
+        method (isolated: a method that raises fails that tool's contribution, reported; a
+        `GlobeviewError` is the user's one-line message). Returns whether it ran."""
+        spec = next((sp for sp in self._command_specs if sp.key == key), None)
+        if spec is None:
+            return False
+        if self.active_tool_name() != spec.tool and not self.set_tool(spec.tool):
+            return False
+        tool = self.globe.active_tool()
+        if tool is None:
+            return False
+        try:
+            self.plugins.registry.invoke(tool, spec.command.method, user_errors=True)
+        except GlobeviewError as exc:
+            self.errors.notify(f"{spec.key}: {exc}")
+        self.plugins.after_frame()
+        self._sync_tools()
+        self.globe.request_frame()
+        return True
+
+    def _tool_setting_edited(self, name: str, value: object) -> None:
+        """A control of the Tool options bar changed: configure the active tool (persisted
+        by the registry, like provider settings) and redraw."""
+        tool = self.globe.active_tool()
+        if tool is None:
+            return
+        values = dict(getattr(tool, "values", {}) or {})
+        values[name] = value
+        self.plugins.registry.configure(tool, values)
+        self.plugins.after_frame()
+        self._sync_tools()
+        self.globe.request_frame()
 
     def active_tool_name(self) -> str | None:
         """The session's active tool, or None."""
@@ -336,60 +437,29 @@ class MainWindow(QMainWindow):
         """Activate a tool (None: none); returns whether it is active now."""
         ok = self.globe.set_tool(name)
         if not ok and name is not None:
-            rec = next((r for r in self.plugins.registry if r.status == "failed"), None)
-            why = f": {rec.error}" if rec is not None and rec.error else ""
-            self.errors.notify(f"tool {name} could not be activated{why}")
+            why = self.plugins.failure_reason("tool", name)
+            self.errors.notify(f"tool {name} could not be activated" + (f": {why}" if why else ""))
             self.plugins.refresh()
         elif name is not None:
             tool = self.globe.active_tool()
             label = getattr(tool, "label", name) or name
-            self.status.notice(f"{label}: click two places (drag to move, Escape to leave)")
+            self.status.notice(f"{label}: on (a drag still moves the globe; Escape leaves)")
         self._sync_tools()
         return ok
 
-    def _sync_tools(self) -> None:
-        """Check the active tool's action; show the collapse controls when it is enabled."""
+    def _sync_tools(self, *_args: object) -> None:
+        """Check the active tool's action; show its settings and commands (or hide them)."""
         active = self.active_tool_name()
         for name, act in self.tool_actions.items():
             act.blockSignals(True)
             act.setChecked(name == active)
             act.blockSignals(False)
-        tool = self.collapse_tool()
-        self.collapse_controls_action.setVisible(tool is not None)
-        if tool is not None:
-            ratio = float(getattr(tool, "ratio", tool.values.get("ratio", 1.0)))
-            self.ratio_slider.blockSignals(True)
-            self.ratio_slider.setValue(round(ratio * 100))
-            self.ratio_slider.blockSignals(False)
-            self.ratio_label.setText(f"{ratio:.2f}")
-        self._sync_expand_button()
-
-    def _sync_expand_button(self, *_args: object) -> None:
-        tool = self.collapse_tool()
-        state = getattr(tool, "state", "idle") if tool is not None else "idle"
-        on = tool is not None and self.active_tool_name() == COLLAPSE_TOOL
-        self.expand_button.setEnabled(on and state not in ("idle", "a_set"))
-        self.expand_button.setText("Collapse" if state in ("expanded", "expanding") else "Expand")
-
-    def _ratio_changed(self, hundredths: int) -> None:
-        tool = self.collapse_tool()
-        ratio = hundredths / 100.0
-        self.ratio_label.setText(f"{ratio:.2f}")
-        if tool is None:
-            return
-        self.plugins.registry.configure(tool, {**dict(tool.values), "ratio": ratio})
-        self.plugins.after_frame()
-        self.globe.request_frame()
-
-    def _expand_clicked(self) -> None:
-        tool = self.collapse_tool()
-        if tool is None:
-            return
-        state = getattr(tool, "state", "idle")
-        method = "collapse" if state in ("expanded", "expanding") else "expand"
-        self.plugins.registry.invoke(tool, method)
-        self._sync_expand_button()
-        self.globe.request_frame()
+        tool = self.globe.active_tool() if active is not None else None
+        act = self.tool_actions.get(active or "")
+        commands = [
+            a for k, a in self.command_actions.items() if active and k.startswith(f"{active}.")
+        ]
+        self.tool_options.show_tool(active, tool, act.text() if act else "", commands)
 
     def _key_unhandled(self, key: int, modifiers: object) -> None:
         """A key the active tool and navigation left: try the tool actions' shortcuts."""
@@ -397,7 +467,7 @@ class MainWindow(QMainWindow):
             seq = QKeySequence(QKeyCombination(Qt.KeyboardModifier(modifiers), Qt.Key(key)))
         except (TypeError, ValueError):
             return
-        for act in self.tool_actions.values():
+        for act in [*self.tool_actions.values(), *self.command_actions.values()]:
             if not act.shortcut().isEmpty() and act.shortcut().matches(seq) == (
                 QKeySequence.SequenceMatch.ExactMatch
             ):
@@ -425,7 +495,6 @@ class MainWindow(QMainWindow):
         g.sceneReady.connect(lambda _s: self.refresh_tools())
         g.toolDeactivated.connect(self._sync_tools)
         g.keyUnhandled.connect(self._key_unhandled)
-        g.frameRendered.connect(self._sync_expand_button)
         self.exag_slider.valueChanged.connect(self._exaggeration_changed)
         self.wire_check.toggled.connect(self._wireframe_changed)
         self.hill_check.toggled.connect(self._hillshade_changed)
@@ -475,7 +544,11 @@ class MainWindow(QMainWindow):
         self.qsettings.setValue("view/tau", tau_px)
 
     def _use_lod(self, name: str) -> None:
-        self.status.lod.setText(f"LOD {name}")
+        # After a fallback the field says so and its tooltip keeps the real reason (notices
+        # pass; this stays until the user picks a provider again).
+        why = self.plugins.fallback_reason
+        self.status.lod.setText(f"LOD {name}" + (" (fallback)" if why else ""))
+        self.status.lod.setToolTip(why or f"Level-of-detail provider: {name}")
         self.globe.request_frame()
 
     def _exaggeration_changed(self, tenths: int) -> None:

@@ -67,6 +67,9 @@ class PluginHost(QObject):
         self.session: GlobeSession | None = None
         self.active = DEFAULT_LOD
         self._statuses: dict[str, str] = {}
+        #: Why the last fallback happened ("" when the chosen provider is the one drawing):
+        #: the window keeps it visible (LOD field tooltip, plugin panel) after notices pass.
+        self.fallback_reason = ""
 
     # -- RendererHooks (what PluginContext.renderer offers plugins) -------------------------
     def request_redraw(self) -> None:
@@ -102,20 +105,48 @@ class PluginHost(QObject):
         """The active LOD provider object, or None."""
         return self.registry.lod_providers().get(self.active)
 
-    def refresh(self) -> None:
-        """Reload providers, report newly failed plugins, keep a valid active provider."""
-        available = self.providers()
+    def failure_reason(self, kind: str, name: str) -> str:
+        """Why contribution ``name`` of ``kind`` failed: its own failure (``"ExcType:
+        message"``) or its plugin's; "" when it did not fail (e.g. the user disabled it)."""
         for rec in self.registry:
-            if rec.status == "failed" and self._statuses.get(rec.name) != "failed":
+            m = rec.manifest
+            if m is None or not any(c.kind == kind and c.name == name for c in m.contributions):
+                continue
+            failures = getattr(rec, "failures", {}) or {}
+            if name in failures:
+                return str(failures[name].error)
+            if rec.status == "failed":
+                return str(rec.error or "its plugin failed")
+        return ""
+
+    def refresh(self) -> None:
+        """Reload providers, report newly failed plugins, keep a valid active provider.
+
+        A fallback's notice carries the real reason (the provider's failure), so it is never
+        replaced by a bare "not available" line; the reason stays in `fallback_reason`."""
+        available = self.providers()
+        old = self.active
+        falls_back = old not in available and bool(available)
+        for rec in self.registry:
+            if rec.status in ("failed", "partial") and self._statuses.get(rec.name) != rec.status:
+                if falls_back and self._declares(rec, "lod", old):
+                    continue  # said once, with the fallback, below
                 self.notice.emit(f"plugin {rec.name} failed and was disabled: {rec.error}")
         self._statuses = {rec.name: rec.status for rec in self.registry}
-        if self.active not in available and available:
-            old = self.active
+        if falls_back:
             self.active = DEFAULT_LOD if DEFAULT_LOD in available else next(iter(available))
-            self.notice.emit(f"LOD provider {old} is not available; using {self.active}")
+            why = self.failure_reason("lod", old)
+            self.fallback_reason = f"LOD provider {old} failed: {why}" if why else ""
+            text = self.fallback_reason or f"LOD provider {old} is not available"
+            self.notice.emit(f"{text}; using {self.active}")
             self._apply()
             self.lodChanged.emit(self.active)
         self.changed.emit()
+
+    @staticmethod
+    def _declares(rec: PluginRecord, kind: str, name: str) -> bool:
+        m = rec.manifest
+        return m is not None and any(c.kind == kind and c.name == name for c in m.contributions)
 
     def set_enabled(self, name: str, enabled: bool) -> None:
         """Enable or disable a plugin (persisted) and reload the providers."""
@@ -154,6 +185,7 @@ class PluginHost(QObject):
         if name == self.active:
             return
         self.active = name
+        self.fallback_reason = ""
         self._apply()
         self.lodChanged.emit(self.active)
         self.redrawRequested.emit()
@@ -176,6 +208,8 @@ class PluginHost(QObject):
         if self.session.lod_name != self.active:
             failed = self.active
             self.active = self.session.lod_name
-            self.notice.emit(f"LOD provider {failed} failed; using {self.active}")
+            why = self.failure_reason("lod", failed) or "it drew nothing usable"
+            self.fallback_reason = f"LOD provider {failed} failed: {why}"
+            self.notice.emit(f"{self.fallback_reason}; using {self.active}")
             self.lodChanged.emit(self.active)
             self.changed.emit()

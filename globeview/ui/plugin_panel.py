@@ -1,7 +1,11 @@
 """The plugin manager panel: every discovered plugin (name, version, kind, description,
 enabled switch, status and error), the active LOD provider, the screen-space error threshold
 tau, and the active provider's own settings, editable live (each change takes effect on the
-next frame)."""
+next frame; the editors are the `SettingEditor`s tools get too).
+
+A failure stays visible here: the plugin's row reads "failed: <reason>" (red, with the
+reason in its tooltip) and, after a fallback, a red line under the provider choice says which
+provider failed and why until the user picks one again."""
 
 from __future__ import annotations
 
@@ -9,16 +13,13 @@ from typing import Any
 
 from PyQt6.QtCore import Qt, pyqtSignal
 from PyQt6.QtWidgets import (
-    QCheckBox,
     QComboBox,
-    QDoubleSpinBox,
     QFormLayout,
     QGroupBox,
     QHBoxLayout,
     QHeaderView,
     QLabel,
     QSlider,
-    QSpinBox,
     QTreeWidget,
     QTreeWidgetItem,
     QVBoxLayout,
@@ -27,6 +28,7 @@ from PyQt6.QtWidgets import (
 
 from globeview.plugins.api import Setting
 from globeview.ui.plugin_host import PluginHost
+from globeview.ui.setting_editor import SettingEditor
 
 COLUMNS = ("Plugin", "Version", "Kind", "Status", "Description")
 #: tau slider: tenths of a pixel, 0.5 .. 32 px.
@@ -71,7 +73,12 @@ class PluginPanel(QWidget):
 
         self.settings_box = QGroupBox("Provider settings")
         self.settings_form = QFormLayout(self.settings_box)
-        self.setting_widgets: dict[str, QWidget] = {}
+        self.setting_widgets: dict[str, SettingEditor] = {}
+        #: The last fallback's reason (hidden while the chosen provider draws).
+        self.fallback_label = QLabel()
+        self.fallback_label.setWordWrap(True)
+        self.fallback_label.setStyleSheet("color: #c0392b")
+        self.fallback_label.hide()
 
         lod_form = QFormLayout()
         lod_form.addRow("LOD provider", self.lod_combo)
@@ -79,6 +86,7 @@ class PluginPanel(QWidget):
         tau_row.addWidget(self.tau_slider, 1)
         tau_row.addWidget(self.tau_label)
         lod_form.addRow("tau", tau_row)
+        lod_form.addRow(self.fallback_label)
 
         layout = QVBoxLayout(self)
         layout.setContentsMargins(4, 4, 4, 4)
@@ -126,6 +134,10 @@ class PluginPanel(QWidget):
                 self.lod_combo.addItem(label, name)
             idx = self.lod_combo.findData(self.host.active)
             self.lod_combo.setCurrentIndex(max(idx, 0))
+            why = self.host.fallback_reason
+            self.fallback_label.setText(f"{why}; using {self.host.active}" if why else "")
+            self.fallback_label.setToolTip(why)
+            self.fallback_label.setVisible(bool(why))
             self._build_settings()
         finally:
             self._updating = False
@@ -141,52 +153,15 @@ class PluginPanel(QWidget):
             self.settings_form.addRow(QLabel("No settings"))
             return
         for spec in specs:
-            w = self._editor(spec, values.get(spec.name, spec.default))
-            w.setToolTip(spec.help)
+            w = SettingEditor(spec, values.get(spec.name, spec.default))
+            w.edited.connect(self._settings_edited)
             self.setting_widgets[spec.name] = w
-            self.settings_form.addRow(spec.label or spec.name, w)
-
-    def _editor(self, spec: Setting, value: Any) -> QWidget:
-        if spec.type == "bool":
-            w = QCheckBox()
-            w.setChecked(bool(value))
-            w.toggled.connect(self._settings_edited)
-        elif spec.type == "choice":
-            w = QComboBox()
-            w.addItems(list(spec.choices))
-            w.setCurrentText(str(value))
-            w.currentTextChanged.connect(self._settings_edited)
-        elif spec.type == "int":
-            w = QSpinBox()
-            w.setRange(
-                int(spec.min) if spec.min is not None else -(2**31),
-                int(spec.max) if spec.max is not None else 2**31 - 1,
-            )
-            w.setValue(int(value))
-            w.valueChanged.connect(self._settings_edited)
-        else:
-            w = QDoubleSpinBox()
-            w.setDecimals(3)
-            w.setRange(
-                float(spec.min) if spec.min is not None else -1e12,
-                float(spec.max) if spec.max is not None else 1e12,
-            )
-            w.setSingleStep(0.1)
-            w.setValue(float(value))
-            w.valueChanged.connect(self._settings_edited)
-        return w
+            label = "" if spec.type == "bool" else (spec.label or spec.name)
+            self.settings_form.addRow(label, w)
 
     def setting_values(self) -> dict[str, Any]:
         """The values shown in the settings editors."""
-        out: dict[str, Any] = {}
-        for name, w in self.setting_widgets.items():
-            if isinstance(w, QCheckBox):
-                out[name] = w.isChecked()
-            elif isinstance(w, QComboBox):
-                out[name] = w.currentText()
-            elif isinstance(w, QSpinBox | QDoubleSpinBox):
-                out[name] = w.value()
-        return out
+        return {name: w.value() for name, w in self.setting_widgets.items()}
 
     # -- user edits -----------------------------------------------------------------------
     def _item_changed(self, item: QTreeWidgetItem, column: int) -> None:

@@ -51,7 +51,10 @@ def test_toolbar_action_activates_collapse_and_drag_still_navigates(make_window,
     win = make_pnw(make_window)
     g = win.globe
     act = win.tool_actions["collapse"]
-    assert act.isCheckable() and act.shortcut().toString() == "C"
+    assert act.isCheckable()
+    # C is the collapse manifest's command: it activates the tool from anywhere.
+    assert win.command_actions["collapse.collapse"].shortcut().toString() == "C"
+    assert "C: Collapse" in act.toolTip()
     assert act in win.tools_toolbar.actions() and act in win.tools_menu.actions()
     assert "marker" in win.tool_actions  # the example plugin's tool is listed too
     # The toolbar button activates the tool in the session, a second click leaves it.
@@ -78,7 +81,8 @@ def test_toolbar_action_activates_collapse_and_drag_still_navigates(make_window,
     assert g.active_tool().state == "idle"
     # Disabling its plugin while active leaves the tool and removes the action.
     win.plugins.set_enabled("collapse", False)
-    assert "collapse" not in win.tool_actions and not win.collapse_controls_action.isVisible()
+    assert "collapse" not in win.tool_actions and win.tool_options.tool_name is None
+    assert not any(k.startswith("collapse.") for k in win.command_actions)
     assert g.scene.active_tool is None and g.scene.renderer._hook is None
     wait_frame(win)
     assert g.overlay_drawn == 0
@@ -123,21 +127,29 @@ def test_clicks_collapse_animate_overlay_and_escape(make_window, qtbot, frame_rg
 
 
 def test_ratio_slider_and_expand_button(make_window, qtbot):
+    """The Ratio control and the Expand / Collapse buttons are built from the tool's Setting
+    and its manifest commands (the window holds no collapse code)."""
     win = make_pnw(make_window)
     g = win.globe
     win.tool_actions["collapse"].trigger()
     tool = g.active_tool()
-    assert win.collapse_controls_action.isVisible()
-    win.ratio_slider.setValue(50)
+    bar = win.tool_options
+    assert bar.tool_name == "collapse" and set(bar.editors) == {"ratio", "animate"}
+    ratio = bar.editors["ratio"]
+    ratio.slider.setValue(ratio.slider.maximum() // 2)  # as a drag would
+    assert tool.ratio == pytest.approx(0.505, abs=1e-3)
+    ratio.spin.setValue(0.5)  # an exact value typed in the box
     assert tool.ratio == pytest.approx(0.5) and tool.values["ratio"] == pytest.approx(0.5)
-    assert win.ratio_label.text() == "0.50"
+    stored = win.plugins.registry.settings.get("plugins/collapse/contributions/collapse")
+    assert stored["ratio"] == pytest.approx(0.5)  # persisted as provider settings are
     tool.set_points(*A, *B)  # the tool's documented API
-    qtbot.waitUntil(lambda: win.expand_button.isEnabled(), timeout=5000)
     assert tool.frame().ratio == pytest.approx(0.5)
-    qtbot.mouseClick(win.expand_button, Qt.MouseButton.LeftButton)
+    expand = bar.widgetForAction(win.command_actions["collapse.expand"])
+    collapse = bar.widgetForAction(win.command_actions["collapse.collapse"])
+    qtbot.waitUntil(lambda: expand.isVisible() and collapse.isVisible(), timeout=5000)
+    qtbot.mouseClick(expand, Qt.MouseButton.LeftButton)
     assert tool.state == "expanding"
     qtbot.waitUntil(lambda: tool.state == "expanded" and not g.animating, timeout=10000)
-    qtbot.waitUntil(lambda: win.expand_button.text() == "Collapse", timeout=5000)
     # 'c' collapses again (the tool's key, not the window's tool shortcut).
     qtbot.keyClick(g, Qt.Key.Key_C)
     qtbot.waitUntil(lambda: tool.state == "collapsed", timeout=10000)
