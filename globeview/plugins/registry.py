@@ -675,6 +675,23 @@ class PluginRegistry:
             raise KeyError(f"{instance!r} is not a loaded plugin contribution") from None
         return plugin, name
 
+    def failure_of(self, name: str, kind: PluginKind | str | None = None) -> str | None:
+        """Why contribution ``name`` (of ``kind``, if given) failed this session —
+        ``"ExcType: message"``, its own failure or its plugin's — or None when no plugin
+        declaring it has failed it (it may still be disabled by the user, or unknown)."""
+        kind = PluginKind(kind) if kind is not None else None
+        for rec in self.records.values():
+            if rec.manifest is None or not any(
+                c.name == name and (kind is None or c.kind == kind)
+                for c in rec.manifest.contributions
+            ):
+                continue
+            if name in rec.failures:
+                return rec.failures[name].error
+            if rec.status == "failed":
+                return rec.error or "failed"
+        return None
+
     def is_active(self, name: str) -> bool:
         """True when plugin ``name`` is enabled and has not failed as a whole (it may have
         failed contributions: status 'partial')."""

@@ -9,6 +9,14 @@ Installed with globeview, so a plugin's own test suite gets these fixtures with 
 - ``plugin_site``: a temporary site directory on ``sys.path`` where tests write throwaway
   plugin distributions (package + ``.dist-info`` with ``entry_points.txt``) that
   `importlib.metadata` discovers like pip-installed ones.
+- ``globeview_terrain`` (session): the embedded terrain — the global base and the regional
+  DEMs shipped with globeview — as a `TerrainStack`, ingested once per test session into a
+  temporary cache (never the user's). Hand it to a provider's ``select(view, terrain)``.
+- ``globeview_gl`` (session): a headless OpenGL context (Mesa EGL works); the test is skipped
+  where there is none.
+- ``rendered``: a function rendering one headless frame of the embedded terrain with a given
+  LOD provider, tool (and its points) and settings; returns a `RenderedFrame` (the image as a
+  numpy array, the frame's stats, which provider drew and why another failed).
 
 Nothing heavy is imported when pytest loads this module; each fixture imports what it needs.
 """
@@ -18,23 +26,35 @@ from __future__ import annotations
 import importlib
 import sys
 import textwrap
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import pytest
 
 if TYPE_CHECKING:
+    import moderngl
+    import numpy as np
+
     from globeview.plugins.registry import PluginRegistry
+    from globeview.render.camera import Camera
+    from globeview.render.render_set import RenderSet
     from globeview.render.view_state import ViewState
+    from globeview.terrain.stack import TerrainStack
 
 __all__ = [
     "PluginSite",
+    "RenderedFrame",
     "globeview_config_dir",
+    "globeview_gl",
     "globeview_registry",
+    "globeview_terrain",
     "headless_view",
     "make_view",
     "plugin_site",
+    "render_frame",
+    "rendered",
 ]
 
 
@@ -180,3 +200,189 @@ def plugin_site(tmp_path_factory: pytest.TempPathFactory, monkeypatch) -> Iterat
     yield site
     site.forget_modules()
     importlib.invalidate_caches()
+
+
+# -- real terrain and headless frames --------------------------------------------------------
+@pytest.fixture(scope="session")
+def globeview_terrain(tmp_path_factory: pytest.TempPathFactory) -> TerrainStack:
+    """The embedded terrain (global base first, then the regional DEMs: White Mountains SRTM,
+    Crater Lake, Vancouver) as a `TerrainStack`, heights in metres above WGS84.
+
+    The stores are ingested once per test session into a temporary cache directory, so a
+    plugin's tests neither need nor touch the user's cache (a few seconds, once)."""
+    from globeview.terrain.embedded import embedded_stores
+    from globeview.terrain.stack import TerrainStack
+
+    cache = tmp_path_factory.mktemp("globeview-cache")
+    with pytest.MonkeyPatch.context() as mp:  # session scope: no `monkeypatch` fixture
+        mp.setenv("GLOBEVIEW_CACHE_DIR", str(cache))
+        stores = embedded_stores()
+    return TerrainStack.from_stores(stores)
+
+
+@pytest.fixture(scope="session")
+def globeview_gl() -> Iterator[moderngl.Context]:
+    """A headless moderngl context for the session; skips the test where OpenGL is missing."""
+    from globeview.render.offscreen import (
+        RenderError,
+        create_headless_context,
+        release_headless_context,
+    )
+
+    try:
+        ctx = create_headless_context()
+    except RenderError as exc:  # pragma: no cover - depends on the machine
+        pytest.skip(f"no headless OpenGL: {exc}")
+    yield ctx
+    release_headless_context(ctx)
+
+
+@dataclass
+class RenderedFrame:
+    """One headless frame (what `rendered` returns).
+
+    Attributes:
+        image: (height, width, 3) uint8 RGB, row 0 at the top.
+        stats: the frame's figures as ``globeview render --stats`` writes them (triangles,
+            tiles_drawn, lod_ms, ..., and the provider's name).
+        provider: the LOD provider that drew the frame (not the requested one after a
+            fallback).
+        requested: the LOD provider asked for.
+        render_set: the `RenderSet` that was drawn.
+        failures: contribution name -> ``"ExcType: message"`` of the provider or tool of this
+            frame that failed (empty when both worked).
+        session: the `GlobeSession` (its registry, camera, picking) for further checks.
+    """
+
+    image: np.ndarray
+    stats: dict[str, Any]
+    provider: str
+    requested: str
+    render_set: RenderSet
+    failures: dict[str, str] = field(default_factory=dict)
+    session: Any = field(default=None, repr=False)
+
+    @property
+    def fell_back(self) -> bool:
+        """True when the requested provider did not draw the frame."""
+        return self.provider != self.requested
+
+
+def render_frame(
+    ctx: moderngl.Context,
+    terrain: TerrainStack,
+    registry: PluginRegistry,
+    lod: str = "chunked-sse",
+    *,
+    tool: str | None = None,
+    points: Sequence[tuple[float, float]] = (),
+    settings: Mapping[str, Mapping[str, Any]] | None = None,
+    camera: Camera | Sequence[float] | None = None,
+    size: tuple[int, int] = (320, 240),
+    tau_px: float | None = None,
+    exaggeration: float = 1.0,
+    fovy_deg: float = 45.0,
+) -> RenderedFrame:
+    """Render one frame headless, as ``globeview render`` does, and return it.
+
+    Args:
+        lod: the LOD provider's contribution name.
+        tool: a tool to activate (its overlay is drawn over the frame), with ``points``
+            (lon, lat degrees) given to it as ``render --tool NAME --points`` does.
+        settings: contribution name -> {setting name: value}, applied (and persisted in
+            the registry's settings) before the frame; a name that is not an enabled
+            contribution, or a key that is not one of its settings, raises KeyError.
+        camera: a `Camera`, or (lon, lat, height[, heading, pitch]) in degrees and metres
+            above WGS84 (pitch -90: straight down); default: the whole globe from 20,000 km.
+        size: (width, height) pixels.
+
+    The caller releases nothing: the session's GL objects live as long as its context.
+    """
+    from globeview.plugins.session import GlobeSession
+    from globeview.render.camera import Camera
+    from globeview.render.offscreen import OffscreenTarget
+
+    for name, values in (settings or {}).items():
+        _configure(registry, name, values)
+    if camera is None:
+        camera = Camera.from_lonlat(0.0, 20.0, 2.0e7, fovy_deg=fovy_deg)
+    elif not isinstance(camera, Camera):
+        camera = Camera.from_lonlat(*(float(v) for v in camera), fovy_deg=fovy_deg)
+    session = GlobeSession(ctx, terrain, camera, registry=registry, lod=lod)
+    if tau_px is not None:
+        session.tau_px = float(tau_px)
+    session.settings.exaggeration = float(exaggeration)
+    target = OffscreenTarget(ctx, size)
+    try:
+        if tool is not None:
+            session.activate_tool(tool)  # GlobeviewError for a tool no enabled plugin has
+            if points and session.tool() is not None:
+                from globeview.plugins.headless import place_points
+
+                place_points(session, session.tool(), list(points), size)
+        # The first frame uploads tiles; the second is the steady-state frame (as `render`).
+        session.render(target.fbo, size)
+        session.reset_lod()
+        result = session.render(target.fbo, size)
+        session.draw_tool_overlay(target.fbo, result.view)
+        image = target.read_rgb()
+    finally:
+        target.release()
+    stats = dict(result.stats.as_dict())
+    failures = {
+        name: why
+        for name in (lod, tool)
+        if name is not None and (why := registry.failure_of(name)) is not None
+    }
+    return RenderedFrame(
+        image=image,
+        stats=stats,
+        provider=result.stats.lod_provider,
+        requested=lod,
+        render_set=result.render_set,
+        failures=failures,
+        session=session,
+    )
+
+
+def _configure(registry: PluginRegistry, name: str, values: Mapping[str, Any]) -> None:
+    """Apply and persist setting ``values`` of contribution ``name`` (any kind), on top of
+    its stored ones; KeyError for an unknown contribution or setting (a typo in a test
+    must not pass silently with the defaults)."""
+    from globeview.plugins.api import PluginKind
+
+    instance = next(
+        (i for k in PluginKind if (i := registry.find(k, name)) is not None),
+        None,
+    )
+    if instance is None:
+        raise KeyError(f"no enabled contribution named {name!r}")
+    known = {s.name for s in getattr(instance, "settings", ())}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise KeyError(f"{name} has no setting {', '.join(unknown)} (has: {sorted(known)})")
+    plugin, _ = registry.contribution_of(instance)
+    stored = registry.settings.get(f"plugins/{plugin}/contributions/{name}", {})
+    registry.configure(instance, {**(stored if isinstance(stored, dict) else {}), **values})
+
+
+@pytest.fixture
+def rendered(
+    globeview_gl: moderngl.Context,
+    globeview_terrain: TerrainStack,
+    globeview_registry: PluginRegistry,
+) -> Iterator[Callable[..., RenderedFrame]]:
+    """`render_frame` on the session's GL context, the embedded terrain and the test's
+    registry: ``rendered("my-provider", camera=(lon, lat, height), tool="my-tool",
+    settings={"my-provider": {"level": 5}})`` -> `RenderedFrame`. The frames' GL objects
+    are released after the test."""
+    sessions: list[Any] = []
+
+    def render(lod: str = "chunked-sse", **kwargs: Any) -> RenderedFrame:
+        frame = render_frame(globeview_gl, globeview_terrain, globeview_registry, lod, **kwargs)
+        sessions.append(frame.session)
+        return frame
+
+    yield render
+    for session in sessions:
+        session.release_gl()
