@@ -74,9 +74,10 @@ class SettingEditor(QWidget):
         hi = _finite(spec.max)
         if spec.type == "int":
             spin: QSpinBox | QDoubleSpinBox = QSpinBox()
+            # A QSpinBox holds a C int: wider bounds (or none) are cut to its range.
             spin.setRange(
-                max(int(lo), -(2**31)) if lo is not None else -(2**31),
-                min(int(hi), 2**31 - 1) if hi is not None else 2**31 - 1,
+                _c_int(lo if lo is not None else -math.inf),
+                _c_int(hi if hi is not None else math.inf),
             )
         else:
             spin = QDoubleSpinBox()
@@ -120,7 +121,10 @@ class SettingEditor(QWidget):
                 self.combo.setCurrentText(str(value))
             else:
                 assert self.spin is not None
-                self.spin.setValue(value)
+                # Within the box's range (a stored 1e20 for an unbounded int must not
+                # overflow the C int behind a QSpinBox).
+                v = min(max(float(value), self.spin.minimum()), self.spin.maximum())
+                self.spin.setValue(int(v) if self.spec.type == "int" else v)
                 self._sync_slider()
         finally:
             self._quiet = False
@@ -172,6 +176,11 @@ def _finite(bound: float | None) -> float | None:
     except (TypeError, ValueError):
         return None
     return b if math.isfinite(b) else None
+
+
+def _c_int(bound: float) -> int:
+    """``bound`` cut to the range of a C int (what a QSpinBox holds)."""
+    return int(min(max(bound, -(2**31)), 2**31 - 1))
 
 
 def _decimals(lo: float | None, hi: float | None) -> int:

@@ -1,0 +1,70 @@
+"""`SettingEditor` (the control a tool or provider `Setting` becomes) against what a plugin
+or a hand-edited settings file may hand it: huge or inverted bounds, values out of range or of
+the wrong type, a default not among the choices. Each shows something valid and emits only
+values the Setting accepts; nothing raises."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from globeview.plugins.api import Setting
+
+pytestmark = pytest.mark.gui
+
+
+def _editor(qtbot, spec: Setting, value):
+    from globeview.ui.setting_editor import SettingEditor
+
+    w = SettingEditor(spec, value)
+    qtbot.addWidget(w)
+    seen: list = []
+    w.edited.connect(seen.append)
+    return w, seen
+
+
+def test_bounded_float_slider_and_box_stay_in_step(qtbot) -> None:
+    w, seen = _editor(qtbot, Setting("r", "float", 0.2, min=0.01, max=1.0), 0.2)
+    assert w.slider is not None and w.spin.decimals() >= 3
+    assert not seen  # showing the value is not an edit
+    w.slider.setValue(w.slider.maximum())
+    assert seen[-1] == pytest.approx(1.0) and w.value() == pytest.approx(1.0)
+    w.spin.setValue(0.5)
+    assert seen[-1] == pytest.approx(0.5)
+    assert w.slider.value() == round((0.5 - 0.01) / 0.99 * w.slider.maximum())
+
+
+@pytest.mark.parametrize(
+    ("spec", "value", "shown"),
+    [
+        # An unbounded int with a stored 1e20: cut to what a spin box holds, no OverflowError.
+        (Setting("n", "int", 1), 10**20, 2**31 - 1),
+        (Setting("n", "int", 1, min=-1e30, max=1e30), -(10**25), -(2**31)),
+        # Out of range: clamped by the Setting.
+        (Setting("n", "int", 5, min=1, max=9), 50, 9),
+        # Garbage: the default.
+        (Setting("x", "float", 2.5, min=0.0, max=10.0), "lots", 2.5),
+        (Setting("x", "float", 2.5, min=0.0, max=10.0), math.nan, 2.5),
+        (Setting("x", "float", 2.5), math.inf, 2.5),
+        # Inverted bounds: no slider, nothing raises.
+        (Setting("x", "float", 1.0, min=5.0, max=1.0), 3.0, None),
+        (Setting("flag", "bool", False), "yes", True),
+    ],
+)
+def test_hostile_values_show_something_valid(qtbot, spec, value, shown) -> None:
+    w, seen = _editor(qtbot, spec, value)
+    if shown is not None:
+        assert w.value() == shown
+    if spec.min is not None and spec.max is not None and spec.max < spec.min:
+        assert w.slider is None
+    assert not seen
+
+
+def test_choice_default_not_offered_and_edits_emit_valid_values(qtbot) -> None:
+    w, seen = _editor(qtbot, Setting("c", "choice", "green", choices=("red", "blue")), "green")
+    assert w.value() in ("red", "blue")
+    w.combo.setCurrentText("blue")
+    assert seen == ["blue"]
+    w.setValue("purple")  # not a choice: the default is shown, and what is shown is sent
+    assert seen[-1] in ("red", "blue")
