@@ -44,7 +44,9 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
 
 #: Options whose value is a comma-separated list of numbers, which may start with '-'
 #: (``--camera -71,44,9000``); see `join_negative_values`.
-NUMERIC_LIST_OPTIONS = ("--camera", "--collapse", "--background")
+NUMERIC_LIST_OPTIONS = ("--camera", "--collapse", "--background", "--point")
+#: Options whose value is ';'-separated lists of numbers (``--points -71,44;-70,45``).
+POINT_LIST_OPTIONS = ("--points",)
 #: Options taking one number that may be negative.
 NUMERIC_OPTIONS = ("--tau", "--fov", "--exaggeration", "--fps", "--frames")
 
@@ -108,6 +110,7 @@ def join_negative_values(argv: list[str]) -> list[str]:
             and nxt.startswith("-")
             and (
                 (tok in NUMERIC_LIST_OPTIONS and _is_number_list(nxt))
+                or (tok in POINT_LIST_OPTIONS and _is_number_list(nxt.replace(";", ",")))
                 or (tok in NUMERIC_OPTIONS and _is_number_list(nxt) and "," not in nxt)
             )
         ):

@@ -7,6 +7,12 @@
   plugin's manifest; exit 0 when valid, 2 with a one-line reason when not. ``--import`` also
   imports and creates its contributions.
 - ``plugins enable NAME`` / ``plugins disable NAME``: the persisted choice.
+- ``plugins set NAME.KEY VALUE``: store a contribution's setting (checked against its type
+  and range) in the settings file; ``plugins get NAME[.KEY]``: the values in effect.
+
+The settings file is ``settings.json`` in the config directory: ``$GLOBEVIEW_CONFIG_DIR``
+if set, else ``$XDG_CONFIG_HOME/globeview``, else ``~/.config/globeview``
+(`globeview.plugins.settings.config_dir`).
 """
 
 from __future__ import annotations
@@ -35,6 +41,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     for action in ("enable", "disable"):
         p = sub.add_parser(action, help=f"{action} a plugin (remembered in the settings)")
         p.add_argument("name", metavar="NAME")
+    p = sub.add_parser(
+        "set",
+        help="store a setting of a contribution (LOD provider, tool, layer type) in the "
+        "settings file",
+    )
+    p.add_argument("setting", metavar="NAME.KEY", help="contribution name and setting key")
+    p.add_argument("value", metavar="VALUE", nargs="?", help="the new value")
+    p.add_argument(
+        "--default", action="store_true", help="forget the stored value (the default applies)"
+    )
+    p = sub.add_parser("get", help="show a contribution's settings (or one of them)")
+    p.add_argument("setting", metavar="NAME[.KEY]", help="contribution name, or NAME.KEY")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -44,6 +62,8 @@ def run(args: argparse.Namespace) -> int:
         "validate": _validate,
         "enable": _set_enabled,
         "disable": _set_enabled,
+        "set": _set_setting,
+        "get": _get_setting,
     }[args.plugins_command](args)
 
 
@@ -136,21 +156,50 @@ def _validate(args: argparse.Namespace) -> int:
     except ManifestError as exc:
         print(f"invalid: {exc}", file=sys.stderr)
         return 2
+    imported = ""
     if args.do_import:
-        with _quiet_plugin_log():
-            for c in manifest.contributions:
-                reg.load_contribution(manifest.name, c.name)
-        rec = reg.get(manifest.name)
-        if rec.status == "failed":
-            print(f"invalid: {manifest.name}: {rec.error}", file=sys.stderr)
+        problems, made = _import_contributions(reg, manifest)
+        if problems:
+            print(f"invalid: {manifest.name}: {'; '.join(problems)}", file=sys.stderr)
             return 2
+        imported = "; imported and created " + ", ".join(made)
     kinds = ",".join(k.value for k in manifest.kinds)
     n = len(manifest.contributions)
     print(
         f"valid: {manifest.name} {manifest.version} ({kinds}; {n} contribution"
-        f"{'s' if n != 1 else ''}; API {manifest.api_version})"
+        f"{'s' if n != 1 else ''}; API {manifest.api_version}){imported}"
+        + ("" if args.do_import else " (manifest only; --import also loads the code)")
     )
     return 0
+
+
+def _import_contributions(reg, manifest) -> tuple[list[str], list[str]]:
+    """Import and create every contribution of ``manifest`` and check its settings'
+    defaults; returns (problems, one "NAME (kind: Class, N settings)" per contribution)."""
+    from globeview.plugins.headless import contribution_failure
+    from globeview.plugins.settings import contribution_settings
+
+    problems: list[str] = []
+    made: list[str] = []
+    with _quiet_plugin_log():
+        for c in manifest.contributions:
+            instance = reg.load_contribution(manifest.name, c.name)
+            if instance is None:
+                why = contribution_failure(reg, c.name) or reg.get(manifest.name).error
+                problems.append(f"{c.name}: {why or 'not created'}")
+                continue
+            settings = contribution_settings(reg, instance)
+            for s in settings:
+                try:
+                    s.coerce(s.default)
+                except ValueError as exc:
+                    problems.append(f"{c.name}: default of {exc}")
+            n = len(settings)
+            made.append(
+                f"{c.name} ({c.kind.value}: {type(instance).__name__}, {n} setting"
+                f"{'s' if n != 1 else ''})"
+            )
+    return problems, made
 
 
 def _set_enabled(args: argparse.Namespace) -> int:
@@ -164,4 +213,96 @@ def _set_enabled(args: argparse.Namespace) -> int:
     if rec.manifest is None:
         raise GlobeviewError(f"plugin {args.name!r} cannot be enabled: {rec.error}")
     print(f"{rec.name}: {'enabled' if rec.enabled else 'disabled'}")
+    return 0
+
+
+def _show(value) -> str:
+    """A setting value as typed on the command line: true/false, 0.3, fast."""
+    import json
+
+    if isinstance(value, str):
+        return value
+    return json.dumps(value)
+
+
+def _split_setting(reg, text: str) -> tuple[str, str | None]:
+    """``NAME`` or ``NAME.KEY`` -> (NAME, KEY or None); a whole text that names a
+    contribution is a NAME even with dots in it."""
+    declared = {c.name for rec in reg if rec.manifest for c in rec.manifest.contributions}
+    if text in declared:
+        return text, None
+    name, dot, key = text.rpartition(".")
+    return (name, key) if dot and name and key else (text, None)
+
+
+def _set_setting(args: argparse.Namespace) -> int:
+    from globeview.errors import GlobeviewError
+    from globeview.plugins.settings import (
+        contribution_key,
+        find_setting,
+        parse_setting_value,
+        setting_problem,
+        stored_values,
+    )
+
+    with _quiet_plugin_log():
+        reg = _registry()
+        name, key = _split_setting(reg, args.setting)
+        if key is None:
+            raise GlobeviewError(f"plugins set takes NAME.KEY VALUE, not {args.setting!r:.80}")
+        target = find_setting(reg, name, key)
+    if args.default == (args.value is not None):
+        raise GlobeviewError(f"plugins set {target.label}: give a VALUE or --default")
+    values = stored_values(reg.settings, target.plugin, target.contribution)
+    if args.default:
+        values.pop(key, None)
+        shown = f"{_show(target.setting.default)} (the default)"
+    else:
+        try:
+            value = parse_setting_value(target.setting, args.value)
+        except ValueError as exc:
+            raise GlobeviewError(
+                f"plugins set {target.label}: {setting_problem(target.setting, exc)}"
+            ) from None
+        values[key] = value
+        shown = _show(value)
+    reg.settings.set(contribution_key(target.plugin, target.contribution), values)
+    where = getattr(reg.settings, "path", None)
+    print(f"{target.label} = {shown}" + (f" (saved in {where})" if where else ""))
+    return 0
+
+
+def _get_setting(args: argparse.Namespace) -> int:
+    from globeview.errors import GlobeviewError
+    from globeview.plugins.api import resolve_settings
+    from globeview.plugins.settings import (
+        contribution_settings,
+        describe_setting,
+        find_contribution,
+        find_setting,
+        stored_values,
+    )
+
+    with _quiet_plugin_log():
+        reg = _registry()
+        name, key = _split_setting(reg, args.setting)
+        if key is not None:
+            target = find_setting(reg, name, key)
+            plugin, settings = target.plugin, (target.setting,)
+        else:
+            plugin, instance = find_contribution(reg, name)[0]
+            settings = contribution_settings(reg, instance)
+            if not settings:
+                raise GlobeviewError(f"{name} has no settings")
+    stored = stored_values(reg.settings, plugin, name)
+    values = resolve_settings(settings, stored)
+    if key is not None:
+        print(_show(values[key]))
+        return 0
+    for s in settings:
+        origin = "stored" if s.name in stored and values[s.name] == stored[s.name] else "default"
+        print(
+            f"{name}.{s.name} = {_show(values[s.name])}  ({origin}; {describe_setting(s)}, "
+            f"default {_show(s.default)})"
+        )
     return 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -54,10 +55,46 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--no-borders", action="store_true", help="hide the embedded country borders"
     )
     parser.add_argument(
+        "--tool",
+        metavar="NAME",
+        help="activate the tool NAME (built-in or installed, see `globeview plugins list`) "
+        "and give it --points; its overlay is drawn",
+    )
+    parser.add_argument(
+        "--points",
+        metavar="LON,LAT[;LON,LAT...]",
+        help="the points (degrees) the --tool gets, in order, as a user would click them",
+    )
+    parser.add_argument(
+        "--point",
+        action="append",
+        default=[],
+        metavar="LON,LAT",
+        help="one point for the --tool (degrees); repeatable, after those of --points",
+    )
+    parser.add_argument(
+        "--set",
+        dest="set_values",
+        action="append",
+        default=[],
+        metavar="NAME.KEY=VALUE",
+        help="a setting of a contribution (LOD provider, tool, layer type) for this render "
+        "only, checked against its type and range (e.g. collapse.ratio=0.3); repeatable; "
+        "`globeview plugins set` stores one",
+    )
+    parser.add_argument(
+        "--strict",
+        action="store_true",
+        help="exit 3 and write nothing when a plugin fails (the LOD provider falls back, the "
+        "tool fails); without it the picture is drawn by the fallback and the 'wrote' line "
+        "says so (exit 0)",
+    )
+    parser.add_argument(
         "--collapse",
         metavar="LONA,LATA,LONB,LATB[,RATIO]",
-        help="fold away the terrain between A and B (degrees) to RATIO (default 0.2) of its "
-        "length with the terrain-collapse tool",
+        help="fold away the terrain between A and B (degrees) to RATIO (default: the "
+        "collapse.ratio setting, 0.2) of its length: a spelling of --tool collapse "
+        "--points LONA,LATA;LONB,LATB --set collapse.ratio=RATIO",
     )
 
 
@@ -136,6 +173,53 @@ def parse_collapse(text: str) -> tuple[float, float, float, float, float | None]
     return lon_a, lat_a, lon_b, lat_b, ratio
 
 
+def parse_point(text: str, option: str) -> tuple[float, float]:
+    """One ``LON,LAT`` (degrees): a finite longitude and a latitude in -90..90."""
+    from globeview.render.camera import check_finite, check_number
+
+    lon, lat = parse_floats(text, option, (2,))
+    return (
+        checked(option, check_finite, "longitude", lon),
+        checked(option, check_number, "latitude", lat, -90.0, 90.0, " deg"),
+    )
+
+
+def parse_tool_args(args: argparse.Namespace) -> tuple[str | None, list, list[tuple[str, str]]]:
+    """(tool name or None, its points, the ``--set`` texts with the option each came from),
+    with ``--collapse A,B[,R]`` read as ``--tool collapse --points A;B --set
+    collapse.ratio=R``. Only the syntax is checked here; names and values are checked against
+    the plugins in `resolve_plugin_args`."""
+    from globeview.errors import GlobeviewError
+
+    points: list[tuple[float, float]] = []
+    if args.points is not None:
+        parts = [p for p in args.points.split(";") if p.strip()]
+        if not parts:
+            raise GlobeviewError("--points takes LON,LAT[;LON,LAT...]")
+        points += [parse_point(p, "--points") for p in parts]
+    points += [parse_point(p, "--point") for p in args.point]
+    if len(points) > MAX_TOOL_POINTS:
+        raise GlobeviewError(f"{len(points)} tool points (at most {MAX_TOOL_POINTS})")
+    tool = args.tool
+    sets = [(text, "--set") for text in args.set_values]
+    if args.collapse:
+        if tool not in (None, "collapse") or points:
+            raise GlobeviewError(
+                "--collapse is --tool collapse with two --points; give one or the other"
+            )
+        *ab, ratio = parse_collapse(args.collapse)
+        tool, points = "collapse", [(ab[0], ab[1]), (ab[2], ab[3])]
+        if ratio is not None:
+            sets.append((f"collapse.ratio={ratio!r}", "--collapse"))
+    if points and tool is None:
+        raise GlobeviewError("--points/--point need a --tool to give them to")
+    return tool, points, sets
+
+
+#: Most points `--points`/`--point` may give a tool.
+MAX_TOOL_POINTS = 10_000
+
+
 def check_view_args(args: argparse.Namespace) -> dict:
     """Every view argument validated before anything is loaded or drawn: a bad one is a
     one-line `GlobeviewError` stating the valid range (not a traceback from deep in the
@@ -150,7 +234,7 @@ def check_view_args(args: argparse.Namespace) -> dict:
         "exaggeration": checked("--exaggeration", check_exaggeration, args.exaggeration),
         "camera": parse_camera(args.camera) if args.camera else None,
         "background": parse_background(args.background) if args.background else None,
-        "collapse": parse_collapse(args.collapse) if args.collapse else None,
+        "tool": parse_tool_args(args),
     }
 
 
@@ -256,11 +340,36 @@ def open_sources(sources: list[str], crs: str | None, vdatum: str | None = None)
     return stores
 
 
+def resolve_plugin_args(registry, tool: str | None, sets: list[tuple[str, str]]) -> list:
+    """Check ``--tool`` and ``--set`` against the plugins (importing only the plugins that
+    declare the names) before any terrain is read: one-line `GlobeviewError` for an unknown
+    or failed contribution, an unknown setting or a bad value. Returns the checked
+    (`SettingTarget`, value) pairs."""
+    from globeview.errors import GlobeviewError
+    from globeview.plugins.api import PluginKind
+    from globeview.plugins.settings import find_contribution, resolve_assignment
+
+    if tool is not None and not registry.offers(PluginKind.TOOL, tool):
+        if any(  # declared, but by a disabled or failed plugin: say which and why
+            rec.manifest is not None
+            and any(
+                c.kind == PluginKind.TOOL and c.name == tool for c in rec.manifest.contributions
+            )
+            for rec in registry
+        ):
+            find_contribution(registry, tool)  # raises, naming the plugin's state
+        known = ", ".join(sorted(registry.declared(PluginKind.TOOL))) or "none"
+        raise GlobeviewError(f"--tool: no enabled tool named {tool!r:.80} (tools: {known})")
+    return [resolve_assignment(registry, text, option) for text, option in sets]
+
+
 def run(args: argparse.Namespace) -> int:
     from PIL import Image
 
-    from globeview.errors import GlobeviewError
+    from globeview.plugins.headless import contribution_failure, place_points
+    from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.session import GlobeSession
+    from globeview.plugins.settings import apply_overrides
     from globeview.render.camera import Camera, camera_for_bounds
     from globeview.render.offscreen import OffscreenTarget, create_headless_context
     from globeview.terrain.stack import TerrainStack
@@ -269,6 +378,7 @@ def run(args: argparse.Namespace) -> int:
     # unwritable output fails at once, in one line, and nothing is written.
     v = check_view_args(args)
     size = v["size"]
+    tool_name, points, sets = v["tool"]
     out, stats_path = check_outputs(args)
     check_inputs(args)
     check_cache_writable(args.sources, args.crs, args.vdatum)
@@ -276,6 +386,9 @@ def run(args: argparse.Namespace) -> int:
         from globeview.terrain.vdatum import parse_vdatum
 
         parse_vdatum(args.vdatum)  # "egm2008" or a typo: one line before any work
+    registry = PluginRegistry().discover()
+    assignments = resolve_plugin_args(registry, tool_name, sets)
+    apply_overrides(registry, assignments)  # this render only: nothing is stored
     stores = open_sources_in_cache(args.sources, args.crs, args.vdatum)
     terrain = TerrainStack.from_stores(stores)
     if v["camera"] is not None:
@@ -287,7 +400,7 @@ def run(args: argparse.Namespace) -> int:
 
     ctx = create_headless_context()
     target = OffscreenTarget(ctx, size)
-    scene = GlobeSession(ctx, terrain, camera, lod=args.lod)
+    scene = GlobeSession(ctx, terrain, camera, registry=registry, lod=args.lod)
     scene.tau_px = v["tau"]
     s = scene.settings
     s.exaggeration = v["exaggeration"]
@@ -304,15 +417,12 @@ def run(args: argparse.Namespace) -> int:
             scene.add_embedded_overlays(imagery=args.imagery)
     for path in args.layer:
         scene.add_overlay(path)
-    if v["collapse"] is not None:
-        tool = scene.find_tool("collapse")  # imports the collapse plugin only
-        if tool is None:
-            raise GlobeviewError("the collapse tool plugin is not enabled")
-        try:
-            tool.set_points(*v["collapse"])
-        except ValueError as exc:
-            raise GlobeviewError(f"--collapse: {exc}") from None
-        scene.activate_tool("collapse")
+    if tool_name is not None:
+        tool = scene.find_tool(tool_name)  # imports that tool's plugin only
+        if tool is not None:
+            scene.activate_tool(tool_name)
+            if points and scene.tool() is not None:
+                place_points(scene, tool, points, size)
     # The first frame uploads tiles; the second one is the steady-state frame we report.
     first = scene.render(target.fbo, size)
     scene.reset_lod()  # measure a full selection, not a cache hit
@@ -320,15 +430,61 @@ def run(args: argparse.Namespace) -> int:
     result.stats.tiles_uploaded = first.stats.tiles_uploaded
     scene.draw_tool_overlay(target.fbo, result.view)  # e.g. the collapse's fold lines
 
-    write_outputs(Image.fromarray(target.read_rgb()), result.stats.as_dict(), out, stats_path)
     st = result.stats
+    failures = plugin_failures(scene, args.lod, tool_name, contribution_failure)
+    stats = st.as_dict()
+    stats["provider"]["requested"] = args.lod
+    if "provider" in failures:
+        stats["provider"]["fell_back_from"] = {"name": args.lod, "error": failures["provider"]}
+    if tool_name is not None:
+        stats["tool"] = {"name": tool_name, "points": [list(p) for p in points]}
+        if "tool" in failures:
+            stats["tool"]["error"] = failures["tool"]
+    if assignments:
+        stats["settings"] = {t.label: value for t, value in assignments}
+    if failures and args.strict:
+        print(
+            f"globeview: error: {'; '.join(failure_texts(args.lod, tool_name, failures))}; "
+            "nothing written (--strict)",
+            file=sys.stderr,
+        )
+        return STRICT_EXIT
+    write_outputs(Image.fromarray(target.read_rgb()), stats, out, stats_path)
     degraded = st.extra.get("degraded")
+    said = [f"provider: {st.lod_provider or 'none'}", *failure_texts(args.lod, tool_name, failures)]
     print(
-        f"wrote {out} ({size[0]}x{size[1]}): {st.triangles} triangles, {st.tiles_drawn} tiles, "
-        f"{st.frame_ms:.1f} ms/frame, max screen-space error {st.max_sse_px:.2f} px"
-        + (f"; degraded: {degraded}" if degraded else "")
+        f"wrote {out} ({size[0]}x{size[1]}; {', '.join(said)}): {st.triangles} triangles, "
+        f"{st.tiles_drawn} tiles, {st.frame_ms:.1f} ms/frame, max screen-space error "
+        f"{st.max_sse_px:.2f} px" + (f"; degraded: {degraded}" if degraded else "")
     )
     return 0
+
+
+#: Exit status of `render --strict` when a plugin failed (2 is bad input, 1 a bug).
+STRICT_EXIT = 3
+
+
+def plugin_failures(scene, lod: str, tool: str | None, failure_of) -> dict[str, str]:
+    """What failed during the render: ``{"provider": reason}`` when the requested LOD
+    provider did not draw the frame (the session fell back), ``{"tool": reason}`` when the
+    tool's plugin failed (its overlay and displacement were dropped)."""
+    out: dict[str, str] = {}
+    drew = scene.last.stats.lod_provider if scene.last is not None else ""
+    if drew != lod or failure_of(scene.registry, lod) is not None:
+        out["provider"] = failure_of(scene.registry, lod) or "it did not draw"
+    if tool is not None and scene.tool() is None:
+        out["tool"] = failure_of(scene.registry, tool) or "it was not active"
+    return out
+
+
+def failure_texts(lod: str, tool: str | None, failures: dict[str, str]) -> list[str]:
+    """The failures as phrases for the 'wrote' line and the --strict error."""
+    said = []
+    if "provider" in failures:
+        said.append(f"fell back from {lod}: {failures['provider']}")
+    if "tool" in failures:
+        said.append(f"tool {tool} failed: {failures['tool']}")
+    return said
 
 
 def open_sources_in_cache(sources: list[str], crs: str | None, vdatum: str | None = None):

@@ -8,10 +8,14 @@ the user's config directory (see `config_dir`) or `MemorySettings`.
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
+import math
 import os
-import tempfile
+import time
 from collections.abc import Iterator, MutableMapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
@@ -20,13 +24,26 @@ __all__ = [
     "JsonFileSettings",
     "MemorySettings",
     "PluginSettings",
+    "SettingTarget",
     "SettingsBackend",
+    "apply_overrides",
     "config_dir",
+    "contribution_key",
     "default_settings",
+    "describe_setting",
+    "find_contribution",
+    "find_setting",
+    "parse_assignment",
+    "parse_setting_value",
+    "resolve_assignment",
+    "setting_problem",
+    "stored_values",
 ]
 
 #: Key of the {plugin name: enabled} choices the user made.
 ENABLED_KEY = "plugins/enabled"
+
+log = logging.getLogger("globeview.plugins")
 
 
 @runtime_checkable
@@ -67,38 +84,55 @@ class MemorySettings:
 
 class JsonFileSettings:
     """Settings in one JSON object file, re-read on every ``get`` and rewritten atomically on
-    every ``set`` (so two registries on the same file see each other's changes).
+    every ``set`` (`globeview.fileio.atomic_write_text`: a temporary beside it, fsynced, then
+    renamed; so two registries on the same file see each other's changes and a full disk or
+    Ctrl-C never leaves half a file).
 
-    A missing file reads as empty; an unreadable or corrupt one too (it is replaced on the
-    next write), so a damaged settings file never stops the application.
+    A missing file reads as empty; an unreadable or corrupt one too, so a damaged settings
+    file never stops the application. The next write moves a corrupt file aside to
+    ``settings.json.corrupt-<time>`` (never deleted: the user may want what was in it) and
+    logs where. A write that fails (read-only config folder, full disk) raises a one-line
+    `globeview.fileio.OutputError`.
     """
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
 
-    def _load(self) -> dict[str, Any]:
+    def _read(self) -> tuple[dict[str, Any], bool]:
+        """(the stored dict, whether an existing file could not be read as one)."""
         try:
-            data = json.loads(self.path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            return {}
-        return data if isinstance(data, dict) else {}
+            text = self.path.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            return {}, False
+        except (OSError, ValueError):  # unreadable, not UTF-8
+            return {}, self.path.is_file()
+        try:
+            data = json.loads(text)
+        except ValueError:
+            return {}, True
+        return (data, False) if isinstance(data, dict) else ({}, True)
+
+    def _load(self) -> dict[str, Any]:
+        return self._read()[0]
 
     def get(self, key: str, default: Any = None) -> Any:
         return self._load().get(key, default)
 
     def set(self, key: str, value: Any) -> None:
-        data = self._load()
+        from globeview.fileio import atomic_write_text
+
+        data, corrupt = self._read()
         data[key] = value
-        text = json.dumps(data, indent=2, sort_keys=True)
+        text = json.dumps(data, indent=2, sort_keys=True)  # TypeError for non-JSON values
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=self.path.parent, prefix=".settings-", suffix=".json")
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as f:
-                f.write(text + "\n")
-            os.replace(tmp, self.path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        if corrupt:
+            aside = self.path.with_name(
+                f"{self.path.name}.corrupt-{time.strftime('%Y%m%d-%H%M%S')}"
+            )
+            with contextlib.suppress(OSError):
+                os.replace(self.path, aside)
+                log.warning("settings file %s was unreadable; kept as %s", self.path, aside)
+        atomic_write_text(self.path, text + "\n")
 
 
 def default_settings() -> JsonFileSettings:
@@ -141,3 +175,191 @@ class PluginSettings(MutableMapping[str, Any]):
 
     def __repr__(self) -> str:
         return f"PluginSettings({self._key!r}, {self._data()!r})"
+
+
+# -- contribution settings from the command line ----------------------------------------------
+def contribution_key(plugin: str, contribution: str) -> str:
+    """The settings key holding one contribution's setting values (a dict), as the registry
+    reads it when it creates the contribution and writes it on `PluginRegistry.configure`."""
+    return f"plugins/{plugin}/contributions/{contribution}"
+
+
+def parse_assignment(text: str, option: str = "--set") -> tuple[str, str, str]:
+    """``"NAME.KEY=VALUE"`` -> (NAME, KEY, VALUE text). NAME is a contribution's name (it may
+    hold dots and dashes: the key is after the last dot before '='). One-line
+    `GlobeviewError` naming ``option`` for anything else."""
+    from globeview.errors import GlobeviewError
+
+    left, eq, value = text.partition("=")
+    name, dot, key = left.rpartition(".")
+    if not eq or not dot or not name.strip() or not key.strip():
+        raise GlobeviewError(
+            f"{option} takes NAME.KEY=VALUE (e.g. collapse.ratio=0.3), not {text!r:.80}"
+        )
+    return name.strip(), key.strip(), value.strip()
+
+
+def parse_setting_value(setting: Any, text: str) -> Any:
+    """The value ``text`` (as typed on a command line) gives ``setting`` (an API `Setting`),
+    checked strictly: unlike `Setting.coerce` (which clamps stored values so stale settings
+    never break a plugin), a number outside min..max, a fraction for an integer, or a choice
+    not offered is refused. Raises ValueError with a one-line reason."""
+    kind = setting.type
+    if kind == "bool" or kind == "choice":
+        return setting.coerce(text)
+    if kind not in ("int", "float"):
+        raise ValueError(f"unknown setting type {kind!r}")
+    try:
+        num = float(text)
+    except ValueError:
+        raise ValueError(f"{text!r:.40} is not a number") from None
+    if not math.isfinite(num):
+        raise ValueError(f"{text!r:.40} is not a finite number")
+    if kind == "int":
+        if num != int(num):
+            raise ValueError(f"{text!r:.40} is not a whole number")
+        num = int(num)
+    lo, hi = setting.min, setting.max
+    if (lo is not None and num < lo) or (hi is not None and num > hi):
+        lo_s = "-inf" if lo is None else f"{lo:g}"
+        hi_s = "inf" if hi is None else f"{hi:g}"
+        raise ValueError(f"{text} is outside {lo_s}..{hi_s}")
+    return num
+
+
+@dataclass
+class SettingTarget:
+    """A contribution's setting found by name (`find_setting`)."""
+
+    plugin: str
+    contribution: str
+    instance: Any
+    setting: Any  # the API `Setting`
+
+    @property
+    def label(self) -> str:
+        return f"{self.contribution}.{self.setting.name}"
+
+
+def contribution_settings(registry: Any, instance: Any) -> tuple:
+    """The `Setting`s a loaded contribution declares (reading them is plugin code: isolated;
+    anything that is not a Setting is ignored)."""
+    from globeview.plugins.api import Setting
+
+    owner = registry.owner_of(instance)
+    declared = registry.call(
+        owner, lambda: tuple(getattr(instance, "settings", ()) or ()), default=()
+    )
+    return tuple(s for s in declared if isinstance(s, Setting))
+
+
+def find_contribution(registry: Any, name: str) -> list[tuple[str, Any]]:
+    """(plugin, loaded contribution) of every enabled contribution called ``name`` (any
+    kind), importing only the plugins that declare it. One-line `GlobeviewError` when none
+    is usable, naming the known contributions or the failure."""
+    from globeview.errors import GlobeviewError
+
+    declaring = [
+        rec
+        for rec in registry
+        if rec.manifest is not None and any(c.name == name for c in rec.manifest.contributions)
+    ]
+    if not declaring:
+        known = sorted(
+            {c.name for rec in registry if rec.manifest for c in rec.manifest.contributions}
+        )
+        raise GlobeviewError(
+            f"no plugin contribution named {name!r:.80} (known: {', '.join(known) or 'none'})"
+        )
+    found = []
+    problems = []
+    for rec in declaring:
+        if not rec.enabled and rec.status != "failed":
+            problems.append(
+                f"plugin {rec.name} is disabled (`globeview plugins enable {rec.name}`)"
+            )
+            continue
+        instance = registry.load_contribution(rec.name, name)
+        if instance is None:
+            problems.append(f"plugin {rec.name} failed: {rec.error or 'it did not load'}")
+            continue
+        found.append((rec.name, instance))
+    if not found:
+        raise GlobeviewError(f"{name}: {'; '.join(problems)}")
+    return found
+
+
+def find_setting(registry: Any, name: str, key: str) -> SettingTarget:
+    """Setting ``key`` of contribution ``name`` (see `find_contribution`); a one-line
+    `GlobeviewError` naming the contribution's settings when it has no such key."""
+    from globeview.errors import GlobeviewError
+
+    offered: list[str] = []
+    for plugin, instance in find_contribution(registry, name):
+        settings = contribution_settings(registry, instance)
+        for s in settings:
+            if s.name == key:
+                return SettingTarget(plugin, name, instance, s)
+        offered.extend(s.name for s in settings)
+    if not offered:
+        raise GlobeviewError(f"{name} has no settings")
+    raise GlobeviewError(f"{name} has no setting {key!r:.60} (settings: {', '.join(offered)})")
+
+
+def resolve_assignment(
+    registry: Any, text: str, option: str = "--set"
+) -> tuple[SettingTarget, Any]:
+    """``"NAME.KEY=VALUE"`` -> (the setting, its checked value); one-line `GlobeviewError`
+    naming ``option`` for a bad name, key or value."""
+    from globeview.errors import GlobeviewError
+
+    name, key, value = parse_assignment(text, option)
+    target = find_setting(registry, name, key)
+    try:
+        return target, parse_setting_value(target.setting, value)
+    except ValueError as exc:
+        raise GlobeviewError(
+            f"{option} {target.label}: {setting_problem(target.setting, exc)}"
+        ) from None
+
+
+def setting_problem(setting: Any, exc: ValueError) -> str:
+    """The reason without `Setting.coerce`'s own "setting 'x': " prefix, plus what is valid."""
+    msg = str(exc)
+    prefix = f"setting {setting.name!r}: "
+    msg = msg[len(prefix) :] if msg.startswith(prefix) else msg
+    return f"{msg} ({describe_setting(setting)})"
+
+
+def describe_setting(setting: Any) -> str:
+    """What values a setting takes, for messages and `plugins get`: ``float in 0.01..1``,
+    ``one of fast, exact``, ``true or false``."""
+    if setting.type == "bool":
+        return "true or false"
+    if setting.type == "choice":
+        return "one of " + ", ".join(setting.choices)
+    if setting.min is None and setting.max is None:
+        return f"any {setting.type}"
+    lo = "-inf" if setting.min is None else f"{setting.min:g}"
+    hi = "inf" if setting.max is None else f"{setting.max:g}"
+    return f"{setting.type} in {lo}..{hi}"
+
+
+def stored_values(backend: SettingsBackend, plugin: str, contribution: str) -> dict[str, Any]:
+    """The setting values stored for a contribution ({} when none or not a dict)."""
+    data = backend.get(contribution_key(plugin, contribution), {})
+    return dict(data) if isinstance(data, dict) else {}
+
+
+def apply_overrides(registry: Any, assignments: list[tuple[SettingTarget, Any]]) -> None:
+    """Apply ``--set`` values for this run only: each contribution is configured with its
+    stored values overlaid with the new ones (nothing is written to the settings file)."""
+    merged: dict[int, tuple[SettingTarget, dict[str, Any]]] = {}
+    for target, value in assignments:
+        entry = merged.setdefault(
+            id(target.instance),
+            (target, stored_values(registry.settings, target.plugin, target.contribution)),
+        )
+        entry[1][target.setting.name] = value
+    for target, values in merged.values():
+        registry.invoke(target.instance, "configure", values)

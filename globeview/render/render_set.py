@@ -222,9 +222,70 @@ def _check_variant(v: object, n_cells: int) -> None:
         raise InvalidRenderSet(f"variant is not hashable ({exc})") from None
 
 
+#: Most entries of a provider's ``RenderSet.stats`` passed on to ``--stats`` and the window
+#: (a hostile provider hands over 10^6 keys); longest key and text value kept.
+MAX_PROVIDER_STATS = 64
+MAX_STAT_KEY_CHARS = 64
+MAX_STAT_TEXT_CHARS = 200
+
+
+def clean_provider_stats(stats: object) -> tuple[dict[str, float | int | bool | str], int]:
+    """A provider's free-form ``RenderSet.stats`` made safe to print and write as JSON:
+    at most `MAX_PROVIDER_STATS` entries with string keys (clipped), each a bool, an integer,
+    a finite float or a short string (clipped); numpy scalars become Python ones. Returns
+    (the kept entries, how many were dropped). Never raises: whatever a plugin's dict does,
+    the frame goes on (everything counts as dropped then)."""
+    try:
+        total = dict.__len__(stats) if isinstance(stats, dict) else 0
+        kept: dict[str, float | int | bool | str] = {}
+        for k, v in dict.items(stats) if isinstance(stats, dict) else ():
+            if len(kept) >= MAX_PROVIDER_STATS:
+                break
+            if type(k) is not str:  # exactly str: a subclass could run code in __str__
+                continue
+            value = _json_scalar(v)
+            if value is not None:
+                kept[k[:MAX_STAT_KEY_CHARS]] = value
+        return kept, total - len(kept)
+    except Exception:  # plugin data: drop it, never fail the frame
+        return {}, 0
+
+
+def _json_scalar(v: object) -> float | int | bool | str | None:
+    """``v`` as a JSON scalar, or None when it is not one (or not finite)."""
+    if isinstance(v, np.generic):
+        v = v.item()
+    t = type(v)
+    if t is bool:
+        return v  # type: ignore[return-value]
+    if t is int:
+        return v if abs(v) < 2**63 else None  # type: ignore[return-value,operator]
+    if t is float:
+        return v if math.isfinite(v) else None  # type: ignore[return-value,arg-type]
+    if t is str:
+        return v[:MAX_STAT_TEXT_CHARS]  # type: ignore[index]
+    return None
+
+
+def level_histogram(keys: np.ndarray) -> dict[str, int]:
+    """How many tiles of each quadtree level a frame drew: ``{"7": 12, "8": 30}`` (JSON
+    object keys are strings), levels ascending."""
+    if len(keys) == 0:
+        return {}
+    levels, counts = np.unique(np.asarray(keys)[:, 0], return_counts=True)
+    return {str(int(lv)): int(c) for lv, c in zip(levels, counts, strict=True)}
+
+
 @dataclass
 class FrameStats:
-    """Figures of one rendered frame (what `globeview render --stats` writes)."""
+    """Figures of one rendered frame (what `globeview render --stats` writes).
+
+    Besides the host's own figures: ``levels``, the drawn tiles per quadtree level, and
+    ``provider_stats``, the LOD provider's own ``RenderSet.stats`` (cleaned, see
+    `clean_provider_stats`; ``provider_stats_dropped`` entries were not JSON scalars or past
+    the limit). `as_dict` namespaces them under ``"provider"`` so a plugin's counter can
+    never overwrite a host figure.
+    """
 
     triangles: int = 0
     tiles_drawn: int = 0
@@ -238,8 +299,23 @@ class FrameStats:
     max_sse_px: float = 0.0
     lod_provider: str = ""
     extra: dict[str, float] = field(default_factory=dict)
+    levels: dict[str, int] = field(default_factory=dict)
+    provider_stats: dict[str, float | int | bool | str] = field(default_factory=dict)
+    provider_stats_dropped: int = 0
 
-    def as_dict(self) -> dict[str, float | int | str]:
-        d = {k: v for k, v in self.__dict__.items() if k != "extra"}
+    def as_dict(self) -> dict[str, object]:
+        """The figures as a JSON-able dict: the host's figures and ``extra`` at the top level,
+        ``"levels": {"7": 12, ...}`` and ``"provider": {"name": ..., "stats": {...}}`` (plus
+        ``"stats_dropped": n`` when entries were dropped)."""
+        nested = ("extra", "levels", "provider_stats", "provider_stats_dropped")
+        d: dict[str, object] = {k: v for k, v in self.__dict__.items() if k not in nested}
         d.update(self.extra)
+        d["levels"] = dict(self.levels)
+        provider: dict[str, object] = {
+            "name": self.lod_provider,
+            "stats": dict(self.provider_stats),
+        }
+        if self.provider_stats_dropped:
+            provider["stats_dropped"] = self.provider_stats_dropped
+        d["provider"] = provider
         return d

@@ -24,7 +24,12 @@ import numpy as np
 from globeview.geodesy import WGS84, ecef_to_lonlat
 from globeview.render.colour_ramp import ramp_texture_data
 from globeview.render.overlay_imagery import OverlaySet  # overlays:
-from globeview.render.render_set import FrameStats, RenderSet
+from globeview.render.render_set import (
+    FrameStats,
+    RenderSet,
+    clean_provider_stats,
+    level_histogram,
+)
 from globeview.render.tile_indices import IndexVariant
 from globeview.render.tile_loader import TileLoader, substitute_missing
 from globeview.render.tile_mesh import FLOATS_PER_VERTEX, TileMesh, build_tile_mesh
@@ -355,6 +360,8 @@ class GlobeRenderer:
         stats.frame_ms = stats.draw_ms + stats.lod_ms
         stats.tiles_culled_frustum = int(render_set.stats.get("tiles_culled_frustum", 0))
         stats.tiles_culled_horizon = int(render_set.stats.get("tiles_culled_horizon", 0))
+        stats.levels = level_histogram(render_set.keys)
+        stats.provider_stats, stats.provider_stats_dropped = clean_provider_stats(render_set.stats)
         if render_set.error_px is not None:
             finite = render_set.error_px[np.isfinite(render_set.error_px)]
             stats.max_sse_px = float(finite.max()) if len(finite) else 0.0
