@@ -641,23 +641,24 @@ class Tool(_Contribution):
 
 
 # -- layer types -----------------------------------------------------------------------------
-@runtime_checkable
-class LayerType(Protocol):
+class LayerType(_Contribution):
     """A kind of layer the user can open from a file.
 
+    Like every contribution it has ``name``, ``label`` (the open dialog's filter text),
+    ``settings`` and ``configure(values)`` (values in ``self.values``: e.g. a default line
+    width for the layers it opens; the host applies the stored values when it creates the
+    layer type and persists changes). Subclassing is optional: any object with ``open`` is
+    accepted (``configure`` is then called only if it has one).
+
     Attributes:
-        name: unique among layer types.
-        label: text for the open dialog's filter.
         extensions: lower-case file suffixes it opens, with the dot (e.g. ``(".gpx",)``).
     """
 
-    name: str
-    label: str
-    extensions: tuple[str, ...]
+    extensions: tuple[str, ...] = ()
 
     def open(self, path: str) -> Any:
         """Open ``path`` and return the layer object for the scene.
 
         Raise `globeview.errors.GlobeviewError` with a one-line message for bad input.
         """
-        ...
+        raise NotImplementedError
