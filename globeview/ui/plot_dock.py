@@ -74,6 +74,25 @@ def data_range(values: np.ndarray) -> tuple[float, float] | None:
     return lo, hi
 
 
+def _decimate(xs: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A run of pixel positions thinned for drawing: where x increases and there are many
+    more points than pixel columns, each column keeps its first, lowest, highest and last
+    point (in order), which draws the same pixels; otherwise the run unchanged."""
+    if xs.size <= 4 * max(np.ptp(xs), 1.0) or np.any(np.diff(xs) < 0):
+        return xs, ys
+    col = np.floor(xs).astype(np.int64)
+    starts = np.flatnonzero(np.diff(np.concatenate([[col[0] - 1], col])) != 0)
+    stops = np.append(starts[1:], xs.size)
+    lo = np.minimum.reduceat(ys, starts)
+    hi = np.maximum.reduceat(ys, starts)
+    keep = [starts, stops - 1]
+    for ext in (lo, hi):  # the first index in each column holding the extreme
+        hit = np.flatnonzero(ys == np.repeat(ext, stops - starts))
+        keep.append(hit[np.unique(np.searchsorted(stops, hit, side="right"), return_index=True)[1]])
+    idx = np.unique(np.concatenate(keep))
+    return xs[idx], ys[idx]
+
+
 class PlotView(QWidget):
     """Draws one `Plot` (or a hint when there is none)."""
 
@@ -176,28 +195,31 @@ class PlotView(QWidget):
         painter.restore()
 
     def _draw_curve(self, painter: QPainter) -> None:
+        """The curve as runs of finite values (NaN breaks it); a run that draws no length
+        (one point, or all its points on one pixel) is a dot, so no value goes unseen."""
         p = self.plot
         assert p is not None
         px, py = self.data_to_px(p.x, p.y)
         ok = np.isfinite(py)
-        path = QPainterPath()
-        pen_down = False
-        for x, y, good in zip(px.tolist(), py.tolist(), ok.tolist(), strict=True):
-            if not good:
-                pen_down = False
-            elif pen_down:
+        painter.setClipRect(self.frame_rect().adjusted(-4, -4, 4, 4))
+        painter.setPen(QPen(QColor(*CURVE_RGB), 2.0))
+        painter.setBrush(QColor(*CURVE_RGB))
+        # Runs of consecutive finite values: [start, stop) index pairs.
+        edges = np.diff(np.concatenate([[0], ok.astype(np.int8), [0]]))
+        for start, stop in zip(
+            np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True
+        ):
+            xs, ys = px[start:stop], py[start:stop]
+            if np.ptp(xs) < 1.0 and np.ptp(ys) < 1.0:
+                painter.drawEllipse(QPointF(float(xs[0]), float(ys[0])), 2.5, 2.5)
+                continue
+            xs, ys = _decimate(xs, ys)
+            path = QPainterPath(QPointF(float(xs[0]), float(ys[0])))
+            for x, y in zip(xs[1:].tolist(), ys[1:].tolist(), strict=True):
                 path.lineTo(x, y)
-            else:
-                path.moveTo(x, y)
-                pen_down = True
-        painter.setClipRect(self.frame_rect().adjusted(-2, -2, 2, 2))
-        pen = QPen(QColor(*CURVE_RGB), 2.0)
-        painter.setPen(pen)
-        painter.drawPath(path)
-        if ok.sum() == 1 or p.x.size == 1:  # a lone point is a dot, not an empty path
-            i = int(np.flatnonzero(ok)[0])
+            painter.setBrush(Qt.BrushStyle.NoBrush)
+            painter.drawPath(path)
             painter.setBrush(QColor(*CURVE_RGB))
-            painter.drawEllipse(QPointF(float(px[i]), float(py[i])), 3.0, 3.0)
 
 
 class PlotDock(QDockWidget):

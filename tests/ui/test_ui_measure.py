@@ -129,3 +129,27 @@ def test_a_tool_returning_garbage_for_its_plot_is_failed_not_fatal(
     qtbot.waitUntil(lambda: not win.plot_dock.isVisible(), timeout=5000)
     rec = win.plugins.registry.get("measure")
     assert rec.status == "failed" and "not a Plot" in (rec.error or "")
+
+
+@pytest.mark.parametrize(
+    ("x", "y", "curve"),
+    [
+        ([0.0, 1.0, 2.0, 3.0], [np.nan] * 4, False),  # every value missing: a hint, no curve
+        ([5.0], [7.0], True),  # one point: a dot
+        ([0.0, 0.0, 0.0], [1.0, 1.0, 1.0], True),  # A = B: a flat, zero-length profile
+        ([0.0, 1e-9, 2e-9], [1e12, -1e12, 3.0], True),  # extreme ranges
+        (np.linspace(0, 1, 200_000), np.sin(np.linspace(0, 60, 200_000)), True),  # many points
+        ([0.0, 1.0, 2.0, 3.0, 4.0], [1.0, np.nan, 2.0, np.nan, 1.5], True),  # gaps
+    ],
+)
+def test_dock_draws_any_plot_without_failing(qtbot, x, y, curve) -> None:
+    from globeview.ui.plot_dock import PlotDock
+
+    dock = PlotDock()
+    qtbot.addWidget(dock)
+    dock.resize(480, 300)
+    dock.show()
+    dock.set_plot(Plot("hostile", x, y, "x (u)", "y (u)"))
+    assert (curve_pixels(dock) > 0) == curve
+    dock.set_plot(None)
+    assert curve_pixels(dock) == 0 and not dock.export_button.isEnabled()

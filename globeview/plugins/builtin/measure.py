@@ -110,7 +110,7 @@ class MeasureTool(Tool):
     name = "measure"
     label = "Measure"
     settings = (
-        Setting("samples", "int", 256, min=2, max=10000, label="Profile samples",
+        Setting("samples", "int", 256, min=2, max=4096, label="Profile samples",
                 help="Points along the geodesic where the terrain height is sampled (count)."),
         Setting("units", "choice", "km", choices=("km", "mi"), label="Units",
                 help="Unit of distances (kilometres or statute miles); heights are metres."),
