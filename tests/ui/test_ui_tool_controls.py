@@ -196,11 +196,56 @@ def test_external_command_shortcut_and_button_call_the_tool_method(pins, make_wi
     assert tool.calls[-1] == "undo" and tool.calls.count("undo") == 2
 
 
+TWIN_MANIFEST = """
+name = "twin"
+version = "0.1.0"
+description = "A second tool wanting X, with no settings."
+kinds = ["tool"]
+api_version = "1.0"
+
+[[contributions]]
+name = "twin"
+kind = "tool"
+target = "twin_tool.tool:TwinTool"
+
+[[contributions.commands]]
+name = "poke"
+shortcut = "x"
+method = "poke"
+
+[[contributions.commands]]
+name = "needs-args"
+method = "needs_args"
+"""
+
+TWIN_TOOL = """
+from globeview.plugins.api import Tool
+
+
+class TwinTool(Tool):
+    name = "twin"
+
+    def poke(self):
+        self.poked = True
+
+    def needs_args(self, a, b):
+        return a + b
+"""
+
+
 def test_shortcut_clashes_are_one_line_notices_and_the_plugin_keeps_working(
     pins, make_window, qtbot
 ):
+    pins.add("twin_tool", TWIN_MANIFEST, {"tool": TWIN_TOOL})
     win = make_window(registry=_registry())
     texts = [m.text for m in win.errors.history]
+    # The first plugin (by name) keeps X; the second is told, in one line, and keeps its
+    # button.
+    assert win.command_actions["pins.clear"].shortcut().toString() == "X"
+    assert (
+        "plugin twin: command twin.poke shortcut X is taken by command pins.clear; left without it"
+    ) in texts
+    assert win.command_actions["twin.poke"].shortcut().isEmpty()
     clash = [t for t in texts if "pins.export" in t]
     assert clash == [
         "plugin pins: command pins.export shortcut Ctrl+E is taken by the window's "
@@ -226,6 +271,16 @@ def test_shortcut_clashes_are_one_line_notices_and_the_plugin_keeps_working(
     qtbot.keyClick(win.globe, Qt.Key.Key_W)
     assert (win.globe.camera.eye != eye).any()
     assert "walk" not in win.globe.active_tool().calls
+    # A tool without settings shows its commands alone; a command whose method wants
+    # arguments fails that tool with the reason, and nothing else.
+    assert win.run_command("twin.poke") and win.globe.active_tool().poked
+    assert win.tool_options.tool_name == "twin" and not win.tool_options.editors
+    win.run_command("twin.needs-args")
+    assert win.plugins.registry.get("twin").status == "failed"
+    assert "needs_args() missing 2 required positional arguments" in (
+        win.plugins.registry.get("twin").error
+    )
+    assert win.plugins.registry.get("pins").status == "ok" and "pins" in win.tool_actions
 
 
 def test_a_command_that_raises_fails_its_tool_with_the_reason_kept(pins, make_window):
