@@ -473,9 +473,13 @@ class DelegateProvider:
 
 
 def _failure_reason(host: Any, instance: Any) -> str:
-    """The error the host recorded for the plugin of ``instance`` ("unknown" if none)."""
+    """The error the host recorded for contribution ``instance`` (its own failure, else its
+    plugin's), for the one-line `ProviderUnavailable` message."""
     try:
-        return host.get(host.owner_of(instance)).error or "unknown"
+        plugin, name = host.contribution_of(instance)
+        rec = host.get(plugin)
+        failure = rec.failures.get(name)
+        return (failure.error if failure is not None else rec.error) or "unknown"
     except Exception:  # a host without records: the reason is in the log
         return "unknown (see the log)"
 

@@ -23,7 +23,7 @@ def test_list_table(globeview_config_dir: Path, capsys: pytest.CaptureFixture[st
     out = capsys.readouterr().out.splitlines()
     assert out[0].split()[:5] == ["NAME", "VERSION", "KINDS", "ENABLED", "STATUS"]
     row = next(line for line in out if line.startswith("fixed-level "))
-    assert row.split()[:5] == ["fixed-level", "0.1.0", "lod,tool", "yes", "ok"]
+    assert row.split()[:5] == ["fixed-level", "0.1.0", "lod,tool,layer", "yes", "ok"]
     assert any(line.startswith("chunked-sse ") for line in out)
 
 
@@ -35,7 +35,7 @@ def test_list_json(globeview_config_dir: Path, capsys: pytest.CaptureFixture[str
     fl = rows["fixed-level"]
     assert (fl["version"], fl["kinds"], fl["enabled"], fl["status"], fl["error"]) == (
         "0.1.0",
-        ["lod", "tool"],
+        ["lod", "tool", "layer"],
         False,
         "disabled",
         None,
@@ -79,7 +79,8 @@ def test_list_check_reports_failures(
 
 def test_validate_installed_name(capsys: pytest.CaptureFixture[str]) -> None:
     assert _run("validate", "fixed-level") == 0
-    assert capsys.readouterr().out.startswith("valid: fixed-level 0.1.0 (lod,tool; 2 contributions")
+    out = capsys.readouterr().out
+    assert out.startswith("valid: fixed-level 0.1.0 (lod,tool,layer; 4 contributions")
     assert _run("validate", "fixed-level", "--import") == 0
 
 

@@ -23,7 +23,7 @@ def test_discovery_lists_builtin_and_example(globeview_registry: PluginRegistry)
     ex = globeview_registry.get("fixed-level")
     assert not ex.builtin and ex.source == "globeview-fixedlevel 0.1.0"
     assert ex.enabled and ex.status == "ok" and ex.error is None
-    assert ex.kinds == ("lod", "tool")
+    assert ex.kinds == ("lod", "tool", "layer")
     # Built-ins come first.
     assert next(iter(globeview_registry)).builtin
 

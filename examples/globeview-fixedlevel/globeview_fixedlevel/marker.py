@@ -1,21 +1,36 @@
-"""`MarkerTool`: a left click drops a marker at the picked point; Escape clears them."""
+"""`MarkerTool`: a left click drops a marker at the picked point; Escape clears them.
+
+A tool with settings: the host builds the controls (a spin box for ``size_px``, a combo box
+for ``color``, a check box for ``numbered``) from the `Setting`s, persists the values and
+calls ``configure``; the tool reads them from ``self.values``.
+"""
 
 from __future__ import annotations
 
-from globeview.plugins.api import KeyEvent, Marker, Overlay, PointerEvent, Setting, Tool
-from globeview.render.view_state import ViewState
+from globeview.plugins.api import KeyEvent, Marker, Overlay, PointerEvent, Setting, Tool, ViewState
+
+#: The colours offered by the ``color`` setting (RGBA 0..1); "red" is `Marker`'s default.
+COLORS: dict[str, tuple[float, float, float, float]] = {
+    "red": (1.0, 0.2, 0.1, 1.0),
+    "yellow": (1.0, 0.9, 0.1, 1.0),
+    "cyan": (0.1, 0.9, 1.0, 1.0),
+}
 
 
 class MarkerTool(Tool):
     """Records the picked positions of left clicks and draws one marker per click.
 
     ``markers`` holds (lon, lat, height) in degrees and metres; the overlay draws them at
-    their ECEF positions.
+    their ECEF positions (``PointerEvent.picked``), labelled 1, 2, ... when ``numbered``.
     """
 
     name = "marker"
     label = "Drop markers"
-    settings = (Setting("size_px", "float", 10.0, min=2.0, max=64.0, label="Size", help="Pixels."),)
+    settings = (
+        Setting("size_px", "float", 10.0, min=2.0, max=64.0, label="Size", help="Pixels."),
+        Setting("color", "choice", "red", choices=tuple(COLORS), label="Colour"),
+        Setting("numbered", "bool", True, label="Numbered", help="Label markers 1, 2, ..."),
+    )
 
     def __init__(self, context=None) -> None:
         super().__init__(context)
@@ -42,4 +57,9 @@ class MarkerTool(Tool):
 
     def overlay(self, view: ViewState) -> list[Overlay]:
         size = float(self.values["size_px"])
-        return [Marker(p, size_px=size, label=str(i + 1)) for i, p in enumerate(self._ecef)]
+        color = COLORS[self.values["color"]]
+        numbered = bool(self.values["numbered"])
+        return [
+            Marker(p, color=color, size_px=size, label=str(i + 1) if numbered else "")
+            for i, p in enumerate(self._ecef)
+        ]

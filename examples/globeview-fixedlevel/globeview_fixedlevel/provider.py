@@ -1,15 +1,19 @@
-"""`FixedLevelProvider`: every visible tile at one quadtree level, at full resolution.
+"""Two LOD providers written against the plugin API alone (`globeview.plugins.api`).
 
-The simplest LOD provider that is still useful to compare against: no refinement by error,
-only culling. Visibility is decided level by level from the two level-0 tiles down, so a tile
-hidden by the frustum or the horizon never has its children tested (the work is bounded by
-the visible tiles, not by the 2^(2L+1) tiles of the level).
+- `FixedLevelProvider` (``fixed-level``): every visible tile at one quadtree level, at full
+  resolution. The simplest provider that is still useful to compare against: no refinement
+  by error, only culling. Visibility is decided level by level from the two level-0 tiles
+  down, so a tile hidden by the frustum or the horizon never has its children tested (the
+  work is bounded by the visible tiles, not by the 2^(2L+1) tiles of the level).
+- `CappedProvider` (``capped-sse``): wraps the default provider, chunked-sse, through
+  `PluginContext.lod_provider` and caps how deep it refines: tiles finer than ``max_level``
+  are replaced by their ancestor at that level. It shows delegation: the host runs
+  chunked-sse isolated, so a bug there fails chunked-sse, not this plugin.
 
-Under a displacement (a tool's ``view.displace``, e.g. the terrain collapse) culling tests the
-displaced bounding points. No crack can open along the collapse's fold lines: every tile is
-drawn at the same level and at stride 1 (already the finest index buffer), so neighbours share
-every edge vertex and the displaced mesh stays closed; a long edge across a fold is drawn as a
-chord (the fold looks coarse at a coarse level), but both sides draw the same chord.
+Under a displacement (a tool's ``view.displace``, e.g. the terrain collapse) fixed-level's
+culling tests the displaced bounding points. No crack can open along the collapse's fold
+lines: every tile is drawn at the same level and at stride 1 (already the finest index
+buffer), so neighbours share every edge vertex and the displaced mesh stays closed.
 """
 
 from __future__ import annotations
@@ -18,17 +22,19 @@ from typing import Any
 
 import numpy as np
 
-from globeview.plugins.api import LodProvider, Setting
-from globeview.render.culling import (
+from globeview.plugins.api import (
+    IndexVariant,
+    LodProvider,
+    RenderSet,
+    Setting,
+    ViewState,
     bounding_distance,
     frustum_visible,
     horizon_visible,
+    level_shape,
     tile_bounding_points,
+    tile_bounds_arrays,
 )
-from globeview.render.render_set import RenderSet
-from globeview.render.tile_indices import IndexVariant
-from globeview.render.view_state import ViewState
-from globeview.terrain.quadtree import level_shape, tile_bounds_arrays
 
 #: Height range (m) assumed for tiles when no terrain is open or it has no data there:
 #: deep-ocean floor to above Everest, so culling stays conservative.
@@ -130,3 +136,96 @@ class FixedLevelProvider(LodProvider):
                 "tiles_over_budget": float(max(n_visible - budget, 0)),
             },
         )
+
+
+def cap_render_set(rs: RenderSet, max_level: int) -> tuple[RenderSet, int]:
+    """``rs`` with every tile deeper than ``max_level`` replaced by its ancestor at
+    ``max_level`` (each ancestor once), and how many tiles were replaced.
+
+    A RenderSet is a cut of the quadtree (no tile together with one of its ancestors), so
+    the ancestors overlap nothing that stays. They are drawn at full resolution with skirts
+    (stride 1: the finest, so never coarser than what they replace) and the pole fans of
+    their row; their ``error_px`` is the worst of the tiles they replace times 2 per level
+    climbed (a level coarser roughly doubles the geometric error). The input is not changed
+    (it may be the delegate's cached set).
+    """
+    keys = rs.keys
+    deep = keys[:, 0] > max_level
+    n_deep = int(np.count_nonzero(deep))
+    if n_deep == 0:
+        return rs, 0
+    shift = keys[deep, 0] - max_level
+    anc = np.stack(
+        [np.full(n_deep, max_level), keys[deep, 1] >> shift, keys[deep, 2] >> shift], axis=1
+    )
+    uniq, group = np.unique(anc, axis=0, return_inverse=True)
+    group = group.reshape(-1)
+
+    keep = ~deep
+    variants = list(rs.variants)
+    nrows = 1 << max_level
+    poles = np.where(
+        nrows == 1,
+        3,
+        np.where(uniq[:, 2] == 0, 1, np.where(uniq[:, 2] == nrows - 1, 2, 0)),
+    )
+    names = (None, "north", "south", "both")
+    new_ids = np.empty(len(uniq), dtype=np.int64)
+    for code in np.unique(poles):
+        variant = IndexVariant(stride=1, skirts=True, pole=names[int(code)])
+        if variant not in variants:
+            variants.append(variant)
+        new_ids[poles == code] = variants.index(variant)
+
+    error_px = None
+    if rs.error_px is not None:
+        worst = np.zeros(len(uniq))
+        np.maximum.at(worst, group, np.asarray(rs.error_px, np.float64)[deep] * 2.0**shift)
+        error_px = np.concatenate([np.asarray(rs.error_px, np.float64)[keep], worst])
+    # Tiles the delegate triangulated itself keep their lists, renumbered to their new rows.
+    new_row = np.cumsum(keep) - 1
+    custom = {int(new_row[r]): idx for r, idx in rs.custom_indices.items() if keep[int(r)]}
+    capped = RenderSet(
+        keys=np.concatenate([keys[keep], uniq]),
+        variant_ids=np.concatenate([rs.variant_ids[keep], new_ids]),
+        variants=variants,
+        custom_indices=custom,
+        error_px=error_px,
+        stats=dict(rs.stats),
+    )
+    return capped, n_deep
+
+
+class CappedProvider(LodProvider):
+    """chunked-sse, refining no deeper than ``max_level`` (delegation through the API)."""
+
+    name = "capped-sse"
+    label = "Chunked, capped level"
+    settings = (
+        Setting(
+            "max_level",
+            "int",
+            8,
+            min=0,
+            max=22,
+            label="Deepest level",
+            help="Quadtree level beyond which tiles are not refined (level 8: ~700 m tiles).",
+        ),
+    )
+
+    def __init__(self, context=None) -> None:
+        super().__init__(context)
+        # Looked up once; each select asks the host again, so a later failure is noticed.
+        self._inner = context.lod_provider("chunked-sse") if context is not None else None
+
+    def select(self, view: ViewState, terrain: Any) -> RenderSet:
+        if self._inner is None:  # a bare object (no host): nothing to delegate to
+            return RenderSet.empty()
+        rs = self._inner.select(view, terrain)  # ProviderUnavailable fails this frame
+        capped, replaced = cap_render_set(rs, int(self.values["max_level"]))
+        capped.stats["tiles_capped"] = float(replaced)
+        return capped
+
+    def reset(self) -> None:
+        if self._inner is not None:
+            self._inner.reset()
