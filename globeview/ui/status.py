@@ -40,6 +40,32 @@ def format_distance(m: float) -> str:
     return f"{m / 1000.0:,.1f} km" if abs(m) >= 10000.0 else f"{m:,.0f} m"
 
 
+#: Most provider stats entries the LOD field's tooltip lists.
+TOOLTIP_STATS = 16
+
+
+def provider_tooltip(stats: FrameStats) -> str:
+    """The LOD field's tooltip: the provider that drew the last frame, the tiles it drew per
+    quadtree level, and the provider's own counters (`FrameStats.provider_stats`, already
+    cleaned by the renderer: JSON scalars, clipped), a line each."""
+    lines = [f"Active LOD provider: {stats.lod_provider or '—'}"]
+    if stats.levels:
+        lines.append(
+            "Tiles per level: " + ", ".join(f"L{lv}: {n}" for lv, n in stats.levels.items())
+        )
+    items = list(stats.provider_stats.items())
+    if items:
+        lines.append(f"{stats.lod_provider or 'Provider'} stats:")
+        for key, value in items[:TOOLTIP_STATS]:
+            shown = f"{value:.4g}" if isinstance(value, float) else str(value)
+            lines.append(f"  {key} = {shown[:60]}")
+        if len(items) > TOOLTIP_STATS:
+            lines.append(f"  ... {len(items) - TOOLTIP_STATS} more")
+    if stats.provider_stats_dropped:
+        lines.append(f"  ({stats.provider_stats_dropped} entries dropped: not numbers or text)")
+    return "\n".join(lines)
+
+
 class StatusBar(QStatusBar):
     """Permanent fields (cursor, altitude, fps, triangles, tiles, LOD) plus transient notices."""
 
@@ -116,6 +142,7 @@ class StatusBar(QStatusBar):
         self.triangles.setText(f"{stats.triangles:,} tris")
         self.tiles.setText(f"{stats.tiles_drawn} tiles / {stats.tiles_loading} loading")
         self.lod.setText(f"LOD {stats.lod_provider or '—'}")
+        self.lod.setToolTip(provider_tooltip(stats))
 
     def notice(self, text: str) -> None:
         """A non-modal one-line message."""
