@@ -50,6 +50,24 @@ class RenderSet:
         error_px: (N,) the screen-space error (pixels) each tile is drawn with, as the
             provider estimated it; the frame's max goes to the stats.
         stats: provider counters for the frame (e.g. tiles culled by frustum / horizon).
+
+    What a render set promises, and what the host checks (the plugin contract):
+
+    - The host checks every set with `validate` before drawing (shapes, key ranges,
+      variants, custom index lists, ``error_px``, the numeric stats); a set that fails fails
+      the provider's contribution and the frame is drawn by chunked-sse instead.
+    - It should be a *cut* of the quadtree: no tile twice, and no tile together with one of
+      its ancestors. The host does not check this (it would cost a sort per frame); tiles
+      that overlap are all drawn and z-fight where their surfaces differ.
+    - It need not cover the globe: a region without a tile is simply not drawn (culled
+      tiles are left out), and the order of the rows does not matter (the renderer sorts
+      by distance).
+    - Cracks between neighbours of different levels or strides are the provider's to hide:
+      skirts (`IndexVariant` has them by default) or stitched ``edge_strides``.
+    - The host never writes into a set, so a provider may hand out a cached one again; it
+      may draw a transformed copy: coarser when the set exceeds the GPU pool (siblings
+      replaced by their parent, stat ``tiles_coarsened``), or with loaded ancestors standing
+      in for tiles still loading. Both keep a cut a cut.
     """
 
     keys: np.ndarray
