@@ -116,6 +116,15 @@ class Provider(LodProvider):
         return RenderSet(keys, np.zeros(8, np.int64), [IndexVariant()], stats=stats)
 """
 
+# A tool whose headless entry has a bug (not a GlobeviewError: the plugin is at fault).
+BROKEN_TOOL = """
+from globeview.plugins.api import Tool
+
+class Tool(Tool):
+    def place_points(self, points):
+        raise ValueError("cannot count to " + str(len(points)))
+"""
+
 BROKEN_PROVIDER = """
 from globeview.plugins.api import LodProvider
 
@@ -133,6 +142,8 @@ def site(plugin_site: PluginSite) -> PluginSite:
                     {"impl": STATS_PROVIDER})  # fmt: skip
     plugin_site.add("gvt_boom", plugin_manifest("gvt-boom", "gvt_boom"),
                     {"impl": BROKEN_PROVIDER})  # fmt: skip
+    plugin_site.add("gvt_badtool", plugin_manifest("gvt-badtool", "gvt_badtool", "tool", "Tool"),
+                    {"impl": BROKEN_TOOL})  # fmt: skip
     return plugin_site
 
 
@@ -283,3 +294,19 @@ def test_strict_exits_3_and_writes_nothing_when_a_plugin_fails(
     # --strict with nothing failing is an ordinary render.
     proc, out = render(site, tmp_path, "fine", "--strict", "--tool", "gvt-pins", "--point", "1,1")
     assert proc.returncode == 0 and out.exists(), proc.stderr
+
+
+def test_a_failed_tool_is_named_and_strict_refuses(site: PluginSite, tmp_path: Path) -> None:
+    proc, out = render(site, tmp_path, "badtool", "--tool", "gvt-badtool", "--point", "1,2")
+    assert proc.returncode == 0 and out.exists(), proc.stderr
+    assert "provider: chunked-sse, tool gvt-badtool failed: ValueError: cannot count to 1" in (
+        proc.stdout
+    )
+    proc, out = render(
+        site, tmp_path, "badtool-strict", "--tool", "gvt-badtool", "--point", "1,2", "--strict"
+    )
+    assert proc.returncode == 3 and not out.exists(), proc.stderr
+    assert lines(proc.stderr)[-1] == (
+        "globeview: error: tool gvt-badtool failed: ValueError: cannot count to 1; "
+        "nothing written (--strict)"
+    )

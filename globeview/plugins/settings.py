@@ -119,12 +119,24 @@ class JsonFileSettings:
         return self._load().get(key, default)
 
     def set(self, key: str, value: Any) -> None:
-        from globeview.fileio import atomic_write_text
+        from globeview.fileio import OutputError, atomic_write_text, describe_os_error
 
         data, corrupt = self._read()
         data[key] = value
         text = json.dumps(data, indent=2, sort_keys=True)  # TypeError for non-JSON values
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:  # e.g. $GLOBEVIEW_CONFIG_DIR names a file
+            folder = self.path.parent
+            why = (
+                f"{folder} is not a folder"
+                if isinstance(exc, FileExistsError | NotADirectoryError)
+                else describe_os_error(exc, folder)
+            )
+            raise OutputError(
+                f"cannot write the settings file {self.path}: {why} (the config folder is "
+                "$GLOBEVIEW_CONFIG_DIR, else $XDG_CONFIG_HOME/globeview, else ~/.config/globeview)"
+            ) from None
         if corrupt:
             aside = self.path.with_name(
                 f"{self.path.name}.corrupt-{time.strftime('%Y%m%d-%H%M%S')}"

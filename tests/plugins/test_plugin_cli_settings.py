@@ -249,3 +249,14 @@ def test_validate_import_names_the_contribution_that_fails(
     assert proc.stderr.strip() == (
         "invalid: gvt-halfbroken: gvt-halfbroken-tool: ImportError: needs libfoo"
     )
+
+
+def test_a_config_dir_that_is_a_file_is_one_line(site: PluginSite, tmp_path: Path) -> None:
+    not_a_folder = tmp_path / "config"
+    not_a_folder.write_text("mine\n")
+    proc = run(site, not_a_folder, "plugins", "set", "gvt-setpins.count", "4")
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
+    assert (
+        f"{not_a_folder} is not a folder" in proc.stderr and "GLOBEVIEW_CONFIG_DIR" in proc.stderr
+    )
+    assert not_a_folder.read_text() == "mine\n"
