@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from globeview.plugins.api import GlobeviewError, Lines
+from globeview.plugins.api import GlobeviewError, LayerType, Lines
 
 #: Largest .graticule file read (bytes): the format is a handful of lines.
 MAX_BYTES = 64 * 1024
@@ -118,15 +118,14 @@ def graticule_paths(lat_step: float, lon_step: float) -> list[np.ndarray]:
     return paths
 
 
-class GraticuleLayerType:
-    """Opens ``.graticule`` files as lines of constant latitude and longitude."""
+class GraticuleLayerType(LayerType):
+    """Opens ``.graticule`` files as lines of constant latitude and longitude. The manifest
+    declares the same ``extensions``, so the host dispatches files here without importing
+    the plugin first."""
 
     name = "graticule"
     label = "Graticule (lat/lon grid)"
     extensions = (".graticule",)
-
-    def __init__(self, context=None) -> None:
-        self.context = context
 
     def open(self, path: str) -> Lines:
         """The graticule a file describes, as one `Lines` drawable (rhumb interpolation)."""
