@@ -15,10 +15,12 @@ time in seconds and redraws while it returns True; nothing here needs Qt or a ti
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
+from globeview.errors import GlobeviewError
 from globeview.geodesy import lonlat_to_ecef
 from globeview.plugins.api import KeyEvent, Marker, Overlay, PointerEvent, Polyline, Setting, Tool
 from globeview.plugins.builtin.collapse_geometry import CollapseFrame, ellipsoid_point_along
@@ -119,6 +121,19 @@ class CollapseTool(Tool):
         else:
             self.progress, self._target, self._anim_start = 1.0, 1.0, None
         self._redraw()
+
+    def place_points(self, points: Sequence[tuple[float, float]]) -> bool:
+        """Headless input (`Tool.place_points`): A and B, collapsed at once to the ``ratio``
+        setting (a headless frame has no time to animate). One-line `GlobeviewError` for
+        anything but two points or an impossible pair."""
+        if len(points) != 2:
+            raise GlobeviewError(f"the collapse tool takes two points A and B, not {len(points)}")
+        (lon_a, lat_a), (lon_b, lat_b) = points
+        try:
+            self.set_points(lon_a, lat_a, lon_b, lat_b)
+        except ValueError as exc:
+            raise GlobeviewError(f"collapse: {exc}") from None
+        return True
 
     def collapse(self) -> None:
         """Collapse (animated if the setting says so) the current A-B pair."""
