@@ -20,9 +20,17 @@ from typing import Any
 
 import numpy as np
 
-from globeview.errors import GlobeviewError
-from globeview.geodesy import lonlat_to_ecef
-from globeview.plugins.api import KeyEvent, Marker, Overlay, PointerEvent, Polyline, Setting, Tool
+from globeview.plugins.api import (
+    GlobeviewError,
+    KeyEvent,
+    Marker,
+    Overlay,
+    PointerEvent,
+    Polyline,
+    Setting,
+    Tool,
+    lonlat_to_ecef,
+)
 from globeview.plugins.builtin.collapse_geometry import CollapseFrame, ellipsoid_point_along
 from globeview.plugins.builtin.collapse_glsl import COLLAPSE_GLSL
 
