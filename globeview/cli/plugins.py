@@ -186,7 +186,9 @@ def _import_contributions(reg, manifest) -> tuple[list[str], list[str]]:
             instance = reg.load_contribution(manifest.name, c.name)
             if instance is None:
                 why = contribution_failure(reg, c.name) or reg.get(manifest.name).error
-                problems.append(f"{c.name}: {why or 'not created'}")
+                why = why or "not created"
+                # Name the contribution unless it is the plugin's namesake (the line has it).
+                problems.append(why if c.name == manifest.name else f"{c.name}: {why}")
                 continue
             settings = contribution_settings(reg, instance)
             for s in settings:
