@@ -361,12 +361,19 @@ class PluginContext:
         enabled providers) when no enabled plugin declares ``name``, and without a host.
         """
         host = self.host
+        shown = _short_repr(name)
         if host is None:
-            raise ProviderUnavailable(f"no host to find LOD provider {name!r} in (bare context)")
-        if not host.offers(PluginKind.LOD, name):
+            raise ProviderUnavailable(f"no host to find LOD provider {shown} in (bare context)")
+        if not isinstance(name, str) or not host.offers(PluginKind.LOD, name):
             enabled = ", ".join(host.declared(PluginKind.LOD)) or "none"
-            raise ProviderUnavailable(f"no enabled LOD provider {name!r} (enabled: {enabled})")
+            raise ProviderUnavailable(f"no enabled LOD provider {shown} (enabled: {enabled})")
         return DelegateProvider(host, name)
+
+
+def _short_repr(value: Any, limit: int = 60) -> str:
+    """``repr(value)`` cut to ``limit`` characters (for one-line messages)."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 class _Contribution:
@@ -427,8 +434,10 @@ class DelegateProvider:
 
     ``select`` goes through the host's registry (`PluginRegistry.select`): isolated, timed
     against the frame budget, and checked to return a `RenderSet`. The render set it returns
-    is the other provider's own (it may be cached by that provider and handed out again next
-    frame): copy the arrays you change instead of writing into them.
+    is read-only (its arrays are read-only views, its containers copies): the delegate may
+    hand the same set out again next frame, so build a new `RenderSet` from copies of what
+    you change. Writing into it raises ValueError, which fails your provider, not the
+    delegate.
     """
 
     def __init__(self, host: Any, name: str) -> None:
@@ -453,6 +462,7 @@ class DelegateProvider:
         disabled, when it fails now (the message says why) and on a delegation cycle."""
         if self._busy:  # A wraps B wraps A: fail this frame instead of recursing
             raise ProviderUnavailable(f"delegation cycle through LOD provider {self.name!r}")
+        _check_frame_args(view, terrain)  # the caller's garbage must not fail the delegate
         inner = self._instance()
         self._busy = True
         try:
@@ -463,13 +473,47 @@ class DelegateProvider:
             raise ProviderUnavailable(
                 f"LOD provider {self.name!r} failed: {_failure_reason(self._host, inner)}"
             )
-        return rs
+        return _read_only(rs)
 
     def reset(self) -> None:
         """Ask the delegate to forget what it cached between frames (isolated)."""
         inner = self._host.find(PluginKind.LOD, self.name)
         if inner is not None:
             self._host.invoke(inner, "reset")
+
+
+def _check_frame_args(view: Any, terrain: Any) -> None:
+    """TypeError unless ``view`` is a `ViewState` and ``terrain`` a `TerrainStack` or None
+    (what the host passes a provider's ``select``)."""
+    from globeview.render.view_state import ViewState
+    from globeview.terrain.stack import TerrainStack
+
+    if not isinstance(view, ViewState):
+        raise TypeError(f"select() needs a ViewState, not {type(view).__name__}")
+    if terrain is not None and not isinstance(terrain, TerrainStack):
+        raise TypeError(f"select() needs a TerrainStack or None, not {type(terrain).__name__}")
+
+
+def _frozen(a: Any) -> Any:
+    """A read-only view of array ``a`` (the original stays writable for its owner)."""
+    if isinstance(a, np.ndarray):
+        a = a.view()
+        a.flags.writeable = False
+    return a
+
+
+def _read_only(rs: RenderSet) -> RenderSet:
+    """A plain `RenderSet` sharing ``rs``'s data through read-only views (microseconds)."""
+    from globeview.render.render_set import RenderSet
+
+    return RenderSet(
+        keys=_frozen(rs.keys),
+        variant_ids=_frozen(rs.variant_ids),
+        variants=list(rs.variants),
+        custom_indices={r: _frozen(i) for r, i in rs.custom_indices.items()},
+        error_px=_frozen(rs.error_px),
+        stats=dict(rs.stats),
+    )
 
 
 def _failure_reason(host: Any, instance: Any) -> str:

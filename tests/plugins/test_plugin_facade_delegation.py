@@ -127,3 +127,83 @@ def test_delegation_cycle_fails_instead_of_recursing(
     assert reg.select(a, headless_view(0.0, 0.0, 1.0e7), None) is None
     errors = " ".join(reg.get(n).error or "" for n in ("cycle-a", "cycle-b"))
     assert "delegation cycle" in errors and "RecursionError" not in errors
+
+
+SCRIBBLER = """
+from globeview.plugins.api import LodProvider
+
+
+class Provider(LodProvider):
+    def __init__(self, context=None):
+        super().__init__(context)
+        self.inner = context.lod_provider("chunked-sse")
+
+    def select(self, view, terrain):
+        rs = self.inner.select(view, terrain)
+        rs.keys[:, 0] = 99  # writes into chunked-sse's (cached) render set
+        return rs
+"""
+
+GARBAGE_ARGS = """
+from globeview.plugins.api import LodProvider
+
+
+class Provider(LodProvider):
+    def __init__(self, context=None):
+        super().__init__(context)
+        self.inner = context.lod_provider("chunked-sse")
+
+    def select(self, view, terrain):
+        return self.inner.select("not a view", terrain)
+"""
+
+
+def test_writing_into_the_delegates_set_fails_the_writer(
+    plugin_site, globeview_config_dir, terrain, headless_view
+):
+    """chunked-sse hands out its cached set again next frame: a wrapper scribbling on it
+    must fail itself, not poison chunked-sse."""
+    plugin_site.add(
+        "gv_scribbler", plugin_manifest("scribbler", "gv_scribbler"), {"impl": SCRIBBLER}
+    )
+    reg = PluginRegistry().discover()
+    view = headless_view(-71.3, 44.3, 3.0e5)
+    assert reg.select(reg.find("lod", "scribbler"), view, terrain) is None
+    assert "read-only" in reg.get("scribbler").error
+    sse = reg.find("lod", "chunked-sse")
+    rs = reg.select(sse, view, terrain)
+    assert rs is not None and rs.keys[:, 0].max() < 30
+    assert reg.get("chunked-sse").status == "ok"
+
+
+def test_garbage_arguments_fail_the_caller_not_the_delegate(
+    plugin_site, globeview_config_dir, terrain, headless_view
+):
+    plugin_site.add(
+        "gv_garbage_args",
+        plugin_manifest("garbage-args", "gv_garbage_args"),
+        {"impl": GARBAGE_ARGS},
+    )
+    reg = PluginRegistry().discover()
+    view = headless_view(0.0, 0.0, 1.0e7)
+    assert reg.select(reg.find("lod", "garbage-args"), view, terrain) is None
+    assert "TypeError" in reg.get("garbage-args").error
+    assert reg.get("chunked-sse").status == "ok"
+
+
+def test_huge_provider_name_gives_a_short_line(globeview_registry):
+    ctx = globeview_registry.context("fixed-level")
+    with pytest.raises(ProviderUnavailable) as info:
+        ctx.lod_provider("x" * 100_000)
+    assert len(str(info.value)) < 400
+
+
+def test_a_provider_wrapping_itself_fails_once_in_one_line(
+    plugin_site, globeview_config_dir, headless_view
+):
+    _add_wrapper(plugin_site, "ouroboros", "ouroboros")
+    reg = PluginRegistry().discover()
+    assert reg.select(reg.find("lod", "ouroboros"), headless_view(0, 0, 1e7), None) is None
+    rec = reg.get("ouroboros")
+    assert rec.status == "failed" and "delegation cycle" in rec.error
+    assert "\n" not in rec.error
