@@ -310,3 +310,14 @@ def test_a_failed_tool_is_named_and_strict_refuses(site: PluginSite, tmp_path: P
         "globeview: error: tool gvt-badtool failed: ValueError: cannot count to 1; "
         "nothing written (--strict)"
     )
+
+
+def test_no_provider_left_says_nothing_was_drawn(site: PluginSite, tmp_path: Path) -> None:
+    """The requested provider fails and the fallback is disabled: the frame is empty, and
+    the line must not claim chunked-sse drew it."""
+    assert globeview(site, tmp_path, "plugins", "disable", "chunked-sse").returncode == 0
+    proc, out = render(site, tmp_path, "empty", "--lod", "gvt-boom")
+    assert out.exists()
+    assert proc.returncode == 0, proc.stderr
+    assert "(160x120; provider: none, no terrain drawn, fell back from gvt-boom: " in proc.stdout
+    assert ": 0 triangles, 0 tiles" in proc.stdout

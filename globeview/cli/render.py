@@ -366,6 +366,7 @@ def resolve_plugin_args(registry, tool: str | None, sets: list[tuple[str, str]])
 def run(args: argparse.Namespace) -> int:
     from PIL import Image
 
+    from globeview.plugins.api import PluginKind
     from globeview.plugins.headless import contribution_failure, place_points
     from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.session import GlobeSession
@@ -451,7 +452,10 @@ def run(args: argparse.Namespace) -> int:
         return STRICT_EXIT
     write_outputs(Image.fromarray(target.read_rgb()), stats, out, stats_path)
     degraded = st.extra.get("degraded")
-    said = [f"provider: {st.lod_provider or 'none'}", *failure_texts(args.lod, tool_name, failures)]
+    drew = st.lod_provider
+    if not drew or not registry.offers(PluginKind.LOD, drew):
+        drew = "none, no terrain drawn"  # the fallback failed too: an empty frame
+    said = [f"provider: {drew}", *failure_texts(args.lod, tool_name, failures)]
     print(
         f"wrote {out} ({size[0]}x{size[1]}; {', '.join(said)}): {st.triangles} triangles, "
         f"{st.tiles_drawn} tiles, {st.frame_ms:.1f} ms/frame, max screen-space error "
