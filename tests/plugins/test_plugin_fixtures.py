@@ -42,6 +42,11 @@ MANIFEST = """
     name = "broken"
     kind = "lod"
     target = "gvt_probe.impl:Broken"
+
+    [[contributions]]
+    name = "pins"
+    kind = "tool"
+    target = "gvt_probe.impl:Pins"
     """
 
 IMPL = """
@@ -71,6 +76,26 @@ IMPL = """
         def overlay(self, view):
             p = tuple(float(v) for v in lonlat_to_ecef(0.0, 20.0, 5000.0))
             return [Marker(p, color=(1.0, 0.0, 1.0, 1.0), size_px=self.values["size"])]
+
+    class Pins(Tool):
+        '''A magenta dot 5 km above every place clicked (the host clicks headless points).'''
+
+        def __init__(self, context=None):
+            super().__init__(context)
+            self.clicked = []
+
+        def on_mouse(self, event):
+            if event.kind == "press" and event.lonlat is not None:
+                self.clicked.append(event.lonlat[:2])
+                return True
+            return False
+
+        def overlay(self, view):
+            return [
+                Marker(tuple(float(v) for v in lonlat_to_ecef(lon, lat, 5000.0)),
+                       color=(1.0, 0.0, 1.0, 1.0), size_px=12.0)
+                for lon, lat in self.clicked
+            ]
     """
 
 
@@ -145,6 +170,22 @@ def test_rendered_tool_overlay_and_settings(
         rendered("chunked-sse", tool="dot", settings={"dot": {"colour": 1}})
     with pytest.raises(KeyError, match="no enabled contribution named 'nope'"):
         rendered("chunked-sse", settings={"nope": {}})
+
+
+@pytest.mark.gl
+def test_rendered_gives_a_tool_its_points(
+    plugin_site: PluginSite, globeview_registry, rendered
+) -> None:
+    add_probe(plugin_site)
+    globeview_registry.discover()
+    none = rendered("chunked-sse", tool="pins", size=(96, 64))
+    assert not magenta(none.image).any()
+    # (0 E, 20 N) is in the middle of the default view; (60 E, 20 N) right of it.
+    frame = rendered("chunked-sse", tool="pins", points=[(0.0, 20.0), (60.0, 20.0)], size=(96, 64))
+    tool = frame.session.tool()
+    assert np.allclose(tool.clicked, [(0.0, 20.0), (60.0, 20.0)])
+    dots = magenta(frame.image)
+    assert dots[28:36, 44:52].any() and dots[:, 56:].any() and not dots[:, :40].any()
 
 
 @pytest.mark.gl
