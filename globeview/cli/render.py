@@ -199,7 +199,7 @@ def parse_tool_args(args: argparse.Namespace) -> tuple[str | None, list, list[tu
         points += [parse_point(p, "--points") for p in parts]
     points += [parse_point(p, "--point") for p in args.point]
     if len(points) > MAX_TOOL_POINTS:
-        raise GlobeviewError(f"{len(points)} tool points (at most {MAX_TOOL_POINTS})")
+        raise GlobeviewError(f"--points/--point: {len(points)} points (at most {MAX_TOOL_POINTS})")
     tool = args.tool
     sets = [(text, "--set") for text in args.set_values]
     if args.collapse:
