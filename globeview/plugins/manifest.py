@@ -13,6 +13,7 @@ Format (all keys at the top level, plus one ``[[contributions]]`` table per cont
     kind = "lod"                         # one of the plugin's kinds
     target = "globeview_fixedlevel.provider:FixedLevelProvider"
     label = "Fixed level"                # optional, for menus
+    # extensions = [".gpx"]              # layer contributions: file suffixes it opens
 
 A tool contribution may declare commands: buttons and menu entries (optionally with a
 keyboard shortcut) that call a method of the tool object, read here without importing it::
@@ -113,6 +114,9 @@ class Contribution:
     target: str
     label: str = ""
     commands: tuple[Command, ...] = ()
+    #: Layer contributions: lower-case file suffixes it opens, with the dot (``(".gpx",)``),
+    #: read without importing the plugin (file dispatch, the Open Overlay filter).
+    extensions: tuple[str, ...] = ()
 
     @property
     def module(self) -> str:
@@ -183,6 +187,28 @@ def _kind(value: Any, where: str) -> PluginKind:
             f"{where}unknown kind {_short(value)} (expected one of {', '.join(_KINDS)})"
         )
     return PluginKind(value)
+
+
+_EXTENSION_RE = re.compile(r"^(\.[a-z0-9_+-]{1,16}){1,3}$")
+
+
+def _extensions(c: dict[str, Any], kind: PluginKind, where: str) -> tuple[str, ...]:
+    """A layer contribution's optional ``extensions = [".gpx", ...]`` (lower-cased)."""
+    if "extensions" not in c:
+        return ()
+    raw = c["extensions"]
+    if kind != PluginKind.LAYER:
+        raise ManifestError(f"{where}'extensions' is for layer contributions only")
+    if not isinstance(raw, list) or len(raw) > 32:
+        raise ManifestError(f"{where}'extensions' must be a list of at most 32 suffixes")
+    out: list[str] = []
+    for e in raw:
+        if not isinstance(e, str) or not _EXTENSION_RE.match(e.lower()):
+            raise ManifestError(
+                f"{where}extension {_short(e)} is not a file suffix with its dot (e.g. '.gpx')"
+            )
+        out.append(e.lower())
+    return tuple(dict.fromkeys(out))
 
 
 def normalize_shortcut(text: str) -> str:
@@ -323,8 +349,11 @@ def parse_manifest(data: dict[str, Any], path: Path | None = None) -> Manifest:
                 "(e.g. 'pkg.mod:Provider')"
             )
         label = _str_field(c, "label", where, required=False) or cname
+        extensions = _extensions(c, ckind, where)
         commands = _commands(c.get("commands"), ckind, where)
-        contribs.append(Contribution(cname, ckind, target, label, commands=commands))
+        contribs.append(
+            Contribution(cname, ckind, target, label, commands=commands, extensions=extensions)
+        )
     return Manifest(name, version, description, kinds, api_version, tuple(contribs), path)
 
 

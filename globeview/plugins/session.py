@@ -17,6 +17,7 @@ import logging
 import math
 from collections.abc import Hashable
 from numbers import Real
+from pathlib import Path
 
 import moderngl
 import numpy as np
@@ -24,6 +25,12 @@ import numpy as np
 from globeview.errors import GlobeviewError
 from globeview.geodesy import ecef_to_lonlat
 from globeview.plugins.api import Marker, NullRendererHooks, PluginKind, Polyline, Tool
+from globeview.plugins.overlay_layers import (
+    DrawnLayer,
+    ImageryOverlayLayer,
+    PointsLayer,
+    VectorLayer,
+)
 from globeview.plugins.registry import PluginRegistry
 from globeview.render.camera import Camera
 from globeview.render.picking import Pick
@@ -312,50 +319,108 @@ class GlobeSession(GlobeScene):
         lon, lat, h = ecef_to_lonlat(ecef)
         return Pick(ecef, float(lon), float(lat), float(h), p.on_terrain)
 
-    # -- overlay layers (imagery, thematic, vectors, points) ------------------------------------
-    def add_overlay(self, path: str, **style):
-        """Open a raster or vector file as an overlay layer (its type decided by content) and
-        show it. Bad files raise a one-line `GlobeviewError`; the layers plugin stays enabled."""
-        from globeview.plugins.builtin.layers import detect_layer_type
+    # -- overlay layers (any layer type, built-in or installed) --------------------------------
+    def layer_types(self) -> list:
+        """The enabled layer types in dispatch order (`layer_dispatch.LayerTypeInfo`: name,
+        plugin, label, extensions), for menus and the Open Overlay filter."""
+        from globeview.plugins.layer_dispatch import layer_type_infos
 
-        kind = detect_layer_type(str(path))
-        layer_type = self.registry.find(PluginKind.LAYER, kind)
+        return layer_type_infos(self.registry)
+
+    def overlay_file_filter(self) -> str:
+        """The Open Overlay dialog's filter: every enabled layer type's patterns."""
+        from globeview.plugins.layer_dispatch import overlay_file_filter
+
+        return overlay_file_filter(self.registry)
+
+    def layer_type_for(self, path: str, layer_type: str | None = None) -> str:
+        """The name of the layer type that opens ``path`` (`layer_dispatch.choose_layer_type`:
+        an explicit ``layer_type``, then declared extensions, then content sniffing).
+        Raises a one-line `GlobeviewError` naming the installed types when none does."""
+        from globeview.plugins.layer_dispatch import choose_layer_type
+
+        return choose_layer_type(self.registry, path, layer_type)
+
+    def add_overlay(self, path: str, layer_type: str | None = None, **style):
+        """Open a file as an overlay layer with the layer type dispatch picks (see
+        `layer_type_for`; ``path`` may be ``"TYPE:FILE"``) and show it on top.
+
+        The type's ``open()`` may return drawables (`globeview.plugins.drawables`), which
+        the host checks and draws, or an object with ``attach``/``detach``. Bad files raise
+        a one-line `GlobeviewError` and leave the plugin enabled; garbage returned, or a
+        crash, fails that layer type (reported) and raises a one-line `GlobeviewError`."""
+        from globeview.plugins.layer_dispatch import parse_layer_spec
+        from globeview.plugins.overlay_layers import as_drawables, host_layer
+
+        path = str(path)
         if layer_type is None:
-            raise GlobeviewError(f"no enabled layer plugin opens {kind} files ({path})")
-        owner = self.registry.owner_of(layer_type)
+            layer_type, path = parse_layer_spec(path)
+        name = self.layer_type_for(path, layer_type)
+        obj = self.registry.find(PluginKind.LAYER, name)
+        if obj is None:
+            raise GlobeviewError(f"layer type {name} is not available ({path})")
         failed = object()
-        layer = self.registry.invoke(
-            layer_type, "open", str(path), default=failed, user_errors=True, **style
-        )
-        if layer is not failed and not all(
-            callable(getattr(layer, m, None)) for m in ("attach", "detach")
-        ):
-            self._fail(layer_type, f"open() returned {type(layer).__name__}, not a layer")
-            layer = failed
-        if layer is not failed:
-            attached = self.registry.call_for(
-                layer_type, layer.attach, self.renderer, default=failed
-            )
-            if attached is failed:
+        result = self.registry.invoke(obj, "open", path, default=failed, user_errors=True, **style)
+        layer = failed
+        own_drawables = result is not failed and as_drawables(result) is None
+        if own_drawables and callable(getattr(result, "drawables", None)):
+            # An object returning drawables: its drawables() is the plugin's code.
+            got = self.registry.call_for(obj, result.drawables, default=failed)
+            result = failed if got is failed else _Named(got, result, path)
+        if result is not failed:
+            built, problem = host_layer(result, Path(path).name)
+            if problem is not None:
+                self._fail(obj, problem)
+            else:
+                layer = built
+        if layer is not failed and not isinstance(layer, _HOST_LAYERS):
+            # An API 1.0 layer object: its attach() is plugin code.
+            if self.registry.call_for(obj, layer.attach, self.renderer, default=failed) is failed:
                 layer = failed
+        elif layer is not failed:
+            layer.attach(self.renderer)
         if layer is failed:
-            rec = self.registry.records.get(owner)
-            why = rec.error if rec is not None and rec.error else "failed"
-            raise GlobeviewError(f"layer plugin {owner} could not open {path}: {why}")
+            raise GlobeviewError(
+                f"layer type {name} could not open {Path(path).name}: {self._why(obj)}"
+            )
         self.overlay_layers.append(layer)
         return layer
 
+    def _why(self, contribution) -> str:
+        """The recorded reason a contribution (or its plugin) failed, one line."""
+        try:
+            plugin, cname = self.registry.contribution_of(contribution)
+        except (KeyError, AttributeError):
+            return "failed"
+        rec = self.registry.records.get(plugin)
+        if rec is None:
+            return "failed"
+        failure = getattr(rec, "failures", {}).get(cname)
+        if failure is not None and getattr(failure, "error", None):
+            return str(failure.error)
+        return rec.error or "failed"
+
     def add_embedded_overlays(self, imagery: bool = False) -> list:
         """The embedded default overlays: Natural Earth borders and coastlines (and the Blue
-        Marble imagery with ``imagery``)."""
-        from globeview.plugins.builtin.layers import embedded_layers
+        Marble imagery with ``imagery``), opened through the enabled built-in layer types
+        like any file (none when those types are disabled)."""
+        from globeview.terrain.dem import EMBEDDED_DATA_DIR
 
-        if "layers" not in self.registry or not self.registry.is_active("layers"):
-            return []
-        layers = embedded_layers(imagery=imagery)
-        for layer in layers:
-            layer.attach(self.renderer)
-        self.overlay_layers.extend(layers)
+        wanted = []
+        if imagery:
+            wanted.append(("imagery", EMBEDDED_DATA_DIR / "bluemarble_2048x1024.tif", {}))
+        wanted.append(
+            (
+                "vector",
+                EMBEDDED_DATA_DIR / "ne_110m_countries.geojson",
+                {"color": (1.0, 0.92, 0.35, 1.0), "width_px": 1.5},
+            )
+        )
+        layers = []
+        for kind, path, style in wanted:
+            # offers(): from the manifests, so no other layer plugin is imported for this.
+            if self.registry.offers(PluginKind.LAYER, kind):
+                layers.append(self.add_overlay(str(path), layer_type=kind, **style))
         return layers
 
     def remove_overlay(self, layer) -> None:
@@ -421,6 +486,20 @@ class GlobeSession(GlobeScene):
         new = tuple(float(v) for v in np.asarray(lonlat_to_ecef(lon, lat, ground)).ravel())
         return replace(prim, position=new)
 
+
+class _Named:
+    """A layer object's drawables with its ``name`` (the default: the file's)."""
+
+    def __init__(self, items: object, owner: object, path: str) -> None:
+        self.items = items
+        self.name = str(getattr(owner, "name", "") or Path(path).name)[:200]
+
+    def drawables(self) -> object:
+        return self.items
+
+
+#: The layer objects the host builds from drawables (their attach() is host code).
+_HOST_LAYERS = (DrawnLayer, ImageryOverlayLayer, PointsLayer, VectorLayer)
 
 #: Most overlay primitives a tool may draw in one frame.
 MAX_OVERLAY_PRIMITIVES = 100_000

@@ -79,12 +79,6 @@ DEM_FILTER = (
     "DEM rasters (*.tif *.tiff *.hgt *.dem *.asc *.img *.vrt *.nc *.bil *.dt0 *.dt1 *.dt2);;"
     "All files (*)"
 )
-OVERLAY_FILTER = (
-    "Overlays (*.geojson *.json *.tif *.tiff *.png *.jpg *.jpeg *.jp2 *.img *.vrt *.asc);;"
-    "GeoJSON vectors and points (*.geojson *.json);;"
-    "Rasters: imagery or thematic (*.tif *.tiff *.png *.jpg *.jpeg *.jp2 *.img *.vrt *.asc);;"
-    "All files (*)"
-)
 #: The embedded Blue Marble drape's layer name (listed, hidden at start).
 BLUE_MARBLE = "bluemarble_2048x1024.tif"
 #: Exaggeration slider: tenths, 0.1x .. 50x.
@@ -599,7 +593,7 @@ class MainWindow(QMainWindow):
             if not p:
                 continue
             try:
-                kind = classify_path(p)
+                kind = classify_path(p, self.plugins.registry)
             except GlobeviewError as exc:
                 self.errors.error(exc)
                 continue
@@ -617,9 +611,13 @@ class MainWindow(QMainWindow):
 
     # -- overlays ----------------------------------------------------------------------------
     def open_overlay_dialog(self) -> None:
-        """File > Open Overlay…: rasters (imagery or thematic) and GeoJSON."""
+        """File > Open Overlay…: any file an enabled layer type opens (built-in or installed);
+        the filter lists every layer type's patterns (`layer_dispatch.overlay_file_filter`)."""
+        from globeview.plugins.layer_dispatch import overlay_file_filter
+
         start = str(Path(self.recent_files()[0]).parent) if self.recent_files() else ""
-        paths, _ = QFileDialog.getOpenFileNames(self, "Open Overlay", start, OVERLAY_FILTER)
+        name_filter = overlay_file_filter(self.plugins.registry)
+        paths, _ = QFileDialog.getOpenFileNames(self, "Open Overlay", start, name_filter)
         self.open_overlays(paths)
 
     def open_overlays(self, paths: list[str] | tuple[str, ...]) -> list:
@@ -784,11 +782,14 @@ class MainWindow(QMainWindow):
         return self.errors.history[-1] if self.errors.history else None
 
 
-def classify_path(path: str | Path) -> str:
+def classify_path(path: str | Path, registry: Any = None) -> str:
     """'dem' or 'overlay' for a file dropped or opened without saying which: tile store
-    folders, DEM-only formats and single-band numeric rasters are DEMs; GeoJSON and RGB(A) or
-    paletted rasters are overlays. Raises `GlobeviewError` (one line) for anything else."""
-    from globeview.plugins.builtin.layers import detect_layer_type
+    folders, DEM-only formats and single-band numeric rasters (what the built-in 'thematic'
+    layer type takes) are DEMs; whatever another enabled layer type opens (dispatch by
+    extension and content over ``registry``'s layer types, built-in or installed; default:
+    the installed plugins) is an overlay. Raises `GlobeviewError` (one line) for anything
+    else, naming the installed layer types."""
+    from globeview.plugins.layer_dispatch import choose_layer_type
 
     p = Path(path)
     if p.is_dir():
@@ -797,7 +798,11 @@ def classify_path(path: str | Path) -> str:
         raise missing_path_error(p)
     if p.suffix.lower() in (".hgt", ".dem", ".bil", ".dt0", ".dt1", ".dt2", ".nc"):
         return "dem"
-    kind = detect_layer_type(p)
+    if registry is None:
+        from globeview.plugins.registry import PluginRegistry
+
+        registry = PluginRegistry().discover()
+    kind = choose_layer_type(registry, p)
     return "dem" if kind == "thematic" else "overlay"
 
 

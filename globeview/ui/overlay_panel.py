@@ -5,7 +5,7 @@ Each row has a visibility checkbox; rows reorder by drag and drop or the ↑/↓
 session's ``overlay_layers`` is reordered and every layer re-attached, so the imagery drape
 composes in the listed order); "Remove" drops a layer. Below the list, the selected layer's
 style: opacity for imagery/thematic drapes, colour and width (vectors) or size (points).
-Every edit goes to the layer objects of `globeview.plugins.builtin.layers` and emits
+Every edit goes to the session's layer objects (`globeview.plugins.overlay_layers`) and emits
 ``changed`` so the view redraws; nothing here draws.
 
 Vectors and points are always drawn over the imagery drape (they are separate passes); the
@@ -37,7 +37,13 @@ from PyQt6.QtWidgets import (
 ID_ROLE = Qt.ItemDataRole.UserRole
 DRAPE_KINDS = ("imagery", "thematic")
 #: Short labels of the layer kinds shown in the rows.
-KIND_LABELS = {"imagery": "imagery", "thematic": "thematic", "vector": "lines", "points": "points"}
+KIND_LABELS = {
+    "imagery": "imagery",
+    "thematic": "thematic",
+    "vector": "lines",
+    "points": "points",
+    "drawing": "drawing",
+}
 
 
 class OverlayList(QListWidget):

@@ -15,6 +15,7 @@ from globeview.plugins.builtin.layers import (
     VectorLayerType,
     detect_layer_type,
 )
+from globeview.plugins.overlay_layers import host_layer
 from globeview.terrain.dem import EMBEDDED_DATA_DIR
 from globeview.terrain.imagery import ImageryError, RasterImagery, texel_grid
 from globeview.terrain.vectors import GEOD, VectorError, densify, read_geojson_lines
@@ -92,14 +93,14 @@ def test_bad_rasters_give_one_line_errors(tmp_path) -> None:
     ) as ds:
         ds.write(np.zeros((3, 4, 4), np.uint8))
     with pytest.raises(ImageryError) as err:
-        ImageryLayerType().open(str(nocrs))
+        host_layer(ImageryLayerType().open(str(nocrs)), "nocrs.tif")
     assert "no coordinate reference system" in _one_line(err.value)
     with pytest.raises(ImageryError, match="unknown CRS"):
         RasterImagery(nocrs, crs="EPSG:999999")
     junk = tmp_path / "junk.tif"
     junk.write_bytes(b"not a tiff at all")
     with pytest.raises(ImageryError) as err:
-        ImageryLayerType().open(str(junk))
+        host_layer(ImageryLayerType().open(str(junk)), "junk.tif")
     assert "cannot read as a raster" in _one_line(err.value)
     with pytest.raises(GlobeviewError, match="neither a raster"):
         detect_layer_type(junk)

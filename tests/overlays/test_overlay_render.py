@@ -107,6 +107,15 @@ def write_raster(path, data: np.ndarray, res: float, colormap=None) -> None:
             ds.write_colormap(1, colormap)
 
 
+def opened(result):
+    """The host's overlay layer for a layer type's open() result (drawables)."""
+    from globeview.plugins.overlay_layers import host_layer
+
+    layer, problem = host_layer(result, "test")
+    assert problem is None, problem
+    return layer
+
+
 # -- imagery drape ----------------------------------------------------------------------------
 def test_thematic_cells_land_where_they_are(clean, tmp_path) -> None:
     """A checkerboard of 15-degree classes (45 x 45 cells of the etopo20 DEM's 1/3-degree grid,
@@ -122,7 +131,7 @@ def test_thematic_cells_land_where_they_are(clean, tmp_path) -> None:
     classes = ((rows[:, None] + cols[None, :]) % 2).astype(np.uint8)
     path = tmp_path / "classes.tif"
     write_raster(path, classes, res, {0: (255, 0, 0, 255), 1: (0, 0, 255, 255)})
-    layer = ImageryLayerType().open(str(path))
+    layer = opened(ImageryLayerType().open(str(path)))
     assert layer.layer.source.mode == "palette"
     layer.attach(clean.renderer)
     rgb, result = draw(clean, Camera.from_lonlat(20.0, 10.0, 1.2e7))
@@ -159,7 +168,7 @@ def test_uniform_imagery_shows_no_seams(clean, tmp_path, cam) -> None:
     data = np.empty((3, 90, 180), np.uint8)
     data[0], data[1], data[2] = 200, 100, 50
     write_raster(path, data, 2.0)
-    ImageryLayerType().open(str(path)).attach(clean.renderer)
+    opened(ImageryLayerType().open(str(path))).attach(clean.renderer)
     clean.settings.background = (0.0, 0.0, 0.0)
     rgb, result = draw(clean, Camera.from_lonlat(*cam))
     _, _, hit = globe_lonlat(result.view)
@@ -174,7 +183,7 @@ def test_uniform_imagery_shows_no_seams(clean, tmp_path, cam) -> None:
 def test_hillshade_drape_from_the_dem(clean) -> None:
     """The hillshade layer computed from the DEM shades Crater Lake's caldera (30 m DEM) in
     grey: lit north-west slopes bright, south-east slopes dark."""
-    from globeview.plugins.builtin.layers import hillshade_layer
+    from globeview.plugins.overlay_layers import hillshade_layer
 
     cam = Camera.from_lonlat(-122.108, 42.94, 3.0e4)
     plain, _ = draw(clean, cam)
@@ -198,8 +207,10 @@ def test_borders_stay_visible_on_the_alps_at_every_lod(clean, lod) -> None:
     the terrain nor change much as tau (and so the drawn mesh) changes, for two providers."""
     from globeview.plugins.builtin.layers import VectorLayerType
 
-    layer = VectorLayerType().open(
-        "data/ne_110m_countries.geojson", densify_m=2000.0, color=MAGENTA, width_px=3.0
+    layer = opened(
+        VectorLayerType().open(
+            "data/ne_110m_countries.geojson", densify_m=2000.0, color=MAGENTA, width_px=3.0
+        )
     )
     layer.attach(clean.renderer)
     clean.set_lod(lod)
@@ -257,7 +268,7 @@ def test_labelled_placemarks(clean) -> None:
     """City placemarks with labels: red discs and white label text appear over Europe."""
     from globeview.plugins.builtin.layers import PointsLayerType
 
-    layer = PointsLayerType().open("data/ne_cities.geojson")
+    layer = opened(PointsLayerType().open("data/ne_cities.geojson"))
     layer.attach(clean.renderer)
     rgb, res = draw(clean, Camera.from_lonlat(10.0, 46.0, 3.0e6))
     red = (rgb[..., 0] > 230) & (rgb[..., 1] < 90) & (rgb[..., 2] < 60)

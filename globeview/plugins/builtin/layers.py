@@ -1,188 +1,88 @@
 """`layers`: the built-in layer types (imagery, thematic, vector, points).
 
-A layer type's ``open(path)`` reads and checks the file on the CPU (no GL) and returns a
-layer object; the host then calls ``layer.attach(renderer)`` to put it on the globe (the
-renderer's `OverlaySet`, see render/overlay_imagery.py) and ``layer.detach(renderer)`` to
-take it off. Bad input raises a `GlobeviewError` subclass with a one-line message.
+Written against the public plugin API only, as a third-party layer plugin would be: each
+type's ``open(path)`` reads and checks the file on the CPU and returns *drawables*
+(`RasterFile`, `Lines`, `Points`); the host draws them (globeview/plugins/overlay_layers.py).
+``sniff(path)`` says by content whether a file is the type's (the host's file dispatch asks
+it when several types claim an extension: ``.tif`` may be imagery or thematic, ``.geojson``
+lines or points). Bad input raises a `GlobeviewError` subclass with a one-line message.
 
-`detect_layer_type(path)` decides a file's layer type by content (raster vs GeoJSON lines vs
-GeoJSON points); `embedded_layers()` gives the embedded default (country borders and
-coastlines, optionally Blue Marble imagery) and `hillshade_layer(terrain)` a thematic layer
-computed from the DEM itself.
+`detect_layer_type(path)` is the built-ins' content decision on its own (raster vs GeoJSON
+lines vs GeoJSON points).
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from globeview.errors import GlobeviewError
-from globeview.terrain.dem import EMBEDDED_DATA_DIR
-from globeview.terrain.imagery import (
-    HillshadeImagery,
-    ImageryError,
-    ImageryLayer,
-    RasterImagery,
-)
-from globeview.terrain.vectors import (
-    Polylines,
-    VectorError,
-    densify,
-    read_geojson_lines,
-    read_geojson_points,
+from globeview.plugins.api import (
+    GlobeviewError,
+    Lines,
+    Points,
+    RasterFile,
+    raster_info,
 )
 
 __all__ = [
     "ImageryLayerType",
-    "ImageryOverlayLayer",
-    "PointsLayer",
     "PointsLayerType",
     "ThematicLayerType",
-    "VectorLayer",
     "VectorLayerType",
     "detect_layer_type",
-    "embedded_layers",
-    "hillshade_layer",
-    "open_layer",
 ]
 
 RASTER_EXTENSIONS = (".tif", ".tiff", ".png", ".jpg", ".jpeg", ".jp2", ".img", ".vrt", ".asc")
 VECTOR_EXTENSIONS = (".geojson", ".json")
-#: Default geodesic densification of vector lines (metres between vertices).
+#: Default densification of vector lines (metres between vertices).
 DENSIFY_M = 20_000.0
+_LINE_TYPES = {"LineString", "MultiLineString", "Polygon", "MultiPolygon"}
+_POINT_TYPES = {"Point", "MultiPoint"}
 
 
-# -- layer objects ---------------------------------------------------------------------------
-@dataclass
-class ImageryOverlayLayer:
-    """An imagery/thematic drape. ``opacity`` 0..1; call ``changed(renderer)`` after edits."""
-
-    layer: ImageryLayer
-    kind: str = "imagery"
-
-    @property
-    def name(self) -> str:
-        return self.layer.name
-
-    def attach(self, renderer) -> None:
-        renderer.overlays.imagery.add(self.layer)
-
-    def detach(self, renderer) -> None:
-        # By identity: two drapes of the same file are two layers.
-        stack = renderer.overlays.imagery
-        stack.layers = [ly for ly in stack.layers if ly is not self.layer]
-        stack.changed()
-
-    def set_visible(self, renderer, visible: bool) -> None:
-        self.layer.visible = bool(visible)
-        renderer.overlays.imagery.changed()
-
-    def set_opacity(self, renderer, opacity: float) -> None:
-        self.layer.opacity = float(np.clip(opacity, 0.0, 1.0))
-        renderer.overlays.imagery.changed()
-
-
-class _GpuOverlayLayer:
-    """What vector and point layers share: a GPU overlay object (``_overlay``) kept in one of
-    the renderer's overlay lists (``_list``), shown or hidden, restyled live."""
-
-    _list = ""  # "vectors" or "points": the renderer.overlays list the overlay lives in
-    visible: bool
-    _overlay: Any
-
-    def _make_overlay(self, renderer) -> Any:
-        raise NotImplementedError
-
-    def attach(self, renderer) -> None:
-        self._overlay = self._make_overlay(renderer)
-        self._overlay.visible = self.visible
-        getattr(renderer.overlays, self._list).append(self._overlay)
-
-    def detach(self, renderer) -> None:
-        if self._overlay is not None:
-            getattr(renderer.overlays, self._list).remove(self._overlay)
-            self._overlay.release()
-            self._overlay = None
-
-    def set_visible(self, renderer, visible: bool) -> None:
-        self.visible = bool(visible)
-        if self._overlay is not None:
-            self._overlay.visible = self.visible
-
-    def set_style(self, renderer, **style: Any) -> None:
-        """Change style attributes (colour, width_px, size_px, ...); next frame."""
-        _restyle(self, style)
+def geojson_geometry_types(path: str | Path) -> set[str] | None:
+    """The geometry types in a GeoJSON file; None when the file is not JSON text at all
+    (its first non-blank byte is not ``{`` or ``[``). Raises `GlobeviewError` for JSON text
+    that does not parse."""
+    p = Path(path)
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(64).lstrip()
+    except OSError as exc:
+        raise GlobeviewError(f"{p.name}: cannot read ({exc.strerror or exc})") from None
+    if head[:1] not in (b"{", b"["):
+        return None
+    try:
+        doc = json.loads(p.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise GlobeviewError(f"{p.name}: not valid GeoJSON ({exc})") from None
+    except RecursionError:  # [[[[...]]]] thousands deep
+        raise GlobeviewError(f"{p.name}: not valid GeoJSON (nested too deeply)") from None
+    types: set[str] = set()
+    feats = doc.get("features", [doc]) if isinstance(doc, dict) else []
+    for f in feats if isinstance(feats, list) else []:
+        g = (f or {}).get("geometry", f) if isinstance(f, dict) else None
+        if isinstance(g, dict) and isinstance(g.get("type"), str):
+            types.add(g["type"])
+            for sub in g.get("geometries") or [] if isinstance(g.get("geometries"), list) else []:
+                if isinstance(sub, dict) and isinstance(sub.get("type"), str):
+                    types.add(sub["type"])
+    return types
 
 
-@dataclass
-class VectorLayer(_GpuOverlayLayer):
-    """Polylines (densified along geodesics) with a line style: colour RGBA 0..1, width and
-    dash length in pixels."""
-
-    name: str
-    lines: Polylines
-    color: tuple[float, float, float, float] = (1.0, 0.9, 0.2, 1.0)
-    width_px: float = 1.5
-    dash_px: float = 0.0
-    kind: str = "vector"
-    coarser: list = field(default_factory=list)  # (max segment m, Polylines), for far views
-    visible: bool = True
-    _overlay: Any = field(default=None, repr=False)
-    _list = "vectors"
-
-    def _make_overlay(self, renderer) -> Any:
-        from globeview.render.overlay_vectors import LineStyle, VectorOverlay
-
-        style = LineStyle(self.color, self.width_px, self.dash_px)
-        return VectorOverlay(renderer.ctx, self.lines, style, self.name, coarser=self.coarser)
+def _raster_kind(path: str | Path) -> str | None:
+    """'imagery' (3/4 bands, or a colour table) or 'thematic' (one band), None otherwise
+    (not a raster GDAL reads)."""
+    try:
+        info = raster_info(path)
+    except GlobeviewError:
+        return None
+    if info.bands in (3, 4) or info.palette:
+        return "imagery"
+    return "thematic" if info.bands == 1 else None
 
 
-@dataclass
-class PointsLayer(_GpuOverlayLayer):
-    """Point objects: placemarks with labels, or boxes/cones (kind in overlay_points.KINDS);
-    size in pixels for placemarks, scale in metres for objects."""
-
-    name: str
-    lon: np.ndarray
-    lat: np.ndarray
-    names: list[str]
-    object_kind: str = "placemark"
-    size_px: float = 10.0
-    scale_m: float = 1000.0
-    color: tuple[float, float, float, float] = (1.0, 0.25, 0.15, 1.0)
-    labels: bool = True
-    kind: str = "points"
-    visible: bool = True
-    _overlay: Any = field(default=None, repr=False)
-    _list = "points"
-
-    def _make_overlay(self, renderer) -> Any:
-        from globeview.render.overlay_points import PointOverlay, PointStyle
-
-        style = PointStyle(
-            self.object_kind, self.size_px, self.scale_m, self.color, labels=self.labels
-        )
-        return PointOverlay(renderer.ctx, self.lon, self.lat, self.names, style, name=self.name)
-
-
-def _restyle(layer: Any, style: dict[str, Any]) -> None:
-    for k, v in style.items():
-        if not hasattr(layer, k):
-            raise ValueError(f"{type(layer).__name__} has no style {k!r}")
-        setattr(layer, k, v)
-    ov = layer._overlay
-    if ov is not None:
-        for k, v in style.items():
-            if hasattr(ov.style, k):
-                setattr(ov.style, k, v)
-        ov._sig = None  # instance data baked from the style: rebuild on the next frame
-
-
-# -- layer types (the plugin's contributions) --------------------------------------------------
 class _LayerTypeBase:
     name = ""
     label = ""
@@ -202,9 +102,11 @@ class ImageryLayerType(_LayerTypeBase):
     label = "Imagery (RGB/RGBA raster)"
     extensions = RASTER_EXTENSIONS
 
-    def open(self, path: str, opacity: float = 1.0) -> ImageryOverlayLayer:
-        src = RasterImagery(path)
-        return ImageryOverlayLayer(ImageryLayer(src, Path(path).name, opacity))
+    def sniff(self, path: str) -> bool:
+        return _raster_kind(path) == "imagery"
+
+    def open(self, path: str, opacity: float = 1.0) -> RasterFile:
+        return RasterFile(path, None, opacity, Path(path).name)
 
 
 class ThematicLayerType(_LayerTypeBase):
@@ -215,20 +117,13 @@ class ThematicLayerType(_LayerTypeBase):
     label = "Thematic raster (single band)"
     extensions = RASTER_EXTENSIONS
 
-    def open(
-        self, path: str, ramp: list | None = None, opacity: float = 0.6
-    ) -> ImageryOverlayLayer:
-        import rasterio
+    def sniff(self, path: str) -> bool:
+        return _raster_kind(path) == "thematic"
 
+    def open(self, path: str, ramp: list | None = None, opacity: float = 0.6) -> RasterFile:
         if ramp is None:
-            try:
-                with rasterio.open(path) as ds:
-                    st = ds.statistics(1, approx=True)
-                    lo, hi = float(st.min), float(st.max)
-            except Exception as exc:
-                raise ImageryError(
-                    f"{Path(path).name}: cannot read as a raster ({str(exc).splitlines()[0]})"
-                ) from None
+            info = raster_info(path, stats=True)
+            lo, hi = info.minimum, info.maximum
             span = hi - lo or 1.0
             ramp = [
                 (lo, (40, 60, 200)),
@@ -236,23 +131,26 @@ class ThematicLayerType(_LayerTypeBase):
                 (lo + 2 * span / 3, (240, 220, 40)),
                 (hi, (220, 40, 30)),
             ]
-        src = RasterImagery(path, ramp=ramp)
-        return ImageryOverlayLayer(ImageryLayer(src, Path(path).name, opacity), "thematic")
+        return RasterFile(path, ramp, opacity, Path(path).name)
 
 
 class VectorLayerType(_LayerTypeBase):
-    """GeoJSON LineString/MultiLineString/Polygon/MultiPolygon outlines."""
+    """GeoJSON LineString/MultiLineString/Polygon/MultiPolygon outlines, joined along
+    geodesics."""
 
     name = "vector"
     label = "Vector lines/polygons (GeoJSON)"
     extensions = VECTOR_EXTENSIONS
 
-    def open(self, path: str, densify_m: float = DENSIFY_M, **style: Any) -> VectorLayer:
-        raw = read_geojson_lines(path)
-        # Finest level at densify_m; coarser ones (x4 each, up to ~1000 km) for far views.
-        steps = [densify_m * 4.0**k for k in range(1, 6) if densify_m * 4.0**k <= 1.3e6]
-        coarser = [(m, densify(raw, m)) for m in steps]
-        return VectorLayer(Path(path).name, densify(raw, densify_m), coarser=coarser, **style)
+    def sniff(self, path: str) -> bool:
+        types = geojson_geometry_types(path)
+        if types is not None and not types & (_LINE_TYPES | _POINT_TYPES):
+            name = Path(path).name
+            raise GlobeviewError(f"{name}: GeoJSON without Point, LineString or Polygon geometry")
+        return bool(types and types & _LINE_TYPES)
+
+    def open(self, path: str, densify_m: float = DENSIFY_M, **style: Any) -> Lines:
+        return Lines.from_geojson(path, segment_m=densify_m, **style)
 
 
 class PointsLayerType(_LayerTypeBase):
@@ -262,9 +160,12 @@ class PointsLayerType(_LayerTypeBase):
     label = "Point objects (GeoJSON)"
     extensions = VECTOR_EXTENSIONS
 
-    def open(self, path: str, **style: Any) -> PointsLayer:
-        lon, lat, names = read_geojson_points(path)
-        return PointsLayer(Path(path).name, lon, lat, names, **style)
+    def sniff(self, path: str) -> bool:
+        types = geojson_geometry_types(path)
+        return bool(types and types & _POINT_TYPES and not types & _LINE_TYPES)
+
+    def open(self, path: str, **style: Any) -> Points:
+        return Points.from_geojson(path, **style)
 
 
 def detect_layer_type(path: str | Path) -> str:
@@ -272,71 +173,14 @@ def detect_layer_type(path: str | Path) -> str:
     p = Path(path)
     if not p.is_file():
         raise GlobeviewError(f"{p.name}: no such file")
-    with open(p, "rb") as fh:
-        head = fh.read(64).lstrip()
-    if head[:1] in (b"{", b"["):
-        try:
-            doc = json.loads(p.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise VectorError(f"{p.name}: not valid GeoJSON ({exc})") from None
-        except RecursionError:  # [[[[...]]]] thousands deep
-            raise VectorError(f"{p.name}: not valid GeoJSON (nested too deeply)") from None
-        types = set()
-        feats = doc.get("features", [doc]) if isinstance(doc, dict) else []
-        for f in feats:
-            g = (f or {}).get("geometry", f) if isinstance(f, dict) else None
-            if isinstance(g, dict):
-                types.add(g.get("type"))
-        if types & {"LineString", "MultiLineString", "Polygon", "MultiPolygon"}:
+    types = geojson_geometry_types(p)
+    if types is not None:
+        if types & _LINE_TYPES:
             return "vector"
-        if types & {"Point", "MultiPoint"}:
+        if types & _POINT_TYPES:
             return "points"
-        raise VectorError(f"{p.name}: GeoJSON without Point, LineString or Polygon geometry")
-    import rasterio
-
-    try:
-        with rasterio.open(p) as ds:
-            count = ds.count
-            try:
-                has_cmap = count == 1 and bool(ds.colormap(1))
-            except ValueError:
-                has_cmap = False
-    except Exception:
-        raise GlobeviewError(f"{p.name}: neither a raster GDAL reads nor GeoJSON") from None
-    return "imagery" if count in (3, 4) or has_cmap else "thematic"
-
-
-_TYPES = {
-    "imagery": ImageryLayerType,
-    "thematic": ThematicLayerType,
-    "vector": VectorLayerType,
-    "points": PointsLayerType,
-}
-
-
-def open_layer(path: str | Path, **kwargs: Any):
-    """Open a file with the layer type `detect_layer_type` picks."""
-    return _TYPES[detect_layer_type(path)]().open(str(path), **kwargs)
-
-
-def hillshade_layer(terrain, opacity: float = 0.5, azimuth_deg: float = 315.0):
-    """A thematic drape computed from the DEM itself: its hillshade (sun from ``azimuth_deg``,
-    45 degrees up), multiplied in at ``opacity``."""
-    src = HillshadeImagery(terrain, azimuth_deg=azimuth_deg)
-    return ImageryOverlayLayer(ImageryLayer(src, "hillshade", opacity), "thematic")
-
-
-def embedded_layers(imagery: bool = True) -> list:
-    """The embedded default overlays, bottom first: Blue Marble imagery (if ``imagery``) and
-    the country borders and coastlines of Natural Earth 1:110m."""
-    out: list = []
-    if imagery:
-        out.append(ImageryLayerType().open(str(EMBEDDED_DATA_DIR / "bluemarble_2048x1024.tif")))
-    out.append(
-        VectorLayerType().open(
-            str(EMBEDDED_DATA_DIR / "ne_110m_countries.geojson"),
-            color=(1.0, 0.92, 0.35, 1.0),
-            width_px=1.5,
-        )
-    )
-    return out
+        raise GlobeviewError(f"{p.name}: GeoJSON without Point, LineString or Polygon geometry")
+    kind = _raster_kind(p)
+    if kind is None:
+        raise GlobeviewError(f"{p.name}: neither a raster GDAL reads nor GeoJSON")
+    return kind

@@ -1,0 +1,546 @@
+"""The host side of overlay layers: what a layer type's ``open()`` result becomes on the globe.
+
+A layer type returns drawables (`globeview.plugins.drawables`: `Lines`, `Points`,
+`RasterDrape`, `RasterFile`, a list of them, or an object with ``drawables()``), or, as in API
+1.0, its own object with ``attach(renderer)``/``detach(renderer)``. `host_layer` checks the
+drawables (`drawable_problem`: garbage is the plugin's fault, one line) and builds the overlay
+layer objects the session keeps and the overlay panel edits:
+
+- `VectorLayer` (lines densified along geodesics or rhumb lines, draped on the drawn mesh),
+- `PointsLayer` (placemarks or 3-D objects, with labels),
+- `ImageryOverlayLayer` (a drape: a raster file warped per tile, or an in-memory RGBA image),
+- `DrawnLayer`: several of these listed as one overlay.
+
+Every layer object has ``name``, ``kind`` ('imagery', 'thematic', 'vector', 'points' or
+'drawing'), ``attach``/``detach``/``set_visible`` and, by kind, ``set_opacity`` or
+``set_style``. GL objects are made in ``attach`` (the renderer's context current).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from globeview.plugins.drawables import (
+    INTERPOLATIONS,
+    POINT_KINDS,
+    Lines,
+    Points,
+    RasterDrape,
+    RasterFile,
+)
+from globeview.terrain.imagery import (
+    DEFAULT_TEX_SIZE,
+    ImageryLayer,
+    RasterImagery,
+    texel_grid,
+)
+from globeview.terrain.quadtree import TileKey, tile_bounds
+from globeview.terrain.vectors import Polylines, densify, densify_rhumb
+
+__all__ = [
+    "ArrayImagery",
+    "DrawnLayer",
+    "ImageryOverlayLayer",
+    "PointsLayer",
+    "VectorLayer",
+    "as_drawables",
+    "drawable_problem",
+    "hillshade_layer",
+    "host_layer",
+]
+
+#: Most vertices a layer's lines may have after densification: a finer ``segment_m`` than
+#: this allows over the lines' length is coarsened (a plugin asking for 1 mm pieces along the
+#: coastlines would otherwise ask for billions of vertices).
+MAX_LINE_VERTICES = 2_000_000
+#: Most vertices / points / drawables one layer may hand over.
+MAX_INPUT_VERTICES = 5_000_000
+MAX_POINTS = 1_000_000
+MAX_DRAWABLES = 1_000
+#: Largest in-memory drape side (pixels).
+MAX_DRAPE_SIDE = 16_384
+#: Coarser line levels: x4 spacing each, up to about 1000 km.
+_COARSER_MAX_M = 1.3e6
+_MEAN_RADIUS_M = 6_371_008.8
+
+
+# -- layer objects ---------------------------------------------------------------------------
+@dataclass
+class ImageryOverlayLayer:
+    """An imagery/thematic drape. ``opacity`` 0..1; call ``changed(renderer)`` after edits."""
+
+    layer: ImageryLayer
+    kind: str = "imagery"
+
+    @property
+    def name(self) -> str:
+        return self.layer.name
+
+    @property
+    def visible(self) -> bool:
+        return bool(self.layer.visible)
+
+    def attach(self, renderer) -> None:
+        renderer.overlays.imagery.add(self.layer)
+
+    def detach(self, renderer) -> None:
+        # By identity: two drapes of the same file are two layers.
+        stack = renderer.overlays.imagery
+        stack.layers = [ly for ly in stack.layers if ly is not self.layer]
+        stack.changed()
+
+    def set_visible(self, renderer, visible: bool) -> None:
+        self.layer.visible = bool(visible)
+        renderer.overlays.imagery.changed()
+
+    def set_opacity(self, renderer, opacity: float) -> None:
+        self.layer.opacity = float(np.clip(opacity, 0.0, 1.0))
+        renderer.overlays.imagery.changed()
+
+
+class _GpuOverlayLayer:
+    """What vector and point layers share: a GPU overlay object (``_overlay``) kept in one of
+    the renderer's overlay lists (``_list``), shown or hidden, restyled live."""
+
+    _list = ""  # "vectors" or "points": the renderer.overlays list the overlay lives in
+    visible: bool
+    _overlay: Any
+
+    def _make_overlay(self, renderer) -> Any:
+        raise NotImplementedError
+
+    def attach(self, renderer) -> None:
+        self._overlay = self._make_overlay(renderer)
+        self._overlay.visible = self.visible
+        getattr(renderer.overlays, self._list).append(self._overlay)
+
+    def detach(self, renderer) -> None:
+        if self._overlay is not None:
+            getattr(renderer.overlays, self._list).remove(self._overlay)
+            self._overlay.release()
+            self._overlay = None
+
+    def set_visible(self, renderer, visible: bool) -> None:
+        self.visible = bool(visible)
+        if self._overlay is not None:
+            self._overlay.visible = self.visible
+
+    def set_style(self, renderer, **style: Any) -> None:
+        """Change style attributes (colour, width_px, size_px, ...); next frame."""
+        _restyle(self, style)
+
+
+@dataclass
+class VectorLayer(_GpuOverlayLayer):
+    """Polylines (densified along geodesics or rhumb lines) with a line style: colour RGBA
+    0..1, width and dash length in pixels."""
+
+    name: str
+    lines: Polylines
+    color: tuple[float, float, float, float] = (1.0, 0.9, 0.2, 1.0)
+    width_px: float = 1.5
+    dash_px: float = 0.0
+    kind: str = "vector"
+    coarser: list = field(default_factory=list)  # (max segment m, Polylines), for far views
+    visible: bool = True
+    _overlay: Any = field(default=None, repr=False)
+    _list = "vectors"
+
+    def _make_overlay(self, renderer) -> Any:
+        from globeview.render.overlay_vectors import LineStyle, VectorOverlay
+
+        style = LineStyle(self.color, self.width_px, self.dash_px)
+        return VectorOverlay(renderer.ctx, self.lines, style, self.name, coarser=self.coarser)
+
+
+@dataclass
+class PointsLayer(_GpuOverlayLayer):
+    """Point objects: placemarks with labels, or boxes/cones (kind in overlay_points.KINDS);
+    size in pixels for placemarks, scale in metres for objects."""
+
+    name: str
+    lon: np.ndarray
+    lat: np.ndarray
+    names: list[str]
+    object_kind: str = "placemark"
+    size_px: float = 10.0
+    scale_m: float = 1000.0
+    color: tuple[float, float, float, float] = (1.0, 0.25, 0.15, 1.0)
+    labels: bool = True
+    label_color: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
+    kind: str = "points"
+    visible: bool = True
+    _overlay: Any = field(default=None, repr=False)
+    _list = "points"
+
+    def _make_overlay(self, renderer) -> Any:
+        from globeview.render.overlay_points import PointOverlay, PointStyle
+
+        style = PointStyle(
+            self.object_kind,
+            self.size_px,
+            self.scale_m,
+            self.color,
+            labels=self.labels,
+            label_color=self.label_color,
+        )
+        return PointOverlay(renderer.ctx, self.lon, self.lat, self.names, style, name=self.name)
+
+
+def _restyle(layer: Any, style: dict[str, Any]) -> None:
+    for k, v in style.items():
+        if not hasattr(layer, k):
+            raise ValueError(f"{type(layer).__name__} has no style {k!r}")
+        setattr(layer, k, v)
+    ov = layer._overlay
+    if ov is not None:
+        for k, v in style.items():
+            if hasattr(ov.style, k):
+                setattr(ov.style, k, v)
+        ov._sig = None  # instance data baked from the style: rebuild on the next frame
+
+
+class DrawnLayer:
+    """Several overlay layers (a layer type's list of drawables) listed and toggled as one.
+
+    Style edits go to every part that has the attribute (the first part's value is shown)."""
+
+    kind = "drawing"
+
+    def __init__(self, name: str, parts: list) -> None:
+        self.name = name
+        self.parts = list(parts)
+        self.visible = True
+
+    def attach(self, renderer) -> None:
+        for p in self.parts:
+            p.attach(renderer)
+            if not self.visible:
+                p.set_visible(renderer, False)
+
+    def detach(self, renderer) -> None:
+        for p in self.parts:
+            p.detach(renderer)
+
+    def set_visible(self, renderer, visible: bool) -> None:
+        self.visible = bool(visible)
+        for p in self.parts:
+            p.set_visible(renderer, self.visible)
+
+    def set_opacity(self, renderer, opacity: float) -> None:
+        for p in self.parts:
+            if hasattr(p, "set_opacity"):
+                p.set_opacity(renderer, opacity)
+
+    def set_style(self, renderer, **style: Any) -> None:
+        for p in self.parts:
+            own = {k: v for k, v in style.items() if hasattr(p, k)}
+            if own and hasattr(p, "set_style"):
+                p.set_style(renderer, **own)
+
+
+# -- in-memory drapes ------------------------------------------------------------------------
+class ArrayImagery:
+    """An imagery source over an in-memory RGBA image on a lon/lat box (plate carree): each
+    terrain tile's texels sample it bilinearly (alpha 0 outside the box).
+
+    Args:
+        rgba: (H, W, 4) uint8, row 0 at ``north``; bounds: (west, south, east, north) degrees.
+    """
+
+    mode = "rgba"
+
+    def __init__(
+        self,
+        rgba: np.ndarray,
+        bounds: tuple[float, float, float, float],
+        name: str = "drape",
+        tex_size: int = DEFAULT_TEX_SIZE,
+    ) -> None:
+        self.rgba = np.ascontiguousarray(rgba, np.uint8)
+        self.bounds = tuple(float(v) for v in bounds)
+        self.tex_size = int(tex_size)
+        self.path = Path(name)
+
+    def intersects(self, key: tuple[int, int, int]) -> bool:
+        w, s, e, n = tile_bounds(TileKey(*key))
+        bw, bs, be, bn = self.bounds
+        return not (e < bw or w > be or n < bs or s > bn)
+
+    def tile_rgba(self, key: tuple[int, int, int]) -> np.ndarray | None:
+        if not self.intersects(key):
+            return None
+        t = self.tex_size
+        tr, _ = texel_grid(key, t)
+        centres = np.arange(t) + 0.5
+        lon = tr.c + tr.a * centres  # texel column centres
+        lat = tr.f + tr.e * centres  # texel row centres (north first)
+        h, w = self.rgba.shape[:2]
+        west, south, east, north = self.bounds
+        # Fractional source pixel coordinates of the texel centres (pixel centres at +0.5).
+        fx = (lon - west) / (east - west) * w - 0.5
+        fy = (north - lat) / (north - south) * h - 0.5
+        inside_x = (lon >= west) & (lon <= east)
+        inside_y = (lat >= south) & (lat <= north)
+        x0 = np.clip(np.floor(fx).astype(np.int64), 0, w - 1)
+        y0 = np.clip(np.floor(fy).astype(np.int64), 0, h - 1)
+        x1 = np.minimum(x0 + 1, w - 1)
+        y1 = np.minimum(y0 + 1, h - 1)
+        tx = np.clip(fx - x0, 0.0, 1.0)[None, :, None]
+        ty = np.clip(fy - y0, 0.0, 1.0)[:, None, None]
+        img = self.rgba.astype(np.float32)
+        top = img[y0][:, x0] * (1 - tx) + img[y0][:, x1] * tx
+        bot = img[y1][:, x0] * (1 - tx) + img[y1][:, x1] * tx
+        out = top * (1 - ty) + bot * ty
+        out[..., 3] *= (inside_y[:, None] & inside_x[None, :]).astype(np.float32)
+        return np.clip(np.round(out), 0, 255).astype(np.uint8)
+
+
+# -- checks of what a layer type returned (garbage fails its plugin) ------------------------
+def as_drawables(result: Any) -> list | None:
+    """The drawables in a layer type's ``open()`` result (one, a list/tuple, or an object with
+    ``drawables()``), or None when it is none of these (e.g. an attach/detach layer)."""
+    if isinstance(result, Lines | Points | RasterDrape | RasterFile):
+        return [result]
+    if isinstance(result, list | tuple):
+        return list(result)
+    return None
+
+
+def _rgba_problem(color: Any, what: str) -> str | None:
+    try:
+        c = [float(v) for v in color]
+    except Exception:
+        return f"{what} {color!r:.40} is not 3 or 4 numbers"
+    if len(c) not in (3, 4) or not all(math.isfinite(v) for v in c):
+        return f"{what} {color!r:.40} is not 3 or 4 finite numbers"
+    return None
+
+
+def _positive(value: Any, what: str, limit: float) -> str | None:
+    try:
+        v = float(value)
+    except Exception:
+        return f"{what} {value!r:.40} is not a number"
+    if not (math.isfinite(v) and 0 < v <= limit):
+        return f"{what} {v!r} is not in (0, {limit:g}]"
+    return None
+
+
+def drawable_problem(d: Any) -> str | None:
+    """What is wrong with one drawable (one line), or None."""
+    if isinstance(d, Lines):
+        if d.interpolation not in INTERPOLATIONS:
+            return f"Lines interpolation {d.interpolation!r:.40} (one of {INTERPOLATIONS})"
+        try:
+            paths = d.path_list()
+        except Exception:
+            return "Lines paths that are not (N, 2) arrays of numbers"
+        if not paths:
+            return "Lines without a path"
+        total = 0
+        for p in paths:
+            if p.ndim != 2 or p.shape[1] != 2 or len(p) < 2:
+                return f"a Lines path of shape {p.shape}, not (N >= 2, 2) lon/lat"
+            if not np.isfinite(p).all():
+                return "a Lines path with NaN or infinite coordinates"
+            if (np.abs(p[:, 1]) > 90).any() or (np.abs(p[:, 0]) > 540).any():
+                return "a Lines path outside lon -540..540, lat -90..90 degrees"
+            total += len(p)
+        if total > MAX_INPUT_VERTICES:
+            return f"Lines with {total} vertices (at most {MAX_INPUT_VERTICES})"
+        return (
+            _rgba_problem(d.color, "Lines color")
+            or _positive(d.width_px, "Lines width_px", 200.0)
+            or (None if d.dash_px == 0 else _positive(d.dash_px, "Lines dash_px", 1e4))
+            or _positive(d.segment_m, "Lines segment_m", 1e7)
+        )
+    if isinstance(d, Points):
+        try:
+            lon = np.asarray(d.lon, np.float64).reshape(-1)
+            lat = np.asarray(d.lat, np.float64).reshape(-1)
+        except Exception:
+            return "Points lon/lat that are not numbers"
+        if lon.shape != lat.shape or len(lon) == 0 or len(lon) > MAX_POINTS:
+            return f"Points with {len(lon)} lon and {len(lat)} lat (1..{MAX_POINTS}, equal)"
+        if not (np.isfinite(lon).all() and np.isfinite(lat).all()) or (np.abs(lat) > 90).any():
+            return "Points with NaN, infinite or out-of-range coordinates"
+        labels = list(d.labels) if d.labels is not None else []
+        if labels and len(labels) != len(lon):
+            return f"Points with {len(labels)} labels for {len(lon)} points"
+        if any(not isinstance(s, str) for s in labels):
+            return "Points labels that are not strings"
+        if d.kind not in POINT_KINDS:
+            return f"Points kind {d.kind!r:.40} (one of {POINT_KINDS})"
+        return (
+            _rgba_problem(d.color, "Points color")
+            or _rgba_problem(d.label_color, "Points label_color")
+            or _positive(d.size_px, "Points size_px", 500.0)
+            or _positive(d.scale_m, "Points scale_m", 1e7)
+        )
+    if isinstance(d, RasterDrape):
+        a = d.rgba
+        if not isinstance(a, np.ndarray) or a.dtype != np.uint8:
+            return f"a RasterDrape image of {type(a).__name__}, not a uint8 numpy array"
+        if a.ndim != 3 or a.shape[2] not in (3, 4) or min(a.shape[:2]) < 1:
+            return f"a RasterDrape image of shape {a.shape}, not (H, W, 3 or 4)"
+        if max(a.shape[:2]) > MAX_DRAPE_SIDE:
+            return f"a RasterDrape image of {a.shape[1]}x{a.shape[0]} (at most {MAX_DRAPE_SIDE})"
+        try:
+            w, s, e, n = (float(v) for v in d.bounds)
+        except Exception:
+            return f"RasterDrape bounds {d.bounds!r:.60}, not (west, south, east, north)"
+        if not all(map(math.isfinite, (w, s, e, n))) or not (w < e and s < n):
+            return f"RasterDrape bounds {d.bounds!r:.60}, not west < east, south < north"
+        if not (w >= -540 and e <= 540 and s >= -90 and n <= 90):
+            return f"RasterDrape bounds {d.bounds!r:.60} outside lon/lat degrees"
+        return None if _finite(d.opacity) else f"RasterDrape opacity {d.opacity!r:.40}"
+    if isinstance(d, RasterFile):
+        if not isinstance(d.path, str | Path):
+            return f"a RasterFile path of {type(d.path).__name__}"
+        return None if _finite(d.opacity) else f"RasterFile opacity {d.opacity!r:.40}"
+    return f"a {type(d).__name__}, not a drawable (Lines, Points, RasterDrape, RasterFile)"
+
+
+def _finite(v: Any) -> bool:
+    try:
+        return math.isfinite(float(v))
+    except Exception:
+        return False
+
+
+def drawables_problem(items: list) -> str | None:
+    """What is wrong with a layer type's drawables (the first fault), or None."""
+    if not items:
+        return "an empty list of drawables"
+    if len(items) > MAX_DRAWABLES:
+        return f"{len(items)} drawables (at most {MAX_DRAWABLES})"
+    for d in items:
+        problem = drawable_problem(d)
+        if problem is not None:
+            return problem
+    return None
+
+
+# -- building layers from (checked) drawables -----------------------------------------------
+def _polylines(d: Lines) -> Polylines:
+    paths = d.path_list()
+    if d.closed:
+        paths = [np.concatenate([p, p[:1]]) for p in paths]
+    xy = np.concatenate(paths)
+    starts = np.concatenate([[0], np.cumsum([len(p) for p in paths])]).astype(np.int64)
+    return Polylines(xy[:, 0].copy(), xy[:, 1].copy(), starts)
+
+
+def _length_m(pl: Polylines) -> float:
+    """Rough total length (great circles on the mean sphere), for the vertex budget."""
+    a, b = pl.segments()
+    lon1, lat1, lon2, lat2 = (np.radians(v) for v in (pl.lon[a], pl.lat[a], pl.lon[b], pl.lat[b]))
+    h = (
+        np.sin((lat2 - lat1) / 2) ** 2
+        + np.cos(lat1) * np.cos(lat2) * np.sin((lon2 - lon1) / 2) ** 2
+    )
+    # A rhumb segment is at most ~pi/2 times its great circle over these spans.
+    return float(np.sum(2 * _MEAN_RADIUS_M * np.arcsin(np.sqrt(np.clip(h, 0, 1))))) * 1.6
+
+
+def vector_layer(d: Lines, name: str) -> VectorLayer:
+    """A `VectorLayer` of checked `Lines`: densified along its interpolation, with coarser
+    levels (x4 spacing each, up to ~1000 km) for far views."""
+    raw = _polylines(d)
+    step = float(d.segment_m)
+    step = max(step, _length_m(raw) / MAX_LINE_VERTICES)
+    fn = densify_rhumb if d.interpolation == "rhumb" else densify
+    steps = [step * 4.0**k for k in range(1, 6) if step * 4.0**k <= _COARSER_MAX_M]
+    coarser = [(m, fn(raw, m)) for m in steps]
+    color = tuple(float(v) for v in [*d.color, 1.0][:4])
+    return VectorLayer(
+        d.name or name,
+        fn(raw, step),
+        color=color,  # type: ignore[arg-type]
+        width_px=float(d.width_px),
+        dash_px=float(d.dash_px),
+        coarser=coarser,
+    )
+
+
+def points_layer(d: Points, name: str) -> PointsLayer:
+    labels = [str(s) for s in d.labels] if d.labels else []
+    return PointsLayer(
+        d.name or name,
+        np.asarray(d.lon, np.float64).reshape(-1),
+        np.asarray(d.lat, np.float64).reshape(-1),
+        labels,
+        object_kind=d.kind,
+        size_px=float(d.size_px),
+        scale_m=float(d.scale_m),
+        color=tuple(float(v) for v in [*d.color, 1.0][:4]),  # type: ignore[arg-type]
+        labels=bool(labels),
+        label_color=tuple(float(v) for v in [*d.label_color, 1.0][:4]),  # type: ignore[arg-type]
+    )
+
+
+def drape_layer(d: RasterDrape | RasterFile, name: str) -> ImageryOverlayLayer:
+    """A drape; a `RasterFile` is opened here (`ImageryError`, one line, for a bad file)."""
+    opacity = float(np.clip(float(d.opacity), 0.0, 1.0))
+    if isinstance(d, RasterFile):
+        src = RasterImagery(d.path, ramp=d.ramp)
+        label = d.name or name or Path(d.path).name
+        kind = "thematic" if d.ramp is not None else "imagery"
+        return ImageryOverlayLayer(ImageryLayer(src, label, opacity), kind)
+    rgba = d.rgba
+    if rgba.shape[2] == 3:
+        rgba = np.concatenate([rgba, np.full((*rgba.shape[:2], 1), 255, np.uint8)], axis=2)
+    src = ArrayImagery(rgba, d.bounds, d.name or name)
+    return ImageryOverlayLayer(ImageryLayer(src, d.name or name, opacity), "imagery")
+
+
+def build_layer(items: list, name: str) -> Any:
+    """The overlay layer of checked drawables: one part as itself, several as a
+    `DrawnLayer`. Raises `GlobeviewError` for a raster file that cannot be read."""
+    parts: list = []
+    for d in items:
+        if isinstance(d, Lines):
+            parts.append(vector_layer(d, name))
+        elif isinstance(d, Points):
+            parts.append(points_layer(d, name))
+        else:
+            parts.append(drape_layer(d, name))
+    if len(parts) == 1:
+        return parts[0]
+    return DrawnLayer(name, parts)
+
+
+def host_layer(result: Any, name: str) -> tuple[Any, str | None]:
+    """(layer, None) for a layer type's ``open()`` result, or (None, problem) when it is
+    garbage (the caller fails the plugin with ``problem``). An attach/detach object (API 1.0
+    layers) is kept as it is. ``name``: the default layer name (the file's)."""
+    items = as_drawables(result)
+    if items is None and callable(getattr(result, "drawables", None)):
+        items = result.drawables()  # the caller runs this under the plugin's isolation
+        if not isinstance(items, list | tuple):
+            return None, f"drawables() returned {type(items).__name__}, not a list"
+        items = list(items)
+        name = str(getattr(result, "name", "") or name)
+    if items is None:
+        if all(callable(getattr(result, m, None)) for m in ("attach", "detach")):
+            return result, None
+        return None, f"open() returned {type(result).__name__}, not a layer or drawables"
+    problem = drawables_problem(items)
+    if problem is not None:
+        return None, f"open() returned {problem}"
+    return build_layer(items, name), None
+
+
+def hillshade_layer(terrain, opacity: float = 0.5, azimuth_deg: float = 315.0):
+    """A thematic drape computed from the DEM itself: its hillshade (sun from ``azimuth_deg``,
+    45 degrees up), multiplied in at ``opacity``."""
+    from globeview.terrain.imagery import HillshadeImagery
+
+    src = HillshadeImagery(terrain, azimuth_deg=azimuth_deg)
+    return ImageryOverlayLayer(ImageryLayer(src, "hillshade", opacity), "thematic")
