@@ -44,9 +44,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--layer",
         action="append",
         default=[],
-        metavar="FILE",
-        help="overlay a raster (imagery, thematic) or vector (GeoJSON lines, points) file; "
-        "repeatable",
+        metavar="[TYPE:]FILE",
+        help="overlay a file with the layer type that opens it (by extension, then content; "
+        "TYPE:FILE chooses one, e.g. thematic:x.tif; see `globeview plugins list`); repeatable",
     )
     parser.add_argument(
         "--imagery", action="store_true", help="drape the embedded Blue Marble imagery"
@@ -262,8 +262,10 @@ def check_inputs(args: argparse.Namespace) -> None:
     for src in args.sources:
         if not Path(src).is_dir():  # a folder is a store, checked when it is opened
             check_dem_path(Path(src))
+    from globeview.plugins.layer_dispatch import parse_layer_spec
+
     for layer in args.layer:
-        p = Path(layer)
+        p = Path(parse_layer_spec(layer)[1])  # TYPE:FILE names FILE
         if p.is_dir():
             raise GlobeviewError(f"--layer {layer} is a directory, not a layer file")
         if not p.is_file():
