@@ -485,6 +485,7 @@ class MainWindow(QMainWindow):
         self.plugin_panel.tauChanged.connect(self._tau_changed)
         self.plugins.lodChanged.connect(self._use_lod)
         self.plugins.redrawRequested.connect(g.request_frame)
+        self.plugins.statusText.connect(self.status.notice)  # a plugin's set_status: no warning
         self.plugins.changed.connect(self.refresh_tools)
         g.sceneReady.connect(lambda _s: self.refresh_tools())
         g.toolDeactivated.connect(self._sync_tools)

@@ -53,13 +53,15 @@ class PluginHost(QObject):
         changed(): plugin records or the provider list changed (the panel refreshes).
         lodChanged(str): the active LOD provider changed (a user choice or a fallback).
         redrawRequested(): a plugin or a setting asks for a frame.
-        notice(str): a one-line message for the status bar.
+        notice(str): a one-line message for the status bar (a failure: logged at WARNING).
+        statusText(str): a plugin's own status line (`set_status`): the status bar only.
     """
 
     changed = pyqtSignal()
     lodChanged = pyqtSignal(str)
     redrawRequested = pyqtSignal()
     notice = pyqtSignal(str)
+    statusText = pyqtSignal(str)
 
     def __init__(self, registry: PluginRegistry, parent: QObject | None = None) -> None:
         super().__init__(parent)
@@ -76,7 +78,11 @@ class PluginHost(QObject):
         self.redrawRequested.emit()
 
     def set_status(self, text: str) -> None:
-        self.notice.emit(str(text))
+        """A plugin's one-line status ("click two places"): shown in the status bar and
+        logged at INFO — it is no warning (`notice` is, for failures)."""
+        line = " ".join(str(text).split())
+        log.info("plugin status: %s", line)
+        self.statusText.emit(line)
 
     # -- discovery and state -------------------------------------------------------------
     def discover(self) -> None:
