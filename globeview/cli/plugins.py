@@ -302,7 +302,17 @@ def _get_setting(args: argparse.Namespace) -> int:
         print(_show(values[key]))
         return 0
     for s in settings:
-        origin = "stored" if s.name in stored and values[s.name] == stored[s.name] else "default"
+        origin = "default"
+        if s.name in stored:
+            # A stored value the Setting cannot take as it is (a stale file, another
+            # version) is clamped or replaced by the default when read: say so.
+            raw = stored[s.name]
+            origin = (
+                "stored"
+                if values[s.name] == raw
+                and isinstance(raw, bool) == isinstance(values[s.name], bool)
+                else f"stored {str(raw)[:40]!r}, read as {_show(values[s.name])}"
+            )
         print(
             f"{name}.{s.name} = {_show(values[s.name])}  ({origin}; {describe_setting(s)}, "
             f"default {_show(s.default)})"

@@ -260,3 +260,23 @@ def test_a_config_dir_that_is_a_file_is_one_line(site: PluginSite, tmp_path: Pat
         f"{not_a_folder} is not a folder" in proc.stderr and "GLOBEVIEW_CONFIG_DIR" in proc.stderr
     )
     assert not_a_folder.read_text() == "mine\n"
+
+
+def test_get_says_when_a_stored_value_is_not_used_as_stored(
+    site: PluginSite, tmp_path: Path
+) -> None:
+    config = tmp_path / "config"
+    config.mkdir()
+    key = "plugins/gvt-setpins/contributions/gvt-setpins"
+    (config / "settings.json").write_text(
+        json.dumps({key: {"count": "lots", "size_px": 400, "colour": "blue"}})
+    )
+    proc = run(site, config, "plugins", "get", "gvt-setpins")
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout.splitlines()
+    assert (
+        out[0]
+        == "gvt-setpins.size_px = 40.0  (stored '400', read as 40.0; float in 4..40, default 14.0)"
+    )
+    assert out[1] == "gvt-setpins.count = 3  (stored 'lots', read as 3; int in 1..9, default 3)"
+    assert out[2] == "gvt-setpins.colour = blue  (stored; one of green, blue, default green)"
