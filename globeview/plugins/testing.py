@@ -315,7 +315,10 @@ def render_frame(
     target = OffscreenTarget(ctx, size)
     try:
         if tool is not None:
-            session.activate_tool(tool)  # GlobeviewError for a tool no enabled plugin has
+            # A tool that fails to load is reported in `failures` (as `render --tool` says
+            # it in its 'wrote' line); a name no plugin declares raises GlobeviewError.
+            if session.find_tool(tool) is not None or registry.failure_of(tool) is None:
+                session.activate_tool(tool)
             if points and session.tool() is not None:
                 from globeview.plugins.headless import place_points
 

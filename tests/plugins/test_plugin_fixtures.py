@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from globeview.errors import GlobeviewError
 from globeview.plugins.testing import PluginSite
 
 MANIFEST = """
@@ -47,6 +48,11 @@ MANIFEST = """
     name = "pins"
     kind = "tool"
     target = "gvt_probe.impl:Pins"
+
+    [[contributions]]
+    name = "ghost"
+    kind = "tool"
+    target = "gvt_probe.missing:Ghost"
     """
 
 IMPL = """
@@ -198,6 +204,12 @@ def test_rendered_reports_a_fallback(plugin_site: PluginSite, globeview_registry
     # Per-contribution isolation: the package's other provider and tool still work.
     frame = rendered("probe", tool="dot", size=(64, 48))
     assert frame.provider == "probe" and not frame.failures
+    # A tool that cannot even be imported is a failure of the frame, not an exception.
+    frame = rendered("probe", tool="ghost", size=(64, 48))
+    assert frame.failures == {"ghost": "ModuleNotFoundError: No module named 'gvt_probe.missing'"}
+    assert frame.session.tool() is None and frame.provider == "probe"
+    with pytest.raises(GlobeviewError, match="no enabled tool named 'nosuch'"):
+        rendered("probe", tool="nosuch")
 
 
 # -- the outsider's view: a plugin project's own pytest run -------------------------------
