@@ -121,9 +121,7 @@ class JsonFileSettings:
     def set(self, key: str, value: Any) -> None:
         from globeview.fileio import OutputError, atomic_write_text, describe_os_error
 
-        data, corrupt = self._read()
-        data[key] = value
-        text = json.dumps(data, indent=2, sort_keys=True)  # TypeError for non-JSON values
+        json.dumps(value)  # TypeError for a non-JSON value, before anything is touched
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:  # e.g. $GLOBEVIEW_CONFIG_DIR names a file
@@ -137,14 +135,41 @@ class JsonFileSettings:
                 f"cannot write the settings file {self.path}: {why} (the config folder is "
                 "$GLOBEVIEW_CONFIG_DIR, else $XDG_CONFIG_HOME/globeview, else ~/.config/globeview)"
             ) from None
-        if corrupt:
-            aside = self.path.with_name(
-                f"{self.path.name}.corrupt-{time.strftime('%Y%m%d-%H%M%S')}"
-            )
-            with contextlib.suppress(OSError):
-                os.replace(self.path, aside)
-                log.warning("settings file %s was unreadable; kept as %s", self.path, aside)
-        atomic_write_text(self.path, text + "\n")
+        # Read-modify-write under an exclusive lock: two processes setting different keys at
+        # once (`plugins set` beside a render, two windows) must not lose either update.
+        with self._locked():
+            data, corrupt = self._read()
+            data[key] = value
+            text = json.dumps(data, indent=2, sort_keys=True)
+            if corrupt:
+                stamp = time.strftime("%Y%m%d-%H%M%S")
+                aside = self.path.with_name(f"{self.path.name}.corrupt-{stamp}")
+                with contextlib.suppress(OSError):
+                    os.replace(self.path, aside)
+                    log.warning("settings file %s was unreadable; kept as %s", self.path, aside)
+            atomic_write_text(self.path, text + "\n")
+
+    @contextlib.contextmanager
+    def _locked(self) -> Iterator[None]:
+        """An exclusive advisory lock (``flock``) on ``settings.json.lock`` beside the file.
+        Where there is no flock (Windows) or the lock file cannot be made (a read-only
+        folder: the write itself then fails with its one-line reason), no lock."""
+        try:
+            import fcntl
+        except ImportError:
+            yield
+            return
+        lock = self.path.with_name(self.path.name + ".lock")
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+        except OSError:
+            yield
+            return
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            yield
+        finally:
+            os.close(fd)  # releases the lock
 
 
 def default_settings() -> JsonFileSettings:

@@ -149,7 +149,8 @@ def test_a_failed_write_leaves_the_settings_file_whole(site: PluginSite, tmp_pat
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
     assert "settings.json" in proc.stderr and "Traceback" not in proc.stderr
     assert (config / "settings.json").read_bytes() == before
-    assert sorted(p.name for p in config.iterdir()) == ["settings.json"]  # no temporaries
+    left = sorted(p.name for p in config.iterdir())
+    assert left == ["settings.json", "settings.json.lock"]  # no temporaries
 
 
 def test_a_corrupt_settings_file_is_kept_aside_not_lost(site: PluginSite, tmp_path: Path) -> None:
@@ -280,3 +281,23 @@ def test_get_says_when_a_stored_value_is_not_used_as_stored(
     )
     assert out[1] == "gvt-setpins.count = 3  (stored 'lots', read as 3; int in 1..9, default 3)"
     assert out[2] == "gvt-setpins.colour = blue  (stored; one of green, blue, default green)"
+
+
+WRITER = """
+import sys
+from globeview.plugins.settings import JsonFileSettings
+
+settings = JsonFileSettings(sys.argv[1])
+for j in range(15):
+    settings.set(f"plugins/p{sys.argv[2]}/k{j}", j)
+"""
+
+
+def test_concurrent_writers_lose_no_update(tmp_path: Path) -> None:
+    """Six processes setting different keys at once (a `plugins set` beside a render, two
+    windows): every key is there afterwards (without the lock about 40% were lost)."""
+    path = tmp_path / "settings.json"
+    procs = [subprocess.Popen([sys.executable, "-c", WRITER, str(path), str(i)]) for i in range(6)]
+    assert [p.wait(timeout=120) for p in procs] == [0] * 6
+    data = json.loads(path.read_text())
+    assert len(data) == 6 * 15 and data["plugins/p5/k14"] == 14
