@@ -951,12 +951,18 @@ class PluginRegistry:
 
 def _failure_summary(rec: PluginRecord, message: str) -> str:
     """`PluginRecord.error` after a contribution failed with ``message``: the message for a
-    plugin of one contribution, else ``"NAME: error"`` of each failed contribution,
-    ``"; "``-joined."""
+    plugin of one contribution, or when every contribution failed with that same error
+    (a shared module that does not import); else ``"NAME: error"`` per distinct error, the
+    names that share one joined by ``", "`` and the groups by ``"; "``."""
     declared = len(rec.manifest.contributions) if rec.manifest is not None else 0
     if declared <= 1 or not rec.failures:
         return message
-    text = "; ".join(f"{name}: {f.error}" for name, f in rec.failures.items())
+    by_error: dict[str, list[str]] = {}
+    for name, f in rec.failures.items():
+        by_error.setdefault(f.error, []).append(name)
+    if len(by_error) == 1 and len(rec.failures) == declared:
+        return message
+    text = "; ".join(f"{', '.join(names)}: {error}" for error, names in by_error.items())
     return _clip(text, 2 * MAX_MESSAGE_CHARS)
 
 

@@ -14,6 +14,7 @@ import logging
 import os
 import subprocess
 import sys
+import textwrap
 from pathlib import Path
 
 import pytest
@@ -324,3 +325,40 @@ def test_session_falls_back_from_the_broken_provider_and_keeps_the_tool(
     session.render(target.fbo, (64, 48))
     assert session.lod_name == "pair-lod" and reg.get("pair").status == "partial"
     target.release()
+
+
+def test_a_shared_module_that_does_not_import_fails_the_plugin_with_one_reason(
+    plugin_site: PluginSite,
+) -> None:
+    manifest = MANIFEST.replace("gvt_pair.lod:Provider", "gvt_pair.both:Provider").replace(
+        "gvt_pair.tool:Clicker", "gvt_pair.both:Clicker"
+    )
+    plugin_site.add("gvt_pair", manifest, {"both": "raise SystemExit('x' * 5000)\n"})
+    reg = registry()
+    assert "pair-lod" not in reg.lod_providers() and "pair-tool" not in reg.tools()
+    rec = reg.get("pair")
+    assert rec.status == "failed" and not rec.enabled
+    # Both contributions failed with the same error: said once, cut to one short line.
+    assert rec.error.startswith("SystemExit: xxx") and len(rec.error) <= 300
+    assert set(rec.failures) == {"pair-lod", "pair-tool"}
+
+
+def test_contributions_sharing_an_error_are_named_together(plugin_site: PluginSite) -> None:
+    manifest = (
+        MANIFEST
+        + """
+    [[contributions]]
+    name = "pair-tool-2"
+    kind = "tool"
+    target = "gvt_pair.tool:Clicker"
+    """
+    )
+    add_pair(plugin_site, GOOD_LOD, "import gvt_no_such_module\n")
+    (plugin_site.root / "gvt_pair" / "globeview.toml").write_text(textwrap.dedent(manifest))
+    reg = registry()
+    assert "pair-tool" not in reg.tools() and "pair-lod" in reg.lod_providers()
+    rec = reg.get("pair")
+    assert rec.status == "partial"
+    assert rec.error == (
+        "pair-tool, pair-tool-2: ModuleNotFoundError: No module named 'gvt_no_such_module'"
+    )
