@@ -258,8 +258,8 @@ def parse_setting_value(setting: Any, text: str) -> Any:
         num = int(num)
     lo, hi = setting.min, setting.max
     if (lo is not None and num < lo) or (hi is not None and num > hi):
-        lo_s = "-inf" if lo is None else f"{lo:g}"
-        hi_s = "inf" if hi is None else f"{hi:g}"
+        lo_s = "-inf" if lo is None else _num(lo)
+        hi_s = "inf" if hi is None else _num(hi)
         raise ValueError(f"{text} is outside {lo_s}..{hi_s}")
     return num
 
@@ -380,9 +380,14 @@ def describe_setting(setting: Any) -> str:
         return "one of " + ", ".join(setting.choices)
     if setting.min is None and setting.max is None:
         return f"any {setting.type}"
-    lo = "-inf" if setting.min is None else f"{setting.min:g}"
-    hi = "inf" if setting.max is None else f"{setting.max:g}"
+    lo = "-inf" if setting.min is None else _num(setting.min)
+    hi = "inf" if setting.max is None else _num(setting.max)
     return f"{setting.type} in {lo}..{hi}"
+
+
+def _num(x: float) -> str:
+    """A bound as a person writes it: 1000000, not 1e+06; 0.01."""
+    return str(int(x)) if float(x).is_integer() and abs(x) < 1e15 else f"{x:g}"
 
 
 def stored_values(backend: SettingsBackend, plugin: str, contribution: str) -> dict[str, Any]:
