@@ -9,7 +9,8 @@ undulation N (EGM96, metres) gives the orthometric height H = h - N.
 
 Which layer "answered" a point is the topmost visible layer whose own finest tile has data at
 all four nodes around the point; none means the surface there is the bare ellipsoid (h = 0)
-or a layer's ragged nodata edge.
+or a layer's ragged nodata edge. In a layer's border band, where it feathers into the layer
+below, the answer names both and the weight of the upper one.
 """
 
 from __future__ import annotations
@@ -113,14 +114,35 @@ def composed_heights(
 
 def answering_layers(stack: TerrainStack, lon: np.ndarray, lat: np.ndarray) -> list[str]:
     """Per point, the name of the topmost visible layer whose finest tile has data at the four
-    nodes around the point (`NO_LAYER` where none does)."""
+    nodes around the point (`NO_LAYER` where none does). Inside that layer's border band, where
+    it feathers into a layer below (`globeview.terrain.blend`), the answer names both and the
+    upper layer's weight: ``"top over base (blend 0.42)"``."""
     lon, lat = check_lonlat(lon, lat)
-    names = np.full(lon.shape, NO_LAYER, dtype=object)
+    layers = stack.visible_layers
+    index = _answering_index(layers, lon, lat)
+    names = np.array([NO_LAYER if i < 0 else layers[i].name for i in index], dtype=object)
+    for i in np.unique(index[index > 0]):
+        at = np.flatnonzero(index == i)
+        w = stack.blend_weight(int(i), lon[at], lat[at])
+        band = at[w < 1.0 - 5e-3]
+        if band.size == 0:
+            continue
+        below = _answering_index(layers[:i], lon[band], lat[band])
+        for p, b, wp in zip(band, below, w[w < 1.0 - 5e-3], strict=True):
+            if b >= 0:
+                names[p] = f"{layers[i].name} over {layers[b].name} (blend {wp:.2f})"
+    return list(names)
+
+
+def _answering_index(layers: list, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
+    """Per point, the index in ``layers`` of the topmost one whose finest tile has data at the
+    four nodes around the point (-1 where none does)."""
+    index = np.full(lon.shape, -1, dtype=np.int64)
     open_ = np.ones(lon.shape, dtype=bool)
-    for layer in reversed(stack.visible_layers):
+    for i in range(len(layers) - 1, -1, -1):
         if not open_.any():
             break
-        st = layer.store
+        st = layers[i].store
         lm = st.max_level
         todo = np.flatnonzero(open_)
         kx, ky = key_for_lonlat(lm, lon[todo], lat[todo])
@@ -130,9 +152,9 @@ def answering_layers(stack: TerrainStack, lon: np.ndarray, lat: np.ndarray) -> l
             pos = np.flatnonzero(has)[sub]
             valid = _all_corners_valid(st.heights((lm, x, y)), rows[pos], cols[pos])
             hit = todo[pos[valid]]
-            names[hit] = layer.name
+            index[hit] = i
             open_[hit] = False
-    return list(names)
+    return index
 
 
 def _all_corners_valid(grid: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:

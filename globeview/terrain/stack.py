@@ -4,12 +4,14 @@ Each DEM layer is its own tile store (a global base, regional detail on top). Th
 answers, for any tile key of the ellipsoidal quadtree, what the composed surface is:
 
 - **heights**: each visible layer's heights pasted in order (later layers win where they have
-  data). A layer asked for a tile finer than its finest level answers with its finest
-  ancestor tile upsampled bilinearly — exactly the surface it stands for, so that part adds
-  no geometric error. Where no layer has data the surface is the ellipsoid (height 0).
+  data). A layer over others feathers into them across a border band inside its data's edge
+  (``B = L + w (U - L)``, w from `globeview.terrain.blend`), so there is no cliff where 30 m
+  data meets the 20' base. A layer asked for a tile finer than its finest level answers with
+  its finest ancestor tile upsampled bilinearly — exactly the surface it stands for, so that
+  part adds no geometric error. Where no layer has data the surface is the ellipsoid (height 0).
 - **metadata**, vectorised over arrays of keys for the LOD providers: geometric error per
-  index stride (the max over the layers covering the key), height range, and whether any layer
-  has finer data below the key.
+  index stride (the max over the layers covering the key, plus a bound on what the blend adds
+  in border bands), height range, and whether any layer has finer data below the key.
 
 Heights are metres above the ellipsoid; keys are (level, x, y) with y = 0 at the north pole
 (see quadtree.py).
@@ -23,10 +25,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from globeview.errors import StoreError
+from globeview.terrain.blend import BlendMask, interpolation_error, weight_change_bound
+from globeview.terrain.quadtree import node_spacing, tile_bounds_arrays
 from globeview.terrain.store import TileStore
 
 #: Number of index strides with recorded errors: 1, 2, 4, ..., 64.
 N_STRIDES = 7
+
+#: Most tiles of a layer's border band whose |upper - lower| is measured exactly at one level
+#: (one-time work, ~1 ms a tile); finer levels bound it from the finest level within this.
+DIFF_TABLE_TILES = 1024
 
 
 @dataclass
@@ -69,6 +77,8 @@ class TerrainStack:
         self._cache: dict[tuple[int, int, int], np.ndarray] = {}
         self._order: list[tuple[int, int, int]] = []
         self._tables: dict[tuple[int, int], tuple] = {}
+        self._masks: dict[int, BlendMask] = {}
+        self._diffs: dict[tuple, tuple] = {}
         self._check_sizes()
 
     # -- layer management --------------------------------------------------------------------
@@ -106,6 +116,7 @@ class TerrainStack:
         with self._lock:
             self._cache.clear()
             self._order.clear()
+            self._diffs.clear()  # |upper - lower| bounds depend on which layers lie below
 
     def _check_sizes(self, layers: list[TerrainLayer] | None = None) -> None:
         sizes = {ly.store.tile_size for ly in (self.layers if layers is None else layers)}
@@ -130,6 +141,10 @@ class TerrainStack:
     # -- vectorised metadata -------------------------------------------------------------------
     def metadata(self, level: int, x: np.ndarray, y: np.ndarray) -> TileMetadata:
         """Metadata of the N tiles (level, x[i], y[i])."""
+        return self._metadata(level, x, y, len(self.visible_layers))
+
+    def _metadata(self, level: int, x: np.ndarray, y: np.ndarray, upto: int) -> TileMetadata:
+        """Metadata of the first ``upto`` visible layers composed (see `metadata`)."""
         x = np.asarray(x, dtype=np.int64)
         y = np.asarray(y, dtype=np.int64)
         n = len(x)
@@ -138,7 +153,7 @@ class TerrainStack:
         hmax = np.full(n, -np.inf)
         has_finer = np.zeros(n, dtype=bool)
         covered = np.zeros(n, dtype=bool)
-        for layer in self.visible_layers:
+        for i, layer in enumerate(self.visible_layers[:upto]):
             st = layer.store
             lm = st.max_level
             la = min(level, lm)
@@ -160,6 +175,9 @@ class TerrainStack:
                 e = np.zeros((n, N_STRIDES))
                 if f < N_STRIDES:
                     e[:, f:] = rows[:, 3 : 3 + N_STRIDES - f]
+            blended = ok & covered  # this layer over data of layers below: its border band
+            if i > 0 and blended.any():
+                e = e + self._blend_error(i, st, level, x, y, blended, e, err)
             covered |= ok
             err = np.where(ok[:, None], np.maximum(err, e), err)
             hmin = np.where(ok, np.minimum(hmin, rows[:, 1]), hmin)
@@ -168,6 +186,254 @@ class TerrainStack:
         hmin = np.where(covered, np.minimum(hmin, 0.0), 0.0)
         hmax = np.where(covered, np.maximum(hmax, 0.0), 0.0)
         return TileMetadata(err, hmin, hmax, has_finer, covered)
+
+    # -- the border blend ----------------------------------------------------------------------
+    def _blend_error(
+        self,
+        i: int,
+        st: TileStore,
+        level: int,
+        x: np.ndarray,
+        y: np.ndarray,
+        blended: np.ndarray,
+        e_upper: np.ndarray,
+        e_lower: np.ndarray,
+    ) -> np.ndarray:
+        """(N, N_STRIDES) metres to add to layer ``i``'s stride errors where it blends.
+
+        Why this bound: the composed surface is B = (1 - w) L + w U per node. Drawn at stride
+        s it is the bilinear interpolation of node values; at a point p of a drawn cell whose
+        corners have weights w_i = w(p) + d_i and barycentric weights l_i,
+            interp(B) - B*(p) = (1 - w)(interp L - L*) + w (interp U - U*)
+                                + sum l_i d_i (U_i - L_i),
+        so |error| <= max(e_L, e_U) + max|d_i| * max|U_i - L_i|. `metadata` already takes the
+        max over the layers (the first term); this is the second. max|d_i| is
+        `weight_change_bound` of the drawn cell; max|U_i - L_i| over the tile's nodes is
+        `_difference_bound` (a per-tile table, not the height ranges: the base's range over a
+        20' ancestor spans the ocean floor too, and a bound of thousands of metres made the
+        band refine to the finest level, 1.5 M triangles at a 174 km view).
+        """
+        n = len(x)
+        mask = self._blend_mask(st)
+        inband = blended & mask.touches_band(*tile_bounds_arrays(level, x, y))
+        if not inband.any():
+            return np.zeros((n, N_STRIDES))
+        lm = st.max_level
+        f = max(0, level - lm)
+        if f == 0:
+            total = self._blend_total(i, st, level, x, y, e_upper, e_lower)
+        else:
+            # Finer than the layer's data the band is the blend at its finest level, upsampled
+            # (`_compose`): stride s here is stride s / 2^f there, and up to stride 2^f the
+            # drawn surface is that level's stride-1 surface exactly.
+            ax, ay = x >> f, y >> f
+            e_up = np.nan_to_num(st.tile_stride_error(lm, ax, ay).astype(np.float64))
+            e_low = self._metadata(lm, ax, ay, i).stride_error
+            at_lm = self._blend_total(i, st, lm, ax, ay, e_up, e_low)
+            total = np.repeat(at_lm[:, :1], N_STRIDES, axis=1)
+            if f < N_STRIDES:
+                total[:, f:] = at_lm[:, : N_STRIDES - f]
+        extra = np.maximum(total - e_upper, 0.0)
+        return np.where(inband[:, None], extra, 0.0)
+
+    def _blend_total(
+        self,
+        i: int,
+        st: TileStore,
+        level: int,
+        x: np.ndarray,
+        y: np.ndarray,
+        e_upper: np.ndarray,
+        e_lower: np.ndarray,
+    ) -> np.ndarray:
+        """(N, N_STRIDES) metres: a bound on the composed surface's stride errors (layer ``i``
+        blended over those below) on tiles at ``level`` <= the layer's finest, given both
+        surfaces' own stride errors there.
+
+        Two bounds, the smaller taken: max(e_U, e_L) + `_blend_terms` (the interpolation
+        algebra), and, where the band's tiles were measured (`_difference_table`), E(s) + the
+        first bound at stride 1, with E(s) = max |interp_s(B) - B| over the tile's nodes: the
+        drawn surface minus the stride-1 surface is bilinear on the stride-1 grid, so E is
+        exact, and the stride-1 surface departs from the reference by the stride-1 bound.
+        """
+        e_here = e_upper[:, 0] + e_lower[:, 0]
+        bound = np.maximum(e_upper, e_lower) + self._blend_terms(i, st, level, x, y, e_here)
+        measured = self._self_interpolation(i, st, level, x, y)
+        if measured is not None:
+            bound = np.minimum(bound, measured + bound[:, :1])
+        return bound
+
+    def _blend_terms(
+        self, i: int, st: TileStore, level: int, x: np.ndarray, y: np.ndarray, e_here: np.ndarray
+    ) -> np.ndarray:
+        """(N, N_STRIDES) metres: the blend's part of the stride errors of tiles at ``level``
+        (<= the layer's finest), ``e_here`` a bound on both layers' stride-1 errors there.
+
+        With d_i = w_i - w(p), Delta = U - L and Delta' its interpolation at p:
+            sum l_i d_i Delta_i = Delta' (interp w - w)(p) + sum l_i d_i (Delta_i - Delta'),
+        so it is at most D * W2 + dw * S, where D = max|Delta| over the tile's nodes, W2 =
+        `interpolation_error` of w for the drawn cell (0 for cells inside one raster cell of
+        w), dw = `weight_change_bound` and S the largest spread of Delta over a drawn cell's
+        corners; and never more than dw * D. Where the band holds too many tiles for exact
+        node statistics, only the dw * D bound is used (`_difference_bound`).
+
+        The reference is the finest composed surface (the blended nodes at the layer's
+        finest level, bilinear between), which departs from the blend of the full-resolution
+        surfaces by at most dw(finest cell) * S(finest): every drawn surface but those very
+        nodes adds that.
+        """
+        mask = self._blend_mask(st)
+        tile_n = int(np.log2(st.tile_size - 1))
+        strides = 2.0 ** np.arange(N_STRIDES)
+        lm = st.max_level
+        cells = strides * node_spacing(level, tile_n)
+        dw = weight_change_bound(cells, mask.band)
+        diff, spread = self._difference_bound(i, st, level, x, y, e_here)
+        first = diff[:, None] * dw[None, :]
+        if spread is None:
+            terms = first
+        else:
+            w2 = np.array([interpolation_error(mask, c) for c in cells])
+            terms = np.minimum(first, diff[:, None] * w2[None, :] + spread * dw[None, :])
+        finest_cell = node_spacing(lm, tile_n)
+        c_lm = self._exact_level(i, st, lm)
+        if c_lm == lm:
+            _, _, s_lm, _ = self._difference_table(i, st, lm)
+            spread_lm = float(s_lm[..., 0].max(initial=0.0))
+        else:
+            spread_lm = float(diff.max(initial=0.0))
+        terms = terms + weight_change_bound(finest_cell, mask.band) * spread_lm
+        if level == lm:
+            terms[:, 0] = 0.0  # stride 1 at the finest level draws the blended nodes themselves
+        return terms
+
+    def _difference_bound(
+        self, i: int, st: TileStore, level: int, x: np.ndarray, y: np.ndarray, e_here: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """A bound on |U_i - L_i| over the nodes of each tile (level, x, y): (N,) metres, layer
+        ``i``'s heights minus the composed layers' below it; and (N, N_STRIDES) the largest
+        spread of U - L over a drawn cell's corners at each stride, or None where not exact.
+        ``e_here``: (N,) a bound on both layers' stride-1 errors on these tiles.
+
+        Exact (node statistics from `_difference_table`) at levels whose band holds at most
+        `DIFF_TABLE_TILES` tiles. Finer than that, from the ancestor at the finest such level
+        c: |U* - L*| <= its node max + both stride-1 errors at c (both surfaces are bilinear
+        on the same node grid there, so their difference peaks at a node, and each departs
+        from full resolution by at most its stride-1 error), and the nodes here depart from
+        U*, L* by ``e_here``.
+        """
+        c = self._exact_level(i, st, level)
+        grid, table, spread, _ = self._difference_table(i, st, c)
+        k = level - c
+        iy, ix, inside = grid.tile_slots(y >> k, x >> k)
+        d = np.where(inside, table[iy, ix], 0.0)
+        if k == 0:
+            return d, np.where(inside[:, None], spread[iy, ix], 0.0)
+        xa, ya = x >> k, y >> k
+        e_up = np.nan_to_num(st.tile_stride_error(c, xa % grid.ncols, ya)[..., 0])
+        e_low = self._metadata(c, xa, ya, i).stride_error[:, 0]
+        return d + e_up + e_low + e_here, None
+
+    def _self_interpolation(
+        self, i: int, st: TileStore, level: int, x: np.ndarray, y: np.ndarray
+    ) -> np.ndarray | None:
+        """(N, N_STRIDES) E(s) of `_blend_total` where ``level`` is measured, else None."""
+        if self._exact_level(i, st, level) != level:
+            return None
+        grid, _, _, measured = self._difference_table(i, st, level)
+        iy, ix, inside = grid.tile_slots(y, x)
+        # Outside the measured band tiles nothing is blended: no extra error there.
+        return np.where(inside[:, None], measured[iy, ix], 0.0)
+
+    def _exact_level(self, i: int, st: TileStore, level: int) -> int:
+        """The finest level <= ``level`` whose border band holds at most `DIFF_TABLE_TILES`
+        tiles of layer ``i`` (one-time work per level is bounded)."""
+        for c in range(level, -1, -1):
+            key = ("count", id(st), c)
+            with self._lock:
+                n = self._diffs.get(key)
+            if n is None:
+                mask = self._blend_mask(st)
+                grid = st.level_grid(c)
+                ys, xs = np.mgrid[grid.y0 : grid.y0 + grid.ny, grid.x0 : grid.x0 + grid.nx]
+                n = int(mask.touches_band(*tile_bounds_arrays(c, xs.ravel(), ys.ravel())).sum())
+                with self._lock:
+                    self._diffs[key] = n
+            if n <= DIFF_TABLE_TILES:
+                return c
+        return 0
+
+    def _difference_table(self, i: int, st: TileStore, level: int) -> tuple:
+        """(grid, (ny, nx) table): max over each tile's nodes of |U - L| (layer ``i`` minus the
+        composed layers below it) at ``level``, for the tiles in the layer's border band (0
+        elsewhere: the blend term is zero there). Built once per level and stack of layers
+        below (a bounded number of tiles, see `_exact_level`), never per frame."""
+        below = tuple(id(ly.store) for ly in self.visible_layers[:i])
+        key = (id(st), below, level)
+        with self._lock:
+            hit = self._diffs.get(key)
+        if hit is not None:
+            return hit
+        mask = self._blend_mask(st)
+        grid = st.level_grid(level)
+        ys, xs = np.mgrid[grid.y0 : grid.y0 + grid.ny, grid.x0 : grid.x0 + grid.nx]
+        xs = xs % grid.ncols
+        todo = st.has_data(level, xs, ys)
+        todo &= mask.touches_band(*tile_bounds_arrays(level, xs, ys))
+        table = np.zeros(todo.shape)
+        spread = np.zeros((*todo.shape, N_STRIDES))
+        measured = np.zeros((*todo.shape, N_STRIDES))
+        for j, c in zip(*np.nonzero(todo), strict=True):
+            tile = (level, int(xs[j, c]), int(ys[j, c]))
+            lower = self._compose(tile, i)
+            composed = lower.copy()
+            upper = self._paste(i, st, tile, composed)
+            if upper is None:
+                continue
+            # Where either is missing nothing is blended (the node is one layer's own: its
+            # weight is in effect 0 or 1, the blend term w_i (U_i - L_i) is 0 whatever U - L
+            # is taken to be there, so such corners add nothing to the spreads).
+            delta = upper.astype(np.float64) - lower
+            if np.isnan(delta).all():
+                continue
+            table[j, c] = float(np.nanmax(np.abs(delta)))
+            spread[j, c] = _cell_spreads(delta)
+            measured[j, c] = _stride_interpolation_errors(composed)
+        hit = (grid, table, spread, measured)
+        with self._lock:
+            self._diffs[key] = hit
+        return hit
+
+    def blend_weight(self, i: int, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
+        """Weight (0..1) of visible layer ``i`` over the layers below at points (degrees): 1
+        deep inside its data, falling to 0 across its border band (the bottom layer: 1)."""
+        lon = np.asarray(lon, dtype=np.float64)
+        if i == 0:
+            return np.ones(lon.shape)
+        mask = self._blend_mask(self.visible_layers[i].store)
+        return mask.sample(lon, np.asarray(lat, dtype=np.float64))
+
+    def _blend_mask(self, st: TileStore) -> BlendMask:
+        """The layer's blend weight raster (built once per store)."""
+        with self._lock:
+            hit = self._masks.get(id(st))
+        if hit is None:
+            hit = BlendMask(st)
+            with self._lock:
+                self._masks[id(st)] = hit
+        return hit
+
+    def _blend_weight(self, st: TileStore, key: tuple[int, int, int]) -> np.ndarray | None:
+        """(size, size) weight of a layer over those below at a tile's nodes; None where the
+        whole tile is deeper inside the layer than its band (nothing to blend)."""
+        mask = self._blend_mask(st)
+        tb = tile_bounds_arrays(*key)
+        if not mask.touches_band(*(np.atleast_1d(v) for v in tb))[0]:
+            return None
+        w_, s_, e_, n_ = (float(v) for v in tb)
+        size = self.tile_size
+        lon, lat = np.meshgrid(np.linspace(w_, e_, size), np.linspace(n_, s_, size))
+        return mask.sample(lon.ravel(), lat.ravel()).reshape(size, size).astype(np.float32)
 
     def _layer_table(self, st: TileStore, level: int):
         """A layer's per-tile facts at a level as one dense (ny, nx, 3 + N_STRIDES) table:
@@ -197,12 +463,7 @@ class TerrainStack:
             hit = self._cache.get(key)
         if hit is not None:
             return hit
-        size = self.tile_size
-        out = np.full((size, size), np.nan, dtype=np.float32)
-        for layer in self.visible_layers:
-            h = self._layer_heights(layer.store, key)
-            if h is not None:
-                np.copyto(out, h, where=~np.isnan(h))
+        out = self._compose(key, len(self.visible_layers))
         np.nan_to_num(out, copy=False, nan=0.0)
         with self._lock:
             self._cache[key] = out
@@ -210,6 +471,44 @@ class TerrainStack:
             if len(self._order) > self.cache_tiles:
                 self._cache.pop(self._order.pop(0), None)
         return out
+
+    def _compose(self, key: tuple[int, int, int], upto: int) -> np.ndarray:
+        """The first ``upto`` visible layers composed at a tile (NaN where none has data)."""
+        size = self.tile_size
+        out = np.full((size, size), np.nan, dtype=np.float32)
+        for i, layer in enumerate(self.visible_layers[:upto]):
+            self._paste(i, layer.store, key, out)
+        return out
+
+    def _paste(
+        self, i: int, st: TileStore, key: tuple[int, int, int], out: np.ndarray
+    ) -> np.ndarray | None:
+        """Compose visible layer ``i`` over ``out`` (the layers below, NaN where none has
+        data) in place; returns the layer's own heights (None without data here)."""
+        h = self._layer_heights(st, key)
+        if h is None:
+            return None
+        has = ~np.isnan(h)
+        # A layer over another one feathers into it near its data's edge; the bottom layer
+        # has nothing to blend into.
+        w = self._blend_weight(st, key) if i > 0 else None
+        mine = h
+        if w is not None:
+            f = key[0] - st.max_level
+            if f > 0:
+                # Finer than the layer's data: its band is the blend at the layer's finest
+                # level, upsampled (so the band, like the layer, adds no detail below its
+                # finest level and its errors stop there; finer data of a layer below is
+                # given up inside the band only).
+                ax, ay = key[1] >> f, key[2] >> f
+                anc = self._compose((st.max_level, ax, ay), i + 1)
+                mixed = upsample_subtile(anc, f, key[1] - (ax << f), key[2] - (ay << f))
+            else:
+                # Where nothing lies below (NaN) the layer keeps its own heights.
+                mixed = np.where(np.isnan(out), h, out + w * (h - out))
+            h = np.where(has, mixed, np.nan).astype(np.float32)
+        np.copyto(out, h, where=has)
+        return mine
 
     def heights_apron(self, key: tuple[int, int, int]) -> np.ndarray:
         """The tile's composed heights with one node beyond each edge: (size + 2, size + 2)
@@ -274,6 +573,39 @@ class TerrainStack:
         return float(bilinear(h, np.array([r]), np.array([c]))[0])
 
 
+def _stride_interpolation_errors(h: np.ndarray) -> np.ndarray:
+    """(N_STRIDES,) max |bilinear of every s-th node - the nodes| of a (size, size) tile, s =
+    1, 2, 4, ... 64 (size - 1 a multiple of 64)."""
+    size = h.shape[0]
+    out = np.zeros(N_STRIDES)
+    nodes = np.arange(size, dtype=np.float64)
+    g = np.nan_to_num(h.astype(np.float64), nan=0.0)  # as drawn: no data is the ellipsoid
+    for k in range(1, N_STRIDES):
+        s = 1 << k
+        if s >= size:
+            out[k:] = out[k - 1]
+            break
+        m = _linear_weights(nodes / s, g[::s, ::s].shape[0])
+        out[k] = float(np.abs(m @ g[::s, ::s] @ m.T - g).max())
+    return out
+
+
+def _cell_spreads(delta: np.ndarray) -> np.ndarray:
+    """(N_STRIDES,) the largest max - min of ``delta`` over the four corners of a cell drawn
+    every 1, 2, 4, ... 64 nodes (NaN corners ignored)."""
+    out = np.zeros(N_STRIDES)
+    for k in range(N_STRIDES):
+        g = delta[:: 1 << k, :: 1 << k]
+        if g.shape[0] < 2 or g.shape[1] < 2:
+            break
+        quad = np.stack([g[:-1, :-1], g[:-1, 1:], g[1:, :-1], g[1:, 1:]])
+        hi = np.where(np.isnan(quad), -np.inf, quad).max(axis=0)
+        lo = np.where(np.isnan(quad), np.inf, quad).min(axis=0)
+        both = np.isfinite(hi) & np.isfinite(lo)
+        out[k] = float((hi - lo)[both].max(initial=0.0))
+    return out
+
+
 def bilinear(grid: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     """Bilinear interpolation of a 2-D grid at fractional (row, col) node positions."""
     nr, nc = grid.shape
@@ -298,5 +630,22 @@ def upsample_subtile(anc: np.ndarray, f: int, dx: int, dy: int) -> np.ndarray:
     t = np.arange(size, dtype=np.float64)
     cols = (dx * cells + t) / scale
     rows = (dy * cells + t) / scale
+    if not np.isnan(anc).any():
+        # Bilinear is separable: two small matrix products instead of 4 gathers per node.
+        out = _linear_weights(rows, size) @ anc.astype(np.float64) @ _linear_weights(cols, size).T
+        return out.astype(np.float32)
     rr, cc = np.meshgrid(rows, cols, indexing="ij")
     return bilinear(anc, rr.reshape(-1), cc.reshape(-1)).reshape(size, size).astype(np.float32)
+
+
+def _linear_weights(pos: np.ndarray, n: int) -> np.ndarray:
+    """(len(pos), n) matrix of linear interpolation weights at fractional node positions
+    (clamped to 0..n-1), as `bilinear` uses along one axis."""
+    p = np.clip(pos, 0.0, n - 1.0)
+    i0 = np.minimum(np.floor(p).astype(np.int64), n - 2)
+    fr = p - i0
+    m = np.zeros((len(p), n))
+    rows = np.arange(len(p))
+    m[rows, i0] = 1.0 - fr
+    m[rows, i0 + 1] += fr
+    return m

@@ -94,10 +94,12 @@ def grid_triangles(indices: np.ndarray, size: int) -> np.ndarray:
 def test_every_enabled_vertex_has_its_dependencies(wm_frame) -> None:
     rs, frame = wm_frame
     assert len(rs) > 20 and frame.enabled.sum() > 1000
-    # Refinement is adaptive: neither everything nor only the roots.
-    n_levels = len(frame.on)
-    finest = frame.on[n_levels - 1].mean()
-    assert 0.0 < finest < 0.5
+    # Refinement is adaptive: neither everything nor only the roots. Each vertex level below
+    # the roots is enabled in part, and less of it the finer it is (over the SRTM tile's
+    # border band, where it feathers into the 20' base, even the finest level can be off).
+    share = [float(on.mean()) for on in frame.on]
+    assert all(0.0 < s < 1.0 for s in share[1:4]), share
+    assert all(a >= b for a, b in itertools.pairwise(share)), share
     assert dependency_violations(frame) == 0
 
 

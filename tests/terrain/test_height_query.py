@@ -5,6 +5,7 @@ answered."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -89,22 +90,36 @@ def test_vectorised_query_matches_the_scalar_stack_lookup(stack: TerrainStack) -
 
 def test_layer_that_answered(stack: TerrainStack) -> None:
     # 10.39 E lies in a finest-level tile that the top layer covers only in part (its edge is
-    # at 10.4 E): the top layer's nodes there are nodata, so the base answers.
+    # at 10.4 E): the top layer's nodes there are nodata, so the base answers. 45.42 N lies in
+    # the top layer's border band (0.02 deg inside its southern edge), where it feathers into
+    # the base: both are named, with the top layer's weight.
     lon = np.array([10.45, 10.39, 10.2, 12.0, 10.55])
     lat = np.array([45.45, 45.5, 45.8, 45.5, 45.42])
     names = answering_layers(stack, lon, lat)
-    assert names == ["top", "base", "base", NO_LAYER, "top"]
+    assert names[:4] == ["top", "base", "base", NO_LAYER]
+    match = re.fullmatch(r"top over base \(blend (0\.\d\d)\)", names[4])
+    assert match, names[4]
+    w = float(match.group(1))
+    assert 0.0 < w < 1.0
     h = composed_heights(stack, lon, lat)
     assert h[3] == 0.0  # off every layer: the ellipsoid
     # What a layer is said to answer is that layer's surface: hide the other and compare.
-    for hidden, shown in (("base", [0, 4]), ("top", [1, 2])):
+    alone = {}
+    for hidden, shown in (("base", [0, 4]), ("top", [1, 2, 4])):
         stack.set_visible(hidden, False)
         try:
-            np.testing.assert_allclose(composed_heights(stack, lon, lat)[shown], h[shown])
+            alone[hidden] = composed_heights(stack, lon, lat)
         finally:
             stack.set_visible(hidden, True)
+        unblended = [i for i in shown if i != 4]
+        np.testing.assert_allclose(alone[hidden][unblended], h[unblended])
     # top's surface (a ramp from 800 m) differs from the base's (about 300 m) at its points
-    assert np.all(h[[0, 4]] > 700.0) and np.all(h[[1, 2]] < 400.0)
+    assert np.all(h[[0]] > 700.0) and np.all(h[[1, 2]] < 400.0)
+    # In the band the surface lies between the two layers', at about the stated weight
+    # (the weight blends nodes; the point is interpolated between blended nodes).
+    top_h, base_h = alone["base"][4], alone["top"][4]
+    assert min(top_h, base_h) < h[4] < max(top_h, base_h)
+    assert abs((h[4] - base_h) / (top_h - base_h) - w) < 0.05
 
 
 @pytest.mark.parametrize(

@@ -155,6 +155,13 @@ def select_wavelet(
         if level == MAX_LEVEL:
             want[:] = False
             forced[:] = False
+        # A tile whose every coarser stride misses tau needs its full grid at this level: its
+        # children draw the same surface with no more triangles (each stride of a level is
+        # about the density of the level above), and where the level's approximation is
+        # poor - e.g. a layer's border band, a ramp only a few nodes wide here - with far
+        # fewer. Refining it keeps the count from growing as tau grows.
+        full = ~np.any((total * px_per_m[:, None] <= tau)[:, 1 : max_stride_idx + 1], axis=1)
+        want |= full & finer & rough
         # At a level that is no stop of the M-band ladder every survivor goes on.
         refine = want | forced | (~stops[level] & (level < MAX_LEVEL))
         room = st.max_tiles - drawn - int(np.count_nonzero(~refine))

@@ -1,0 +1,170 @@
+"""Seamless layers (issue #16, item 4): a regional DEM over the global base feathers into it
+across a border band, so the composed terrain has no cliff along the regional layer's edge, and
+the LOD's recorded errors stay upper bounds on the blended surface."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import globeview.terrain.blend as blend_mod
+import globeview.terrain.stack as stack_mod
+from globeview.terrain.blend import blend_band
+from globeview.terrain.quadtree import tile_bounds_arrays, tiles_covering
+from globeview.terrain.stack import TerrainStack
+
+
+@pytest.fixture(scope="module")
+def stores():
+    from globeview.terrain.embedded import embedded_stores
+
+    return {s.path.name.split("-")[0]: s for s in embedded_stores()}
+
+
+def mosaic(stack: TerrainStack, level: int, box: tuple[float, float, float, float], tile=None):
+    """Composed heights (or ``tile(key)``) of every tile meeting ``box`` at ``level`` as one
+    node grid (tiles share edge nodes), with node longitudes (cols) and latitudes (rows,
+    north first)."""
+    tile = tile or stack.heights
+    xs, ys = tiles_covering(level, *box)
+    x0, y0 = int(xs.min()), int(ys.min())
+    cells = stack.tile_size - 1
+    nx, ny = int(xs.max()) - x0 + 1, int(ys.max()) - y0 + 1
+    grid = np.zeros((ny * cells + 1, nx * cells + 1), dtype=np.float64)
+    for x, y in zip(xs, ys, strict=True):
+        r, c = (int(y) - y0) * cells, (int(x) - x0) * cells
+        grid[r : r + cells + 1, c : c + cells + 1] = tile((level, int(x), int(y)))
+    w, _, _, n = (float(v[0]) for v in tile_bounds_arrays(level, [x0], [y0]))
+    step = (180.0 / 2**level) / cells
+    return grid, w + step * np.arange(grid.shape[1]), n - step * np.arange(grid.shape[0])
+
+
+def edge_distance(bounds, lon, lat):
+    west, south, east, north = bounds
+    lo, la = np.meshgrid(lon, lat)
+    inside = (lo >= west) & (lo <= east) & (la >= south) & (la <= north)
+    d_in = np.minimum.reduce([lo - west, east - lo, la - south, north - la])
+    return np.where(inside, d_in, -1.0)
+
+
+def jumps(grid: np.ndarray, mask: np.ndarray) -> float:
+    """Max |neighbour-to-neighbour difference| over node pairs with both nodes in ``mask``."""
+    dc = np.abs(np.diff(grid, axis=1))[mask[:, 1:] & mask[:, :-1]]
+    dr = np.abs(np.diff(grid, axis=0))[mask[1:, :] & mask[:-1, :]]
+    return float(max(dc.max(initial=0.0), dr.max(initial=0.0)))
+
+
+CASES = [
+    ("craterlake", 11),
+    ("craterlake", 12),
+    ("N44W072", 10),
+    ("N44W072", 12),
+    ("topobathy_vancouver", 7),
+]
+# Where the unblended step exceeds the local relief (elsewhere the data's own relief near the
+# border, e.g. the Coast Mountains at 2.4 km spacing, is larger than the step itself).
+CLIFF_CASES = [("craterlake", 11), ("craterlake", 12), ("N44W072", 10), ("N44W072", 12)]
+
+
+def _border_and_relief(stores, name, level):
+    regional = stores[name]
+    stack = TerrainStack.from_stores([stores["etopo20"], regional])
+    west, south, east, north = regional.bounds
+    band = blend_band(regional.bounds)
+    m = 2 * band
+    grid, lon, lat = mosaic(stack, level, (west - m, south - m, east + m, north + m))
+    d = edge_distance(regional.bounds, lon, lat)
+    step = lon[1] - lon[0]
+    # The border: a strip from a few nodes outside the footprint to the band's inner edge.
+    border = (d > -1.0) & (d <= band + step)
+    lo, la = np.meshgrid(lon, lat)
+    border |= (
+        (d < 0)
+        & (lo > west - 3 * step)
+        & (lo < east + 3 * step)
+        & (la > south - 3 * step)
+        & (la < north + 3 * step)
+    )
+    # The data's own local relief: the regional data just inside the band (its terrain near
+    # the border, not e.g. Crater Lake's caldera walls in the middle) and the base around.
+    # (a strip a tenth of the footprint wide just inside the band).
+    strip = 0.1 * band / blend_mod.BLEND_FRACTION
+    interior = (d > band + step) & (d <= band + step + strip)
+    # ... where the regional layer itself has data (not the nodata wedges of a projected
+    # source inside its lon/lat box, where the base shows through).
+    size = stack.tile_size
+
+    def own(key):
+        h = stack._layer_heights(regional, key)
+        return np.full((size, size), np.nan) if h is None else h
+
+    rgrid, _, _ = mosaic(stack, level, (west - m, south - m, east + m, north + m), own)
+    interior &= ~np.isnan(rgrid)
+    base = TerrainStack.from_stores([stores["etopo20"]])
+    bgrid, _, _ = mosaic(base, level, (west - m, south - m, east + m, north + m))
+    relief = max(jumps(grid, interior), jumps(bgrid, np.ones_like(interior)))
+    return jumps(grid, border), relief
+
+
+@pytest.mark.parametrize(("name", "level"), CASES)
+def test_no_cliff_at_the_regional_layer_border(stores, name, level):
+    jump, relief = _border_and_relief(stores, name, level)
+    assert jump <= relief, f"{name}: {jump:.1f} m jump at the border > {relief:.1f} m relief"
+
+
+@pytest.mark.parametrize(("name", "level"), CLIFF_CASES)
+def test_without_the_band_the_border_is_a_cliff(stores, name, level, monkeypatch):
+    # The same measurement with the blend switched off (the composition before issue #16):
+    # the cliff the blend removes is really there, so the test above can fail.
+    monkeypatch.setattr(TerrainStack, "_blend_weight", lambda self, st, key: None)
+    jump, relief = _border_and_relief(stores, name, level)
+    assert jump > relief
+
+
+@pytest.mark.parametrize(("name", "level"), [("craterlake", 10), ("N44W072", 9)])
+def test_recorded_errors_bound_the_blended_surface(stores, name, level):
+    """Measured max |tile surface at stride s - finest composed surface| <= recorded error,
+    for tiles in the border band (checked at the finest composed nodes inside each tile)."""
+    regional = stores[name]
+    stack = TerrainStack.from_stores([stores["etopo20"], regional])
+    fine = regional.max_level
+    west, south, _, north = regional.bounds
+    xs, ys = tiles_covering(level, west, south, west + 1e-6, north)  # tiles on the west edge
+    meta = stack.metadata(level, xs, ys)
+    size = stack.tile_size
+    f = fine - level
+    checked = 0
+    for i, (x, y) in enumerate(zip(xs, ys, strict=True)):
+        # The finest composed surface over this tile, and this tile's drawn surface at each
+        # stride interpolated to the same nodes.
+        sub = 2**f
+        cells = size - 1
+        big = np.zeros((sub * cells + 1, sub * cells + 1))
+        for j in range(sub):
+            for k in range(sub):
+                t = stack.heights((fine, int(x) * sub + k, int(y) * sub + j))
+                big[j * cells : (j + 1) * cells + 1, k * cells : (k + 1) * cells + 1] = t
+        h = stack.heights((level, int(x), int(y))).astype(np.float64)
+        pos = np.linspace(0.0, cells, sub * cells + 1)
+        for si in range(3):
+            s = 2**si
+            coarse = h[::s, ::s]
+            p = pos / s
+            rr, cc = np.meshgrid(p, p, indexing="ij")
+            drawn = stack_mod.bilinear(coarse, rr.ravel(), cc.ravel()).reshape(big.shape)
+            err = float(np.abs(drawn - big).max())
+            assert err <= meta.stride_error[i, si] + 1e-3, (x, y, s, err, meta.stride_error[i])
+            checked += 1
+    assert checked
+
+
+def test_a_global_layer_has_no_band_at_the_antimeridian_or_the_poles(stores):
+    # A global layer over another (e.g. the base moved up) must not feather along +-180 or
+    # at the poles: those are not edges of its data.
+    mask = blend_mod.BlendMask(stores["etopo20"])
+    lon = np.array([-180.0, -179.99, 179.99, 180.0, 0.0, 0.0])
+    lat = np.array([0.0, 10.0, -10.0, 0.0, 89.99, -89.99])
+    np.testing.assert_array_equal(mask.sample(lon, lat), 1.0)
+    # ... while a regional layer's weight falls to ~0 on its edge.
+    srtm = blend_mod.BlendMask(stores["N44W072"])
+    assert srtm.sample(np.array([-71.0, -71.5]), np.array([44.5, 44.0])).max() < 0.01
