@@ -151,6 +151,10 @@ def test_rendered_draws_the_provider_with_real_terrain(
     assert frame.image.shape == (64, 96, 3) and frame.image.dtype == np.uint8
     assert frame.stats["lod_provider"] == "probe" and frame.stats["tiles_drawn"] == 2
     assert len(frame.render_set) == 2
+    # The provider's own stats, namespaced as `render --stats` writes them: it saw terrain.
+    assert frame.stats["provider"]["name"] == "probe"
+    assert frame.stats["provider"]["stats"]["terrain_max_level"] >= 10
+    assert frame.stats["levels"] == {"0": 2}
     corner, centre = frame.image[0, 0], frame.image[32, 48]
     assert not np.array_equal(corner, centre)  # the globe is drawn over the background
     # A camera 300 km above the White Mountains: chunked-sse refines into the SRTM tiles.
