@@ -1,4 +1,6 @@
-"""Example globeview plugin: `FixedLevelProvider` (LOD) and `MarkerTool` (tool).
+"""Example globeview plugin with all three kinds of contribution: `FixedLevelProvider` and
+`CappedProvider` (LOD, provider.py), `MarkerTool` (tool, marker.py) and
+`GraticuleLayerType` (layer, graticule.py), written against `globeview.plugins.api` only.
 
 Kept free of imports so that nothing runs before globeview asks for a contribution.
 """
