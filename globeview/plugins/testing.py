@@ -251,7 +251,8 @@ class RenderedFrame:
         render_set: the `RenderSet` that was drawn.
         failures: contribution name -> ``"ExcType: message"`` of the provider or tool of this
             frame that failed (empty when both worked).
-        session: the `GlobeSession` (its registry, camera, picking) for further checks.
+        session: the `GlobeSession` (its registry, camera, picking) for further checks;
+            None once `rendered` has drawn the next frame (it released this one's GL).
     """
 
     image: np.ndarray
@@ -377,15 +378,26 @@ def rendered(
 ) -> Iterator[Callable[..., RenderedFrame]]:
     """`render_frame` on the session's GL context, the embedded terrain and the test's
     registry: ``rendered("my-provider", camera=(lon, lat, height), tool="my-tool",
-    settings={"my-provider": {"level": 5}})`` -> `RenderedFrame`. The frames' GL objects
-    are released after the test."""
-    sessions: list[Any] = []
+    settings={"my-provider": {"level": 5}})`` -> `RenderedFrame`.
+
+    Each frame's `GlobeSession` holds a GPU tile pool (~130 MB on llvmpipe), so only the
+    latest frame keeps its session: rendering the next frame releases the previous one's
+    GL objects and sets its ``session`` to None (its image and stats stay). The last
+    session is released after the test."""
+    frames: list[RenderedFrame] = []
+
+    def release_previous() -> None:
+        while frames:
+            old = frames.pop()
+            if old.session is not None:
+                old.session.release_gl()
+                old.session = None
 
     def render(lod: str = "chunked-sse", **kwargs: Any) -> RenderedFrame:
+        release_previous()
         frame = render_frame(globeview_gl, globeview_terrain, globeview_registry, lod, **kwargs)
-        sessions.append(frame.session)
+        frames.append(frame)
         return frame
 
     yield render
-    for session in sessions:
-        session.release_gl()
+    release_previous()

@@ -161,6 +161,10 @@ def test_rendered_draws_the_provider_with_real_terrain(
     close = rendered("chunked-sse", camera=(-71.3, 44.27, 3.0e5), size=(96, 64))
     assert close.stats["tiles_drawn"] > 2
     assert int(close.render_set.keys[:, 0].max()) >= 5
+    # Only the latest frame keeps its session (a GPU tile pool each); the earlier frame's
+    # image and stats stay.
+    assert frame.session is None and close.session is not None
+    assert not np.array_equal(frame.image[0, 0], frame.image[32, 48])
 
 
 @pytest.mark.gl
