@@ -321,3 +321,65 @@ def test_no_provider_left_says_nothing_was_drawn(site: PluginSite, tmp_path: Pat
     assert proc.returncode == 0, proc.stderr
     assert "(160x120; provider: none, no terrain drawn, fell back from gvt-boom: " in proc.stdout
     assert ": 0 triangles, 0 tiles" in proc.stdout
+
+
+# A third-party tool that publishes a plot and a status line (as the measure tool does).
+PLOT_TOOL = """
+import numpy as np
+from globeview.plugins.api import Plot, Tool
+
+class Profile(Tool):
+    def __init__(self, context=None):
+        super().__init__(context)
+        self.lons = []
+
+    def place_points(self, points):
+        self.lons = [lon for lon, _ in points]
+        self.context.renderer.set_status(f"profile: {len(points)} points")
+        return True
+
+    def plot(self):
+        if not self.lons:
+            return None
+        x = np.arange(len(self.lons), dtype=float)
+        return Plot("lons", x, np.array(self.lons), "index", "lon (deg)")
+"""
+
+
+@pytest.fixture
+def plot_site(site: PluginSite) -> PluginSite:
+    site.add("gvt_profile", plugin_manifest("gvt-profile", "gvt_profile", "tool", "Profile"),
+             {"impl": PLOT_TOOL})  # fmt: skip
+    return site
+
+
+def test_tool_csv_writes_the_tools_plot_with_the_png(plot_site: PluginSite, tmp_path: Path):
+    csv, stats = tmp_path / "p.csv", tmp_path / "p.json"
+    proc, out = render(
+        plot_site, tmp_path, "profile", "--tool", "gvt-profile", "--points", "-3,1;7.5,2",
+        "--tool-csv", str(csv), "--stats", str(stats),
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert out.exists()
+    assert csv.read_text().splitlines() == ["index,lon (deg)", "0.0,-3.0", "1.0,7.5"]
+    # The tool's status line, named after the tool (unless the text starts with its name).
+    assert proc.stdout.splitlines()[1] == "gvt-profile: profile: 2 points"
+    assert json.loads(stats.read_text())["tool"]["status"] == "profile: 2 points"
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (("--tool", "gvt-profile"), "the tool gvt-profile published no plot; nothing written"),
+        (("--tool", "gvt-pins", "--point", "1,1"), "the tool gvt-pins published no plot"),
+        ((), "--tool-csv needs a --tool"),
+    ],
+)
+def test_tool_csv_without_a_plot_writes_nothing(
+    plot_site: PluginSite, tmp_path: Path, args: tuple[str, ...], message: str
+) -> None:
+    csv = tmp_path / "p.csv"
+    proc, out = render(plot_site, tmp_path, "noplot", *args, "--tool-csv", str(csv))
+    assert proc.returncode == 2 and len(lines(proc.stderr)) == 1, proc.stderr
+    assert proc.stderr.startswith("globeview: error: ") and message in proc.stderr
+    assert not out.exists() and not csv.exists()

@@ -73,6 +73,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="one point for the --tool (degrees); repeatable, after those of --points",
     )
     parser.add_argument(
+        "--tool-csv",
+        metavar="FILE",
+        help="write the plot the --tool publishes (e.g. the measure tool's terrain profile) "
+        "as CSV to FILE, with the PNG, all or nothing",
+    )
+    parser.add_argument(
         "--set",
         dest="set_values",
         action="append",
@@ -252,6 +258,45 @@ def check_outputs(args: argparse.Namespace):
     return out, stats
 
 
+def check_tool_csv(args: argparse.Namespace, tool: str | None, others: list):
+    """The --tool-csv path (or None), checked before any work: a .csv file that none of
+    the other outputs names, and a --tool to publish it."""
+    import os
+
+    from globeview.errors import GlobeviewError
+    from globeview.fileio import check_output_file
+
+    if args.tool_csv is None:
+        return None
+    if tool is None:
+        raise GlobeviewError("--tool-csv needs a --tool whose plot it writes")
+    path = check_output_file(args.tool_csv, "--tool-csv", (".csv",))
+    if any(o is not None and os.path.abspath(o) == os.path.abspath(path) for o in others):
+        raise GlobeviewError("--tool-csv names the same file as --out or --stats")
+    return path
+
+
+def tool_plot_csv(scene, tool_name: str) -> str:
+    """The CSV text of the plot the active tool publishes (`Plot`, see
+    globeview.plugins.tool_output); one-line `GlobeviewError` when it publishes none (its
+    plugin failed, it has no ``plot()``, or its points gave none). Garbage fails the tool."""
+    from globeview.errors import GlobeviewError
+    from globeview.plugins.tool_output import Plot
+
+    tool = scene.tool()
+    plot = None
+    if tool is not None and callable(getattr(tool, "plot", None)):
+        plot = scene.registry.invoke(tool, "plot", default=None)
+        if plot is not None and not isinstance(plot, Plot):
+            scene.registry.fail(tool, TypeError(f"plot() returned {type(plot).__name__}"))
+            plot = None
+    # Plot's own csv_text, isolated: a plugin's Plot subclass may override what it calls.
+    text = None if plot is None else scene.registry.call_for(tool, Plot.csv_text, plot)
+    if not isinstance(text, str):
+        raise GlobeviewError(f"--tool-csv: the tool {tool_name} published no plot; nothing written")
+    return text
+
+
 def check_inputs(args: argparse.Namespace) -> None:
     """Sources and --layer files exist, checked before the first (slow) ingest."""
     from pathlib import Path
@@ -383,6 +428,7 @@ def run(args: argparse.Namespace) -> int:
     size = v["size"]
     tool_name, points, sets = v["tool"]
     out, stats_path = check_outputs(args)
+    csv_path = check_tool_csv(args, tool_name, [out, stats_path])
     check_inputs(args)
     check_cache_writable(args.sources, args.crs, args.vdatum)
     if args.vdatum is not None:
@@ -445,6 +491,9 @@ def run(args: argparse.Namespace) -> int:
             stats["tool"]["error"] = failures["tool"]
     if assignments:
         stats["settings"] = {t.label: value for t, value in assignments}
+    status = tool_status(scene) if tool_name is not None else ""
+    if status:
+        stats["tool"]["status"] = status
     if failures and args.strict:
         print(
             f"globeview: error: {'; '.join(failure_texts(args.lod, tool_name, failures))}; "
@@ -452,7 +501,8 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return STRICT_EXIT
-    write_outputs(Image.fromarray(target.read_rgb()), stats, out, stats_path)
+    extra = {csv_path: tool_plot_csv(scene, tool_name)} if csv_path is not None else {}
+    write_outputs(Image.fromarray(target.read_rgb()), stats, out, stats_path, extra)
     degraded = st.extra.get("degraded")
     drew = st.lod_provider
     if not drew or not registry.offers(PluginKind.LOD, drew):
@@ -463,7 +513,17 @@ def run(args: argparse.Namespace) -> int:
         f"{st.tiles_drawn} tiles, {st.frame_ms:.1f} ms/frame, max screen-space error "
         f"{st.max_sse_px:.2f} px" + (f"; degraded: {degraded}" if degraded else "")
     )
+    if status:  # what the tool would say in the window's status bar (e.g. a distance)
+        print(status if status.startswith(f"{tool_name}:") else f"{tool_name}: {status}")
     return 0
+
+
+def tool_status(scene) -> str:
+    """The last status text the tool gave the host (`RendererHooks.set_status`), one line of
+    at most 300 characters ('' when none)."""
+    text = getattr(scene.hooks, "status", "")
+    text = " ".join(text.split()) if isinstance(text, str) else ""
+    return text if len(text) <= 300 else text[:297] + "..."
 
 
 #: Exit status of `render --strict` when a plugin failed (2 is bad input, 1 a bug).
@@ -510,16 +570,19 @@ def open_sources_in_cache(sources: list[str], crs: str | None, vdatum: str | Non
         raise
 
 
-def write_outputs(image, stats: dict, out, stats_path) -> None:
-    """The PNG and the stats JSON, all-or-nothing (`fileio.atomic_outputs`): both are written
-    to temporaries first and only then moved into place, so a full disk or Ctrl-C leaves
+def write_outputs(image, stats: dict, out, stats_path, texts: dict | None = None) -> None:
+    """The PNG, the stats JSON and any further text files (``texts``: path -> text, e.g.
+    the tool's CSV), all-or-nothing (`fileio.atomic_outputs`): all are written to
+    temporaries first and only then moved into place, so a full disk or Ctrl-C leaves
     neither a half PNG nor a PNG without its stats."""
     import json
 
     from globeview.fileio import atomic_outputs
 
-    targets = [out] if stats_path is None else [out, stats_path]
-    with atomic_outputs(targets) as temps:
+    texts = dict(texts or {})
+    if stats_path is not None:
+        texts = {stats_path: json.dumps(stats, indent=2) + "\n", **texts}
+    with atomic_outputs([out, *texts]) as temps:
         image.save(temps[0], format="PNG")
-        if stats_path is not None:
-            temps[1].write_text(json.dumps(stats, indent=2) + "\n")
+        for tmp, text in zip(temps[1:], texts.values(), strict=True):
+            tmp.write_text(text, encoding="utf-8")
