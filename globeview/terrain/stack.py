@@ -431,9 +431,7 @@ class TerrainStack:
         if not mask.touches_band(*(np.atleast_1d(v) for v in tb))[0]:
             return None
         w_, s_, e_, n_ = (float(v) for v in tb)
-        size = self.tile_size
-        lon, lat = np.meshgrid(np.linspace(w_, e_, size), np.linspace(n_, s_, size))
-        return mask.sample(lon.ravel(), lat.ravel()).reshape(size, size).astype(np.float32)
+        return mask.sample_grid(w_, s_, e_, n_, self.tile_size).astype(np.float32)
 
     def _layer_table(self, st: TileStore, level: int):
         """A layer's per-tile facts at a level as one dense (ny, nx, 3 + N_STRIDES) table:
@@ -500,13 +498,17 @@ class TerrainStack:
                 # level, upsampled (so the band, like the layer, adds no detail below its
                 # finest level and its errors stop there; finer data of a layer below is
                 # given up inside the band only).
+                # That holds at the layer's ragged data edge too: nodes inside a finest-level
+                # cell with a nodata corner take the composed cell's interpolation (the layer
+                # alone is NaN there), so every finer level draws one surface.
                 ax, ay = key[1] >> f, key[2] >> f
                 anc = self._compose((st.max_level, ax, ay), i + 1)
-                mixed = upsample_subtile(anc, f, key[1] - (ax << f), key[2] - (ay << f))
+                h = upsample_subtile(anc, f, key[1] - (ax << f), key[2] - (ay << f))
+                has = ~np.isnan(h)
             else:
                 # Where nothing lies below (NaN) the layer keeps its own heights.
                 mixed = np.where(np.isnan(out), h, out + w * (h - out))
-            h = np.where(has, mixed, np.nan).astype(np.float32)
+                h = np.where(has, mixed, np.nan).astype(np.float32)
         np.copyto(out, h, where=has)
         return mine
 
@@ -585,7 +587,7 @@ def _stride_interpolation_errors(h: np.ndarray) -> np.ndarray:
         if s >= size:
             out[k:] = out[k - 1]
             break
-        m = _linear_weights(nodes / s, g[::s, ::s].shape[0])
+        m = linear_weights(nodes / s, g[::s, ::s].shape[0])
         out[k] = float(np.abs(m @ g[::s, ::s] @ m.T - g).max())
     return out
 
@@ -615,9 +617,10 @@ def bilinear(grid: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray
     c0 = np.minimum(np.floor(c).astype(np.int64), nc - 2)
     fr = r - r0
     fc = c - c0
-    g = grid.astype(np.float64)
-    top = g[r0, c0] * (1 - fc) + g[r0, c0 + 1] * fc
-    bot = g[r0 + 1, c0] * (1 - fc) + g[r0 + 1, c0 + 1] * fc
+    # Gather the corners, then widen them: not the whole grid (it may be a large raster).
+    f64 = np.float64
+    top = grid[r0, c0].astype(f64) * (1 - fc) + grid[r0, c0 + 1].astype(f64) * fc
+    bot = grid[r0 + 1, c0].astype(f64) * (1 - fc) + grid[r0 + 1, c0 + 1].astype(f64) * fc
     return top * (1 - fr) + bot * fr
 
 
@@ -632,13 +635,13 @@ def upsample_subtile(anc: np.ndarray, f: int, dx: int, dy: int) -> np.ndarray:
     rows = (dy * cells + t) / scale
     if not np.isnan(anc).any():
         # Bilinear is separable: two small matrix products instead of 4 gathers per node.
-        out = _linear_weights(rows, size) @ anc.astype(np.float64) @ _linear_weights(cols, size).T
+        out = linear_weights(rows, size) @ anc.astype(np.float64) @ linear_weights(cols, size).T
         return out.astype(np.float32)
     rr, cc = np.meshgrid(rows, cols, indexing="ij")
     return bilinear(anc, rr.reshape(-1), cc.reshape(-1)).reshape(size, size).astype(np.float32)
 
 
-def _linear_weights(pos: np.ndarray, n: int) -> np.ndarray:
+def linear_weights(pos: np.ndarray, n: int) -> np.ndarray:
     """(len(pos), n) matrix of linear interpolation weights at fractional node positions
     (clamped to 0..n-1), as `bilinear` uses along one axis."""
     p = np.clip(pos, 0.0, n - 1.0)

@@ -121,41 +121,74 @@ def test_without_the_band_the_border_is_a_cliff(stores, name, level, monkeypatch
     assert jump > relief
 
 
-@pytest.mark.parametrize(("name", "level"), [("craterlake", 10), ("N44W072", 9)])
+ERROR_CASES = [
+    ("craterlake", 10),
+    ("craterlake", 12),
+    ("craterlake", 13),  # its finest level
+    ("craterlake", 14),  # finer than its data: the band is upsampled
+    ("N44W072", 9),
+    ("N44W072", 11),
+    ("topobathy_vancouver", 5),
+    ("topobathy_vancouver", 7),  # its finest level
+    ("topobathy_vancouver", 8),
+]
+
+
+@pytest.mark.parametrize(("name", "level"), ERROR_CASES)
 def test_recorded_errors_bound_the_blended_surface(stores, name, level):
-    """Measured max |tile surface at stride s - finest composed surface| <= recorded error,
-    for tiles in the border band (checked at the finest composed nodes inside each tile)."""
+    """Measured max |tile surface at stride s - finest composed surface| <= recorded error at
+    every stride, for up to 12 tiles of the border band (checked at the finest composed nodes
+    inside each tile: both surfaces are bilinear between those, so that is the max)."""
     regional = stores[name]
     stack = TerrainStack.from_stores([stores["etopo20"], regional])
-    fine = regional.max_level
-    west, south, _, north = regional.bounds
-    xs, ys = tiles_covering(level, west, south, west + 1e-6, north)  # tiles on the west edge
+    mask = stack._blend_mask(regional)
+    xs, ys = tiles_covering(level, *regional.bounds)
+    band = mask.touches_band(*tile_bounds_arrays(level, xs, ys))
+    band &= stack.metadata(level, xs, ys).covered
+    xs, ys = xs[band], ys[band]
+    pick = np.unique(np.linspace(0, len(xs) - 1, min(12, len(xs))).astype(int))
+    xs, ys = xs[pick], ys[pick]
     meta = stack.metadata(level, xs, ys)
     size = stack.tile_size
-    f = fine - level
-    checked = 0
+    cells = size - 1
+    fine = max(regional.max_level, level)
+    sub = 2 ** (fine - level)
+    pos = np.linspace(0.0, cells, sub * cells + 1)
     for i, (x, y) in enumerate(zip(xs, ys, strict=True)):
         # The finest composed surface over this tile, and this tile's drawn surface at each
         # stride interpolated to the same nodes.
-        sub = 2**f
-        cells = size - 1
         big = np.zeros((sub * cells + 1, sub * cells + 1))
         for j in range(sub):
             for k in range(sub):
                 t = stack.heights((fine, int(x) * sub + k, int(y) * sub + j))
                 big[j * cells : (j + 1) * cells + 1, k * cells : (k + 1) * cells + 1] = t
         h = stack.heights((level, int(x), int(y))).astype(np.float64)
-        pos = np.linspace(0.0, cells, sub * cells + 1)
-        for si in range(3):
+        for si in range(stack_mod.N_STRIDES):
             s = 2**si
-            coarse = h[::s, ::s]
             p = pos / s
             rr, cc = np.meshgrid(p, p, indexing="ij")
-            drawn = stack_mod.bilinear(coarse, rr.ravel(), cc.ravel()).reshape(big.shape)
+            drawn = stack_mod.bilinear(h[::s, ::s], rr.ravel(), cc.ravel()).reshape(big.shape)
             err = float(np.abs(drawn - big).max())
             assert err <= meta.stride_error[i, si] + 1e-3, (x, y, s, err, meta.stride_error[i])
-            checked += 1
-    assert checked
+    assert len(xs) > 0
+
+
+def test_the_blend_adds_error_only_in_the_band(stores):
+    # Deep inside the regional layer (and outside it) the recorded errors are the layers'
+    # own: the blend costs triangles only along the border.
+    regional = stores["N44W072"]
+    stack = TerrainStack.from_stores([stores["etopo20"], regional])
+    own = TerrainStack.from_stores([stores["etopo20"], regional])
+    own._blend_error = lambda i, st, level, x, y, b, e_up, e_low: np.zeros((len(x), 7))
+    xs, ys = tiles_covering(11, -71.6, 44.4, -71.4, 44.6)  # the middle of the 1-deg tile
+    np.testing.assert_array_equal(
+        stack.metadata(11, xs, ys).stride_error, own.metadata(11, xs, ys).stride_error
+    )
+    xs, ys = tiles_covering(11, -72.0, 44.3, -71.99, 44.7)  # its western band
+    assert np.all(
+        stack.metadata(11, xs, ys).stride_error[:, 1:]
+        >= own.metadata(11, xs, ys).stride_error[:, 1:]
+    )
 
 
 def test_a_global_layer_has_no_band_at_the_antimeridian_or_the_poles(stores):
@@ -168,3 +201,33 @@ def test_a_global_layer_has_no_band_at_the_antimeridian_or_the_poles(stores):
     # ... while a regional layer's weight falls to ~0 on its edge.
     srtm = blend_mod.BlendMask(stores["N44W072"])
     assert srtm.sample(np.array([-71.0, -71.5]), np.array([44.5, 44.0])).max() < 0.01
+
+
+@pytest.mark.parametrize("m", [1, 2, 8, 64])
+def test_weight_interpolation_error_is_its_max_between_nodes(stores, m):
+    """`interpolation_error` (measured at the mask's raster nodes) bounds |interp(w) - w|
+    everywhere, here checked on points a quarter raster step apart across the SRTM band."""
+    mask = blend_mod.BlendMask(stores["N44W072"])
+    cell = m * mask.step
+    w_err = blend_mod.interpolation_error(mask, cell)
+    # Quadtree-aligned cells over the western band: corners at multiples of `cell` degrees.
+    c0 = np.floor((-72.02 + 180.0) / cell) * cell - 180.0
+    n0 = 90.0 - np.floor((90.0 - 44.9) / cell) * cell
+    lon = -72.02 + np.arange(0.0, 0.12, mask.step / 4)
+    lat = np.full_like(lon, 44.5 + mask.step / 3)
+    i = np.floor((lon - c0) / cell)
+    j = np.floor((n0 - lat) / cell)
+    fx = (lon - (c0 + i * cell)) / cell
+    fy = (n0 - lat - j * cell) / cell
+    wl, wr = c0 + i * cell, c0 + (i + 1) * cell
+    nt, nb = n0 - j * cell, n0 - (j + 1) * cell
+    corner = [mask.sample(a, b) for a, b in ((wl, nt), (wr, nt), (wl, nb), (wr, nb))]
+    interp = (corner[0] * (1 - fx) + corner[1] * fx) * (1 - fy) + (
+        corner[2] * (1 - fx) + corner[3] * fx
+    ) * fy
+    actual = float(np.abs(interp - mask.sample(lon, lat)).max())
+    assert actual <= w_err + 1e-9, (actual, w_err)
+    if m == 1:
+        assert w_err == 0.0  # a cell inside one raster cell reproduces w exactly
+    else:
+        assert w_err > 0.0
