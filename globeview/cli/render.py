@@ -481,19 +481,8 @@ def run(args: argparse.Namespace) -> int:
 
     st = result.stats
     failures = plugin_failures(scene, args.lod, tool_name, contribution_failure)
-    stats = st.as_dict()
-    stats["provider"]["requested"] = args.lod
-    if "provider" in failures:
-        stats["provider"]["fell_back_from"] = {"name": args.lod, "error": failures["provider"]}
-    if tool_name is not None:
-        stats["tool"] = {"name": tool_name, "points": [list(p) for p in points]}
-        if "tool" in failures:
-            stats["tool"]["error"] = failures["tool"]
-    if assignments:
-        stats["settings"] = {t.label: value for t, value in assignments}
     status = tool_status(scene) if tool_name is not None else ""
-    if status:
-        stats["tool"]["status"] = status
+    stats = stats_json(st, args.lod, (tool_name, points, status), assignments, failures)
     if failures and args.strict:
         print(
             f"globeview: error: {'; '.join(failure_texts(args.lod, tool_name, failures))}; "
@@ -503,11 +492,11 @@ def run(args: argparse.Namespace) -> int:
         return STRICT_EXIT
     extra = {csv_path: tool_plot_csv(scene, tool_name)} if csv_path is not None else {}
     write_outputs(Image.fromarray(target.read_rgb()), stats, out, stats_path, extra)
-    degraded = st.extra.get("degraded")
     drew = st.lod_provider
     if not drew or not registry.offers(PluginKind.LOD, drew):
         drew = "none, no terrain drawn"  # the fallback failed too: an empty frame
     said = [f"provider: {drew}", *failure_texts(args.lod, tool_name, failures)]
+    degraded = st.extra.get("degraded")
     print(
         f"wrote {out} ({size[0]}x{size[1]}; {', '.join(said)}): {st.triangles} triangles, "
         f"{st.tiles_drawn} tiles, {st.frame_ms:.1f} ms/frame, max screen-space error "
@@ -516,6 +505,27 @@ def run(args: argparse.Namespace) -> int:
     if status:  # what the tool would say in the window's status bar (e.g. a distance)
         print(status if status.startswith(f"{tool_name}:") else f"{tool_name}: {status}")
     return 0
+
+
+def stats_json(st, lod: str, tool: tuple, assignments: list, failures: dict[str, str]) -> dict:
+    """What ``--stats`` writes: the frame's figures (`FrameStats.as_dict`: host figures,
+    ``levels``, ``provider`` with its own stats) plus what was asked and what failed:
+    ``provider.requested`` and ``provider.fell_back_from``; ``tool`` (name, points, status,
+    error) when ``tool`` = (name, points, status text) names one; ``settings`` from --set."""
+    name, points, status = tool
+    stats = st.as_dict()
+    stats["provider"]["requested"] = lod
+    if "provider" in failures:
+        stats["provider"]["fell_back_from"] = {"name": lod, "error": failures["provider"]}
+    if name is not None:
+        stats["tool"] = {"name": name, "points": [list(p) for p in points]}
+        if status:
+            stats["tool"]["status"] = status
+        if "tool" in failures:
+            stats["tool"]["error"] = failures["tool"]
+    if assignments:
+        stats["settings"] = {t.label: value for t, value in assignments}
+    return stats
 
 
 def tool_status(scene) -> str:
