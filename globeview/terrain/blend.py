@@ -110,12 +110,17 @@ class BlendMask:
                 return cand
         return st.max_level
 
+    def _east_of_west(self, lon: np.ndarray) -> np.ndarray:
+        """Degrees east of the raster's west edge, in [0, 360): a layer crossing the
+        antimeridian has its raster run on past +180 (the level grid wraps too)."""
+        return np.mod(lon - self.west, 360.0)
+
     def sample(self, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
         """w at points (degrees; outside the raster: 0)."""
         from globeview.terrain.stack import bilinear
 
         ny, nx = self.w.shape
-        cols = (np.asarray(lon, dtype=np.float64) - self.west) / self.step
+        cols = self._east_of_west(np.asarray(lon, dtype=np.float64)) / self.step
         rows = (self.north - np.asarray(lat, dtype=np.float64)) / self.step
         inside = (cols >= 0) & (cols <= nx - 1) & (rows >= 0) & (rows <= ny - 1)
         return np.where(inside, bilinear(self.w, rows, cols), 0.0)
@@ -127,7 +132,8 @@ class BlendMask:
         from globeview.terrain.stack import linear_weights
 
         ny, nx = self.w.shape
-        cols = (np.linspace(west, east, size) - self.west) / self.step
+        start = float(self._east_of_west(np.array(west)))
+        cols = (start + np.linspace(0.0, east - west, size)) / self.step
         rows = (self.north - np.linspace(north, south, size)) / self.step
         c0 = int(np.clip(np.floor(cols.min()), 0, nx - 2))
         c1 = int(np.clip(np.ceil(cols.max()), c0 + 1, nx - 1))
@@ -148,8 +154,10 @@ class BlendMask:
         """Whether tiles (bounds arrays, degrees) may hold nodes with w < 1: conservatively,
         any raster node with w < 1 within one raster step of them."""
         ny, nx = self.w.shape
-        c0 = np.clip(np.floor((tw - self.west) / self.step).astype(np.int64) - 1, 0, nx)
-        c1 = np.clip(np.ceil((te - self.west) / self.step).astype(np.int64) + 2, 0, nx)
+        start = self._east_of_west(np.asarray(tw, dtype=np.float64))
+        end = start + (np.asarray(te, dtype=np.float64) - tw)
+        c0 = np.clip(np.floor(start / self.step).astype(np.int64) - 1, 0, nx)
+        c1 = np.clip(np.ceil(end / self.step).astype(np.int64) + 2, 0, nx)
         r0 = np.clip(np.floor((self.north - tn) / self.step).astype(np.int64) - 1, 0, ny)
         r1 = np.clip(np.ceil((self.north - ts) / self.step).astype(np.int64) + 2, 0, ny)
         p = self._partial

@@ -231,3 +231,42 @@ def test_weight_interpolation_error_is_its_max_between_nodes(stores, m):
         assert w_err == 0.0  # a cell inside one raster cell reproduces w exactly
     else:
         assert w_err > 0.0
+
+
+def test_a_layer_across_the_antimeridian_feathers_on_both_sides(tmp_path):
+    """A regional layer over 179.5 E .. 179.5 W: its band lies inside both its edges (east of
+    +-180 too), so neither edge is a cliff and the weight is symmetric."""
+    import rasterio
+    from rasterio.transform import from_origin
+
+    from globeview.terrain.ingest import ingest
+    from globeview.terrain.store import TileStore
+
+    def write(name, arr, west, north, d):
+        path = tmp_path / f"{name}.tif"
+        prof = {"driver": "GTiff", "width": arr.shape[1], "height": arr.shape[0], "count": 1}
+        prof.update(dtype="float32", crs="EPSG:4326", transform=from_origin(west, north, d, d))
+        with rasterio.open(path, "w", **prof) as ds:
+            ds.write(arr.astype(np.float32), 1)
+        ingest([path], tmp_path / name, tile_n=5)
+        return TileStore.open(tmp_path / name)
+
+    base = write("base", np.zeros((120, 80)), 178.0, -14.0, 0.05)  # 178 E .. 178 W, 14..20 S
+    top = write("top", np.full((100, 100), 1000.0), 179.5, -16.5, 0.01)
+    stack = TerrainStack.from_stores([base, top], ["base", "top"])
+    lat = np.full(4, -17.0)
+    inside = np.array([179.55, -179.55, 179.9, -179.9])  # 0.05 deg inside either edge; deep
+    w = stack.blend_weight(1, inside, lat)
+    assert 0.1 < w[0] < 0.9 and w[1] == pytest.approx(w[0], abs=0.02)
+    assert w[2] == w[3] == pytest.approx(1.0)
+    # No cliff: just inside each edge the surface is near the base, deep inside it is the
+    # layer (both are converted to ellipsoidal heights: + the same geoid undulation N).
+    level = top.max_level
+    lons = (179.45, 179.501, -179.501, -179.45, 179.9, -179.9)
+    h = np.array([stack.height_at(lon, -17.0, level) for lon in lons])
+    stack.set_visible("top", False)
+    n = np.array([stack.height_at(lon, -17.0, level) for lon in lons])  # the base: 0 m + N
+    stack.set_visible("top", True)
+    np.testing.assert_allclose(h[[0, 3]], n[[0, 3]])  # outside the layer: the base
+    assert np.all(np.abs(h[1:3] - n[1:3]) < 10.0), h  # 0.001 deg inside either edge: w < 0.01
+    np.testing.assert_allclose(h[4:], n[4:] + 1000.0, atol=0.5)
