@@ -204,7 +204,7 @@ def __dir__() -> list[str]:
 
 
 #: The plugin API version this host implements ("MAJOR.MINOR").
-API_VERSION = "1.0"
+API_VERSION = "1.1"
 
 
 class PluginKind(StrEnum):

@@ -89,7 +89,7 @@ def test_validate_path(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> No
     assert _run("validate", str(good / "globeview.toml")) == 0
     bad = tmp_path / "globeview.toml"
     bad.write_text(
-        (good / "globeview.toml").read_text().replace('api_version = "1.0"', 'api_version = "2.0"')
+        (good / "globeview.toml").read_text().replace('api_version = "1.1"', 'api_version = "2.0"')
     )
     capsys.readouterr()
     assert _run("validate", str(bad)) == 2
