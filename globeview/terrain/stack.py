@@ -76,8 +76,8 @@ class TerrainStack:
         self._lock = threading.Lock()
         self._cache: dict[tuple[int, int, int], np.ndarray] = {}
         self._order: list[tuple[int, int, int]] = []
-        self._tables: dict[tuple[int, int], tuple] = {}
-        self._masks: dict[int, BlendMask] = {}
+        self._tables: dict[tuple[TileStore, int], tuple] = {}
+        self._masks: dict[TileStore, BlendMask] = {}
         self._diffs: dict[tuple, tuple] = {}
         self._check_sizes()
 
@@ -117,6 +117,11 @@ class TerrainStack:
             self._cache.clear()
             self._order.clear()
             self._diffs.clear()  # |upper - lower| bounds depend on which layers lie below
+            # Keyed by the store objects (not id(): a removed store's id may be reused by the
+            # next one opened); forget removed stores.
+            kept = {ly.store for ly in self.layers}
+            self._masks = {st: m for st, m in self._masks.items() if st in kept}
+            self._tables = {k: v for k, v in self._tables.items() if k[0] in kept}
 
     def _check_sizes(self, layers: list[TerrainLayer] | None = None) -> None:
         sizes = {ly.store.tile_size for ly in (self.layers if layers is None else layers)}
@@ -349,7 +354,7 @@ class TerrainStack:
         """The finest level <= ``level`` whose border band holds at most `DIFF_TABLE_TILES`
         tiles of layer ``i`` (one-time work per level is bounded)."""
         for c in range(level, -1, -1):
-            key = ("count", id(st), c)
+            key = ("count", st, c)
             with self._lock:
                 n = self._diffs.get(key)
             if n is None:
@@ -368,8 +373,8 @@ class TerrainStack:
         composed layers below it) at ``level``, for the tiles in the layer's border band (0
         elsewhere: the blend term is zero there). Built once per level and stack of layers
         below (a bounded number of tiles, see `_exact_level`), never per frame."""
-        below = tuple(id(ly.store) for ly in self.visible_layers[:i])
-        key = (id(st), below, level)
+        below = tuple(ly.store for ly in self.visible_layers[:i])
+        key = (st, below, level)
         with self._lock:
             hit = self._diffs.get(key)
         if hit is not None:
@@ -416,11 +421,11 @@ class TerrainStack:
     def _blend_mask(self, st: TileStore) -> BlendMask:
         """The layer's blend weight raster (built once per store)."""
         with self._lock:
-            hit = self._masks.get(id(st))
+            hit = self._masks.get(st)
         if hit is None:
             hit = BlendMask(st)
             with self._lock:
-                self._masks[id(st)] = hit
+                self._masks[st] = hit
         return hit
 
     def _blend_weight(self, st: TileStore, key: tuple[int, int, int]) -> np.ndarray | None:
@@ -436,7 +441,7 @@ class TerrainStack:
     def _layer_table(self, st: TileStore, level: int):
         """A layer's per-tile facts at a level as one dense (ny, nx, 3 + N_STRIDES) table:
         [has data, hmin, hmax, stride errors...] (built once, then looked up per frame)."""
-        key = (id(st), level)
+        key = (st, level)
         hit = self._tables.get(key)
         if hit is not None:
             return hit
