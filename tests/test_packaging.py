@@ -40,3 +40,18 @@ def test_embedded_data_files_ship_with_a_wheel() -> None:
     for p in embedded_dem_paths():
         assert p.name in shipped, p.name
     assert "README.md" in shipped  # the provenance travels with the data
+
+
+def test_bench_flights_ship_inside_the_package() -> None:
+    # `globeview bench` once looked for its flights in the source checkout's benchmarks/,
+    # so it broke after a wheel install: they are package data now.
+    from globeview.bench.check import QUICK_FLIGHT, STANDARD_FLIGHT
+    from globeview.bench.flight import resolve_flight, shipped_flights_dir
+
+    flights = shipped_flights_dir()
+    assert ROOT / "globeview" in flights.parents
+    stems = {p.stem for p in flights.glob("*.json")}
+    assert {"canyon_run", "fast_pan", "global_approach", "regional_oblique"} <= stems
+    assert resolve_flight("canyon_run") == flights / "canyon_run.json"
+    for name in (QUICK_FLIGHT, STANDARD_FLIGHT):
+        assert (flights / name).exists(), name

@@ -165,12 +165,13 @@ class Flight:
 
 
 def shipped_flights_dir() -> Path:
-    """benchmarks/flights/ of the source checkout (the shipped camera paths)."""
-    return Path(__file__).resolve().parents[2] / "benchmarks" / "flights"
+    """The shipped camera paths: package data (globeview/bench/flights/), so `globeview bench`
+    finds them after a wheel install too, not only in a source checkout."""
+    return Path(__file__).resolve().parent / "flights"
 
 
 def resolve_flight(name_or_path: str) -> Path:
-    """A path as given, else a shipped flight by stem (``canyon`` -> benchmarks/flights/...)."""
+    """A path as given, else a shipped flight by stem (``canyon`` -> bench/flights/...)."""
     p = Path(name_or_path)
     if p.exists():
         return p
