@@ -96,6 +96,34 @@ def test_two_clicks_show_the_profile_and_export_it(
     assert not win.plot_dock.isVisible() and win.plot_dock.plot is None
 
 
+def test_export_button_asks_for_a_file_and_writes_it(
+    make_window, qtbot, wait_frame, tmp_path: Path, errors_shown
+) -> None:
+    """The real path: the dock's button, Qt's save dialog (answered like a user), the file."""
+    from PyQt6.QtCore import QTimer
+    from PyQt6.QtWidgets import QApplication, QDialogButtonBox, QFileDialog, QLineEdit
+
+    win = measured_window(make_window, qtbot, wait_frame)
+    target = tmp_path / "via-dialog.csv"
+    seen: list[str] = []
+
+    def answer() -> None:
+        dlg = QApplication.activeModalWidget()
+        if not isinstance(dlg, QFileDialog):
+            QTimer.singleShot(50, answer)
+            return
+        seen.append(dlg.windowTitle())
+        # As a user: type the path, press Save (accept() is not callable from Python here).
+        dlg.findChild(QLineEdit, "fileNameEdit").setText(str(target))
+        dlg.findChild(QDialogButtonBox).button(QDialogButtonBox.StandardButton.Save).click()
+
+    QTimer.singleShot(50, answer)
+    qtbot.mouseClick(win.plot_dock.export_button, Qt.MouseButton.LeftButton)
+    assert seen == ["Export plot as CSV"]
+    header = target.read_text().splitlines()[0]
+    assert header == "distance_m,lon,lat,height_m" and errors_shown == []
+
+
 def test_failed_export_is_a_one_line_dialog_and_writes_nothing(
     make_window, qtbot, wait_frame, tmp_path: Path, errors_shown, monkeypatch
 ) -> None:
