@@ -201,7 +201,7 @@ def test_collapse_is_a_spelling_of_tool_points_set(site: PluginSite, tmp_path: P
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (("--set", "gvt-pins.colour=red"), "--set gvt-pins.colour: 'red' is not one of"),
+        (("--set", "gvt-pins.colour=red"), "colour: 'red' is not offered (one of green, blue)"),
         (("--set", "gvt-pins.size_px=400"), "--set gvt-pins.size_px: 400 is outside 4..40"),
         (("--set", "gvt-pins.size_px=nan"), "is not a finite number"),
         (("--set", "gvt-pins.nope=1"), "has no setting 'nope' (settings: size_px, colour)"),
@@ -383,3 +383,11 @@ def test_tool_csv_without_a_plot_writes_nothing(
     assert proc.returncode == 2 and len(lines(proc.stderr)) == 1, proc.stderr
     assert proc.stderr.startswith("globeview: error: ") and message in proc.stderr
     assert not out.exists() and not csv.exists()
+
+
+def test_point_longitudes_are_reduced_like_the_cameras(site: PluginSite, tmp_path: Path):
+    proc, _ = render(site, tmp_path, "wrap", "--tool", "gvt-pins", "--points", "370,20;-1e308,5")
+    assert proc.returncode == 0, proc.stderr
+    events = json.loads((tmp_path / "events.json").read_text())
+    lons = [e[4][0] for e in events[::2]]
+    assert lons[0] == pytest.approx(10.0) and -180.0 <= lons[1] <= 180.0

@@ -180,14 +180,19 @@ def parse_collapse(text: str) -> tuple[float, float, float, float, float | None]
 
 
 def parse_point(text: str, option: str) -> tuple[float, float]:
-    """One ``LON,LAT`` (degrees): a finite longitude and a latitude in -90..90."""
+    """One ``LON,LAT`` (degrees): a finite longitude, reduced to -180..180 as --camera's is,
+    and a latitude in -90..90."""
     from globeview.render.camera import check_finite, check_number
 
     lon, lat = parse_floats(text, option, (2,))
-    return (
-        checked(option, check_finite, "longitude", lon),
-        checked(option, check_number, "latitude", lat, -90.0, 90.0, " deg"),
-    )
+    lon = checked(option, check_finite, "longitude", lon)
+    lat = checked(option, check_number, "latitude", lat, -90.0, 90.0, " deg")
+    return wrap_lon(lon), lat
+
+
+def wrap_lon(lon: float) -> float:
+    """A finite longitude (degrees) in -180..180 (1e308 degrees is some place, not garbage)."""
+    return (lon + 180.0) % 360.0 - 180.0
 
 
 def parse_tool_args(args: argparse.Namespace) -> tuple[str | None, list, list[tuple[str, str]]]:
@@ -214,7 +219,7 @@ def parse_tool_args(args: argparse.Namespace) -> tuple[str | None, list, list[tu
                 "--collapse is --tool collapse with two --points; give one or the other"
             )
         *ab, ratio = parse_collapse(args.collapse)
-        tool, points = "collapse", [(ab[0], ab[1]), (ab[2], ab[3])]
+        tool, points = "collapse", [(wrap_lon(ab[0]), ab[1]), (wrap_lon(ab[2]), ab[3])]
         if ratio is not None:
             sets.append((f"collapse.ratio={ratio!r}", "--collapse"))
     if points and tool is None:

@@ -242,7 +242,11 @@ def parse_setting_value(setting: Any, text: str) -> Any:
     never break a plugin), a number outside min..max, a fraction for an integer, or a choice
     not offered is refused. Raises ValueError with a one-line reason."""
     kind = setting.type
-    if kind == "bool" or kind == "choice":
+    if kind == "choice":
+        if text not in setting.choices:
+            raise ValueError(f"{text!r:.40} is not offered")
+        return text
+    if kind == "bool":
         return setting.coerce(text)
     if kind not in ("int", "float"):
         raise ValueError(f"unknown setting type {kind!r}")

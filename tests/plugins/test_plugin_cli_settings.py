@@ -118,7 +118,7 @@ def test_set_stores_checked_values_and_get_reads_them(site: PluginSite, tmp_path
         (("gvt-setpins.count", "2.5"), "count: '2.5' is not a whole number (int in 1..9)"),
         (("gvt-setpins.count", "10"), "gvt-setpins.count: 10 is outside 1..9"),
         (("gvt-setpins.size_px", "inf"), "is not a finite number"),
-        (("gvt-setpins.colour", "red"), "'red' is not one of"),
+        (("gvt-setpins.colour", "red"), "'red' is not offered (one of green, blue)"),
         (("gvt-setpins.labels", "maybe"), "'maybe' is not a boolean (true or false)"),
         (("gvt-setpins.nope", "1"), "gvt-setpins has no setting 'nope' (settings: size_px"),
         (("nobody.x", "1"), "no plugin contribution named 'nobody' (known: "),
