@@ -391,3 +391,14 @@ def test_point_longitudes_are_reduced_like_the_cameras(site: PluginSite, tmp_pat
     events = json.loads((tmp_path / "events.json").read_text())
     lons = [e[4][0] for e in events[::2]]
     assert lons[0] == pytest.approx(10.0) and -180.0 <= lons[1] <= 180.0
+
+
+def test_set_of_a_contribution_not_used_warns(site: PluginSite, tmp_path: Path) -> None:
+    proc, out = render(site, tmp_path, "unused", "--set", "gvt-pins.colour=blue")
+    assert proc.returncode == 0 and out.exists(), proc.stderr
+    assert lines(proc.stderr) == [
+        "globeview: warning: --set gvt-pins.colour: gvt-pins is not used by this render "
+        "(--tool gvt-pins)"
+    ]
+    proc, _ = render(site, tmp_path, "used", "--set", "chunked-sse.texel_px=2")
+    assert proc.returncode == 0 and lines(proc.stderr) == [], proc.stderr

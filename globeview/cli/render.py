@@ -415,6 +415,26 @@ def resolve_plugin_args(registry, tool: str | None, sets: list[tuple[str, str]])
     return [resolve_assignment(registry, text, option) for text, option in sets]
 
 
+def warn_unused_settings(registry, assignments: list, lod: str, tool: str | None) -> None:
+    """One warning line per --set of an LOD provider or tool this render does not use (the
+    user likely meant it to change the picture); layer types are not judged (which ones
+    open a --layer file is decided by the files)."""
+    import logging
+
+    used = {"lod": {lod}, "tool": {tool}}
+    for target, _ in assignments:
+        kind = target.kind(registry)
+        if kind in used and target.contribution not in used[kind]:
+            option = "--lod" if kind == "lod" else "--tool"
+            logging.getLogger("globeview.cli").warning(
+                "--set %s: %s is not used by this render (%s %s)",
+                target.label,
+                target.contribution,
+                option,
+                target.contribution,
+            )
+
+
 def run(args: argparse.Namespace) -> int:
     from PIL import Image
 
@@ -442,6 +462,7 @@ def run(args: argparse.Namespace) -> int:
         parse_vdatum(args.vdatum)  # "egm2008" or a typo: one line before any work
     registry = PluginRegistry().discover()
     assignments = resolve_plugin_args(registry, tool_name, sets)
+    warn_unused_settings(registry, assignments, args.lod, tool_name)
     apply_overrides(registry, assignments)  # this render only: nothing is stored
     stores = open_sources_in_cache(args.sources, args.crs, args.vdatum)
     terrain = TerrainStack.from_stores(stores)

@@ -281,6 +281,11 @@ class SettingTarget:
     def label(self) -> str:
         return f"{self.contribution}.{self.setting.name}"
 
+    def kind(self, registry: Any) -> str:
+        """The contribution's kind ('lod', 'tool', 'layer') from its plugin's manifest."""
+        manifest = registry.get(self.plugin).manifest
+        return manifest.contribution(self.contribution).kind.value
+
 
 def contribution_settings(registry: Any, instance: Any) -> tuple:
     """The `Setting`s a loaded contribution declares (reading them is plugin code: isolated;
