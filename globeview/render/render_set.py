@@ -8,6 +8,7 @@ renderer.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field
 from numbers import Real
@@ -245,6 +246,8 @@ def _check_variant(v: object, n_cells: int) -> None:
 MAX_PROVIDER_STATS = 64
 MAX_STAT_KEY_CHARS = 64
 MAX_STAT_TEXT_CHARS = 200
+#: Most entries looked at to find the kept ones.
+MAX_STATS_EXAMINED = 1024
 
 
 def clean_provider_stats(stats: object) -> tuple[dict[str, float | int | bool | str], int]:
@@ -256,7 +259,9 @@ def clean_provider_stats(stats: object) -> tuple[dict[str, float | int | bool | 
     try:
         total = dict.__len__(stats) if isinstance(stats, dict) else 0
         kept: dict[str, float | int | bool | str] = {}
-        for k, v in dict.items(stats) if isinstance(stats, dict) else ():
+        # Look at a bounded number of entries: 10^6 garbage values must not cost each frame.
+        items = dict.items(stats) if isinstance(stats, dict) else ()
+        for k, v in itertools.islice(items, MAX_STATS_EXAMINED):
             if len(kept) >= MAX_PROVIDER_STATS:
                 break
             if type(k) is not str:  # exactly str: a subclass could run code in __str__

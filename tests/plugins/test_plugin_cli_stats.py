@@ -90,3 +90,16 @@ def test_as_dict_namespaces_provider_stats_and_levels() -> None:
     assert d["levels"] == {"7": 2, "8": 1, "9": 1}
     assert d["provider"] == {"name": "mine", "stats": {"triangles": -1}, "stats_dropped": 1}
     assert level_histogram(np.empty((0, 3), np.int64)) == {}
+
+
+def test_only_a_bounded_prefix_is_examined() -> None:
+    """A provider handing over 10^6 garbage entries each frame must not make the host walk
+    them all: entries past the first `MAX_STATS_EXAMINED` are dropped unexamined."""
+    from globeview.render.render_set import MAX_STATS_EXAMINED
+
+    stats: dict = {f"junk{i}": object() for i in range(MAX_STATS_EXAMINED - 1)}
+    stats["last_examined"] = 1
+    stats["first_not_examined"] = 2
+    stats.update({f"more{i}": object() for i in range(10**6)})
+    kept, dropped = clean_provider_stats(stats)
+    assert kept == {"last_examined": 1} and dropped == len(stats) - 1
