@@ -177,7 +177,7 @@ def _import_contributions(reg, manifest) -> tuple[list[str], list[str]]:
     """Import and create every contribution of ``manifest`` and check its settings'
     defaults; returns (problems, one "NAME (kind: Class, N settings)" per contribution)."""
     from globeview.plugins.headless import contribution_failure
-    from globeview.plugins.settings import contribution_settings
+    from globeview.plugins.settings import contribution_settings, settings_problems
 
     problems: list[str] = []
     made: list[str] = []
@@ -190,13 +190,11 @@ def _import_contributions(reg, manifest) -> tuple[list[str], list[str]]:
                 # Name the contribution unless it is the plugin's namesake (the line has it).
                 problems.append(why if c.name == manifest.name else f"{c.name}: {why}")
                 continue
-            settings = contribution_settings(reg, instance)
-            for s in settings:
-                try:
-                    s.coerce(s.default)
-                except ValueError as exc:
-                    problems.append(f"{c.name}: default of {exc}")
-            n = len(settings)
+            declared = reg.call_for(
+                instance, lambda i=instance: tuple(getattr(i, "settings", ()) or ()), default=()
+            )
+            problems += [f"{c.name}: {p}" for p in settings_problems(declared)]
+            n = len(contribution_settings(reg, instance))
             made.append(
                 f"{c.name} ({c.kind.value}: {type(instance).__name__}, {n} setting"
                 f"{'s' if n != 1 else ''})"

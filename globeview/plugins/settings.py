@@ -37,6 +37,7 @@ __all__ = [
     "parse_setting_value",
     "resolve_assignment",
     "setting_problem",
+    "settings_problems",
     "stored_values",
 ]
 
@@ -297,6 +298,42 @@ def contribution_settings(registry: Any, instance: Any) -> tuple:
         owner, lambda: tuple(getattr(instance, "settings", ()) or ()), default=()
     )
     return tuple(s for s in declared if isinstance(s, Setting))
+
+
+def settings_problems(declared: Any) -> list[str]:
+    """What is wrong with a contribution's ``settings`` declaration (for `plugins validate
+    --import`): entries that are not `Setting`s, duplicate or non-identifier names, unknown
+    types, min > max, a choice setting without choices, a default its own setting refuses.
+    One short phrase per problem; [] when all is well."""
+    from globeview.plugins.api import Setting
+
+    problems: list[str] = []
+    seen: set[str] = set()
+    for s in tuple(declared or ()):
+        if not isinstance(s, Setting):
+            problems.append(f"settings holds a {type(s).__name__}, not a Setting")
+            continue
+        name = s.name if isinstance(s.name, str) else repr(s.name)
+        if not isinstance(s.name, str) or not s.name.isidentifier():
+            problems.append(f"setting name {name!r:.40} is not an identifier")
+        if name in seen:
+            problems.append(f"setting {name!r} declared twice")
+        seen.add(name)
+        if s.type not in ("float", "int", "bool", "choice"):
+            problems.append(f"setting {name!r}: unknown type {s.type!r:.20}")
+            continue
+        if s.type == "choice" and not s.choices:
+            problems.append(f"setting {name!r}: a choice with no choices")
+        if s.min is not None and s.max is not None and s.min > s.max:
+            problems.append(f"setting {name!r}: min {s.min} > max {s.max}")
+        try:
+            if s.type == "bool" and not isinstance(s.default, bool):
+                raise ValueError(f"{s.default!r:.40} is not a boolean")
+            if s.type in ("int", "float", "choice"):
+                parse_setting_value(s, str(s.default))
+        except ValueError as exc:
+            problems.append(f"setting {name!r}: default {exc}")
+    return problems
 
 
 def find_contribution(registry: Any, name: str) -> list[tuple[str, Any]]:

@@ -301,3 +301,35 @@ def test_concurrent_writers_lose_no_update(tmp_path: Path) -> None:
     assert [p.wait(timeout=120) for p in procs] == [0] * 6
     data = json.loads(path.read_text())
     assert len(data) == 6 * 15 and data["plugins/p5/k14"] == 14
+
+
+BAD_SETTINGS = """
+from globeview.plugins.api import Setting, Tool
+
+class Sloppy(Tool):
+    settings = (
+        Setting("size", "float", 100.0, min=1.0, max=10.0),
+        Setting("size", "int", 1),
+        Setting("mode", "choice", "fast"),
+        Setting("flag", "bool", "yes"),
+        Setting("span", "int", 5, min=9, max=1),
+    )
+"""
+
+
+def test_validate_import_checks_settings_declarations(site: PluginSite, tmp_path: Path) -> None:
+    site.add("gvt_sloppy", plugin_manifest("gvt-sloppy", "gvt_sloppy", "tool", "Sloppy"),
+             {"impl": BAD_SETTINGS})  # fmt: skip
+    config = tmp_path / "config"
+    assert run(site, config, "plugins", "validate", "gvt-sloppy").returncode == 0
+    proc = run(site, config, "plugins", "validate", "gvt-sloppy", "--import")
+    assert proc.returncode == 2 and proc.stdout == "" and proc.stderr.count("\n") == 1
+    assert proc.stderr.strip() == (
+        "invalid: gvt-sloppy: gvt-sloppy: setting 'size': default 100.0 is outside 1..10; "
+        "gvt-sloppy: setting 'size' declared twice; "
+        "gvt-sloppy: setting 'mode': a choice with no choices; "
+        "gvt-sloppy: setting 'mode': default 'fast' is not offered; "
+        "gvt-sloppy: setting 'flag': default 'yes' is not a boolean; "
+        "gvt-sloppy: setting 'span': min 9 > max 1; "
+        "gvt-sloppy: setting 'span': default 5 is outside 9..1"
+    )
