@@ -21,6 +21,16 @@ reconstruction is perfect and the energy (sum of squares) of all bands equals th
 
 Units: heights in metres in, orthonormal coefficients out. One 2-D level multiplies a constant
 by M (sqrt(M) per axis); ``mband_approximate`` divides that out to give heights.
+
+Reference code, not used by ingest or the LOD (issue #14 asked: wire it in or say why not).
+The tile store is a dyadic pyramid (each level halves the resolution, CDF 5/3 low-pass,
+`globeview.terrain.wavelet`), because the quadtree that every layer, the LOD and the renderer
+share is dyadic; a 3-band level has no tile grid there. The `wavelet` LOD provider keeps
+Zhang's M-band *resolution ladder* on the dyadic levels (`wavelet_lod.stop_levels`), and a
+true M-band approximation of a tile could only be computed per tile from its heights each
+frame, a Python loop the frame path must not run. The filter banks here are the tested
+reading of eq. 4-5 (perfect reconstruction, energy, the printed typos) against which that
+choice can be checked.
 """
 
 from __future__ import annotations

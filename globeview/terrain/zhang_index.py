@@ -38,6 +38,15 @@ t = key - offset(i), then
     lat2 = min(lat1 + 2^i dlat, lat_max),   lon2 = min(lon1 + 2^i dlon, lon_max)
 
 (the printed version also drops the 2^i level scale and uses q_lon for n_lon(i)).
+
+Reference code, not used by the store or the renderer (issue #14 asked: wire it in or say
+why not). globeview keys tiles as (level, x, y) of one global quadtree with level 0 the
+coarsest (`globeview.terrain.quadtree`), because tiles of every DEM layer must line up for
+the stack to compose them and for the LOD to walk them; Zhang's key numbers a per-dataset
+quadtree from its finest level up, for rows of a database table, so two datasets' keys never
+name the same place. The module stays as the corrected, tested reading of eq. 2-3
+(tests/terrain/test_zhang_index.py) for comparing with the paper and for importing
+Geobeans3D-keyed data.
 """
 
 from __future__ import annotations
