@@ -55,3 +55,13 @@ def test_bench_flights_ship_inside_the_package() -> None:
     assert resolve_flight("canyon_run") == flights / "canyon_run.json"
     for name in (QUICK_FLIGHT, STANDARD_FLIGHT):
         assert (flights / name).exists(), name
+
+
+def test_the_version_is_written_in_one_place() -> None:
+    import globeview
+
+    project = _pyproject()["project"]
+    assert "version" not in project and "version" in project["dynamic"]
+    attr = _pyproject()["tool"]["setuptools"]["dynamic"]["version"]["attr"]
+    assert attr == "globeview.__version__"
+    assert globeview.__version__.count(".") == 2
