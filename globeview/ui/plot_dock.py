@@ -121,7 +121,8 @@ class PlotView(QWidget):
         xr, yr = data_range(p.x), data_range(p.y)
         if xr is None or yr is None:
             return None
-        return xr, yr
+        pad = 0.05 * (yr[1] - yr[0])  # the curve's peaks clear the frame
+        return xr, (yr[0] - pad, yr[1] + pad)
 
     def data_to_px(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Widget pixel positions of data points (valid after `ranges` is not None)."""
