@@ -291,3 +291,20 @@ def test_measure_imports_only_the_facade() -> None:
     assert {m for m in mods if m.startswith("globeview")} == {"globeview.plugins.api"}
     assert mods <= {"globeview.plugins.api", "__future__", "collections.abc", "dataclasses",
                     "typing", "numpy"}  # fmt: skip
+
+
+def test_profile_follows_the_terrain_drawn_now(
+    globeview_registry: PluginRegistry, srtm_stack
+) -> None:
+    """Hiding (or opening) a DEM after measuring: the next plot is measured on the terrain
+    as it is now, not the one at the click."""
+    globeview_registry.attach(terrain=srtm_stack)
+    tool = globeview_registry.tools()["measure"]
+    tool.set_points([WM_A, WM_B])
+    before = tool.plot()
+    assert tool.plot() is before and np.nanmax(before.y) > 1200.0
+    srtm_stack.set_visible(SRTM.name, False)
+    after = tool.plot()
+    assert after is not before and np.all(np.abs(after.y) < 40.0)  # the ellipsoid: H = -N
+    srtm_stack.set_visible(SRTM.name, True)
+    assert np.array_equal(tool.plot().y, before.y)

@@ -124,6 +124,7 @@ class MeasureTool(Tool):
         self.b: tuple[float, float] | None = None
         self.measurement: Measurement | None = None
         self._plot: Plot | None = None
+        self._measured_on: tuple[int, Any] | None = None  # `_terrain_key` of the heights
         self._line: np.ndarray | None = None  # (N, 3): lon, lat (degrees), h ellipsoidal (m)
 
     # -- settings and state ------------------------------------------------------------------
@@ -234,6 +235,7 @@ class MeasureTool(Tool):
             h_ell,
         )
         self.measurement, self._plot = m, None
+        self._measured_on = self._terrain_key()
         if n >= MIN_LINE_POINTS:
             self._line = np.stack([lons, lats, h_ell], axis=1)
         else:  # too few samples to follow the curve: a denser line for drawing only
@@ -243,9 +245,18 @@ class MeasureTool(Tool):
         self._redraw()
         return m
 
+    def _terrain_key(self) -> tuple[int, Any]:
+        """Identifies the terrain the heights came from: the stack object and its change
+        counter (a DEM opened, hidden or reordered changes it)."""
+        terrain = self._terrain()
+        return id(terrain), getattr(terrain, "version", None)
+
     def plot(self) -> Plot | None:
         """The terrain profile A->B (distance in the chosen unit, height in metres), the
-        same object until the measurement or the unit changes; None before B is picked."""
+        same object until the measurement, the unit or the terrain changes (then A-B is
+        measured again, so the profile is always the terrain drawn now); None before B."""
+        if self.measurement is not None and self._measured_on != self._terrain_key():
+            self._measure()
         m = self.measurement
         if m is None:
             return None
