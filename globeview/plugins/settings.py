@@ -26,6 +26,7 @@ __all__ = [
     "PluginSettings",
     "SettingTarget",
     "SettingsBackend",
+    "TolerantSettings",
     "apply_overrides",
     "config_dir",
     "contribution_key",
@@ -171,6 +172,40 @@ class JsonFileSettings:
             yield
         finally:
             os.close(fd)  # releases the lock
+
+
+class TolerantSettings:
+    """A `SettingsBackend` for the window: writes go to ``backend``; one that fails (a
+    read-only config folder, a full disk: a `GlobeviewError`) is logged once as a warning and
+    the value kept in memory for the session, so a slider or a plugin switch never fails
+    because the settings file cannot be written."""
+
+    def __init__(self, backend: SettingsBackend) -> None:
+        self.backend = backend
+        self.unsaved: dict[str, Any] = {}
+        self._warned = False
+
+    @property
+    def path(self) -> Path | None:
+        return getattr(self.backend, "path", None)
+
+    def get(self, key: str, default: Any = None) -> Any:
+        if key in self.unsaved:
+            return json.loads(json.dumps(self.unsaved[key]))
+        return self.backend.get(key, default)
+
+    def set(self, key: str, value: Any) -> None:
+        from globeview.errors import GlobeviewError
+
+        try:
+            self.backend.set(key, value)
+        except GlobeviewError as exc:
+            self.unsaved[key] = json.loads(json.dumps(value))
+            if not self._warned:
+                self._warned = True
+                log.warning("plugin settings are not saved this session: %s", exc)
+        else:
+            self.unsaved.pop(key, None)
 
 
 def default_settings() -> JsonFileSettings:

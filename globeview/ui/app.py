@@ -74,14 +74,35 @@ def embedded_stack(stores: list) -> TerrainStack:
     return TerrainStack.from_stores(stores, [p.stem for p in embedded_dem_paths()])
 
 
+def plugin_registry(qsettings: QSettings):
+    """The window's plugin registry, on the command line's settings file (``settings.json``
+    in the config folder, `globeview.plugins.settings.default_settings`): what `globeview
+    plugins enable/disable/set` stores is what the window uses, and the other way round.
+    Plugin keys the window kept in its Qt settings before are copied over once (those the
+    file lacks; the Qt settings keep them). A file that cannot be written costs the session's
+    changes only (`TolerantSettings`), never the window. Overruns of the frame budget
+    disable a plugin here (a slow provider would freeze the window)."""
+    from globeview.plugins.registry import PluginRegistry
+    from globeview.plugins.settings import TolerantSettings, default_settings
+    from globeview.ui.plugin_host import QSettingsBackend
+
+    backend = TolerantSettings(default_settings())
+    old = QSettingsBackend(qsettings)
+    for key in qsettings.allKeys():
+        if key.startswith("plugins/") and backend.get(key) is None:
+            value = old.get(key)
+            if value is not None:
+                backend.set(key, value)
+    return PluginRegistry(backend, budget_policy="disable")
+
+
 def run(files: Sequence[str] = (), settings: QSettings | None = None) -> int:
     """Open the window with the embedded data plus ``files``; returns the exit code."""
     logging.basicConfig(level=logging.WARNING, format="globeview: %(levelname)s: %(message)s")
     app = create_application()
+    qsettings = settings or QSettings(ORGANIZATION, APPLICATION)
     window = MainWindow(
-        embedded_terrain(),
-        settings or QSettings(ORGANIZATION, APPLICATION),
-        embedded_overlays=True,
+        embedded_terrain(), qsettings, plugin_registry(qsettings), embedded_overlays=True
     )
     previous = install_excepthook(window.errors)
     try:
