@@ -124,6 +124,24 @@ def test_export_button_asks_for_a_file_and_writes_it(
     assert header == "distance_m,lon,lat,height_m" and errors_shown == []
 
 
+def test_settings_in_the_tool_options_bar_redraw_the_plot(make_window, qtbot, wait_frame) -> None:
+    """The measure tool's Settings become controls (the window's generic path); editing
+    them changes the published plot, which the dock then shows."""
+    win = measured_window(make_window, qtbot, wait_frame)
+    editors = win.tool_options.editors
+    assert set(editors) == {"samples", "units", "show_chord"}
+    first = win.plot_dock.plot
+    editors["units"].setValue("mi")
+    wait_frame(win)
+    qtbot.waitUntil(lambda: win.plot_dock.plot is not first, timeout=5000)
+    assert win.plot_dock.plot.x_label == "distance from A (mi)"
+    assert " mi geodesic" in win.status.currentMessage()
+    editors["samples"].setValue(32)
+    wait_frame(win)
+    qtbot.waitUntil(lambda: win.plot_dock.plot.x.size == 32, timeout=5000)
+    assert win.globe.active_tool().values["samples"] == 32
+
+
 def test_failed_export_is_a_one_line_dialog_and_writes_nothing(
     make_window, qtbot, wait_frame, tmp_path: Path, errors_shown, monkeypatch
 ) -> None:
