@@ -58,8 +58,14 @@ def nice_ticks(lo: float, hi: float, target: int = 6) -> np.ndarray:
 
 
 def _tick_text(v: float, step: float) -> str:
+    """A tick label with as many decimals as the step needs; scientific beyond 1e9 or
+    below 1e-4 steps (fixed notation would print '1,000,000,000,000' or '0.000000')."""
+    if step > 0:
+        v = round(v / step) * step + 0.0  # no float residue at zero, and no "-0"
+    if step > 0 and (step < 1e-4 or max(abs(v), step) >= 1e9):
+        return f"{v:.4g}"
     digits = max(0, -math.floor(math.log10(step))) if step > 0 else 0
-    return f"{v:,.{min(digits, 6)}f}"
+    return f"{v:,.{digits}f}"
 
 
 def data_range(values: np.ndarray) -> tuple[float, float] | None:

@@ -199,3 +199,20 @@ def test_dock_draws_any_plot_without_failing(qtbot, x, y, curve) -> None:
     assert (curve_pixels(dock) > 0) == curve
     dock.set_plot(None)
     assert curve_pixels(dock) == 0 and not dock.export_button.isEnabled()
+
+
+@pytest.mark.parametrize(
+    ("lo", "hi", "labels"),
+    [
+        (0.0, 31.7, ["0", "10", "20", "30"]),
+        (440.0, 1650.0, ["500", "1,000", "1,500"]),
+        (-0.3, 0.7, ["-0.2", "0.0", "0.2", "0.4", "0.6"]),  # no '-0', no 5.55e-17
+        (-1e12, 1e12, ["-1e+12", "-5e+11", "0", "5e+11", "1e+12"]),
+        (-3e-9, 1e-9, ["-3e-09", "-2e-09", "-1e-09", "0", "1e-09"]),
+    ],
+)
+def test_tick_labels(lo: float, hi: float, labels: list[str]) -> None:
+    from globeview.ui.plot_dock import _tick_text, nice_ticks
+
+    ticks = nice_ticks(lo, hi)
+    assert [_tick_text(v, ticks[1] - ticks[0]) for v in ticks] == labels
