@@ -277,6 +277,11 @@ def test_degenerate_pairs(measure) -> None:
     pole = measure.set_points([(0.0, 90.0), (0.0, -90.0)])
     assert pole.distance_m == pytest.approx(GEOD.inv(0.0, 90.0, 0.0, -90.0)[2], abs=1e-3)
     assert np.all(np.isfinite(measure.plot().y))
+    # Across the antimeridian the short way (~110 km), also with a longitude given as 539.5.
+    for lon_a in (179.5, 539.5):
+        across = measure.set_points([(lon_a, 10.0), (-179.5, 10.0)])
+        assert across.distance_m == pytest.approx(GEOD.inv(179.5, 10, -179.5, 10)[2], abs=1e-3)
+        assert np.all(np.abs(np.diff(measure.plot().x)) < 1.0)  # km steps, no jump round
 
 
 def test_measure_imports_only_the_facade() -> None:
