@@ -570,9 +570,12 @@ class KeyEvent:
 
 @dataclass(frozen=True)
 class Marker:
-    """An overlay point: ``position`` ECEF (m), drawn as a screen-aligned dot.
+    """An overlay point: ``position`` ECEF (m), drawn as a screen-aligned dot, always on top
+    of the terrain (points beyond the horizon are left out).
 
-    ``color`` is RGBA in 0..1; ``size_px`` the dot diameter in pixels; ``label`` optional text.
+    ``color`` is RGBA in 0..1; ``size_px`` the dot diameter in pixels; ``label`` optional text
+    drawn to the right of the dot (white with a dark shadow, Pillow's bitmap font; at most 80
+    characters are shown).
     """
 
     position: tuple[float, float, float]
@@ -583,12 +586,20 @@ class Marker:
 
 @dataclass(frozen=True)
 class Polyline:
-    """An overlay line through ``points`` (N, 3) ECEF (m); ``width_px`` in pixels."""
+    """An overlay line through ``points`` (N, 3) ECEF (m) joined by straight segments;
+    ``width_px`` in pixels.
+
+    ``depth_test`` (default True): the terrain in front of the line hides it (a straight chord
+    between two cities goes behind the globe), with a small pull toward the eye so a line lying
+    on the surface stays visible. False: drawn on top of everything (interaction feedback that
+    must show through the relief); then only what lies beyond the horizon is left out.
+    """
 
     points: np.ndarray
     color: tuple[float, float, float, float] = (1.0, 0.9, 0.1, 1.0)
     width_px: float = 2.0
     closed: bool = False
+    depth_test: bool = True
 
 
 Overlay = Marker | Polyline

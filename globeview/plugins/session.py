@@ -544,6 +544,8 @@ def _overlay_problem(prims: list | tuple) -> str | None:
         if isinstance(p, Marker):
             if not _finite_numbers(tuple(p.position), (3,)):
                 return f"a Marker at {p.position!r:.60}, not 3 finite ECEF coordinates"
+            if not isinstance(p.label, str):
+                return f"a Marker label of {type(p.label).__name__}, not text"
         elif isinstance(p, Polyline):
             try:
                 pts = np.asarray(p.points, dtype=np.float64)
@@ -551,6 +553,8 @@ def _overlay_problem(prims: list | tuple) -> str | None:
                 return "a Polyline whose points are not numbers"
             if pts.ndim != 2 or pts.shape[1] != 3 or not np.isfinite(pts).all():
                 return f"a Polyline with points of shape {pts.shape}, not finite (N, 3)"
+            if not isinstance(getattr(p, "depth_test", True), bool):
+                return f"a Polyline depth_test of {type(p.depth_test).__name__}, not a bool"
         else:
             return f"a {type(p).__name__}, not a Marker or Polyline"
     return None

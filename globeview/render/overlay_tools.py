@@ -1,17 +1,24 @@
-"""Tool overlays: the active tool's markers and polylines drawn over the terrain.
+"""Tool overlays: the active tool's markers (with labels) and polylines drawn over the terrain.
 
 A tool's ``overlay(view)`` returns `Marker` and `Polyline` primitives (globeview.plugins.api;
 duck-typed here so ``render`` does not import the plugin layer). `ToolOverlayRenderer` draws
 them into the framebuffer the terrain was just drawn into:
 
 - markers are screen-space discs of ``size_px`` diameter (filled, with a dark rim so they
-  read on any terrain colour); polyline segments are quads ``width_px`` wide in screen space.
-- **Drawn on top** (no depth test), not depth-tested against the terrain: tool primitives are
-  interaction feedback and must stay visible where the terrain's relief would hide them (the
-  collapse tool's fold lines run along the ellipsoid, under the mountains). Instead, what lies
-  beyond the ellipsoid's horizon is dropped on the CPU (`facing_eye`): a point is drawn when
-  the ellipsoid's normal there faces the eye, so nothing from the far side of the globe shows
-  through it. A segment is drawn when both its ends are.
+  read on any terrain colour), their ``label`` text beside them (rasterised with Pillow's
+  default bitmap font into an atlas texture, re-made only when the set of labels changes);
+  polyline segments are quads ``width_px`` wide in screen space.
+- A polyline chooses ``depth_test`` (default True): **depth-tested** lines are hidden where the
+  terrain is in front of them (a London–New York chord, a straight ECEF segment, goes behind
+  the globe), with the same small pull toward the eye as vector layers (a fixed fraction of
+  the view distance in the logarithmic depth, overlay_vectors.DEPTH_BIAS_FRACTION) so a line
+  lying on the surface is not lost in it; their segments are cut into pieces of at most
+  `DEPTH_PIECE_M` so the depth, interpolated linearly on screen, follows the line. **On-top**
+  lines (``depth_test=False``: interaction feedback that must stay visible where the relief
+  would hide it, e.g. the collapse tool's fold lines along the ellipsoid) are drawn without
+  depth test; for them, and for markers and labels (always on top), what lies beyond the
+  ellipsoid's horizon is dropped on the CPU (`facing_eye`) so nothing from the far side of
+  the globe shows through it. A segment is drawn when both its ends are.
 - Positions are formed **relative to the eye in float64** on the CPU and only then rounded to
   float32 for the GPU: no absolute ECEF coordinate is ever rounded to float32.
 - ``displace`` (the active tool's ``displacement_numpy``) is applied to every position first,
@@ -27,10 +34,22 @@ from typing import Any
 import moderngl
 import numpy as np
 
+from globeview.render.overlay_vectors import view_uniforms
 from globeview.render.view_state import INV_AXES2, ViewState
 
-#: Floats per instance: a (3), b (3), colour (4), size, kind.
-FLOATS = 12
+#: Floats per instance: a (3), b (3), colour (4), size, kind, depth-tested (0/1).
+FLOATS = 13
+#: Longest piece (m) of a depth-tested segment: the depth is interpolated linearly on screen,
+#: so a long straight segment is cut for its depth to follow it.
+DEPTH_PIECE_M = 20_000.0
+#: Most pieces one segment is cut into.
+MAX_PIECES = 512
+#: Most distinct labels in the atlas, and characters of one label.
+MAX_LABELS = 1024
+MAX_LABEL_CHARS = 80
+#: Floats per label instance: anchor (3, relative to the eye), atlas rect (4), colour (4),
+#: offset from the anchor (px).
+LABEL_FLOATS = 12
 
 Displace = Callable[[np.ndarray], np.ndarray]
 
@@ -51,15 +70,27 @@ def facing_eye(points_ecef: np.ndarray, eye: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", normal, to_eye) > -1e-3 * np.maximum(dist, 1.0)
 
 
+def _pieces(pts: np.ndarray) -> np.ndarray:
+    """``pts`` (N, 3) with every segment cut into pieces of at most `DEPTH_PIECE_M`."""
+    d = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    n = np.clip(np.ceil(d / DEPTH_PIECE_M), 1, MAX_PIECES).astype(np.int64)
+    if (n == 1).all():
+        return pts
+    t = np.concatenate([np.arange(k) / k for k in n])
+    seg = np.repeat(np.arange(len(n)), n)
+    out = pts[seg] + (pts[seg + 1] - pts[seg]) * t[:, None]
+    return np.concatenate([out, pts[-1:]])
+
+
 def overlay_instances(
     view: ViewState, primitives: Sequence[Any], displace: Displace | None = None
 ) -> np.ndarray:
     """The (K, FLOATS) float32 instance table of markers and segments for ``view``.
 
     Markers are objects with ``position`` (ECEF m), ``color`` RGBA and ``size_px``; polylines
-    objects with ``points`` (N, 3), ``color``, ``width_px`` and ``closed``. Hidden ones (beyond
-    the horizon) are left out. Positions are displaced, then made relative to ``view.eye`` in
-    float64, then rounded to float32."""
+    objects with ``points`` (N, 3), ``color``, ``width_px``, ``closed`` and ``depth_test``
+    (default True). Markers and on-top segments beyond the horizon are left out. Positions are
+    displaced, then made relative to ``view.eye`` in float64, then rounded to float32."""
     eye = np.asarray(view.eye, np.float64)
     rows: list[np.ndarray] = []
     markers = [p for p in primitives if hasattr(p, "position")]
@@ -78,26 +109,64 @@ def overlay_instances(
         for i in np.nonzero(keep)[0]:
             m = markers[i]
             rows.append(
-                np.concatenate([rel[i], rel[i], _rgba(m.color), [float(m.size_px), 0.0]])[None]
+                np.concatenate([rel[i], rel[i], _rgba(m.color), [float(m.size_px), 0.0, 0.0]])[None]
             )
     for line in lines:
-        pts = place(line.points)
+        pts = np.asarray(line.points, np.float64).reshape(-1, 3)
         if len(pts) < 2:
             continue
         if getattr(line, "closed", False):
             pts = np.concatenate([pts, pts[:1]])
-        ok = facing_eye(pts, eye) & np.all(np.isfinite(pts), axis=1)
+        tested = bool(getattr(line, "depth_test", True))
+        if tested:
+            pts = _pieces(pts)  # before displacing: the pieces follow the displaced line
+        pts = place(pts)
+        ok = np.all(np.isfinite(pts), axis=1)
+        if not tested:
+            ok &= facing_eye(pts, eye)
         seg = ok[:-1] & ok[1:]
         if not seg.any():
             continue
         rel = pts - eye
         a, b = rel[:-1][seg], rel[1:][seg]
         n = len(a)
-        style = np.concatenate([_rgba(line.color), [float(line.width_px), 1.0]])
+        style = np.concatenate(
+            [_rgba(line.color), [float(line.width_px), 1.0, 1.0 if tested else 0.0]]
+        )
         rows.append(np.concatenate([a, b, np.tile(style, (n, 1))], axis=1))
     if not rows:
         return np.zeros((0, FLOATS), np.float32)
     return np.concatenate(rows).astype(np.float32)
+
+
+def label_instances(
+    view: ViewState, primitives: Sequence[Any], rect_of: dict[str, np.ndarray], displace=None
+) -> np.ndarray:
+    """(K, LABEL_FLOATS) float32: one row per visible marker with a label in ``rect_of``
+    (label -> atlas rect x, y, w, h in pixels), placed to the right of the disc."""
+    eye = np.asarray(view.eye, np.float64)
+    marks = [p for p in primitives if hasattr(p, "position") and getattr(p, "label", "")]
+    marks = [m for m in marks if str(m.label) in rect_of]
+    if not marks:
+        return np.zeros((0, LABEL_FLOATS), np.float32)
+    pos = np.array([m.position for m in marks], np.float64).reshape(-1, 3)
+    if displace is not None:
+        pos = np.asarray(displace(pos), np.float64).reshape(-1, 3)
+    keep = facing_eye(pos, eye) & np.all(np.isfinite(pos), axis=1)
+    rows = [
+        np.concatenate(
+            [
+                pos[i] - eye,
+                rect_of[str(marks[i].label)],
+                _rgba(getattr(marks[i], "label_color", (1.0, 1.0, 1.0, 1.0))),
+                [0.5 * float(marks[i].size_px) + 3.0],
+            ]
+        )
+        for i in np.nonzero(keep)[0]
+    ]
+    if not rows:
+        return np.zeros((0, LABEL_FLOATS), np.float32)
+    return np.array(rows, np.float32)
 
 
 def _rgba(color: Sequence[float]) -> np.ndarray:
@@ -106,7 +175,8 @@ def _rgba(color: Sequence[float]) -> np.ndarray:
 
 
 class ToolOverlayRenderer:
-    """Draws tool overlay primitives (see the module docstring) with one instanced draw.
+    """Draws tool overlay primitives (see the module docstring): depth-tested lines, on-top
+    lines, markers, then marker labels.
 
     Args:
         ctx: the moderngl context the terrain renders with.
@@ -121,14 +191,61 @@ class ToolOverlayRenderer:
         self._capacity = 64
         self.instances = ctx.buffer(reserve=self._capacity * FLOATS * 4, dynamic=True)
         self.vao = self._make_vao()
+        self.label_program = ctx.program(
+            vertex_shader=_shader("overlay_tool_label.vert"),
+            fragment_shader=_shader("overlay_tool_label.frag"),
+        )
+        self._label_capacity = 16
+        self.label_buffer = ctx.buffer(reserve=self._label_capacity * LABEL_FLOATS * 4)
+        self.label_vao = self._make_label_vao()
+        self.atlas: moderngl.Texture | None = None
+        self._atlas_labels: tuple[str, ...] = ()
+        self._rect_of: dict[str, np.ndarray] = {}
         self.drawn = 0
+        self.labels_drawn = 0
 
     def _make_vao(self) -> moderngl.VertexArray:
         return self.ctx.vertex_array(
             self.program,
-            [(self.instances, "3f 3f 4f 1f 1f/i", "in_a", "in_b", "in_color", "in_size",
-              "in_kind")],
+            [(self.instances, "3f 3f 4f 1f 1f 1f/i", "in_a", "in_b", "in_color", "in_size",
+              "in_kind", "in_depth")],
         )  # fmt: skip
+
+    def _make_label_vao(self) -> moderngl.VertexArray:
+        return self.ctx.vertex_array(
+            self.label_program,
+            [(self.label_buffer, "3f 4f 4f 1f/i", "in_rel", "in_rect", "in_color", "in_offset")],
+        )  # fmt: skip
+
+    def _ensure_atlas(self, primitives: Sequence[Any]) -> None:
+        """(Re)make the label atlas when the set of marker labels changed."""
+        from globeview.render.overlay_points import text_atlas
+
+        labels = tuple(sorted({str(p.label) for p in primitives if getattr(p, "label", "")}))[
+            :MAX_LABELS
+        ]
+        if labels == self._atlas_labels:
+            return
+        if self.atlas is not None:
+            self.atlas.release()
+            self.atlas = None
+        self._atlas_labels = labels
+        self._rect_of = {}
+        if not labels:
+            return
+        img, rects = text_atlas([label[:MAX_LABEL_CHARS] for label in labels])
+        self.atlas = self.ctx.texture((img.shape[1], img.shape[0]), 1, img.tobytes())
+        self.atlas.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self._rect_of = {label: rects[i].astype(np.float64) for i, label in enumerate(labels)}
+
+    def _upload(self, data: np.ndarray) -> None:
+        if len(data) > self._capacity:
+            while self._capacity < len(data):
+                self._capacity *= 2
+            self.vao.release()
+            self.instances.orphan(self._capacity * FLOATS * 4)
+            self.vao = self._make_vao()
+        self.instances.write(np.ascontiguousarray(data).tobytes())
 
     def draw(
         self,
@@ -137,26 +254,25 @@ class ToolOverlayRenderer:
         target: moderngl.Framebuffer,
         displace: Displace | None = None,
     ) -> int:
-        """Draw ``primitives`` over what ``target`` holds; returns the instances drawn."""
+        """Draw ``primitives`` over what ``target`` holds; returns the instances drawn
+        (markers and segments; labels are counted in ``labels_drawn``)."""
         data = overlay_instances(view, primitives, displace)
+        self._ensure_atlas(primitives)
+        labels = label_instances(view, primitives, self._rect_of, displace)
         n = len(data)
         self.drawn = n
-        if n == 0:
+        self.labels_drawn = len(labels)
+        if n == 0 and len(labels) == 0:
             return 0
-        if n > self._capacity:
-            while self._capacity < n:
-                self._capacity *= 2
-            self.vao.release()
-            self.instances.orphan(self._capacity * FLOATS * 4)
-            self.vao = self._make_vao()
-        self.instances.write(data.tobytes())
+        uni = view_uniforms(view)
         p = self.program
-        p["u_rot"].write(view.rotation.T.astype("f4").tobytes())
-        p["u_proj"].write(view.proj.T.astype("f4").tobytes())
-        p["u_viewport"].value = (float(view.viewport[0]), float(view.viewport[1]))
+        p["u_rot"].write(uni["u_rot"])
+        p["u_proj"].write(uni["u_proj"])
+        p["u_viewport"].value = uni["u_viewport"]
+        p["u_log_far"].value = uni["u_log_far"]
+        p["u_depth_bias"].value = uni["u_depth_bias"]
         ctx = self.ctx
         target.use()
-        ctx.disable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE)
         ctx.enable(moderngl.BLEND)
         # Colour: 'over'; alpha: keep the destination's (opaque). Qt composites the widget's
@@ -168,16 +284,58 @@ class ToolOverlayRenderer:
             moderngl.ZERO,
             moderngl.ONE,
         )
-        # Lines first, markers over them.
-        kinds = data[:, 11]
-        order = np.argsort(-kinds, kind="stable")
-        if not np.array_equal(order, np.arange(n)):
-            self.instances.write(data[order].tobytes())
-        self.vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=n)
+        kinds, tested = data[:, 11], data[:, 12]
+        # Depth-tested lines (against the terrain's depth, not writing it), then on-top
+        # lines, then markers over them. Each group is one instanced draw of the buffer.
+        for group, depth in (
+            ((kinds > 0.5) & (tested > 0.5), True),
+            ((kinds > 0.5) & (tested < 0.5), False),
+            (kinds < 0.5, False),
+        ):
+            rows = data[group]
+            if not len(rows):
+                continue
+            if depth:
+                ctx.enable(moderngl.DEPTH_TEST)
+                ctx.depth_func = "<="
+                target.depth_mask = False
+            else:
+                ctx.disable(moderngl.DEPTH_TEST)
+            self._upload(rows)
+            self.vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=len(rows))
+            target.depth_mask = True
+            ctx.depth_func = "<"
+        if len(labels) and self.atlas is not None:
+            ctx.disable(moderngl.DEPTH_TEST)
+            if len(labels) > self._label_capacity:
+                while self._label_capacity < len(labels):
+                    self._label_capacity *= 2
+                self.label_vao.release()
+                self.label_buffer.orphan(self._label_capacity * LABEL_FLOATS * 4)
+                self.label_vao = self._make_label_vao()
+            self.label_buffer.write(labels.tobytes())
+            lp = self.label_program
+            lp["u_rot"].write(uni["u_rot"])
+            lp["u_proj"].write(uni["u_proj"])
+            lp["u_viewport"].value = uni["u_viewport"]
+            lp["u_atlas_size"].value = (float(self.atlas.width), float(self.atlas.height))
+            if "u_atlas" in lp:
+                lp["u_atlas"].value = 0
+            self.atlas.use(0)
+            self.label_vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=len(labels))
         ctx.disable(moderngl.BLEND)
         ctx.enable(moderngl.DEPTH_TEST)
         return n
 
     def release(self) -> None:
-        for obj in (self.vao, self.instances, self.program):
-            obj.release()
+        for obj in (
+            self.vao,
+            self.instances,
+            self.program,
+            self.label_vao,
+            self.label_buffer,
+            self.label_program,
+            self.atlas,
+        ):
+            if obj is not None:
+                obj.release()

@@ -1,18 +1,23 @@
 #version 330
 // Tool overlays (overlay_tools.py): screen-space discs (markers) and screen-space-wide quads
-// (polyline segments), one instance each, drawn on top of the terrain.
+// (polyline segments), one instance each. Markers and on-top segments are drawn with no depth
+// test; depth-tested segments carry the logarithmic depth of terrain.vert (pulled toward the
+// eye by u_depth_bias, as vector layers are) so the terrain in front of them hides them.
 // Positions arrive relative to the eye (float64 on the CPU -> float32 here): no absolute ECEF
 // coordinate ever reaches the GPU.
 
 uniform mat3 u_rot;       // ECEF direction -> camera axes
 uniform mat4 u_proj;
 uniform vec2 u_viewport;  // pixels
+uniform float u_log_far;     // 1 / log2(1 + far), as terrain.vert
+uniform float u_depth_bias;  // window-depth pull toward the eye (a fixed fraction of w)
 
 in vec3 in_a;             // marker position / segment start, relative to the eye (m)
 in vec3 in_b;             // segment end (markers: = in_a)
 in vec4 in_color;
 in float in_size;         // marker diameter / line width (px)
 in float in_kind;         // 0 = marker, 1 = segment
+in float in_depth;        // 1: depth-tested segment
 
 out vec4 v_color;
 out vec2 v_local;         // markers: -1..1 across the disc; segments: (0, -1..1 across)
@@ -38,6 +43,7 @@ void main() {
     vec2 sb = pb.xy / pb.w;
     vec2 to_ndc = 2.0 / u_viewport;
     vec2 ndc;
+    float w_here = -ca.z;
     if (in_kind < 0.5) {
         // One extra pixel of margin for the anti-aliased rim.
         float r = 0.5 * in_size + 1.0;
@@ -53,7 +59,12 @@ void main() {
         // Half a pixel along the segment closes the joints between segments.
         vec2 off = nrm * corner.x * half_w + dir * (at_b ? 0.5 : -0.5);
         ndc = (at_b ? sb : sa) + off * to_ndc;
+        w_here = at_b ? -cb.z : -ca.z;
         v_local = vec2(0.0, corner.x * half_w / max(0.5 * in_size, 0.5));
     }
-    gl_Position = vec4(ndc, 0.0, 1.0);
+    // Logarithmic window depth (terrain.vert), linear on screen between the endpoints: the
+    // CPU cuts depth-tested segments short enough for that to follow them.
+    float z = in_depth > 0.5 ? (2.0 * log2(1.0 + w_here) * u_log_far - 1.0) - 2.0 * u_depth_bias
+                             : 0.0;
+    gl_Position = vec4(ndc, z, 1.0);
 }
