@@ -1,0 +1,111 @@
+"""File > Open Overlay… in a real window reaches installed layer plugins (issue #15 item 1):
+the dialog's filter lists every layer type's patterns, a plugin's own format opens and draws
+through its drawables, drag and drop dispatches the same way, and an unknown file reports one
+line naming the installed layer types. The plugin is a real distribution on sys.path."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.gui
+
+MANIFEST = """
+    name = "stripes"
+    version = "0.1.0"
+    description = "draws rhumb lines a .stripes file lists"
+    kinds = ["layer"]
+    api_version = "1.0"
+
+    [[contributions]]
+    name = "stripes"
+    kind = "layer"
+    target = "gvt_uistripes.impl:StripesType"
+    label = "Stripes"
+    extensions = [".stripes"]
+    """
+
+IMPL = """
+    from pathlib import Path
+
+    import numpy as np
+
+    from globeview.plugins.api import Lines
+
+    class StripesType:
+        name = "stripes"
+        label = "Stripes"
+        extensions = (".stripes",)
+
+        def __init__(self, context=None):
+            self.context = context
+
+        def open(self, path):
+            paths = []
+            for line in Path(path).read_text().splitlines():
+                lat = float(line)
+                paths.append(np.array([[-170.0, lat], [0.0, lat], [170.0, lat]]))
+            return Lines(paths, interpolation="rhumb", color=(1.0, 0.0, 1.0, 1.0), width_px=4.0)
+    """
+
+
+def magenta(rgb: np.ndarray) -> int:
+    r, g, b = (rgb[..., k].astype(int) for k in range(3))
+    return int(((r > 200) & (g < 80) & (b > 200)).sum())
+
+
+@pytest.fixture
+def stripes(plugin_site, tmp_path) -> Path:
+    plugin_site.add("gvt_uistripes", MANIFEST, {"impl": IMPL})
+    f = tmp_path / "bands.stripes"
+    f.write_text("0\n20\n40\n")
+    return f
+
+
+def test_open_overlay_dialog_lists_and_opens_a_plugin_format(
+    make_window, stripes, frame_rgb, wait_frame, monkeypatch
+) -> None:
+    from PyQt6.QtWidgets import QFileDialog
+
+    win = make_window()
+    asked = {}
+
+    def fake_dialog(parent, caption, start, name_filter):
+        asked["filter"] = name_filter
+        return [str(stripes)], name_filter.split(";;")[0]
+
+    monkeypatch.setattr(QFileDialog, "getOpenFileNames", staticmethod(fake_dialog))
+    assert magenta(frame_rgb(win)) == 0
+    win.open_overlay_dialog()
+    entries = asked["filter"].split(";;")
+    assert "*.stripes" in entries[0] and "*.geojson" in entries[0] and "*.tif" in entries[0]
+    assert "Stripes (*.stripes)" in entries and entries[-1] == "All files (*)"
+    layers = win.overlay_layers()
+    assert [ly.name for ly in layers] == ["bands.stripes"] and layers[0].kind == "vector"
+    wait_frame(win)
+    assert magenta(frame_rgb(win)) > 200
+
+
+def test_dropped_plugin_file_opens_as_an_overlay(make_window, stripes, frame_rgb, wait_frame):
+    win = make_window()
+    win.open_paths([str(stripes)])  # the drag-and-drop / command-line path
+    assert [ly.name for ly in win.overlay_layers()] == ["bands.stripes"]
+    wait_frame(win)
+    assert magenta(frame_rgb(win)) > 200
+
+
+def test_unknown_file_reports_one_line_naming_the_layer_types(
+    make_window, stripes, errors_shown, tmp_path
+) -> None:
+    win = make_window()
+    junk = tmp_path / "notes.xyz"
+    junk.write_bytes(b"\x00\x01 nothing anyone reads")
+    assert win.open_overlays([str(junk)]) == []
+    text = errors_shown[-1].text
+    assert "\n" not in text and "notes.xyz: no layer type opens this file" in text
+    assert "stripes (.stripes)" in text and "vector (.geojson .json)" in text
+    win.open_paths([str(junk)])  # dropped: the same line
+    assert "no layer type opens this file" in errors_shown[-1].text
+    assert win.overlay_layers() == []
