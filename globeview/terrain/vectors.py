@@ -158,7 +158,11 @@ def read_geojson_points(path: str | Path) -> tuple[np.ndarray, np.ndarray, list[
             names.append(str(props.get("name", "")))
     if not lon:
         raise VectorError(f"{name}: no Point geometry")
-    return np.array(lon), np.array(lat), names
+    lon_a, lat_a = np.array(lon), np.array(lat)
+    # NaN fails both comparisons: non-finite coordinates (1e400 parses as inf) are refused.
+    if not (np.all(np.abs(lon_a) <= 540.0) and np.all(np.abs(lat_a) <= 90.0)):
+        raise VectorError(f"{name}: coordinates are not WGS84 lon/lat degrees")
+    return lon_a, lat_a, names
 
 
 def densify(lines: Polylines, max_segment_m: float) -> Polylines:

@@ -86,3 +86,16 @@ def test_render_explicit_layer_type(site, tmp_path) -> None:
         site, tmp_path, "render", "--size", SIZE, "--out", str(out), "--layer", f"vector:{lines}"
     )
     assert proc.returncode == 0, proc.stderr
+
+
+def test_infinite_point_coordinates_are_the_users_error(site, tmp_path) -> None:
+    """1e400 parses as infinity: the built-in points type refuses the file in one line and
+    stays enabled (it used to hand the host garbage and be disabled for it)."""
+    f = tmp_path / "inf.geojson"
+    f.write_text('{"type": "Point", "coordinates": [1e400, 0]}')
+    out = tmp_path / "x.png"
+    proc = _run(site, tmp_path, "render", "--size", SIZE, "--out", str(out), "--layer", str(f))
+    assert proc.returncode == 2 and not out.exists()
+    assert proc.stderr.strip() == (
+        "globeview: error: inf.geojson: coordinates are not WGS84 lon/lat degrees"
+    )

@@ -229,3 +229,11 @@ def test_a_type_without_manifest_extensions_is_asked_for_its_attribute(
     reg = _registry()
     assert choose_layer_type(reg, f) == "zebra"
     assert "*.zebra" in overlay_file_filter(reg)
+
+
+def test_an_empty_file_says_so_whatever_its_name(tmp_path) -> None:
+    for name in ("empty.geojson", "empty.tif", "empty.xyz"):
+        f = tmp_path / name
+        f.write_bytes(b"  \n")
+        with pytest.raises(GlobeviewError, match=rf"^{name}: the file is empty$"):
+            choose_layer_type(_registry(), f)

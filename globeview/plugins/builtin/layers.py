@@ -44,13 +44,16 @@ _POINT_TYPES = {"Point", "MultiPoint"}
 def geojson_geometry_types(path: str | Path) -> set[str] | None:
     """The geometry types in a GeoJSON file; None when the file is not JSON text at all
     (its first non-blank byte is not ``{`` or ``[``). Raises `GlobeviewError` for JSON text
-    that does not parse."""
+    that does not parse, and for an empty (or blank) file, whatever its name: no format
+    reads one, and "empty" is the line the user needs."""
     p = Path(path)
     try:
         with open(p, "rb") as fh:
             head = fh.read(64).lstrip()
     except OSError as exc:
         raise GlobeviewError(f"{p.name}: cannot read ({exc.strerror or exc})") from None
+    if not head:
+        raise GlobeviewError(f"{p.name}: the file is empty")
     if head[:1] not in (b"{", b"["):
         return None
     try:
