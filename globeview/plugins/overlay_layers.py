@@ -61,6 +61,10 @@ MAX_LINE_VERTICES = 2_000_000
 #: Most vertices / points / drawables one layer may hand over.
 MAX_INPUT_VERTICES = 5_000_000
 MAX_POINTS = 1_000_000
+#: Most distinct point labels, and characters in one: the labels are rasterised into one
+#: atlas texture, which must stay within GL's texture size (16 384 px on llvmpipe).
+MAX_DISTINCT_LABELS = 2_000
+MAX_LABEL_CHARS = 64
 MAX_DRAWABLES = 1_000
 #: Largest in-memory drape side (pixels).
 MAX_DRAPE_SIDE = 16_384
@@ -375,6 +379,8 @@ def drawable_problem(d: Any) -> str | None:
             return f"Points with {len(labels)} labels for {len(lon)} points"
         if any(not isinstance(s, str) for s in labels):
             return "Points labels that are not strings"
+        if len(set(labels)) > MAX_DISTINCT_LABELS:
+            return f"Points with {len(set(labels))} distinct labels (at most {MAX_DISTINCT_LABELS})"
         if d.kind not in POINT_KINDS:
             return f"Points kind {d.kind!r:.40} (one of {POINT_KINDS})"
         return (
@@ -469,8 +475,13 @@ def vector_layer(d: Lines, name: str) -> VectorLayer:
     )
 
 
+def _cut(label: str) -> str:
+    return label if len(label) <= MAX_LABEL_CHARS else label[: MAX_LABEL_CHARS - 3] + "..."
+
+
 def points_layer(d: Points, name: str) -> PointsLayer:
-    labels = [str(s) for s in d.labels] if d.labels else []
+    # Longer labels are cut (with an ellipsis), not refused: a name field may be long.
+    labels = [_cut(str(s)) for s in d.labels] if d.labels else []
     return PointsLayer(
         d.name or name,
         np.asarray(d.lon, np.float64).reshape(-1),

@@ -378,7 +378,11 @@ class GlobeSession(GlobeScene):
             if self.registry.call_for(obj, layer.attach, self.renderer, default=failed) is failed:
                 layer = failed
         elif layer is not failed:
-            layer.attach(self.renderer)
+            try:
+                layer.attach(self.renderer)
+            except moderngl.Error as exc:  # checked data the GL still refuses (its limits)
+                first = (str(exc).splitlines() or ["GL error"])[0]
+                raise GlobeviewError(f"cannot draw {Path(path).name}: {first:.160}") from None
         if layer is failed:
             raise GlobeviewError(
                 f"layer type {name} could not open {Path(path).name}: {self._why(obj)}"
