@@ -32,7 +32,7 @@ IMPL = """
 
     import numpy as np
 
-    from globeview.plugins.api import Lines
+    from globeview.plugins.api import Lines, Points
 
     class StripesType:
         name = "stripes"
@@ -43,11 +43,18 @@ IMPL = """
             self.context = context
 
         def open(self, path):
-            paths = []
+            paths, points = [], []
             for line in Path(path).read_text().splitlines():
+                if line.startswith("point "):  # "point LON LAT": a labelled placemark
+                    points.append([float(v) for v in line.split()[1:3]])
+                    continue
                 lat = float(line)
                 paths.append(np.array([[-170.0, lat], [0.0, lat], [170.0, lat]]))
-            return Lines(paths, interpolation="rhumb", color=(1.0, 0.0, 1.0, 1.0), width_px=4.0)
+            lines = Lines(paths, interpolation="rhumb", color=(1.0, 0.0, 1.0, 1.0), width_px=4.0)
+            if not points:
+                return lines
+            lon, lat = zip(*points)
+            return [lines, Points(lon, lat, [f"P{i}" for i in range(len(lon))])]
     """
 
 
@@ -109,3 +116,23 @@ def test_unknown_file_reports_one_line_naming_the_layer_types(
     win.open_paths([str(junk)])  # dropped: the same line
     assert "no layer type opens this file" in errors_shown[-1].text
     assert win.overlay_layers() == []
+
+
+def test_a_drawing_of_several_drawables_is_one_row(make_window, stripes, frame_rgb, wait_frame):
+    """Lines and points from one file: one overlay row; unticking it hides both parts."""
+    both = stripes.with_name("both.stripes")
+    both.write_text("20\npoint 0 0\n")
+    win = make_window()
+    (layer,) = win.open_overlays([str(both)])
+    panel = win.layer_panel.overlays
+    assert layer.kind == "drawing" and panel.names() == ["both.stripes"]
+    wait_frame(win)
+    assert magenta(frame_rgb(win)) > 100
+    assert win.globe.scene.renderer.overlays.points  # the placemark part is attached
+    panel.set_visible(layer, False)
+    wait_frame(win)
+    assert magenta(frame_rgb(win)) == 0
+    assert not any(ov.visible for ov in win.globe.scene.renderer.overlays.points)
+    panel.select(layer)
+    panel.remove_selected()
+    assert win.overlay_layers() == [] and win.globe.scene.renderer.overlays.vectors == []
