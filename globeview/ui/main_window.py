@@ -38,11 +38,13 @@ from PyQt6.QtWidgets import (
     QCheckBox,
     QDockWidget,
     QFileDialog,
+    QFrame,
     QLabel,
     QLineEdit,
     QMainWindow,
     QProgressBar,
     QPushButton,
+    QScrollArea,
     QSlider,
     QToolBar,
     QWidget,
@@ -150,7 +152,13 @@ class MainWindow(QMainWindow):
         self.layer_dock = self._dock("Layers", "layers", self.layer_panel)
         tau = _float(self.qsettings.value("view/tau"), 2.0)
         self.plugin_panel = PluginPanel(self.plugins, tau)
-        self.plugin_dock = self._dock("Plugins", "plugins", self.plugin_panel)
+        # Scrollable: the panel's full height (plugin list, provider settings) must not set
+        # the window's minimum height, or the window grows whenever another dock does.
+        plugin_scroll = QScrollArea()
+        plugin_scroll.setWidgetResizable(True)
+        plugin_scroll.setFrameShape(QFrame.Shape.NoFrame)
+        plugin_scroll.setWidget(self.plugin_panel)
+        self.plugin_dock = self._dock("Plugins", "plugins", plugin_scroll)
         self.globe.set_tau(self.plugin_panel.tau())
 
         self.loader = DemLoader(self)
@@ -474,6 +482,7 @@ class MainWindow(QMainWindow):
         g.sceneReady.connect(self._scene_ready)
         self.layer_panel.overlays.changed.connect(g.request_frame)
         g.frameRendered.connect(self.status.show_frame)
+        g.frameRendered.connect(self._show_fallback_reason)  # after show_frame: on top of it
         g.frameRendered.connect(lambda *_: self.plugins.after_frame())
         g.frameRendered.connect(self._camera_changed)
         g.cursorPicked.connect(self.status.show_pick)
@@ -539,12 +548,17 @@ class MainWindow(QMainWindow):
         self.qsettings.setValue("view/tau", tau_px)
 
     def _use_lod(self, name: str) -> None:
-        # After a fallback the field says so and its tooltip keeps the real reason (notices
-        # pass; this stays until the user picks a provider again).
-        why = self.plugins.fallback_reason
-        self.status.lod.setText(f"LOD {name}" + (" (fallback)" if why else ""))
-        self.status.lod.setToolTip(why or f"Level-of-detail provider: {name}")
+        self.status.lod.setText(f"LOD {name}")
+        self._show_fallback_reason()
         self.globe.request_frame()
+
+    def _show_fallback_reason(self, *_args: object) -> None:
+        """After a fallback the LOD field's tooltip starts with the real reason (notices pass;
+        this stays until the user picks a provider again), above what the frame put there."""
+        why = self.plugins.fallback_reason
+        tip = self.status.lod.toolTip()
+        if why and not tip.startswith(why):
+            self.status.lod.setToolTip(f"{why}\n{tip}" if tip else why)
 
     def _exaggeration_changed(self, tenths: int) -> None:
         self.globe.settings.exaggeration = tenths / 10.0
