@@ -5,7 +5,8 @@
 - ``choice``: a combo box of the choices;
 - ``int`` / ``float`` with both bounds: a slider and a spin box kept in step (the slider for
   a quick drag, the box for an exact value);
-- ``int`` / ``float`` without both bounds: a spin box alone.
+- ``int`` / ``float`` without both bounds: a spin box alone;
+- any other type: a disabled label showing the value (nothing to edit, nothing raises).
 
 ``edited(object)`` carries the new value, coerced by the Setting (type, bounds), only for
 user edits and `setValue`; `show_value` updates the display silently.
@@ -22,6 +23,7 @@ from PyQt6.QtWidgets import (
     QComboBox,
     QDoubleSpinBox,
     QHBoxLayout,
+    QLabel,
     QSlider,
     QSpinBox,
     QWidget,
@@ -51,6 +53,8 @@ class SettingEditor(QWidget):
         self.combo: QComboBox | None = None
         self.slider: QSlider | None = None
         self.spin: QSpinBox | QDoubleSpinBox | None = None
+        self.label: QLabel | None = None
+        self._raw: Any = value  # what was given, for a type with no editor
         self._quiet = False
         lay = QHBoxLayout(self)
         lay.setContentsMargins(0, 0, 0, 0)
@@ -63,8 +67,12 @@ class SettingEditor(QWidget):
             self.combo.addItems([str(c) for c in spec.choices])
             self.combo.currentTextChanged.connect(self._user_edit)
             lay.addWidget(self.combo)
-        else:
+        elif spec.type in ("int", "float"):
             self._build_number(lay)
+        else:
+            self.label = QLabel(_clip(repr(value)))
+            self.label.setEnabled(False)
+            lay.addWidget(self.label)
         self.setToolTip(spec.help)
         self.show_value(value)
 
@@ -103,24 +111,23 @@ class SettingEditor(QWidget):
             return self.check.isChecked()
         if self.combo is not None:
             return self.combo.currentText()
-        assert self.spin is not None
+        if self.spin is None:
+            return self._raw
         v = self.spin.value()
         return int(v) if self.spec.type == "int" else float(v)
 
     def show_value(self, value: Any) -> None:
-        """Display ``value`` (coerced; an invalid one shows the default) without emitting."""
-        try:
-            value = self.spec.coerce(value)
-        except (TypeError, ValueError):
-            value = self.spec.default
+        """Display ``value`` (coerced; an invalid one shows the default, an invalid default a
+        neutral value) without emitting."""
+        self._raw = value
+        value = self._valid(value)
         self._quiet = True
         try:
             if self.check is not None:
                 self.check.setChecked(bool(value))
             elif self.combo is not None:
                 self.combo.setCurrentText(str(value))
-            else:
-                assert self.spin is not None
+            elif self.spin is not None:
                 # Within the box's range (a stored 1e20 for an unbounded int must not
                 # overflow the C int behind a QSpinBox).
                 v = min(max(float(value), self.spin.minimum()), self.spin.maximum())
@@ -135,6 +142,20 @@ class SettingEditor(QWidget):
         self._user_edit()
 
     # -- internals ----------------------------------------------------------------------------
+    def _valid(self, value: Any) -> Any:
+        """``value`` coerced by the Setting, else its default coerced, else a neutral value
+        of the type (a plugin's own default may be garbage too)."""
+        for candidate in (value, self.spec.default):
+            try:
+                return self.spec.coerce(candidate)
+            except (TypeError, ValueError, OverflowError):
+                continue
+        if self.spec.type == "choice":
+            return str(self.spec.choices[0]) if self.spec.choices else ""
+        if self.spin is not None:
+            return min(max(0, self.spin.minimum()), self.spin.maximum())
+        return False if self.spec.type == "bool" else value
+
     def _to_slider(self, v: float) -> int:
         lo, hi = float(self.spec.min), float(self.spec.max)  # type: ignore[arg-type]
         if self.spec.type == "int":
@@ -176,6 +197,10 @@ def _finite(bound: float | None) -> float | None:
     except (TypeError, ValueError):
         return None
     return b if math.isfinite(b) else None
+
+
+def _clip(text: str, limit: int = 40) -> str:
+    return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
 def _c_int(bound: float) -> int:

@@ -50,6 +50,12 @@ def test_bounded_float_slider_and_box_stay_in_step(qtbot) -> None:
         # Inverted bounds: no slider, nothing raises.
         (Setting("x", "float", 1.0, min=5.0, max=1.0), 3.0, None),
         (Setting("flag", "bool", False), "yes", True),
+        # A plugin's own default is garbage: a neutral value of the type.
+        (Setting("f", "float", "abc"), "x", 0.0),
+        (Setting("i", "int", None, min=2, max=3), None, 2),
+        (Setting("c", "choice", "a"), "a", ""),
+        # A type the UI has no editor for: shown, not editable, nothing raises.
+        (Setting("s", "string", "abc"), "abc", "abc"),  # type: ignore[arg-type]
     ],
 )
 def test_hostile_values_show_something_valid(qtbot, spec, value, shown) -> None:
