@@ -84,6 +84,8 @@ class PinTool(Tool):
     def configure(self, values):
         super().configure(values)
         self.configured.append(dict(self.values))
+        if self.values["scale"] == 13.0:
+            raise RuntimeError("unlucky scale")
 
     def clear(self):
         self.calls.append("clear")
@@ -301,3 +303,17 @@ def test_a_command_that_raises_fails_its_tool_with_the_reason_kept(pins, make_wi
         if panel.tree.topLevelItem(i).text(0) == "pins"
     )
     assert "pin factory on fire" in row.text(3) and "pin factory on fire" in row.toolTip(3)
+
+
+def test_a_setting_change_that_makes_configure_raise_fails_the_tool_not_the_window(
+    pins, make_window, wait_frame
+):
+    win = make_window(registry=_registry())
+    win.tool_actions["pins"].trigger()
+    win.tool_options.editors["scale"].spin.setValue(13.0)  # from inside the editor's signal
+    rec = win.plugins.registry.get("pins")
+    assert rec.status == "failed" and "unlucky scale" in rec.error
+    assert win.globe.scene.active_tool is None and win.tool_options.tool_name is None
+    assert any("unlucky scale" in m.text for m in win.errors.history)
+    wait_frame(win)  # the window keeps drawing
+    assert win.globe.last_stats.triangles > 0
