@@ -504,9 +504,9 @@ class GlobeWidget(QOpenGLWidget):
         event.accept()
 
     def event(self, event: QEvent) -> bool:
-        # With a tool active, plain keys go to the widget (the tool) before window shortcuts
-        # (e.g. the collapse tool's own 'c'); keys it does not take are offered to the
-        # shortcuts again through keyUnhandled.
+        # With a tool active, plain keys go to the widget (the tool's on_key) before window
+        # shortcuts; keys it does not take are offered to the shortcuts again through
+        # keyUnhandled (the window matches tool and manifest-command actions).
         if event.type() == QEvent.Type.ShortcutOverride and self.active_tool() is not None:
             mods = event.modifiers() & ~Qt.KeyboardModifier.ShiftModifier
             if not mods and key_name(event.key(), event.text()):
