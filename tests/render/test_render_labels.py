@@ -19,28 +19,26 @@ CHORD = (1.0, 0.0, 1.0, 1.0)  # magenta: no terrain colour is
 
 
 @pytest.fixture(scope="module")
-def session():
-    from globeview.plugins.registry import PluginRegistry
-    from globeview.plugins.session import GlobeSession
-    from globeview.plugins.settings import MemorySettings
-    from globeview.render.offscreen import OffscreenTarget, RenderError, create_headless_context
+def rig(gl_ctx):
+    """A target and the tool overlay renderer on the render suite's one GL context (a second
+    EGL context in the same process breaks later tests' GL state)."""
+    from globeview.render.offscreen import OffscreenTarget
     from globeview.render.overlay_tools import ToolOverlayRenderer
-    from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
 
-    try:
-        ctx = create_headless_context()
-    except RenderError as exc:  # pragma: no cover - depends on the machine
-        pytest.skip(f"no headless OpenGL: {exc}")
-    terrain = TerrainStack.from_stores(embedded_stores())
-    reg = PluginRegistry(MemorySettings()).discover()
-    s = GlobeSession(ctx, terrain, Camera.from_lonlat(-40.0, 50.0, 8.0e6), registry=reg)
-    s.settings.fog = False
-    s.target = OffscreenTarget(ctx, SIZE)
-    s.tools_renderer = ToolOverlayRenderer(ctx)
-    yield s
-    s.tools_renderer.release()
-    s.release_gl()
+    target = OffscreenTarget(gl_ctx, SIZE)
+    tools = ToolOverlayRenderer(gl_ctx)
+    yield target, tools
+    tools.release()
+    target.release()
+
+
+@pytest.fixture
+def session(scene, rig):
+    """The suite's scene looking down on the North Atlantic, with the target and renderer."""
+    scene.settings.fog = False
+    scene.camera = Camera.from_lonlat(-40.0, 50.0, 8.0e6)
+    scene.target, scene.tools_renderer = rig
+    return scene
 
 
 def _ecef(lon: float, lat: float, h: float = 0.0) -> np.ndarray:
