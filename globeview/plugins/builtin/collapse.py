@@ -246,7 +246,9 @@ class CollapseTool(Tool):
     def overlay(self, view: Any) -> list[Overlay]:
         """Markers at A and B and the two fold lines (zone edges), in **true** ECEF (m) on
         the ellipsoid: the host applies ``displacement_numpy`` to overlays, which puts them
-        where the collapsed terrain is drawn. The central axis A-B is drawn thin."""
+        where the collapsed terrain is drawn. The central axis A-B is drawn thin. The lines lie
+        on the ellipsoid, under any relief: they are feedback drawn on top (``depth_test=
+        False``; the host drops what is beyond the horizon), not hidden by the mountains."""
         out: list[Overlay] = []
         for p, label in ((self.a, "A"), (self.b, "B")):
             if p is not None:
@@ -257,10 +259,13 @@ class CollapseTool(Tool):
             return out
         half = min(max(2.0 * f.psi0, 0.002), 0.6)  # cross-axis extent (rad)
         for psi in (-f.psi0, f.psi0):
-            out.append(Polyline(f.edge_line(psi, half), (1.0, 0.9, 0.1, 1.0), 2.0))
+            out.append(
+                Polyline(f.edge_line(psi, half), (1.0, 0.9, 0.1, 1.0), 2.0, depth_test=False)
+            )
         psis = np.linspace(-f.psi0, f.psi0, 64)
         dirs = np.cos(psis)[:, None] * f.m + np.sin(psis)[:, None] * f.t
-        out.append(Polyline(ellipsoid_point_along(dirs), (1.0, 1.0, 1.0, 0.6), 1.0))
+        axis = ellipsoid_point_along(dirs)
+        out.append(Polyline(axis, (1.0, 1.0, 1.0, 0.6), 1.0, depth_test=False))
         return out
 
     # -- displacement hook -----------------------------------------------------------------
