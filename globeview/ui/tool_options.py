@@ -15,7 +15,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
-from PyQt6.QtCore import pyqtSignal
+from PyQt6.QtCore import Qt, pyqtSignal
 from PyQt6.QtGui import QAction, QKeySequence
 from PyQt6.QtWidgets import (
     QCheckBox,
@@ -80,6 +80,8 @@ def reserved_shortcuts(actions: Iterable[QAction]) -> dict[str, str]:
     return taken
 
 
+#: Widest a setting's control grows in the bar (px).
+MAX_EDITOR_PX = 260
 #: What the bar says while no tool is active.
 NO_TOOL_TEXT = " No tool active "
 
@@ -111,7 +113,13 @@ class ToolOptionsBar(QToolBar):
 
     def _row_height(self) -> int:
         """The bar's height holding the tallest editors it may show."""
-        samples = [QDoubleSpinBox(), QComboBox(), QSlider(), QCheckBox("x"), QToolButton()]
+        samples = [
+            QDoubleSpinBox(),
+            QComboBox(),
+            QSlider(Qt.Orientation.Horizontal),
+            QCheckBox("x"),
+            QToolButton(),
+        ]
         for w in samples:
             self.addWidget(w)
         height = self.sizeHint().height()
@@ -144,6 +152,7 @@ class ToolOptionsBar(QToolBar):
         for spec in _settings(tool):
             editor = SettingEditor(spec, values.get(spec.name, spec.default))
             editor.setObjectName(f"setting-{name}-{spec.name}")
+            editor.setMaximumWidth(MAX_EDITOR_PX)  # a toolbar would stretch a slider across
             editor.edited.connect(lambda v, n=spec.name: self.settingEdited.emit(n, v))
             if spec.type != "bool":  # a check box carries its own label
                 caption = QLabel(f" {spec.label or spec.name} ")
