@@ -100,7 +100,11 @@ class RasterImagery:
         self.path = Path(path)
         self.tex_size = int(tex_size)
         try:
-            self.ds = rasterio.open(self.path)
+            # PAM off: GDAL would otherwise save the band statistics we ask for below as a
+            # .aux.xml next to the user's file (a write into their folder, or a failure in a
+            # read-only one).
+            with rasterio.Env(GDAL_PAM_ENABLED="NO"):
+                self.ds = rasterio.open(self.path)
         except rasterio.errors.RasterioIOError as exc:
             first = str(exc).splitlines()[0] if str(exc) else "unreadable"
             raise ImageryError(f"{self.path.name}: cannot read as a raster ({first})") from None

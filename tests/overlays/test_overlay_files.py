@@ -116,3 +116,16 @@ def test_texture_tiles_carry_a_one_texel_border() -> None:
     assert np.abs(west[:, -2].astype(int) - east[:, 0].astype(int)).max() <= 1
     t, (w, _s, e, _n) = texel_grid((2, 3, 1), 64)
     assert t.c + t.a == pytest.approx(w) and t.c + 63 * t.a == pytest.approx(e)
+
+
+def test_opening_a_thematic_raster_writes_nothing_beside_it(tmp_path) -> None:
+    """A single-band raster's grey ramp comes from its band statistics; GDAL would save them
+    as NAME.aux.xml in the user's folder. Nothing may appear there."""
+    import shutil
+
+    src = tmp_path / "relief.tif"
+    shutil.copyfile(EMBEDDED_DATA_DIR / "etopo20.tif", src)
+    img = RasterImagery(src, tex_size=64)
+    assert img.mode == "ramp" and img.ramp[0][0] < img.ramp[-1][0]
+    img.ds.close()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["relief.tif"]
