@@ -90,17 +90,13 @@ STRIPES_IMPL = """
 
 
 @pytest.fixture(scope="module")
-def gl():
-    from globeview.render.offscreen import OffscreenTarget, RenderError, create_headless_context
-    from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
+def gl(globeview_gl, globeview_terrain):
+    """The plugin test fixtures' GL context and embedded terrain, and a target."""
+    from globeview.render.offscreen import OffscreenTarget
 
-    try:
-        ctx = create_headless_context()
-    except RenderError as exc:  # pragma: no cover - depends on the machine
-        pytest.skip(f"no headless OpenGL: {exc}")
-    terrain = TerrainStack.from_stores(embedded_stores())
-    yield ctx, terrain, OffscreenTarget(ctx, SIZE)
+    target = OffscreenTarget(globeview_gl, SIZE)
+    yield globeview_gl, globeview_terrain, target
+    target.release()
 
 
 @pytest.fixture
