@@ -133,7 +133,12 @@ def choose_layer_type(registry: Any, path: str | Path, explicit: str | None = No
     priority). Raises `GlobeviewError` (one line) when none does."""
     p = Path(path)
     if not p.is_file():
-        what = "is a directory, not a layer file" if p.is_dir() else "no such file"
+        if p.is_dir():
+            what = "is a directory, not a layer file"
+        elif p.exists():  # a FIFO or a device would block or stream forever: never read
+            what = "not a regular file"
+        else:
+            what = "no such file"
         raise GlobeviewError(f"{p.name or p}: {what}")
     # An explicit choice needs only the manifests' names: no plugin is imported for it.
     infos = layer_type_infos(registry, load=explicit is None)

@@ -237,3 +237,12 @@ def test_an_empty_file_says_so_whatever_its_name(tmp_path) -> None:
         f.write_bytes(b"  \n")
         with pytest.raises(GlobeviewError, match=rf"^{name}: the file is empty$"):
             choose_layer_type(_registry(), f)
+
+
+def test_a_fifo_is_refused_without_being_read(tmp_path) -> None:
+    import os
+
+    fifo = tmp_path / "pipe.geojson"
+    os.mkfifo(fifo)  # opening it to sniff would block forever
+    with pytest.raises(GlobeviewError, match=r"^pipe\.geojson: not a regular file$"):
+        choose_layer_type(_registry(), fifo)
