@@ -368,7 +368,19 @@ class GlobeSession(GlobeScene):
             got = self.registry.call_for(obj, result.drawables, default=failed)
             result = failed if got is failed else _Named(got, result, path)
         if result is not failed:
-            built, problem = host_layer(result, Path(path).name)
+            try:
+                built, problem = host_layer(result, Path(path).name)
+            except GlobeviewError:  # e.g. a RasterFile GDAL cannot read: the user's file
+                raise
+            except Exception as exc:  # e.g. a drawable subclass whose property raises
+                built, problem = (
+                    None,
+                    "open() returned drawables the host cannot read ("
+                    + (f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")[
+                        :120
+                    ]
+                    + ")",
+                )
             if problem is not None:
                 self._fail(obj, problem)
             else:

@@ -79,6 +79,13 @@ STRIPES_IMPL = """
                     items.append(RasterDrape(img, (west, south, east, north)))
                 elif w[0] == "nan":
                     items.append(Lines(np.array([[0.0, 0.0], [np.nan, 1.0]])))
+                elif w[0] == "evil":
+                    class Evil(Lines):
+                        def __getattribute__(self, name):
+                            if name == "color":
+                                raise RuntimeError("gotcha")
+                            return object.__getattribute__(self, name)
+                    items.append(Evil(np.array([[0.0, 0.0], [1.0, 1.0]])))
                 elif w[0] == "garbage":
                     items.append("a string is not a drawable")
                 elif w[0] == "interp":
@@ -185,6 +192,7 @@ def test_external_plugin_drawables_land_where_they_lie(session, tmp_path) -> Non
         ("nan\n", "NaN or infinite"),
         ("interp\n", "interpolation 'spline'"),
         ("", "an empty list of drawables"),
+        ("evil\n", "cannot read (RuntimeError: gotcha)"),
     ],
 )
 def test_garbage_drawables_fail_the_layer_type_in_one_line(session, tmp_path, content, needle):
