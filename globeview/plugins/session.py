@@ -363,7 +363,7 @@ class GlobeSession(GlobeScene):
         result = self.registry.invoke(obj, "open", path, default=failed, user_errors=True, **style)
         layer = failed
         own_drawables = result is not failed and as_drawables(result) is None
-        if own_drawables and callable(getattr(result, "drawables", None)):
+        if own_drawables and _has_method(result, "drawables"):
             # An object returning drawables: its drawables() is the plugin's code.
             got = self.registry.call_for(obj, result.drawables, default=failed)
             result = failed if got is failed else _Named(got, result, path)
@@ -501,6 +501,15 @@ class GlobeSession(GlobeScene):
             self._marker_heights[key] = ground
         new = tuple(float(v) for v in np.asarray(lonlat_to_ecef(lon, lat, ground)).ravel())
         return replace(prim, position=new)
+
+
+def _has_method(obj: object, name: str) -> bool:
+    """Whether ``obj`` (a plugin's object) has a callable ``name``; a hostile ``__getattr__``
+    that raises counts as no."""
+    try:
+        return callable(getattr(obj, name, None))
+    except Exception:
+        return False
 
 
 class _Named:

@@ -52,6 +52,10 @@ STRIPES_IMPL = """
         def drawables(self):
             return self.items
 
+    class Weird:
+        def __getattr__(self, name):
+            raise RuntimeError("boom")
+
     class StripesType:
         name = "stripes"
         label = "Stripes"
@@ -86,6 +90,8 @@ STRIPES_IMPL = """
                                 raise RuntimeError("gotcha")
                             return object.__getattribute__(self, name)
                     items.append(Evil(np.array([[0.0, 0.0], [1.0, 1.0]])))
+                elif w[0] == "weird":
+                    return Weird()
                 elif w[0] == "garbage":
                     items.append("a string is not a drawable")
                 elif w[0] == "interp":
@@ -193,6 +199,7 @@ def test_external_plugin_drawables_land_where_they_lie(session, tmp_path) -> Non
         ("interp\n", "interpolation 'spline'"),
         ("", "an empty list of drawables"),
         ("evil\n", "cannot read (RuntimeError: gotcha)"),
+        ("weird\n", "cannot read (RuntimeError: boom)"),
     ],
 )
 def test_garbage_drawables_fail_the_layer_type_in_one_line(session, tmp_path, content, needle):
