@@ -386,8 +386,9 @@ class GlobeSession(GlobeScene):
             else:
                 layer = built
         if layer is not failed and not isinstance(layer, _HOST_LAYERS):
-            # An API 1.0 layer object: its attach() is plugin code.
-            if self.registry.call_for(obj, layer.attach, self.renderer, default=failed) is failed:
+            # An API 1.0 layer object: every call into it is plugin code, isolated.
+            layer = _PluginLayer(layer, self.registry, obj, Path(path).name)
+            if not layer.attach(self.renderer):
                 layer = failed
         elif layer is not failed:
             try:
@@ -510,6 +511,43 @@ def _has_method(obj: object, name: str) -> bool:
         return callable(getattr(obj, name, None))
     except Exception:
         return False
+
+
+class _PluginLayer:
+    """An API 1.0 layer object (``attach``/``detach``, optional ``set_visible``) behind the
+    host's isolation: the overlay panel and the session call it only through here, so a
+    method that raises fails its layer type (one line) instead of the window. Listed with
+    kind 'plugin' and the object's ``name`` (default: the file's)."""
+
+    kind = "plugin"
+
+    def __init__(self, layer: object, registry: PluginRegistry, owner: object, path_name: str):
+        self.layer_object = layer
+        self._registry = registry
+        self._owner = owner  # the layer type that opened it: failures are its own
+        self.visible = True
+        try:
+            name = getattr(layer, "name", "")
+        except Exception:
+            name = ""
+        self.name = (name if isinstance(name, str) and name else path_name)[:200]
+
+    def _call(self, method: str, *args: object) -> bool:
+        if not _has_method(self.layer_object, method):
+            return False
+        failed = object()
+        fn = getattr(self.layer_object, method)
+        return self._registry.call_for(self._owner, fn, *args, default=failed) is not failed
+
+    def attach(self, renderer) -> bool:
+        return self._call("attach", renderer)
+
+    def detach(self, renderer) -> None:
+        self._call("detach", renderer)
+
+    def set_visible(self, renderer, visible: bool) -> None:
+        self.visible = bool(visible)
+        self._call("set_visible", renderer, self.visible)
 
 
 class _Named:

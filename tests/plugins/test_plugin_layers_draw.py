@@ -52,6 +52,21 @@ STRIPES_IMPL = """
         def drawables(self):
             return self.items
 
+    class Legacy:
+        # The API 1.0 contract: an object with attach/detach (and a broken set_visible).
+
+        name = "old style"
+        attached = 0
+
+        def attach(self, renderer):
+            Legacy.attached += 1
+
+        def detach(self, renderer):
+            Legacy.attached -= 1
+
+        def set_visible(self, renderer, visible):
+            raise RuntimeError("nope")
+
     class Weird:
         def __getattr__(self, name):
             raise RuntimeError("boom")
@@ -90,6 +105,8 @@ STRIPES_IMPL = """
                                 raise RuntimeError("gotcha")
                             return object.__getattribute__(self, name)
                     items.append(Evil(np.array([[0.0, 0.0], [1.0, 1.0]])))
+                elif w[0] == "legacy":
+                    return Legacy()
                 elif w[0] == "weird":
                     return Weird()
                 elif w[0] == "garbage":
@@ -233,3 +250,17 @@ def test_builtins_go_the_same_path(session) -> None:
         0.92,
         0.35,
     )
+
+
+def test_an_api_1_0_layer_object_is_called_only_under_isolation(session, tmp_path) -> None:
+    f = tmp_path / "old.stripes"
+    f.write_text("legacy\n")
+    layer = session.add_overlay(str(f))
+    assert layer.name == "old style" and layer.kind == "plugin"
+    legacy = type(layer.layer_object)
+    assert legacy.attached == 1 and session.overlay_layers == [layer]
+    layer.set_visible(session.renderer, False)  # raises inside: the layer type fails
+    rec = session.registry.get("stripes")
+    assert rec.status == "failed" and "RuntimeError: nope" in rec.error
+    session.remove_overlay(layer)  # no exception; the failed plugin is not called again
+    assert session.overlay_layers == []
