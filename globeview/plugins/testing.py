@@ -292,7 +292,8 @@ def render_frame(
             (lon, lat degrees) given to it as ``render --tool NAME --points`` does.
         settings: contribution name -> {setting name: value}, applied (and persisted in
             the registry's settings) before the frame; a name that is not an enabled
-            contribution, or a key that is not one of its settings, raises KeyError.
+            contribution, or a key that is not one of its settings, raises KeyError, a
+            value its `Setting` refuses (wrong type, not a choice) ValueError.
         camera: a `Camera`, or (lon, lat, height[, heading, pitch]) in degrees and metres
             above WGS84 (pitch -90: straight down); default: the whole globe from 20,000 km.
         size: (width, height) pixels.
@@ -361,10 +362,15 @@ def _configure(registry: PluginRegistry, name: str, values: Mapping[str, Any]) -
     )
     if instance is None:
         raise KeyError(f"no enabled contribution named {name!r}")
-    known = {s.name for s in getattr(instance, "settings", ())}
-    unknown = sorted(set(values) - known)
+    known = {s.name: s for s in getattr(instance, "settings", ())}
+    unknown = sorted(set(values) - set(known))
     if unknown:
         raise KeyError(f"{name} has no setting {', '.join(unknown)} (has: {sorted(known)})")
+    for key, value in values.items():
+        try:
+            known[key].coerce(value)
+        except (TypeError, ValueError) as exc:  # the host would silently use the default
+            raise ValueError(f"{name}.{key}: {exc}") from None
     plugin, _ = registry.contribution_of(instance)
     stored = registry.settings.get(f"plugins/{plugin}/contributions/{name}", {})
     registry.configure(instance, {**(stored if isinstance(stored, dict) else {}), **values})

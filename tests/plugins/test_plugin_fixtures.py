@@ -182,6 +182,8 @@ def test_rendered_tool_overlay_and_settings(
     assert globeview_registry.settings.get("plugins/probe/contributions/dot") == {"size": 30.0}
     with pytest.raises(KeyError, match="dot has no setting colour"):
         rendered("chunked-sse", tool="dot", settings={"dot": {"colour": 1}})
+    with pytest.raises(ValueError, match=r"dot\.size: .*'huge'"):
+        rendered("chunked-sse", tool="dot", settings={"dot": {"size": "huge"}})
     with pytest.raises(KeyError, match="no enabled contribution named 'nope'"):
         rendered("chunked-sse", settings={"nope": {}})
 
