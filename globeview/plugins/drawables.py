@@ -188,7 +188,9 @@ def raster_info(path: str | Path, stats: bool = False) -> RasterInfo:
 
     p = Path(path)
     try:
-        with rasterio.open(p) as ds:
+        # PAM off: GDAL would save the statistics asked for below as NAME.aux.xml beside the
+        # user's file.
+        with rasterio.Env(GDAL_PAM_ENABLED="NO"), rasterio.open(p) as ds:
             count = int(ds.count)
             try:
                 palette = count == 1 and bool(ds.colormap(1))

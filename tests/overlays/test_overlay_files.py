@@ -129,3 +129,16 @@ def test_opening_a_thematic_raster_writes_nothing_beside_it(tmp_path) -> None:
     assert img.mode == "ramp" and img.ramp[0][0] < img.ramp[-1][0]
     img.ds.close()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["relief.tif"]
+
+
+def test_raster_info_statistics_write_nothing_beside_the_file(tmp_path) -> None:
+    # The layer types' raster_info(stats=True) reads band statistics the same way.
+    import shutil
+
+    from globeview.plugins.api import raster_info
+
+    src = tmp_path / "relief.tif"
+    shutil.copyfile(EMBEDDED_DATA_DIR / "etopo20.tif", src)
+    info = raster_info(src, stats=True)
+    assert info.bands == 1 and info.minimum < 0.0 < info.maximum
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["relief.tif"]
