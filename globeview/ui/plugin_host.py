@@ -7,8 +7,10 @@ registry disables a plugin that raises, the session falls back to the built-in p
 that same frame, and `after_frame` notices the switch and tells the user. It is also the
 `RendererHooks` object plugin contexts get (``request_redraw``, ``set_status``).
 
-`QSettingsBackend` stores the registry's settings (enabled plugins, provider settings) in the
-application's QSettings as JSON strings, next to the window layout.
+`QSettingsBackend` is a `SettingsBackend` over the window's QSettings (JSON strings). The
+application itself keeps plugin settings in ``settings.json`` like the command line
+(`globeview.ui.app.plugin_registry`, which copies over once what an older globeview kept in
+QSettings); a window built without a registry (tests) still uses QSettings.
 """
 
 from __future__ import annotations
@@ -137,7 +139,13 @@ class PluginHost(QObject):
             if rec.status in ("failed", "partial") and self._statuses.get(rec.name) != rec.status:
                 if falls_back and self._declares(rec, "lod", old):
                     continue  # said once, with the fallback, below
-                self.notice.emit(f"plugin {rec.name} failed and was disabled: {rec.error}")
+                if rec.status == "partial":
+                    # Per-contribution isolation: the plugin stays enabled.
+                    self.notice.emit(
+                        f"plugin {rec.name}: {rec.error}; its other contributions keep working"
+                    )
+                else:
+                    self.notice.emit(f"plugin {rec.name} failed and was disabled: {rec.error}")
         self._statuses = {rec.name: rec.status for rec in self.registry}
         if falls_back:
             self.active = DEFAULT_LOD if DEFAULT_LOD in available else next(iter(available))

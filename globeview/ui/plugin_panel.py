@@ -3,8 +3,9 @@ enabled switch, status and error), the active LOD provider, the screen-space err
 tau, and the active provider's own settings, editable live (each change takes effect on the
 next frame; the editors are the `SettingEditor`s tools get too).
 
-A failure stays visible here: the plugin's row reads "failed: <reason>" (red, with the
-reason in its tooltip) and, after a fallback, a red line under the provider choice says which
+A failure stays visible here: the plugin's row reads "failed: <reason>" ("partial: <reason>"
+when only some of its contributions failed; red, with the reason in its tooltip) and, after a
+fallback, a red line under the provider choice says which
 provider failed and why until the user picks one again."""
 
 from __future__ import annotations
@@ -105,7 +106,9 @@ class PluginPanel(QWidget):
             self.tree.clear()
             for rec in self.host.records():
                 m = rec.manifest
-                status = rec.status if not rec.error else f"failed: {rec.error}"
+                # 'partial': enabled, some contributions failed (the reason names them).
+                label = "partial" if rec.status == "partial" else "failed"
+                status = rec.status if not rec.error else f"{label}: {rec.error}"
                 item = QTreeWidgetItem(
                     [
                         rec.name,

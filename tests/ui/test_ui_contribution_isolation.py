@@ -73,6 +73,7 @@ def test_a_failed_provider_leaves_its_packages_tool_in_the_window(
     }
     row = rows["pair"]
     assert "pair-lod" in row.text(3) and "ZeroDivisionError: the provider's bug" in row.text(3)
+    assert row.text(3).startswith("partial: ")  # enabled: only one contribution failed
     assert "pair-lod" in row.toolTip(3)
     assert panel.lod_combo.findData("pair-lod") < 0
     # The tool of the same package is still offered and activates.
