@@ -176,7 +176,6 @@ def _validate(args: argparse.Namespace) -> int:
 def _import_contributions(reg, manifest) -> tuple[list[str], list[str]]:
     """Import and create every contribution of ``manifest`` and check its settings'
     defaults; returns (problems, one "NAME (kind: Class, N settings)" per contribution)."""
-    from globeview.plugins.headless import contribution_failure
     from globeview.plugins.settings import contribution_settings, settings_problems
 
     problems: list[str] = []
@@ -185,7 +184,7 @@ def _import_contributions(reg, manifest) -> tuple[list[str], list[str]]:
         for c in manifest.contributions:
             instance = reg.load_contribution(manifest.name, c.name)
             if instance is None:
-                why = contribution_failure(reg, c.name) or reg.get(manifest.name).error
+                why = reg.failure_of(c.name) or reg.get(manifest.name).error
                 why = why or "not created"
                 # Name the contribution unless it is the plugin's namesake (the line has it).
                 problems.append(why if c.name == manifest.name else f"{c.name}: {why}")

@@ -439,7 +439,7 @@ def run(args: argparse.Namespace) -> int:
     from PIL import Image
 
     from globeview.plugins.api import PluginKind
-    from globeview.plugins.headless import contribution_failure, place_points
+    from globeview.plugins.headless import place_points
     from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import apply_overrides
@@ -506,7 +506,7 @@ def run(args: argparse.Namespace) -> int:
     scene.draw_tool_overlay(target.fbo, result.view)  # e.g. the collapse's fold lines
 
     st = result.stats
-    failures = plugin_failures(scene, args.lod, tool_name, contribution_failure)
+    failures = plugin_failures(scene, args.lod, tool_name)
     status = tool_status(scene) if tool_name is not None else ""
     stats = stats_json(st, args.lod, (tool_name, points, status), assignments, failures)
     if failures and args.strict:
@@ -566,16 +566,17 @@ def tool_status(scene) -> str:
 STRICT_EXIT = 3
 
 
-def plugin_failures(scene, lod: str, tool: str | None, failure_of) -> dict[str, str]:
+def plugin_failures(scene, lod: str, tool: str | None) -> dict[str, str]:
     """What failed during the render: ``{"provider": reason}`` when the requested LOD
     provider did not draw the frame (the session fell back), ``{"tool": reason}`` when the
     tool's plugin failed (its overlay and displacement were dropped)."""
     out: dict[str, str] = {}
     drew = scene.last.stats.lod_provider if scene.last is not None else ""
-    if drew != lod or failure_of(scene.registry, lod) is not None:
-        out["provider"] = failure_of(scene.registry, lod) or "it did not draw"
+    failure_of = scene.registry.failure_of
+    if drew != lod or failure_of(lod) is not None:
+        out["provider"] = failure_of(lod) or "it did not draw"
     if tool is not None and scene.tool() is None:
-        out["tool"] = failure_of(scene.registry, tool) or "it was not active"
+        out["tool"] = failure_of(tool) or "it was not active"
     return out
 
 

@@ -21,7 +21,7 @@ from globeview.errors import GlobeviewError
 from globeview.geodesy import lonlat_to_ecef
 from globeview.plugins.api import PointerEvent
 
-__all__ = ["contribution_failure", "place_points"]
+__all__ = ["place_points"]
 
 
 def place_points(
@@ -77,17 +77,3 @@ def _terrain_height(session: Any, lon: float, lat: float) -> float:
         return float(terrain.height_at(lon, lat))
     except GlobeviewError:
         return 0.0
-
-
-def contribution_failure(registry: Any, name: str) -> str | None:
-    """Why contribution ``name`` failed this session (``"ExcType: message"``), or None when
-    no plugin declaring it has failed it."""
-    for rec in registry:
-        if rec.manifest is None or not any(c.name == name for c in rec.manifest.contributions):
-            continue
-        failures = getattr(rec, "failures", None) or {}
-        if name in failures:
-            return str(failures[name].error)
-        if rec.status == "failed":
-            return rec.error or "failed"
-    return None

@@ -399,9 +399,7 @@ def find_contribution(registry: Any, name: str) -> list[tuple[str, Any]]:
             continue
         instance = registry.load_contribution(rec.name, name)
         if instance is None:
-            from globeview.plugins.headless import contribution_failure
-
-            why = contribution_failure(registry, name) or rec.error or "it did not load"
+            why = registry.failure_of(name) or rec.error or "it did not load"
             problems.append(f"plugin {rec.name} failed: {why}")
             continue
         found.append((rec.name, instance))
