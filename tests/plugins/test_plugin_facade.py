@@ -156,3 +156,18 @@ def test_docs_list_every_public_name() -> None:
     stack_methods = {"metadata", "heights", "height_at", "max_level", "tile_size", "version"}
     assert sorted(names - stack_methods - set(api.__all__)) == []
     assert sorted(set(api.__all__) - names) == []
+
+
+def test_builtin_manifests_target_the_hosts_api_version() -> None:
+    # The built-ins are the proof that the current API is enough: they declare it, as a
+    # third-party plugin using its newer names must.
+    import tomllib
+    from pathlib import Path
+
+    import globeview.plugins.builtin as builtin
+    from globeview.plugins.api import API_VERSION
+
+    manifests = sorted(Path(builtin.__file__).parent.glob("*.toml"))
+    assert len(manifests) >= 7
+    for path in manifests:
+        assert tomllib.loads(path.read_text())["api_version"] == API_VERSION, path.name
