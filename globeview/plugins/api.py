@@ -355,10 +355,13 @@ class PluginContext:
 
         Returns a `DelegateProvider`: its ``select`` runs the other provider through the
         host, with the same isolation, time budget and type check as the host's own calls,
-        so a bug there fails *that* provider's plugin, not yours (your ``select`` then gets
-        `ProviderUnavailable`). The provider is looked up at every call: a plugin disabled
-        or failed later is noticed. Raises `ProviderUnavailable` (one line naming the
-        enabled providers) when no enabled plugin declares ``name``, and without a host.
+        so a bug there fails *that* provider's plugin, and it is named as the cause. Your
+        ``select`` then gets `ProviderUnavailable`; left uncaught, it fails your provider
+        for the session with that one-line reason (the user re-enables your plugin, which
+        clears its failures, once the delegate is back). The provider is looked up at every
+        call: a plugin disabled or failed later is noticed. Raises `ProviderUnavailable`
+        (one line naming the enabled providers) when no enabled plugin declares ``name``, and
+        without a host.
         """
         host = self.host
         shown = _short_repr(name)
