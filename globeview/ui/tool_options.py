@@ -143,7 +143,7 @@ class ToolOptionsBar(QToolBar):
         if name == self.tool_name and id(tool) == self._tool_id:
             self.show_values(tool)
             return
-        self.clear()
+        self._remove_all()
         self.editors, self.command_actions = {}, []
         self.tool_name, self._tool_id = name, id(tool)
         self.title = QLabel(f" {label or name}: ")
@@ -177,10 +177,19 @@ class ToolOptionsBar(QToolBar):
         """Setting name -> value shown."""
         return {name: editor.value() for name, editor in self.editors.items()}
 
+    def _remove_all(self) -> None:
+        """Take everything off the bar and free what the bar owns. `QToolBar.clear` only
+        removes the actions: the QWidgetActions `addWidget` made (children of the bar) and
+        the editors in them lived on, hundreds of widgets after a few tool switches."""
+        for act in self.actions():
+            self.removeAction(act)
+            if act.parent() is self:  # addWidget's wrapper; the command actions are the window's
+                act.deleteLater()
+
     def _clear(self) -> None:
         """Show no tool. The command actions belong to the window (their shortcuts live on);
         only this bar's buttons for them go."""
-        self.clear()
+        self._remove_all()
         self.editors = {}
         self.command_actions = []
         self.title = QLabel(NO_TOOL_TEXT)

@@ -317,3 +317,28 @@ def test_a_setting_change_that_makes_configure_raise_fails_the_tool_not_the_wind
     assert any("unlucky scale" in m.text for m in win.errors.history)
     wait_frame(win)  # the window keeps drawing
     assert win.globe.last_stats.triangles > 0
+
+
+def test_switching_tools_does_not_pile_up_widgets(pins, make_window, qtbot):
+    # QToolBar.clear() drops the actions but not the widgets addWidget wrapped: each switch
+    # left a tool's editors behind (200 switches: 19 -> 3819 live widgets).
+    from PyQt6.QtWidgets import QApplication, QWidgetAction
+
+    win = make_window(registry=_registry())
+    bar = win.tool_options
+
+    def owned() -> int:
+        return len(bar.findChildren(QWidgetAction)) + len(QApplication.allWidgets())
+
+    win.tool_actions["pins"].trigger()
+    win.globe.deactivate_tool()
+    qtbot.wait(10)
+    QApplication.sendPostedEvents(None, 0)  # run the deleteLater()s
+    first = owned()
+    for _ in range(30):
+        win.tool_actions["pins"].trigger()
+        assert bar.tool_name == "pins" and len(bar.editors) == 5
+        win.globe.deactivate_tool()
+    qtbot.wait(10)
+    QApplication.sendPostedEvents(None, 0)
+    assert owned() <= first + 2, (first, owned())
