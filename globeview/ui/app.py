@@ -74,6 +74,10 @@ def embedded_stack(stores: list) -> TerrainStack:
     return TerrainStack.from_stores(stores, [p.stem for p in embedded_dem_paths()])
 
 
+#: Set in the window's Qt settings once their plugin keys were copied into settings.json.
+MIGRATED_KEY = "migrated/plugins_to_settings_json"
+
+
 def plugin_registry(qsettings: QSettings):
     """The window's plugin registry, on the command line's settings file (``settings.json``
     in the config folder, `globeview.plugins.settings.default_settings`): what `globeview
@@ -87,12 +91,16 @@ def plugin_registry(qsettings: QSettings):
     from globeview.ui.plugin_host import QSettingsBackend
 
     backend = TolerantSettings(default_settings())
-    old = QSettingsBackend(qsettings)
-    for key in qsettings.allKeys():
-        if key.startswith("plugins/") and backend.get(key) is None:
-            value = old.get(key)
-            if value is not None:
-                backend.set(key, value)
+    # Once per Qt settings: a user who deletes settings.json to start afresh must not get the
+    # old Qt values back at the next launch.
+    if not qsettings.value(MIGRATED_KEY, False, type=bool):
+        old = QSettingsBackend(qsettings)
+        for key in qsettings.allKeys():
+            if key.startswith("plugins/") and backend.get(key) is None:
+                value = old.get(key)
+                if value is not None:
+                    backend.set(key, value)
+        qsettings.setValue(MIGRATED_KEY, True)
     return PluginRegistry(backend, budget_policy="disable")
 
 

@@ -74,6 +74,13 @@ def test_qt_plugin_settings_are_carried_over_once(tmp_path: Path, config: Path) 
     # Once: what the file holds now wins over the Qt copy.
     assert cli(config, "plugins", "enable", "wavelet").returncode == 0
     assert plugin_registry(old).discover().get("wavelet").enabled
+    # ... and a user who deletes the file to start afresh does not get the Qt values back.
+    (config / "settings.json").unlink()
+    assert plugin_registry(old).discover().get("wavelet").enabled
+    assert (
+        not (config / "settings.json").exists()
+        or "wavelet" not in (config / "settings.json").read_text()
+    )
 
 
 def test_an_unwritable_settings_file_never_breaks_the_window(
