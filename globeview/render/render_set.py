@@ -256,8 +256,8 @@ def clean_provider_stats(stats: object) -> tuple[dict[str, float | int | bool | 
     a finite float or a short string (clipped); numpy scalars become Python ones. Returns
     (the kept entries, how many were dropped). Never raises: whatever a plugin's dict does,
     the frame goes on (everything counts as dropped then)."""
+    total = dict.__len__(stats) if isinstance(stats, dict) else 0  # C-level: cannot raise
     try:
-        total = dict.__len__(stats) if isinstance(stats, dict) else 0
         kept: dict[str, float | int | bool | str] = {}
         # Look at a bounded number of entries: 10^6 garbage values must not cost each frame.
         items = dict.items(stats) if isinstance(stats, dict) else ()
@@ -271,7 +271,7 @@ def clean_provider_stats(stats: object) -> tuple[dict[str, float | int | bool | 
                 kept[k[:MAX_STAT_KEY_CHARS]] = value
         return kept, total - len(kept)
     except Exception:  # plugin data: drop it, never fail the frame
-        return {}, 0
+        return {}, total
 
 
 def _json_scalar(v: object) -> float | int | bool | str | None:
