@@ -76,8 +76,9 @@ def _pieces(pts: np.ndarray) -> np.ndarray:
     n = np.clip(np.ceil(d / DEPTH_PIECE_M), 1, MAX_PIECES).astype(np.int64)
     if (n == 1).all():
         return pts
-    t = np.concatenate([np.arange(k) / k for k in n])
     seg = np.repeat(np.arange(len(n)), n)
+    # Piece j of segment i starts at t = j / n_i (one numpy pass, no loop over segments).
+    t = (np.arange(seg.size) - np.repeat(np.cumsum(n) - n, n)) / np.repeat(n, n)
     out = pts[seg] + (pts[seg + 1] - pts[seg]) * t[:, None]
     return np.concatenate([out, pts[-1:]])
 
