@@ -116,16 +116,7 @@ class PluginHost(QObject):
     def failure_reason(self, kind: str, name: str) -> str:
         """Why contribution ``name`` of ``kind`` failed: its own failure (``"ExcType:
         message"``) or its plugin's; "" when it did not fail (e.g. the user disabled it)."""
-        for rec in self.registry:
-            m = rec.manifest
-            if m is None or not any(c.kind == kind and c.name == name for c in m.contributions):
-                continue
-            failures = getattr(rec, "failures", {}) or {}
-            if name in failures:
-                return str(failures[name].error)
-            if rec.status == "failed":
-                return str(rec.error or "its plugin failed")
-        return ""
+        return self.registry.failure_of(name, kind) or ""
 
     def refresh(self) -> None:
         """Reload providers, report newly failed plugins, keep a valid active provider.
