@@ -111,9 +111,12 @@ class BlendMask:
         return st.max_level
 
     def _east_of_west(self, lon: np.ndarray) -> np.ndarray:
-        """Degrees east of the raster's west edge, in [0, 360): a layer crossing the
-        antimeridian has its raster run on past +180 (the level grid wraps too)."""
-        return np.mod(lon - self.west, 360.0)
+        """Degrees east of the raster's west edge, the longitude taken within 180 degrees of
+        the raster's middle: a layer crossing the antimeridian has its raster run on past
+        +180 (the level grid wraps too), and a place just west of the raster comes out
+        negative (not 359.x: a tile starting there and reaching into the raster must)."""
+        half = 0.5 * (self.w.shape[1] - 1) * self.step
+        return np.mod(lon - self.west - half + 180.0, 360.0) - 180.0 + half
 
     def sample(self, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
         """w at points (degrees; outside the raster: 0)."""

@@ -20,7 +20,10 @@ fewer triangles). Here:
     K = viewport height / (2 tan(fovy/2)) and d a lower bound of the eye-tile distance,
     exceeds tau;
   or when the chord sag of the curved globe between its nodes projects beyond tau (geometry
-  the flat approximation cannot show, independent of the data).
+  the flat approximation cannot show, independent of the data); or when, rough with finer
+  data, no stride coarser than 1 meets tau (the tile would need its full grid: its children
+  draw it with no more triangles, far fewer where the level approximates poorly, and the
+  count then never grows with tau).
 - **M-band.** With M bands per step a wavelet level divides the resolution by M. The store
   holds dyadic levels only, so: M = 2 may stop at every level; M = 4 = 2^2 only at every
   second level (a split jumps two quadtree levels: 16 children); M = 3 has no dyadic
@@ -152,9 +155,6 @@ def select_wavelet(
         rough = static > st.static_m
         finer = meta.has_finer[keep]
         want = (rough & (dynamic > tau) & finer) | (sag_px > tau)
-        if level == MAX_LEVEL:
-            want[:] = False
-            forced[:] = False
         # A tile whose every coarser stride misses tau needs its full grid at this level: its
         # children draw the same surface with no more triangles (each stride of a level is
         # about the density of the level above), and where the level's approximation is
@@ -162,6 +162,9 @@ def select_wavelet(
         # fewer. Refining it keeps the count from growing as tau grows.
         full = ~np.any((total * px_per_m[:, None] <= tau)[:, 1 : max_stride_idx + 1], axis=1)
         want |= full & finer & rough
+        if level == MAX_LEVEL:
+            want[:] = False
+            forced[:] = False
         # At a level that is no stop of the M-band ladder every survivor goes on.
         refine = want | forced | (~stops[level] & (level < MAX_LEVEL))
         room = st.max_tiles - drawn - int(np.count_nonzero(~refine))
