@@ -323,6 +323,11 @@ class PlotDock(QDockWidget):
         except GlobeviewError as exc:
             self._report(exc)
             return False
+        except Exception as exc:  # a plugin's Plot subclass whose table raises: its bug
+            log.warning("exporting the plot failed", exc_info=True)
+            first = (str(exc).splitlines() or [""])[0][:200]
+            self._report(GlobeviewError(f"the tool's plot cannot be exported: {first}"))
+            return False
         self._notice(f"wrote {path}")
         return True
 

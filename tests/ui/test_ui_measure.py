@@ -216,3 +216,27 @@ def test_tick_labels(lo: float, hi: float, labels: list[str]) -> None:
 
     ticks = nice_ticks(lo, hi)
     assert [_tick_text(v, ticks[1] - ticks[0]) for v in ticks] == labels
+
+
+def test_a_plot_whose_table_raises_is_a_one_line_export_error(
+    make_window, qtbot, wait_frame, tmp_path: Path, errors_shown
+) -> None:
+    # A plugin's Plot subclass may override table()/csv_text(): its bug must not reach the
+    # window's internal-error handler.
+    from globeview.plugins.api import Plot
+
+    win = measured_window(make_window, qtbot, wait_frame)
+
+    class Broken(Plot):
+        def csv_text(self) -> str:
+            raise ZeroDivisionError("the plugin's table bug")
+
+    shown = win.plot_dock.plot
+    win.plot_dock.set_plot(Broken(**{f: getattr(shown, f) for f in shown.__dataclass_fields__}))
+    out = tmp_path / "exports"
+    out.mkdir()
+    target = out / "profile.csv"
+    assert not win.plot_dock.export_csv(str(target))
+    texts = [m.text for m in errors_shown]
+    assert len(texts) == 1 and "\n" not in texts[0] and "table bug" in texts[0]
+    assert list(out.iterdir()) == []  # nothing written, no temporary left
