@@ -165,13 +165,17 @@ def read_geojson_points(path: str | Path) -> tuple[np.ndarray, np.ndarray, list[
     return lon_a, lat_a, names
 
 
-def densify(lines: Polylines, max_segment_m: float) -> Polylines:
-    """Insert points along geodesics so no segment is longer than ``max_segment_m`` metres."""
-    a, b = lines.segments()
-    lon, lat = lines.lon, lines.lat
-    az, _, dist = GEOD.inv(lon[a], lat[a], lon[b], lat[b])
-    dist = np.asarray(dist)
-    n_sub = np.maximum(np.ceil(dist / max_segment_m).astype(np.int64), 1)
+def _subdivide(
+    lines: Polylines,
+    lon: np.ndarray,
+    lat: np.ndarray,
+    a: np.ndarray,
+    n_sub: np.ndarray,
+    inner: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
+) -> Polylines:
+    """Polylines with ``n_sub[i] - 1`` points inserted after segment i's start ``a[i]``:
+    ``inner(seg, frac)`` gives their (lon, lat) for segment indices and fractions 0 < f < 1.
+    ``lon``/``lat`` are the vertices (as the caller wants them kept, e.g. unwrapped)."""
     # Output: for every point, itself; after every segment's start, n_sub - 1 extra points.
     extra = np.zeros(len(lon), np.int64)
     extra[a] = n_sub - 1
@@ -184,17 +188,26 @@ def densify(lines: Polylines, max_segment_m: float) -> Polylines:
     seg_of = np.repeat(np.arange(len(a)), n_sub - 1)
     if len(seg_of):
         k = np.arange(len(seg_of)) - np.repeat(np.cumsum(n_sub - 1) - (n_sub - 1), n_sub - 1) + 1
-        frac = k / n_sub[seg_of]
-        flon, flat, _ = GEOD.fwd(
-            lon[a][seg_of], lat[a][seg_of], np.asarray(az)[seg_of], dist[seg_of] * frac
-        )
         pos = out_starts[a][seg_of] + k
+        new_lon[pos], new_lat[pos] = inner(seg_of, k / n_sub[seg_of])
+    return Polylines(new_lon, new_lat, out_starts[lines.starts])
+
+
+def densify(lines: Polylines, max_segment_m: float) -> Polylines:
+    """Insert points along geodesics so no segment is longer than ``max_segment_m`` metres."""
+    a, b = lines.segments()
+    lon, lat = lines.lon, lines.lat
+    az, _, dist = GEOD.inv(lon[a], lat[a], lon[b], lat[b])
+    az, dist = np.asarray(az), np.asarray(dist)
+    n_sub = np.maximum(np.ceil(dist / max_segment_m).astype(np.int64), 1)
+
+    def along(seg: np.ndarray, frac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        flon, flat, _ = GEOD.fwd(lon[a][seg], lat[a][seg], az[seg], dist[seg] * frac)
         # Keep longitudes continuous with the segment start (no jump across +-180).
         flon = np.asarray(flon)
-        flon = flon + 360.0 * np.round((lon[a][seg_of] - flon) / 360.0)
-        new_lon[pos] = flon
-        new_lat[pos] = flat
-    return Polylines(new_lon, new_lat, out_starts[lines.starts])
+        return flon + 360.0 * np.round((lon[a][seg] - flon) / 360.0), np.asarray(flat)
+
+    return _subdivide(lines, lon, lat, a, n_sub, along)
 
 
 #: Rhumb lines stop this close to a pole (degrees): the loxodrome spirals into it forever.
@@ -243,24 +256,13 @@ def densify_rhumb(lines: Polylines, max_segment_m: float) -> Polylines:
     )
     dist = 6_371_008.8 * np.hypot(dphi, q * np.radians(dlon))
     n_sub = np.maximum(np.ceil(dist / max_segment_m).astype(np.int64), 1)
-    extra = np.zeros(len(lon), np.int64)
-    extra[a] = n_sub - 1
-    out_starts = np.concatenate([[0], np.cumsum(extra + 1)])
-    total = int(out_starts[-1])
-    new_lon = np.empty(total)
-    new_lat = np.empty(total)
-    new_lon[out_starts[:-1]] = lon
-    new_lat[out_starts[:-1]] = lat
-    seg_of = np.repeat(np.arange(len(a)), n_sub - 1)
-    if len(seg_of):
-        k = np.arange(len(seg_of)) - np.repeat(np.cumsum(n_sub - 1) - (n_sub - 1), n_sub - 1) + 1
-        frac = k / n_sub[seg_of]
-        pos = out_starts[a][seg_of] + k
-        new_lon[pos] = lon[a][seg_of] + frac * dlon[seg_of]
-        same_lat = lat[a][seg_of] == lat[b][seg_of]
-        inner = _lat_from_isometric(psi[a][seg_of] + frac * dpsi[seg_of])
-        new_lat[pos] = np.where(same_lat, lat[a][seg_of], inner)
-    return Polylines(new_lon, new_lat, out_starts[lines.starts])
+
+    def along(seg: np.ndarray, frac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        same_lat = lat[a][seg] == lat[b][seg]
+        inner = _lat_from_isometric(psi[a][seg] + frac * dpsi[seg])
+        return lon[a][seg] + frac * dlon[seg], np.where(same_lat, lat[a][seg], inner)
+
+    return _subdivide(lines, lon, lat, a, n_sub, along)
 
 
 def bin_by_tile(level: int, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
