@@ -246,3 +246,28 @@ def test_a_fifo_is_refused_without_being_read(tmp_path) -> None:
     os.mkfifo(fifo)  # opening it to sniff would block forever
     with pytest.raises(GlobeviewError, match=r"^pipe\.geojson: not a regular file$"):
         choose_layer_type(_registry(), fifo)
+
+
+def test_a_geojson_file_is_parsed_once_while_unchanged(tmp_path, monkeypatch) -> None:
+    # Opening a file dispatches twice (the dialog, then the session) and each GeoJSON type
+    # sniffs it: five parses of the whole file on the window's thread before.
+    import json
+    import shutil
+
+    import globeview.plugins.builtin.layers as layers
+    from globeview.plugins.registry import PluginRegistry
+    from globeview.plugins.settings import MemorySettings
+    from globeview.terrain.dem import EMBEDDED_DATA_DIR
+
+    reg = PluginRegistry(MemorySettings()).discover()
+    src = tmp_path / "cities.geojson"
+    shutil.copyfile(EMBEDDED_DATA_DIR / "ne_cities.geojson", src)
+    calls = []
+    real = json.loads
+    monkeypatch.setattr(layers.json, "loads", lambda *a, **k: calls.append(1) or real(*a, **k))
+    for _ in range(2):
+        assert choose_layer_type(reg, src) == "points"
+    assert len(calls) == 1
+    # An edited file is read again.
+    src.write_text('{"type": "LineString", "coordinates": [[0, 0], [1, 1]]}')
+    assert choose_layer_type(reg, src) == "vector" and len(calls) == 2

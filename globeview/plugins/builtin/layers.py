@@ -56,6 +56,28 @@ def geojson_geometry_types(path: str | Path) -> set[str] | None:
         raise GlobeviewError(f"{p.name}: the file is empty")
     if head[:1] not in (b"{", b"["):
         return None
+    # Opening one file asks this several times (the dialog's dispatch, the session's, each
+    # GeoJSON type's sniff): parse it once while it is unchanged.
+    try:
+        stat = p.stat()
+    except OSError as exc:
+        raise GlobeviewError(f"{p.name}: cannot read ({exc.strerror or exc})") from None
+    key = (str(p.resolve()), stat.st_mtime_ns, stat.st_size)
+    hit = _TYPES_SEEN.get(key)
+    if hit is not None:
+        return set(hit)
+    types = _parse_geometry_types(p)
+    _TYPES_SEEN[key] = frozenset(types)
+    while len(_TYPES_SEEN) > 16:
+        _TYPES_SEEN.pop(next(iter(_TYPES_SEEN)))
+    return types
+
+
+#: (resolved path, mtime ns, size) -> geometry types, the last few files asked about.
+_TYPES_SEEN: dict[tuple[str, int, int], frozenset[str]] = {}
+
+
+def _parse_geometry_types(p: Path) -> set[str]:
     try:
         doc = json.loads(p.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
