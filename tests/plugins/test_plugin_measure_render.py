@@ -21,28 +21,27 @@ CAMERA = (-71.335, 44.27, 4.0e4)
 LINE_RGB = np.array([26, 204, 255])  # measure.LINE_RGBA (0.1, 0.8, 1.0)
 
 
+# The fixtures a plugin author gets (globeview.plugins.testing): the session's GL context and
+# the embedded terrain, not a context and stack of this module's own.
 @pytest.fixture(scope="module")
-def gl():
-    from globeview.render.offscreen import OffscreenTarget, RenderError, create_headless_context
+def gl(globeview_gl):
+    from globeview.render.offscreen import OffscreenTarget
 
-    try:
-        ctx = create_headless_context()
-    except RenderError as exc:  # pragma: no cover - depends on the machine
-        pytest.skip(f"no headless OpenGL: {exc}")
-    return ctx, OffscreenTarget(ctx, SIZE)
+    target = OffscreenTarget(globeview_gl, SIZE)
+    yield globeview_gl, target
+    target.release()
 
 
 @pytest.fixture(scope="module")
-def session(gl):
+def session(gl, globeview_terrain):
     from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import MemorySettings
-    from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
 
-    terrain = TerrainStack.from_stores(embedded_stores())
     reg = PluginRegistry(MemorySettings()).discover()
-    return GlobeSession(gl[0], terrain, Camera.from_lonlat(*CAMERA), registry=reg)
+    scene = GlobeSession(gl[0], globeview_terrain, Camera.from_lonlat(*CAMERA), registry=reg)
+    yield scene
+    scene.release_gl()
 
 
 def draw(session, gl):
