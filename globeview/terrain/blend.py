@@ -101,6 +101,8 @@ class BlendMask:
         # Integral image of "w < 1" raster nodes: does a lon/lat box meet the band?
         part = np.pad((self.w < 1.0).astype(np.int64), ((1, 0), (1, 0)))
         self._partial = part.cumsum(0).cumsum(1)
+        #: `interpolation_error` by cell size in raster steps (it depends on w only).
+        self.interp_errors: dict[int, float] = {}
 
     @staticmethod
     def _mask_level(st: TileStore, short_side_deg: float) -> int:
@@ -204,7 +206,7 @@ def interpolation_error(mask: BlendMask, cell_deg: float) -> float:
     m = round(cell_deg / mask.step)
     if m <= 1:
         return 0.0
-    cache = mask.__dict__.setdefault("_interp_errors", {})
+    cache = mask.interp_errors
     hit = cache.get(m)
     if hit is not None:
         return hit

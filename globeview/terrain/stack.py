@@ -79,6 +79,7 @@ class TerrainStack:
         self._tables: dict[tuple[TileStore, int], tuple] = {}
         self._masks: dict[TileStore, BlendMask] = {}
         self._diffs: dict[tuple, tuple] = {}
+        self._band_counts: dict[tuple[TileStore, int], int] = {}  # band tiles per level
         self._check_sizes()
 
     # -- layer management --------------------------------------------------------------------
@@ -117,6 +118,7 @@ class TerrainStack:
             self._cache.clear()
             self._order.clear()
             self._diffs.clear()  # |upper - lower| bounds depend on which layers lie below
+            self._band_counts.clear()
             # Keyed by the store objects (not id(): a removed store's id may be reused by the
             # next one opened); forget removed stores.
             kept = {ly.store for ly in self.layers}
@@ -356,16 +358,16 @@ class TerrainStack:
         """The finest level <= ``level`` whose border band holds at most `DIFF_TABLE_TILES`
         tiles of layer ``i`` (one-time work per level is bounded)."""
         for c in range(level, -1, -1):
-            key = ("count", st, c)
+            key = (st, c)
             with self._lock:
-                n = self._diffs.get(key)
+                n = self._band_counts.get(key)
             if n is None:
                 mask = self._blend_mask(st)
                 grid = st.level_grid(c)
                 ys, xs = np.mgrid[grid.y0 : grid.y0 + grid.ny, grid.x0 : grid.x0 + grid.nx]
                 n = int(mask.touches_band(*tile_bounds_arrays(c, xs.ravel(), ys.ravel())).sum())
                 with self._lock:
-                    self._diffs[key] = n
+                    self._band_counts[key] = n
             if n <= DIFF_TABLE_TILES:
                 return c
         return 0
