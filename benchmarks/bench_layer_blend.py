@@ -19,7 +19,7 @@ from globeview.render.camera import Camera
 from globeview.render.offscreen import OffscreenTarget, create_headless_context
 from globeview.render.scene import GlobeScene
 from globeview.terrain.embedded import embedded_stores
-from globeview.terrain.stack import N_STRIDES, TerrainStack
+from globeview.terrain.stack import TerrainStack
 
 SIZE = (1280, 720)
 VIEWS = {
@@ -30,17 +30,9 @@ VIEWS = {
 }
 
 
-def unblended(stack: TerrainStack) -> TerrainStack:
-    """The stack composed as before the blend: later layers pasted over earlier ones."""
-    stack._blend_weight = lambda st, key: None
-    stack._blend_error = lambda i, st, level, x, y, b, e_up, e_low: np.zeros((len(x), N_STRIDES))
-    return stack
-
-
 def frame(ctx, target, blend: bool, pose) -> tuple[float, float, int]:
     stack = TerrainStack.from_stores(embedded_stores())
-    if not blend:
-        unblended(stack)
+    stack.blend = blend  # False: layers pasted as before (a cliff at each border)
     scene = GlobeScene(ctx, stack, Camera.from_lonlat(*pose), lod=select_tiles)
     scene.tau_px = 2.0
     t0 = time.perf_counter()

@@ -70,6 +70,9 @@ class TerrainStack:
 
     layers: list[TerrainLayer] = field(default_factory=list)
     cache_tiles: int = 512
+    #: Feather each layer into those below across its border band (`globeview.terrain.blend`);
+    #: False pastes them as they are (a cliff at each border: what benchmarks compare with).
+    blend: bool = True
 
     def __post_init__(self) -> None:
         self.version = 0
@@ -183,7 +186,7 @@ class TerrainStack:
                 if f < N_STRIDES:
                     e[:, f:] = rows[:, 3 : 3 + N_STRIDES - f]
             blended = ok & covered  # this layer over data of layers below: its border band
-            if i > 0 and blended.any():
+            if i > 0 and self.blend and blended.any():
                 e = e + self._blend_error(i, st, level, x, y, blended, e, err)
             covered |= ok
             err = np.where(ok[:, None], np.maximum(err, e), err)
@@ -503,7 +506,7 @@ class TerrainStack:
         has = ~np.isnan(h)
         # A layer over another one feathers into it near its data's edge; the bottom layer
         # has nothing to blend into.
-        w = self._blend_weight(st, key) if i > 0 else None
+        w = self._blend_weight(st, key) if i > 0 and self.blend else None
         mine = h
         if w is not None:
             f = key[0] - st.max_level
