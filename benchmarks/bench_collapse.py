@@ -12,10 +12,10 @@ import argparse
 import statistics
 import time
 
+from globeview.model.camera import Camera
 from globeview.plugins.registry import PluginRegistry
 from globeview.plugins.session import GlobeSession
 from globeview.plugins.settings import MemorySettings
-from globeview.render.camera import Camera
 from globeview.render.offscreen import OffscreenTarget, create_headless_context
 from globeview.terrain.embedded import embedded_stores
 from globeview.terrain.stack import TerrainStack

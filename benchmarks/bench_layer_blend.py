@@ -14,8 +14,8 @@ import time
 
 import numpy as np
 
-from globeview.plugins.builtin.chunked_sse import select_tiles
-from globeview.render.camera import Camera
+from globeview.model.camera import Camera
+from globeview.plugins.builtin.chunked.provider import select_tiles
 from globeview.render.offscreen import OffscreenTarget, create_headless_context
 from globeview.render.scene import GlobeScene
 from globeview.terrain.embedded import embedded_stores

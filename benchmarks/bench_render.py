@@ -14,8 +14,8 @@ import statistics
 import time
 from pathlib import Path
 
+from globeview.model.camera import Camera
 from globeview.plugins.session import GlobeSession
-from globeview.render.camera import Camera
 from globeview.render.offscreen import OffscreenTarget, create_headless_context
 from globeview.terrain.embedded import embedded_stores
 from globeview.terrain.stack import TerrainStack

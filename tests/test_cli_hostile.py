@@ -132,7 +132,7 @@ def test_hostile_view_arguments_are_one_line_with_the_range(
 
 
 def test_huge_but_finite_heading_is_reduced_not_refused() -> None:
-    from globeview.render.camera import Camera
+    from globeview.model.camera import Camera
 
     cam = Camera.from_lonlat(10.0, 20.0, 1e6, 1e300, -45.0, 7.2e12)
     assert all(map(lambda v: v == v, cam.lonlat_hpr()))  # no NaN anywhere

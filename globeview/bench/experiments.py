@@ -110,7 +110,7 @@ def uncut_full_resolution(bench: Bench, pose: Pose) -> dict:
     """TREND's 'full resolution' row: every finest-level tile of the DEM under the view (the
     topmost visible layer whose footprint holds the view point) at stride 1, without culling:
     exact triangle count (no render)."""
-    from globeview.render.tile_indices import IndexVariant
+    from globeview.lod.tile_indices import IndexVariant
     from globeview.terrain.quadtree import tile_bounds_arrays
 
     layers = bench.terrain.visible_layers

@@ -113,7 +113,7 @@ class Bench:
         s.reset_lod()
 
     def set_pose(self, pose: Pose | tuple) -> None:
-        from globeview.render.camera import Camera
+        from globeview.model.camera import Camera
 
         p = pose.as_tuple() if isinstance(pose, Pose) else tuple(pose)
         self.session.camera = Camera.from_lonlat(*p)

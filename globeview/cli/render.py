@@ -145,7 +145,7 @@ def checked(option: str, check, *values):
 
 def parse_camera(text: str) -> tuple[float, ...]:
     """--camera LON,LAT,HEIGHT[,HEADING,PITCH[,ROLL]], validated like `Camera.from_lonlat`."""
-    from globeview.render.camera import check_lonlat_hpr
+    from globeview.model.camera import check_lonlat_hpr
 
     vals = parse_floats(text, "--camera", (3, 5, 6))
     vals += [0.0, -90.0, 0.0][len(vals) - 3 :]
@@ -154,7 +154,7 @@ def parse_camera(text: str) -> tuple[float, ...]:
 
 def parse_background(text: str) -> tuple[float, float, float]:
     """--background R,G,B, each a finite number in 0..1."""
-    from globeview.render.camera import check_number
+    from globeview.validate import check_number
 
     vals = parse_floats(text, "--background", (3,))
     return tuple(  # type: ignore[return-value]
@@ -166,7 +166,7 @@ def parse_background(text: str) -> tuple[float, float, float]:
 def parse_collapse(text: str) -> tuple[float, float, float, float, float | None]:
     """--collapse LONA,LATA,LONB,LATB[,RATIO]: finite longitudes, latitudes in -90..90 and a
     ratio in 0.001..1 (the tool itself refuses near-antipodal pairs)."""
-    from globeview.render.camera import check_finite, check_number
+    from globeview.validate import check_finite, check_number
 
     vals = parse_floats(text, "--collapse", (4, 5))
     lon_a = checked("--collapse", check_finite, "longitude of A", vals[0])
@@ -182,7 +182,7 @@ def parse_collapse(text: str) -> tuple[float, float, float, float, float | None]
 def parse_point(text: str, option: str) -> tuple[float, float]:
     """One ``LON,LAT`` (degrees): a finite longitude, reduced to -180..180 as --camera's is,
     and a latitude in -90..90."""
-    from globeview.render.camera import check_finite, check_number
+    from globeview.validate import check_finite, check_number
 
     lon, lat = parse_floats(text, option, (2,))
     lon = checked(option, check_finite, "longitude", lon)
@@ -235,8 +235,9 @@ def check_view_args(args: argparse.Namespace) -> dict:
     """Every view argument validated before anything is loaded or drawn: a bad one is a
     one-line `GlobeviewError` stating the valid range (not a traceback from deep in the
     LOD selection). Returns the parsed values."""
-    from globeview.render.camera import FOV_RANGE_DEG, check_number
-    from globeview.render.view_state import check_exaggeration, check_tau
+    from globeview.lod.view_state import check_exaggeration, check_tau
+    from globeview.model.camera import FOV_RANGE_DEG
+    from globeview.validate import check_number
 
     return {
         "size": parse_size(args.size),
@@ -438,12 +439,12 @@ def warn_unused_settings(registry, assignments: list, lod: str, tool: str | None
 def run(args: argparse.Namespace) -> int:
     from PIL import Image
 
+    from globeview.model.camera import Camera, camera_for_bounds
     from globeview.plugins.api import PluginKind
     from globeview.plugins.headless import place_points
     from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import apply_overrides
-    from globeview.render.camera import Camera, camera_for_bounds
     from globeview.render.offscreen import OffscreenTarget, create_headless_context
     from globeview.terrain.stack import TerrainStack
 

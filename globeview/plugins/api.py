@@ -74,7 +74,7 @@ from globeview.plugins.tool_output import Plot, read_csv_columns
 
 if TYPE_CHECKING:  # the lazy re-exports (`_REEXPORTS`), spelled out for type checkers
     from globeview.geodesy import WGS84, enu_basis
-    from globeview.render.culling import (
+    from globeview.lod.culling import (
         LATTICE,
         bounding_distance,
         box_angular_distance_pre,
@@ -88,10 +88,10 @@ if TYPE_CHECKING:  # the lazy re-exports (`_REEXPORTS`), spelled out for type ch
         horizon_visible,
         tile_bounding_points,
     )
-    from globeview.render.render_set import MAX_KEY_LEVEL, MAX_TILES, InvalidRenderSet, RenderSet
-    from globeview.render.tile_indices import IndexVariant
+    from globeview.lod.render_set import MAX_KEY_LEVEL, MAX_TILES, InvalidRenderSet, RenderSet
+    from globeview.lod.tile_indices import IndexVariant
+    from globeview.lod.view_state import ViewState
     from globeview.render.tile_mesh import node_lonlat
-    from globeview.render.view_state import ViewState
     from globeview.terrain.quadtree import TileKey, level_shape, tile_bounds_arrays
     from globeview.terrain.stack import N_STRIDES, TerrainStack
 
@@ -161,25 +161,25 @@ __all__ = [
 _REEXPORTS: dict[str, str] = {
     "WGS84": "globeview.geodesy",
     "enu_basis": "globeview.geodesy",
-    "LATTICE": "globeview.render.culling",
-    "bounding_distance": "globeview.render.culling",
-    "box_angular_distance_pre": "globeview.render.culling",
-    "chord_sag": "globeview.render.culling",
-    "cull_level": "globeview.render.culling",
-    "displacement_bend_m": "globeview.render.culling",
-    "displacement_chord_error_m": "globeview.render.culling",
-    "frustum_visible": "globeview.render.culling",
-    "horizon_cap": "globeview.render.culling",
-    "horizon_peak_angle": "globeview.render.culling",
-    "horizon_visible": "globeview.render.culling",
-    "tile_bounding_points": "globeview.render.culling",
-    "MAX_KEY_LEVEL": "globeview.render.render_set",
-    "MAX_TILES": "globeview.render.render_set",
-    "InvalidRenderSet": "globeview.render.render_set",
-    "RenderSet": "globeview.render.render_set",
-    "IndexVariant": "globeview.render.tile_indices",
+    "LATTICE": "globeview.lod.culling",
+    "bounding_distance": "globeview.lod.culling",
+    "box_angular_distance_pre": "globeview.lod.culling",
+    "chord_sag": "globeview.lod.culling",
+    "cull_level": "globeview.lod.culling",
+    "displacement_bend_m": "globeview.lod.culling",
+    "displacement_chord_error_m": "globeview.lod.culling",
+    "frustum_visible": "globeview.lod.culling",
+    "horizon_cap": "globeview.lod.culling",
+    "horizon_peak_angle": "globeview.lod.culling",
+    "horizon_visible": "globeview.lod.culling",
+    "tile_bounding_points": "globeview.lod.culling",
+    "MAX_KEY_LEVEL": "globeview.lod.render_set",
+    "MAX_TILES": "globeview.lod.render_set",
+    "InvalidRenderSet": "globeview.lod.render_set",
+    "RenderSet": "globeview.lod.render_set",
+    "IndexVariant": "globeview.lod.tile_indices",
     "node_lonlat": "globeview.render.tile_mesh",
-    "ViewState": "globeview.render.view_state",
+    "ViewState": "globeview.lod.view_state",
     "TileKey": "globeview.terrain.quadtree",
     "level_shape": "globeview.terrain.quadtree",
     "tile_bounds_arrays": "globeview.terrain.quadtree",
@@ -328,7 +328,7 @@ class PluginContext:
         scene: the host's scene model (layers); None headless without a scene.
         terrain: the composed terrain of the visible DEM layers
             (`globeview.terrain.stack.TerrainStack`), or None.
-        camera: the `globeview.render.camera.Camera` (ECEF, float64), or None.
+        camera: the `globeview.model.camera.Camera` (ECEF, float64), or None.
         renderer: `RendererHooks`.
         settings: this plugin's persisted settings, a mutable mapping of JSON-able values
             (writes persist at once).
@@ -488,7 +488,7 @@ class DelegateProvider:
 def _check_frame_args(view: Any, terrain: Any) -> None:
     """TypeError unless ``view`` is a `ViewState` and ``terrain`` a `TerrainStack` or None
     (what the host passes a provider's ``select``)."""
-    from globeview.render.view_state import ViewState
+    from globeview.lod.view_state import ViewState
     from globeview.terrain.stack import TerrainStack
 
     if not isinstance(view, ViewState):
@@ -507,7 +507,7 @@ def _frozen(a: Any) -> Any:
 
 def _read_only(rs: RenderSet) -> RenderSet:
     """A plain `RenderSet` sharing ``rs``'s data through read-only views (microseconds)."""
-    from globeview.render.render_set import RenderSet
+    from globeview.lod.render_set import RenderSet
 
     return RenderSet(
         keys=_frozen(rs.keys),

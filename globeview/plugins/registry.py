@@ -866,7 +866,7 @@ class PluginRegistry:
         renderer's limits), a valid one: ``check`` raising fails the provider's plugin.
 
         Returns None when the provider failed (the host then falls back to another)."""
-        from globeview.render.render_set import RenderSet
+        from globeview.lod.render_set import RenderSet
 
         failed = object()
         result = self.invoke(provider, "select", view, terrain, default=failed, budgeted=True)

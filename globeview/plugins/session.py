@@ -24,6 +24,9 @@ import numpy as np
 
 from globeview.errors import GlobeviewError
 from globeview.geodesy import ecef_to_lonlat
+from globeview.lod.render_set import RenderSet
+from globeview.lod.view_state import ViewState
+from globeview.model.camera import Camera
 from globeview.plugins.api import Marker, NullRendererHooks, PluginKind, Polyline, Tool
 from globeview.plugins.overlay_layers import (
     DrawnLayer,
@@ -32,12 +35,9 @@ from globeview.plugins.overlay_layers import (
     VectorLayer,
 )
 from globeview.plugins.registry import PluginRegistry
-from globeview.render.camera import Camera
 from globeview.render.picking import Pick
-from globeview.render.render_set import RenderSet
 from globeview.render.renderer import DisplacementHook
 from globeview.render.scene import FrameResult, GlobeScene
-from globeview.render.view_state import ViewState
 from globeview.terrain.stack import TerrainStack
 
 DEFAULT_LOD = "chunked-sse"
@@ -232,7 +232,7 @@ class GlobeSession(GlobeScene):
     def _bend(self, points: np.ndarray, displaced: np.ndarray | None = None) -> np.ndarray:
         """The active tool's bend bound (`Tool.displacement_bend_m`); the exact measure when
         it returns None or its plugin has failed."""
-        from globeview.render.culling import displacement_chord_error_m
+        from globeview.lod.culling import displacement_chord_error_m
 
         tool = self.tool()
         bend = None

@@ -37,10 +37,10 @@ if TYPE_CHECKING:
     import moderngl
     import numpy as np
 
+    from globeview.lod.render_set import RenderSet
+    from globeview.lod.view_state import ViewState
+    from globeview.model.camera import Camera
     from globeview.plugins.registry import PluginRegistry
-    from globeview.render.camera import Camera
-    from globeview.render.render_set import RenderSet
-    from globeview.render.view_state import ViewState
     from globeview.terrain.stack import TerrainStack
 
 __all__ = [
@@ -73,8 +73,8 @@ def make_view(
 ) -> ViewState:
     """A `ViewState` for a camera at (lon, lat) degrees, ``height`` metres above WGS84,
     looking along (heading, pitch) degrees (pitch -90 = straight down)."""
-    from globeview.render.camera import Camera
-    from globeview.render.view_state import ViewState
+    from globeview.lod.view_state import ViewState
+    from globeview.model.camera import Camera
 
     cam = Camera.from_lonlat(lon, lat, height, heading, pitch, fovy_deg=fovy_deg)
     return ViewState.from_camera(
@@ -300,8 +300,8 @@ def render_frame(
 
     The caller releases nothing: the session's GL objects live as long as its context.
     """
+    from globeview.model.camera import Camera
     from globeview.plugins.session import GlobeSession
-    from globeview.render.camera import Camera
     from globeview.render.offscreen import OffscreenTarget
 
     for name, values in (settings or {}).items():

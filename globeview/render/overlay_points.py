@@ -16,6 +16,8 @@ import moderngl
 import numpy as np
 
 from globeview.geodesy import lonlat_to_ecef
+from globeview.lod.render_set import RenderSet
+from globeview.lod.view_state import INV_AXES2, ViewState
 from globeview.render.overlay_vectors import (
     render_set_signature,
     render_set_strides,
@@ -24,8 +26,6 @@ from globeview.render.overlay_vectors import (
     split_hi_lo,
     view_uniforms,
 )
-from globeview.render.render_set import RenderSet
-from globeview.render.view_state import INV_AXES2, ViewState
 from globeview.terrain.vectors import drape_heights
 
 KINDS = ("placemark", "box", "cone")

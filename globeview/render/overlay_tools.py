@@ -34,8 +34,8 @@ from typing import Any
 import moderngl
 import numpy as np
 
+from globeview.lod.view_state import INV_AXES2, ViewState
 from globeview.render.overlay_vectors import view_uniforms
-from globeview.render.view_state import INV_AXES2, ViewState
 
 #: Floats per instance: a (3), b (3), colour (4), size, kind, depth-tested (0/1).
 FLOATS = 13

@@ -27,8 +27,8 @@ import moderngl
 import numpy as np
 
 from globeview.geodesy import WGS84, lonlat_to_ecef
-from globeview.render.render_set import RenderSet
-from globeview.render.view_state import INV_AXES2, ViewState
+from globeview.lod.render_set import RenderSet
+from globeview.lod.view_state import INV_AXES2, ViewState
 from globeview.terrain.vectors import Polylines, drape_heights
 
 #: Coarser line levels are used while their segments span fewer pixels than this.

@@ -20,7 +20,7 @@ import moderngl
 import numpy as np
 
 from globeview.geodesy import ecef_to_lonlat, ray_ellipsoid_intersection, ray_ellipsoid_t
-from globeview.render.view_state import ViewState
+from globeview.lod.view_state import ViewState
 
 
 @dataclass(frozen=True)

@@ -22,37 +22,25 @@ import moderngl
 import numpy as np
 
 from globeview.geodesy import WGS84, ecef_to_lonlat
-from globeview.render.colour_ramp import ramp_texture_data
-from globeview.render.overlay_imagery import OverlaySet  # overlays:
-from globeview.render.render_set import (
+from globeview.lod.render_set import (
     FrameStats,
     RenderSet,
     clean_provider_stats,
     level_histogram,
 )
-from globeview.render.tile_indices import IndexVariant
+from globeview.lod.tile_indices import IndexVariant
+from globeview.lod.view_state import INV_AXES2, ViewState
+from globeview.model.display import DisplaySettings
+from globeview.render.colour_ramp import ramp_texture_data
+from globeview.render.overlay_imagery import OverlaySet  # overlays:
 from globeview.render.tile_loader import TileLoader, substitute_missing
 from globeview.render.tile_mesh import FLOATS_PER_VERTEX, TileMesh, build_tile_mesh
 from globeview.render.tile_pool import IndexPool, TilePool
-from globeview.render.view_state import INV_AXES2, ViewState
 from globeview.terrain.quadtree import tile_bounds
 from globeview.terrain.stack import TerrainStack
 
 RAMP_LO_M = -11000.0
 RAMP_HI_M = 9000.0
-SPACE_RGB = (0.02, 0.02, 0.05)
-
-
-@dataclass
-class RenderSettings:
-    """Live display settings (all take effect on the next frame)."""
-
-    exaggeration: float = 1.0
-    wireframe: bool = False
-    hillshade: bool = False
-    fog: bool = True
-    background: tuple[float, float, float] = SPACE_RGB
-    wire_color: tuple[float, float, float] = (0.05, 0.05, 0.05)
 
 
 @dataclass
@@ -84,7 +72,7 @@ class GlobeRenderer:
     def __init__(self, ctx: moderngl.Context, terrain: TerrainStack, capacity: int = 768) -> None:
         self.ctx = ctx
         self.terrain = terrain
-        self.settings = RenderSettings()
+        self.settings = DisplaySettings()
         self.size = terrain.tile_size
         self.pool = TilePool(ctx, self.size, capacity)
         self.indices = IndexPool(ctx, self.size)
@@ -530,5 +518,4 @@ __all__ = [
     "DisplacementHook",
     "GlobeRenderer",
     "IndexVariant",
-    "RenderSettings",
 ]

@@ -8,11 +8,11 @@ from dataclasses import dataclass
 
 import moderngl
 
-from globeview.render.camera import Camera
+from globeview.lod.render_set import FrameStats, RenderSet
+from globeview.lod.view_state import ViewState, check_tau
+from globeview.model.camera import Camera
 from globeview.render.picking import Pick, pick
-from globeview.render.render_set import FrameStats, RenderSet
 from globeview.render.renderer import GlobeRenderer
-from globeview.render.view_state import ViewState, check_tau
 from globeview.terrain.stack import TerrainStack
 
 LodFunction = Callable[[ViewState, TerrainStack], RenderSet]

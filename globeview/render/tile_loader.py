@@ -16,8 +16,8 @@ from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 
-from globeview.render.render_set import RenderSet
-from globeview.render.tile_indices import IndexVariant
+from globeview.lod.render_set import RenderSet
+from globeview.lod.tile_indices import IndexVariant
 from globeview.render.tile_mesh import TileMesh
 
 Key = tuple[int, int, int]

@@ -12,7 +12,7 @@ from collections.abc import Callable
 import moderngl
 import numpy as np
 
-from globeview.render.tile_indices import IndexVariant, grid_indices
+from globeview.lod.tile_indices import IndexVariant, grid_indices
 from globeview.render.tile_mesh import FLOATS_PER_VERTEX, TileMesh, vertices_per_tile
 
 KeyArray = np.ndarray  # (N, 3) int64: level, x, y

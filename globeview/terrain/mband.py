@@ -26,7 +26,8 @@ Reference code, not used by ingest or the LOD (issue #14 asked: wire it in or sa
 The tile store is a dyadic pyramid (each level halves the resolution, CDF 5/3 low-pass,
 `globeview.terrain.wavelet`), because the quadtree that every layer, the LOD and the renderer
 share is dyadic; a 3-band level has no tile grid there. The `wavelet` LOD provider keeps
-Zhang's M-band *resolution ladder* on the dyadic levels (`wavelet_lod.stop_levels`), and a
+Zhang's M-band *resolution ladder* on the dyadic levels
+(`builtin.wavelet.provider.stop_levels`), and a
 true M-band approximation of a tile could only be computed per tile from its heights each
 frame, a Python loop the frame path must not run. The filter banks here are the tested
 reading of eq. 4-5 (perfect reconstruction, energy, the printed typos) against which that

@@ -20,6 +20,7 @@ Heights are metres above the ellipsoid; keys are (level, x, y) with y = 0 at the
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -83,6 +84,9 @@ class TerrainStack:
         self._masks: dict[TileStore, BlendMask] = {}
         self._diffs: dict[tuple, tuple] = {}
         self._band_counts: dict[tuple[TileStore, int], int] = {}  # band tiles per level
+        #: Called (no arguments) after every change of the layers: added, removed, moved,
+        #: shown or hidden. The model (`globeview.model.Globe`) turns it into an event.
+        self.listeners: list[Callable[[], None]] = []
         self._check_sizes()
 
     # -- layer management --------------------------------------------------------------------
@@ -127,6 +131,8 @@ class TerrainStack:
             kept = {ly.store for ly in self.layers}
             self._masks = {st: m for st, m in self._masks.items() if st in kept}
             self._tables = {k: v for k, v in self._tables.items() if k[0] in kept}
+        for listener in list(self.listeners):
+            listener()
 
     def _check_sizes(self, layers: list[TerrainLayer] | None = None) -> None:
         sizes = {ly.store.tile_size for ly in (self.layers if layers is None else layers)}

@@ -40,13 +40,13 @@ from PyQt6.QtGui import (
 from PyQt6.QtOpenGLWidgets import QOpenGLWidget
 from PyQt6.QtWidgets import QWidget
 
+from globeview.lod.render_set import FrameStats
+from globeview.model.camera import Camera
+from globeview.model.display import DisplaySettings
 from globeview.plugins.api import KeyEvent, PointerEvent
 from globeview.plugins.registry import PluginRegistry
 from globeview.plugins.session import DEFAULT_LOD, GlobeSession
-from globeview.render.camera import Camera
 from globeview.render.picking import Pick
-from globeview.render.render_set import FrameStats
-from globeview.render.renderer import RenderSettings
 from globeview.terrain.stack import TerrainStack
 from globeview.ui.navigation import HOME_POSE, CameraFlight, Navigator
 
@@ -174,7 +174,7 @@ class GlobeWidget(QOpenGLWidget):
         self.setMinimumSize(200, 150)
         self.terrain = terrain
         self.camera = camera or Camera.from_lonlat(*HOME_POSE)
-        self.settings = RenderSettings()
+        self.settings = DisplaySettings()
         self.tau_px = 2.0
         self.registry = registry
         self.lod = lod

@@ -51,8 +51,8 @@ from PyQt6.QtWidgets import (
 )
 
 from globeview.errors import GlobeviewError
+from globeview.model.camera import Camera, camera_for_bounds
 from globeview.plugins.registry import PluginRegistry
-from globeview.render.camera import Camera, camera_for_bounds
 from globeview.terrain.stack import TerrainStack
 from globeview.terrain.store import TileStore
 from globeview.ui.errors import ErrorReporter, UserMessage

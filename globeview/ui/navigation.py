@@ -1,7 +1,7 @@
 """Mouse and keyboard navigation, and smooth camera flights.
 
 `Navigator` turns pointer and key input (pixel coordinates, top-left origin, in framebuffer
-pixels) into the camera's own operations (`globeview.render.camera.Camera`): it decides
+pixels) into the camera's own operations (`globeview.model.camera.Camera`): it decides
 *which* operation and which point on the globe, the camera does the geometry.
 
 - left drag: orbit — the globe point grabbed under the cursor stays under the cursor;
@@ -26,7 +26,7 @@ import numpy as np
 from PyQt6.QtCore import QObject, Qt, QTimer, pyqtSignal
 
 from globeview.geodesy import geodesic_inverse, ray_ellipsoid_intersection
-from globeview.render.camera import Camera
+from globeview.model.camera import Camera
 from globeview.render.picking import Pick
 from globeview.render.scene import GlobeScene
 

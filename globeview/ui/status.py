@@ -14,8 +14,8 @@ import numpy as np
 from PyQt6.QtWidgets import QLabel, QStatusBar, QWidget
 
 from globeview.errors import GlobeviewError
+from globeview.lod.render_set import FrameStats
 from globeview.render.picking import Pick
-from globeview.render.render_set import FrameStats
 
 log = logging.getLogger("globeview.ui")
 

@@ -94,10 +94,10 @@ def test_a_handed_back_headless_context_is_reused_and_draws_the_same(store_paths
     context for the next globe instead, reset so that the next render is pixel-identical."""
     import numpy as np
 
+    from globeview.model.camera import Camera
     from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import MemorySettings
-    from globeview.render.camera import Camera
     from globeview.render.offscreen import (
         OffscreenTarget,
         create_headless_context,

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from globeview.plugins.builtin.collapse_geometry import BEND_PSI_MARGIN, CollapseFrame
-from globeview.render.culling import displacement_chord_error_m, tile_bounding_points
+from globeview.lod.culling import displacement_chord_error_m, tile_bounding_points
+from globeview.plugins.builtin.collapse.geometry import BEND_PSI_MARGIN, CollapseFrame
 
 
 def _random_tiles(
@@ -93,9 +93,9 @@ def test_session_exposes_the_hook_and_falls_back_without_one() -> None:
     measure, and returns zeros with no displacement."""
     from dataclasses import replace
 
-    from globeview.render.camera import Camera
-    from globeview.render.culling import displacement_bend_m
-    from globeview.render.view_state import ViewState
+    from globeview.lod.culling import displacement_bend_m
+    from globeview.lod.view_state import ViewState
+    from globeview.model.camera import Camera
 
     frame = CollapseFrame.from_lonlat(-123.0, 48.5, -118.0, 44.0, 0.1)
     rng = np.random.default_rng(3)

@@ -11,7 +11,7 @@ import time
 import numpy as np
 import pytest
 
-from globeview.render.camera import Camera
+from globeview.model.camera import Camera
 
 pytestmark = pytest.mark.gl
 

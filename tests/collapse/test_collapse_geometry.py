@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from globeview.geodesy import ecef_to_lonlat, geodesic_direct, geodesic_inverse, lonlat_to_ecef
-from globeview.plugins.builtin.collapse_geometry import CollapseFrame
+from globeview.plugins.builtin.collapse.geometry import CollapseFrame
 
 # (centre lon, centre lat, azimuth of A->B in degrees)
 ORIENTATIONS = {

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from globeview.geodesy import WGS84
-from globeview.render.camera import Camera
+from globeview.model.camera import Camera
 
 pytestmark = pytest.mark.gl
 
@@ -166,7 +166,7 @@ def test_no_cracks_with_the_collapse_for_every_lod_provider(session, gl, cam, pa
 def test_session_view_carries_the_collapse_bend_hook(session, gl) -> None:
     """With the collapse active the view carries its bend bound and displacement key (LOD
     providers use them); the bound covers the exact measure; without a tool, neither."""
-    from globeview.render.culling import displacement_bend_m, displacement_chord_error_m
+    from globeview.lod.culling import displacement_bend_m, displacement_chord_error_m
 
     cam = Camera.from_lonlat(-120.0, 44.0, 5.0e5, 300.0, -55.0)
     draw(session, gl, cam, ((-123.0, 48.5), (-118.0, 44.0), 0.1))
@@ -176,7 +176,7 @@ def test_session_view_carries_the_collapse_bend_hook(session, gl) -> None:
         assert view.displacement_key is not None
         rng = np.random.default_rng(11)
         w, s = rng.uniform(-130.0, -110.0, 300), rng.uniform(38.0, 52.0, 300)
-        from globeview.render.culling import tile_bounding_points
+        from globeview.lod.culling import tile_bounding_points
 
         pts, _ = tile_bounding_points(w, s, w + 0.4, s + 0.4, np.zeros(300), np.full(300, 2e3))
         exact = displacement_chord_error_m(view.displace, pts)

@@ -17,13 +17,13 @@ import numpy as np
 import pytest
 
 from globeview.geodesy import WGS84, lonlat_to_ecef
-from globeview.plugins.builtin import chunked_sse
-from globeview.plugins.builtin.chunked_sse import MAX_LEVEL, ChunkedSettings, select_tiles
-from globeview.render.camera import Camera
-from globeview.render.culling import LATTICE, chord_sag, displacement_chord_error_m
-from globeview.render.render_set import RenderSet
-from globeview.render.tile_indices import IndexVariant
-from globeview.render.view_state import ViewState
+from globeview.lod.culling import LATTICE, chord_sag, displacement_chord_error_m
+from globeview.lod.render_set import RenderSet
+from globeview.lod.tile_indices import IndexVariant
+from globeview.lod.view_state import ViewState
+from globeview.model.camera import Camera
+from globeview.plugins.builtin.chunked import provider as chunked_sse
+from globeview.plugins.builtin.chunked.provider import MAX_LEVEL, ChunkedSettings, select_tiles
 from globeview.terrain.quadtree import tile_bounds_arrays
 from globeview.terrain.stack import N_STRIDES, TerrainStack
 

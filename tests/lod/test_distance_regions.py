@@ -9,7 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from globeview.plugins.builtin.distance_regions import (
+from globeview.lod.tile_indices import IndexVariant, grid_indices
+from globeview.plugins.builtin.regions.provider import (
     level_and_stride,
     mesh_resolution,
     neighbour_edge_strides,
@@ -22,7 +23,6 @@ from globeview.plugins.builtin.distance_regions import (
     speed_factor,
 )
 from globeview.plugins.testing import make_view
-from globeview.render.tile_indices import IndexVariant, grid_indices
 
 SIZE = 65
 MAGENTA = (1.0, 0.0, 1.0)
@@ -169,7 +169,7 @@ def _triangles(rs) -> int:
 
 
 def test_rings_cut_off_and_stats(terrain) -> None:
-    from globeview.plugins.builtin.distance_regions import RegionSettings
+    from globeview.plugins.builtin.regions.provider import RegionSettings
 
     v = make_view(-71.3, 44.15, 9000.0, 0.0, -30.0, viewport=(320, 240))
     rs = select_regions(v, terrain)
@@ -192,7 +192,7 @@ def test_rings_cut_off_and_stats(terrain) -> None:
 
 
 def test_larger_hr_ratio_refines_monotonically(terrain) -> None:
-    from globeview.plugins.builtin.distance_regions import RegionSettings
+    from globeview.plugins.builtin.regions.provider import RegionSettings
 
     v = make_view(-71.3, 44.15, 9000.0, 0.0, -30.0, viewport=(320, 240))
     counts = [
@@ -213,10 +213,10 @@ VIEWS = {
 
 @pytest.fixture(scope="module")
 def gl_session(terrain, tmp_path_factory):
+    from globeview.model.camera import Camera
     from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import JsonFileSettings
-    from globeview.render.camera import Camera
     from globeview.render.offscreen import OffscreenTarget, RenderError, create_headless_context
 
     try:
@@ -291,7 +291,7 @@ def assert_crack_free(session, target, cam) -> object:
 @pytest.mark.gl
 @pytest.mark.parametrize("name", list(VIEWS))
 def test_renders_without_cracks(gl_session, name: str) -> None:
-    from globeview.render.camera import Camera
+    from globeview.model.camera import Camera
 
     session, target = gl_session
     result = assert_crack_free(session, target, Camera.from_lonlat(*VIEWS[name]))

@@ -9,7 +9,7 @@ import itertools
 import numpy as np
 import pytest
 
-from globeview.plugins.builtin.quadtree_clod import QuadtreeClodProvider
+from globeview.plugins.builtin.clod.provider import QuadtreeClodProvider
 from globeview.plugins.testing import make_view
 
 MAGENTA = (1.0, 0.0, 1.0)
@@ -264,7 +264,7 @@ def erode(mask: np.ndarray, k: int) -> np.ndarray:
     ],
 )
 def test_render_has_no_cracks(session, terrain, view_name, exaggeration) -> None:
-    from globeview.render.camera import Camera
+    from globeview.model.camera import Camera
     from globeview.render.offscreen import OffscreenTarget
 
     size = (256, 192)

@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from globeview.plugins.builtin.wavelet_lod import WaveletSettings, select_wavelet, stop_levels
+from globeview.lod.tile_indices import grid_indices
+from globeview.plugins.builtin.wavelet.provider import WaveletSettings, select_wavelet, stop_levels
 from globeview.plugins.testing import make_view
-from globeview.render.tile_indices import grid_indices
 
 MAGENTA = (1.0, 0.0, 1.0)
 
@@ -85,10 +85,10 @@ def test_flat_tile_is_coarser_than_a_rough_one(terrain) -> None:
 
 @pytest.fixture(scope="module")
 def gl_session(terrain, tmp_path_factory):
+    from globeview.model.camera import Camera
     from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import JsonFileSettings
-    from globeview.render.camera import Camera
     from globeview.render.offscreen import OffscreenTarget, RenderError, create_headless_context
 
     try:
@@ -113,7 +113,7 @@ VIEWS = {
 @pytest.mark.gl
 @pytest.mark.parametrize("name", list(VIEWS))
 def test_renders_without_cracks(gl_session, name: str) -> None:
-    from globeview.render.camera import Camera
+    from globeview.model.camera import Camera
 
     # The crack oracle lives in the sibling module (no conftest in tests/lod/).
     spec = importlib.util.spec_from_file_location(

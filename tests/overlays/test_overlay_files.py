@@ -9,7 +9,7 @@ import rasterio
 from affine import Affine
 
 from globeview.errors import GlobeviewError
-from globeview.plugins.builtin.layers import (
+from globeview.plugins.builtin.layers.types import (
     ImageryLayerType,
     PointsLayerType,
     VectorLayerType,

@@ -14,7 +14,7 @@ import rasterio
 from affine import Affine
 
 from globeview.geodesy import WGS84, ecef_to_lonlat
-from globeview.render.camera import Camera
+from globeview.model.camera import Camera
 
 pytestmark = pytest.mark.gl
 SIZE = (320, 240)
@@ -123,7 +123,7 @@ def test_thematic_cells_land_where_they_are(clean, tmp_path) -> None:
     a float64 ray cast says it is: every mismatching pixel lies within 1 px of a boundary.
     (Grazing pixels near the limb, where one pixel spans many texels and the mipmap blends
     both classes, are left out.)"""
-    from globeview.plugins.builtin.layers import ImageryLayerType
+    from globeview.plugins.builtin.layers.types import ImageryLayerType
 
     res = 1.0 / 3.0
     cols = (np.arange(1080) * res // 15).astype(int)
@@ -162,7 +162,7 @@ def test_uniform_imagery_shows_no_seams(clean, tmp_path, cam) -> None:
     """A uniform-colour raster drapes uniformly: its colour ratio holds on every globe pixel,
     across tile borders (including the antimeridian and a level-1 tile corner), so no
     hypsometric colour or background bleeds through a texture tile's edge."""
-    from globeview.plugins.builtin.layers import ImageryLayerType
+    from globeview.plugins.builtin.layers.types import ImageryLayerType
 
     path = tmp_path / "uniform.tif"
     data = np.empty((3, 90, 180), np.uint8)
@@ -205,7 +205,7 @@ MAGENTA = (1.0, 0.0, 1.0, 1.0)
 def test_borders_stay_visible_on_the_alps_at_every_lod(clean, lod) -> None:
     """Country borders across the Alps, seen obliquely: the line pixels neither vanish into
     the terrain nor change much as tau (and so the drawn mesh) changes, for two providers."""
-    from globeview.plugins.builtin.layers import VectorLayerType
+    from globeview.plugins.builtin.layers.types import VectorLayerType
 
     layer = opened(
         VectorLayerType().open(
@@ -266,7 +266,7 @@ def test_ten_thousand_instanced_boxes(clean, capsys) -> None:
 
 def test_labelled_placemarks(clean) -> None:
     """City placemarks with labels: red discs and white label text appear over Europe."""
-    from globeview.plugins.builtin.layers import PointsLayerType
+    from globeview.plugins.builtin.layers.types import PointsLayerType
 
     layer = opened(PointsLayerType().open("data/ne_cities.geojson"))
     layer.attach(clean.renderer)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from globeview.render.camera import Camera
+from globeview.model.camera import Camera
 
 pytestmark = pytest.mark.gl
 
@@ -15,7 +15,7 @@ VIEWS = [(0.0, 20.0, 2.0e7, 0.0, -90.0), (-71.3, 44.15, 9000.0, 0.0, -30.0)]
 
 
 def test_chunked_sse_plugin_renders_pixel_identical_to_the_direct_selection() -> None:
-    from globeview.plugins.builtin.chunked_sse import select_tiles
+    from globeview.plugins.builtin.chunked.provider import select_tiles
     from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import MemorySettings

@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from globeview.render.render_set import (
+from globeview.lod.render_set import (
     MAX_PROVIDER_STATS,
     FrameStats,
     clean_provider_stats,
@@ -95,7 +95,7 @@ def test_as_dict_namespaces_provider_stats_and_levels() -> None:
 def test_only_a_bounded_prefix_is_examined() -> None:
     """A provider handing over 10^6 garbage entries each frame must not make the host walk
     them all: entries past the first `MAX_STATS_EXAMINED` are dropped unexamined."""
-    from globeview.render.render_set import MAX_STATS_EXAMINED
+    from globeview.lod.render_set import MAX_STATS_EXAMINED
 
     stats: dict = {f"junk{i}": object() for i in range(MAX_STATS_EXAMINED - 1)}
     stats["last_examined"] = 1

@@ -293,8 +293,8 @@ def gl():
 def test_session_falls_back_from_the_broken_provider_and_keeps_the_tool(
     plugin_site: PluginSite, gl
 ) -> None:
+    from globeview.model.camera import Camera
     from globeview.plugins.session import GlobeSession
-    from globeview.render.camera import Camera
     from globeview.render.offscreen import OffscreenTarget
 
     garbage_tool = """

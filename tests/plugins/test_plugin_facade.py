@@ -128,20 +128,20 @@ def test_contracts_kept_here_and_broken_by_planted_imports(tmp_path: Path) -> No
 
     planted = _copy_tree(tmp_path / "planted")
     plants = {
-        "globeview/plugins/builtin/_planted.py": "from globeview.render.culling import chord_sag\n",
+        "globeview/plugins/builtin/_planted.py": "from globeview.lod.culling import chord_sag\n",
         "globeview_fixedlevel/_planted.py": "from globeview.terrain.quadtree import level_shape\n",
         "globeview/ui/_planted.py": "from globeview.plugins.builtin import layers\n",
-        "globeview/plugins/_planted_host.py": "import globeview.plugins.builtin.chunked_sse\n",
+        "globeview/plugins/_planted_host.py": "import globeview.plugins.builtin.chunked.provider\n",
     }
     for rel, src in plants.items():
         (planted / rel).write_text(src, encoding="utf-8")
     report = _lint(planted)
     for contract in (BUILTIN_CONTRACT, EXAMPLE_CONTRACT, HOST_CONTRACT):
         assert _status(report, contract) == "BROKEN", report
-    assert "globeview.plugins.builtin._planted -> globeview.render.culling" in report
+    assert "globeview.plugins.builtin._planted -> globeview.lod.culling" in report
     assert "globeview_fixedlevel._planted -> globeview.terrain.quadtree" in report
     assert "globeview.ui._planted -> globeview.plugins.builtin" in report
-    assert "globeview.plugins._planted_host -> globeview.plugins.builtin.chunked_sse" in report
+    assert "globeview.plugins._planted_host -> globeview.plugins.builtin.chunked.provider" in report
 
 
 def test_docs_list_every_public_name() -> None:
@@ -167,7 +167,7 @@ def test_builtin_manifests_target_the_hosts_api_version() -> None:
     import globeview.plugins.builtin as builtin
     from globeview.plugins.api import API_VERSION
 
-    manifests = sorted(Path(builtin.__file__).parent.glob("*.toml"))
+    manifests = sorted(Path(builtin.__file__).parent.glob("*/manifest.toml"))
     assert len(manifests) >= 7
     for path in manifests:
-        assert tomllib.loads(path.read_text())["api_version"] == API_VERSION, path.name
+        assert tomllib.loads(path.read_text())["api_version"] == API_VERSION, path.parent.name

@@ -46,8 +46,8 @@ def lod_source(body: str, prelude: str = "") -> str:
     return (
         "import numpy as np\n"
         "from globeview.plugins.api import LodProvider\n"
-        "from globeview.render.render_set import RenderSet\n"
-        "from globeview.render.tile_indices import IndexVariant\n"
+        "from globeview.lod.render_set import RenderSet\n"
+        "from globeview.lod.tile_indices import IndexVariant\n"
         f"{prelude}\n"
         "class Provider(LodProvider):\n"
         "    calls = 0\n"
@@ -146,8 +146,8 @@ def gl():
 
 
 def session(gl, reg: PluginRegistry, lod: str):
+    from globeview.model.camera import Camera
     from globeview.plugins.session import GlobeSession
-    from globeview.render.camera import Camera
 
     ctx, _, terrain = gl
     return GlobeSession(ctx, terrain, Camera.from_lonlat(0.0, 20.0, 2.0e7), reg, lod=lod)
@@ -224,7 +224,7 @@ def test_garbage_render_set_fails_the_provider_and_the_frame_falls_back(
 
 @pytest.mark.gl
 def test_valid_render_sets_of_the_builtin_providers_pass_validation(gl) -> None:
-    from globeview.render.camera import Camera
+    from globeview.model.camera import Camera
 
     reg = registry()
     _, target, _ = gl

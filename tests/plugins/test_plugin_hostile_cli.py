@@ -186,12 +186,12 @@ def test_render_imports_only_the_plugins_it_uses(plugin_site: PluginSite, tmp_pa
     )
     assert again.returncode == 0, again.stderr
     imported = set(listing.read_text().split())
-    assert "globeview.plugins.builtin.chunked_sse" in imported  # the listing works
+    assert "globeview.plugins.builtin.chunked.provider" in imported  # the listing works
     unwanted = {
-        "globeview.plugins.builtin.wavelet_lod",
-        "globeview.plugins.builtin.distance_regions",
-        "globeview.plugins.builtin.quadtree_clod",
-        "globeview.plugins.builtin.collapse",
+        "globeview.plugins.builtin.wavelet.provider",
+        "globeview.plugins.builtin.regions.provider",
+        "globeview.plugins.builtin.clod.provider",
+        "globeview.plugins.builtin.collapse.tool",
         "gvt_side_boom.impl",
         "gvt_side_lod.impl",
         "gvt_side_tool.impl",

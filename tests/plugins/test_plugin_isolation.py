@@ -8,11 +8,11 @@ import logging
 
 import pytest
 
+from globeview.lod.render_set import RenderSet
 from globeview.plugins.api import KeyEvent, PointerEvent
 from globeview.plugins.registry import PluginRegistry
 from globeview.plugins.settings import MemorySettings
 from globeview.plugins.testing import PluginSite, plugin_manifest
-from globeview.render.render_set import RenderSet
 
 
 def _manifest(name: str, package: str, kind: str = "lod", attr: str = "Provider") -> str:
@@ -21,7 +21,7 @@ def _manifest(name: str, package: str, kind: str = "lod", attr: str = "Provider"
 
 GOOD_LOD = """
     from globeview.plugins.api import LodProvider
-    from globeview.render.render_set import RenderSet
+    from globeview.lod.render_set import RenderSet
 
     class Provider(LodProvider):
         def select(self, view, terrain):
@@ -143,7 +143,7 @@ def test_raises_in_select_per_frame(healthy: PluginSite, headless_view) -> None:
                 type(self).frames += 1
                 if type(self).frames == 3:
                     raise ZeroDivisionError("division by zero")
-                from globeview.render.render_set import RenderSet
+                from globeview.lod.render_set import RenderSet
                 return RenderSet.empty()
         """
     healthy.add("gvt_badselect", _manifest("bad-select", "gvt_badselect"), {"impl": src})

@@ -11,10 +11,10 @@ from pyproj import Geod
 
 from globeview.errors import GlobeviewError
 from globeview.geodesy import lonlat_to_ecef
+from globeview.model.camera import Camera
 from globeview.plugins.registry import PluginRegistry
 from globeview.plugins.settings import MemorySettings
 from globeview.plugins.testing import PluginSite
-from globeview.render.camera import Camera
 
 pytestmark = pytest.mark.gl
 SIZE = (480, 360)

@@ -156,12 +156,12 @@ def test_read_manifest_file_names_the_file(tmp_path: Path) -> None:
 
 
 def test_builtin_chunked_sse_manifest() -> None:
-    path = locate_manifest("globeview.plugins.builtin:chunked_sse.toml")
-    assert path == Path(builtin_pkg.__file__).parent / "chunked_sse.toml"
+    path = locate_manifest("globeview.plugins.builtin.chunked:manifest.toml")
+    assert path == Path(builtin_pkg.__file__).parent / "chunked" / "manifest.toml"
     m = read_manifest(path)
     assert m.name == "chunked-sse" and m.kinds == (PluginKind.LOD,)
     assert m.contribution("chunked-sse").target == (
-        "globeview.plugins.builtin.chunked_sse:ChunkedSseProvider"
+        "globeview.plugins.builtin.chunked.provider:ChunkedSseProvider"
     )
 
 

@@ -72,7 +72,7 @@ def test_commands_parse_with_canonical_shortcuts_and_default_labels() -> None:
 
 
 def test_builtin_collapse_declares_its_c_and_e_commands() -> None:
-    path = Path(builtin_pkg.__file__).parent / "collapse.toml"
+    path = Path(builtin_pkg.__file__).parent / "collapse" / "manifest.toml"
     (tool,) = read_manifest(path).contributions
     assert {c.shortcut: c.method for c in tool.commands} == {"C": "collapse", "E": "expand"}
 

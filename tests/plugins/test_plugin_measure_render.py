@@ -10,7 +10,7 @@ import pytest
 
 from globeview.errors import GlobeviewError
 from globeview.geodesy import lonlat_to_ecef
-from globeview.render.camera import Camera
+from globeview.model.camera import Camera
 
 pytestmark = pytest.mark.gl
 

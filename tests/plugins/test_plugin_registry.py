@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from globeview.lod.render_set import RenderSet
 from globeview.plugins.api import KeyEvent, LodProvider, Marker, PointerEvent, Tool
 from globeview.plugins.registry import PluginRegistry
 from globeview.plugins.settings import ENABLED_KEY, JsonFileSettings
-from globeview.render.render_set import RenderSet
 from globeview.terrain.quadtree import level_shape
 
 

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from globeview.geodesy import WGS84, ecef_to_lonlat
-from globeview.render.camera import Camera
-from globeview.render.view_state import ViewState
+from globeview.lod.view_state import ViewState
+from globeview.model.camera import Camera
 
 MAGENTA = (1.0, 0.0, 1.0)
 
@@ -40,7 +40,7 @@ def terrain():
 def _shared_scene(gl_ctx, terrain):
     # The renderer under test with the built-in chunked screen-space-error selection, called
     # directly (no plugin registry): these tests are about drawing, not plugin management.
-    from globeview.plugins.builtin.chunked_sse import select_tiles
+    from globeview.plugins.builtin.chunked.provider import select_tiles
     from globeview.render.scene import GlobeScene
 
     return GlobeScene(gl_ctx, terrain, Camera.from_lonlat(0.0, 20.0, 2.0e7), lod=select_tiles)

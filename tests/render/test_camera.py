@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from globeview.geodesy import enu_basis, lonlat_to_ecef, ray_ellipsoid_intersection
-from globeview.render.camera import MIN_HEIGHT_M, Camera
-from globeview.render.view_state import ViewState
+from globeview.lod.view_state import ViewState
+from globeview.model.camera import MIN_HEIGHT_M, Camera
 
 VIEWPORT = (640, 480)
 

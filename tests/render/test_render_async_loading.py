@@ -8,9 +8,9 @@ import time
 import numpy as np
 import pytest
 
-from globeview.render.camera import Camera
-from globeview.render.render_set import RenderSet
-from globeview.render.tile_indices import IndexVariant
+from globeview.lod.render_set import RenderSet
+from globeview.lod.tile_indices import IndexVariant
+from globeview.model.camera import Camera
 from globeview.render.tile_loader import substitute_missing
 
 pytestmark = pytest.mark.gl

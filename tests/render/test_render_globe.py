@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from globeview.geodesy import lonlat_to_ecef
-from globeview.render.camera import Camera
+from globeview.model.camera import Camera
 from globeview.render.colour_ramp import ramp_colour
 
 pytestmark = pytest.mark.gl

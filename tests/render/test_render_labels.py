@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from globeview.geodesy import lonlat_to_ecef
+from globeview.model.camera import Camera
 from globeview.plugins.api import Marker, Polyline
-from globeview.render.camera import Camera
 
 pytestmark = pytest.mark.gl
 SIZE = (400, 300)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from globeview.geodesy import lonlat_to_ecef, ray_ellipsoid_intersection
-from globeview.render.camera import Camera
+from globeview.model.camera import Camera
 
 pytestmark = pytest.mark.gl
 

@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from globeview.render.render_set import RenderSet
+from globeview.lod.render_set import RenderSet
+from globeview.lod.tile_indices import IndexVariant
 from globeview.render.renderer import coarsen_to_fit
-from globeview.render.tile_indices import IndexVariant
 
 GLOBEVIEW = Path(sys.executable).with_name("globeview")
 
@@ -102,10 +102,10 @@ def test_parents_at_the_poles_get_pole_fans() -> None:
 
 @pytest.mark.gl
 def test_renderer_with_a_small_pool_draws_a_degraded_frame(gl_ctx, terrain, targets) -> None:
-    from globeview.plugins.builtin.chunked_sse import select_tiles
-    from globeview.render.camera import Camera
+    from globeview.lod.view_state import ViewState
+    from globeview.model.camera import Camera
+    from globeview.plugins.builtin.chunked.provider import select_tiles
     from globeview.render.renderer import GlobeRenderer
-    from globeview.render.view_state import ViewState
 
     renderer = GlobeRenderer(gl_ctx, terrain, capacity=16)
     try:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from globeview.geodesy import lonlat_to_ecef
-from globeview.render.camera import Camera
+from globeview.model.camera import Camera
 from globeview.terrain.quadtree import tile_bounds_arrays
 
 SIZE = (480, 360)

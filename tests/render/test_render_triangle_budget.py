@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import pytest
 
-from globeview.render.camera import Camera
+from globeview.model.camera import Camera
 
 pytestmark = pytest.mark.gl
 

@@ -26,7 +26,7 @@ def _reading(text: str) -> tuple[float, str]:
 def test_cursor_height_orthometric_by_default_and_ellipsoidal_by_setting(
     make_window, qtbot, tmp_path
 ):
-    from globeview.render.camera import Camera
+    from globeview.model.camera import Camera
     from globeview.terrain.vdatum import egm96
 
     settings = tmp_path / "heights.ini"

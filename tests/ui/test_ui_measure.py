@@ -13,8 +13,8 @@ import pytest
 from PyQt6.QtCore import QPoint, Qt
 
 from globeview.geodesy import lonlat_to_ecef
+from globeview.model.camera import Camera
 from globeview.plugins.api import Plot, sample_terrain
-from globeview.render.camera import Camera
 from globeview.ui.plot_dock import CURVE_RGB
 
 pytestmark = pytest.mark.gui

@@ -29,7 +29,7 @@ label = "Broken"
 
 BROKEN_MODULE = """
 from globeview.plugins.api import LodProvider, Setting
-from globeview.plugins.builtin.chunked_sse import ChunkedSseProvider
+from globeview.plugins.builtin.chunked.provider import ChunkedSseProvider
 
 
 class BrokenProvider(LodProvider):
@@ -199,7 +199,7 @@ FAULTY_MODULE = """
 import numpy as np
 
 from globeview.plugins.api import LodProvider
-from globeview.plugins.builtin.chunked_sse import ChunkedSseProvider
+from globeview.plugins.builtin.chunked.provider import ChunkedSseProvider
 
 CALLS = []
 

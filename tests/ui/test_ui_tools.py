@@ -11,7 +11,7 @@ import pytest
 from PyQt6.QtCore import QPoint, Qt
 
 from globeview.geodesy import lonlat_to_ecef
-from globeview.render.camera import Camera
+from globeview.model.camera import Camera
 
 pytestmark = pytest.mark.gui
 

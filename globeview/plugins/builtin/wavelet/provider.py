@@ -70,8 +70,8 @@ from globeview.plugins.api import (
     cull_level,
     displacement_bend_m,
 )
-from globeview.plugins.builtin.chunked_sse import MAX_LEVEL, stride_errors_m
-from globeview.plugins.builtin.distance_regions import push_budget, render_set_from_tiles
+from globeview.plugins.builtin.chunked.provider import MAX_LEVEL, stride_errors_m
+from globeview.plugins.builtin.regions.provider import push_budget, render_set_from_tiles
 
 
 def stop_levels(m: int, max_level: int = MAX_LEVEL) -> np.ndarray:

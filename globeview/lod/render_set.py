@@ -15,7 +15,7 @@ from numbers import Real
 
 import numpy as np
 
-from globeview.render.tile_indices import IndexVariant
+from globeview.lod.tile_indices import IndexVariant
 
 #: Deepest quadtree level a key may have: the tile pool packs keys into int64 codes with
 #: x, y < 2^29 (tile_pool.key_codes), and level 28 has 2^29 columns.

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from globeview.geodesy import WGS84, lonlat_to_ecef
-from globeview.render.view_state import ViewState
+from globeview.lod.view_state import ViewState
 from globeview.terrain.quadtree import tile_bounds_arrays
 from globeview.terrain.stack import TerrainStack, TileMetadata
 

@@ -7,7 +7,7 @@ Per frame:
    the ground plane z = 0 of the ENU frame at the camera's nadir (rays that miss it stop at
    the paper's far distance, 9999 x height); the quadrilateral is enlarged by 20 % about its
    centroid. Tiles whose footprint (projected into that frame) misses it are culled, on top
-   of the exact frustum and horizon tests of `globeview.render.culling`.
+   of the exact frustum and horizon tests of `globeview.lod.culling`.
 2. **Region subdivision** (§3.2): R = Height tan(max(|pitch|, |roll|, fovy) / 2)
    max(1, aspect); a tile's projected distance D = max(|dx|, |dy|) (nadir ENU frame, metres)
    to its nearest point puts it in ring 1 (D <= 2R), 2 (<= 8R), 3 (<= 20R) or 4 (cut off).
@@ -65,7 +65,7 @@ from globeview.plugins.api import (
     enu_basis,
     lonlat_to_ecef,
 )
-from globeview.plugins.builtin.chunked_sse import MAX_LEVEL, stride_errors_m
+from globeview.plugins.builtin.chunked.provider import MAX_LEVEL, stride_errors_m
 
 #: Metres per degree of latitude (mean), to turn node spacings into metres.
 M_PER_DEG = math.pi * WGS84.a / 180.0

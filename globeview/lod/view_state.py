@@ -10,11 +10,12 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import Protocol
 
 import numpy as np
 
 from globeview.geodesy import WGS84
-from globeview.render.camera import Camera, check_number
+from globeview.validate import check_number
 
 #: (1/a², 1/a², 1/b²) of WGS84: shaders scale an ECEF position by it to get the direction of
 #: the geodetic normal there (the gradient of the ellipsoid equation).
@@ -35,6 +36,19 @@ def check_tau(tau_px: float) -> float:
 def check_exaggeration(exaggeration: float) -> float:
     """``exaggeration`` as a float, or ValueError (one line, with the valid range)."""
     return check_number("exaggeration", exaggeration, *EXAGGERATION_RANGE)
+
+
+class CameraLike(Protocol):
+    """What `ViewState.from_camera` reads of a camera (`globeview.model.camera.Camera`):
+    ECEF eye (m), world-from-camera rotation, vertical field of view (degrees)."""
+
+    eye: np.ndarray
+    rotation: np.ndarray
+    fovy_deg: float
+
+    def clip_range(self, max_height_m: float) -> tuple[float, float]: ...
+
+    def projection(self, aspect: float, near: float, far: float) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)
@@ -88,7 +102,7 @@ class ViewState:
     @classmethod
     def from_camera(
         cls,
-        camera: Camera,
+        camera: CameraLike,
         viewport: tuple[int, int],
         *,
         tau_px: float = 2.0,

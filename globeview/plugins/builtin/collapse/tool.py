@@ -3,7 +3,7 @@
 Pick A, then B: the land between them is squeezed along the A->B axis by the ratio r (the
 zone's length becomes r times as long) and the land beyond slides rigidly toward the zone,
 so two distant patches come side by side. The displacement runs in the terrain vertex shader
-(`collapse_glsl.COLLAPSE_GLSL`); `CollapseFrame` (collapse_geometry.py) is its float64 CPU
+(`glsl.COLLAPSE_GLSL`); `CollapseFrame` (geometry.py) is its float64 CPU
 twin, used for LOD bounds, overlays, and (inverted) for picking. See docs/collapse.md.
 
 State machine: ``idle`` -> (press) ``a_set`` -> (press) collapsing animation -> collapsed.
@@ -31,8 +31,8 @@ from globeview.plugins.api import (
     Tool,
     lonlat_to_ecef,
 )
-from globeview.plugins.builtin.collapse_geometry import CollapseFrame, ellipsoid_point_along
-from globeview.plugins.builtin.collapse_glsl import COLLAPSE_GLSL
+from globeview.plugins.builtin.collapse.geometry import CollapseFrame, ellipsoid_point_along
+from globeview.plugins.builtin.collapse.glsl import COLLAPSE_GLSL
 
 __all__ = ["CollapseTool"]
 
@@ -270,7 +270,7 @@ class CollapseTool(Tool):
 
     # -- displacement hook -----------------------------------------------------------------
     def displacement_glsl(self) -> str:
-        """The vertex-shader twin of `CollapseFrame.forward` (collapse_glsl.py)."""
+        """The vertex-shader twin of `CollapseFrame.forward` (glsl.py)."""
         return COLLAPSE_GLSL
 
     def displacement_uniforms(self, view: Any) -> dict[str, float | tuple[float, ...]]:

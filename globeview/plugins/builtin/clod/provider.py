@@ -2,10 +2,10 @@
 ch. 4-5, after Lindstrom et al. 1996 and Ulrich 2002).
 
 Which tiles to draw, and at which quadtree level, follows the default provider's walk
-(`chunked_sse.select_tiles`: frustum + horizon culling, screen-space error); this provider
+(`chunked.provider.select_tiles`: frustum + horizon culling, screen-space error); this provider
 then decides the mesh *inside* each tile with the thesis' vertex errors, box test and vertex
 dependencies, and hands the renderer one triangle list per tile (`RenderSet.custom_indices`).
-The per-tile mathematics is in `clod_mesh.py`.
+The per-tile mathematics is in `mesh.py`.
 
 Thresholds. The thesis enables a vertex when ``E_v / d >= tau'`` (eq. 4.1) and refines a block
 when ``E_max / (d - s) >= tau'`` (eq. 4.2), a dimensionless ratio (its experiments: 0.0001 to
@@ -22,9 +22,9 @@ nearest tile: the same index arrays are handed on (``stats["clod_cache_hits"]`` 
 
 Displacement (a tool's ``view.displace``, e.g. the terrain collapse). The collapse is not affine
 at its fold lines: a long edge across a fold is drawn as a straight chord while a finer
-neighbour follows the fold, and a gap opens. The tiles come from `chunked_sse.select_tiles`,
+neighbour follows the fold, and a gap opens. The tiles come from `chunked.provider.select_tiles`,
 which already adds the fold's bend to each tile's error; inside the tiles, the CLOD data are
-then built from the *displaced* nodes (`clod_mesh.tile_clod`), so a vertex's error includes
+then built from the *displaced* nodes (`mesh.tile_clod`), so a vertex's error includes
 the bend and blocks a fold crosses refine until the chord error projects below tau. Those
 tiles are cached per displacement (a fingerprint: the displacement of a fixed set of probe
 points); with no displacement nothing changes and nothing extra is computed.
@@ -47,8 +47,8 @@ from globeview.plugins.api import (
     ViewState,
     lonlat_to_ecef,
 )
-from globeview.plugins.builtin.chunked_sse import ChunkedSettings, select_tiles
-from globeview.plugins.builtin.clod_mesh import (
+from globeview.plugins.builtin.chunked.provider import ChunkedSettings, select_tiles
+from globeview.plugins.builtin.clod.mesh import (
     ClodFrame,
     TileClod,
     clod_frame,

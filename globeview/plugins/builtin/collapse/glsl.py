@@ -22,7 +22,7 @@ from __future__ import annotations
 __all__ = ["COLLAPSE_GLSL"]
 
 COLLAPSE_GLSL = """
-// ---- globeview collapse tool (plugins/builtin/collapse_glsl.py) ----
+// ---- globeview collapse tool (plugins/builtin/collapse/glsl.py) ----
 uniform vec3 gv_u_m_rel;   // M - eye (m), formed in float64 on the CPU
 uniform vec3 gv_u_m;       // unit geocentric direction of M
 uniform vec3 gv_u_t;       // unit axis direction at M, toward B (t = n x m)

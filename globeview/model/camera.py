@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from globeview.geodesy import WGS84, ecef_to_lonlat, enu_basis, lonlat_to_ecef
+from globeview.validate import check_finite, check_number
 
 #: Lowest height above the ellipsoid the navigation operations allow (m).
 MIN_HEIGHT_M = 2.0
@@ -37,25 +38,6 @@ HEIGHT_RANGE_M = (-12000.0, 1.0e9)
 #: Vertical fields of view (degrees) a camera accepts: 0 collapses the projection, 180
 #: makes it infinite.
 FOV_RANGE_DEG = (1.0, 170.0)
-
-
-def check_number(name: str, value: float, lo: float, hi: float, unit: str = "") -> float:
-    """``value`` as a float if it is finite and within ``lo..hi``; otherwise ValueError with
-    one line naming ``name`` and the valid range (e.g. "latitude must be a finite number in
-    -90..90 deg, not nan"). The CLI prefixes the option name; the window shows it as is."""
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number, not {value!r}") from None
-    if not (math.isfinite(v) and lo <= v <= hi):
-        span = f" in {lo:g}..{hi:g}{unit}" if math.isfinite(lo) or math.isfinite(hi) else ""
-        raise ValueError(f"{name} must be a finite number{span}, not {v:g}")
-    return v
-
-
-def check_finite(name: str, value: float) -> float:
-    """``value`` as a float if it is finite, else ValueError naming ``name``."""
-    return check_number(name, value, -math.inf, math.inf)
 
 
 def check_lonlat_hpr(

@@ -1,0 +1,30 @@
+"""`DisplaySettings`: how the globe is drawn (exaggeration, wireframe, hillshade, fog,
+colours), evented: each field has a signal under ``settings.events`` that fires on change."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from psygnal import evented
+
+#: The colour of space behind the globe (linear RGB, 0..1).
+SPACE_RGB = (0.02, 0.02, 0.05)
+
+
+@evented
+@dataclass
+class DisplaySettings:
+    """Live display settings; all take effect on the next frame.
+
+    exaggeration: vertical exaggeration factor (1 = true heights; checked where a frame is
+    built, `globeview.lod.view_state.check_exaggeration`); background and wire_color: RGB,
+    each 0..1. ``settings.events.<field>.connect(callback)`` subscribes to one field,
+    ``settings.events.connect(callback)`` to all (psygnal).
+    """
+
+    exaggeration: float = 1.0
+    wireframe: bool = False
+    hillshade: bool = False
+    fog: bool = True
+    background: tuple[float, float, float] = SPACE_RGB
+    wire_color: tuple[float, float, float] = (0.05, 0.05, 0.05)

@@ -1,0 +1,144 @@
+"""`Globe`: the application model, free of Qt and GL.
+
+One globe view as plain objects: the camera, the terrain layers (`TerrainStack`), the
+overlay layers, the active LOD provider and tool (by plugin contribution name), the
+screen-space error threshold and the display settings. Every change emits an event under
+``globe.events`` (psygnal signals); the Qt window and the renderer subscribe, nothing here
+knows either. A render adapter (`globeview.render`) makes GPU objects from this state when a
+frame is drawn, so changing the model never needs a GL context.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from psygnal import Signal, SignalGroup
+
+from globeview.lod.view_state import check_tau
+from globeview.model.camera import Camera
+from globeview.model.display import DisplaySettings
+from globeview.terrain.stack import TerrainStack
+
+#: The LOD provider a new globe starts with (a built-in plugin contribution).
+DEFAULT_LOD = "chunked-sse"
+
+
+class GlobeEvents(SignalGroup):
+    """The signals of a `Globe`. Each passes the new value (``terrain`` and ``overlays``
+    pass nothing: read the globe)."""
+
+    #: The camera moved or was replaced (argument: the `Camera`).
+    camera = Signal(object)
+    #: The active LOD provider's name changed.
+    lod = Signal(str)
+    #: The active tool's name changed (None: no tool).
+    tool = Signal(object)
+    #: The screen-space error threshold (pixels) changed.
+    tau_px = Signal(float)
+    #: Terrain layers were added, removed, moved, shown or hidden.
+    terrain = Signal()
+    #: Overlay layers were added, removed, reordered, shown, hidden or restyled.
+    overlays = Signal()
+
+
+class Globe:
+    """The globe a user sees, as data.
+
+    Args:
+        terrain: the DEM layers, composed by priority.
+        camera: where the viewer is (ECEF metres; default: 20 000 km above 0°E 20°N).
+        lod: name of the active LOD provider contribution.
+        tau_px: screen-space error threshold in pixels (`check_tau` range).
+        display: display settings (evented on their own: ``globe.display.events``).
+    """
+
+    def __init__(
+        self,
+        terrain: TerrainStack,
+        camera: Camera | None = None,
+        *,
+        lod: str = DEFAULT_LOD,
+        tau_px: float = 2.0,
+        display: DisplaySettings | None = None,
+    ) -> None:
+        self.events = GlobeEvents()
+        self._terrain = terrain
+        self._camera = camera or Camera.from_lonlat(0.0, 20.0, 2.0e7)
+        self._lod = str(lod)
+        self._tool: str | None = None
+        self._tau_px = check_tau(tau_px)
+        self.display = display if display is not None else DisplaySettings()
+        self.overlays: list[Any] = []
+        terrain.listeners.append(self._terrain_changed)
+
+    # -- terrain ---------------------------------------------------------------------------
+    @property
+    def terrain(self) -> TerrainStack:
+        return self._terrain
+
+    def _terrain_changed(self) -> None:
+        self.events.terrain.emit()
+
+    # -- camera ----------------------------------------------------------------------------
+    @property
+    def camera(self) -> Camera:
+        return self._camera
+
+    @camera.setter
+    def camera(self, camera: Camera) -> None:
+        self._camera = camera
+        self.events.camera.emit(camera)
+
+    def camera_moved(self) -> None:
+        """Announce that the camera was moved in place (``camera.fly_yaw(...)`` etc.)."""
+        self.events.camera.emit(self._camera)
+
+    # -- LOD, tool, tau ----------------------------------------------------------------------
+    @property
+    def lod(self) -> str:
+        """Name of the active LOD provider contribution."""
+        return self._lod
+
+    @lod.setter
+    def lod(self, name: str) -> None:
+        if name != self._lod:
+            self._lod = str(name)
+            self.events.lod.emit(self._lod)
+
+    @property
+    def tool(self) -> str | None:
+        """Name of the active tool contribution, or None."""
+        return self._tool
+
+    @tool.setter
+    def tool(self, name: str | None) -> None:
+        if name != self._tool:
+            self._tool = name
+            self.events.tool.emit(name)
+
+    @property
+    def tau_px(self) -> float:
+        """Screen-space error threshold (pixels). Refused where it is set (ValueError, one
+        line with the valid range), so no frame trips over a NaN or zero tau."""
+        return self._tau_px
+
+    @tau_px.setter
+    def tau_px(self, value: float) -> None:
+        value = check_tau(value)
+        if value != self._tau_px:
+            self._tau_px = value
+            self.events.tau_px.emit(value)
+
+    # -- overlays --------------------------------------------------------------------------
+    def add_overlay(self, layer: Any) -> None:
+        """Show ``layer`` on top of the other overlays."""
+        self.overlays.append(layer)
+        self.events.overlays.emit()
+
+    def remove_overlay(self, layer: Any) -> None:
+        self.overlays.remove(layer)
+        self.events.overlays.emit()
+
+    def overlays_changed(self) -> None:
+        """Announce an in-place change of an overlay (visibility, opacity, style)."""
+        self.events.overlays.emit()

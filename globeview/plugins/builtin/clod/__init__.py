@@ -1,0 +1,2 @@
+"""Quadtree continuous LOD (Lindstrom/Ulrich as in Wang's thesis): per-vertex errors, vertex
+dependencies for crack-free meshes, inside tiles chosen by the chunked traversal."""

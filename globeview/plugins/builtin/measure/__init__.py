@@ -1,0 +1,1 @@
+"""The measure tool: geodesic distance, azimuth and terrain profile between picked points."""

@@ -1,0 +1,2 @@
+"""Distance-based region subdivision (Rishe et al.): LOD rings around the nadir, a horizon
+cut-off and a navigation-speed factor."""

@@ -1,0 +1,2 @@
+"""Wavelet LOD (Zhang et al.): levels chosen from static (roughness) and dynamic (distance)
+error over the wavelet pyramid."""
