@@ -88,8 +88,11 @@ if TYPE_CHECKING:  # the lazy re-exports (`_REEXPORTS`), spelled out for type ch
         horizon_visible,
         tile_bounding_points,
     )
+    from globeview.lod.policy import LodPolicy, ScreenSpaceErrorPolicy, coarsest_stride_within
     from globeview.lod.render_set import MAX_KEY_LEVEL, MAX_TILES, InvalidRenderSet, RenderSet
+    from globeview.lod.stitching import neighbour_edge_strides, render_set_from_tiles
     from globeview.lod.tile_indices import IndexVariant
+    from globeview.lod.traversal import MAX_LEVEL, Selection, TileCandidates, traverse
     from globeview.lod.view_state import ViewState
     from globeview.render.tile_mesh import node_lonlat
     from globeview.terrain.quadtree import TileKey, level_shape, tile_bounds_arrays
@@ -99,6 +102,7 @@ __all__ = [
     "API_VERSION",
     "LATTICE",
     "MAX_KEY_LEVEL",
+    "MAX_LEVEL",
     "MAX_TILES",
     "N_STRIDES",
     "WGS84",
@@ -109,6 +113,7 @@ __all__ = [
     "KeyEvent",
     "LayerType",
     "Lines",
+    "LodPolicy",
     "LodProvider",
     "Marker",
     "Overlay",
@@ -124,15 +129,19 @@ __all__ = [
     "RasterInfo",
     "RenderSet",
     "RendererHooks",
+    "ScreenSpaceErrorPolicy",
+    "Selection",
     "Setting",
     "TerrainSample",
     "TerrainStack",
+    "TileCandidates",
     "TileKey",
     "Tool",
     "ViewState",
     "bounding_distance",
     "box_angular_distance_pre",
     "chord_sag",
+    "coarsest_stride_within",
     "cull_level",
     "displacement_bend_m",
     "displacement_chord_error_m",
@@ -147,12 +156,15 @@ __all__ = [
     "horizon_visible",
     "level_shape",
     "lonlat_to_ecef",
+    "neighbour_edge_strides",
     "node_lonlat",
     "raster_info",
     "read_csv_columns",
+    "render_set_from_tiles",
     "sample_terrain",
     "tile_bounding_points",
     "tile_bounds_arrays",
+    "traverse",
 ]
 
 #: Public name -> the host module defining it. These names are the supported surface (the
@@ -178,6 +190,15 @@ _REEXPORTS: dict[str, str] = {
     "InvalidRenderSet": "globeview.lod.render_set",
     "RenderSet": "globeview.lod.render_set",
     "IndexVariant": "globeview.lod.tile_indices",
+    "LodPolicy": "globeview.lod.policy",
+    "ScreenSpaceErrorPolicy": "globeview.lod.policy",
+    "coarsest_stride_within": "globeview.lod.policy",
+    "neighbour_edge_strides": "globeview.lod.stitching",
+    "render_set_from_tiles": "globeview.lod.stitching",
+    "MAX_LEVEL": "globeview.lod.traversal",
+    "Selection": "globeview.lod.traversal",
+    "TileCandidates": "globeview.lod.traversal",
+    "traverse": "globeview.lod.traversal",
     "node_lonlat": "globeview.render.tile_mesh",
     "ViewState": "globeview.lod.view_state",
     "TileKey": "globeview.terrain.quadtree",

@@ -22,8 +22,9 @@ from globeview.lod.render_set import RenderSet
 from globeview.lod.tile_indices import IndexVariant
 from globeview.lod.view_state import ViewState
 from globeview.model.camera import Camera
-from globeview.plugins.builtin.chunked import provider as chunked_sse
-from globeview.plugins.builtin.chunked.provider import MAX_LEVEL, ChunkedSettings, select_tiles
+from globeview.lod import tile_cache, traversal
+from globeview.lod.traversal import MAX_LEVEL
+from globeview.plugins.builtin.chunked.provider import ChunkedSettings, select_tiles
 from globeview.terrain.quadtree import tile_bounds_arrays
 from globeview.terrain.stack import N_STRIDES, TerrainStack
 
@@ -330,10 +331,10 @@ def test_terrain_change_invalidates_cache(terrain) -> None:
 def test_cache_is_bounded(terrain, monkeypatch) -> None:
     """With a tiny cap the per-tile cache starts afresh instead of growing (it holds at most
     the cap plus one frame's tiles), and the results still match."""
-    monkeypatch.setattr(chunked_sse, "TILE_CACHE_CAP", 64)
+    monkeypatch.setattr(tile_cache, "TILE_CACHE_CAP", 64)
 
     def held() -> int:
-        return sum(lv.n for lv in chunked_sse._TILE_CACHE.levels.values())
+        return tile_cache.tile_cache_for(terrain).held
 
     sizes = []
     for name in ("white-mountains", "global", "crater-lake", "global"):
@@ -343,7 +344,7 @@ def test_cache_is_bounded(terrain, monkeypatch) -> None:
     # The global view walks few tiles: after the White Mountains filled the cache past the
     # cap, it was dropped and holds only what the global view needed.
     assert sizes[1] < sizes[0]
-    monkeypatch.setattr(chunked_sse, "_TILE_CACHE", chunked_sse._TileCache())
+    tile_cache.tile_cache_for(terrain).levels = {}  # a cold cache
     select_tiles(_view(*VIEWS["global"]), terrain)
     assert held() == sizes[1]
 
@@ -365,21 +366,21 @@ def test_prefilters_agree_with_exact_tests(terrain) -> None:
             view = _view(
                 lon, lat, h, rng.uniform(0, 360), rng.uniform(-90, 0), exaggeration=exaggeration
             )
-            facts = chunked_sse._tile_facts(terrain, level, x, y, exaggeration, 65)
+            facts = tile_cache.tile_facts(terrain, level, x, y, exaggeration, 65)
             c, pts = facts["cols"], facts["pts"]
             w, s, e, n = tile_bounds_arrays(level, x, y)
             meta = terrain.metadata(level, x, y)
             # Frustum: decided tiles agree with the exact test.
-            frame = chunked_sse._FrustumFrame(view)
-            vis, amb = chunked_sse._frustum_prefilter(
-                frame, facts["centre"] - view.eye, c[chunked_sse._MARGIN], c[chunked_sse._SPHERE]
+            frame = traversal.FrustumFrame(view)
+            vis, amb = traversal.frustum_prefilter(
+                frame, facts["centre"] - view.eye, c[tile_cache.COL_MARGIN], c[tile_cache.COL_SPHERE]
             )
-            exact_f = _reference_frustum_visible(view, pts, c[chunked_sse._MARGIN])
+            exact_f = _reference_frustum_visible(view, pts, c[tile_cache.COL_MARGIN])
             assert np.array_equal(vis[~amb], exact_f[~amb])
-            assert np.array_equal(frame.exact(pts, c[chunked_sse._MARGIN]), exact_f)
+            assert np.array_equal(frame.exact(pts, c[tile_cache.COL_MARGIN]), exact_f)
             # Horizon: the prefiltered test equals the reference.
-            cap = chunked_sse.horizon_cap(view)
+            cap = traversal.horizon_cap(view)
             lon0, lat0 = np.radians(view.eye_lonlat_h[:2])
             u0 = np.array([np.cos(lat0) * np.cos(lon0), np.cos(lat0) * np.sin(lon0), np.sin(lat0)])
             want = _reference_horizon_visible(view, w, s, e, n, meta.hmax, exaggeration)
-            assert np.array_equal(chunked_sse._horizon_visible(view, cap, c, u0), want)
+            assert np.array_equal(traversal.horizon_visible_cached(view, cap, c, u0), want)

@@ -9,11 +9,11 @@ import math
 import numpy as np
 import pytest
 
+from globeview.lod.stitching import neighbour_edge_strides
 from globeview.lod.tile_indices import IndexVariant, grid_indices
 from globeview.plugins.builtin.regions.provider import (
     level_and_stride,
     mesh_resolution,
-    neighbour_edge_strides,
     node_spacing_m,
     region_factor,
     ring_of,

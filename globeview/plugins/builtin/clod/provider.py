@@ -1,8 +1,9 @@
 """`quadtree-clod`: real-time adaptive quadtree continuous LOD inside each tile (Wang thesis
 ch. 4-5, after Lindstrom et al. 1996 and Ulrich 2002).
 
-Which tiles to draw, and at which quadtree level, follows the default provider's walk
-(`chunked.provider.select_tiles`: frustum + horizon culling, screen-space error); this provider
+Which tiles to draw, and at which quadtree level, is the default provider's choice: the shared
+quadtree traversal (`traverse`: frustum + horizon culling, the per-terrain tile cache) with the
+screen-space-error policy (`ScreenSpaceErrorPolicy`, chunked-sse's); this provider
 then decides the mesh *inside* each tile with the thesis' vertex errors, box test and vertex
 dependencies, and hands the renderer one triangle list per tile (`RenderSet.custom_indices`).
 The per-tile mathematics is in `mesh.py`.
@@ -22,8 +23,8 @@ nearest tile: the same index arrays are handed on (``stats["clod_cache_hits"]`` 
 
 Displacement (a tool's ``view.displace``, e.g. the terrain collapse). The collapse is not affine
 at its fold lines: a long edge across a fold is drawn as a straight chord while a finer
-neighbour follows the fold, and a gap opens. The tiles come from `chunked.provider.select_tiles`,
-which already adds the fold's bend to each tile's error; inside the tiles, the CLOD data are
+neighbour follows the fold, and a gap opens. The tiles come from the shared traversal, which
+already adds the fold's bend to each tile's error; inside the tiles, the CLOD data are
 then built from the *displaced* nodes (`mesh.tile_clod`), so a vertex's error includes
 the bend and blocks a fold crosses refine until the chord error projects below tau. Those
 tiles are cached per displacement (a fingerprint: the displacement of a fixed set of probe
@@ -42,12 +43,13 @@ import numpy as np
 from globeview.plugins.api import (
     LodProvider,
     RenderSet,
+    ScreenSpaceErrorPolicy,
     Setting,
     TerrainStack,
     ViewState,
     lonlat_to_ecef,
+    traverse,
 )
-from globeview.plugins.builtin.chunked.provider import ChunkedSettings, select_tiles
 from globeview.plugins.builtin.clod.mesh import (
     ClodFrame,
     TileClod,
@@ -178,10 +180,10 @@ class QuadtreeClodProvider(LodProvider):
             self._last = None
             self._terrain_id = tid
         tau = self.tau_px(view)
-        base = select_tiles(
+        base = traverse(
             view,
             terrain,
-            ChunkedSettings(tau_px=tau, texel_px=v["texel_px"], max_tiles=v["max_tiles"]),
+            ScreenSpaceErrorPolicy(tau_px=tau, texel_px=v["texel_px"], max_tiles=v["max_tiles"]),
         )
         keys = base.keys
         exag = float(view.exaggeration)

@@ -37,35 +37,38 @@ resolution (coarser when moving fast, as §2 intends; the printed formula multip
 Tile_Size / Mesh_Grid_Size is 4 (a 256 px imagery tile over our 64-cell mesh tile); the
 x/y ratio is the viewport's width / height (the side that widens the footprint).
 
-The stitching helpers here (`neighbour_edge_strides`, `render_set_from_tiles`) are shared with
-the `wavelet` provider.
+The quadtree walk itself (culling, the per-terrain tile cache, the tile budget) is the shared
+traversal (`traverse`); this module is Rishe's policy on it (`RishePolicy`: the ground-region
+and cut-off culling, the rings' resolutions, the strides) and the formulas it uses. Stitching
+is the shared `render_set_from_tiles`.
 """
 
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from globeview.plugins.api import (
     LATTICE,
+    MAX_LEVEL,
     N_STRIDES,
     WGS84,
-    IndexVariant,
+    LodPolicy,
     LodProvider,
     RenderSet,
+    Selection,
     Setting,
     TerrainStack,
+    TileCandidates,
     ViewState,
-    bounding_distance,
-    cull_level,
-    displacement_bend_m,
     enu_basis,
     lonlat_to_ecef,
+    render_set_from_tiles,
+    traverse,
 )
-from globeview.plugins.builtin.chunked.provider import MAX_LEVEL, stride_errors_m
 
 #: Metres per degree of latitude (mean), to turn node spacings into metres.
 M_PER_DEG = math.pi * WGS84.a / 180.0
@@ -73,7 +76,6 @@ M_PER_DEG = math.pi * WGS84.a / 180.0
 FAR_FACTOR = 9999.0
 #: Rishe §3.1: the ground-region estimate is enlarged by 20 %.
 ENLARGE = 1.2
-_POLES = (None, "north", "south", "both")
 
 
 # -- Rishe's formulas (pure functions) ---------------------------------------------------------
@@ -208,72 +210,7 @@ def polygons_overlap(region: np.ndarray, quads: np.ndarray) -> np.ndarray:
     return ~np.any(sep, axis=1)
 
 
-# -- stitching and the render set (shared with the wavelet provider) --------------------------
-def _codes(level: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    return (level.astype(np.int64) << 50) | (y.astype(np.int64) << 25) | x.astype(np.int64)
-
-
-def neighbour_edge_strides(keys: np.ndarray, strides: np.ndarray) -> np.ndarray:
-    """(N, 4) strides of each tile's (north, south, west, east) edge: the tile's own stride,
-    or its same-level neighbour's when that one is drawn coarser (and present in the set).
-
-    The two tiles then share exactly the coarse edge's vertices (same level: same samples).
-    Neighbours at another level are left to the skirts.
-    """
-    keys = np.asarray(keys, dtype=np.int64)
-    strides = np.asarray(strides, dtype=np.int64)
-    level, x, y = keys[:, 0], keys[:, 1], keys[:, 2]
-    codes = _codes(level, x, y)
-    order = np.argsort(codes)
-    sorted_codes = codes[order]
-    ncols = 2 << level  # 2^(L+1) columns; longitude wraps
-    nrows = 1 << level
-    out = np.repeat(strides[:, None], 4, axis=1)
-    for k, (dx, dy) in enumerate(((0, -1), (0, 1), (-1, 0), (1, 0))):
-        ny = y + dy
-        nx = (x + dx) % ncols
-        valid = (ny >= 0) & (ny < nrows)
-        nc = _codes(level, nx, np.clip(ny, 0, None))
-        pos = np.clip(np.searchsorted(sorted_codes, nc), 0, len(codes) - 1)
-        found = valid & (sorted_codes[pos] == nc) if len(codes) else valid
-        nb_stride = np.where(found, strides[order[pos]], 0)
-        out[:, k] = np.maximum(out[:, k], nb_stride)
-    return out
-
-
-def render_set_from_tiles(
-    keys: np.ndarray,
-    stride_idx: np.ndarray,
-    error_px: np.ndarray,
-    size: int,
-    stitch: bool = True,
-) -> RenderSet:
-    """A RenderSet for tiles ``keys`` drawn at strides 2**stride_idx, with skirts, pole fans,
-    and (``stitch``) edges stitched to coarser same-level neighbours."""
-    if len(keys) == 0:
-        return RenderSet.empty()
-    keys = np.asarray(keys, dtype=np.int64)
-    stride_idx = np.asarray(stride_idx, dtype=np.int64)
-    strides = 1 << stride_idx
-    pole = (keys[:, 2] == 0).astype(np.int64) + 2 * (keys[:, 2] == (1 << keys[:, 0]) - 1)
-    if stitch:
-        edges = np.minimum(neighbour_edge_strides(keys, strides), size - 1)
-    else:
-        edges = np.repeat(strides[:, None], 4, axis=1)
-    combo = np.concatenate([strides[:, None], pole[:, None], edges], axis=1)
-    uniq, ids = np.unique(combo, axis=0, return_inverse=True)
-    variants = []
-    for s, p, en, es, ew, ee in uniq.tolist():
-        e4 = (en, es, ew, ee)
-        variants.append(
-            IndexVariant(
-                stride=s, skirts=True, pole=_POLES[p], edge_strides=None if max(e4) == s else e4
-            )
-        )
-    rs = RenderSet(keys, ids.reshape(-1), variants, error_px=np.asarray(error_px, float))
-    return rs
-
-
+# -- helpers of the region test ---------------------------------------------------------------
 def _bounding_quads(points: np.ndarray, grow: np.ndarray) -> np.ndarray:
     """(N, 4, 2) counter-clockwise axis-aligned boxes around each tile's 2-D points
     (N, K, 2), grown by ``grow`` (N,) metres on every side."""
@@ -282,19 +219,6 @@ def _bounding_quads(points: np.ndarray, grow: np.ndarray) -> np.ndarray:
     return np.stack(
         [lo, np.stack([hi[:, 0], lo[:, 1]], 1), hi, np.stack([lo[:, 0], hi[:, 1]], 1)], axis=1
     )
-
-
-def push_budget(refine: np.ndarray, score: np.ndarray, room: int, fanout: int) -> np.ndarray:
-    """Limit refinement so the drawn tiles stay within the budget: refine the worst first."""
-    n_ref = int(np.count_nonzero(refine))
-    if n_ref * fanout <= room or n_ref == 0:
-        return refine
-    allowed = max(room // fanout, 0)
-    order = np.argsort(-score)
-    idx = order[refine[order]][:allowed]
-    out = np.zeros_like(refine)
-    out[idx] = True
-    return out
 
 
 # -- the provider ------------------------------------------------------------------------------
@@ -313,47 +237,52 @@ class RegionSettings:
     tile_over_grid: float = 4.0
 
 
-def select_regions(
-    view: ViewState, terrain: TerrainStack, settings: RegionSettings | None = None
-) -> RenderSet:
-    """Rishe's distance-based region subdivision on the quadtree (module docstring)."""
-    st = settings or RegionSettings()
-    t0 = time.perf_counter()
-    size = terrain.tile_size
-    exag = view.exaggeration
-    lon0, lat0, h0 = view.eye_lonlat_h
-    pitch_r, roll = rishe_pitch_roll(view)
-    height = max(h0, 1.0)
-    r = region_factor(height, pitch_r, roll, view.fovy_deg, view.aspect)
-    r_m = mesh_resolution(
-        height,
-        view.fovy_deg,
-        st.hr_ratio,
-        speed_factor(view.speed_mps, view.frame_rate_hz, st.c),
-        st.tile_over_grid,
-    )
-    region, basis = ground_region(view)
-    nadir = np.asarray(lonlat_to_ecef(lon0, lat0, 0.0), dtype=np.float64).reshape(3)
-    far_ring = 4 if st.cutoff else 5  # ring 4 = beyond the cut-off distance
+class RishePolicy(LodPolicy):
+    """Rishe's distance-based region subdivision as a policy on the shared traversal (module
+    docstring): per frame the region factor R, the ring-1 mesh resolution R_m and the
+    ground-region estimate; per level the region / cut-off culling and the rings (`cull`),
+    refinement while a tile's node spacing exceeds its ring's resolution (`refine`), and the
+    coarsest stride whose cell stays within it (`stride`); same-level borders stitched."""
 
-    x = np.array([0, 1], dtype=np.int64)
-    y = np.zeros(2, dtype=np.int64)
-    out_keys, out_stride, out_err, out_ring = [], [], [], []
-    culled_f = culled_h = culled_r = culled_c = 0
-    drawn = 0
-    for level in range(MAX_LEVEL + 1):
-        if len(x) == 0:
-            break
-        cand = cull_level(view, terrain, level, x, y)
-        w, s, e, n, meta = cand.west, cand.south, cand.east, cand.north, cand.meta
-        pts_true, pts, margin = cand.pts_true, cand.pts, cand.margin
-        vis_f, vis_h = cand.in_frustum, cand.above_horizon
+    def __init__(self, settings: RegionSettings | None = None) -> None:
+        super().__init__()
+        self.st = settings or RegionSettings()
+        self.max_tiles = self.st.max_tiles
+
+    def begin(self, view: ViewState, terrain: TerrainStack) -> None:
+        super().begin(view, terrain)
+        st = self.st
+        self.lon0, self.lat0, h0 = view.eye_lonlat_h
+        pitch_r, roll = rishe_pitch_roll(view)
+        self.height = max(h0, 1.0)
+        self.r = region_factor(self.height, pitch_r, roll, view.fovy_deg, view.aspect)
+        self.r_m = mesh_resolution(
+            self.height,
+            view.fovy_deg,
+            st.hr_ratio,
+            speed_factor(view.speed_mps, view.frame_rate_hz, st.c),
+            st.tile_over_grid,
+        )
+        self.region, self.basis = ground_region(view)
+        self.nadir = np.asarray(
+            lonlat_to_ecef(self.lon0, self.lat0, 0.0), dtype=np.float64
+        ).reshape(3)
+        self.far_ring = 4 if st.cutoff else 5  # ring 4 = beyond the cut-off distance
+        self.culled_r = self.culled_c = 0
+        self.rings: list[np.ndarray] = []
+
+    def cull(self, tiles: TileCandidates) -> np.ndarray:
+        """Rishe §3.1-3.2: keep the tiles whose footprint meets the ground region, within the
+        cut-off ring; remembers each tile's ring."""
+        view, level, basis, height = tiles.view, tiles.level, self.basis, self.height
+        w, s, e, n = tiles.west, tiles.south, tiles.east, tiles.north
+        lon0, lat0, nadir = self.lon0, self.lat0, self.nadir
         # Ground-plane footprint of each tile in the nadir ENU frame: the lattice points
         # (first half of pts: lowest height) and the nearest point of the lon/lat box.
-        enu = (pts - nadir) @ basis.T  # (N, K, 3)
+        enu = (tiles.points - nadir) @ basis.T  # (N, K, 3)
         # Points far below the tangent plane (past the horizon, e.g. the far side of a big
         # tile) project back towards the nadir; they would pull D down for nothing.
-        front = enu[..., 2] > -1.5 * (height + 2.0 * max(exag, 1.0) * 9000.0)
+        front = enu[..., 2] > -1.5 * (height + 2.0 * max(view.exaggeration, 1.0) * 9000.0)
         near_lon = np.clip((lon0 - w + 180.0) % 360.0 - 180.0 + w, w, e)
         near_lat = np.clip(lat0, s, n)
         near = (np.asarray(lonlat_to_ecef(near_lon, near_lat, 0.0)).reshape(-1, 3) - nadir) @ (
@@ -363,84 +292,84 @@ def select_regions(
         d = np.minimum(d_pts, np.max(np.abs(near[:, :2]), axis=1))
         if level == 0:
             d[:] = np.minimum(d, 0.0)  # the two hemispheres are always in range
-        ring = ring_of(d, r, st.factors)
+        ring = ring_of(d, self.r, self.st.factors)
         # The region test only makes sense for footprints in front of the tangent plane's
         # horizon; big tiles (curvature) and the nadir's own tile always pass.
         quad_idx = np.array([0, 2, 8, 6])  # lattice corners (NW, NE, SE, SW) at the lowest h
         quads = enu[:, quad_idx, :2]
-        bend = np.zeros(len(x))
         if view.displace is not None:
             # Displaced, the four corners no longer span the footprint (a fold bends its
             # sides): test the box around every lattice point, grown by the bend.
-            bend = displacement_bend_m(view, pts_true, pts)
-            quads = _bounding_quads(enu[:, : enu.shape[1] // 2, :2], bend)
-        in_reg = polygons_overlap(region, quads) | (level < 4) | (d == 0.0)
-        keep = vis_f & vis_h & in_reg & (ring < far_ring)
-        culled_f += int(np.count_nonzero(~vis_f))
-        culled_h += int(np.count_nonzero(vis_f & ~vis_h))
-        culled_r += int(np.count_nonzero(vis_f & vis_h & ~in_reg))
-        culled_c += int(np.count_nonzero(vis_f & vis_h & in_reg & (ring >= far_ring)))
-        if not keep.any():
-            break
-        x, y, ring, bend = x[keep], y[keep], ring[keep], bend[keep]
-        err = stride_errors_m(level, meta.stride_error[keep], exag, size)
-        dist = bounding_distance(view, pts[keep], margin[keep])
-        res = ring_resolution(ring, r_m)
-        spacing = float(node_spacing_m(level, size))
-        refine = (spacing > res) & (level < MAX_LEVEL)
+            quads = _bounding_quads(enu[:, : enu.shape[1] // 2, :2], tiles.bend_m)
+        in_reg = polygons_overlap(self.region, quads) | (level < 4) | (d == 0.0)
+        near_enough = ring < self.far_ring
+        self.culled_r += int(np.count_nonzero(~in_reg))
+        self.culled_c += int(np.count_nonzero(in_reg & ~near_enough))
+        tiles.scratch["ring"] = ring
+        return in_reg & near_enough
+
+    def refine(self, tiles: TileCandidates, error_px: np.ndarray) -> np.ndarray:
+        """Rishe §3.2, Table 2: refine while the level's node spacing exceeds the ring's mesh
+        resolution (and, displaced, where a fold's bend projects beyond tau at stride 1)."""
+        res = ring_resolution(tiles.scratch["ring"], self.r_m)
+        spacing = float(node_spacing_m(tiles.level, tiles.size))
+        refine = spacing > res
         score = spacing / res
         bend_ok = None
-        if view.displace is not None:
+        if tiles.view.displace is not None:
             # The fold's bend at each stride, in pixels (chunked-sse's measure): refine where
             # even stride 1 leaves more than tau, else cap the stride where it stays within.
+            size = tiles.size
             frac = np.minimum(1.0, 2.0 ** np.arange(N_STRIDES) * (LATTICE - 1) / (size - 1))
-            bend_px = bend[:, None] * frac[None, :] * (view.sse_factor / dist)[:, None]
-            err = err + bend[:, None] * frac[None, :]
-            bend_ok = bend_px <= view.tau_px
-            refine |= ~bend_ok[:, 0] & (level < MAX_LEVEL)
-            score = np.maximum(score, bend_px[:, 0] / view.tau_px)
-        room = st.max_tiles - drawn - int(np.count_nonzero(~refine))
-        refine = push_budget(refine, score, room, 4)
-        acc = ~refine
-        if acc.any():
-            # The coarsest power-of-two stride whose cell is still within the ring's R_m.
-            k = np.floor(np.log2(np.maximum(res[acc] / spacing, 1.0))).astype(np.int64)
-            k = np.clip(k, 0, min(N_STRIDES - 1, int(math.log2(size - 1))))
-            if bend_ok is not None:
-                # ... and whose chord error across a fold projects within tau.
-                ok = bend_ok[acc]
-                k_bend = np.where(ok.any(axis=1), N_STRIDES - 1 - np.argmax(ok[:, ::-1], 1), 0)
-                k = np.minimum(k, k_bend)
-            out_keys.append(np.stack([np.full(len(k), level), x[acc], y[acc]], axis=1))
-            out_stride.append(k)
-            out_err.append(err[acc][np.arange(len(k)), k] * view.sse_factor / dist[acc])
-            out_ring.append(ring[acc])
-            drawn += len(k)
-        rx, ry = x[refine], y[refine]
-        x = np.concatenate([2 * rx, 2 * rx + 1, 2 * rx, 2 * rx + 1])
-        y = np.concatenate([2 * ry, 2 * ry, 2 * ry + 1, 2 * ry + 1])
+            bend_px = tiles.bend_m[:, None] * frac[None, :] * tiles.px_per_m[:, None]
+            bend_ok = bend_px <= self.tau_px
+            refine |= ~bend_ok[:, 0]
+            score = np.maximum(score, bend_px[:, 0] / self.tau_px)
+        tiles.scratch.update(res=res, spacing=spacing, score=score, bend_ok=bend_ok)
+        return refine
 
-    if out_keys:
-        keys = np.concatenate(out_keys)
-        rs = render_set_from_tiles(
-            keys, np.concatenate(out_stride), np.concatenate(out_err), size, st.stitch
+    def priority(self, tiles: TileCandidates, error_px: np.ndarray) -> np.ndarray:
+        return tiles.scratch["score"]
+
+    def stride(self, tiles: TileCandidates, error_px: np.ndarray, index: np.ndarray) -> np.ndarray:
+        """The coarsest power-of-two stride whose cell is still within the ring's R_m."""
+        sc = tiles.scratch
+        if "res" not in sc:  # the deepest level: refine() was not asked
+            self.refine(tiles, error_px)
+        size = tiles.size
+        k = np.floor(np.log2(np.maximum(sc["res"][index] / sc["spacing"], 1.0))).astype(np.int64)
+        k = np.clip(k, 0, min(N_STRIDES - 1, int(math.log2(size - 1))))
+        if sc["bend_ok"] is not None:
+            # ... and whose chord error across a fold projects within tau.
+            ok = sc["bend_ok"][index]
+            k_bend = np.where(ok.any(axis=1), N_STRIDES - 1 - np.argmax(ok[:, ::-1], 1), 0)
+            k = np.minimum(k, k_bend)
+        self.rings.append(sc["ring"][index])
+        return k
+
+    def render_set(self, selection: Selection, size: int) -> RenderSet:
+        """Rishe §3.3: same-level borders stitched (`render_set_from_tiles`)."""
+        return render_set_from_tiles(
+            selection.keys, selection.stride_idx, selection.error_px, size, self.st.stitch
         )
-        rings = np.concatenate(out_ring)
-    else:
-        rs, rings = RenderSet.empty(), np.empty(0, np.int64)
-    rs.stats.update(
-        {
-            "tiles_culled_frustum": culled_f,
-            "tiles_culled_horizon": culled_h,
-            "tiles_culled_region": culled_r,
-            "tiles_culled_cutoff": culled_c,
-            "region_R_m": r,
-            "mesh_res_m": r_m,
+
+    def frame_stats(self) -> dict[str, Any]:
+        rings = np.concatenate(self.rings) if self.rings else np.empty(0, np.int64)
+        return {
+            "tiles_culled_region": self.culled_r,
+            "tiles_culled_cutoff": self.culled_c,
+            "region_R_m": self.r,
+            "mesh_res_m": self.r_m,
             **{f"tiles_ring{k}": int(np.count_nonzero(rings == k)) for k in (1, 2, 3)},
-            "lod_ms": (time.perf_counter() - t0) * 1e3,
         }
-    )
-    return rs
+
+
+def select_regions(
+    view: ViewState, terrain: TerrainStack, settings: RegionSettings | None = None
+) -> RenderSet:
+    """Rishe's distance-based region subdivision on the quadtree (module docstring): the
+    shared traversal with `RishePolicy`."""
+    return traverse(view, terrain, RishePolicy(settings))
 
 
 class DistanceRegionsProvider(LodProvider):

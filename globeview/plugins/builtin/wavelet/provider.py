@@ -43,6 +43,8 @@ fewer triangles). Here:
   added to the geometry error like the chord sag: a tile whose bend projects beyond tau at
   stride 1 splits, and a stride is only as coarse as keeps it within tau, so long edges
   never cut across a fold and no gap opens between tiles. Nothing changes without one.
+- **The walk** is the shared quadtree traversal (`traverse`: culling, the per-terrain tile
+  cache, the tile budget); this module is Zhang's policy on it (`ZhangWaveletPolicy`).
 - **Crack sewing** (Zhang Fig. 4): same-level neighbours of different strides are stitched
   (`IndexVariant.edge_strides`: the finer tile's edge uses the coarser one's vertices);
   neighbours of different levels meet behind skirts (their heights differ: different wavelet
@@ -52,26 +54,27 @@ fewer triangles). Here:
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from globeview.plugins.api import (
     LATTICE,
+    MAX_LEVEL,
     N_STRIDES,
+    LodPolicy,
     LodProvider,
     RenderSet,
+    Selection,
     Setting,
     TerrainStack,
+    TileCandidates,
     ViewState,
-    bounding_distance,
     chord_sag,
-    cull_level,
-    displacement_bend_m,
+    render_set_from_tiles,
+    traverse,
 )
-from globeview.plugins.builtin.chunked.provider import MAX_LEVEL, stride_errors_m
-from globeview.plugins.builtin.regions.provider import push_budget, render_set_from_tiles
 
 
 def stop_levels(m: int, max_level: int = MAX_LEVEL) -> np.ndarray:
@@ -105,113 +108,89 @@ class WaveletSettings:
     max_tiles: int = 1500
 
 
-def select_wavelet(
-    view: ViewState, terrain: TerrainStack, settings: WaveletSettings | None = None
-) -> RenderSet:
-    """Zhang §V level and stride choice (module docstring)."""
-    st = settings or WaveletSettings()
-    t0 = time.perf_counter()
-    tau = st.tau_px if st.tau_px else view.tau_px
-    size = terrain.tile_size
-    exag = view.exaggeration
-    k_px = view.sse_factor
-    stops = stop_levels(st.m)
-    max_stride_idx = min(N_STRIDES - 1, int(math.log2(size - 1)))
+class ZhangWaveletPolicy(LodPolicy):
+    """Zhang §V level and stride choice as a policy on the shared traversal (module
+    docstring): refine by static (roughness) and dynamic (distance) error, the chord sag and
+    the M-band ladder (`refine`); draw with the coarsest stride within tau, flat tiles within
+    the roughness floor (`stride`); same-level borders sewn."""
 
-    x = np.array([0, 1], dtype=np.int64)
-    y = np.zeros(2, dtype=np.int64)
-    forced = np.zeros(2, dtype=bool)  # mid-way through an M-band step: must go on
-    out_keys, out_stride, out_err = [], [], []
-    culled_f = culled_h = 0
-    flat_tiles = 0
-    drawn = 0
-    for level in range(MAX_LEVEL + 1):
-        if len(x) == 0:
-            break
-        cand = cull_level(view, terrain, level, x, y)
-        meta = cand.meta
-        pts_true, pts, margin = cand.pts_true, cand.pts, cand.margin
-        vis_f, vis_h = cand.in_frustum, cand.above_horizon
-        culled_f += int(np.count_nonzero(~vis_f))
-        culled_h += int(np.count_nonzero(vis_f & ~vis_h))
-        keep = vis_f & vis_h
-        if not keep.any():
-            break
-        x, y, forced = x[keep], y[keep], forced[keep]
-        herr = meta.stride_error[keep]  # (N, 7) height error of the approximation, metres
-        total = stride_errors_m(level, herr, exag, size)
-        dist = bounding_distance(view, pts[keep], margin[keep])
-        px_per_m = k_px / dist
+    def __init__(self, settings: WaveletSettings | None = None) -> None:
+        st = settings or WaveletSettings()
+        super().__init__(st.tau_px or None)
+        self.st = st
+        self.max_tiles = st.max_tiles
+        self.stops = stop_levels(st.m)
+        self.flat_tiles = 0
+
+    def begin(self, view: ViewState, terrain: TerrainStack) -> None:
+        super().begin(view, terrain)
+        self.max_stride_idx = min(N_STRIDES - 1, int(math.log2(terrain.tile_size - 1)))
+        self.flat_tiles = 0
+
+    def refine(self, tiles: TileCandidates, error_px: np.ndarray) -> np.ndarray:
+        tau, exag, size, level = self.tau_px, tiles.view.exaggeration, tiles.size, tiles.level
+        herr = tiles.height_err_m  # (N, 7) height error of the approximation, metres
+        px_per_m = tiles.px_per_m
         static = herr[:, 0]
         dynamic = static * exag * px_per_m
         node_deg = 180.0 / 2**level / (size - 1)
         sag_px = float(chord_sag(node_deg)) * px_per_m
-        if view.displace is not None:
-            # The displacement's bend (fold lines) counts as geometry, like the sag.
-            bend = displacement_bend_m(view, pts_true[keep], pts[keep])
-            frac = np.minimum(1.0, 2.0 ** np.arange(N_STRIDES) * (LATTICE - 1) / (size - 1))
-            total = total + bend[:, None] * frac[None, :]
-            sag_px = sag_px + bend * frac[0] * px_per_m
-        rough = static > st.static_m
-        finer = meta.has_finer[keep]
+        if tiles.view.displace is not None:
+            # The displacement's bend (fold lines) counts as geometry, like the sag
+            # (`TileCandidates.err_m` already holds it).
+            frac0 = min(1.0, (LATTICE - 1) / (size - 1))
+            sag_px = sag_px + tiles.bend_m * frac0 * px_per_m
+        rough = static > self.st.static_m
+        finer = tiles.has_finer
         want = (rough & (dynamic > tau) & finer) | (sag_px > tau)
         # A tile whose every coarser stride misses tau needs its full grid at this level: its
         # children draw the same surface with no more triangles (each stride of a level is
         # about the density of the level above), and where the level's approximation is
         # poor - e.g. a layer's border band, a ramp only a few nodes wide here - with far
         # fewer. Refining it keeps the count from growing as tau grows.
-        full = ~np.any((total * px_per_m[:, None] <= tau)[:, 1 : max_stride_idx + 1], axis=1)
+        full = ~np.any((error_px <= tau)[:, 1 : self.max_stride_idx + 1], axis=1)
         want |= full & finer & rough
-        if level == MAX_LEVEL:
-            want[:] = False
-            forced[:] = False
-        # At a level that is no stop of the M-band ladder every survivor goes on.
-        refine = want | forced | (~stops[level] & (level < MAX_LEVEL))
-        room = st.max_tiles - drawn - int(np.count_nonzero(~refine))
-        refine = push_budget(refine, np.maximum(dynamic, sag_px) + 1e9 * forced, room, 4)
-        acc = ~refine
-        if acc.any():
-            # Coarsest stride whose total error projects within tau; flat tiles also keep
-            # their height error within the roughness floor (they are flat, not invisible).
-            sse = total[acc] * px_per_m[acc, None]
-            ok = sse <= tau
-            flat = ~rough[acc]
-            sag_ok = (total[acc] - herr[acc] * exag) * px_per_m[acc, None] <= tau
-            ok = np.where(flat[:, None], ok | (sag_ok & (herr[acc] <= st.static_m)), ok)
-            ok[:, max_stride_idx + 1 :] = False
-            idx = np.where(ok.any(axis=1), N_STRIDES - 1 - np.argmax(ok[:, ::-1], axis=1), 0)
-            out_keys.append(np.stack([np.full(len(idx), level), x[acc], y[acc]], axis=1))
-            out_stride.append(idx)
-            out_err.append(sse[np.arange(len(idx)), idx])
-            flat_tiles += int(np.count_nonzero(flat))
-            drawn += len(idx)
-        rx, ry = x[refine], y[refine]
-        # Children of a tile that stopped at a ladder level and still wants detail are forced
-        # down to the next stop: that is one M-band step.
-        nf = ~stops[min(level + 1, MAX_LEVEL)]
-        x = np.concatenate([2 * rx, 2 * rx + 1, 2 * rx, 2 * rx + 1])
-        y = np.concatenate([2 * ry, 2 * ry, 2 * ry + 1, 2 * ry + 1])
-        forced = np.full(len(x), bool(nf))
+        # At a level that is no stop of the M-band ladder every survivor goes on (children
+        # of a tile that stopped at a ladder level and still wanted detail are forced down to
+        # the next stop: that is one M-band step).
+        forced = not self.stops[level]
+        tiles.scratch["priority"] = np.maximum(dynamic, sag_px) + 1e9 * forced
+        return want | forced
 
-    if out_keys:
-        rs = render_set_from_tiles(
-            np.concatenate(out_keys),
-            np.concatenate(out_stride),
-            np.concatenate(out_err),
-            size,
-            st.stitch,
+    def priority(self, tiles: TileCandidates, error_px: np.ndarray) -> np.ndarray:
+        return tiles.scratch["priority"]
+
+    def stride(self, tiles: TileCandidates, error_px: np.ndarray, index: np.ndarray) -> np.ndarray:
+        # Coarsest stride whose total error projects within tau; flat tiles also keep their
+        # height error within the roughness floor (they are flat, not invisible).
+        tau, exag = self.tau_px, tiles.view.exaggeration
+        herr = tiles.height_err_m.take(index, axis=0)
+        total = tiles.err_m.take(index, axis=0)
+        px_per_m = tiles.px_per_m.take(index)
+        ok = error_px <= tau
+        flat = ~(herr[:, 0] > self.st.static_m)
+        sag_ok = (total - herr * exag) * px_per_m[:, None] <= tau
+        ok = np.where(flat[:, None], ok | (sag_ok & (herr <= self.st.static_m)), ok)
+        ok[:, self.max_stride_idx + 1 :] = False
+        self.flat_tiles += int(np.count_nonzero(flat))
+        return np.where(ok.any(axis=1), N_STRIDES - 1 - np.argmax(ok[:, ::-1], axis=1), 0)
+
+    def render_set(self, selection: Selection, size: int) -> RenderSet:
+        """Zhang Fig. 4: same-level neighbours sewn (`render_set_from_tiles`)."""
+        return render_set_from_tiles(
+            selection.keys, selection.stride_idx, selection.error_px, size, self.st.stitch
         )
-    else:
-        rs = RenderSet.empty()
-    rs.stats.update(
-        {
-            "tiles_culled_frustum": culled_f,
-            "tiles_culled_horizon": culled_h,
-            "tiles_flat": flat_tiles,
-            "lod_ms": (time.perf_counter() - t0) * 1e3,
-        }
-    )
-    return rs
+
+    def frame_stats(self) -> dict[str, Any]:
+        return {"tiles_flat": self.flat_tiles}
+
+
+def select_wavelet(
+    view: ViewState, terrain: TerrainStack, settings: WaveletSettings | None = None
+) -> RenderSet:
+    """Zhang §V level and stride choice (module docstring): the shared traversal with
+    `ZhangWaveletPolicy`."""
+    return traverse(view, terrain, ZhangWaveletPolicy(settings))
 
 
 class WaveletProvider(LodProvider):

@@ -1,0 +1,142 @@
+"""The narrow interface an LOD provider implements to steer the shared quadtree traversal
+(Cesium's ``QuadtreeTileProvider`` beside its ``QuadtreePrimitive``), and the default
+screen-space-error policy.
+
+`globeview.lod.traversal.traverse` walks the quadtree, culls, caches and budgets; a policy
+only answers, for one level's visible tiles (`TileCandidates`, vectorised over N tiles):
+
+- `LodPolicy.error_px`: what error each tile has, in pixels, at each index stride;
+- `LodPolicy.refine`: which tiles to replace by their four children;
+- `LodPolicy.stride`: for the tiles drawn, which index stride;
+- optionally `LodPolicy.cull` (its own culling on top of the frustum and horizon),
+  `LodPolicy.max_tiles` and `LodPolicy.priority` (a tile budget: the worst refine first),
+  `LodPolicy.max_level`, `LodPolicy.render_set` (index variants, stitching) and
+  `LodPolicy.frame_stats`.
+
+A new LOD provider is then a policy plus a manifest::
+
+    class CoarsePolicy(LodPolicy):
+        def refine(self, tiles, error_px):
+            return (error_px[:, 0] > 4 * self.tau_px) & tiles.has_finer
+
+    class CoarseProvider(LodProvider):
+        def select(self, view, terrain):
+            return traverse(view, terrain, CoarsePolicy())
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from globeview.lod.render_set import RenderSet
+from globeview.lod.stitching import render_set_by_stride
+from globeview.lod.traversal import MAX_LEVEL, Selection, TileCandidates
+from globeview.lod.view_state import ViewState
+from globeview.terrain.stack import N_STRIDES, TerrainStack
+
+#: Weights picking the coarsest acceptable stride (`coarsest_stride_within`).
+_STRIDE_RANK = np.arange(1, N_STRIDES + 1)
+
+
+def coarsest_stride_within(error_px: np.ndarray, tau_px: float) -> np.ndarray:
+    """(N,) index of the coarsest stride whose projected error (``error_px`` (N, N_STRIDES),
+    pixels) is within ``tau_px``, or 0 (stride 1) where none is."""
+    # The highest rank among the acceptable strides, minus one, or 0.
+    return np.maximum((error_px <= tau_px) * _STRIDE_RANK, 1).max(axis=1) - 1
+
+
+class LodPolicy:
+    """What a provider decides in the shared traversal (module docstring). The defaults are
+    plain screen-space error: refine while the error at stride 1 exceeds ``tau_px`` and finer
+    data exists, draw with the coarsest stride within ``tau_px``, no budget.
+
+    Attributes:
+        max_level: deepest quadtree level to visit (at most `traversal.MAX_LEVEL`).
+        max_tiles: the tile budget (None: none).
+        tau_px: the screen-space error threshold (pixels) of this frame; `begin` sets it
+            from the view unless the policy was given one (``tau_px`` argument).
+        view, terrain: the frame's, set by `begin`.
+    """
+
+    max_level: int = MAX_LEVEL
+    max_tiles: int | None = None
+
+    def __init__(self, tau_px: float | None = None) -> None:
+        self._tau_override = tau_px
+        self.tau_px = 2.0
+        self.view: ViewState | None = None
+        self.terrain: TerrainStack | None = None
+
+    # -- per frame --------------------------------------------------------------------------
+    def begin(self, view: ViewState, terrain: TerrainStack) -> None:
+        """Start a frame: keep the view and terrain and compute per-frame constants."""
+        self.view, self.terrain = view, terrain
+        tau = self._tau_override
+        self.tau_px = float(tau if tau is not None else view.tau_px)
+
+    def frame_stats(self) -> dict[str, Any]:
+        """Counters of the frame (numbers) for the render set's stats."""
+        return {}
+
+    # -- per level ------------------------------------------------------------------------------
+    def cull(self, tiles: TileCandidates) -> np.ndarray | None:
+        """(N,) bool: which of the visible tiles to keep (None: all)."""
+        return None
+
+    def error_px(self, tiles: TileCandidates) -> np.ndarray:
+        """(N, N_STRIDES) projected error (pixels) of drawing each tile at each stride."""
+        return tiles.err_m * tiles.px_per_m[:, None]
+
+    def refine(self, tiles: TileCandidates, error_px: np.ndarray) -> np.ndarray:
+        """(N,) bool: which tiles to replace by their children (never asked at max_level)."""
+        return (error_px[:, 0] > self.tau_px) & tiles.has_finer
+
+    def priority(self, tiles: TileCandidates, error_px: np.ndarray) -> np.ndarray:
+        """(N,) how badly each tile wants refining (the budget refines the largest first)."""
+        return error_px[:, 0]
+
+    def stride(self, tiles: TileCandidates, error_px: np.ndarray, index: np.ndarray) -> np.ndarray:
+        """(M,) stride index (stride = 2**index) of the drawn tiles, rows ``index`` of
+        ``tiles``; ``error_px`` is already those rows (M, N_STRIDES)."""
+        return coarsest_stride_within(error_px, self.tau_px)
+
+    # -- the result -------------------------------------------------------------------------------
+    def render_set(self, selection: Selection, size: int) -> RenderSet:
+        """The `RenderSet` of what the traversal drew (default: one index variant per stride
+        and pole, cracks hidden by skirts)."""
+        return render_set_by_stride(selection.keys, selection.stride_idx, selection.error_px)
+
+
+class ScreenSpaceErrorPolicy(LodPolicy):
+    """Chunked screen-space-error selection (TREND §4.2, Cesium style): the built-in default.
+
+    1. a tile's geometric error at stride s (height error x exaggeration + the chord sag of
+       the curved ellipsoid between vertices s nodes apart, `tile_cache.stride_errors_m`) is
+       projected to pixels, ``e * K / d`` with K = viewport height / (2 tan(fovy/2)) and d a
+       lower bound of the distance to the tile;
+    2. refine (replace by its four children) when that exceeds tau at stride 1 and finer data
+       exists, or when the tile's texels would be magnified beyond ``texel_px`` pixels and
+       finer data exists;
+    3. draw the others with the coarsest index stride whose error still projects below tau
+       (TREND's per-block resolution pyramid, applied to the whole tile);
+    4. a budget of ``max_tiles`` drawn tiles: past it, the worst tiles refine first.
+
+    Cracks between tiles drawn at different levels or strides are hidden by skirts.
+    """
+
+    def __init__(
+        self, tau_px: float | None = None, texel_px: float = 1.5, max_tiles: int = 600
+    ) -> None:
+        super().__init__(tau_px)
+        self.texel_px = float(texel_px)
+        self.max_tiles = int(max_tiles)
+
+    def refine(self, tiles: TileCandidates, error_px: np.ndarray) -> np.ndarray:
+        # A texel of the tile's height/normal textures: the level's tile width (m, on a
+        # sphere of the mean radius) over its cells, projected.
+        tile_m = math.radians(180.0 / 2**tiles.level) * 6.371e6
+        texel = tile_m / (tiles.size - 1) * tiles.px_per_m
+        return (error_px[:, 0] > self.tau_px) | ((texel > self.texel_px) & tiles.has_finer)

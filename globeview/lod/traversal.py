@@ -1,0 +1,471 @@
+"""The one quadtree traversal every LOD provider steers (Cesium's ``QuadtreePrimitive``).
+
+The quadtree is walked level by level with numpy over all candidate tiles of a level at once:
+
+1. the candidates' camera-independent facts come from the terrain's `TileCache`
+   (`tile_cache.tile_cache_for`: bounding lattice, margins, bounding sphere, stride errors,
+   metadata, children);
+2. they are culled against the frustum and the ellipsoid horizon (the same floating-point
+   operations as `culling.frustum_visible` / `culling.horizon_visible`; conservative
+   bounding-sphere / box-centre prefilters settle most tiles, the exact tests run only on
+   those near a plane or the horizon), then by the policy's own test (`LodPolicy.cull`);
+3. the policy (`globeview.lod.policy.LodPolicy`, Cesium's ``QuadtreeTileProvider``) says
+   what error each survivor has (`LodPolicy.error_px`), which to refine
+   (`LodPolicy.refine`), and, for those drawn, with which index stride (`LodPolicy.stride`);
+4. a tile budget (`LodPolicy.max_tiles`) keeps the drawn count bounded: when refining every
+   tile that asks would exceed it, the worst (`LodPolicy.priority`) refine first;
+5. refined tiles are replaced by their four children at the next level; the others are drawn.
+
+The result goes back to the policy (`LodPolicy.render_set`), which builds the `RenderSet`
+(index variants, stitching); the traversal adds the cull counts and ``lod_ms``.
+
+A frame computes only what depends on the camera - plane distances, the horizon test, the
+distances, the policy's errors - with few numpy calls per level (take() rather than fancy
+indexing: small arrays, so the per-call overhead is what costs).
+
+With a displacement (a tool's ``view.displace``, e.g. the terrain collapse) culling uses the
+displaced bounding lattices and the displacement's bend over each tile (the collapse's fold
+lines) is added to its geometric error, shrinking with the stride (`TileCandidates.err_m`):
+tiles across a fold refine and no gap opens between them. Both are cached per displacement.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from globeview.lod.culling import (
+    LATTICE,
+    bounding_distance,
+    box_angular_distance_pre,
+    frustum_visible,
+    horizon_cap,
+)
+from globeview.lod.render_set import RenderSet
+from globeview.lod.tile_cache import (
+    COL_EAST,
+    COL_MARGIN,
+    COL_NORTH,
+    COL_NORTH_R,
+    COL_PEAK,
+    COL_RADIUS,
+    COL_SOUTH,
+    COL_SOUTH_R,
+    COL_SPAN,
+    COL_SPHERE,
+    COL_UX,
+    COL_UZ,
+    COL_WEST,
+    LevelTiles,
+    TileCache,
+    tile_cache_for,
+)
+from globeview.lod.view_state import ViewState
+from globeview.terrain.stack import N_STRIDES, TerrainStack
+
+if TYPE_CHECKING:
+    from globeview.lod.policy import LodPolicy
+
+#: Deepest level the walk goes to even where the data stops (curvature alone).
+MAX_LEVEL = 22
+
+
+def _probe_points(n: int = 64) -> np.ndarray:
+    """(n, 3) ECEF points spread over the globe (a Fibonacci lattice, 0 and 5 km high)."""
+    from globeview.geodesy import lonlat_to_ecef
+
+    k = np.arange(n) + 0.5
+    lat = np.degrees(np.arcsin(1.0 - 2.0 * k / n))
+    lon = (np.degrees(np.pi * (1.0 + 5.0**0.5) * k) + 180.0) % 360.0 - 180.0
+    h = np.where(np.arange(n) % 2 == 0, 0.0, 5000.0)
+    return np.asarray(lonlat_to_ecef(lon, lat, h), dtype=np.float64).reshape(n, 3)
+
+
+_PROBES = _probe_points()
+
+
+def displacement_key(view: ViewState) -> tuple | None:
+    """Identifies ``view.displace`` (and which bend measure the view carries) for the caches:
+    the tool's ``view.displacement_key`` and the exact bytes of where the displacement moves
+    a fixed set of probe points (None: no displacement). Without a tool key, a displacement
+    that moves no probe point differently (a local one elsewhere) would pass for the same."""
+    if view.displace is None:
+        return None
+    moved = np.asarray(view.displace(_PROBES), dtype=np.float64).tobytes()
+    return (view.displacement_key, moved, view.displacement_bend is not None)
+
+
+# -- what a policy sees of one level ----------------------------------------------------------
+@dataclass
+class TileCandidates:
+    """One level's tiles that passed the frustum and horizon tests, as a policy sees them.
+
+    Arrays are per tile (N,) unless noted; they are the traversal's own (do not write them).
+
+    Attributes:
+        view, terrain: the frame's view and terrain.
+        level: the quadtree level; ``size`` the tiles' nodes per side.
+        dist_m: a lower bound (m, >= 1) of the eye-tile distance (bounding sphere).
+        px_per_m: pixels one metre of error covers at that distance (``view.sse_factor /
+            dist_m``).
+        err_m: (N, N_STRIDES) geometric error (m) of drawing each tile at strides 1, 2, 4..:
+            height error x exaggeration + chord sag (+ the displacement's bend); inf where a
+            stride exceeds the grid.
+        bend_m: the displacement's bend (m) at stride 1 (zeros without a displacement).
+        scratch: a dict the policy may use to hand values from `LodPolicy.cull` /
+            `LodPolicy.refine` to `LodPolicy.stride` within the level.
+
+    Read on demand (cached per level): ``x``, ``y``, ``keys`` (N, 3), ``west``, ``south``,
+    ``east``, ``north`` (degrees), ``height_err_m`` (N, N_STRIDES, the store's, not
+    exaggerated), ``has_finer``, ``margin`` (m), ``points`` (N, K, 3) the bounding lattice
+    as drawn (displaced when displaced), ``points_true`` (never displaced).
+    """
+
+    view: ViewState
+    terrain: TerrainStack
+    level: int
+    size: int
+    slots: np.ndarray
+    cols: np.ndarray
+    dist_m: np.ndarray
+    px_per_m: np.ndarray
+    err_m: np.ndarray
+    bend_m: np.ndarray
+    _lv: LevelTiles = field(repr=False)
+    _dpts: np.ndarray | None = field(default=None, repr=False)
+    scratch: dict[str, Any] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.slots)
+
+    @property
+    def x(self) -> np.ndarray:
+        return self._lv.xy[:, 0].take(self.slots)
+
+    @property
+    def y(self) -> np.ndarray:
+        return self._lv.xy[:, 1].take(self.slots)
+
+    @property
+    def keys(self) -> np.ndarray:
+        """(N, 3) int64 rows (level, x, y)."""
+        out = np.empty((len(self.slots), 3), dtype=np.int64)
+        out[:, 0] = self.level
+        out[:, 1:] = self._lv.xy.take(self.slots, axis=0)
+        return out
+
+    @property
+    def west(self) -> np.ndarray:
+        return self.cols[COL_WEST]
+
+    @property
+    def east(self) -> np.ndarray:
+        return self.cols[COL_EAST]
+
+    @property
+    def south(self) -> np.ndarray:
+        return self.cols[COL_SOUTH]
+
+    @property
+    def north(self) -> np.ndarray:
+        return self.cols[COL_NORTH]
+
+    @property
+    def margin(self) -> np.ndarray:
+        return self.cols[COL_MARGIN]
+
+    @property
+    def height_err_m(self) -> np.ndarray:
+        return self._lv.herr.take(self.slots, axis=0)
+
+    @property
+    def has_finer(self) -> np.ndarray:
+        return self._lv.finer.take(self.slots)
+
+    @property
+    def points_true(self) -> np.ndarray:
+        return self._lv.pts.take(self.slots, axis=0)
+
+    @property
+    def points(self) -> np.ndarray:
+        return self._dpts if self._dpts is not None else self.points_true
+
+
+# -- culling with cached facts ----------------------------------------------------------------
+class FrustumFrame:
+    """Per-view constants of the frustum tests: the eye, the plane normals (as
+    `culling.frustum_visible` slices them, and as contiguous columns), each plane's signed
+    distance of the eye, and the prefilter's slack ``tol`` (m)."""
+
+    def __init__(self, view: ViewState) -> None:
+        planes = view.frustum_planes
+        self.eye = view.eye
+        self.normals = planes[:, :3]
+        self.normals_t = np.ascontiguousarray(planes[:, :3].T)
+        self.d_eye = planes[:, :3] @ view.eye + planes[:, 3]
+        self.tol = 1e-3 + 1e-12 * (float(np.abs(view.eye).sum()) + view.far)
+        self.d_tol = self.d_eye + self.tol
+
+    def exact(self, points: np.ndarray, margin: np.ndarray) -> np.ndarray:
+        """`culling.frustum_visible`, the same operations on the same operands (so the same
+        floats), with the per-view terms computed once."""
+        dist = np.einsum("nkj,pj->npk", points - self.eye, self.normals).max(axis=2)
+        return ((dist + self.d_eye) >= -margin[:, None]).all(axis=1)
+
+
+def frustum_prefilter(
+    frame: FrustumFrame, rel_centre: np.ndarray, margin: np.ndarray, sphere: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """`frustum_visible` decided from each tile's bounding sphere where that is conclusive.
+
+    With c the mean of a tile's points (``rel_centre`` = c - eye, (N, 3)) and r their
+    farthest distance from c (``sphere``), every point's signed plane distance lies in
+    [dist(c) - r, dist(c) + r], and their mean is dist(c). So a plane has some point within
+    the margin when dist(c) >= -margin, and all of them beyond it when dist(c) + r < -margin.
+    Both tests keep a slack (orders of magnitude above float64 rounding at these
+    magnitudes), so they never disagree with the exact test; tiles neither decides come back
+    as ambiguous, for the exact `frustum_visible` (`FrustumFrame.exact`).
+
+    Returns (visible, ambiguous), both (N,) bool; ``visible`` is False where ambiguous."""
+    # Over the planes, the least dist(c) + margin + tol.
+    m = (rel_centre @ frame.normals_t + frame.d_tol).min(axis=1) + margin
+    inside = m >= 2.0 * frame.tol  # dist(c) + margin >= tol on every plane
+    outside = m + sphere < 0.0  # dist(c) + r + margin < -tol on some plane
+    return inside, ~(inside | outside)
+
+
+#: Slack (radians) of the horizon prefilter, far above the rounding of the exact test.
+_HORIZON_TOL = 1e-6
+
+
+def horizon_visible_cached(
+    view: ViewState, cap: float, c: np.ndarray, u0: np.ndarray | None
+) -> np.ndarray:
+    """`culling.horizon_visible` of tiles from their cached columns ``c`` (N_COLS, N), with
+    ``cap`` = `culling.horizon_cap` and ``u0`` the unit vector of the eye's (lon, lat).
+
+    `culling.box_angular_distance` is the spherical distance from the eye's (lon, lat) to
+    the nearest point of the box whenever that is below 90 degrees, hence at most the
+    distance to the box's centre. So a tile whose centre is within min(cap + peak, 90 deg)
+    minus a slack is visible without the exact test, which then runs only on the others
+    (those near the horizon). ``u0`` None skips the prefilter (eye almost on the ground)."""
+    limit = cap + c[COL_PEAK]
+    if u0 is not None:
+        thr = np.cos(np.minimum(limit - _HORIZON_TOL, math.pi / 2 - _HORIZON_TOL))
+        vis = u0 @ c[COL_UX : COL_UZ + 1] >= thr
+        n_vis = np.count_nonzero(vis)
+        if n_vis == len(vis):
+            return vis
+        ai = (~vis).nonzero()[0]
+        c, limit = c.take(ai, axis=1), limit.take(ai)
+    lon0, lat0, _ = view.eye_lonlat_h
+    exact = (
+        box_angular_distance_pre(
+            lon0, lat0, c[COL_WEST : COL_EAST + 1], c[COL_SPAN], c[COL_SOUTH_R], c[COL_NORTH_R]
+        )
+        <= limit
+    )
+    if u0 is None:
+        return exact
+    vis[ai] = exact
+    return vis
+
+
+def budget_refinement(
+    refine: np.ndarray, priority: np.ndarray, room: int, fanout: int = 4
+) -> np.ndarray:
+    """Limit refinement so the drawn tiles stay within a budget: when refining every tile in
+    ``refine`` would add more than ``room`` tiles (each refined tile becomes ``fanout``), the
+    tiles with the largest ``priority`` refine first. Returns the (possibly new) mask."""
+    n_ref = int(np.count_nonzero(refine))
+    if n_ref * fanout <= room or n_ref == 0:
+        return refine
+    allowed = max(room // fanout, 0)
+    order = np.argsort(-priority)
+    idx = order[refine[order]][:allowed]
+    out = np.zeros_like(refine)
+    out[idx] = True
+    return out
+
+
+@dataclass
+class Selection:
+    """What a traversal drew: ``keys`` (N, 3) (level, x, y), each tile's ``stride_idx``
+    (stride = 2**stride_idx) and ``error_px`` (the policy's projected error at that stride),
+    and the cull counts."""
+
+    keys: np.ndarray
+    stride_idx: np.ndarray
+    error_px: np.ndarray
+    culled_frustum: int = 0
+    culled_horizon: int = 0
+
+
+# -- the walk -----------------------------------------------------------------------------------
+def traverse(view: ViewState, terrain: TerrainStack, policy: LodPolicy) -> RenderSet:
+    """Select the tiles to draw for ``view`` over ``terrain`` as ``policy`` decides (the
+    module docstring): one level-by-level walk, the policy's `LodPolicy.render_set` of what
+    it drew, with ``tiles_culled_frustum``, ``tiles_culled_horizon`` and ``lod_ms`` stats.
+    An empty terrain (no layers) draws nothing."""
+    t0 = time.perf_counter()
+    if terrain is None or not terrain.layers:
+        return RenderSet.empty()
+    policy.begin(view, terrain)
+    cache = tile_cache_for(terrain)
+    with cache.lock:
+        cache.sync(terrain, view.exaggeration)
+        sel = _walk(view, terrain, policy, cache)
+    rs = policy.render_set(sel, terrain.tile_size)
+    rs.stats.update(
+        {
+            "tiles_culled_frustum": sel.culled_frustum,
+            "tiles_culled_horizon": sel.culled_horizon,
+            **policy.frame_stats(),
+            "lod_ms": (time.perf_counter() - t0) * 1e3,
+        }
+    )
+    return rs
+
+
+def _walk(view: ViewState, terrain: TerrainStack, policy: LodPolicy, cache: TileCache) -> Selection:
+    """The level-by-level walk (module docstring). Per level the candidates are slots in the
+    cache's level table."""
+    size = terrain.tile_size
+    k_px = view.sse_factor
+    eye = view.eye
+    displace = view.displace
+    dkey = displacement_key(view)
+    cap = horizon_cap(view)  # None: eye at or below the ellipsoid, nothing hidden
+    u0 = None
+    if cap is not None and cap > 1e3 * _HORIZON_TOL:
+        lon0, lat0 = np.radians(view.eye_lonlat_h[:2])
+        u0 = np.array([np.cos(lat0) * np.cos(lon0), np.cos(lat0) * np.sin(lon0), np.sin(lat0)])
+    frame = FrustumFrame(view)
+    # A displacement's bend shrinks with the stride (edges LATTICE-1 spans of the lattice).
+    bend_frac = np.minimum(1.0, 2.0 ** np.arange(N_STRIDES) * (LATTICE - 1) / (size - 1))
+    max_level = min(int(policy.max_level), MAX_LEVEL)
+    budget = policy.max_tiles
+
+    slots = cache.roots(terrain, size)
+    out: list[tuple[int, LevelTiles, np.ndarray]] = []
+    out_stride: list[np.ndarray] = []
+    out_err: list[np.ndarray] = []
+    culled_f = culled_h = 0
+    drawn = 0
+    for level in range(max_level + 1):
+        lv = cache.level(level)
+        n = len(slots)
+        c = lv.cols.take(slots, axis=1)
+        pts = None
+        if displace is None:
+            rel_centre = lv.centre.take(slots, axis=0) - eye
+            vis_f, amb = frustum_prefilter(frame, rel_centre, c[COL_MARGIN], c[COL_SPHERE])
+            if np.count_nonzero(amb):
+                ai = amb.nonzero()[0]
+                vis_f[ai] = frame.exact(lv.pts.take(slots.take(ai), axis=0), c[COL_MARGIN].take(ai))
+        else:
+            lv.sync_displacement(dkey)
+            pts = lv.displaced(slots, displace)
+            vis_f = frustum_visible(view, pts, c[COL_MARGIN])
+        # The horizon test only matters for tiles inside the frustum.
+        fi = vis_f.nonzero()[0]
+        culled_f += n - len(fi)
+        if len(fi) < n:
+            c = c.take(fi, axis=1)
+        if cap is not None and len(fi):
+            vis_h = horizon_visible_cached(view, cap, c, u0)
+            n_vis = int(np.count_nonzero(vis_h))
+            culled_h += len(fi) - n_vis
+            if n_vis < len(fi):
+                vi = vis_h.nonzero()[0]
+                fi, c = fi.take(vi), c.take(vi, axis=1)
+        m = len(fi)
+        if m == 0:
+            break
+        ks = slots.take(fi) if m < n else slots
+        err = lv.err.take(ks, axis=0)
+        if displace is None:
+            d = rel_centre.take(fi, axis=0) if m < n else rel_centre
+            # = np.linalg.norm(d, axis=1) (the same operations, without its overhead)
+            d = np.sqrt(np.add.reduce(d * d, axis=1)) - c[COL_RADIUS]
+            dist = np.maximum(d, 1.0)
+            bend = np.zeros(m)
+            dpts = None
+        else:
+            bend = lv.bends(ks, view)
+            err = err + bend[:, None] * bend_frac[None, :]
+            dpts = pts[fi]
+            dist = bounding_distance(view, dpts, c[COL_MARGIN])
+        tiles = TileCandidates(
+            view, terrain, level, size, ks, c, dist, k_px / dist, err, bend, lv, dpts
+        )
+        # The policy's own culling (e.g. Rishe's ground region), on the visible tiles only.
+        keep = policy.cull(tiles)
+        if keep is not None and not keep.all():
+            ki = keep.nonzero()[0]
+            if len(ki) == 0:
+                break
+            tiles = _subset(tiles, ki)
+            ks, m = tiles.slots, len(ki)
+        sse = policy.error_px(tiles)
+        if level < max_level:
+            refine = np.asarray(policy.refine(tiles, sse), dtype=bool)
+        else:
+            refine = np.zeros(m, dtype=bool)
+        # Budget: if refining everything would exceed the tile budget, refine the worst first.
+        if budget is not None:
+            n_ref = int(np.count_nonzero(refine))
+            if n_ref:
+                room = int(budget) - drawn - (m - n_ref)
+                if n_ref * 4 > room:
+                    refine = budget_refinement(refine, policy.priority(tiles, sse), room)
+        n_ref = int(np.count_nonzero(refine))
+        if n_ref < m:
+            ai = (~refine).nonzero()[0] if n_ref else np.arange(m)
+            sse_acc = sse.take(ai, axis=0) if n_ref else sse
+            idx = np.asarray(policy.stride(tiles, sse_acc, ai), dtype=np.int64)
+            out.append((level, lv, ks.take(ai) if n_ref else ks))
+            out_stride.append(idx)
+            rows = np.arange(0, len(idx) * N_STRIDES, N_STRIDES)
+            out_err.append(sse_acc.ravel().take(rows + idx))
+            drawn += len(idx)
+        if n_ref == 0:
+            break
+        refined = ks.take(refine.nonzero()[0]) if n_ref < m else ks
+        slots = cache.children(terrain, level, refined, size)
+
+    if not out:
+        empty = np.empty(0, dtype=np.int64)
+        return Selection(np.empty((0, 3), dtype=np.int64), empty, np.empty(0), culled_f, culled_h)
+    keys = np.empty((drawn, 3), dtype=np.int64)
+    keys[:, 0] = np.repeat([lvl for lvl, _, _ in out], [len(s) for _, _, s in out])
+    keys[:, 1:] = np.concatenate([lv.xy.take(s, axis=0) for _, lv, s in out])
+    return Selection(keys, np.concatenate(out_stride), np.concatenate(out_err), culled_f, culled_h)
+
+
+def _subset(tiles: TileCandidates, idx: np.ndarray) -> TileCandidates:
+    """``tiles`` restricted to rows ``idx`` (the policy's scratch follows row-wise where it
+    holds per-tile arrays)."""
+    scratch = {
+        k: v.take(idx, axis=0) if isinstance(v, np.ndarray) and len(v) == len(tiles) else v
+        for k, v in tiles.scratch.items()
+    }
+    return TileCandidates(
+        tiles.view,
+        tiles.terrain,
+        tiles.level,
+        tiles.size,
+        tiles.slots.take(idx),
+        tiles.cols.take(idx, axis=1),
+        tiles.dist_m.take(idx),
+        tiles.px_per_m.take(idx),
+        tiles.err_m.take(idx, axis=0),
+        tiles.bend_m.take(idx),
+        tiles._lv,
+        None if tiles._dpts is None else tiles._dpts.take(idx, axis=0),
+        scratch,
+    )
