@@ -20,7 +20,8 @@ GDAL's block cache, not by the raster size):
    footprint, evaluated exactly at the finest nodes (see `tile_errors`). The finest data of a
    place is the finest level that has data there; the pass walks those reference levels
    block by block and updates the per-tile maxima of every coarser level.
-5. The manifest is written last, then the temporary directory is renamed into place.
+5. The manifest (a `store_schema.StoreManifest`) is written last, then the temporary directory
+   is renamed into place.
 
 Heights: stores hold ellipsoidal heights h (above WGS84). A source on the EGM96 geoid (its
 vertical datum from its CRS, a per-source default or ``vdatum``, see `Dem`) is converted
@@ -39,7 +40,6 @@ from __future__ import annotations
 import contextlib
 import errno
 import hashlib
-import json
 import math
 import os
 import re
@@ -52,7 +52,7 @@ import uuid
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TextIO
+from typing import IO
 
 import numpy as np
 import rasterio
@@ -63,7 +63,6 @@ try:
 except ImportError:  # pragma: no cover - not POSIX: no stale-build cleaning
     fcntl = None  # type: ignore[assignment]
 
-from globeview import __version__
 from globeview.errors import DemError, StoreError
 from globeview.terrain.dem import Dem, check_dem_path, open_dem
 from globeview.terrain.levels import LevelGrid, read_level_nodes
@@ -74,16 +73,25 @@ from globeview.terrain.quadtree import (
     tiles_covering,
 )
 from globeview.terrain.store import (
-    FORMAT_VERSION,
     MANIFEST_NAME,
     RASTER_ERRORS,
-    STORE_FORMAT,
     StoreIdentity,
     TileStore,
-    built_before_vdatums,
     identify,
     is_store_file,
-    read_manifest,
+)
+from globeview.terrain.store_schema import (
+    FORMAT_VERSION,
+    MAX_LEVEL_LIMIT,
+    TILE_N_RANGE,
+    Extent,
+    IngestParams,
+    LevelRecord,
+    PoleHeights,
+    SourceRecord,
+    StoreHeader,
+    StoreManifest,
+    built_before_vdatums,
 )
 from globeview.terrain.tile_errors import (
     cell_max,
@@ -109,8 +117,6 @@ __all__ = [
 ]
 
 STRIDES = (2, 4, 8, 16, 32, 64)
-MAX_LEVEL_LIMIT = 22  # 180/2^22/64 degrees ~ 7 mm at the equator: far past any DEM
-TILE_N_RANGE = (1, 10)
 
 # A window is about this many nodes a side: big enough that per-window Python overhead is
 # negligible, small enough that a window and its temporaries stay in tens of MB.
@@ -144,7 +150,7 @@ class _Source:
     res: float  # finer pixel size, degrees
     bounds: tuple[float, float, float, float]
     wraps: bool
-    record: dict = field(default_factory=dict)
+    record: SourceRecord
     datum: str = "ellipsoid"  # "egm96": converted h = H + N when read
 
 
@@ -160,8 +166,15 @@ class _LevelStats:
     sha256: str = ""
 
 
+# What a failed build raises (disk full, read-only, a GDAL write error): one StoreError line.
+_BUILD_ERRORS: tuple[type[BaseException], ...] = (OSError, *RASTER_ERRORS)
+
 # ---------------------------------------------------------------------------------------------
 # Small helpers
+
+
+def _no_tick(n: int = 1) -> None:
+    """The builder's progress callback before the real one is set."""
 
 
 def _window_undulation(west: float, north: float, d: float, w: int, h: int) -> np.ndarray:
@@ -173,15 +186,13 @@ def _window_undulation(west: float, north: float, d: float, w: int, h: int) -> n
     return egm96().undulation_grid(lons, lats).astype(np.float32)
 
 
-def _datum_record(datum: str, source: str) -> dict:
-    """The manifest's account of a source's vertical datum and what ingest did with it."""
+def _heights_note(datum: str) -> str:
+    """The manifest's account of what ingest did with a source's heights (for people)."""
     from globeview.terrain.vdatum import GEOID_FILE, egm96_sha256
 
     if datum == "egm96":
-        how = f"converted to ellipsoidal heights with EGM96 ({GEOID_FILE} sha256 {egm96_sha256()})"
-    else:
-        how = "ellipsoidal heights, stored unchanged"
-    return {"vertical_datum": datum, "vertical_datum_source": source, "heights": how}
+        return f"converted to ellipsoidal heights with EGM96 ({GEOID_FILE} sha256 {egm96_sha256()})"
+    return "ellipsoidal heights, stored unchanged"
 
 
 def _sha256(path: Path) -> str:
@@ -286,43 +297,6 @@ def _profile(grid: LevelGrid) -> dict:
         "num_threads": "ALL_CPUS",
         "bigtiff": "IF_SAFER",
     }
-
-
-def _write_json_array(f: TextIO, a: np.ndarray) -> None:
-    """Write compact JSON of an array (NaN as null) to ``f``, one row at a time.
-
-    Nested Python lists of a whole level (``json.dumps(a.tolist())``) cost ~32 bytes a
-    number, several hundred bytes a tile: at a million tiles, more than the memory bound.
-    Row by row, the peak is one row.
-    """
-    rows = [a] if a.ndim <= 1 else a
-    if a.ndim > 1:
-        f.write("[")
-    for i, row in enumerate(rows):
-        if i:
-            f.write(",")
-        f.write(json.dumps(row.tolist(), separators=(",", ":")).replace("NaN", "null"))
-    if a.ndim > 1:
-        f.write("]")
-
-
-class _ArraySlots:
-    """Placeholders for arrays in a manifest dict, streamed as JSON text by `write`."""
-
-    def __init__(self) -> None:
-        self.arrays: list[np.ndarray] = []
-
-    def add(self, a: np.ndarray) -> str:
-        self.arrays.append(a)
-        return f"\x00array{len(self.arrays) - 1}\x00"
-
-    def write(self, obj: dict, f: TextIO) -> None:
-        parts = re.split(r'"\\u0000array(\d+)\\u0000"', json.dumps(obj, separators=(",", ":")))
-        for i, part in enumerate(parts):
-            if i % 2:
-                _write_json_array(f, self.arrays[int(part)])
-            else:
-                f.write(part)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -618,9 +592,9 @@ class _Builder:
             raise DemError(f"no valid heights in {names}: every sample is nodata")
         self._errors()
 
-    def write_manifest(self, params: dict, source_records: list[dict], f: TextIO) -> None:
-        """Write the manifest as compact JSON (streamed: see `_write_json_array`)."""
-        slots = _ArraySlots()
+    def manifest(self, params: IngestParams, sources: Sequence[SourceRecord]) -> StoreManifest:
+        """The store's manifest: per-tile errors rounded up (hmin down), so the bounds the
+        LOD reads from it stay bounds."""
         levels = []
         for lv in range(self.max_level + 1):
             g, st = self.grids[lv], self.stats[lv]
@@ -631,40 +605,36 @@ class _Builder:
             span = (st.hmax - st.hmin)[:, :, None]
             stride = err[:, :, None] + np.minimum(st.stride_delta, span)
             stride = np.where(has[:, :, None], round_sig_up(stride), np.nan)
-            level_error = float(np.nanmax(err)) if has.any() else None
             levels.append(
-                {
-                    "level": lv,
-                    "file": g.file_name,
-                    "extent": g.to_dict(),
-                    "node_spacing_deg": g.d,
-                    "error": slots.add(err),
-                    "hmin": slots.add(np.where(has, round_sig_down(st.hmin), np.nan)),
-                    "hmax": slots.add(np.where(has, round_sig_up(st.hmax), np.nan)),
-                    "stride_error": slots.add(stride),
-                    "level_error": level_error,
-                    "pole_heights": st.pole,
-                    "sha256": st.sha256,
-                }
+                LevelRecord(
+                    level=lv,
+                    file=g.file_name,
+                    extent=Extent.of(g),
+                    node_spacing_deg=g.d,
+                    error=err,
+                    hmin=np.where(has, round_sig_down(st.hmin), np.nan),
+                    hmax=np.where(has, round_sig_up(st.hmax), np.nan),
+                    stride_error=stride,
+                    level_error=float(np.nanmax(err)) if has.any() else None,
+                    pole_heights=PoleHeights(**st.pole),
+                    sha256=st.sha256,
+                )
             )
-        fine = self.grids[self.max_level]
-        manifest = {
-            "format": STORE_FORMAT,
-            "format_version": FORMAT_VERSION,
-            "created_by": f"globeview {__version__}",
-            "sources": source_records,
-            "params": params,
-            "tile_n": self.tile_n,
-            "tile_size": (1 << self.tile_n) + 1,
-            "wavelet": self.wavelet,
-            "max_level": self.max_level,
-            "strides": list(STRIDES),
-            "bounds": _union_bounds(self.sources),
-            "finest_extent": fine.to_dict(),
-            "pole_heights": dict(self.pole),
-            "levels": levels,
-        }
-        slots.write(manifest, f)
+        w, s, e, n = _union_bounds(self.sources)
+        return StoreManifest(
+            header=StoreHeader.current(),
+            sources=tuple(sources),
+            params=params,
+            tile_n=self.tile_n,
+            tile_size=(1 << self.tile_n) + 1,
+            wavelet=self.wavelet,
+            max_level=self.max_level,
+            strides=STRIDES,
+            bounds=(w, s, e, n),
+            finest_extent=Extent.of(self.grids[self.max_level]),
+            pole_heights=PoleHeights(**self.pole),
+            levels=tuple(levels),
+        )
 
 
 def _union_bounds(sources: Sequence[_Source]) -> list[float]:
@@ -885,7 +855,7 @@ _GDAL_NOISE = re.compile(r"^(_tiff\w+|TIFF\w+|ERROR \d+|Warning \d+|\w+\.tif:).*
 _stderr_lock = threading.Lock()
 _stderr_depth = 0
 _stderr_saved: int | None = None
-_stderr_file = None
+_stderr_file: IO[bytes] | None = None
 
 
 @contextlib.contextmanager
@@ -917,7 +887,7 @@ def _gdal_quiet() -> Iterator[list[str]]:
                 text = _stderr_file.read().decode("utf-8", "replace")
                 _stderr_file.close()
                 _stderr_saved, _stderr_file = None, None
-                keep = []
+                keep: list[str] = []
                 for line in text.splitlines():
                     (dropped if _GDAL_NOISE.match(line) else keep).append(line)
                 if keep:
@@ -925,7 +895,7 @@ def _gdal_quiet() -> Iterator[list[str]]:
                         sys.stderr.write("\n".join(keep) + "\n")
 
 
-def _tty_stderr() -> object | None:
+def _tty_stderr() -> IO[str] | None:
     """A stream on the real stderr (for the progress bar while fd 2 is redirected)."""
     if _stderr_saved is None:
         return None
@@ -1085,35 +1055,41 @@ def ingest(
 
     src_paths = [Path(p).absolute() for p in sources]
     _check_sources(src_paths)
-    records = [{"path": str(p), "size": p.stat().st_size, "sha256": _sha256(p)} for p in src_paths]
+    # Content identity (size, sha256) of each source: the same content elsewhere is the same.
+    contents = [(p.stat().st_size, _sha256(p)) for p in src_paths]
     if vdatum is not None:
         from globeview.terrain.vdatum import parse_vdatum
 
         vdatum = parse_vdatum(vdatum).value  # one line for "egm2008" or a typo, before any work
-    params = {
-        "tile_n": tile_n,
-        "max_level": max_level,
-        "wavelet": wavelet,
-        "crs": crs,
-        "vdatum": vdatum,
-    }
+    params = IngestParams(
+        tile_n=tile_n, max_level=max_level, wavelet=wavelet, crs=crs, vdatum=vdatum
+    )
     if ident.is_current and not force:
-        existing = read_manifest(out_path)
-        if existing is not None and _same_inputs(existing, records, params) and _usable(out_path):
-            return IngestResult(out_path, True, int(existing.get("max_level", 0)), 0.0)
+        existing = _usable(out_path)
+        if existing is not None and _same_inputs(existing, contents, params):
+            return IngestResult(out_path, True, existing.max_level, 0.0)
 
     with contextlib.ExitStack() as stack:
         # A fixed GDAL block cache for everything below, the sources' value scan included.
         stack.enter_context(rasterio.Env(GDAL_CACHEMAX=_GDAL_CACHE_MB * 1024 * 1024))
         srcs = []
-        for p, rec in zip(src_paths, records):
+        for p, (size, sha256) in zip(src_paths, contents):
             dem = stack.enter_context(open_dem(p, crs, vdatum))
             info = dem.info
             res = float(min(info.res_deg))
             if not (res > 0 and math.isfinite(res)):
                 raise DemError(f"{p} has no usable pixel size ({info.res_deg})")
-            rec.update(crs=info.crs, bounds=list(info.bounds_lonlat), res_deg=list(info.res_deg))
-            rec.update(_datum_record(info.vertical_datum, info.vertical_datum_source))
+            rec = SourceRecord(
+                path=str(p),
+                size=size,
+                sha256=sha256,
+                crs=info.crs,
+                bounds=tuple(info.bounds_lonlat),
+                res_deg=tuple(info.res_deg),
+                vertical_datum=info.vertical_datum,
+                vertical_datum_source=info.vertical_datum_source,
+                heights=_heights_note(info.vertical_datum),
+            )
             srcs.append(
                 _Source(
                     p,
@@ -1133,8 +1109,9 @@ def ingest(
             # finest sources supply the extra levels, resampled (the levels between would
             # otherwise have no extent at all).
             s.level = l_max if s.level == natural else min(s.level, l_max)
+        by_input = list(srcs)
         srcs.sort(key=lambda s: s.res)  # finest first: it wins where it has data
-        builder = _Builder(srcs, tile_n, l_max, wavelet, parent, lambda n=1: None)
+        builder = _Builder(srcs, tile_n, l_max, wavelet, parent, _no_tick)
         _check_size(builder.grids, srcs, chosen=max_level is not None)
 
         try:
@@ -1160,10 +1137,11 @@ def ingest(
             _fault_point("manifest")
             part = tmp / (MANIFEST_NAME + ".part")
             with part.open("w", encoding="utf-8") as f:
-                builder.write_manifest(params, records, f)
+                # Sources in the order given (the builder sorts its own list finest first).
+                builder.manifest(params, [s.record for s in by_input]).write(f)
             os.replace(part, tmp / MANIFEST_NAME)
             _commit(tmp, out_path, tok)
-        except (OSError, *RASTER_ERRORS) as exc:
+        except _BUILD_ERRORS as exc:
             raise _write_error(exc, dropped, out_path, parent, builder.grids) from None
     return IngestResult(
         out_path,
@@ -1198,26 +1176,24 @@ def _write_error(
     return StoreError(f"cannot write the store {out}: {text}")
 
 
-def _usable(store: Path) -> bool:
-    """Whether a store opens (manifest and level files checked, see `TileStore.open`): a
-    damaged one is rebuilt rather than called up to date."""
+def _usable(store: Path) -> StoreManifest | None:
+    """The manifest of a store that opens (manifest and level files checked, see
+    `TileStore.open`), None otherwise: a damaged store is rebuilt rather than called up to
+    date."""
     try:
-        TileStore.open(store).close()
+        with TileStore.open(store) as st:
+            return st.manifest
     except StoreError:
-        return False
-    return True
+        return None
 
 
-def _same_inputs(manifest: dict, records: list[dict], params: dict) -> bool:
-    """Whether the store was built from the same content (sha256 and size of each source,
+def _same_inputs(
+    manifest: StoreManifest, contents: Sequence[tuple[int, str]], params: IngestParams
+) -> bool:
+    """Whether the store was built from the same content (size and sha256 of each source,
     in order) with the same parameters: where the sources live does not matter."""
-    try:
-        if manifest.get("format_version") != FORMAT_VERSION or manifest.get("params") != params:
-            return False
-        old = [(s["sha256"], s["size"]) for s in manifest["sources"]]
-    except (KeyError, TypeError):
-        return False
-    return old == [(r["sha256"], r["size"]) for r in records]
+    old = [(s.size, s.sha256) for s in manifest.sources]
+    return manifest.params == params and old == list(contents)
 
 
 def _commit(tmp: Path, out: Path, tok: str) -> None:

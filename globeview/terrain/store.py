@@ -7,18 +7,20 @@ A store is a directory with ``manifest.json`` and one grid-registered GeoTIFF pe
 
 Heights are metres; tile metadata (``error``, ``hmin``, ``hmax``, stride errors) are metres.
 
+The manifest's format is defined once, as typed dataclasses, in
+`globeview.terrain.store_schema` (ingest writes a `StoreManifest`, this module reads one).
+
 A store is recognised *positively*: its manifest carries ``"format": "globeview-tile-store"``
 and a ``format_version``, which only globeview writes. Anything else with a ``manifest.json``
-is somebody else's folder (`identify` says which), and `TileStore.open` checks the manifest's
-types and every level file's shape, geotransform and dtype before it serves a tile, so a
-damaged store is one `StoreError` line, never a traceback.
+is somebody else's folder (`identify` says which), and `TileStore.open` checks the manifest
+against the schema and every level file's shape, geotransform and dtype before it serves a
+tile, so a damaged store is one `StoreError` line, never a traceback.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-import math
 import re
 import threading
 from collections import OrderedDict
@@ -26,6 +28,7 @@ from collections.abc import Iterable
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from types import TracebackType
+from typing import Literal
 
 import numpy as np
 import rasterio
@@ -34,7 +37,17 @@ from rasterio.windows import Window
 
 from globeview.errors import StoreError
 from globeview.terrain.levels import LevelGrid
-from globeview.terrain.quadtree import TileKey, level_shape
+from globeview.terrain.quadtree import TileKey
+from globeview.terrain.store_schema import (
+    FORMAT_VERSION,
+    STORE_FORMAT,
+    LevelRecord,
+    ManifestError,
+    PoleHeights,
+    StoreHeader,
+    StoreManifest,
+    built_before_vdatums,
+)
 
 __all__ = [
     "FORMAT_VERSION",
@@ -48,28 +61,10 @@ __all__ = [
     "read_manifest",
 ]
 
-STORE_FORMAT = "globeview-tile-store"
-# 4: heights are ellipsoidal (h = H + N, EGM96, converted at ingest; the manifest records each
-# source's vertical datum). 3: the manifest carries ``format`` (positive recognition), heights
-# were the sources' own (orthometric for most DEMs). 2 had no marker.
-FORMAT_VERSION = 4
-# The first version whose heights are ellipsoidal: older stores must never be mixed with newer.
-VDATUM_FORMAT_VERSION = 4
-
-
-def built_before_vdatums(version: object) -> bool:
-    """Whether a store of this format version holds unconverted (pre-datum) heights."""
-    return (
-        isinstance(version, int)
-        and not isinstance(version, bool)
-        and version < VDATUM_FORMAT_VERSION
-    )
-
-
 MANIFEST_NAME = "manifest.json"
 DEFAULT_CACHE_TILES = 256
-MAX_LEVEL_LIMIT = 22  # as globeview.terrain.ingest: 180/2^22/64 degrees, far past any DEM
-TILE_N_RANGE = (1, 10)
+# The per-tile arrays of a `LevelRecord` that `TileStore._lookup` serves.
+_TileArray = Literal["error", "hmin", "hmax", "stride_error"]
 
 # Errors GDAL raises through rasterio on a bad file: rasterio's own and the CPLE_* family.
 try:
@@ -77,19 +72,11 @@ try:
 except ImportError:  # pragma: no cover - rasterio's private module moved
     _CPLE = RasterioError
 RASTER_ERRORS: tuple[type[BaseException], ...] = (RasterioError, _CPLE)
+# Reading a window of a level file damaged after the store was opened.
+_READ_ERRORS: tuple[type[BaseException], ...] = (*RASTER_ERRORS, ValueError)
 
 # Files globeview writes in a store (GDAL may add a .aux.xml next to a level).
 _STORE_FILE = re.compile(r"^(manifest\.json(\.part)?|level_\d\d\.tif(\.aux\.xml)?)$")
-# Everything that can go wrong reading untrusted JSON into numbers and arrays.
-_MANIFEST_ERRORS = (
-    KeyError,
-    TypeError,
-    ValueError,
-    OverflowError,
-    AttributeError,
-    IndexError,
-    RecursionError,
-)
 
 
 def is_store_file(name: str) -> bool:
@@ -120,8 +107,10 @@ class StoreIdentity:
         return self.kind == "store" and self.version == FORMAT_VERSION
 
 
-def read_manifest(path: Path) -> dict | None:
-    """The manifest of ``path`` as a dict, or None if missing/unreadable/not an object."""
+def read_manifest(path: Path) -> dict[str, object] | None:
+    """The parsed JSON object in ``path``'s manifest, unchecked (`StoreHeader.peek` reads
+    its header; `StoreManifest.from_json` checks all of it), or None if it is missing,
+    unreadable or not an object."""
     try:
         data = json.loads((path / MANIFEST_NAME).read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, ValueError, RecursionError):
@@ -146,94 +135,18 @@ def identify(path: str | Path) -> StoreIdentity:
     man = read_manifest(p)
     if man is None:
         return StoreIdentity("foreign", extra=extra)
-    if man.get("format") == STORE_FORMAT:
-        return StoreIdentity("store", man.get("format_version"), extra)
-    created = man.get("created_by")
+    head = StoreHeader.peek(man)
+    if head.format == STORE_FORMAT:
+        return StoreIdentity("store", head.format_version, extra)
+    created = head.created_by
     if (
-        man.get("format_version") == 2
+        head.format_version == 2
         and isinstance(created, str)
         and created.startswith("globeview ")
         and extra is None
     ):
         return StoreIdentity("legacy", 2)
     return StoreIdentity("foreign", extra=extra)
-
-
-def _int(v: object, name: str, lo: int, hi: int) -> int:
-    """An integer manifest value in [lo, hi] (bools and floats are not integers here)."""
-    if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-        raise ValueError(f"{name} must be an integer in {lo}..{hi}, got {str(v)[:40]}")
-    return v
-
-
-def _float(v: object, name: str, none_ok: bool = False) -> float | None:
-    """A finite number from the manifest (None allowed when ``none_ok``)."""
-    if v is None and none_ok:
-        return None
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise ValueError(f"{name} must be a finite number, got {str(v)[:40]}")
-    return float(v)
-
-
-def _poles(v: object, name: str) -> dict[str, float | None]:
-    if v is None:
-        return {}
-    if not isinstance(v, dict):
-        raise ValueError(f"{name} must be an object")
-    return {str(k): _float(h, f"{name}.{k}", none_ok=True) for k, h in v.items()}
-
-
-class _Level:
-    """Per-level metadata as numpy arrays (ny, nx); NaN where a tile has no data."""
-
-    def __init__(self, index: int, entry: dict, tile_n: int, n_strides: int) -> None:
-        if not isinstance(entry, dict):
-            raise ValueError(f"level {index} is not an object")
-        ext = entry["extent"]
-        if not isinstance(ext, dict):
-            raise ValueError(f"level {index}: extent is not an object")
-        lv = _int(entry["level"], f"level {index}: level", index, index)
-        ncols, nrows = level_shape(lv)
-        x0 = _int(ext["x0"], f"level {lv}: x0", 0, ncols - 1)
-        y0 = _int(ext["y0"], f"level {lv}: y0", 0, nrows - 1)
-        nx = _int(ext["nx"], f"level {lv}: nx", 1, ncols)
-        ny = _int(ext["ny"], f"level {lv}: ny", 1, nrows - y0)
-        self.grid = LevelGrid(lv, tile_n, x0, y0, nx, ny)
-        shape = (self.grid.ny, self.grid.nx)
-        # Only the name globeview writes: a manifest must not point outside its store.
-        if entry["file"] != self.grid.file_name:
-            raise ValueError(f"level {lv}: file {str(entry['file'])[:60]!r} is not its level file")
-        self.file: str = self.grid.file_name
-        sha = entry.get("sha256", "")
-        self.sha256: str = sha if isinstance(sha, str) else ""
-        self.error = _array(entry["error"], shape)
-        self.hmin = _array(entry["hmin"], shape)
-        self.hmax = _array(entry["hmax"], shape)
-        stride = _array(entry["stride_error"], (*shape, n_strides), nested_null=True)
-        self.stride = stride
-        self.pole_heights = _poles(entry.get("pole_heights"), f"level {lv}: pole_heights")
-        self.level_error = _float(entry.get("level_error"), f"level {lv}: level_error", True)
-        if (self.level_error is not None and self.level_error < 0) or (
-            (self.error < 0).any() or (self.stride < 0).any()
-        ):
-            raise ValueError(f"level {lv}: negative tile errors")
-
-
-def _array(data: list, shape: tuple[int, ...], nested_null: bool = False) -> np.ndarray:
-    if not isinstance(data, list):
-        raise ValueError(f"expected a list of shape {shape}")
-    if nested_null:
-        # Rows hold either a list of strides or null: expand nulls to NaN rows.
-        n = shape[-1]
-        data = [[c if c is not None else [None] * n for c in row] for row in data]
-    a = np.array(data, dtype=np.float64)
-    if a.size == 0:
-        a = a.reshape(shape)
-    if a.shape != shape:
-        raise ValueError(f"array of shape {a.shape}, expected {shape}")
-    if np.isinf(a).any():
-        raise ValueError("infinite tile metadata")
-    return a
 
 
 def _short(exc: BaseException) -> str:
@@ -264,43 +177,33 @@ class TileStore:
 
     Attributes:
         path: the store directory.
-        manifest: the parsed manifest (dict).
+        manifest: the checked manifest (`StoreManifest`: sources with their vertical datums,
+            ingest parameters, levels with their per-tile metadata).
         tile_n: tiles have 2^tile_n node intervals a side.
         tile_size: samples per tile side, 2^tile_n + 1.
         max_level: finest level.
+        strides: the sample strides of `tile_stride_error`'s columns 1..
         bounds: data footprint (west, south, east, north), degrees; west > east crosses the
             antimeridian.
         pole_heights: {"north": metres or None, "south": metres or None}: the single height of
             each pole point when the data reaches it (every level's pole row holds it).
     """
 
-    def __init__(self, path: Path, manifest: dict, cache_tiles: int = DEFAULT_CACHE_TILES) -> None:
+    def __init__(
+        self, path: Path, manifest: StoreManifest, cache_tiles: int = DEFAULT_CACHE_TILES
+    ) -> None:
         self.path = path
         self.manifest = manifest
-        try:
-            self.tile_n = _int(manifest["tile_n"], "tile_n", *TILE_N_RANGE)
-            self.max_level = _int(manifest["max_level"], "max_level", 0, MAX_LEVEL_LIMIT)
-            strides = manifest["strides"]
-            if not isinstance(strides, list) or not 0 < len(strides) <= 16:
-                raise ValueError("strides must be a short list")
-            self.strides: tuple[int, ...] = tuple(_int(s, "stride", 1, 1 << 20) for s in strides)
-            bounds = manifest["bounds"]
-            if not isinstance(bounds, list) or len(bounds) != 4:
-                raise ValueError("bounds must be 4 numbers")
-            self.bounds = tuple(_float(v, "bounds") for v in bounds)
-            self.pole_heights: dict[str, float | None] = _poles(
-                manifest.get("pole_heights"), "pole_heights"
-            )
-            levels = manifest["levels"]
-            if not isinstance(levels, list) or len(levels) != self.max_level + 1:
-                raise ValueError("levels do not match max_level")
-            self._levels = [
-                _Level(i, e, self.tile_n, len(self.strides)) for i, e in enumerate(levels)
-            ]
-        except _MANIFEST_ERRORS as exc:
-            raise StoreError(f"{path}: damaged {MANIFEST_NAME} ({_short(exc)})") from None
-        for lv in self._levels:
-            self._open_level(lv).close()
+        self.tile_n = manifest.tile_n
+        self.max_level = manifest.max_level
+        self.strides: tuple[int, ...] = manifest.strides
+        w, s, e, n = manifest.bounds
+        self.bounds: tuple[float, float, float, float] = (w, s, e, n)
+        self.pole_heights = (manifest.pole_heights or PoleHeights()).as_dict()
+        self._levels: tuple[LevelRecord, ...] = manifest.levels
+        self._grids = [lv.grid(self.tile_n) for lv in self._levels]
+        for level in range(self.max_level + 1):
+            self._open_level(level).close()
         self.tile_size = (1 << self.tile_n) + 1
         self._cache: OrderedDict[TileKey, np.ndarray] = OrderedDict()
         self._cache_tiles = max(1, int(cache_tiles))
@@ -327,25 +230,29 @@ class TileStore:
         if not mpath.is_file():
             raise StoreError(f"{p} is not a globeview tile store (no {MANIFEST_NAME})")
         try:
-            manifest = json.loads(mpath.read_text(encoding="utf-8"))
+            raw = json.loads(mpath.read_text(encoding="utf-8"))
         except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
             raise StoreError(f"{mpath}: unreadable manifest ({type(exc).__name__})") from None
-        if not isinstance(manifest, dict):
+        if not isinstance(raw, dict):
             raise StoreError(f"{mpath}: unreadable manifest (not a JSON object)")
         ident = identify(p.resolve())  # a symlink to a store reads as the store
         if not ident.is_globeview:
             raise StoreError(f"{p} is not a globeview tile store ({MANIFEST_NAME} is not ours)")
-        version = manifest.get("format_version")
+        version = StoreHeader.peek(raw).format_version
         if built_before_vdatums(version):
             raise StoreError(
                 f"{p}: store built before vertical datums (format version {version}, heights"
                 " not ellipsoidal); rebuild it with globeview ingest --force"
             )
-        if version != FORMAT_VERSION:
+        if version != FORMAT_VERSION or isinstance(version, bool):
             raise StoreError(
                 f"{p}: store format version {str(version)[:20]} is not supported (this "
                 f"globeview reads version {FORMAT_VERSION}); re-run globeview ingest --force"
             )
+        try:
+            manifest = StoreManifest.from_json(raw)
+        except ManifestError as exc:
+            raise StoreError(f"{p}: damaged {MANIFEST_NAME} ({_short(exc)})") from None
         return cls(p, manifest, cache_tiles)
 
     def verify(self) -> None:
@@ -357,7 +264,7 @@ class TileStore:
             h = hashlib.sha256()
             try:
                 with (self.path / lv.file).open("rb") as f:
-                    for chunk in iter(lambda f=f: f.read(1 << 20), b""):
+                    while chunk := f.read(1 << 20):
                         h.update(chunk)
             except OSError as exc:
                 raise StoreError(f"cannot read {self.path / lv.file}: {exc.strerror}") from None
@@ -368,20 +275,22 @@ class TileStore:
 
     def level_grid(self, level: int) -> LevelGrid:
         """Extent and raster geometry of a level."""
-        return self._levels[level].grid
+        return self._grids[level]
 
     def level_error(self, level: int) -> float | None:
         """Largest tile error of a level (metres)."""
         return self._levels[level].level_error
 
-    def _lookup(self, level: int, x: np.ndarray, y: np.ndarray, attr: str) -> np.ndarray:
+    def _lookup(
+        self, level: int, x: np.ndarray | int, y: np.ndarray | int, attr: _TileArray
+    ) -> np.ndarray:
+        """A `LevelRecord` per-tile array at tiles (x, y), NaN outside the level's extent."""
         x_a, y_a = np.broadcast_arrays(np.asarray(x, dtype=np.int64), np.asarray(y, dtype=np.int64))
         if not (0 <= level <= self.max_level):
-            tail = (len(self.strides),) if attr == "stride" else ()
+            tail = (len(self.strides),) if attr == "stride_error" else ()
             return np.full(x_a.shape + tail, np.nan)
-        lv = self._levels[level]
-        iy, ix, inside = lv.grid.tile_slots(y_a, x_a)
-        arr = getattr(lv, attr)
+        iy, ix, inside = self._grids[level].tile_slots(y_a, x_a)
+        arr: np.ndarray = getattr(self._levels[level], attr)
         vals = arr[iy, ix]
         if vals.ndim > inside.ndim:
             return np.where(inside[..., None], vals, np.nan)
@@ -415,14 +324,14 @@ class TileStore:
         if not (0 <= level <= self.max_level):
             stride = np.full((*err.shape, len(self.strides)), np.nan)
         else:
-            stride = self._lookup(level, x, y, "stride")
+            stride = self._lookup(level, x, y, "stride_error")
         return np.concatenate([err[..., None], stride], axis=-1).astype(np.float32)
 
     # -- heights -------------------------------------------------------------------------------
 
-    def _open_level(self, lv: _Level) -> rasterio.DatasetReader:
+    def _open_level(self, level: int) -> rasterio.DatasetReader:
         """Open a level raster, checked against the manifest (StoreError naming the file)."""
-        path = self.path / lv.file
+        path = self.path / self._levels[level].file
         if not path.is_file():
             raise StoreError(f"{path}: level file is missing; re-run globeview ingest --force")
         try:
@@ -430,7 +339,7 @@ class TileStore:
         except RASTER_ERRORS as exc:
             raise StoreError(f"{path} is damaged: {_short(exc)}") from None
         try:
-            _check_level_file(path, ds, lv.grid)
+            _check_level_file(path, ds, self._grids[level])
         except BaseException:
             ds.close()
             raise
@@ -443,7 +352,7 @@ class TileStore:
             handles = self._local.handles = {}
         ds = handles.get(level)
         if ds is None:
-            ds = self._open_level(self._levels[level])
+            ds = self._open_level(level)
             handles[level] = ds
             with self._lock:
                 self._all_handles.append(ds)
@@ -454,7 +363,7 @@ class TileStore:
         out = np.full((size, size), np.nan, dtype=np.float32)
         if not (0 <= key.level <= self.max_level):
             return out
-        grid = self._levels[key.level].grid
+        grid = self._grids[key.level]
         iy, ix, inside = grid.tile_slots(np.array(key.y), np.array(key.x))
         if not bool(inside):
             return out
@@ -462,7 +371,7 @@ class TileStore:
         ds = self._dataset(key.level)
         try:
             out[:] = ds.read(1, window=Window(int(ix) * n, int(iy) * n, size, size))
-        except (*RASTER_ERRORS, ValueError) as exc:
+        except _READ_ERRORS as exc:
             # A level file damaged (truncated, rewritten) after the store was opened.
             raise StoreError(
                 f"cannot read tile {tuple(key)} from {self.path / self._levels[key.level].file}: "

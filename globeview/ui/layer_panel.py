@@ -52,11 +52,9 @@ def datum_text(store: TileStore) -> str:
     """Where a store's heights came from, for people: "heights: EGM96 geoid (SRTM .hgt
     default), stored above the ellipsoid" (one entry per source)."""
     parts = []
-    for src in store.manifest.get("sources") or ():
-        if not isinstance(src, dict) or "vertical_datum" not in src:
-            continue
-        name = _DATUM_NAMES.get(str(src["vertical_datum"]), str(src["vertical_datum"]))
-        parts.append(f"{name} ({src.get('vertical_datum_source', 'unknown')})")
+    for src in store.manifest.sources:
+        name = _DATUM_NAMES.get(src.vertical_datum, src.vertical_datum)
+        parts.append(f"{name} ({src.vertical_datum_source})")
     if not parts:
         return "heights: vertical datum not recorded"
     return f"heights: {'; '.join(parts)}, stored above the ellipsoid"

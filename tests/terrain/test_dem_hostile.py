@@ -318,7 +318,7 @@ def test_cf_netcdf_lat_lon_is_wgs84(tmp_path: Path) -> None:
     # the real ingest path: a store whose coarsest tile holds the grid's heights
     store = ingest([p], tmp_path / "store", tile_n=4)
     ts = TileStore.open(store.path)
-    assert ts.manifest["sources"][0]["crs"] == "EPSG:4326"
+    assert ts.manifest.sources[0].crs == "EPSG:4326"
     h = ts.heights((0, 0, 0))
     assert np.isfinite(h).all() and h.min() >= 0 and h.max() <= a.max()
 

@@ -18,6 +18,7 @@ from globeview.terrain.dem import open_dem
 from globeview.terrain.ingest import ingest
 from globeview.terrain.quadtree import TileKey, tile_bounds
 from globeview.terrain.store import TileStore
+from globeview.terrain.store_schema import write_json_array
 from globeview.terrain.wavelet import approximate_grid
 
 DATA = Path(__file__).resolve().parents[2] / "data"
@@ -392,7 +393,7 @@ def test_manifest_arrays_are_streamed_as_the_same_json() -> None:
         a = rng.random(shape) * 1e4
         a.flat[:: max(1, a.size // 3)] = np.nan
         f = io.StringIO()
-        ingest_mod._write_json_array(f, a)
+        write_json_array(f, a)
         want = a.astype(object)
         want[np.isnan(a)] = None
         assert json.loads(f.getvalue()) == want.tolist()

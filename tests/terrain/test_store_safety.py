@@ -144,8 +144,8 @@ def test_cached_store_of_another_version_is_rebuilt_silently(
     open_or_ingest(SMALL).close()
     _legacy(store_path_for(SMALL))
     with open_or_ingest(SMALL) as st:  # globeview owns its cache: no --force needed
-        assert st.manifest["format"] == STORE_FORMAT
-        assert st.manifest["format_version"] == FORMAT_VERSION
+        assert st.manifest.header.format == STORE_FORMAT
+        assert st.manifest.header.format_version == FORMAT_VERSION
 
 
 def test_manifest_has_the_marker(store: Path) -> None:

@@ -258,8 +258,8 @@ def test_cached_store_built_before_vdatums_is_rebuilt_silently(
     cached = store_path_for(src)
     _as_version_3(cached)
     st = open_or_ingest(src)
-    assert st.manifest["format_version"] == 4
-    assert st.manifest["sources"][0]["vertical_datum"] == "egm96"
+    assert st.manifest.header.format_version == 4
+    assert st.manifest.sources[0].vertical_datum == "egm96"
     st.close()
 
 

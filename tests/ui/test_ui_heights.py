@@ -73,7 +73,7 @@ def test_layer_panel_opens_a_dem_with_the_chosen_vertical_datum(make_window, sma
     qtbot.waitUntil(lambda: "hill" in [ly.name for ly in win.terrain.layers], timeout=60000)
     layer = next(ly for ly in win.terrain.layers if ly.name == "hill")
     assert layer.store.path != store_path_for(small_dem)
-    assert [s["vertical_datum"] for s in layer.store.manifest["sources"]] == ["ellipsoid"]
+    assert [s.vertical_datum for s in layer.store.manifest.sources] == ["ellipsoid"]
     tip = win.layer_panel.list.item(0).toolTip()
     assert "heights: WGS84 ellipsoid" in tip, tip
 
