@@ -10,6 +10,8 @@ frame is drawn, so changing the model never needs a GL context.
 
 from __future__ import annotations
 
+import weakref
+from collections.abc import Callable
 from typing import Any
 
 from psygnal import Signal, SignalGroup
@@ -69,7 +71,9 @@ class Globe:
         self._tau_px = check_tau(tau_px)
         self.display = display if display is not None else DisplaySettings()
         self.overlays: list[Any] = []
-        terrain.listeners.append(self._terrain_changed)
+        # A weak listener: a terrain outlives the globes shown on it (a test session's
+        # shared stack, a window reopening a globe), and must not keep them alive.
+        terrain.listeners.append(_WeakListener(self._terrain_changed, terrain.listeners))
 
     # -- terrain ---------------------------------------------------------------------------
     @property
@@ -139,6 +143,31 @@ class Globe:
         self.overlays.remove(layer)
         self.events.overlays.emit()
 
+    def set_overlay_order(self, layers: list[Any]) -> None:
+        """Reorder the overlays (bottom first); ``layers`` must be the same layers."""
+        if sorted(map(id, layers)) != sorted(map(id, self.overlays)):
+            raise ValueError("set_overlay_order: not a reordering of the globe's overlays")
+        if [id(ly) for ly in layers] != [id(ly) for ly in self.overlays]:
+            self.overlays[:] = layers
+            self.events.overlays.emit()
+
     def overlays_changed(self) -> None:
         """Announce an in-place change of an overlay (visibility, opacity, style)."""
         self.events.overlays.emit()
+
+
+class _WeakListener:
+    """A terrain listener calling a bound method without keeping its object alive; it drops
+    itself from ``owner_list`` once that object is gone."""
+
+    def __init__(self, method: Callable[[], None], owner_list: list) -> None:
+        self._method = weakref.WeakMethod(method)
+        self._owner_list = owner_list
+
+    def __call__(self) -> None:
+        method = self._method()
+        if method is None:
+            if self in self._owner_list:
+                self._owner_list.remove(self)
+            return
+        method()
