@@ -22,10 +22,10 @@ from globeview.render.overlay_vectors import (
     render_set_signature,
     render_set_strides,
     set_uniforms,
-    shader,
     split_hi_lo,
     view_uniforms,
 )
+from globeview.render.shader_source import load_shader
 from globeview.terrain.vectors import drape_heights
 
 KINDS = ("placemark", "box", "cone")
@@ -161,8 +161,8 @@ class PointOverlay:
         self.instances = ctx.buffer(reserve=max(n, 1) * self.FLOATS * 4, dynamic=True)
         if self.style.kind == "placemark":
             self.program = ctx.program(
-                vertex_shader=shader("overlay_billboard.vert"),
-                fragment_shader=shader("overlay_billboard.frag"),
+                vertex_shader=load_shader("overlay_billboard.vert"),
+                fragment_shader=load_shader("overlay_billboard.frag"),
             )
             self.mesh = None
             self.vao = ctx.vertex_array(
@@ -170,8 +170,8 @@ class PointOverlay:
             )
         else:
             self.program = ctx.program(
-                vertex_shader=shader("overlay_object.vert"),
-                fragment_shader=shader("overlay_object.frag"),
+                vertex_shader=load_shader("overlay_object.vert"),
+                fragment_shader=load_shader("overlay_object.frag"),
             )
             mesh = _box_mesh() if self.style.kind == "box" else _cone_mesh()
             self.mesh = ctx.buffer(mesh.tobytes())
@@ -192,8 +192,8 @@ class PointOverlay:
             self.rect_tex = ctx.texture((len(rect_tex), 1), 4, rect_tex.tobytes(), dtype="f4")
             self.rect_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
             self.label_prog = ctx.program(
-                vertex_shader=shader("overlay_label.vert"),
-                fragment_shader=shader("overlay_label.frag"),
+                vertex_shader=load_shader("overlay_label.vert"),
+                fragment_shader=load_shader("overlay_label.frag"),
             )
             self.label_vao = ctx.vertex_array(
                 self.label_prog, [(self.instances, fmt, *attrs)], skip_errors=True

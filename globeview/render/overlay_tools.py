@@ -28,7 +28,6 @@ them into the framebuffer the terrain was just drawn into:
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from importlib import resources
 from typing import Any
 
 import moderngl
@@ -36,6 +35,7 @@ import numpy as np
 
 from globeview.lod.view_state import INV_AXES2, ViewState
 from globeview.render.overlay_vectors import view_uniforms
+from globeview.render.shader_source import load_shader
 
 #: Floats per instance: a (3), b (3), colour (4), size, kind, depth-tested (0/1).
 FLOATS = 13
@@ -52,10 +52,6 @@ MAX_LABEL_CHARS = 80
 LABEL_FLOATS = 12
 
 Displace = Callable[[np.ndarray], np.ndarray]
-
-
-def _shader(name: str) -> str:
-    return resources.files("globeview.render").joinpath("shaders", name).read_text()
 
 
 def facing_eye(points_ecef: np.ndarray, eye: np.ndarray) -> np.ndarray:
@@ -186,15 +182,15 @@ class ToolOverlayRenderer:
     def __init__(self, ctx: moderngl.Context) -> None:
         self.ctx = ctx
         self.program = ctx.program(
-            vertex_shader=_shader("overlay_tool.vert"),
-            fragment_shader=_shader("overlay_tool.frag"),
+            vertex_shader=load_shader("overlay_tool.vert"),
+            fragment_shader=load_shader("overlay_tool.frag"),
         )
         self._capacity = 64
         self.instances = ctx.buffer(reserve=self._capacity * FLOATS * 4, dynamic=True)
         self.vao = self._make_vao()
         self.label_program = ctx.program(
-            vertex_shader=_shader("overlay_tool_label.vert"),
-            fragment_shader=_shader("overlay_tool_label.frag"),
+            vertex_shader=load_shader("overlay_tool_label.vert"),
+            fragment_shader=load_shader("overlay_tool_label.frag"),
         )
         self._label_capacity = 16
         self.label_buffer = ctx.buffer(reserve=self._label_capacity * LABEL_FLOATS * 4)

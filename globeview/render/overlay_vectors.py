@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from importlib import resources
 
 import moderngl
 import numpy as np
@@ -29,16 +28,13 @@ import numpy as np
 from globeview.geodesy import WGS84, lonlat_to_ecef
 from globeview.lod.render_set import RenderSet
 from globeview.lod.view_state import INV_AXES2, ViewState
+from globeview.render.shader_source import load_shader
 from globeview.terrain.vectors import Polylines, drape_heights
 
 #: Coarser line levels are used while their segments span fewer pixels than this.
 SEGMENT_PX = 6.0
 #: Depth pull toward the eye, as a fraction of the view distance.
 DEPTH_BIAS_FRACTION = 0.004
-
-
-def shader(name: str) -> str:
-    return resources.files("globeview.render").joinpath("shaders", name).read_text()
 
 
 def render_set_strides(render_set: RenderSet) -> np.ndarray:
@@ -130,7 +126,8 @@ class VectorOverlay:
         self.lines, self._a, self._b, self._along = self._prep[0]
         n_max = max(len(p[1]) for p in self._prep)
         self.program = ctx.program(
-            vertex_shader=shader("overlay_line.vert"), fragment_shader=shader("overlay_line.frag")
+            vertex_shader=load_shader("overlay_line.vert"),
+            fragment_shader=load_shader("overlay_line.frag"),
         )
         self.buffer = ctx.buffer(reserve=max(n_max, 1) * self.FLOATS * 4, dynamic=True)
         self.vao = ctx.vertex_array(

@@ -16,7 +16,6 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from importlib import resources
 
 import moderngl
 import numpy as np
@@ -33,6 +32,7 @@ from globeview.lod.view_state import INV_AXES2, ViewState
 from globeview.model.display import DisplaySettings
 from globeview.render.colour_ramp import ramp_texture_data
 from globeview.render.overlay_imagery import OverlaySet  # overlays:
+from globeview.render.shader_source import build_shader, source_legend
 from globeview.render.tile_loader import TileLoader, substitute_missing
 from globeview.render.tile_mesh import FLOATS_PER_VERTEX, TileMesh, build_tile_mesh
 from globeview.render.tile_pool import IndexPool, TilePool
@@ -48,16 +48,13 @@ class DisplacementHook:
     """GLSL a tool plugin injects into the terrain vertex shader (see docs/plugins.md).
 
     ``glsl`` defines ``vec3 gv_displace(vec3 rel, vec3 up, float h, vec3 center_rel)`` that
-    returns the displaced eye-relative position; ``uniforms`` are set every frame.
+    returns the displaced eye-relative position; it replaces the identity chunk
+    shaders/displace.glsl, verbatim. ``uniforms`` are set every frame.
     """
 
     owner: str
     glsl: str
     uniforms: dict[str, object] = field(default_factory=dict)
-
-
-def load_shader(name: str) -> str:
-    return resources.files("globeview.render").joinpath("shaders", name).read_text()
 
 
 class GlobeRenderer:
@@ -110,17 +107,15 @@ class GlobeRenderer:
     def _compile(
         self, hook: DisplacementHook | None, features: tuple[bool, bool, bool]
     ) -> moderngl.Program:
-        vert = load_shader("terrain.vert")
-        if hook is not None:
-            vert = vert.replace("//GV_DISPLACE_DECLS", hook.glsl)
-            vert = vert.replace(
-                "//GV_DISPLACE_CALL", "rel = gv_displace(rel, up, in_h * u_exag, in_center_rel);"
-            )
-        frag = load_shader("terrain.frag")
+        # The hook's text replaces the identity chunk displace.glsl (shaders/terrain.vert).
+        replace = {"displace.glsl": hook.glsl} if hook is not None else None
+        vert = build_shader("terrain.vert", replace=replace)
         names = ("GV_IMAGERY", "GV_HILLSHADE", "GV_FOG")
-        defines = "".join(f"#define {n} 1\n" for n, on in zip(names, features, strict=True) if on)
-        head, rest = frag.split("\n", 1)  # the #version line stays first
-        return self.ctx.program(vertex_shader=vert, fragment_shader=f"{head}\n{defines}{rest}")
+        frag = build_shader("terrain.frag", defines=dict(zip(names, features, strict=True)))
+        try:
+            return self.ctx.program(vertex_shader=vert.text, fragment_shader=frag.text)
+        except moderngl.Error as exc:  # say which piece (a hook: its own line numbers) failed
+            raise moderngl.Error(f"{exc} ({source_legend(vertex=vert, fragment=frag)})") from exc
 
     def _use_features(self, features: tuple[bool, bool, bool]) -> None:
         if features == self._features:

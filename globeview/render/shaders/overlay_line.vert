@@ -1,14 +1,12 @@
 #version 330
 // Draped polylines (overlay_vectors.py): one instance per segment, a 4-vertex strip widened
 // to u_width pixels in screen space. Endpoints arrive as float32 hi/lo pairs of absolute ECEF
-// metres; subtracting the eye's hi/lo pair keeps millimetres (relative-to-eye rendering).
+// metres; subtracting the eye's hi/lo pair keeps millimetres (relative_position.glsl).
+#include "view.glsl"
+#include "log_depth.glsl"
+#include "relative_position.glsl"
 
-uniform mat3 u_rot;
-uniform mat4 u_proj;
-uniform vec3 u_eye_hi;
-uniform vec3 u_eye_lo;
 uniform vec2 u_viewport;     // pixels
-uniform float u_log_far;     // 1 / log2(1 + far), as terrain.vert
 uniform float u_depth_bias;  // window-depth pull toward the eye (a fixed fraction of w)
 uniform float u_width;       // pixels
 
@@ -22,7 +20,7 @@ in float in_along_b;
 out float v_along;
 
 vec4 clip_of(vec3 hi, vec3 lo, out float w) {
-    vec3 rel = (hi - u_eye_hi) + (lo - u_eye_lo);
+    vec3 rel = gv_rel_to_eye(hi, lo);
     vec3 cam = u_rot * rel;
     w = -cam.z;
     return u_proj * vec4(cam, 1.0);
@@ -35,7 +33,7 @@ void main() {
     int id = gl_VertexID;
     bool at_b = (id >= 2);
     if (wa <= 0.0 || wb <= 0.0) {          // behind the eye: drop the segment
-        gl_Position = vec4(2.0, 2.0, 2.0, 1.0);
+        gl_Position = GV_OFFSCREEN;
         v_along = 0.0;
         return;
     }
@@ -51,6 +49,6 @@ void main() {
     // Half a width each side, plus half a pixel along the segment to close joints.
     vec2 off = (nrm * side * 0.5 * u_width + dir * (at_b ? 0.5 : -0.5)) * 2.0 / u_viewport;
     gl_Position = vec4(c.xy + off * c.w, 0.0, c.w);
-    gl_Position.z = ((2.0 * log2(1.0 + w) * u_log_far - 1.0) - 2.0 * u_depth_bias) * c.w;
+    gl_Position.z = (gv_log_depth(w) - 2.0 * u_depth_bias) * c.w;
     v_along = at_b ? in_along_b : in_along_a;
 }

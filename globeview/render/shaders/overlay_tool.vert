@@ -1,15 +1,15 @@
 #version 330
 // Tool overlays (overlay_tools.py): screen-space discs (markers) and screen-space-wide quads
 // (polyline segments), one instance each. Markers and on-top segments are drawn with no depth
-// test; depth-tested segments carry the logarithmic depth of terrain.vert (pulled toward the
+// test; depth-tested segments carry the logarithmic depth (log_depth.glsl; pulled toward the
 // eye by u_depth_bias, as vector layers are) so the terrain in front of them hides them.
 // Positions arrive relative to the eye (float64 on the CPU -> float32 here): no absolute ECEF
 // coordinate ever reaches the GPU.
 
-uniform mat3 u_rot;       // ECEF direction -> camera axes
-uniform mat4 u_proj;
+#include "view.glsl"
+#include "log_depth.glsl"
+
 uniform vec2 u_viewport;  // pixels
-uniform float u_log_far;     // 1 / log2(1 + far), as terrain.vert
 uniform float u_depth_bias;  // window-depth pull toward the eye (a fixed fraction of w)
 
 in vec3 in_a;             // marker position / segment start, relative to the eye (m)
@@ -33,7 +33,7 @@ void main() {
     v_kind = in_kind;
     v_size = in_size;
     if (-ca.z <= 0.0 || -cb.z <= 0.0) {         // behind the eye: drop
-        gl_Position = vec4(2.0, 2.0, 2.0, 1.0);
+        gl_Position = GV_OFFSCREEN;
         v_local = vec2(0.0);
         return;
     }
@@ -62,9 +62,8 @@ void main() {
         w_here = at_b ? -cb.z : -ca.z;
         v_local = vec2(0.0, corner.x * half_w / max(0.5 * in_size, 0.5));
     }
-    // Logarithmic window depth (terrain.vert), linear on screen between the endpoints: the
-    // CPU cuts depth-tested segments short enough for that to follow them.
-    float z = in_depth > 0.5 ? (2.0 * log2(1.0 + w_here) * u_log_far - 1.0) - 2.0 * u_depth_bias
-                             : 0.0;
+    // Logarithmic window depth, linear on screen between the endpoints: the CPU cuts
+    // depth-tested segments short enough for that to follow them.
+    float z = in_depth > 0.5 ? gv_log_depth(w_here) - 2.0 * u_depth_bias : 0.0;
     gl_Position = vec4(ndc, z, 1.0);
 }

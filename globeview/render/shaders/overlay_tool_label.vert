@@ -3,8 +3,8 @@
 // (pixels) to the right of the marker, snapped to whole pixels so the bitmap font stays crisp.
 // Anchors arrive relative to the eye (float64 on the CPU -> float32 here). Drawn on top, like
 // the markers; the CPU has dropped those beyond the horizon.
-uniform mat3 u_rot;       // ECEF direction -> camera axes
-uniform mat4 u_proj;
+#include "view.glsl"
+
 uniform vec2 u_viewport;  // pixels
 uniform vec2 u_atlas_size;
 
@@ -22,7 +22,7 @@ void main() {
     vec2 corner = vec2((gl_VertexID & 1) == 0 ? 0.0 : 1.0, gl_VertexID < 2 ? 0.0 : 1.0);
     v_tex = (in_rect.xy + vec2(corner.x, 1.0 - corner.y) * in_rect.zw) / u_atlas_size;
     if (-cam.z <= 0.0) {       // behind the eye
-        gl_Position = vec4(2.0, 2.0, 2.0, 1.0);
+        gl_Position = GV_OFFSCREEN;
         return;
     }
     vec4 c = u_proj * vec4(cam, 1.0);

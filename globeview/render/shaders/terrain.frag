@@ -2,16 +2,8 @@
 // Shading: hypsometric colour ramp with a separate bathymetry ramp, directional light or a
 // hillshade, fog toward the horizon, and an optional wireframe overlay.
 //
-// Depth is logarithmic: depth = log2(1 + w) / log2(1 + far) for view depth w (terrain.vert).
-// Relative precision is then the same at every distance (about w * ln(far) / 2^24 with a
-// 24-bit buffer: ~1 mm at 100 m, ~20 m at 40 000 km), which one perspective depth range cannot
-// give from 100 m to 40 000 km. We chose it over reversed-Z because reversed-Z needs a float
-// depth buffer and glClipControl, and neither moderngl's depth textures nor Qt's default
-// framebuffer offer a float depth format. It is computed per vertex, not written per
-// fragment: on llvmpipe a gl_FragDepth write costs a third of the frame (it disables early
-// depth tests); between vertices the depth is interpolated linearly in screen space, which
-// is exact at vertices and off by well under a percent of w inside the small triangles the
-// LOD keeps. Picking inverts the mapping (picking.py).
+// Depth is logarithmic, computed in the vertex shader (log_depth.glsl says why).
+#include "ellipsoid.glsl"
 
 uniform sampler2DArray u_heights;
 uniform sampler2DArray u_normals;
@@ -66,8 +58,8 @@ void main() {
     vec3 light = u_light;
 #ifdef GV_HILLSHADE
     if (u_hillshade) {
-        vec3 east = normalize(cross(vec3(0.0, 0.0, 1.0), up) + vec3(1e-9, 0.0, 0.0));
-        vec3 north = cross(up, east);
+        vec3 east, north;
+        gv_east_north(up, east, north);
         light = normalize(0.5 * (-east + north) + 0.7071 * up);
     }
 #endif

@@ -3,8 +3,8 @@
 Pick A, then B: the land between them is squeezed along the A->B axis by the ratio r (the
 zone's length becomes r times as long) and the land beyond slides rigidly toward the zone,
 so two distant patches come side by side. The displacement runs in the terrain vertex shader
-(`glsl.COLLAPSE_GLSL`); `CollapseFrame` (geometry.py) is its float64 CPU
-twin, used for LOD bounds, overlays, and (inverted) for picking. See docs/collapse.md.
+(collapse.glsl, package data read by `collapse_glsl`); `CollapseFrame` (geometry.py) is its
+float64 CPU twin, used for LOD bounds, overlays, and (inverted) for picking. See docs/collapse.md.
 
 State machine: ``idle`` -> (press) ``a_set`` -> (press) collapsing animation -> collapsed.
 'e' expands (animated), 'c' collapses again, Escape cancels (points cleared at once).
@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from functools import cache
+from importlib import resources
 from typing import Any
 
 import numpy as np
@@ -32,9 +34,15 @@ from globeview.plugins.api import (
     lonlat_to_ecef,
 )
 from globeview.plugins.builtin.collapse.geometry import CollapseFrame, ellipsoid_point_along
-from globeview.plugins.builtin.collapse.glsl import COLLAPSE_GLSL
 
 __all__ = ["CollapseTool"]
+
+
+@cache
+def collapse_glsl() -> str:
+    """The displacement hook's GLSL (collapse.glsl beside this module, read once)."""
+    return resources.files(__spec__.parent).joinpath("collapse.glsl").read_text(encoding="utf-8")
+
 
 #: Duration of the collapse / expand animation (s).
 ANIMATION_S = 0.5
@@ -270,8 +278,8 @@ class CollapseTool(Tool):
 
     # -- displacement hook -----------------------------------------------------------------
     def displacement_glsl(self) -> str:
-        """The vertex-shader twin of `CollapseFrame.forward` (glsl.py)."""
-        return COLLAPSE_GLSL
+        """The vertex-shader twin of `CollapseFrame.forward` (collapse.glsl)."""
+        return collapse_glsl()
 
     def displacement_uniforms(self, view: Any) -> dict[str, float | tuple[float, ...]]:
         """Uniforms for this frame: M - eye in float64, the frame axes, the map knots."""

@@ -1,28 +1,24 @@
-"""GLSL twin of `CollapseFrame.forward` for the terrain vertex shader's displacement hook.
+// The collapse tool's displacement hook: the GLSL twin of `CollapseFrame.forward`
+// (geometry.py). `CollapseTool.displacement_glsl()` returns this text (package data) and the
+// host puts it in place of the terrain vertex shader's identity hook, shaders/displace.glsl
+// (docs/plugins.md, "The displacement hook").
+//
+// Everything is evaluated relative to the midpoint M or to the eye (see docs/collapse.md,
+// "Precision on the GPU"): the vertex's foot point F enters as q = F - M, formed from the
+// eye-relative vertex and the float64-computed uniform M - eye, and the result is written as
+//
+//     rel' = rel + (Rot - I) F + (k - 1) Rot F + h (up' - up)
+//
+// with (Rot - I) F = R_M (sin(phi) t - (1 - cos phi) m) + sin(phi) n x q - (1 - cos phi) q_perp
+// (n . M = 0), k - 1 the ellipsoid re-projection computed from the exact difference of the
+// ellipsoid equation (no cancellation), and 1 - cos(phi) = 2 sin^2(phi / 2). No quantity of
+// Earth-radius size is added to or subtracted from a small one, except inside terms multiplied
+// by phi or by k - 1 (< 3.4e-3), so the rounding error stays far below a metre.
+//
+// With r = 1 (or no points set) every vertex returns ``rel`` unchanged (pixel-identical).
+// If the host defines ``GV_HAS_SHADE`` and a global ``float gv_shade``, vertices inside the
+// zone set it below 1 so the fragment shader can darken the collapsed land.
 
-Everything is evaluated relative to the midpoint M or to the eye (see docs/collapse.md,
-"Precision on the GPU"): the vertex's foot point F enters as q = F - M, formed from the
-eye-relative vertex and the float64-computed uniform M - eye, and the result is written as
-
-    rel' = rel + (Rot - I) F + (k - 1) Rot F + h (up' - up)
-
-with (Rot - I) F = R_M (sin(phi) t - (1 - cos phi) m) + sin(phi) n x q - (1 - cos phi) q_perp
-(n . M = 0), k - 1 the ellipsoid re-projection computed from the exact difference of the
-ellipsoid equation (no cancellation), and 1 - cos(phi) = 2 sin^2(phi / 2). No quantity of
-Earth-radius size is added to or subtracted from a small one, except inside terms multiplied
-by phi or by k - 1 (< 3.4e-3), so the rounding error stays far below a metre.
-
-With r = 1 (or no points set) every vertex returns ``rel`` unchanged (pixel-identical).
-If the host defines ``GV_HAS_SHADE`` and a global ``float gv_shade``, vertices inside the
-zone set it below 1 so the fragment shader can darken the collapsed land.
-"""
-
-from __future__ import annotations
-
-__all__ = ["COLLAPSE_GLSL"]
-
-COLLAPSE_GLSL = """
-// ---- globeview collapse tool (plugins/builtin/collapse/glsl.py) ----
 uniform vec3 gv_u_m_rel;   // M - eye (m), formed in float64 on the CPU
 uniform vec3 gv_u_m;       // unit geocentric direction of M
 uniform vec3 gv_u_t;       // unit axis direction at M, toward B (t = n x m)
@@ -69,5 +65,3 @@ vec3 gv_displace(vec3 rel, vec3 up, float h, vec3 tile_center_rel) {
     vec3 up2 = normalize(vec3(G.xy, G.z * gv_u_ell.x));
     return rel + dF + km1 * G + h * (up2 - up);
 }
-// ---- end collapse tool ----
-"""
