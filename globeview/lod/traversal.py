@@ -13,7 +13,9 @@ The quadtree is walked level by level with numpy over all candidate tiles of a l
    what error each survivor has (`LodPolicy.error_px`), which to refine
    (`LodPolicy.refine`), and, for those drawn, with which index stride (`LodPolicy.stride`);
 4. a tile budget (`LodPolicy.max_tiles`) keeps the drawn count bounded: when refining every
-   tile that asks would exceed it, the worst (`LodPolicy.priority`) refine first;
+   tile that asks would exceed it, the worst (`LodPolicy.priority`) refine first (a soft
+   budget: a level's visible tiles are drawn anyway; without a policy budget, `MAX_TILES`
+   held strictly);
 5. refined tiles are replaced by their four children at the next level; the others are drawn.
 
 The result goes back to the policy (`LodPolicy.render_set`), which builds the `RenderSet`
@@ -45,7 +47,7 @@ from globeview.lod.culling import (
     frustum_visible,
     horizon_cap,
 )
-from globeview.lod.render_set import RenderSet
+from globeview.lod.render_set import MAX_TILES, RenderSet
 from globeview.lod.tile_cache import (
     COL_EAST,
     COL_MARGIN,
@@ -348,7 +350,13 @@ def _walk(view: ViewState, terrain: TerrainStack, policy: LodPolicy, cache: Tile
     # A displacement's bend shrinks with the stride (edges LATTICE-1 spans of the lattice).
     bend_frac = np.minimum(1.0, 2.0 ** np.arange(N_STRIDES) * (LATTICE - 1) / (size - 1))
     max_level = min(int(policy.max_level), MAX_LEVEL)
-    budget = policy.max_tiles
+    # The policy's budget is soft (chunked-sse's from the start): it bounds the children of
+    # refined tiles, not the tiles a level must draw anyway. A policy without one still gets
+    # the render set's limit, held strictly (a tile refined adds three to the drawn ones,
+    # which with the level's candidates stay within it): one that refines everything would
+    # otherwise quadruple its candidates every level down to MAX_LEVEL.
+    strict = policy.max_tiles is None
+    budget = MAX_TILES if strict else min(int(policy.max_tiles), MAX_TILES)
 
     slots = cache.roots(terrain, size)
     out: list[tuple[int, LevelTiles, np.ndarray]] = []
@@ -405,29 +413,38 @@ def _walk(view: ViewState, terrain: TerrainStack, policy: LodPolicy, cache: Tile
         )
         # The policy's own culling (e.g. Rishe's ground region), on the visible tiles only.
         keep = policy.cull(tiles)
+        if keep is not None:
+            keep = _checked(policy, "cull", keep, (m,), bool)
         if keep is not None and not keep.all():
             ki = keep.nonzero()[0]
             if len(ki) == 0:
                 break
             tiles = _subset(tiles, ki)
             ks, m = tiles.slots, len(ki)
-        sse = policy.error_px(tiles)
+        sse = _checked(policy, "error_px", policy.error_px(tiles), (m, N_STRIDES), np.float64)
         if level < max_level:
-            refine = np.asarray(policy.refine(tiles, sse), dtype=bool)
+            refine = _checked(policy, "refine", policy.refine(tiles, sse), (m,), bool)
         else:
             refine = np.zeros(m, dtype=bool)
         # Budget: if refining everything would exceed the tile budget, refine the worst first.
-        if budget is not None:
-            n_ref = int(np.count_nonzero(refine))
-            if n_ref:
-                room = int(budget) - drawn - (m - n_ref)
-                if n_ref * 4 > room:
-                    refine = budget_refinement(refine, policy.priority(tiles, sse), room)
         n_ref = int(np.count_nonzero(refine))
+        if n_ref:
+            room, fanout = (budget - drawn - m, 3) if strict else (budget - drawn - (m - n_ref), 4)
+            if n_ref * fanout > room:
+                priority = _checked(
+                    policy, "priority", policy.priority(tiles, sse), (m,), np.float64
+                )
+                refine = budget_refinement(refine, priority, room, fanout)
+                n_ref = int(np.count_nonzero(refine))
         if n_ref < m:
             ai = (~refine).nonzero()[0] if n_ref else np.arange(m)
             sse_acc = sse.take(ai, axis=0) if n_ref else sse
-            idx = np.asarray(policy.stride(tiles, sse_acc, ai), dtype=np.int64)
+            idx = _checked(
+                policy, "stride", policy.stride(tiles, sse_acc, ai), (len(ai),), np.int64
+            )
+            if idx.min() < 0 or idx.max() >= N_STRIDES:
+                name = type(policy).__name__
+                raise ValueError(f"{name}.stride returned indices outside 0..{N_STRIDES - 1}")
             out.append((level, lv, ks.take(ai) if n_ref else ks))
             out_stride.append(idx)
             rows = np.arange(0, len(idx) * N_STRIDES, N_STRIDES)
@@ -445,6 +462,21 @@ def _walk(view: ViewState, terrain: TerrainStack, policy: LodPolicy, cache: Tile
     keys[:, 0] = np.repeat([lvl for lvl, _, _ in out], [len(s) for _, _, s in out])
     keys[:, 1:] = np.concatenate([lv.xy.take(s, axis=0) for _, lv, s in out])
     return Selection(keys, np.concatenate(out_stride), np.concatenate(out_err), culled_f, culled_h)
+
+
+def _checked(policy: LodPolicy, what: str, value: Any, shape: tuple[int, ...], dtype) -> np.ndarray:
+    """``value`` as an array of ``dtype`` after checking it has ``shape`` (one-line
+    ValueError naming the policy's method otherwise: a policy bug fails its provider)."""
+    arr = np.asarray(value)
+    if arr.shape != shape:
+        raise ValueError(
+            f"{type(policy).__name__}.{what} returned shape {arr.shape}, expected {shape}"
+        )
+    if dtype is np.int64 and arr.dtype.kind not in "iu":
+        raise ValueError(f"{type(policy).__name__}.{what} returned {arr.dtype}, not integers")
+    if dtype is np.float64 and arr.dtype.kind not in "fiu":
+        raise ValueError(f"{type(policy).__name__}.{what} returned {arr.dtype}, not numbers")
+    return arr.astype(dtype, copy=False)
 
 
 def _subset(tiles: TileCandidates, idx: np.ndarray) -> TileCandidates:

@@ -17,13 +17,13 @@ import numpy as np
 import pytest
 
 from globeview.geodesy import WGS84, lonlat_to_ecef
+from globeview.lod import tile_cache, traversal
 from globeview.lod.culling import LATTICE, chord_sag, displacement_chord_error_m
 from globeview.lod.render_set import RenderSet
 from globeview.lod.tile_indices import IndexVariant
+from globeview.lod.traversal import MAX_LEVEL
 from globeview.lod.view_state import ViewState
 from globeview.model.camera import Camera
-from globeview.lod import tile_cache, traversal
-from globeview.lod.traversal import MAX_LEVEL
 from globeview.plugins.builtin.chunked.provider import ChunkedSettings, select_tiles
 from globeview.terrain.quadtree import tile_bounds_arrays
 from globeview.terrain.stack import N_STRIDES, TerrainStack
@@ -373,7 +373,10 @@ def test_prefilters_agree_with_exact_tests(terrain) -> None:
             # Frustum: decided tiles agree with the exact test.
             frame = traversal.FrustumFrame(view)
             vis, amb = traversal.frustum_prefilter(
-                frame, facts["centre"] - view.eye, c[tile_cache.COL_MARGIN], c[tile_cache.COL_SPHERE]
+                frame,
+                facts["centre"] - view.eye,
+                c[tile_cache.COL_MARGIN],
+                c[tile_cache.COL_SPHERE],
             )
             exact_f = _reference_frustum_visible(view, pts, c[tile_cache.COL_MARGIN])
             assert np.array_equal(vis[~amb], exact_f[~amb])
