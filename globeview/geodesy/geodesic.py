@@ -49,8 +49,8 @@ def geodesic_inverse(
         point 2, the azimuth at point 2 toward point 1 (the back azimuth), both in
         (-180, 180], and the geodesic distance in metres.
     """
-    arrays = _float_arrays(lon1, lat1, lon2, lat2)
-    az12, az21, dist = _geod(ellipsoid).inv(*arrays, return_back_azimuth=True)
+    a1, b1, a2, b2 = _float_arrays(lon1, lat1, lon2, lat2)
+    az12, az21, dist = _geod(ellipsoid).inv(a1, b1, a2, b2, return_back_azimuth=True)
     return (
         np.asarray(az12, dtype=np.float64)[()],
         np.asarray(az21, dtype=np.float64)[()],
@@ -77,8 +77,8 @@ def geodesic_direct(
         ``(lon2, lat2, back_azimuth_deg)``: end point in degrees (longitude in [-180, 180])
         and the azimuth at the end point pointing back toward the start.
     """
-    arrays = _float_arrays(lon, lat, azimuth_deg, distance_m)
-    lon2, lat2, back = _geod(ellipsoid).fwd(*arrays, return_back_azimuth=True)
+    a, b, az, dist = _float_arrays(lon, lat, azimuth_deg, distance_m)
+    lon2, lat2, back = _geod(ellipsoid).fwd(a, b, az, dist, return_back_azimuth=True)
     return (
         np.asarray(lon2, dtype=np.float64)[()],
         np.asarray(lat2, dtype=np.float64)[()],

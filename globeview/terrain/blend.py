@@ -13,6 +13,8 @@ surface and the LOD's errors can bound the difference between them.
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
 
 from globeview.terrain.quadtree import node_spacing, tile_bounds_arrays
@@ -51,7 +53,7 @@ def blend_band(bounds: tuple[float, float, float, float], finest_spacing: float 
     return min(band, BLEND_MAX_FRACTION * short)
 
 
-def weight_change_bound(cell_deg: np.ndarray, band_deg: float) -> np.ndarray:
+def weight_change_bound(cell_deg: np.ndarray | float, band_deg: float) -> np.ndarray:
     """Bound on |w(corner) - w(p)| for a point p and the corners of a drawn cell of side
     ``cell_deg`` (degrees, the same along both axes on the quadtree) holding it.
 
@@ -184,8 +186,8 @@ def _box_mean(data: np.ndarray, r: int, bounds: tuple[float, float, float, float
         data = tiled[:, c0 : c0 + data.shape[1] + 2 * (r + 1)]
     else:
         data = np.pad(data, ((0, 0), (r + 1, r + 1)))
-    top = "edge" if north >= 90.0 - 1e-9 else "constant"
-    bottom = "edge" if south <= -90.0 + 1e-9 else "constant"
+    top: Literal["edge", "constant"] = "edge" if north >= 90.0 - 1e-9 else "constant"
+    bottom: Literal["edge", "constant"] = "edge" if south <= -90.0 + 1e-9 else "constant"
     data = np.pad(data, ((r + 1, 0), (0, 0)), mode=top)
     data = np.pad(data, ((0, r + 1), (0, 0)), mode=bottom)
     ii = data.cumsum(0).cumsum(1)

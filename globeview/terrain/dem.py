@@ -608,8 +608,8 @@ class Dem:
         # Candidates that are not fills are real data: they widen the range.
         for c, _n in present:
             if all(c != fc for _, fc in fills):
-                h = float(self._to_metres(np.array([c]))[0])
-                lo, hi = min(lo, h), max(hi, h)
+                h_c = float(self._to_metres(np.array([c]))[0])
+                lo, hi = min(lo, h_c), max(hi, h_c)
         if not math.isfinite(lo):
             raise DemError(
                 f"{self.path} holds no valid data (every pixel is nodata, a fill, NaN, infinite"

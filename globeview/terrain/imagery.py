@@ -25,6 +25,7 @@ from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 import rasterio
@@ -314,11 +315,18 @@ class HillshadeImagery:
         return hillshade_tile(self.terrain.heights, key, self.tex_size, self.azimuth_deg)
 
 
+class ImagerySource(Protocol):
+    """What a layer draws from (RasterImagery, HillshadeImagery, a plugin's source): RGBA
+    tiles of the terrain's quadtree, None where it has nothing."""
+
+    def tile_rgba(self, key: TileKeyLike) -> np.ndarray | None: ...
+
+
 @dataclass
 class ImageryLayer:
     """One imagery layer: a source of RGBA tiles plus display state."""
 
-    source: object  # RasterImagery | HillshadeImagery (anything with tile_rgba(key))
+    source: ImagerySource  # RasterImagery | HillshadeImagery (anything with tile_rgba(key))
     name: str
     opacity: float = 1.0
     visible: bool = True
@@ -339,10 +347,9 @@ class ImageryStack:
         self._lock = threading.Lock()
 
     def add(self, layer: ImageryLayer) -> ImageryLayer:
-        if getattr(layer.source, "tex_size", self.tex_size) != self.tex_size:
-            raise ImageryError(
-                f"{layer.name}: texture size {layer.source.tex_size} != {self.tex_size}"
-            )
+        size = getattr(layer.source, "tex_size", self.tex_size)
+        if size != self.tex_size:
+            raise ImageryError(f"{layer.name}: texture size {size} != {self.tex_size}")
         self.layers.append(layer)
         self.changed()
         return layer

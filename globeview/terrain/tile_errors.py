@@ -46,8 +46,8 @@ def interp_axis(
     shape = [1, 1]
     shape[axis] = -1
     t = t.reshape(shape)
-    lo = np.take(a, i, axis=axis).astype(dtype, copy=False)
-    hi = np.take(a, i1, axis=axis).astype(dtype, copy=False)
+    lo: np.ndarray = np.take(a, i, axis=axis).astype(dtype, copy=False)
+    hi: np.ndarray = np.take(a, i1, axis=axis).astype(dtype, copy=False)
     lo *= 1.0 - t
     hi *= t
     lo += hi

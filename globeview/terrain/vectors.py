@@ -21,6 +21,7 @@ import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from pyproj import Geod
@@ -93,7 +94,7 @@ def _features(doc: dict) -> list[dict]:
 
 def _rings(geom: dict) -> list:
     t = geom.get("type")
-    c = geom.get("coordinates")
+    c: Any = geom.get("coordinates")  # parsed GeoJSON: nested lists, checked by the caller
     if t == "LineString":
         return [c]
     if t == "MultiLineString":
@@ -320,10 +321,10 @@ def drape_heights(
     drawn = tile >= 0
     for t in np.unique(tile[drawn]):
         sel = tile == t
-        level, x, y = (int(v) for v in keys[t])
+        t_level, t_x, t_y = (int(v) for v in keys[t])
         s = max(int(strides[t]), 1)
-        grid = heights((level, x, y))[::s, ::s].astype(np.float64)
-        w, so, e, no = (float(v) for v in tile_bounds_arrays(level, x, y))
+        grid = heights((t_level, t_x, t_y))[::s, ::s].astype(np.float64)
+        w, so, e, no = (float(v) for v in tile_bounds_arrays(t_level, t_x, t_y))
         m = grid.shape[0] - 1
         cc = np.clip((wrapped[sel] - w) / (e - w) * m, 0.0, m)
         rr = np.clip((no - lat[sel]) / (no - so) * m, 0.0, m)

@@ -107,8 +107,8 @@ class ZhangIndex:
         self.dlat = (self.lat_max - self.lat_min) / self.q_lat
         self.n_levels = 1 + math.ceil(math.log2(max(self.q_lon, self.q_lat)))
         i = np.arange(self.n_levels)
-        self._n_lon = _ceil_div(self.q_lon, 2**i).astype(np.int64)
-        self._n_lat = _ceil_div(self.q_lat, 2**i).astype(np.int64)
+        self._n_lon = np.asarray(_ceil_div(self.q_lon, 2**i)).astype(np.int64)
+        self._n_lat = np.asarray(_ceil_div(self.q_lat, 2**i)).astype(np.int64)
         counts = self._n_lon * self._n_lat
         # offsets[i] = cells in levels 0..i-1; offsets[n_levels] = total key count.
         self._offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
