@@ -9,14 +9,8 @@ CPU it only moves tile bounding points (9 per tile corner lattice), never vertic
 from __future__ import annotations
 
 import argparse
-import statistics
-import time
 
-from globeview.model.camera import Camera
-from globeview.plugins.registry import PluginRegistry
-from globeview.plugins.session import GlobeSession
-from globeview.plugins.settings import MemorySettings
-from globeview.render.offscreen import OffscreenTarget, create_headless_context
+from globeview.bench.harness import Bench, parse_size
 from globeview.terrain.embedded import embedded_stores
 from globeview.terrain.stack import TerrainStack
 
@@ -33,48 +27,33 @@ VIEWS = {
 }
 
 
-def measure(session: GlobeSession, target, size, cam, frames: int) -> dict[str, float]:
-    session.camera = Camera.from_lonlat(*cam)
-    session.render(target.fbo, size)
-    fm, lm, dm, tri = [], [], [], []
-    for i in range(frames):
-        session.camera.fly_yaw(0.01 * (-1) ** i)
-        t0 = time.perf_counter()
-        r = session.render(target.fbo, size)
-        fm.append((time.perf_counter() - t0) * 1e3)
-        lm.append(r.stats.lod_ms)
-        dm.append(r.stats.draw_ms)
-        tri.append(r.stats.triangles)
-    med = statistics.median
-    return {"frame": med(fm), "lod": med(lm), "draw": med(dm), "tri": med(tri)}
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--frames", type=int, default=9)
     ap.add_argument("--size", default="1280x720")
     args = ap.parse_args()
-    size = tuple(int(v) for v in args.size.split("x"))
-    ctx = create_headless_context()
-    target = OffscreenTarget(ctx, size)
-    terrain = TerrainStack.from_stores(embedded_stores())
-    session = GlobeSession(ctx, terrain, registry=PluginRegistry(MemorySettings()).discover())
+    size = parse_size(args.size)
+    # The one harness (globeview.bench.harness): frames through the session's FramePipeline.
+    bench = Bench(TerrainStack.from_stores(embedded_stores()), size)
+    session = bench.session
     tool = session.tools()["collapse"]
-    print(f"Collapse cost, {size[0]}x{size[1]}, chunked-sse, tau 2 px, {ctx.info['GL_RENDERER']}")
+    print(f"Collapse cost, {size[0]}x{size[1]}, chunked-sse, tau 2 px, {bench.gl_renderer}")
     print()
     print("| view | collapse | triangles | frame_ms | lod_ms | draw_ms |")
     print("|---|---|---:|---:|---:|---:|")
     for name, (cam, pair) in VIEWS.items():
         session.activate_tool(None)
-        off = measure(session, target, size, cam, args.frames)
+        # A tiny camera turn per frame so every frame really selects and draws.
+        off = bench.measure(cam, args.frames, turn_deg=0.01)
         tool.set_points(*pair[:4], pair[4])
         session.activate_tool("collapse")
-        on = measure(session, target, size, cam, args.frames)
+        on = bench.measure(cam, args.frames, turn_deg=0.01)
         for label, m in (("off", off), ("on", on)):
             print(
-                f"| {name} | {label} | {m['tri']:.0f} | {m['frame']:.1f} | {m['lod']:.1f} | "
-                f"{m['draw']:.1f} |"
+                f"| {name} | {label} | {m['triangles']:.0f} | {m['frame_ms']:.1f} | "
+                f"{m['lod_ms']:.1f} | {m['draw_ms']:.1f} |"
             )
+    bench.release()
     return 0
 
 

@@ -10,14 +10,11 @@ Run: .venv/bin/python benchmarks/bench_layer_blend.py [--repeat 3]
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 
-from globeview.model.camera import Camera
-from globeview.plugins.builtin.chunked.provider import select_tiles
-from globeview.render.offscreen import OffscreenTarget, create_headless_context
-from globeview.render.scene import GlobeScene
+from globeview.bench.harness import Bench
+from globeview.render.offscreen import create_headless_context
 from globeview.terrain.embedded import embedded_stores
 from globeview.terrain.stack import TerrainStack
 
@@ -30,19 +27,17 @@ VIEWS = {
 }
 
 
-def frame(ctx, target, blend: bool, pose) -> tuple[float, float, int]:
+def frame(ctx, blend: bool, pose) -> tuple[float, float, int]:
     stack = TerrainStack.from_stores(embedded_stores())
     stack.blend = blend  # False: layers pasted as before (a cliff at each border)
-    scene = GlobeScene(ctx, stack, Camera.from_lonlat(*pose), lod=select_tiles)
-    scene.tau_px = 2.0
-    t0 = time.perf_counter()
-    result = scene.render(target.fbo, SIZE)
-    cold = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    scene.render(target.fbo, SIZE)
-    warm = time.perf_counter() - t0
-    scene.renderer.release()  # the tile pool's GL objects
-    return cold, warm, result.stats.triangles
+    # The one harness: a chunked-sse session on this stack, frames through its pipeline.
+    bench = Bench(stack, SIZE, lod="chunked-sse", ctx=ctx)
+    bench.use("chunked-sse", 2.0)
+    bench.set_pose(pose, cut=True)
+    result, cold_ms = bench.frame()
+    _, warm_ms = bench.frame()
+    bench.release()  # the tile pool's GL objects (the context is ours)
+    return cold_ms / 1e3, warm_ms / 1e3, result.stats.triangles
 
 
 def main() -> None:
@@ -50,13 +45,12 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
     ctx = create_headless_context()
-    target = OffscreenTarget(ctx, SIZE)
     print(f"{'view':38} {'variant':10} {'triangles':>9} {'first frame':>12} {'next frame':>11}")
     for name, pose in VIEWS.items():
         best: dict[bool, list] = {True: [np.inf, np.inf, 0], False: [np.inf, np.inf, 0]}
         for _ in range(args.repeat):
             for blend in (False, True):
-                cold, warm, tris = frame(ctx, target, blend, pose)
+                cold, warm, tris = frame(ctx, blend, pose)
                 b = best[blend]
                 b[0], b[1], b[2] = min(b[0], cold), min(b[1], warm), tris
         for blend in (False, True):

@@ -9,14 +9,12 @@ header says which. Performance targets live here, never in timed tests.
 from __future__ import annotations
 
 import argparse
+import os
 import platform
-import statistics
 import time
 from pathlib import Path
 
-from globeview.model.camera import Camera
-from globeview.plugins.session import GlobeSession
-from globeview.render.offscreen import OffscreenTarget, create_headless_context
+from globeview.bench.harness import Bench, parse_size
 from globeview.terrain.embedded import embedded_stores
 from globeview.terrain.stack import TerrainStack
 
@@ -30,40 +28,6 @@ VIEWS = {
 TARGET_MS = 50.0
 
 
-def run_view(scene: GlobeSession, target, size, cam: tuple, frames: int) -> dict:
-    lon, lat, h, heading, pitch = cam
-    scene.camera = Camera.from_lonlat(lon, lat, h, heading, pitch)
-    scene.render(target.fbo, size)  # uploads tiles
-    frame_ms, lod_ms, tris, tiles, sse = [], [], [], [], []
-    for i in range(frames):
-        # A tiny camera move per frame so every frame really selects and draws.
-        scene.camera.fly_yaw(0.01 * (-1) ** i)
-        t0 = time.perf_counter()
-        r = scene.render(target.fbo, size)
-        frame_ms.append((time.perf_counter() - t0) * 1e3)
-        lod_ms.append(r.stats.lod_ms)
-        tris.append(r.stats.triangles)
-        tiles.append(r.stats.tiles_drawn)
-        sse.append(r.stats.max_sse_px)
-    return {
-        "frame_ms": statistics.median(frame_ms),
-        "lod_ms": statistics.median(lod_ms),
-        "triangles": int(statistics.median(tris)),
-        "tiles": int(statistics.median(tiles)),
-        "max_sse_px": max(sse),
-    }
-
-
-def machine() -> str:
-    import moderngl
-
-    ctx = create_headless_context()
-    renderer = ctx.info["GL_RENDERER"]
-    ctx.release()
-    del moderngl
-    return f"{platform.node()} ({platform.processor() or platform.machine()}), {renderer}"
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--frames", type=int, default=15)
@@ -72,29 +36,29 @@ def main() -> int:
     ap.add_argument("--lod", default="chunked-sse", help="LOD provider plugin")
     ap.add_argument("--out", help="also write the Markdown table to this file")
     args = ap.parse_args()
-    size = tuple(int(v) for v in args.size.split("x"))
+    size = parse_size(args.size)
 
-    terrain = TerrainStack.from_stores(embedded_stores())
-    ctx = create_headless_context()
-    target = OffscreenTarget(ctx, size)
-    scene = GlobeSession(ctx, terrain, lod=args.lod)
-    scene.tau_px = args.tau
+    # The one harness (globeview.bench.harness): frames through the session's FramePipeline.
+    bench = Bench(TerrainStack.from_stores(embedded_stores()), size, lod=args.lod)
+    bench.session.tau_px = args.tau
     lines = [
         f"Render benchmark, LOD provider {args.lod}, {size[0]}x{size[1]}, tau = {args.tau} px, "
-        f"{args.frames} frames per view, {time.strftime('%Y-%m-%d')}, {ctx.info['GL_RENDERER']}, "
-        f"{platform.machine()} ({len(__import__('os').sched_getaffinity(0))} cores)",
+        f"{args.frames} frames per view, {time.strftime('%Y-%m-%d')}, {bench.gl_renderer}, "
+        f"{platform.machine()} ({len(os.sched_getaffinity(0))} cores)",
         "",
         "| view | triangles | tiles | frame_ms (median) | lod_ms (median) | max SSE px | "
         f"<= {TARGET_MS:.0f} ms |",
         "|---|---:|---:|---:|---:|---:|---|",
     ]
     for name, cam in VIEWS.items():
-        r = run_view(scene, target, size, cam, args.frames)
+        # A tiny camera turn per frame so every frame really selects and draws.
+        r = bench.measure(cam, args.frames, turn_deg=0.01)
         ok = "yes" if r["frame_ms"] <= TARGET_MS else "no"
         lines.append(
             f"| {name} | {r['triangles']} | {r['tiles']} | {r['frame_ms']:.1f} | "
             f"{r['lod_ms']:.2f} | {r['max_sse_px']:.2f} | {ok} |"
         )
+    bench.release()
     text = "\n".join(lines)
     print(text)
     if args.out:

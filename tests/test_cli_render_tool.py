@@ -194,7 +194,9 @@ def test_collapse_is_a_spelling_of_tool_points_set(site: PluginSite, tmp_path: P
     assert np.array_equal(pixels(a), pixels(b))
     assert np.abs(pixels(a) - pixels(c)).sum() > 10_000  # the collapse changed the picture
     stats = json.loads((tmp_path / "a.json").read_text())
+    overlay_drawn = stats["tool"].pop("overlay_drawn")
     assert stats["tool"] == {"name": "collapse", "points": [[-10.0, 0.0], [10.0, 0.0]]}
+    assert overlay_drawn > 0  # the fold lines and markers, drawn by the frame itself
     assert stats["settings"] == {"collapse.ratio": 0.3}
 
 

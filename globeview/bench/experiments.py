@@ -21,7 +21,6 @@ Outputs (in ``out``): ``tau_sweep.csv``, ``table1.csv``, ``fig_tau.png``, ``fig_
 from __future__ import annotations
 
 import math
-import statistics
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -66,35 +65,13 @@ def rms(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def measure(bench: Bench, pose: Pose, frames: int) -> tuple[dict, np.ndarray]:
-    """Time ``frames`` fresh selections + draws of one view (after a warm-up frame that
-    uploads the tiles) and return medians and the frame's image."""
-    bench.set_pose(pose)
-    bench.session.reset_lod()
-    bench.frame()  # uploads the tiles
-    wall, lod, draw, tris, tiles, sse = [], [], [], [], [], []
-    for _ in range(max(frames, 1)):
-        bench.session.reset_lod()  # every timed frame selects afresh
-        r, ms = bench.frame()
-        wall.append(ms)
-        lod.append(r.stats.lod_ms)
-        draw.append(r.stats.draw_ms)
-        tris.append(r.stats.triangles)
-        tiles.append(r.stats.tiles_drawn)
-        sse.append(r.stats.max_sse_px)
+    """Time ``frames`` fresh selections + draws of one view (`Bench.measure`, after a
+    warm-up frame that uploads the tiles) and return medians and the frame's image."""
+    m = bench.measure(pose, frames, reset_lod=True)
     img = bench.target.read_rgb()
-    med = statistics.median(wall)
-    return (
-        {
-            "frame_ms": med,
-            "fps": 1e3 / med if med > 0 else math.inf,
-            "lod_ms": statistics.median(lod),
-            "draw_ms": statistics.median(draw),
-            "triangles": int(statistics.median(tris)),
-            "tiles": int(statistics.median(tiles)),
-            "max_sse_px": max(sse),
-        },
-        img,
-    )
+    med = m["frame_ms"]
+    fps = 1e3 / med if med > 0 else math.inf
+    return {"frame_ms": med, "fps": fps, **{k: v for k, v in m.items() if k != "frame_ms"}}, img
 
 
 def full_resolution(bench: Bench, pose: Pose, frames: int) -> tuple[dict, np.ndarray]:

@@ -1,4 +1,11 @@
-"""Headless scene setup and per-frame measurement shared by every benchmark."""
+"""The one benchmark harness: a headless session, its frames through the `FramePipeline`
+(`GlobeSession.render`, as the window draws them) and their figures. `globeview bench`, the
+benchmarks/ scripts and the soak all measure through here.
+
+Time stamps: `fly` hands each frame its flight time (``now_s``), so the pipeline derives the
+camera speed from the flight (the distance-regions provider uses it); `Bench.set_pose` moves
+the camera in place (a move), ``cut=True`` starts a new shot (speed 0).
+"""
 
 from __future__ import annotations
 
@@ -80,13 +87,14 @@ class Bench:
     user's saved plugin settings are neither read nor written.
     """
 
-    def __init__(self, terrain, size: tuple[int, int], lod: str = "chunked-sse") -> None:
+    def __init__(self, terrain, size: tuple[int, int], lod: str = "chunked-sse", ctx=None) -> None:
         from globeview.plugins.registry import PluginRegistry
         from globeview.plugins.session import GlobeSession
         from globeview.plugins.settings import MemorySettings
         from globeview.render.offscreen import OffscreenTarget, create_headless_context
 
-        self.ctx = create_headless_context()
+        self._own_ctx = ctx is None  # a context handed in is the caller's to release
+        self.ctx = create_headless_context() if ctx is None else ctx
         self.size = (int(size[0]), int(size[1]))
         self.target = OffscreenTarget(self.ctx, self.size)
         registry = PluginRegistry(MemorySettings())
@@ -112,17 +120,54 @@ class Bench:
         s.registry.invoke(prov, "configure", values)
         s.reset_lod()
 
-    def set_pose(self, pose: Pose | tuple) -> None:
-        from globeview.model.camera import Camera
-
+    def set_pose(self, pose: Pose | tuple, cut: bool = False) -> None:
+        """Move the camera to ``pose`` (lon, lat, height, heading, pitch) in place: the next
+        frame's speed is the move over the time between the frames' stamps. ``cut``: a new
+        shot instead, the next frame's speed is 0."""
         p = pose.as_tuple() if isinstance(pose, Pose) else tuple(pose)
-        self.session.camera = Camera.from_lonlat(*p)
+        self.session.camera.set_lonlat(*p)
+        if cut:
+            self.session.pipeline.motion.reset()
 
-    def frame(self):
-        """Render one frame; returns (FrameResult, wall milliseconds around render())."""
+    def frame(self, now_s: float | None = None):
+        """Render one frame at time ``now_s`` (seconds; default the monotonic clock);
+        returns (FrameResult, wall milliseconds around render())."""
         t0 = time.perf_counter()
-        r = self.session.render(self.target.fbo, self.size)
+        r = self.session.render(self.target.fbo, self.size, now_s)
         return r, (time.perf_counter() - t0) * 1e3
+
+    def measure(
+        self, pose: Pose | tuple, frames: int, turn_deg: float = 0.0, reset_lod: bool = False
+    ) -> dict[str, float]:
+        """Medians of ``frames`` timed frames of one view, after a warm-up frame that
+        uploads its tiles. ``turn_deg``: a yaw this small, alternating, before each frame so
+        every frame really selects and draws; ``reset_lod``: the provider forgets its
+        per-view cache before each frame (a fresh selection). Keys: frame_ms (wall time of
+        render(): selection, upload, draw, overlays, glFinish), lod_ms, draw_ms, triangles,
+        tiles (medians) and max_sse_px (the worst)."""
+        self.set_pose(pose, cut=True)
+        if reset_lod:
+            self.session.reset_lod()
+        self.frame()  # uploads the tiles
+        rows = []
+        for i in range(max(int(frames), 1)):
+            if turn_deg:
+                self.session.camera.fly_yaw(turn_deg * (-1) ** i)
+            if reset_lod:
+                self.session.reset_lod()
+            r, ms = self.frame()
+            st = r.stats
+            rows.append((ms, st.lod_ms, st.draw_ms, st.triangles, st.tiles_drawn, st.max_sse_px))
+        med = statistics.median
+        cols = list(zip(*rows, strict=True))
+        return {
+            "frame_ms": med(cols[0]),
+            "lod_ms": med(cols[1]),
+            "draw_ms": med(cols[2]),
+            "triangles": int(med(cols[3])),
+            "tiles": int(med(cols[4])),
+            "max_sse_px": max(cols[5]),
+        }
 
     def grow_pool(self, capacity: int) -> None:
         """Replace the renderer by one with ``capacity`` tile slots (for full-resolution
@@ -176,8 +221,12 @@ class Bench:
         return counts
 
     def release(self) -> None:
+        """Release the session's GL objects, the target and (when the bench made it) the
+        context."""
+        self.session.release_gl()
         self.target.release()
-        self.ctx.release()
+        if self._own_ctx:
+            self.ctx.release()
 
 
 @dataclass
@@ -191,6 +240,7 @@ class FrameRecord:
     height: float
     heading: float
     pitch: float
+    speed_mps: float
     frame_ms: float
     lod_ms: float
     draw_ms: float
@@ -209,17 +259,19 @@ CSV_COLUMNS = [f.name for f in fields(FrameRecord)]
 
 
 def fly(bench: Bench, flight: Flight, times: np.ndarray, warm: bool = True) -> list[FrameRecord]:
-    """Render the flight at ``times``; with ``warm`` the first pose is rendered once before
-    (uploads its tiles) so frame 0 measures drawing, not the first load."""
+    """Render the flight at ``times`` (seconds of flight time, each frame's time stamp: the
+    pipeline derives the camera speed from them); with ``warm`` the first pose is rendered
+    once before (uploads its tiles) so frame 0 measures drawing, not the first load."""
     out: list[FrameRecord] = []
     if warm and len(times):
-        bench.set_pose(flight.pose(float(times[0])))
-        bench.frame()
+        bench.set_pose(flight.pose(float(times[0])), cut=True)
+        bench.frame(float(times[0]))
         bench.session.reset_lod()
+    bench.session.pipeline.motion.reset()  # the flight starts at rest
     for i, t in enumerate(times):
         pose = flight.pose(float(t))
         bench.set_pose(pose)
-        r, wall = bench.frame()
+        r, wall = bench.frame(float(t))
         st = r.stats
         out.append(
             FrameRecord(
@@ -230,6 +282,7 @@ def fly(bench: Bench, flight: Flight, times: np.ndarray, warm: bool = True) -> l
                 height=pose.height,
                 heading=pose.heading,
                 pitch=pose.pitch,
+                speed_mps=r.view.speed_mps,
                 frame_ms=wall,
                 lod_ms=st.lod_ms,
                 draw_ms=st.draw_ms,

@@ -504,12 +504,14 @@ def run(args: argparse.Namespace) -> int:
     scene.reset_lod()  # measure a full selection, not a cache hit
     result = scene.render(target.fbo, size)
     result.stats.tiles_uploaded = first.stats.tiles_uploaded
-    scene.draw_tool_overlay(target.fbo, result.view)  # e.g. the collapse's fold lines
+    # render() drew the tool's overlay too (e.g. the collapse's fold lines), as the window's.
 
     st = result.stats
     failures = plugin_failures(scene, args.lod, tool_name)
     status = tool_status(scene) if tool_name is not None else ""
-    stats = stats_json(st, args.lod, (tool_name, points, status), assignments, failures)
+    stats = stats_json(
+        st, args.lod, (tool_name, points, status), assignments, failures, result.overlay_drawn
+    )
     if failures and args.strict:
         print(
             f"globeview: error: {'; '.join(failure_texts(args.lod, tool_name, failures))}; "
@@ -534,11 +536,19 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def stats_json(st, lod: str, tool: tuple, assignments: list, failures: dict[str, str]) -> dict:
+def stats_json(
+    st,
+    lod: str,
+    tool: tuple,
+    assignments: list,
+    failures: dict[str, str],
+    overlay_drawn: int = 0,
+) -> dict:
     """What ``--stats`` writes: the frame's figures (`FrameStats.as_dict`: host figures,
     ``levels``, ``provider`` with its own stats) plus what was asked and what failed:
     ``provider.requested`` and ``provider.fell_back_from``; ``tool`` (name, points, status,
-    error) when ``tool`` = (name, points, status text) names one; ``settings`` from --set."""
+    error, ``overlay_drawn``: the tool overlay instances the frame drew) when ``tool`` =
+    (name, points, status text) names one; ``settings`` from --set."""
     name, points, status = tool
     stats = st.as_dict()
     stats["provider"]["requested"] = lod
@@ -546,6 +556,7 @@ def stats_json(st, lod: str, tool: tuple, assignments: list, failures: dict[str,
         stats["provider"]["fell_back_from"] = {"name": lod, "error": failures["provider"]}
     if name is not None:
         stats["tool"] = {"name": name, "points": [list(p) for p in points]}
+        stats["tool"]["overlay_drawn"] = int(overlay_drawn)
         if status:
             stats["tool"]["status"] = status
         if "tool" in failures:

@@ -13,7 +13,8 @@ Installed with globeview, so a plugin's own test suite gets these fixtures with 
   DEMs shipped with globeview — as a `TerrainStack`, ingested once per test session into a
   temporary cache (never the user's). Hand it to a provider's ``select(view, terrain)``.
 - ``globeview_gl`` (session): a headless OpenGL context (Mesa EGL works); the test is skipped
-  where there is none.
+  where there is none. A test using it fails if it leaks GL objects (made through
+  `globeview.render.gpu_objects` and dropped unreleased).
 - ``rendered``: a function rendering one headless frame of the embedded terrain with a given
   LOD provider, tool (and its points) and settings; returns a `RenderedFrame` (the image as a
   numpy array, the frame's stats, which provider drew and why another failed).
@@ -237,6 +238,28 @@ def globeview_gl() -> Iterator[moderngl.Context]:
     release_headless_context(ctx)
 
 
+@pytest.fixture(autouse=True)
+def _globeview_gl_leak_check(request: pytest.FixtureRequest) -> Iterator[None]:
+    """Fails a test that uses ``globeview_gl`` and leaks GL objects: objects made during
+    the test (through `globeview.render.gpu_objects`), never released, that nothing
+    references any more (no code can free them). Objects a live holder keeps (a shared
+    scene's caches, a module-scoped target) are not leaks. The leaked objects are released
+    after the report, so the next test starts clean."""
+    if "globeview_gl" not in request.fixturenames:
+        yield
+        return
+    from globeview.render.gpu_objects import gpu_objects
+
+    tracker = gpu_objects(request.getfixturevalue("globeview_gl"))
+    mark = tracker.mark
+    yield
+    leaked = tracker.leaked_since(mark)
+    if leaked:
+        tracker.release_leaked(leaked)
+        names = ", ".join(sorted({str(t) for t in leaked}))
+        pytest.fail(f"GL objects leaked by this test ({len(leaked)}): {names}", pytrace=False)
+
+
 @dataclass
 class RenderedFrame:
     """One headless frame (what `rendered` returns).
@@ -328,8 +351,7 @@ def render_frame(
         # The first frame uploads tiles; the second is the steady-state frame (as `render`).
         session.render(target.fbo, size)
         session.reset_lod()
-        result = session.render(target.fbo, size)
-        session.draw_tool_overlay(target.fbo, result.view)
+        result = session.render(target.fbo, size)  # the tool's overlay included
         image = target.read_rgb()
     finally:
         target.release()

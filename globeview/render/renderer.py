@@ -31,8 +31,9 @@ from globeview.lod.tile_indices import IndexVariant
 from globeview.lod.view_state import INV_AXES2, ViewState
 from globeview.model.display import DisplaySettings
 from globeview.render.colour_ramp import ramp_texture_data
+from globeview.render.gpu_objects import gpu_objects
 from globeview.render.overlay_imagery import OverlaySet  # overlays:
-from globeview.render.shader_source import build_shader, source_legend
+from globeview.render.shader_source import build_shader, explain_sources
 from globeview.render.tile_loader import TileLoader, substitute_missing
 from globeview.render.tile_mesh import FLOATS_PER_VERTEX, TileMesh, build_tile_mesh
 from globeview.render.tile_pool import IndexPool, TilePool
@@ -78,14 +79,14 @@ class GlobeRenderer:
         self._hook: DisplacementHook | None = None
         self._features = (False, False, True)  # imagery, hillshade, fog
         self.program = self._compile(None, self._features)
-        self.instances = ctx.buffer(reserve=capacity * 7 * 4, dynamic=True)
-        self.commands = ctx.buffer(reserve=capacity * 5 * 4, dynamic=True)
+        self.instances = gpu_objects(ctx).buffer(reserve=capacity * 7 * 4, dynamic=True)
+        self.commands = gpu_objects(ctx).buffer(reserve=capacity * 5 * 4, dynamic=True)
         # Providers that triangulate each tile themselves (quadtree-clod) write their indices
         # here every frame; the buffer only grows (rarely), it is never created per frame.
-        self.custom_ibo = ctx.buffer(reserve=1 << 22, dynamic=True)
-        self.custom_commands = ctx.buffer(reserve=capacity * 5 * 4, dynamic=True)
+        self.custom_ibo = gpu_objects(ctx).buffer(reserve=1 << 22, dynamic=True)
+        self.custom_commands = gpu_objects(ctx).buffer(reserve=capacity * 5 * 4, dynamic=True)
         ramp = ramp_texture_data(RAMP_LO_M, RAMP_HI_M, 1024)
-        self.ramp = ctx.texture((ramp.shape[1], 1), 3, ramp.tobytes(), dtype="f1")
+        self.ramp = gpu_objects(ctx).texture((ramp.shape[1], 1), 3, ramp.tobytes(), dtype="f1")
         self.ramp.filter = (moderngl.LINEAR, moderngl.LINEAR)
         self.ramp.repeat_x = False
         self.vao, self.custom_vao = self._make_vaos(self.program)
@@ -113,9 +114,10 @@ class GlobeRenderer:
         names = ("GV_IMAGERY", "GV_HILLSHADE", "GV_FOG")
         frag = build_shader("terrain.frag", defines=dict(zip(names, features, strict=True)))
         try:
-            return self.ctx.program(vertex_shader=vert.text, fragment_shader=frag.text)
+            return gpu_objects(self.ctx).program(vertex_shader=vert.text, fragment_shader=frag.text)
         except moderngl.Error as exc:  # say which piece (a hook: its own line numbers) failed
-            raise moderngl.Error(f"{exc} ({source_legend(vertex=vert, fragment=frag)})") from exc
+            where = explain_sources(str(exc), vertex=vert, fragment=frag)
+            raise moderngl.Error(f"{exc} ({where})") from exc
 
     def _use_features(self, features: tuple[bool, bool, bool]) -> None:
         if features == self._features:
@@ -128,9 +130,16 @@ class GlobeRenderer:
         self.program, self.vao, self.custom_vao = cached
         self._features = features
 
+    @property
+    def displacement_hook(self) -> DisplacementHook | None:
+        """The displacement hook compiled into the terrain program, or None (read-only:
+        install one with `set_displacement_hook`)."""
+        return self._hook
+
     def set_displacement_hook(self, hook: DisplacementHook | None) -> None:
         """Install (or remove, with None) a vertex displacement hook. Raises
-        moderngl.Error if the hook's GLSL does not compile; the previous program stays."""
+        moderngl.Error if the hook's GLSL does not compile (naming the piece and line), or
+        ShaderSourceError if the loader refuses its text; the previous program stays."""
         program = self._compile(hook, self._features)
         self._release_variants()
         self._hook = hook
@@ -151,14 +160,14 @@ class GlobeRenderer:
             (self.instances, "3f 3f 1f/i", "in_center_rel", "in_center", "in_layer"),
         ]
         # skip_errors: a shader variant may not use every attribute.
-        vao = self.ctx.vertex_array(
+        vao = gpu_objects(self.ctx).vertex_array(
             program,
             content,
             index_buffer=self.indices.buffer,
             index_element_size=4,
             skip_errors=True,
         )
-        custom_vao = self.ctx.vertex_array(
+        custom_vao = gpu_objects(self.ctx).vertex_array(
             program,
             content,
             index_buffer=self.custom_ibo,
@@ -179,7 +188,7 @@ class GlobeRenderer:
         data = idx.astype(np.uint32).tobytes()
         if len(data) > self.custom_ibo.size:
             self.custom_ibo.release()
-            self.custom_ibo = self.ctx.buffer(reserve=2 * len(data), dynamic=True)
+            self.custom_ibo = gpu_objects(self.ctx).buffer(reserve=2 * len(data), dynamic=True)
             self._build_vao()
         self.custom_ibo.write(data)
 
@@ -243,17 +252,44 @@ class GlobeRenderer:
         return fitted
 
     # -- drawing -----------------------------------------------------------------------------
+    # A frame's renderer steps, in the order `FramePipeline.run` calls them: `load` (fit the
+    # pool, tile loading, upload), `draw_terrain`, `draw_overlays`, `finish_stats`. `draw`
+    # runs the four for callers that hold a render set already (tests, the pool benchmark).
     def draw(
         self, view: ViewState, render_set: RenderSet, target: moderngl.Framebuffer
     ) -> FrameStats:
-        """Draw a render set into ``target`` and return the frame's figures."""
+        """Draw a render set into ``target`` and return the frame's figures (the pipeline's
+        steps after the LOD selection, without a tool)."""
         t0 = time.perf_counter()
         stats = FrameStats()
+        drawn = self.load(render_set, stats)
+        triangles = self.draw_terrain(view, drawn, target)
+        stats.extra.update(self.draw_overlays(view, drawn))
+        self.ctx.finish()
+        return self.finish_stats(stats, view, drawn, triangles, t0)
+
+    def load(self, render_set: RenderSet, stats: FrameStats) -> RenderSet:
+        """Make the tiles of ``render_set`` resident: coarsen it to the pool's capacity
+        (`_fit_pool`), then upload every missing tile (headless) or a budget of finished
+        ones, standing in ancestors for the rest (``async_loading``, the window). Returns the
+        render set to draw; sets ``stats.tiles_uploaded`` and ``stats.tiles_loading``."""
         render_set = self._fit_pool(render_set, stats)
         if self.async_loading:
-            render_set, uploaded, stats.tiles_loading = self._load_async(render_set)
+            render_set, stats.tiles_uploaded, stats.tiles_loading = self._load_async(render_set)
         else:
-            uploaded = self.ensure_resident(render_set.keys)
+            stats.tiles_uploaded = self.ensure_resident(render_set.keys)
+        return render_set
+
+    def draw_terrain(
+        self,
+        view: ViewState,
+        render_set: RenderSet,
+        target: moderngl.Framebuffer,
+        uniforms: dict[str, object] | None = None,
+    ) -> int:
+        """Clear ``target`` and draw the (resident) tiles of ``render_set`` in one multi-draw
+        call, with the imagery drape; ``uniforms``: the displacement hook's for this frame
+        (names ``gv_u_*``). Returns the triangles drawn."""
         slots = self.pool.slots_of(render_set.keys)
         # Draw near tiles first so the depth test rejects hidden fragments early.
         order = np.argsort(np.linalg.norm(self.pool.centers[slots] - view.eye, axis=1))
@@ -302,7 +338,7 @@ class GlobeRenderer:
         self._use_features(
             (self.overlays.imagery.active, bool(self.settings.hillshade), bool(self.settings.fog))
         )
-        self._set_uniforms(view)
+        self._set_uniforms(view, uniforms)
         target.use()
         bg = self.settings.background
         target.clear(bg[0], bg[1], bg[2], 1.0, depth=1.0)
@@ -330,15 +366,26 @@ class GlobeRenderer:
                 )
         self.ctx.wireframe = False
         self.ctx.depth_func = "<"
-        # overlays: vectors and point objects, depth-tested against the terrain just drawn.
-        stats.extra.update(self.overlays.draw(view, render_set, self.terrain, self.settings))
-        self.ctx.finish()
-        t1 = time.perf_counter()
+        return int(counts.sum() // 3)
 
-        stats.triangles = int(counts.sum() // 3)
-        stats.tiles_drawn = n
-        stats.tiles_uploaded = uploaded
-        stats.draw_ms = (t1 - t0) * 1e3
+    def draw_overlays(self, view: ViewState, render_set: RenderSet) -> dict[str, object]:
+        """Draw the overlay layers' vectors and point objects, depth-tested against the
+        terrain just drawn; returns their figures for ``FrameStats.extra``."""
+        return self.overlays.draw(view, render_set, self.terrain, self.settings)
+
+    def finish_stats(
+        self,
+        stats: FrameStats,
+        view: ViewState,
+        render_set: RenderSet,
+        triangles: int,
+        t0: float,
+    ) -> FrameStats:
+        """Fill ``stats`` for the frame that drew ``render_set`` (``t0``: `time.perf_counter`
+        when loading began; draw_ms runs from there to now, after ``ctx.finish()``)."""
+        stats.triangles = int(triangles)
+        stats.tiles_drawn = len(render_set)
+        stats.draw_ms = (time.perf_counter() - t0) * 1e3
         stats.lod_ms = float(render_set.stats.get("lod_ms", 0.0))
         stats.frame_ms = stats.draw_ms + stats.lod_ms
         stats.tiles_culled_frustum = int(render_set.stats.get("tiles_culled_frustum", 0))
@@ -351,7 +398,7 @@ class GlobeRenderer:
         self.last_view = view
         return stats
 
-    def _set_uniforms(self, view: ViewState) -> None:
+    def _set_uniforms(self, view: ViewState, extra: dict[str, object] | None = None) -> None:
         s = self.settings
         uni: dict[str, object] = {}
         uni["u_rot"] = view.rotation.T.astype("f4").tobytes()
@@ -379,6 +426,8 @@ class GlobeRenderer:
         uni["u_wire_color"] = tuple(s.wire_color)
         if self._hook is not None:
             uni.update(self._hook.uniforms)
+        if extra:
+            uni.update(extra)
         p = self.program
         for name, value in uni.items():
             # The GLSL compiler drops uniforms a shader variant does not use.

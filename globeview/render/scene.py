@@ -1,36 +1,33 @@
-"""`GlobeScene`: camera + terrain + display settings + renderer, rendering into any
-framebuffer. The CLI's headless renders and the Qt window drive the same scene."""
+"""`GlobeScene`: camera + terrain + renderer + one `FramePipeline`, rendering into any
+framebuffer. `GlobeSession` (plugins) is a scene whose LOD provider and tool come from
+plugins; a bare scene takes an LOD function (tests, the layer-blend benchmark)."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import moderngl
 
-from globeview.lod.render_set import FrameStats, RenderSet
+from globeview.lod.render_set import RenderSet
 from globeview.lod.view_state import ViewState, check_tau
 from globeview.model.camera import Camera
+from globeview.render.frame_pipeline import FramePipeline, FrameResult, FrameTool
 from globeview.render.picking import Pick, pick
 from globeview.render.renderer import GlobeRenderer
 from globeview.terrain.stack import TerrainStack
 
 LodFunction = Callable[[ViewState, TerrainStack], RenderSet]
 
-
-@dataclass
-class FrameResult:
-    view: ViewState
-    render_set: RenderSet
-    stats: FrameStats
+__all__ = ["FrameResult", "GlobeScene", "LodFunction"]
 
 
 class GlobeScene:
-    """One globe view: render it with ``render(fbo, viewport)``, pick with ``pick(x, y)``.
+    """One globe view: render it with ``render(fbo, viewport, now_s)``, pick with
+    ``pick(x, y)``. It is the `FrameHost` of its pipeline.
 
     ``lod`` is the function choosing the render set (an LOD provider's ``select``; the
     plugin layer's `GlobeSession` supplies the active provider); tau_px is the screen-space
-    error threshold in pixels; speed_mps the navigation speed (m/s).
+    error threshold in pixels.
     """
 
     def __init__(
@@ -49,13 +46,20 @@ class GlobeScene:
         self.ctx = ctx
         self.terrain = terrain
         self.camera = camera or Camera.from_lonlat(0.0, 20.0, 2.0e7)
-        self.renderer = GlobeRenderer(ctx, terrain)
+        self.pipeline = FramePipeline(GlobeRenderer(ctx, terrain), self)
         self.lod: LodFunction = lod
         self.lod_name = getattr(lod, "__qualname__", "lod")
         self.tau_px = 2.0
-        self.speed_mps = 0.0
         self.last: FrameResult | None = None
-        self._last_fbo: moderngl.Framebuffer | None = None
+
+    @property
+    def renderer(self) -> GlobeRenderer:
+        """The terrain renderer the pipeline draws with."""
+        return self.pipeline.renderer
+
+    @renderer.setter
+    def renderer(self, renderer: GlobeRenderer) -> None:
+        self.pipeline.renderer = renderer
 
     @property
     def tau_px(self) -> float:
@@ -72,28 +76,45 @@ class GlobeScene:
     def settings(self):
         return self.renderer.settings
 
+    # -- the FrameHost the pipeline reads ------------------------------------------------------
+    def prepare_gpu(self) -> None:
+        """Nothing to prepare for a bare scene (the session compiles tool hooks here)."""
+
+    def select(self, view: ViewState) -> RenderSet:
+        """The LOD function's render set for ``view``."""
+        return self.lod(view, self.terrain)
+
+    def frame_tool(self) -> FrameTool | None:
+        """A bare scene has no tools."""
+        return None
+
+    # -- frames --------------------------------------------------------------------------------
     def view_state(self, viewport: tuple[int, int]) -> ViewState:
+        """The view of the current camera (no speed, no tool): for callers between frames,
+        e.g. navigation's ray casts and placing tool points."""
         return ViewState.from_camera(
             self.camera,
             viewport,
             tau_px=self.tau_px,
             exaggeration=self.renderer.settings.exaggeration,
-            speed_mps=self.speed_mps,
         )
 
-    def render(self, fbo: moderngl.Framebuffer, viewport: tuple[int, int]) -> FrameResult:
-        view = self.view_state(viewport)
-        rs = self.lod(view, self.terrain)
-        stats = self.renderer.draw(view, rs, fbo)
-        stats.lod_provider = self.lod_name
-        self.last = FrameResult(view, rs, stats)
-        self._last_fbo = fbo
+    def render(
+        self,
+        fbo: moderngl.Framebuffer,
+        viewport: tuple[int, int],
+        now_s: float | None = None,
+    ) -> FrameResult:
+        """Run one frame through the pipeline (`FramePipeline.run`)."""
+        self.last = self.pipeline.run(fbo, viewport, now_s)
+        # The window's pick still reads _last_fbo (helper C switches it to last.target).
+        self._last_fbo = self.last.target
         return self.last
 
     def pick(self, x_px: float, y_px: float, to_true=None) -> Pick | None:
         """The terrain point under a pixel of the last rendered frame (``to_true``: drawn ->
         true ECEF points of a displacing tool, see `picking.refine_on_terrain`)."""
-        if self.last is None or self._last_fbo is None:
+        if self.last is None or self.last.target is None:
             return None
         terrain = self.terrain if self.terrain.visible_layers else None
         height_at = None
@@ -103,4 +124,4 @@ class GlobeScene:
             def height_at(lon: float, lat: float) -> float:
                 return terrain.height_at(lon, lat, level=terrain.max_level)
 
-        return pick(self.last.view, self._last_fbo, x_px, y_px, height_at, to_true)
+        return pick(self.last.view, self.last.target, x_px, y_px, height_at, to_true)

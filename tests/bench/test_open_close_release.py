@@ -52,7 +52,7 @@ def test_release_gl_releases_every_gl_object_of_the_session(store_paths):
         )
         assert session.render(target.fbo, (96, 64)).stats.triangles > 0
         live = unreleased_gl_objects(session)
-        assert "GlobeSession.renderer.pool.vbo" in live  # the walk sees the pool
+        assert "GlobeSession.pipeline.renderer.pool.vbo" in live  # the walk sees the pool
         session.release_gl()
         assert unreleased_gl_objects(session) == []
         target.release()

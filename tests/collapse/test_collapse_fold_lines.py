@@ -41,17 +41,18 @@ def session():
 
 
 def fold_pixels(session, target, primitives) -> int:
-    """Fold-line-coloured pixels of a frame with ``primitives`` drawn over the terrain."""
-    for _ in range(50):  # tiles stream in on worker threads
-        result = session.render(target.fbo, SIZE)
-        if result.stats.tiles_loading == 0:
-            break
-        time.sleep(0.1)
+    """Fold-line-coloured pixels of a frame with ``primitives`` drawn over the terrain (by
+    the frame itself: `GlobeSession.render` draws the tool's overlay)."""
     tool = session.tool()
     original = type(tool).overlay  # the session draws the tool's overlay: give it these
     type(tool).overlay = lambda self, view: primitives
     try:
-        assert session.draw_tool_overlay(target.fbo, result.view) > 0
+        for _ in range(50):  # tiles stream in on worker threads
+            result = session.render(target.fbo, SIZE)
+            if result.stats.tiles_loading == 0:
+                break
+            time.sleep(0.1)
+        assert result.overlay_drawn > 0
     finally:
         type(tool).overlay = original
     rgb = target.read_rgb().astype(int)

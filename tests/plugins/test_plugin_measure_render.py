@@ -47,8 +47,7 @@ def session(gl, globeview_terrain):
 def draw(session, gl):
     session.camera = Camera.from_lonlat(*CAMERA)
     result = session.render(gl[1].fbo, SIZE)
-    drawn = session.draw_tool_overlay(gl[1].fbo, result.view)
-    return gl[1].read_rgb(), result, drawn
+    return gl[1].read_rgb(), result, result.overlay_drawn
 
 
 def line_mask(rgb: np.ndarray) -> np.ndarray:
