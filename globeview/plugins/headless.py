@@ -49,7 +49,7 @@ def place_points(
         drawn = np.asarray(
             lonlat_to_ecef(lon, lat, h * float(session.settings.exaggeration)), dtype=np.float64
         ).reshape(1, 3)
-        if session.renderer._hook is not None:
+        if session.displacing:  # the tool moves the terrain (compiled or not yet)
             drawn = session._displace(drawn)
         x, y, _ = (float(v) for v in view.project(drawn)[0])
         for kind, held in (("press", frozenset({"left"})), ("release", frozenset())):

@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Hashable
+from dataclasses import replace
 from numbers import Real
 from pathlib import Path
 
@@ -27,6 +28,8 @@ from globeview.geodesy import ecef_to_lonlat
 from globeview.lod.render_set import RenderSet
 from globeview.lod.view_state import ViewState
 from globeview.model.camera import Camera
+from globeview.model.display import DisplaySettings
+from globeview.model.globe import DEFAULT_LOD, Globe
 from globeview.plugins.api import Marker, NullRendererHooks, PluginKind, Polyline, Tool
 from globeview.plugins.overlay_layers import (
     DrawnLayer,
@@ -35,12 +38,13 @@ from globeview.plugins.overlay_layers import (
     VectorLayer,
 )
 from globeview.plugins.registry import PluginRegistry
+from globeview.plugins.tool_host import ToolHost
+from globeview.render.frame_pipeline import FramePipeline
 from globeview.render.picking import Pick
-from globeview.render.renderer import DisplacementHook
+from globeview.render.renderer import GlobeRenderer
 from globeview.render.scene import FrameResult, GlobeScene
 from globeview.terrain.stack import TerrainStack
 
-DEFAULT_LOD = "chunked-sse"
 log = logging.getLogger("globeview.session")
 
 
@@ -50,7 +54,10 @@ class GlobeSession(GlobeScene):
     Args:
         ctx: moderngl context; terrain: the DEM layers; camera: the initial camera.
         registry: a discovered `PluginRegistry` (default: discover the installed plugins).
-        lod: name of the LOD provider to start with.
+        lod: name of the LOD provider to start with (default: the globe's, else
+            `DEFAULT_LOD`).
+        globe: the `Globe` model to show (default: a new one of ``terrain`` and ``camera``);
+            its ``terrain`` must be ``terrain``.
     """
 
     def __init__(
@@ -59,22 +66,89 @@ class GlobeSession(GlobeScene):
         terrain: TerrainStack,
         camera: Camera | None = None,
         registry: PluginRegistry | None = None,
-        lod: str = DEFAULT_LOD,
+        lod: str | None = None,
+        *,
+        globe: Globe | None = None,
     ) -> None:
-        super().__init__(ctx, terrain, camera, lod=self._select)
+        # The state (camera, tau, LOD and tool names, overlays, display settings) lives in
+        # the Globe model, which emits the change events; the session's properties below
+        # delegate to it, so there is one copy. A window may make the Globe before any GL
+        # context exists and hand it in.
+        if globe is None:
+            globe = Globe(terrain, camera, lod=lod or DEFAULT_LOD)
+        elif globe.terrain is not terrain:
+            raise ValueError("GlobeSession: terrain is not the globe's terrain")
+        elif camera is not None:
+            globe.camera = camera
+        self.globe = globe
+        self.ctx = ctx
+        # The frame pipeline draws every frame (window, CLI, bench); this session is its
+        # host (camera, tau, prepare_gpu, select, frame_tool).
+        self.pipeline = FramePipeline(GlobeRenderer(ctx, terrain), self)
+        self.renderer.settings = globe.display  # the renderer draws the model's settings
+        self.lod = self._select
+        self.last: FrameResult | None = None
         if registry is None:
             registry = PluginRegistry()
             registry.discover()
         self.registry = registry
-        self.active_tool: str | None = None
-        self.overlay_layers: list = []
-        self._tool_overlay = None  # ToolOverlayRenderer, made on first use
+        self.tool_host = ToolHost(globe, registry)
         self._marker_heights: dict[tuple[float, float, float], float] = {}
         # Plugins get redraw/status hooks, not the GL renderer: headless they are recorded,
         # and the window attaches its own (redraw = widget.update, status = status bar).
         self.hooks = NullRendererHooks()
         self.registry.attach(scene=self, terrain=terrain, camera=self.camera, renderer=self.hooks)
-        self.set_lod(lod)
+        self.set_lod(lod or globe.lod)
+
+    # -- the model's state (one copy: the Globe's) ---------------------------------------------
+    @property
+    def terrain(self) -> TerrainStack:
+        return self.globe.terrain
+
+    @property
+    def camera(self) -> Camera:
+        return self.globe.camera
+
+    @camera.setter
+    def camera(self, camera: Camera) -> None:
+        self.globe.camera = camera
+
+    @property
+    def tau_px(self) -> float:
+        """Screen-space error threshold (pixels); refused where set (`Globe.tau_px`)."""
+        return self.globe.tau_px
+
+    @tau_px.setter
+    def tau_px(self, value: float) -> None:
+        self.globe.tau_px = value
+
+    @property
+    def lod_name(self) -> str:
+        """Name of the active LOD provider (`Globe.lod`)."""
+        return self.globe.lod
+
+    @lod_name.setter
+    def lod_name(self, name: str) -> None:
+        self.globe.lod = name
+
+    @property
+    def active_tool(self) -> str | None:
+        """Name of the active tool (`Globe.tool`), None for none."""
+        return self.globe.tool
+
+    @active_tool.setter
+    def active_tool(self, name: str | None) -> None:
+        self.globe.tool = name
+
+    @property
+    def settings(self) -> DisplaySettings:
+        """The display settings (`Globe.display`, evented)."""
+        return self.globe.display
+
+    @property
+    def overlay_layers(self) -> list:
+        """The overlay layers, bottom first (`Globe.overlays`)."""
+        return self.globe.overlays
 
     # -- LOD providers -------------------------------------------------------------------------
     def lod_providers(self) -> dict:
@@ -154,48 +228,28 @@ class GlobeSession(GlobeScene):
 
     def find_tool(self, name: str):
         """The enabled tool ``name`` (importing only its plugin), or None."""
-        return self.registry.find(PluginKind.TOOL, name)
+        return self.tool_host.find(name)
 
     def activate_tool(self, name: str | None) -> None:
-        """Make ``name`` the active tool (None: no tool). A tool's displacement hook is
-        compiled into the terrain shader now; if it does not compile the tool's plugin is
-        disabled and reported, and the terrain keeps the plain shader."""
-        if name is not None and self.find_tool(name) is None:
-            raise GlobeviewError(f"no enabled tool named {name!r:.80}")
-        previous = self.tool()
-        if previous is not None and name != self.active_tool:
-            self.registry.invoke(previous, "deactivate")
-        self.active_tool = name
-        tool = self.tool()
-        glsl = self.registry.invoke(tool, "displacement_glsl") if tool is not None else None
-        if tool is not None and self.tool() is None:
-            return  # displacement_glsl raised: the tool failed, and tool() left it
-        if glsl is not None and not isinstance(glsl, str):
-            self._fail(tool, f"displacement_glsl() returned {type(glsl).__name__}, not GLSL text")
-            glsl = None
-        if not glsl:
-            if self.renderer._hook is not None:
-                self.renderer.set_displacement_hook(None)
-            return
-        owner = self.registry.owner_of(tool)
-        try:
-            self.renderer.set_displacement_hook(DisplacementHook(owner, glsl))
-        except Exception as exc:  # moderngl.Error: the plugin's GLSL failed to compile
-            self.registry.fail(tool, exc)
-            self.active_tool = None
-            if self.renderer._hook is not None:
-                self.renderer.set_displacement_hook(None)
+        """Make ``name`` the active tool (None: no tool). Changes the model only
+        (`Globe.tool`): the tool's displacement hook is compiled at the next frame
+        (`prepare_gpu`); if it does not compile the tool fails (reported) and the globe's
+        tool becomes None. See `globeview.plugins.tool_host`."""
+        self.tool_host.activate(name)
 
     def tool(self):
         """The active tool object, or None (also None once its plugin has failed)."""
-        if self.active_tool is None:
-            return None
-        tool = self.find_tool(self.active_tool)
-        if tool is None:  # its plugin was disabled or failed
-            self.active_tool = None
-            if self.renderer._hook is not None:
-                self.renderer.set_displacement_hook(None)
-        return tool
+        return self.tool_host.tool()
+
+    @property
+    def displacing(self) -> bool:
+        """Whether the active tool moves the terrain (`ToolHost.displaces`)."""
+        return self.tool_host.displaces
+
+    def prepare_gpu(self) -> None:
+        """Make the GPU objects the model's state needs now (the frame pipeline calls this
+        first in every frame, with the context current): the tool's displacement hook."""
+        self.tool_host.prepare_gpu(self.renderer)
 
     # -- checks of what tools return (garbage fails the tool's plugin, not the caller) -------
     def _fail(self, contribution, problem: str) -> None:
@@ -253,54 +307,23 @@ class GlobeSession(GlobeScene):
                 return arr
         return displacement_chord_error_m(self._displace, points, displaced)
 
-    def view_state(self, viewport: tuple[int, int]):
-        """The base view, plus the active tool's CPU displacement (``displace``), its
-        ``displacement_key()`` if it has one and, when the tool overrides
-        `Tool.displacement_bend_m`, its bend bound (``displacement_bend``)."""
+    # -- the frame (FramePipeline's host) ----------------------------------------------------
+    def view_state(self, viewport: tuple[int, int]) -> ViewState:
+        """The current camera's view with the active tool's displacement, as the next frame
+        builds it (no speed): for callers between frames (placing tool points, tests)."""
         view = super().view_state(viewport)
-        tool = self.tool()
-        if tool is None or self.renderer._hook is None:
-            return view
-        from dataclasses import replace
+        tool = self.frame_tool()
+        return view if tool is None else tool.shape_view(view)
 
-        own_bend = getattr(type(tool), "displacement_bend_m", None) not in (
-            None,
-            Tool.displacement_bend_m,
-        )
-        key = None
-        if callable(getattr(tool, "displacement_key", None)):  # tools need not subclass Tool
-            key = self.registry.invoke(tool, "displacement_key")
-            if key is not None and not _hashable(key):
-                self._fail(tool, f"displacement_key() returned an unhashable {type(key).__name__}")
-                return super().view_state(viewport)
-        return replace(
-            view,
-            displace=self._displace,
-            displacement_bend=self._bend if own_bend else None,
-            displacement_key=key,
-        )
-
-    def render(self, fbo: moderngl.Framebuffer, viewport: tuple[int, int]) -> FrameResult:
+    def frame_tool(self) -> ToolFrame | None:
+        """The active tool's part in the next frame (`FrameTool`), or None."""
         tool = self.tool()
-        hook = self.renderer._hook
-        if tool is not None and hook is not None:
-            view = self.view_state(viewport)
-            uniforms = self.registry.invoke(
-                tool, "displacement_uniforms", view, default=None, budgeted=True
-            )
-            problem = _uniforms_problem(uniforms) if uniforms is not None else None
-            if problem is not None:
-                self._fail(tool, f"displacement_uniforms() returned {problem}")
-            if uniforms is None or problem is not None:  # the tool failed: drop its hook
-                self.renderer.set_displacement_hook(None)
-            else:
-                hook.uniforms = dict(uniforms)
-        return super().render(fbo, viewport)
+        return None if tool is None else ToolFrame(self, tool)
 
     def pick(self, x_px: float, y_px: float) -> Pick | None:
         """The true (un-displaced) terrain point under a pixel of the last frame."""
         tool = self.tool()
-        if tool is None or self.renderer._hook is None:
+        if tool is None or self.renderer.displacement_hook is None:
             return super().pick(x_px, y_px)
 
         def to_true(drawn: np.ndarray) -> np.ndarray:
@@ -400,7 +423,7 @@ class GlobeSession(GlobeScene):
             raise GlobeviewError(
                 f"layer type {name} could not open {Path(path).name}: {self._why(obj)}"
             )
-        self.overlay_layers.append(layer)
+        self.globe.add_overlay(layer)
         return layer
 
     def _why(self, contribution) -> str:
@@ -442,39 +465,22 @@ class GlobeSession(GlobeScene):
 
     def remove_overlay(self, layer) -> None:
         layer.detach(self.renderer)
-        self.overlay_layers.remove(layer)
+        self.globe.remove_overlay(layer)
 
     def release_gl(self) -> None:
         """Release the GL objects the session owns (with its context current)."""
-        if self._tool_overlay is not None:
-            self._tool_overlay.release()
-            self._tool_overlay = None
+        self.pipeline.release()
         self.renderer.release()
 
     # -- the active tool's overlay (markers, fold lines) ----------------------------------------
     def draw_tool_overlay(self, fbo: moderngl.Framebuffer, view=None) -> int:
-        """Draw the active tool's overlay primitives over the frame just rendered into
-        ``fbo`` (the window and the CLI both call this); returns the instances drawn."""
-        tool = self.tool()
+        """Draw the active tool's overlay over ``fbo`` again; returns the instances drawn.
+        `render` draws it already (``FrameResult.overlay_drawn``): this stays only until
+        the window stops calling it (issue #14)."""
         view = view if view is not None else (self.last.view if self.last else None)
-        if tool is None or view is None:
+        if view is None:
             return 0
-        prims = self.registry.invoke(tool, "overlay", view, default=None, budgeted=True)
-        if not isinstance(prims, list | tuple) or not prims:
-            if prims is not None and not isinstance(prims, list | tuple):
-                self._fail(tool, f"overlay() returned {type(prims).__name__}, not a list")
-            return 0
-        problem = _overlay_problem(prims)
-        if problem is not None:
-            self._fail(tool, f"overlay() returned {problem}")
-            return 0
-        if self._tool_overlay is None:
-            from globeview.render.overlay_tools import ToolOverlayRenderer
-
-            self._tool_overlay = ToolOverlayRenderer(self.ctx)
-        prims = [self._drape_marker(p) for p in prims]
-        displace = self._displace if self.renderer._hook is not None else None
-        return self._tool_overlay.draw(view, prims, fbo, displace)
+        return self.pipeline.draw_tool_overlay(self.frame_tool(), view, fbo)
 
     def _drape_marker(self, prim):
         """A marker on the ellipsoid (height < 1 m) lifted to the terrain surface (with the
@@ -511,6 +517,90 @@ def _has_method(obj: object, name: str) -> bool:
         return callable(getattr(obj, name, None))
     except Exception:
         return False
+
+
+class ToolFrame:
+    """The active tool's part in one frame (`globeview.render.frame_pipeline.FrameTool`):
+    its animation step, CPU displacement, shader uniforms and overlay, each the plugin's
+    code behind the host's checks. Garbage fails the tool (one line, its plugin's other
+    contributions stay) and the neutral value comes back, so the frame goes on without it."""
+
+    def __init__(self, session: GlobeSession, tool: object) -> None:
+        self.session = session
+        self.tool = tool
+
+    def _active(self) -> bool:
+        """Whether the tool is still the session's (it fails when it returns garbage)."""
+        return self.session.tool() is self.tool
+
+    def animate(self, now_s: float) -> bool:
+        if not _has_method(self.tool, "animate"):
+            return False
+        moving = self.session.registry.invoke(self.tool, "animate", now_s, default=False)
+        try:
+            return bool(moving)
+        except Exception:  # a hostile __bool__: the plugin's fault, not the frame's
+            self.session._fail(self.tool, f"animate() returned {type(moving).__name__}")
+            return False
+
+    def shape_view(self, view: ViewState) -> ViewState:
+        """``view`` plus the tool's CPU displacement (``displace``), its
+        ``displacement_key()`` if it has one and, when the tool overrides
+        `Tool.displacement_bend_m`, its bend bound (``displacement_bend``)."""
+        s, tool = self.session, self.tool
+        if not self._active() or not s.displacing:
+            return view
+        own_bend = getattr(type(tool), "displacement_bend_m", None) not in (
+            None,
+            Tool.displacement_bend_m,
+        )
+        key = None
+        if _has_method(tool, "displacement_key"):  # tools need not subclass Tool
+            key = s.registry.invoke(tool, "displacement_key")
+            if key is not None and not _hashable(key):
+                s._fail(tool, f"displacement_key() returned an unhashable {type(key).__name__}")
+                return view
+        return replace(
+            view,
+            displace=s._displace,
+            displacement_bend=s._bend if own_bend else None,
+            displacement_key=key,
+        )
+
+    def uniforms(self, view: ViewState) -> dict[str, object] | None:
+        s, tool = self.session, self.tool
+        if not self._active():
+            return None
+        hook = s.renderer.displacement_hook
+        if hook is None:
+            return {}
+        uniforms = s.registry.invoke(
+            tool, "displacement_uniforms", view, default=None, budgeted=True
+        )
+        problem = _uniforms_problem(uniforms) if uniforms is not None else None
+        if problem is not None:
+            s._fail(tool, f"displacement_uniforms() returned {problem}")
+        if uniforms is None or problem is not None:  # the tool failed: drop its hook
+            s.renderer.set_displacement_hook(None)
+            return None
+        hook.uniforms = dict(uniforms)
+        return dict(uniforms)
+
+    def overlay(self, view: ViewState) -> tuple[list, object]:
+        s, tool = self.session, self.tool
+        if not self._active():
+            return [], None
+        prims = s.registry.invoke(tool, "overlay", view, default=None, budgeted=True)
+        if not isinstance(prims, list | tuple) or not prims:
+            if prims is not None and not isinstance(prims, list | tuple):
+                s._fail(tool, f"overlay() returned {type(prims).__name__}, not a list")
+            return [], None
+        problem = _overlay_problem(prims)
+        if problem is not None:
+            s._fail(tool, f"overlay() returned {problem}")
+            return [], None
+        displace = s._displace if s.displacing else None
+        return [s._drape_marker(p) for p in prims], displace
 
 
 class _PluginLayer:

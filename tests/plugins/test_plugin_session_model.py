@@ -1,0 +1,60 @@
+"""`GlobeSession` keeps its state in the `Globe` model (issue #14): one copy, the session's
+properties delegate to it and every change emits the model's event."""
+
+from __future__ import annotations
+
+import pytest
+
+from globeview.model import Camera, Globe
+
+pytestmark = pytest.mark.gl
+
+
+@pytest.fixture
+def session(globeview_gl, globeview_terrain, globeview_registry):
+    from globeview.plugins.session import GlobeSession
+
+    s = GlobeSession(globeview_gl, globeview_terrain, registry=globeview_registry)
+    yield s
+    s.release_gl()
+
+
+def test_session_state_is_the_globe(session) -> None:
+    g = session.globe
+    seen: list = []
+    g.events.tau_px.connect(lambda v: seen.append(("tau", v)))
+    g.events.lod.connect(lambda v: seen.append(("lod", v)))
+    g.events.camera.connect(lambda c: seen.append(("camera", c)))
+    session.tau_px = 3.0
+    session.set_lod("quadtree-clod")
+    cam = Camera.from_lonlat(-71.3, 44.27, 3e4)
+    session.camera = cam
+    assert (g.tau_px, g.lod, g.camera) == (3.0, "quadtree-clod", cam)
+    assert seen == [("tau", 3.0), ("lod", "quadtree-clod"), ("camera", cam)]
+    assert session.settings is g.display and session.renderer.settings is g.display
+    assert session.overlay_layers is g.overlays
+
+
+def test_session_takes_a_globe_made_before_gl(globeview_gl, globeview_terrain, globeview_registry):
+    from globeview.plugins.session import GlobeSession
+
+    globe = Globe(globeview_terrain, lod="quadtree-clod", tau_px=5.0)
+    globe.display.exaggeration = 2.0
+    s = GlobeSession(globeview_gl, globeview_terrain, registry=globeview_registry, globe=globe)
+    try:
+        assert s.globe is globe and s.lod_name == "quadtree-clod" and s.tau_px == 5.0
+        assert s.settings.exaggeration == 2.0
+        with pytest.raises(ValueError):
+            GlobeSession(globeview_gl, object(), registry=globeview_registry, globe=globe)
+    finally:
+        s.release_gl()
+
+
+def test_unknown_lod_changes_nothing(session) -> None:
+    from globeview.errors import GlobeviewError
+
+    seen: list = []
+    session.globe.events.lod.connect(seen.append)
+    with pytest.raises(GlobeviewError):
+        session.set_lod("no-such-provider")
+    assert session.lod_name == "chunked-sse" and seen == []
