@@ -183,40 +183,20 @@ class Bench:
         s.renderer.settings = settings
 
     def gl_objects(self) -> dict[str, int]:
-        """GL objects the renderer holds that we can see (moderngl has no object counter):
-        buffers, textures, VAOs and programs reachable from the renderer, the pool and the
-        overlay set, plus the resident tile count."""
-        import moderngl
+        """The GL objects alive in the bench's context, by kind, as the one tracker counts
+        them (`globeview.render.gpu_objects`: everything the renderer, pools, overlays and
+        targets made and did not release), plus the resident tile count."""
+        from globeview.render.gpu_objects import gpu_objects
 
-        seen: set[int] = set()
-        counts = {"buffers": 0, "textures": 0, "vaos": 0, "programs": 0}
-        kinds = (
-            (moderngl.Buffer, "buffers"),
-            (moderngl.Texture, "textures"),
-            (moderngl.TextureArray, "textures"),
-            (moderngl.VertexArray, "vaos"),
-            (moderngl.Program, "programs"),
-        )
-
-        def walk(obj, depth: int) -> None:
-            if id(obj) in seen or depth > 3:
-                return
-            seen.add(id(obj))
-            for cls, name in kinds:
-                if isinstance(obj, cls):
-                    counts[name] += 1
-                    return
-            if isinstance(obj, dict):
-                for v in obj.values():
-                    walk(v, depth + 1)
-            elif isinstance(obj, list | tuple):
-                for v in obj:
-                    walk(v, depth + 1)
-            elif hasattr(obj, "__dict__") and type(obj).__module__.startswith("globeview"):
-                for v in vars(obj).values():
-                    walk(v, depth + 1)
-
-        walk(self.session.renderer, 0)
+        by_kind = gpu_objects(self.ctx).counts()
+        groups = {
+            "buffers": ("buffer",),
+            "textures": ("texture", "texture_array", "depth_texture"),
+            "vaos": ("vertex_array",),
+            "programs": ("program",),
+            "framebuffers": ("framebuffer", "renderbuffer"),
+        }
+        counts = {name: sum(by_kind.get(k, 0) for k in kinds) for name, kinds in groups.items()}
         counts["resident_tiles"] = self.session.renderer.pool.resident_count
         return counts
 

@@ -94,6 +94,7 @@ def open_close_cycle(
     from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import MemorySettings
+    from globeview.render.gpu_objects import gpu_objects
     from globeview.render.offscreen import (
         OffscreenTarget,
         create_headless_context,
@@ -108,6 +109,8 @@ def open_close_cycle(
     try:
         terrain = TerrainStack.from_stores(stores)
         target = OffscreenTarget(ctx, size)
+        tracker = gpu_objects(ctx)  # counts every GL object made from here on
+        mark = tracker.mark
         registry = PluginRegistry(MemorySettings()).discover()
         session = GlobeSession(ctx, terrain, registry=registry, lod=lod)
         result = session.render(target.fbo, size)
@@ -119,9 +122,9 @@ def open_close_cycle(
             **{f"store {s.path.name}": weakref.ref(s) for s in stores},
         }
         triangles = int(result.stats.triangles)
-        gl_live = len(unreleased_gl_objects(session))
+        gl_live = sum(1 for t in tracker.live if t.serial > mark)
         session.release_gl()
-        gl_left = unreleased_gl_objects(session)
+        gl_left = [str(t) for t in tracker.live if t.serial > mark]
         target.release()
     finally:
         if own_ctx:

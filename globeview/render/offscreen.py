@@ -6,6 +6,7 @@ import moderngl
 import numpy as np
 
 from globeview.errors import GlobeviewError
+from globeview.render.gpu_objects import gpu_objects
 
 
 class RenderError(GlobeviewError):
@@ -66,9 +67,11 @@ class OffscreenTarget:
     def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
         self.ctx = ctx
         self.size = (int(size[0]), int(size[1]))
-        self.color = ctx.texture(self.size, 4)
-        self.depth = ctx.depth_texture(self.size)
-        self.fbo = ctx.framebuffer(color_attachments=[self.color], depth_attachment=self.depth)
+        self.color = gpu_objects(ctx).texture(self.size, 4)
+        self.depth = gpu_objects(ctx).depth_texture(self.size)
+        self.fbo = gpu_objects(ctx).framebuffer(
+            color_attachments=[self.color], depth_attachment=self.depth
+        )
 
     def read_rgb(self) -> np.ndarray:
         """(height, width, 3) uint8, row 0 at the top of the image."""

@@ -16,6 +16,7 @@ from __future__ import annotations
 import moderngl
 import numpy as np
 
+from globeview.render.gpu_objects import gpu_objects
 from globeview.terrain.imagery import ImageryStack
 
 
@@ -31,7 +32,7 @@ class ImageryDrape:
         self.stack = stack
         self.capacity = capacity
         t = stack.tex_size
-        self.tex = ctx.texture_array((t, t, capacity), 4, dtype="f1")
+        self.tex = gpu_objects(ctx).texture_array((t, t, capacity), 4, dtype="f1")
         self.tex.repeat_x = False
         self.tex.repeat_y = False
         self.tex.build_mipmaps()

@@ -18,6 +18,7 @@ import numpy as np
 from globeview.geodesy import lonlat_to_ecef
 from globeview.lod.render_set import RenderSet
 from globeview.lod.view_state import INV_AXES2, ViewState
+from globeview.render.gpu_objects import gpu_objects
 from globeview.render.overlay_vectors import (
     render_set_signature,
     render_set_strides,
@@ -158,25 +159,25 @@ class PointOverlay:
         self.names = list(names) if names is not None else []
         fmt = "3f 3f 1f 1f 1f/i"
         attrs = ("in_hi", "in_lo", "in_scale", "in_heading", "in_label")
-        self.instances = ctx.buffer(reserve=max(n, 1) * self.FLOATS * 4, dynamic=True)
+        self.instances = gpu_objects(ctx).buffer(reserve=max(n, 1) * self.FLOATS * 4, dynamic=True)
         if self.style.kind == "placemark":
-            self.program = ctx.program(
+            self.program = gpu_objects(ctx).program(
                 vertex_shader=load_shader("overlay_billboard.vert"),
                 fragment_shader=load_shader("overlay_billboard.frag"),
             )
             self.mesh = None
-            self.vao = ctx.vertex_array(
+            self.vao = gpu_objects(ctx).vertex_array(
                 self.program, [(self.instances, fmt, *attrs)], skip_errors=True
             )
         else:
-            self.program = ctx.program(
+            self.program = gpu_objects(ctx).program(
                 vertex_shader=load_shader("overlay_object.vert"),
                 fragment_shader=load_shader("overlay_object.frag"),
             )
             mesh = _box_mesh() if self.style.kind == "box" else _cone_mesh()
-            self.mesh = ctx.buffer(mesh.tobytes())
+            self.mesh = gpu_objects(ctx).buffer(mesh.tobytes())
             self.n_mesh = len(mesh)
-            self.vao = ctx.vertex_array(
+            self.vao = gpu_objects(ctx).vertex_array(
                 self.program,
                 [(self.mesh, "3f 3f", "in_vpos", "in_vnrm"), (self.instances, fmt, *attrs)],
                 skip_errors=True,
@@ -186,16 +187,20 @@ class PointOverlay:
             uniq, inv = np.unique(np.array(self.names, dtype=object), return_inverse=True)
             self.label_of = inv.astype(np.float64)
             atlas, self.rects = text_atlas([str(u) for u in uniq])
-            self.atlas = ctx.texture((atlas.shape[1], atlas.shape[0]), 1, atlas.tobytes())
+            self.atlas = gpu_objects(ctx).texture(
+                (atlas.shape[1], atlas.shape[0]), 1, atlas.tobytes()
+            )
             self.atlas.filter = (moderngl.NEAREST, moderngl.NEAREST)
             rect_tex = np.ascontiguousarray(self.rects, np.float32)
-            self.rect_tex = ctx.texture((len(rect_tex), 1), 4, rect_tex.tobytes(), dtype="f4")
+            self.rect_tex = gpu_objects(ctx).texture(
+                (len(rect_tex), 1), 4, rect_tex.tobytes(), dtype="f4"
+            )
             self.rect_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
-            self.label_prog = ctx.program(
+            self.label_prog = gpu_objects(ctx).program(
                 vertex_shader=load_shader("overlay_label.vert"),
                 fragment_shader=load_shader("overlay_label.frag"),
             )
-            self.label_vao = ctx.vertex_array(
+            self.label_vao = gpu_objects(ctx).vertex_array(
                 self.label_prog, [(self.instances, fmt, *attrs)], skip_errors=True
             )
         else:

@@ -34,6 +34,7 @@ import moderngl
 import numpy as np
 
 from globeview.lod.view_state import INV_AXES2, ViewState
+from globeview.render.gpu_objects import gpu_objects
 from globeview.render.overlay_vectors import view_uniforms
 from globeview.render.shader_source import load_shader
 
@@ -181,19 +182,19 @@ class ToolOverlayRenderer:
 
     def __init__(self, ctx: moderngl.Context) -> None:
         self.ctx = ctx
-        self.program = ctx.program(
+        self.program = gpu_objects(ctx).program(
             vertex_shader=load_shader("overlay_tool.vert"),
             fragment_shader=load_shader("overlay_tool.frag"),
         )
         self._capacity = 64
-        self.instances = ctx.buffer(reserve=self._capacity * FLOATS * 4, dynamic=True)
+        self.instances = gpu_objects(ctx).buffer(reserve=self._capacity * FLOATS * 4, dynamic=True)
         self.vao = self._make_vao()
-        self.label_program = ctx.program(
+        self.label_program = gpu_objects(ctx).program(
             vertex_shader=load_shader("overlay_tool_label.vert"),
             fragment_shader=load_shader("overlay_tool_label.frag"),
         )
         self._label_capacity = 16
-        self.label_buffer = ctx.buffer(reserve=self._label_capacity * LABEL_FLOATS * 4)
+        self.label_buffer = gpu_objects(ctx).buffer(reserve=self._label_capacity * LABEL_FLOATS * 4)
         self.label_vao = self._make_label_vao()
         self.atlas: moderngl.Texture | None = None
         self._atlas_labels: tuple[str, ...] = ()
@@ -202,14 +203,14 @@ class ToolOverlayRenderer:
         self.labels_drawn = 0
 
     def _make_vao(self) -> moderngl.VertexArray:
-        return self.ctx.vertex_array(
+        return gpu_objects(self.ctx).vertex_array(
             self.program,
             [(self.instances, "3f 3f 4f 1f 1f 1f/i", "in_a", "in_b", "in_color", "in_size",
               "in_kind", "in_depth")],
         )  # fmt: skip
 
     def _make_label_vao(self) -> moderngl.VertexArray:
-        return self.ctx.vertex_array(
+        return gpu_objects(self.ctx).vertex_array(
             self.label_program,
             [(self.label_buffer, "3f 4f 4f 1f/i", "in_rel", "in_rect", "in_color", "in_offset")],
         )  # fmt: skip
@@ -231,7 +232,7 @@ class ToolOverlayRenderer:
         if not labels:
             return
         img, rects = text_atlas([label[:MAX_LABEL_CHARS] for label in labels])
-        self.atlas = self.ctx.texture((img.shape[1], img.shape[0]), 1, img.tobytes())
+        self.atlas = gpu_objects(self.ctx).texture((img.shape[1], img.shape[0]), 1, img.tobytes())
         self.atlas.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self._rect_of = {label: rects[i].astype(np.float64) for i, label in enumerate(labels)}
 

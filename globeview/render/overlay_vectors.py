@@ -28,6 +28,7 @@ import numpy as np
 from globeview.geodesy import WGS84, lonlat_to_ecef
 from globeview.lod.render_set import RenderSet
 from globeview.lod.view_state import INV_AXES2, ViewState
+from globeview.render.gpu_objects import gpu_objects
 from globeview.render.shader_source import load_shader
 from globeview.terrain.vectors import Polylines, drape_heights
 
@@ -125,12 +126,12 @@ class VectorOverlay:
         self.level = 0
         self.lines, self._a, self._b, self._along = self._prep[0]
         n_max = max(len(p[1]) for p in self._prep)
-        self.program = ctx.program(
+        self.program = gpu_objects(ctx).program(
             vertex_shader=load_shader("overlay_line.vert"),
             fragment_shader=load_shader("overlay_line.frag"),
         )
-        self.buffer = ctx.buffer(reserve=max(n_max, 1) * self.FLOATS * 4, dynamic=True)
-        self.vao = ctx.vertex_array(
+        self.buffer = gpu_objects(ctx).buffer(reserve=max(n_max, 1) * self.FLOATS * 4, dynamic=True)
+        self.vao = gpu_objects(ctx).vertex_array(
             self.program,
             [
                 (

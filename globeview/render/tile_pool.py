@@ -13,6 +13,7 @@ import moderngl
 import numpy as np
 
 from globeview.lod.tile_indices import IndexVariant, grid_indices
+from globeview.render.gpu_objects import gpu_objects
 from globeview.render.tile_mesh import FLOATS_PER_VERTEX, TileMesh, vertices_per_tile
 
 KeyArray = np.ndarray  # (N, 3) int64: level, x, y
@@ -31,7 +32,7 @@ class IndexPool:
     def __init__(self, ctx: moderngl.Context, size: int, initial_bytes: int = 1 << 22) -> None:
         self.ctx = ctx
         self.size = size
-        self.buffer = ctx.buffer(reserve=initial_bytes, dynamic=True)
+        self.buffer = gpu_objects(ctx).buffer(reserve=initial_bytes, dynamic=True)
         self._used = 0  # indices written
         self._variants: dict[IndexVariant, tuple[int, int]] = {}
         self._custom_first = None
@@ -52,7 +53,7 @@ class IndexPool:
         if need > self.buffer.size:
             old = self.buffer.read(size=self._used * 4)
             self.buffer.release()
-            self.buffer = self.ctx.buffer(reserve=max(need * 2, 1 << 22), dynamic=True)
+            self.buffer = gpu_objects(self.ctx).buffer(reserve=max(need * 2, 1 << 22), dynamic=True)
             self.buffer.write(old)
             if self.on_realloc is not None:
                 self.on_realloc()
@@ -76,11 +77,13 @@ class TilePool:
         self.size = size
         self.capacity = capacity
         self.verts_per_tile = vertices_per_tile(size)
-        self.vbo = ctx.buffer(reserve=capacity * self.verts_per_tile * FLOATS_PER_VERTEX * 4)
-        self.height_tex = ctx.texture_array((size, size, capacity), 1, dtype="f4")
+        self.vbo = gpu_objects(ctx).buffer(
+            reserve=capacity * self.verts_per_tile * FLOATS_PER_VERTEX * 4
+        )
+        self.height_tex = gpu_objects(ctx).texture_array((size, size, capacity), 1, dtype="f4")
         # Normals as 8-bit unsigned (n * 0.5 + 0.5): llvmpipe samples RGBA8 on its fast path,
         # half floats noticeably slower; 1/255 steps are ~0.5 degree, finer than shading needs.
-        self.normal_tex = ctx.texture_array((size, size, capacity), 4, dtype="f1")
+        self.normal_tex = gpu_objects(ctx).texture_array((size, size, capacity), 4, dtype="f1")
         for tex in (self.height_tex, self.normal_tex):
             tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
             tex.repeat_x = False
