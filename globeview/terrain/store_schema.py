@@ -265,7 +265,8 @@ class StoreManifest:
         h = self.header
         if h.format != STORE_FORMAT:
             raise ManifestError(f"format is not {STORE_FORMAT!r}")
-        if h.format_version != FORMAT_VERSION or isinstance(h.format_version, bool):
+        # An int, not 4.0 or true (which compare equal to 4 and 1): only globeview writes it.
+        if type(h.format_version) is not int or h.format_version != FORMAT_VERSION:
             raise ManifestError(f"format_version {str(h.format_version)[:20]} is not supported")
         if not isinstance(h.created_by, str):
             raise ManifestError("created_by must be a string")

@@ -148,6 +148,7 @@ def _rewrite(store: Path, tmp_path: Path, change) -> Path:
         (lambda m: m.update(format_version=FORMAT_VERSION + 1), "version 5 is not supported"),
         (lambda m: m.update(format_version="4"), "version 4 is not supported"),
         (lambda m: m.update(format_version=True), "version True is not supported"),
+        (lambda m: m.update(format_version=4.0), "format_version 4.0 is not supported"),
         (lambda m: m.update(format_version=3), "built before vertical datums"),
         (lambda m: m["levels"][0]["extent"].pop("nx"), "levels[0].extent.nx is missing"),
         (lambda m: m["levels"][1].update(level_error="x"), "levels[1].level_error must be a"),
