@@ -13,9 +13,11 @@ Every program in globeview is built from files in ``globeview/render/shaders``:
   includes): the host puts a tool plugin's displacement GLSL in place of the identity
   ``displace.glsl`` this way.
 
-Each piece is preceded by a ``#line 1 K`` directive (and the text after an include by one
-that restores the includer's numbering), so a GLSL compiler message ``K:LINE(COL)`` points
-into piece K of `ShaderSource.pieces`; `describe_pieces` lists them for error messages.
+Each piece K of `ShaderSource.pieces` is numbered from line K * 10000 + 1 by a ``#line``
+directive (the text after an include by one that restores the includer's numbering), so a
+GLSL compiler message ``K:LLLLL(COL)`` points at line LLLLL % 10000 of piece LLLLL // 10000
+(K, the source-string number, says the same, but Mesa reports some errors under 0);
+`explain_sources` turns such a message into piece names and lines.
 
 Errors (a missing chunk, an include cycle, a malformed include or define) are one-line
 `ShaderSourceError`s naming the include chain.
@@ -39,6 +41,7 @@ __all__ = [
     "ShaderSourceError",
     "build_shader",
     "describe_pieces",
+    "explain_sources",
     "load_shader",
     "source_legend",
 ]
@@ -55,6 +58,11 @@ _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}$")
 # moderngl's Context.program resolves this pattern anywhere in the text (even in comments)
 # from ctx.includes and raises KeyError when it is not there: none may reach it.
 _MODERNGL_INCLUDE = re.compile(r'#include\s+"([^"]+)"')
+# Line numbers are K * LINES_PER_PIECE + line in piece K, and K is also the source-string
+# number: Mesa reports some errors under source 0 whatever #line said, but keeps the line.
+LINES_PER_PIECE = 10_000
+# Mesa's message locations: "K:LINE(COL): error: ...".
+_CITED = re.compile(r"(?<![\w.:])(\d+):(\d+)\(\d+\)")
 _VERSION = re.compile(r"^[ \t]*#[ \t]*version\b")
 _DEFINE_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]{0,63}$")
 _DEFINE_VALUE = re.compile(r"^[A-Za-z0-9_.+\-() ]{1,64}$")
@@ -139,6 +147,10 @@ class ShaderLibrary:
                 raise ShaderSourceError(
                     f"replacement for shader chunk {key!r} is {type(text).__name__}, not GLSL text"
                 )
+            if "\x00" in text or not _encodable(text):  # GL would cut the text at a NUL
+                raise ShaderSourceError(
+                    f"replacement for shader chunk {key!r} has a NUL or an unencodable character"
+                )
             if _MODERNGL_INCLUDE.search(text):
                 raise ShaderSourceError(
                     f"replacement for shader chunk {key!r} has an #include: hook text is "
@@ -172,16 +184,18 @@ class ShaderLibrary:
         index = len(pieces)
         if name in replace:
             pieces.append(f"<replace {name}>")
-            return f"#line 1 {index}\n{replace[name]}\n"
+            _check_length(replace[name], f"replacement for {name}")
+            return f"{_line(index, 1)}{replace[name]}\n"
         text = self._read_in_chain(name, chain)
+        _check_length(text, " -> ".join(chain))
         pieces.append(name)
         out: list[str] = []
         header_done = len(chain) > 1  # the root's first #line goes after its #version line
         if header_done:
-            out.append(f"#line 1 {index}\n")
+            out.append(_line(index, 1))
         for lineno, line in enumerate(text.splitlines(), start=1):
             if not header_done and _VERSION.match(line):
-                out.append(f"{line}\n#line {lineno + 1} {index}\n")
+                out.append(f"{line}\n{_line(index, lineno + 1)}")
                 header_done = True
                 continue
             m = _INCLUDE.match(line)
@@ -202,9 +216,9 @@ class ShaderLibrary:
                 out.append("\n")  # already in this program (include once): keep the count
                 continue
             out.append(self._expand(child, (*chain, child), replace, pieces, done))
-            out.append(f"#line {lineno + 1} {index}\n")
+            out.append(_line(index, lineno + 1))
         if not header_done:  # no #version line: number from the top
-            out.insert(0, f"#line 1 {index}\n")
+            out.insert(0, _line(index, 1))
         return "".join(out)
 
     def _read_in_chain(self, name: str, chain: tuple[str, ...]) -> str:
@@ -245,12 +259,57 @@ def describe_pieces(source: ShaderSource) -> str:
     return ", ".join(f"{k} = {p}" for k, p in enumerate(source.pieces))
 
 
+def explain_sources(message: str, **stages: ShaderSource) -> str:
+    """Name the pieces a GLSL compiler ``message`` cites as ``K:LINE(COL)``, per stage.
+
+    ``stages``: ``vertex=``, ``fragment=`` sources (moderngl heads each stage's messages with
+    ``vertex_shader`` / ``fragment_shader``). Returns e.g. ``'vertex shader: 50003 = line 3
+    of <replace displace.glsl>'``, or the whole `source_legend` when the message cites no
+    line (a link error)."""
+    stage: str | None = None
+    notes: list[str] = []
+    for line in message.splitlines():
+        head = line.strip().removesuffix("_shader")
+        if head in stages:
+            stage = head
+            continue
+        if stage is None:
+            continue
+        pieces = stages[stage].pieces
+        for m in _CITED.finditer(line):
+            k, lineno = divmod(int(m.group(2)), LINES_PER_PIECE)
+            if k < len(pieces):
+                note = f"{stage} shader: {m.group(2)} = line {lineno} of {pieces[k]}"
+                if note not in notes:
+                    notes.append(note)
+    return "; ".join(notes[:4]) if notes else source_legend(**stages)
+
+
 def source_legend(**stages: ShaderSource) -> str:
     """One line naming, per shader stage, the pieces GLSL compiler messages number as K:LINE,
     e.g. ``source_legend(vertex=v, fragment=f)`` -> 'GLSL sources K:LINE: vertex 0 =
     terrain.vert, ...; fragment 0 = terrain.frag, ...'."""
     parts = "; ".join(f"{stage} {describe_pieces(src)}" for stage, src in stages.items())
     return f"GLSL sources K:LINE: {parts}"
+
+
+def _line(index: int, lineno: int) -> str:
+    """The #line directive that numbers the next line as line ``lineno`` of piece ``index``."""
+    return f"#line {index * LINES_PER_PIECE + lineno} {index}\n"
+
+
+def _check_length(text: str, what: str) -> None:
+    n = text.count("\n") + 1
+    if n >= LINES_PER_PIECE:
+        raise ShaderSourceError(f"{what} has {n} lines; a shader piece has at most 9999")
+
+
+def _encodable(text: str) -> bool:
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:  # lone surrogates
+        return False
+    return True
 
 
 def _check_name(name: object, chain: tuple[object, ...]) -> None:

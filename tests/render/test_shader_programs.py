@@ -14,6 +14,7 @@ import pytest
 from globeview.render.shader_source import (
     ShaderSourceError,
     build_shader,
+    explain_sources,
     load_shader,
     source_legend,
 )
@@ -74,8 +75,8 @@ def test_every_terrain_variant_compiles(egl_ctx, hook: bool) -> None:
 
 
 def test_compile_messages_point_into_the_hook_text(egl_ctx) -> None:
-    """A hook with an error on its 3rd line: the message says source K, line 3, where K is
-    the piece the legend names as the replaced displace.glsl."""
+    """A hook with an error on its 3rd line: the message cites line K * 10000 + 3, where K
+    is the piece the legend names as the replaced displace.glsl."""
     bad = (
         "vec3 gv_displace(vec3 rel, vec3 up, float h, vec3 c) {\n"
         "    float ok = 1.0;\n"
@@ -87,7 +88,11 @@ def test_compile_messages_point_into_the_hook_text(egl_ctx) -> None:
     k = vert.pieces.index("<replace displace.glsl>")
     with pytest.raises(moderngl.Error) as excinfo:
         egl_ctx.program(vertex_shader=vert.text, fragment_shader=frag.text)
-    assert f"{k}:3(" in str(excinfo.value)
+    # Mesa cites some of these errors under source 0, but always at line k * 10000 + 3.
+    assert f":{k * 10000 + 3}(" in str(excinfo.value)
+    assert explain_sources(str(excinfo.value), vertex=vert, fragment=frag) == (
+        f"vertex shader: {k * 10000 + 3} = line 3 of <replace displace.glsl>"
+    )
     legend = source_legend(vertex=vert, fragment=frag)
     assert f"{k} = <replace displace.glsl>" in legend and "fragment 0 = terrain.frag" in legend
 
@@ -101,9 +106,17 @@ def test_renderer_hook_errors_name_the_pieces(gl_ctx, terrain) -> None:
     try:
         before = renderer.program
         bad = "vec3 gv_displace(vec3 rel, vec3 up, float h, vec3 c) { return rel + oops; }"
-        with pytest.raises(moderngl.Error, match=r"<replace displace\.glsl>"):
+        with pytest.raises(moderngl.Error, match=r"= line 1 of <replace displace\.glsl>\)"):
             renderer.set_displacement_hook(DisplacementHook("bad", bad))
         assert renderer.program is before
+        # A fragment-shader error in the same message format names the fragment piece.
+        frag_msg = "GLSL Compiler failed\n\nfragment_shader\n=====\n0:10007(2): error: x\n"
+        assert (
+            explain_sources(
+                frag_msg, vertex=build_shader("terrain.vert"), fragment=build_shader("terrain.frag")
+            )
+            == "fragment shader: 10007 = line 7 of ellipsoid.glsl"
+        )
         # An #include in hook text (moderngl would resolve it itself, with a KeyError) is a
         # one-line loader error: hooks are inserted verbatim, the host's chunks are not API.
         with pytest.raises(ShaderSourceError, match="hook text is inserted verbatim"):

@@ -59,10 +59,10 @@ def test_includes_resolve_depth_first_in_place(tmp_path: Path) -> None:
         "void main() {}",
     ]
     assert src.pieces == ("r.vert", "a.glsl", "b.glsl")
-    # Each piece restarts the numbering under its source number; the includer's resumes.
+    # Piece K counts from K * 10000 + 1 (source number K); the includer's count resumes.
     lines = src.text.splitlines()
-    assert lines[:3] == ["#version 330", "#line 2 0", "#line 1 1"]
-    assert lines[lines.index("float a2;") - 1] == "#line 3 1"
+    assert lines[:3] == ["#version 330", "#line 2 0", "#line 10001 1"]
+    assert lines[lines.index("float a2;") - 1] == "#line 10003 1"
     assert lines[lines.index("void main() {}") - 1] == "#line 3 0"
 
 
@@ -225,7 +225,7 @@ def test_replace_inserts_text_verbatim_in_place_of_a_chunk(tmp_path: Path) -> No
         "main;",
     ]
     assert src.pieces == ("r.vert", "<replace hook.glsl>")
-    assert "#line 1 1\n// hook" in src.text  # the hook's lines count from 1
+    assert "#line 10001 1\n// hook" in src.text  # the hook's lines count from 1
     # Verbatim text may not include anything (moderngl would try to resolve it on its own),
     # not even inside a comment.
     for text in ('#include "r.vert"', 'x; // see #include "a.glsl"'):
@@ -234,6 +234,16 @@ def test_replace_inserts_text_verbatim_in_place_of_a_chunk(tmp_path: Path) -> No
         assert "hook text is inserted verbatim" in one_line_error(excinfo)
     with pytest.raises(ShaderSourceError, match=r"includes no shader chunk 'other\.glsl'"):
         lib.load("r.vert", replace={"other.glsl": "x;"})
+    # GL would cut the text at a NUL (and report a missing main); lone surrogates garble the
+    # driver's message: both are refused up front.
+    for text in ("float a;\x00garbage", "// \udcff\n"):
+        with pytest.raises(ShaderSourceError) as excinfo:
+            lib.load("r.vert", replace={"hook.glsl": text})
+        assert "NUL or an unencodable character" in one_line_error(excinfo)
+    # Line numbers give each piece 10000 (see explain_sources): a longer one is refused.
+    with pytest.raises(ShaderSourceError) as excinfo:
+        lib.load("r.vert", replace={"hook.glsl": "x;\n" * 10_000})
+    assert "has 10001 lines" in one_line_error(excinfo)
     with pytest.raises(ShaderSourceError, match="is bytes, not GLSL text"):
         lib.load("r.vert", replace={"hook.glsl": b"x;"})  # type: ignore[dict-item]
     with pytest.raises(ShaderSourceError, match="bad shader file name"):
@@ -278,3 +288,19 @@ def test_one_loader_and_no_string_splicing_of_shaders() -> None:
     assert readers == ["shader_source.py"]
     assert not any("GV_DISPLACE" in t for t in src.values())
     assert SHADERS.read("terrain.vert") == (SHADER_DIR / "terrain.vert").read_text()
+
+
+def test_every_shader_file_is_package_data() -> None:
+    """The wheel carries the chunks and the collapse GLSL (pyproject's package-data globs)."""
+    import tomllib
+    from pathlib import PurePosixPath
+
+    globs = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"][
+        "package-data"
+    ]["globeview"]
+    pkg = ROOT / "globeview"
+    files = [p for p in SHADER_DIR.iterdir() if p.is_file()]
+    files.append(pkg / "plugins" / "builtin" / "collapse" / "collapse.glsl")
+    for path in files:
+        rel = PurePosixPath(path.relative_to(pkg).as_posix())
+        assert any(rel.match(g) for g in globs), rel
