@@ -31,6 +31,8 @@ defined here it re-exports, under the same names, what a provider, tool or layer
   `TileKey`, `level_shape`, `tile_bounds_arrays`, `node_lonlat`;
 - culling and error helpers the built-in providers use (`tile_bounding_points`,
   `frustum_visible`, `horizon_visible`, `bounding_distance`, `cull_level`, `chord_sag`, ...);
+- the shared quadtree traversal an LOD provider steers with a policy (`traverse`,
+  `LodPolicy`, `ScreenSpaceErrorPolicy`, `TileCandidates`, `render_set_from_tiles`, ...);
 - geodesy on WGS84 (`WGS84`, `lonlat_to_ecef`, `ecef_to_lonlat`, `enu_basis`, geodesics);
 - errors: `GlobeviewError`, the base of every one-line user error.
 
