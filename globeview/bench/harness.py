@@ -10,6 +10,7 @@ the camera in place (a move), ``cut=True`` starts a new shot (speed 0).
 from __future__ import annotations
 
 import csv
+import math
 import os
 import platform
 import statistics
@@ -247,7 +248,17 @@ def fly(bench: Bench, flight: Flight, times: np.ndarray, warm: bool = True) -> l
         bench.set_pose(flight.pose(float(times[0])), cut=True)
         bench.frame(float(times[0]))
         bench.session.reset_lod()
-    bench.session.pipeline.motion.reset()  # the flight starts at rest
+    motion = bench.session.pipeline.motion
+    motion.reset()  # the flight starts at rest
+    # Sparse samples of a flight are not pauses: the camera flies on between them.
+    pause_s, motion.pause_s = motion.pause_s, math.inf
+    try:
+        return _fly(bench, flight, times, out)
+    finally:
+        motion.pause_s = pause_s
+
+
+def _fly(bench: Bench, flight: Flight, times: np.ndarray, out: list) -> list[FrameRecord]:
     for i, t in enumerate(times):
         pose = flight.pose(float(t))
         bench.set_pose(pose)

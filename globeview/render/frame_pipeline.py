@@ -119,11 +119,14 @@ class CameraMotion:
     """Camera speed from its history: the distance the eye moved since the previous frame
     over the time between the frames' stamps (metres per second, ECEF).
 
-    The speed is 0 on the first frame, after a pause longer than `PAUSE_S`, when the time
-    stamp did not advance (or went back), and when the camera object was replaced (a new
-    camera is a cut, not a move)."""
+    The speed is 0 on the first frame, after a pause longer than ``pause_s`` (default
+    `PAUSE_S`: the window was idle, the next move starts from rest), when the time stamp did
+    not advance (or went back), and when the camera object was replaced (a new camera is a
+    cut, not a move). A recorded flight sampled sparsely sets ``pause_s`` to infinity: its
+    camera never rests between samples."""
 
-    def __init__(self) -> None:
+    def __init__(self, pause_s: float = PAUSE_S) -> None:
+        self.pause_s = pause_s
         self._camera: Camera | None = None
         self._eye: np.ndarray | None = None
         self._t: float = 0.0
@@ -139,7 +142,7 @@ class CameraMotion:
         speed = 0.0
         if self._eye is not None and camera is self._camera:
             dt = now_s - self._t
-            if 0.0 < dt <= PAUSE_S:
+            if 0.0 < dt <= self.pause_s:
                 speed = float(np.linalg.norm(eye - self._eye)) / dt
         self._camera, self._eye, self._t = camera, eye, now_s
         return speed if math.isfinite(speed) else 0.0
