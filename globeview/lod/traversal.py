@@ -5,10 +5,10 @@ The quadtree is walked level by level with numpy over all candidate tiles of a l
 1. the candidates' camera-independent facts come from the terrain's `TileCache`
    (`tile_cache.tile_cache_for`: bounding lattice, margins, bounding sphere, stride errors,
    metadata, children);
-2. they are culled against the frustum and the ellipsoid horizon (the same floating-point
-   operations as `culling.frustum_visible` / `culling.horizon_visible`; conservative
-   bounding-sphere / box-centre prefilters settle most tiles, the exact tests run only on
-   those near a plane or the horizon), then by the policy's own test (`LodPolicy.cull`);
+2. they are culled against the frustum and the ellipsoid horizon (`cached_culling`: the
+   answers of `culling.frustum_visible` / `culling.horizon_visible`, with conservative
+   bounding-sphere / box-centre prefilters settling most tiles), then by the policy's own
+   test (`LodPolicy.cull`);
 3. the policy (`globeview.lod.policy.LodPolicy`, Cesium's ``QuadtreeTileProvider``) says
    what error each survivor has (`LodPolicy.error_px`), which to refine
    (`LodPolicy.refine`), and, for those drawn, with which index stride (`LodPolicy.stride`);
@@ -33,34 +33,27 @@ tiles across a fold refine and no gap opens between them. Both are cached per di
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from globeview.lod.culling import (
-    LATTICE,
-    bounding_distance,
-    box_angular_distance_pre,
-    frustum_visible,
-    horizon_cap,
+from globeview.lod.cached_culling import (
+    HORIZON_TOL,
+    FrustumFrame,
+    frustum_prefilter,
+    horizon_visible_cached,
 )
+from globeview.lod.culling import LATTICE, bounding_distance, frustum_visible, horizon_cap
 from globeview.lod.render_set import MAX_TILES, RenderSet
 from globeview.lod.tile_cache import (
     COL_EAST,
     COL_MARGIN,
     COL_NORTH,
-    COL_NORTH_R,
-    COL_PEAK,
     COL_RADIUS,
     COL_SOUTH,
-    COL_SOUTH_R,
-    COL_SPAN,
     COL_SPHERE,
-    COL_UX,
-    COL_UZ,
     COL_WEST,
     LevelTiles,
     TileCache,
@@ -197,86 +190,6 @@ class TileCandidates:
         return self._dpts if self._dpts is not None else self.points_true
 
 
-# -- culling with cached facts ----------------------------------------------------------------
-class FrustumFrame:
-    """Per-view constants of the frustum tests: the eye, the plane normals (as
-    `culling.frustum_visible` slices them, and as contiguous columns), each plane's signed
-    distance of the eye, and the prefilter's slack ``tol`` (m)."""
-
-    def __init__(self, view: ViewState) -> None:
-        planes = view.frustum_planes
-        self.eye = view.eye
-        self.normals = planes[:, :3]
-        self.normals_t = np.ascontiguousarray(planes[:, :3].T)
-        self.d_eye = planes[:, :3] @ view.eye + planes[:, 3]
-        self.tol = 1e-3 + 1e-12 * (float(np.abs(view.eye).sum()) + view.far)
-        self.d_tol = self.d_eye + self.tol
-
-    def exact(self, points: np.ndarray, margin: np.ndarray) -> np.ndarray:
-        """`culling.frustum_visible`, the same operations on the same operands (so the same
-        floats), with the per-view terms computed once."""
-        dist = np.einsum("nkj,pj->npk", points - self.eye, self.normals).max(axis=2)
-        return ((dist + self.d_eye) >= -margin[:, None]).all(axis=1)
-
-
-def frustum_prefilter(
-    frame: FrustumFrame, rel_centre: np.ndarray, margin: np.ndarray, sphere: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """`frustum_visible` decided from each tile's bounding sphere where that is conclusive.
-
-    With c the mean of a tile's points (``rel_centre`` = c - eye, (N, 3)) and r their
-    farthest distance from c (``sphere``), every point's signed plane distance lies in
-    [dist(c) - r, dist(c) + r], and their mean is dist(c). So a plane has some point within
-    the margin when dist(c) >= -margin, and all of them beyond it when dist(c) + r < -margin.
-    Both tests keep a slack (orders of magnitude above float64 rounding at these
-    magnitudes), so they never disagree with the exact test; tiles neither decides come back
-    as ambiguous, for the exact `frustum_visible` (`FrustumFrame.exact`).
-
-    Returns (visible, ambiguous), both (N,) bool; ``visible`` is False where ambiguous."""
-    # Over the planes, the least dist(c) + margin + tol.
-    m = (rel_centre @ frame.normals_t + frame.d_tol).min(axis=1) + margin
-    inside = m >= 2.0 * frame.tol  # dist(c) + margin >= tol on every plane
-    outside = m + sphere < 0.0  # dist(c) + r + margin < -tol on some plane
-    return inside, ~(inside | outside)
-
-
-#: Slack (radians) of the horizon prefilter, far above the rounding of the exact test.
-_HORIZON_TOL = 1e-6
-
-
-def horizon_visible_cached(
-    view: ViewState, cap: float, c: np.ndarray, u0: np.ndarray | None
-) -> np.ndarray:
-    """`culling.horizon_visible` of tiles from their cached columns ``c`` (N_COLS, N), with
-    ``cap`` = `culling.horizon_cap` and ``u0`` the unit vector of the eye's (lon, lat).
-
-    `culling.box_angular_distance` is the spherical distance from the eye's (lon, lat) to
-    the nearest point of the box whenever that is below 90 degrees, hence at most the
-    distance to the box's centre. So a tile whose centre is within min(cap + peak, 90 deg)
-    minus a slack is visible without the exact test, which then runs only on the others
-    (those near the horizon). ``u0`` None skips the prefilter (eye almost on the ground)."""
-    limit = cap + c[COL_PEAK]
-    if u0 is not None:
-        thr = np.cos(np.minimum(limit - _HORIZON_TOL, math.pi / 2 - _HORIZON_TOL))
-        vis = u0 @ c[COL_UX : COL_UZ + 1] >= thr
-        n_vis = np.count_nonzero(vis)
-        if n_vis == len(vis):
-            return vis
-        ai = (~vis).nonzero()[0]
-        c, limit = c.take(ai, axis=1), limit.take(ai)
-    lon0, lat0, _ = view.eye_lonlat_h
-    exact = (
-        box_angular_distance_pre(
-            lon0, lat0, c[COL_WEST : COL_EAST + 1], c[COL_SPAN], c[COL_SOUTH_R], c[COL_NORTH_R]
-        )
-        <= limit
-    )
-    if u0 is None:
-        return exact
-    vis[ai] = exact
-    return vis
-
-
 def budget_refinement(
     refine: np.ndarray, priority: np.ndarray, room: int, fanout: int = 4
 ) -> np.ndarray:
@@ -343,7 +256,7 @@ def _walk(view: ViewState, terrain: TerrainStack, policy: LodPolicy, cache: Tile
     dkey = displacement_key(view)
     cap = horizon_cap(view)  # None: eye at or below the ellipsoid, nothing hidden
     u0 = None
-    if cap is not None and cap > 1e3 * _HORIZON_TOL:
+    if cap is not None and cap > 1e3 * HORIZON_TOL:
         lon0, lat0 = np.radians(view.eye_lonlat_h[:2])
         u0 = np.array([np.cos(lat0) * np.cos(lon0), np.cos(lat0) * np.sin(lon0), np.sin(lat0)])
     frame = FrustumFrame(view)

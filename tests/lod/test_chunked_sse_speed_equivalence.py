@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 from globeview.geodesy import WGS84, lonlat_to_ecef
-from globeview.lod import tile_cache, traversal
-from globeview.lod.culling import LATTICE, chord_sag, displacement_chord_error_m
+from globeview.lod import cached_culling, tile_cache
+from globeview.lod.culling import LATTICE, chord_sag, displacement_chord_error_m, horizon_cap
 from globeview.lod.render_set import RenderSet
 from globeview.lod.tile_indices import IndexVariant
 from globeview.lod.traversal import MAX_LEVEL
@@ -371,8 +371,8 @@ def test_prefilters_agree_with_exact_tests(terrain) -> None:
             w, s, e, n = tile_bounds_arrays(level, x, y)
             meta = terrain.metadata(level, x, y)
             # Frustum: decided tiles agree with the exact test.
-            frame = traversal.FrustumFrame(view)
-            vis, amb = traversal.frustum_prefilter(
+            frame = cached_culling.FrustumFrame(view)
+            vis, amb = cached_culling.frustum_prefilter(
                 frame,
                 facts["centre"] - view.eye,
                 c[tile_cache.COL_MARGIN],
@@ -382,8 +382,8 @@ def test_prefilters_agree_with_exact_tests(terrain) -> None:
             assert np.array_equal(vis[~amb], exact_f[~amb])
             assert np.array_equal(frame.exact(pts, c[tile_cache.COL_MARGIN]), exact_f)
             # Horizon: the prefiltered test equals the reference.
-            cap = traversal.horizon_cap(view)
+            cap = horizon_cap(view)
             lon0, lat0 = np.radians(view.eye_lonlat_h[:2])
             u0 = np.array([np.cos(lat0) * np.cos(lon0), np.cos(lat0) * np.sin(lon0), np.sin(lat0)])
             want = _reference_horizon_visible(view, w, s, e, n, meta.hmax, exaggeration)
-            assert np.array_equal(traversal.horizon_visible_cached(view, cap, c, u0), want)
+            assert np.array_equal(cached_culling.horizon_visible_cached(view, cap, c, u0), want)
