@@ -25,7 +25,7 @@ docs/collapse.md; in short:
   exactly.
 
 Everything here takes and returns absolute ECEF metres (float64); the GPU twin
-(glsl.py) evaluates the same formulas relative to the eye.
+(collapse.glsl) evaluates the same formulas relative to the eye.
 """
 
 from __future__ import annotations
