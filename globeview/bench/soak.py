@@ -44,9 +44,10 @@ def run_soak(
                 n = min(per_flight, frames - done)
                 if n <= 0:
                     break
-                for t in fl.times(frames=n):
-                    bench.set_pose(fl.pose(float(t)))
-                    bench.frame()
+                for i, t in enumerate(fl.times(frames=n)):
+                    # Flight time stamps (the pipeline's speed); each flight is a new shot.
+                    bench.set_pose(fl.pose(float(t)), cut=i == 0)
+                    bench.frame(float(t))
                 done += n
                 gc.collect()
                 objs = bench.gl_objects()
