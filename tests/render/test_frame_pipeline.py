@@ -190,3 +190,56 @@ def test_session_frame_with_a_tool_builds_one_view(globeview_gl, terrain) -> Non
         session.activate_tool(None)
         session.release_gl()
         target.release()
+
+
+# An installed tool whose frame methods return garbage: a truth value that raises, then an
+# overlay that is not a list. The frame goes on; the tool fails (one line), nothing else.
+HOSTILE_TOOL = """
+from globeview.plugins.api import Tool
+
+class Liar:
+    def __bool__(self):
+        raise RuntimeError("no truth here")
+
+class Hostile(Tool):
+    def animate(self, now):
+        return Liar()
+
+    def overlay(self, view):
+        return "not a list"
+"""
+
+
+@pytest.mark.parametrize("broken", ["animate", "overlay"])
+def test_a_hostile_tool_fails_alone_and_the_frame_is_drawn(
+    plugin_site, globeview_gl, terrain, broken
+) -> None:
+    from globeview.plugins.registry import PluginRegistry
+    from globeview.plugins.session import GlobeSession
+    from globeview.plugins.settings import MemorySettings
+    from globeview.plugins.testing import plugin_manifest
+    from globeview.render.offscreen import OffscreenTarget
+
+    src = HOSTILE_TOOL
+    if broken == "overlay":  # only the overlay is garbage
+        src = src.replace("return Liar()", "return False")
+    plugin_site.add("gvt_hostile", plugin_manifest("gvt-hostile", "gvt_hostile", "tool", "Hostile"),
+                    {"impl": src})  # fmt: skip
+    reg = PluginRegistry(MemorySettings()).discover()
+    session = GlobeSession(globeview_gl, terrain, registry=reg)
+    target = OffscreenTarget(globeview_gl, SIZE)
+    try:
+        session.activate_tool("gvt-hostile")
+        result = session.render(target.fbo, SIZE, now_s=1.0)
+        assert result.stats.triangles > 0  # the terrain was drawn
+        assert result.animating is False and result.overlay_drawn == 0
+        why = reg.failure_of("gvt-hostile")
+        assert why is not None and "\n" not in why
+        assert ("animate()" if broken == "animate" else "overlay() returned str") in why
+        assert session.tool() is None
+        assert reg.failure_of("chunked-sse") is None  # the provider is untouched
+        again = session.render(target.fbo, SIZE, now_s=1.1)  # and frames go on
+        assert again.stats.triangles > 0
+    finally:
+        session.release_gl()
+        target.release()
