@@ -115,9 +115,10 @@ class GlobeRenderer:
         frag = build_shader("terrain.frag", defines=dict(zip(names, features, strict=True)))
         try:
             return gpu_objects(self.ctx).program(vertex_shader=vert.text, fragment_shader=frag.text)
-        except moderngl.Error as exc:  # say which piece (a hook: its own line numbers) failed
+        except moderngl.Error as exc:  # say which piece (a hook: its own line numbers) failed,
+            # first: reports of a plugin's failure keep only the first 300 characters.
             where = explain_sources(str(exc), vertex=vert, fragment=frag)
-            raise moderngl.Error(f"{exc} ({where})") from exc
+            raise moderngl.Error(f"[{where}] {exc}") from exc
 
     def _use_features(self, features: tuple[bool, bool, bool]) -> None:
         if features == self._features:

@@ -106,7 +106,10 @@ def test_renderer_hook_errors_name_the_pieces(gl_ctx, terrain) -> None:
     try:
         before = renderer.program
         bad = "vec3 gv_displace(vec3 rel, vec3 up, float h, vec3 c) { return rel + oops; }"
-        with pytest.raises(moderngl.Error, match=r"= line 1 of <replace displace\.glsl>\)"):
+        with pytest.raises(
+            moderngl.Error,
+            match=r"^\[vertex shader: \d+ = line 1 of <replace displace\.glsl>\] GLSL",
+        ):
             renderer.set_displacement_hook(DisplacementHook("bad", bad))
         assert renderer.program is before
         # A fragment-shader error in the same message format names the fragment piece.
