@@ -13,7 +13,8 @@ layer objects the session keeps and the overlay panel edits:
 
 Every layer object has ``name``, ``kind`` ('imagery', 'thematic', 'vector', 'points' or
 'drawing'), ``attach``/``detach``/``set_visible`` and, by kind, ``set_opacity`` or
-``set_style``. GL objects are made in ``attach`` (the renderer's context current).
+``set_style``. They hold no GL objects: the renderer makes each layer's GPU twin when a
+frame draws it (`globeview.render.overlay_imagery.OverlaySet.sync`).
 """
 
 from __future__ import annotations
@@ -73,74 +74,74 @@ _COARSER_MAX_M = 1.3e6
 _MEAN_RADIUS_M = 6_371_008.8
 
 
-# -- layer objects ---------------------------------------------------------------------------
+# -- layer objects (models: data + style + visible, no GL) ------------------------------------
+# The renderer builds each layer's GPU twin when a frame draws it
+# (`globeview.render.overlay_imagery.OverlaySet.sync`, by ``gpu_kind``), so opening, adding,
+# removing, showing or restyling an overlay never needs a GL context. ``attach``/``detach``
+# are no-ops kept so that callers treat every overlay alike: an API 1.0 plugin layer (the
+# session's `_PluginLayer`) still attaches itself to the renderer. The ``renderer`` argument
+# of the setters is unused for the same reason (None is fine).
+class _ModelLayer:
+    """What every host layer model shares: shown or hidden, attach/detach are no-ops."""
+
+    visible: bool
+
+    def attach(self, renderer: object = None) -> None:
+        """Nothing to do: the GPU twin is made at draw time."""
+
+    def detach(self, renderer: object = None) -> None:
+        """Nothing to do: the renderer releases the twin of a layer gone from the model."""
+
+    def set_visible(self, renderer: object, visible: bool) -> None:
+        self.visible = bool(visible)
+
+
 @dataclass
-class ImageryOverlayLayer:
-    """An imagery/thematic drape. ``opacity`` 0..1; call ``changed(renderer)`` after edits."""
+class ImageryOverlayLayer(_ModelLayer):
+    """An imagery/thematic drape. ``opacity`` 0..1; visibility and opacity live on the
+    `ImageryLayer` the drape composes."""
 
     layer: ImageryLayer
     kind: str = "imagery"
+    gpu_kind = "imagery"
 
     @property
     def name(self) -> str:
         return self.layer.name
 
-    @property
+    @property  # type: ignore[override]
     def visible(self) -> bool:
         return bool(self.layer.visible)
 
-    def attach(self, renderer) -> None:
-        renderer.overlays.imagery.add(self.layer)
+    @visible.setter
+    def visible(self, value: bool) -> None:
+        self.layer.visible = bool(value)
 
-    def detach(self, renderer) -> None:
-        # By identity: two drapes of the same file are two layers.
-        stack = renderer.overlays.imagery
-        stack.layers = [ly for ly in stack.layers if ly is not self.layer]
-        stack.changed()
-
-    def set_visible(self, renderer, visible: bool) -> None:
-        self.layer.visible = bool(visible)
-        renderer.overlays.imagery.changed()
-
-    def set_opacity(self, renderer, opacity: float) -> None:
+    def set_opacity(self, renderer: object, opacity: float) -> None:
         self.layer.opacity = float(np.clip(opacity, 0.0, 1.0))
-        renderer.overlays.imagery.changed()
 
 
-class _GpuOverlayLayer:
-    """What vector and point layers share: a GPU overlay object (``_overlay``) kept in one of
-    the renderer's overlay lists (``_list``), shown or hidden, restyled live."""
+class _StyledLayer(_ModelLayer):
+    """Vector and point layers: a style edited live; ``style_version`` counts the edits, so
+    the renderer rebuilds the layer's GPU twin once after a change."""
 
-    _list = ""  # "vectors" or "points": the renderer.overlays list the overlay lives in
-    visible: bool
-    _overlay: Any
+    style_version: int
+    #: The attributes `set_style` changes (the rest is the layer's data).
+    style_fields: tuple[str, ...] = ()
 
-    def _make_overlay(self, renderer) -> Any:
-        raise NotImplementedError
-
-    def attach(self, renderer) -> None:
-        self._overlay = self._make_overlay(renderer)
-        self._overlay.visible = self.visible
-        getattr(renderer.overlays, self._list).append(self._overlay)
-
-    def detach(self, renderer) -> None:
-        if self._overlay is not None:
-            getattr(renderer.overlays, self._list).remove(self._overlay)
-            self._overlay.release()
-            self._overlay = None
-
-    def set_visible(self, renderer, visible: bool) -> None:
-        self.visible = bool(visible)
-        if self._overlay is not None:
-            self._overlay.visible = self.visible
-
-    def set_style(self, renderer, **style: Any) -> None:
-        """Change style attributes (colour, width_px, size_px, ...); next frame."""
-        _restyle(self, style)
+    def set_style(self, renderer: object = None, **style: Any) -> None:
+        """Change style attributes (colour, width_px, size_px, ...); next frame. An unknown
+        name is refused (ValueError) and nothing changes."""
+        for k in style:
+            if k not in self.style_fields:
+                raise ValueError(f"{type(self).__name__} has no style {k!r}")
+        for k, v in style.items():
+            setattr(self, k, v)
+        self.style_version += 1
 
 
 @dataclass
-class VectorLayer(_GpuOverlayLayer):
+class VectorLayer(_StyledLayer):
     """Polylines (densified along geodesics or rhumb lines) with a line style: colour RGBA
     0..1, width and dash length in pixels."""
 
@@ -152,18 +153,13 @@ class VectorLayer(_GpuOverlayLayer):
     kind: str = "vector"
     coarser: list = field(default_factory=list)  # (max segment m, Polylines), for far views
     visible: bool = True
-    _overlay: Any = field(default=None, repr=False)
-    _list = "vectors"
-
-    def _make_overlay(self, renderer) -> Any:
-        from globeview.render.overlay_vectors import LineStyle, VectorOverlay
-
-        style = LineStyle(self.color, self.width_px, self.dash_px)
-        return VectorOverlay(renderer.ctx, self.lines, style, self.name, coarser=self.coarser)
+    style_version: int = field(default=0, repr=False)
+    gpu_kind = "vectors"
+    style_fields = ("color", "width_px", "dash_px")
 
 
 @dataclass
-class PointsLayer(_GpuOverlayLayer):
+class PointsLayer(_StyledLayer):
     """Point objects: placemarks with labels, or boxes/cones (kind in overlay_points.KINDS);
     size in pixels for placemarks, scale in metres for objects."""
 
@@ -179,37 +175,12 @@ class PointsLayer(_GpuOverlayLayer):
     label_color: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
     kind: str = "points"
     visible: bool = True
-    _overlay: Any = field(default=None, repr=False)
-    _list = "points"
-
-    def _make_overlay(self, renderer) -> Any:
-        from globeview.render.overlay_points import PointOverlay, PointStyle
-
-        style = PointStyle(
-            self.object_kind,
-            self.size_px,
-            self.scale_m,
-            self.color,
-            labels=self.labels,
-            label_color=self.label_color,
-        )
-        return PointOverlay(renderer.ctx, self.lon, self.lat, self.names, style, name=self.name)
+    style_version: int = field(default=0, repr=False)
+    gpu_kind = "points"
+    style_fields = ("object_kind", "size_px", "scale_m", "color", "labels", "label_color")
 
 
-def _restyle(layer: Any, style: dict[str, Any]) -> None:
-    for k, v in style.items():
-        if not hasattr(layer, k):
-            raise ValueError(f"{type(layer).__name__} has no style {k!r}")
-        setattr(layer, k, v)
-    ov = layer._overlay
-    if ov is not None:
-        for k, v in style.items():
-            if hasattr(ov.style, k):
-                setattr(ov.style, k, v)
-        ov._sig = None  # instance data baked from the style: rebuild on the next frame
-
-
-class DrawnLayer:
+class DrawnLayer(_ModelLayer):
     """Several overlay layers (a layer type's list of drawables) listed and toggled as one.
 
     Style edits go to every part that has the attribute (the first part's value is shown)."""
@@ -221,29 +192,19 @@ class DrawnLayer:
         self.parts = list(parts)
         self.visible = True
 
-    def attach(self, renderer) -> None:
-        for p in self.parts:
-            p.attach(renderer)
-            if not self.visible:
-                p.set_visible(renderer, False)
-
-    def detach(self, renderer) -> None:
-        for p in self.parts:
-            p.detach(renderer)
-
-    def set_visible(self, renderer, visible: bool) -> None:
+    def set_visible(self, renderer: object, visible: bool) -> None:
         self.visible = bool(visible)
         for p in self.parts:
             p.set_visible(renderer, self.visible)
 
-    def set_opacity(self, renderer, opacity: float) -> None:
+    def set_opacity(self, renderer: object, opacity: float) -> None:
         for p in self.parts:
             if hasattr(p, "set_opacity"):
                 p.set_opacity(renderer, opacity)
 
-    def set_style(self, renderer, **style: Any) -> None:
+    def set_style(self, renderer: object = None, **style: Any) -> None:
         for p in self.parts:
-            own = {k: v for k, v in style.items() if hasattr(p, k)}
+            own = {k: v for k, v in style.items() if k in getattr(p, "style_fields", ())}
             if own and hasattr(p, "set_style"):
                 p.set_style(renderer, **own)
 

@@ -93,6 +93,8 @@ class GlobeSession(GlobeScene):
             registry.discover()
         self.registry = registry
         self.tool_host = ToolHost(globe, registry)
+        #: One line per overlay layer dropped because the GL refused it (at a frame).
+        self.overlay_errors: list[str] = []
         self._marker_heights: dict[tuple[float, float, float], float] = {}
         # Plugins get redraw/status hooks, not the GL renderer: headless they are recorded,
         # and the window attaches its own (redraw = widget.update, status = status bar).
@@ -248,8 +250,17 @@ class GlobeSession(GlobeScene):
 
     def prepare_gpu(self) -> None:
         """Make the GPU objects the model's state needs now (the frame pipeline calls this
-        first in every frame, with the context current): the tool's displacement hook."""
+        first in every frame, with the context current): the tool's displacement hook and
+        the overlay layers' GPU twins. A layer the GL refuses (its limits) is dropped from
+        the globe with a one-line message in ``overlay_errors`` (and the log)."""
         self.tool_host.prepare_gpu(self.renderer)
+        for part, why in self.renderer.overlays.sync(self.globe.overlays):
+            top = next((ly for ly in self.globe.overlays if _contains(ly, part)), part)
+            message = f"cannot draw {getattr(top, 'name', 'overlay')}: {why}"
+            log.warning("%s", message)
+            self.overlay_errors.append(message)
+            if top in self.globe.overlays:
+                self.globe.remove_overlay(top)
 
     # -- checks of what tools return (garbage fails the tool's plugin, not the caller) -------
     def _fail(self, contribution, problem: str) -> None:
@@ -414,11 +425,9 @@ class GlobeSession(GlobeScene):
             if not layer.attach(self.renderer):
                 layer = failed
         elif layer is not failed:
-            try:
-                layer.attach(self.renderer)
-            except moderngl.Error as exc:  # checked data the GL still refuses (its limits)
-                first = (str(exc).splitlines() or ["GL error"])[0]
-                raise GlobeviewError(f"cannot draw {Path(path).name}: {first:.160}") from None
+            # A host layer is a model: no GL here. Its GPU twin is made at the next frame
+            # (`prepare_gpu`), where a GL refusal drops the layer with a one-line message.
+            _check_drape_size(layer, self.renderer.overlays.imagery.tex_size, Path(path).name)
         if layer is failed:
             raise GlobeviewError(
                 f"layer type {name} could not open {Path(path).name}: {self._why(obj)}"
@@ -508,6 +517,24 @@ class GlobeSession(GlobeScene):
             self._marker_heights[key] = ground
         new = tuple(float(v) for v in np.asarray(lonlat_to_ecef(lon, lat, ground)).ravel())
         return replace(prim, position=new)
+
+
+def _contains(layer: object, part: object) -> bool:
+    """Whether ``part`` is ``layer`` or one of its parts (a `DrawnLayer`'s)."""
+    return layer is part or any(p is part for p in getattr(layer, "parts", ()) or ())
+
+
+def _check_drape_size(layer: object, tex_size: int, name: str) -> None:
+    """Refuse (one line) a drape whose texture size the renderer's imagery stack cannot
+    compose with (all drapes of a globe share one texture array)."""
+    from globeview.terrain.imagery import ImageryError
+
+    for part in getattr(layer, "parts", None) or [layer]:
+        if getattr(part, "gpu_kind", None) != "imagery":
+            continue
+        size = getattr(part.layer.source, "tex_size", tex_size)
+        if size != tex_size:
+            raise ImageryError(f"{name}: texture size {size} != {tex_size}")
 
 
 def _has_method(obj: object, name: str) -> bool:

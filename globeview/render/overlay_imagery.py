@@ -13,6 +13,9 @@ vector and point overlays after).
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Sequence
+from typing import Any
+
 import moderngl
 import numpy as np
 
@@ -88,6 +91,65 @@ class OverlaySet:
         self.vectors: list = []  # VectorOverlay objects (overlay_vectors.py)
         self.points: list = []  # PointOverlay objects (overlay_points.py)
         self.opacity = 1.0
+        # GPU twins of the model's overlay layers (`sync`): id(layer) -> (layer, its
+        # style_version when built, twin). Twins live in ``vectors``/``points`` in the
+        # model's order, after any overlay added to those lists directly.
+        self._twins: dict[int, tuple[Any, int, Any]] = {}
+        self._imagery_sig: tuple = ()
+
+    def sync(self, layers: Sequence[Any]) -> list[tuple[Any, str]]:
+        """Bring the GPU side in line with the model's overlay layers (bottom first), at
+        frame time with the context current: the imagery stack takes the drapes' layers,
+        and vector and point layers get GPU twins, made when first drawn, rebuilt when
+        their ``style_version`` changes, released when the layer is gone. Layers are
+        duck-typed models (`globeview.plugins.overlay_layers`): ``gpu_kind`` 'imagery',
+        'vectors' or 'points', their data, style and ``visible``; ``parts`` for a group.
+        Returns (layer part, one-line reason) for each part the GL refused (its twin is
+        not kept); the caller drops those layers from the model."""
+        parts = list(_flatten(layers))
+        failures: list[tuple[Any, str]] = []
+        drapes = []
+        for p in parts:
+            if getattr(p, "gpu_kind", None) != "imagery":
+                continue
+            size = getattr(p.layer.source, "tex_size", self.imagery.tex_size)
+            if size != self.imagery.tex_size:
+                failures.append((p, f"texture size {size} != {self.imagery.tex_size}"))
+            else:
+                drapes.append(p.layer)
+        sig = tuple((id(ly), bool(ly.visible), float(ly.opacity)) for ly in drapes)
+        if sig != self._imagery_sig:
+            self.imagery.layers = drapes
+            self.imagery.changed()
+            self._imagery_sig = sig
+        wanted = [p for p in parts if getattr(p, "gpu_kind", None) in ("vectors", "points")]
+        owned = {id(entry[2]) for entry in self._twins.values()}
+        keep: set[int] = set()
+        for p in wanted:
+            entry = self._twins.get(id(p))
+            version = int(getattr(p, "style_version", 0))
+            if entry is None or entry[0] is not p or entry[1] != version:
+                if entry is not None:
+                    entry[2].release()
+                    del self._twins[id(p)]
+                try:
+                    twin = _make_twin(self.ctx, p)
+                except (moderngl.Error, ValueError) as exc:  # data the GL still refuses
+                    first = (str(exc).splitlines() or [type(exc).__name__])[0]
+                    failures.append((p, f"{first:.160}"))
+                    continue
+                self._twins[id(p)] = entry = (p, version, twin)
+            entry[2].visible = bool(p.visible)
+            keep.add(id(p))
+        for key in [k for k in self._twins if k not in keep]:
+            self._twins.pop(key)[2].release()
+        drawn = [(p, self._twins[id(p)][2]) for p in wanted if id(p) in self._twins]
+        # Overlays put in the lists directly (not twins) stay, below the model's.
+        self.vectors = [o for o in self.vectors if id(o) not in owned]
+        self.vectors += [t for p, t in drawn if p.gpu_kind == "vectors"]
+        self.points = [o for o in self.points if id(o) not in owned]
+        self.points += [t for p, t in drawn if p.gpu_kind == "points"]
+        return failures
 
     def set_imagery(self, stack: ImageryStack) -> None:
         if self._drape is not None:
@@ -134,3 +196,34 @@ class OverlaySet:
             self._drape.release()
         for ov in (*self.vectors, *self.points):
             ov.release()
+        self.vectors, self.points, self._twins = [], [], {}
+
+
+def _flatten(layers: Sequence[Any]) -> Iterator[Any]:
+    """The drawable parts of overlay layers (a group's ``parts``), in order."""
+    for layer in layers:
+        parts = getattr(layer, "parts", None)
+        if isinstance(parts, list):
+            yield from _flatten(parts)
+        else:
+            yield layer
+
+
+def _make_twin(ctx: moderngl.Context, layer: Any) -> Any:
+    """The GPU object drawing a vector or point layer model (its data and style)."""
+    if layer.gpu_kind == "vectors":
+        from globeview.render.overlay_vectors import LineStyle, VectorOverlay
+
+        style = LineStyle(layer.color, layer.width_px, layer.dash_px)
+        return VectorOverlay(ctx, layer.lines, style, layer.name, coarser=layer.coarser)
+    from globeview.render.overlay_points import PointOverlay, PointStyle
+
+    style = PointStyle(
+        layer.object_kind,
+        layer.size_px,
+        layer.scale_m,
+        layer.color,
+        labels=layer.labels,
+        label_color=layer.label_color,
+    )
+    return PointOverlay(ctx, layer.lon, layer.lat, layer.names, style, name=layer.name)

@@ -49,6 +49,9 @@ def clean(session):
 
     ov = session.renderer.overlays
     yield session
+    for layer in list(session.globe.overlays):
+        session.remove_overlay(layer)
+    ov.sync([])  # release the removed layers' GPU twins now
     ov.set_imagery(ImageryStack())
     for o in (*ov.vectors, *ov.points):
         o.release()
@@ -133,7 +136,7 @@ def test_thematic_cells_land_where_they_are(clean, tmp_path) -> None:
     write_raster(path, classes, res, {0: (255, 0, 0, 255), 1: (0, 0, 255, 255)})
     layer = opened(ImageryLayerType().open(str(path)))
     assert layer.layer.source.mode == "palette"
-    layer.attach(clean.renderer)
+    clean.globe.add_overlay(layer)  # a model: its GPU twin is made at the next frame
     rgb, result = draw(clean, Camera.from_lonlat(20.0, 10.0, 1.2e7))
     lon, lat, hit = globe_lonlat(result.view, min_incidence=0.3)
     expect_red = ((np.floor((lon + 180) / 15) + np.floor((90 - lat) / 15)) % 2) == 0
@@ -168,7 +171,7 @@ def test_uniform_imagery_shows_no_seams(clean, tmp_path, cam) -> None:
     data = np.empty((3, 90, 180), np.uint8)
     data[0], data[1], data[2] = 200, 100, 50
     write_raster(path, data, 2.0)
-    opened(ImageryLayerType().open(str(path))).attach(clean.renderer)
+    clean.globe.add_overlay(opened(ImageryLayerType().open(str(path))))
     clean.settings.background = (0.0, 0.0, 0.0)
     rgb, result = draw(clean, Camera.from_lonlat(*cam))
     _, _, hit = globe_lonlat(result.view)
@@ -187,7 +190,7 @@ def test_hillshade_drape_from_the_dem(clean) -> None:
 
     cam = Camera.from_lonlat(-122.108, 42.94, 3.0e4)
     plain, _ = draw(clean, cam)
-    hillshade_layer(clean.terrain, opacity=1.0).attach(clean.renderer)
+    clean.globe.add_overlay(hillshade_layer(clean.terrain, opacity=1.0))
     shaded, _ = draw(clean, cam)
     from PIL import Image
 
@@ -212,7 +215,7 @@ def test_borders_stay_visible_on_the_alps_at_every_lod(clean, lod) -> None:
             "data/ne_110m_countries.geojson", densify_m=2000.0, color=MAGENTA, width_px=3.0
         )
     )
-    layer.attach(clean.renderer)
+    clean.globe.add_overlay(layer)  # a model: its GPU twin is made at the next frame
     clean.set_lod(lod)
     cam = Camera.from_lonlat(8.5, 44.8, 6.0e4, 10.0, -35.0)
     counts = {}
@@ -269,7 +272,7 @@ def test_labelled_placemarks(clean) -> None:
     from globeview.plugins.builtin.layers.types import PointsLayerType
 
     layer = opened(PointsLayerType().open("data/ne_cities.geojson"))
-    layer.attach(clean.renderer)
+    clean.globe.add_overlay(layer)  # a model: its GPU twin is made at the next frame
     rgb, res = draw(clean, Camera.from_lonlat(10.0, 46.0, 3.0e6))
     red = (rgb[..., 0] > 230) & (rgb[..., 1] < 90) & (rgb[..., 2] < 60)
     white = np.all(rgb > 235, axis=-1)

@@ -1,0 +1,93 @@
+"""Overlay layers are GL-free models (issue #14): opening, adding, hiding, restyling and
+removing one makes or frees no GL object; the renderer builds GPU twins from the model when
+a frame is drawn, rebuilds a restyled one once, releases a removed one, and drops a layer
+the GL side refuses with one line, leaving the others drawn."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from globeview.model.camera import Camera
+from globeview.render.gpu_objects import gpu_objects
+
+pytestmark = pytest.mark.gl
+SIZE = (160, 120)
+
+
+@pytest.fixture
+def session(globeview_gl, globeview_terrain, globeview_registry):
+    from globeview.plugins.session import GlobeSession
+    from globeview.render.offscreen import OffscreenTarget
+
+    s = GlobeSession(
+        globeview_gl, globeview_terrain, Camera.from_lonlat(10.0, 46.0, 3.0e6), globeview_registry
+    )
+    s.target = OffscreenTarget(globeview_gl, SIZE)
+    s.render(s.target.fbo, SIZE)  # the terrain's own GL objects exist before we count
+    yield s
+    s.release_gl()
+    s.target.release()
+
+
+def _frame(s):
+    return s.render(s.target.fbo, SIZE)
+
+
+def test_model_changes_make_no_gl_objects_until_a_frame(session) -> None:
+    tracker = gpu_objects(session.ctx)
+    before = tracker.counts()
+    events: list = []
+    session.globe.events.overlays.connect(lambda: events.append("overlays"))
+    borders, cities = (
+        session.add_overlay("data/ne_110m_countries.geojson", layer_type="vector"),
+        session.add_overlay("data/ne_cities.geojson", layer_type="points"),
+    )
+    borders.set_visible(None, False)
+    cities.set_style(None, size_px=14.0)
+    assert tracker.counts() == before  # nothing made without a frame
+    assert events == ["overlays", "overlays"]
+    result = _frame(session)
+    assert sum(tracker.counts().values()) > sum(before.values())
+    assert result.stats.extra.get("objects", 0) > 0  # the cities are drawn
+    assert (
+        "vector_segments" not in result.stats.extra or not result.stats.extra["vector_segments"]
+    )  # the hidden borders are not
+    session.remove_overlay(borders)
+    session.remove_overlay(cities)
+    assert sum(tracker.counts().values()) > sum(before.values())  # freed at the frame
+    _frame(session)
+    assert tracker.counts() == before
+
+
+def test_a_restyled_layer_is_rebuilt_once(session) -> None:
+    tracker = gpu_objects(session.ctx)
+    layer = session.add_overlay("data/ne_110m_countries.geojson", layer_type="vector")
+    _frame(session)
+    twin = session.renderer.overlays.vectors[-1]
+    _frame(session)
+    assert session.renderer.overlays.vectors[-1] is twin  # not rebuilt per frame
+    layer.set_style(None, color=(1.0, 0.0, 1.0, 1.0), width_px=3.0)
+    with pytest.raises(ValueError, match="no style 'lines'"):
+        layer.set_style(None, lines=None)
+    counts = tracker.counts()
+    _frame(session)
+    new = session.renderer.overlays.vectors[-1]
+    assert new is not twin and new.style.color == (1.0, 0.0, 1.0, 1.0)
+    assert tracker.counts() == counts  # the old twin was released, the new one made
+    session.remove_overlay(layer)
+
+
+def test_a_layer_the_gpu_side_refuses_is_dropped_with_one_line(session) -> None:
+    from globeview.plugins.overlay_layers import PointsLayer
+
+    good = session.add_overlay("data/ne_cities.geojson", layer_type="points")
+    bad = PointsLayer("spheres", np.array([10.0]), np.array([46.0]), [], object_kind="sphere")
+    session.globe.add_overlay(bad)  # a model the point adapter cannot draw
+    result = _frame(session)
+    assert session.globe.overlays == [good]
+    assert len(session.overlay_errors) == 1
+    msg = session.overlay_errors[0]
+    assert msg.startswith("cannot draw spheres: ") and "\n" not in msg
+    assert result.stats.extra.get("objects", 0) > 0  # the other layer is drawn
+    session.remove_overlay(good)
