@@ -11,7 +11,8 @@ Every program in globeview is built from files in ``globeview/render/shaders``:
   first): the terrain shader's optional parts are compiled in or out this way.
 - ``replace`` swaps a chunk for text given by the caller, inserted verbatim (not searched for
   includes): the host puts a tool plugin's displacement GLSL in place of the identity
-  ``displace.glsl`` this way.
+  ``displace.glsl`` this way. Such text may not contain ``#include "..."`` (moderngl would
+  try to resolve it itself), a NUL (GL would cut the program there) or 10000 lines.
 
 Each piece K of `ShaderSource.pieces` is numbered from line K * 10000 + 1 by a ``#line``
 directive (the text after an include by one that restores the includer's numbering), so a
@@ -19,8 +20,8 @@ GLSL compiler message ``K:LLLLL(COL)`` points at line LLLLL % 10000 of piece LLL
 (K, the source-string number, says the same, but Mesa reports some errors under 0);
 `explain_sources` turns such a message into piece names and lines.
 
-Errors (a missing chunk, an include cycle, a malformed include or define) are one-line
-`ShaderSourceError`s naming the include chain.
+Errors (a missing chunk, an include cycle, a malformed include, a bad define or refused
+replacement text) are one-line `ShaderSourceError`s naming the include chain.
 """
 
 from __future__ import annotations
@@ -61,8 +62,9 @@ _MODERNGL_INCLUDE = re.compile(r'#include\s+"([^"]+)"')
 # Line numbers are K * LINES_PER_PIECE + line in piece K, and K is also the source-string
 # number: Mesa reports some errors under source 0 whatever #line said, but keeps the line.
 LINES_PER_PIECE = 10_000
-# Mesa's message locations: "K:LINE(COL): error: ...".
-_CITED = re.compile(r"(?<![\w.:])(\d+):(\d+)\(\d+\)")
+# Message locations: Mesa "K:LINE(COL): error", NVIDIA "K(LINE) : error", AMD and others
+# "ERROR: K:LINE: ...".
+_CITED = re.compile(r"(?<![\w.:(])(\d+)(?::(\d+)\(\d+\)|\((\d+)\)\s*:|:(\d+):)")
 _VERSION = re.compile(r"^[ \t]*#[ \t]*version\b")
 _DEFINE_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]{0,63}$")
 _DEFINE_VALUE = re.compile(r"^[A-Za-z0-9_.+\-() ]{1,64}$")
@@ -277,20 +279,21 @@ def explain_sources(message: str, **stages: ShaderSource) -> str:
             continue
         pieces = stages[stage].pieces
         for m in _CITED.finditer(line):
-            k, lineno = divmod(int(m.group(2)), LINES_PER_PIECE)
+            cited = next(g for g in m.groups()[1:] if g is not None)
+            k, lineno = divmod(int(cited), LINES_PER_PIECE)
             if k < len(pieces):
-                note = f"{stage} shader: {m.group(2)} = line {lineno} of {pieces[k]}"
+                note = f"{stage} shader: {cited} = line {lineno} of {pieces[k]}"
                 if note not in notes:
                     notes.append(note)
     return "; ".join(notes[:4]) if notes else source_legend(**stages)
 
 
 def source_legend(**stages: ShaderSource) -> str:
-    """One line naming, per shader stage, the pieces GLSL compiler messages number as K:LINE,
-    e.g. ``source_legend(vertex=v, fragment=f)`` -> 'GLSL sources K:LINE: vertex 0 =
-    terrain.vert, ...; fragment 0 = terrain.frag, ...'."""
+    """One line naming each stage's pieces, e.g. ``source_legend(vertex=v, fragment=f)`` ->
+    'GLSL pieces (line K*10000+n is line n of piece K): vertex 0 = terrain.vert, ...;
+    fragment 0 = terrain.frag, ...'."""
     parts = "; ".join(f"{stage} {describe_pieces(src)}" for stage, src in stages.items())
-    return f"GLSL sources K:LINE: {parts}"
+    return f"GLSL pieces (line K*10000+n is line n of piece K): {parts}"
 
 
 def _line(index: int, lineno: int) -> str:

@@ -15,6 +15,7 @@ from globeview.render.shader_source import (
     ShaderLibrary,
     ShaderSourceError,
     build_shader,
+    explain_sources,
     load_shader,
 )
 
@@ -304,3 +305,32 @@ def test_every_shader_file_is_package_data() -> None:
     for path in files:
         rel = PurePosixPath(path.relative_to(pkg).as_posix())
         assert any(rel.match(g) for g in globs), rel
+
+
+@pytest.mark.parametrize(
+    "located",
+    [
+        "0:10003(15): error: x",
+        "1:10003(2): error: x",
+        "0(10003) : error C1008: x",
+        "ERROR: 1:10003: x",
+    ],
+    ids=["mesa-source-0", "mesa", "nvidia", "amd"],
+)
+def test_compile_messages_are_mapped_to_pieces(tmp_path: Path, located: str) -> None:
+    """Line K * 10000 + n is line n of piece K, in each driver's message format; a message
+    that cites no known line gets the whole legend."""
+    lib = library(
+        tmp_path, {"r.vert": '#version 330\n#include "a.glsl"\n', "f.frag": "#version 330\n"}
+    )
+    vert = lib.build("r.vert", replace={"a.glsl": "x;\ny;\nz;"})
+    frag = lib.build("f.frag")
+    message = f"GLSL Compiler failed\n\nvertex_shader\n=============\n{located}\n"
+    assert explain_sources(message, vertex=vert, fragment=frag) == (
+        "vertex shader: 10003 = line 3 of <replace a.glsl>"
+    )
+    linker = "GLSL Linker failed\n\nProgram\n=======\nerror: vertex shader lacks `main'\n"
+    assert explain_sources(linker, vertex=vert, fragment=frag) == (
+        "GLSL pieces (line K*10000+n is line n of piece K): "
+        "vertex 0 = r.vert, 1 = <replace a.glsl>; fragment 0 = f.frag"
+    )
