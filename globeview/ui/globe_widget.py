@@ -1,20 +1,23 @@
-"""`GlobeWidget`: the OpenGL view hosting a `GlobeScene`.
+"""`GlobeWidget`: the OpenGL view of a `Globe` model, drawn by a `GlobeSession`.
 
-The moderngl context is created in ``initializeGL`` from Qt's current context and each frame
-draws into ``ctx.detect_framebuffer()`` (Qt's framebuffer object, not framebuffer 0). Frames
-are drawn on demand only: something that changes the view calls ``request_frame()``
-(``update()``); there is no busy timer, so an idle globe costs nothing.
+The widget holds no state of the globe: camera, tau, LOD provider, tool, overlays and
+display settings are the model's (``widget.model``), and every change of the model (its
+psygnal events) schedules a frame. The moderngl context is created in ``initializeGL`` from
+Qt's current context and the session is built there on the model; each frame is one
+``session.render(fbo, viewport)`` into ``ctx.detect_framebuffer()`` (Qt's framebuffer
+object, not framebuffer 0): the frame pipeline derives the camera speed, steps the tool's
+animation and draws its overlay itself. Frames are drawn on demand only (``update()``);
+there is no busy timer, so an idle globe costs nothing.
 
 Pixel coordinates handed to the scene (picking, navigation) are framebuffer pixels, top-left
 origin: Qt's logical coordinates times ``devicePixelRatio``.
 
-Tools (``GlobeSession.tool()``, the active tool plugin): a left click — press and release
+Tools (the model's ``tool``, an enabled tool plugin): a left click — press and release
 without moving more than `CLICK_SLOP_PX` — goes to the tool as a ``press`` and a ``release``
 `PointerEvent` (with the true, un-displaced picked point), a drag still navigates; cursor
 moves, wheel steps and key presses go to the tool first and to navigation when it does not
-consume them. Escape also deactivates the tool (``toolDeactivated``). Each frame the widget
-advances the tool's ``animate(now)`` (a 16 ms timer keeps frames coming while it returns
-True) and draws the tool's overlay primitives (`ToolOverlayRenderer`) over the terrain.
+consume them. Escape also deactivates the tool (``toolDeactivated``). While the frame says
+the tool animates (``FrameResult.animating``) a 16 ms timer keeps frames coming.
 """
 
 from __future__ import annotations
@@ -27,7 +30,6 @@ from contextlib import contextmanager
 from dataclasses import replace
 
 import moderngl
-import numpy as np
 from PyQt6.QtCore import QEvent, QPointF, Qt, QTimer, pyqtSignal
 from PyQt6.QtGui import (
     QImage,
@@ -43,12 +45,13 @@ from PyQt6.QtWidgets import QWidget
 from globeview.lod.render_set import FrameStats
 from globeview.model.camera import Camera
 from globeview.model.display import DisplaySettings
+from globeview.model.globe import Globe
 from globeview.plugins.api import KeyEvent, PointerEvent
 from globeview.plugins.registry import PluginRegistry
 from globeview.plugins.session import DEFAULT_LOD, GlobeSession
 from globeview.render.picking import Pick
-from globeview.terrain.stack import TerrainStack
 from globeview.ui.navigation import HOME_POSE, CameraFlight, Navigator
+from globeview.ui.subscriptions import Subscriptions
 
 log = logging.getLogger("globeview.ui")
 
@@ -134,10 +137,10 @@ class GlobeWidget(QOpenGLWidget):
     """The globe view.
 
     Args:
-        terrain: the DEM layers; the scene is built on it once GL is up.
+        model: the `Globe` to show (terrain, camera, tau, LOD provider, tool, overlays,
+            display settings); the session is built on it once GL is up, and every change of
+            it (its events) schedules a frame.
         registry: the plugin registry the `GlobeSession` takes its LOD providers from.
-        camera: the initial camera (changed in place by navigation and flights).
-        lod: name of the LOD provider to start with.
 
     Signals:
         sceneReady(object): the `GlobeSession`, once the GL context exists.
@@ -161,10 +164,8 @@ class GlobeWidget(QOpenGLWidget):
 
     def __init__(
         self,
-        terrain: TerrainStack,
+        model: Globe,
         registry: PluginRegistry,
-        camera: Camera | None = None,
-        lod: str = DEFAULT_LOD,
         parent: QWidget | None = None,
     ) -> None:
         super().__init__(parent)
@@ -172,12 +173,11 @@ class GlobeWidget(QOpenGLWidget):
         self.setFocusPolicy(Qt.FocusPolicy.StrongFocus)
         self.setMouseTracking(True)
         self.setMinimumSize(200, 150)
-        self.terrain = terrain
-        self.camera = camera or Camera.from_lonlat(*HOME_POSE)
-        self.settings = DisplaySettings()
-        self.tau_px = 2.0
+        #: The globe shown (camera, layers, tau, LOD, tool, display): the widget draws it and
+        #: redraws when it changes; it holds no copy of that state.
+        self.model = model
+        self.terrain = model.terrain
         self.registry = registry
-        self.lod = lod
         self.ctx: moderngl.Context | None = None
         self.scene: GlobeSession | None = None
         self.frames = 0
@@ -186,7 +186,7 @@ class GlobeWidget(QOpenGLWidget):
         self._last_paint = 0.0
         self._last_eye = self.camera.eye.copy()
         self._render_error: str | None = None
-        self.flight = CameraFlight(self.camera, self)
+        self.flight = CameraFlight(model, self)
         self.flight.stepped.connect(self._camera_moved)
         self.navigator: Navigator | None = None
         # One extra frame after motion stops, so the speed-dependent LOD settles.
@@ -200,14 +200,49 @@ class GlobeWidget(QOpenGLWidget):
         self._anim.setInterval(ANIMATION_INTERVAL_MS)
         self._anim.timeout.connect(self.update)
         self._click: tuple[float, float] | None = None  # left press a tool may get as a click
+        # Every model change schedules a frame: nothing calls request_frame by hand for it.
+        self.subscriptions = Subscriptions()
+        events = model.events
+        self.subscriptions.connect(events.camera, self._model_camera)
+        self.subscriptions.connect(events.tau_px, self.request_frame)
+        self.subscriptions.connect(events.lod, self.request_frame)
+        self.subscriptions.connect(events.tool, self._model_tool)
+        self.subscriptions.connect(events.terrain, self.request_frame)
+        self.subscriptions.connect(events.overlays, self.request_frame)
+        self.subscriptions.connect(model.display.events.all, self.request_frame)
 
-    # -- model wiring ----------------------------------------------------------------------
-    def set_tau(self, tau_px: float) -> None:
-        """Screen-space error threshold in pixels."""
-        self.tau_px = float(tau_px)
-        if self.scene is not None:
-            self.scene.tau_px = self.tau_px
-        self.request_frame()
+    # -- the model (read through: the Globe holds the state) --------------------------------
+    @property
+    def camera(self) -> Camera:
+        """The model's camera (changed in place by navigation and flights)."""
+        return self.model.camera
+
+    @property
+    def settings(self) -> DisplaySettings:
+        """The model's display settings."""
+        return self.model.display
+
+    @property
+    def tau_px(self) -> float:
+        """The model's screen-space error threshold (pixels)."""
+        return self.model.tau_px
+
+    @property
+    def lod(self) -> str:
+        """The model's LOD provider name."""
+        return self.model.lod
+
+    def _model_camera(self, *_args: object) -> None:
+        self.cameraChanged.emit()
+        self.update()
+
+    def _model_tool(self, *_args: object) -> None:
+        """The model's tool changed (here, from code, or its plugin failed): a pending click
+        belongs to the old tool; no tool, no animation."""
+        self._click = None
+        if self.model.tool is None:
+            self._anim.stop()
+        self.update()
 
     def request_frame(self) -> None:
         """Schedule one frame (coalesced by Qt)."""
@@ -230,32 +265,29 @@ class GlobeWidget(QOpenGLWidget):
             # Every LOD plugin is disabled: the globe cannot be drawn without one.
             self.registry.enable(DEFAULT_LOD)
             available = self.registry.lod_providers()
-        if self.lod not in available and available:
-            self.lod = DEFAULT_LOD if DEFAULT_LOD in available else next(iter(available))
-        scene = GlobeSession(self.ctx, self.terrain, self.camera, self.registry, self.lod)
-        scene.renderer.settings = self.settings
+        if self.model.lod not in available and available:
+            self.model.lod = DEFAULT_LOD if DEFAULT_LOD in available else next(iter(available))
+        # The session draws the model (its camera, tau, LOD, tool, overlays and display
+        # settings are the Globe's: one copy of the state).
+        scene = GlobeSession(self.ctx, self.terrain, registry=self.registry, globe=self.model)
         # Tiles load on worker threads; frames draw ancestors until they arrive.
         scene.renderer.async_loading = True
-        scene.tau_px = self.tau_px
         self.scene = scene
-        self.navigator = Navigator(scene, self.pick, self.viewport_px, self._camera_moved)
+        self.navigator = Navigator(self.model, self.pick, self.viewport_px, self._camera_moved)
         log.info("OpenGL %s on %s", self.ctx.info["GL_VERSION"], self.ctx.info["GL_RENDERER"])
         self.sceneReady.emit(scene)
 
     def paintGL(self) -> None:
         if self.scene is None or self.ctx is None:
             return
-        now = time.perf_counter()
+        now = time.perf_counter()  # for the frame rate shown, nothing else
         dt = now - self._last_paint if self._last_paint else 0.0
-        moved = float(np.linalg.norm(self.camera.eye - self._last_eye))
-        self.scene.speed_mps = moved / dt if 0.0 < dt < 0.5 else 0.0
         fbo = self.ctx.detect_framebuffer()
         w, h = self.viewport_px()
         fbo.viewport = (0, 0, w, h)
-        self._animate_tool()
         try:
+            # The whole frame: camera speed, the tool's animation step and overlay included.
             result = self.scene.render(fbo, (w, h))
-            self._draw_tool_overlay(fbo, result.view)
         except Exception as exc:
             # Clear to the background so a failed frame is not garbage, and report once.
             fbo.use()
@@ -273,13 +305,18 @@ class GlobeWidget(QOpenGLWidget):
         elif result.stats.frame_ms > 0:
             self.fps = 1000.0 / result.stats.frame_ms  # a lone frame: what it could sustain
         self._last_paint = now
-        self._last_eye = self.camera.eye.copy()
+        self.overlay_drawn = result.overlay_drawn
         self.last_stats = result.stats
+        # The tool asked for another frame: keep the 16 ms repaint timer running.
+        if result.animating and not self._anim.isActive():
+            self._anim.start()
+        elif not result.animating and self._anim.isActive():
+            self._anim.stop()
         self.frameRendered.emit(result.stats, self.fps)
         if result.stats.tiles_loading > 0:
             self.update()  # keep drawing while tiles stream in
-        elif self.scene.speed_mps > 0.0:
-            self._settle.start()
+        elif result.view.speed_mps > 0.0:
+            self._settle.start()  # one more frame once still, for the speed-dependent LOD
 
     # -- tools -------------------------------------------------------------------------------
     def active_tool(self):
@@ -291,56 +328,25 @@ class GlobeWidget(QOpenGLWidget):
             # Its plugin was disabled or failed: the session drops the displacement hook,
             # which recompiles the terrain shader, so our context must be current.
             self._anim.stop()
-            if QOpenGLContext.currentContext() is self.context() or self.context() is None:
-                self.scene.tool()
-            else:
-                self.makeCurrent()
-                try:
-                    self.scene.tool()
-                finally:
-                    self.doneCurrent()
+            self.scene.tool()  # leaves it: the model's tool is None (an event)
             self.toolDeactivated.emit()
         return tool
 
     def set_tool(self, name: str | None) -> bool:
-        """Activate tool ``name`` (None: none) in the session, compiling its displacement hook
-        with this widget's context current. Returns whether ``name`` is now active (a tool
-        whose hook fails to compile is disabled and reported by the registry)."""
+        """Activate tool ``name`` (None: none) in the session: the model's tool becomes
+        ``name`` (the toolbar follows its event) and the previous tool's ``deactivate`` runs.
+        Returns whether ``name`` is the model's tool now (a tool whose displacement hook
+        fails is disabled and reported by the registry, and the model's tool is None again:
+        an event too)."""
         if self.scene is None:
             return name is None
-        self._click = None
-        self.makeCurrent()
-        try:
-            self.scene.activate_tool(name)
-        finally:
-            self.doneCurrent()
-        self.update()
-        return self.scene.active_tool == name
-
-    def _animate_tool(self) -> None:
-        """Advance the active tool's animation; keep the repaint timer running while it moves."""
-        tool = self.active_tool()
-        moving = False
-        if tool is not None and callable(getattr(tool, "animate", None)):
-            moving = bool(
-                self.scene.registry.invoke(tool, "animate", time.monotonic(), default=False)
-            )
-        if moving and not self._anim.isActive():
-            self._anim.start()
-        elif not moving and self._anim.isActive():
-            self._anim.stop()
+        self.scene.activate_tool(name)  # the model only: the hook compiles in the next frame
+        return self.model.tool == name
 
     @property
     def animating(self) -> bool:
         """Whether the tool animation timer is running."""
         return self._anim.isActive()
-
-    def _draw_tool_overlay(self, fbo: moderngl.Framebuffer, view) -> None:
-        """Draw the active tool's overlay primitives over the terrain just drawn."""
-        self.overlay_drawn = 0
-        if self.active_tool() is None or self.scene is None:
-            return
-        self.overlay_drawn = self.scene.draw_tool_overlay(fbo, view)
 
     def _pointer_event(
         self,
@@ -412,7 +418,7 @@ class GlobeWidget(QOpenGLWidget):
         self.makeCurrent()
         try:
             hit = self.scene.pick(x_px, y_px)
-            fbo = self.scene._last_fbo
+            fbo = self.scene.last.target
             if fbo is not None:
                 # moderngl's depth read leaves GL_READ_BUFFER at GL_NONE on Qt's framebuffer,
                 # after which Qt's own read-backs (grabFramebuffer, window grabs) return
@@ -424,8 +430,9 @@ class GlobeWidget(QOpenGLWidget):
 
     # -- camera ------------------------------------------------------------------------------
     def _camera_moved(self) -> None:
-        self.cameraChanged.emit()
-        self.update()
+        """Navigation or a flight moved the camera in place: the model announces it (the
+        status bar and this widget subscribe)."""
+        self.model.camera_moved()
 
     def fly_to_camera(self, target: Camera, duration_s: float = 1.0) -> None:
         self.flight.fly_to_camera(target, duration_s)
@@ -549,4 +556,4 @@ class GlobeWidget(QOpenGLWidget):
             finally:
                 self.doneCurrent()
         self.scene = None
-        self.navigator = None  # it holds the session
+        self.navigator = None

@@ -3,7 +3,10 @@ their own group on top, then the DEM layers of the `TerrainStack`, topmost first
 
 Each row has a visibility checkbox; rows reorder by drag and drop or the ↑/↓ buttons (the
 top row wins where layers overlap); "Zoom to" flies the camera over a layer and "Remove"
-drops it. The panel edits the stack directly and emits ``changed`` so the view redraws.
+drops it. The panel edits the model's `TerrainStack` and shows it: it subscribes to the
+model's ``terrain`` event, so a layer added, removed, moved or hidden anywhere (a DEM opened,
+code, a plugin) is listed without anyone calling `refresh`; the view redraws on the same
+event.
 """
 
 from __future__ import annotations
@@ -22,9 +25,10 @@ from PyQt6.QtWidgets import (
     QWidget,
 )
 
-from globeview.terrain.stack import TerrainStack
+from globeview.model.globe import Globe
 from globeview.terrain.store import TileStore
 from globeview.ui.overlay_panel import OverlayPanel
+from globeview.ui.subscriptions import Subscriptions
 
 NAME_ROLE = Qt.ItemDataRole.UserRole
 
@@ -61,20 +65,21 @@ def datum_text(store: TileStore) -> str:
 
 
 class LayerPanel(QWidget):
-    """Lists the stack's layers and edits visibility, order and membership.
+    """Lists the model's terrain layers and edits visibility, order and membership; the
+    overlays group (`OverlayPanel`) lists its overlays.
 
     Signals:
-        changed(): the stack changed (redraw).
         zoomRequested(object): (west, south, east, north) degrees of a layer to fly to.
     """
 
-    changed = pyqtSignal()
     zoomRequested = pyqtSignal(object)
 
-    def __init__(self, terrain: TerrainStack, parent: QWidget | None = None) -> None:
+    def __init__(self, model: Globe, parent: QWidget | None = None) -> None:
         super().__init__(parent)
-        self.terrain = terrain
+        self.model = model
+        self.terrain = model.terrain
         self._updating = False
+        self._editing = False  # the list already shows the change the stack announces
         self.list = LayerList()
         self.list.setDragDropMode(QAbstractItemView.DragDropMode.InternalMove)
         self.list.setDefaultDropAction(Qt.DropAction.MoveAction)
@@ -110,7 +115,7 @@ class LayerPanel(QWidget):
         for b in (self.up_button, self.down_button, self.zoom_button, self.remove_button):
             buttons.addWidget(b)
         #: The overlay layers (bound to the session once the globe's GL is up).
-        self.overlays = OverlayPanel()
+        self.overlays = OverlayPanel(model)
         overlay_box = QGroupBox("Overlays")
         overlay_box.setObjectName("overlays-group")
         QVBoxLayout(overlay_box).addWidget(self.overlays)
@@ -126,6 +131,8 @@ class LayerPanel(QWidget):
         layout.setContentsMargins(4, 4, 4, 4)
         layout.addWidget(overlay_box)
         layout.addWidget(terrain_box)
+        self.subscriptions = Subscriptions()
+        self.subscriptions.connect(model.events.terrain, self._terrain_changed)
         self.refresh()
 
     # -- view of the model ----------------------------------------------------------------
@@ -160,6 +167,10 @@ class LayerPanel(QWidget):
             self._updating = False
         self._update_buttons()
 
+    def _terrain_changed(self, *_args: object) -> None:
+        if not self._editing:
+            self.refresh()
+
     def vdatum(self) -> str | None:
         """The vertical datum chosen for DEMs opened next (None: from the file)."""
         return self.vdatum_combo.currentData()
@@ -187,8 +198,12 @@ class LayerPanel(QWidget):
         if self._updating:
             return
         visible = item.checkState() == Qt.CheckState.Checked
-        self.terrain.set_visible(item.data(NAME_ROLE), visible)
-        self.changed.emit()
+        # Inside the list's own signal: the row already shows it (no rebuild under it).
+        self._editing = True
+        try:
+            self.terrain.set_visible(item.data(NAME_ROLE), visible)
+        finally:
+            self._editing = False
 
     def set_visible(self, name: str, visible: bool) -> None:
         """Tick or untick a layer's checkbox (as a user click would)."""
@@ -200,10 +215,13 @@ class LayerPanel(QWidget):
     def _sync_order(self) -> None:
         """Make the stack's order follow the list's (list top = stack top)."""
         order = list(reversed(self.names()))
-        for index, name in enumerate(order):
-            if self.terrain.layers[index].name != name:
-                self.terrain.move(name, index)
-        self.changed.emit()
+        self._editing = True  # the list shows the order already
+        try:
+            for index, name in enumerate(order):
+                if self.terrain.layers[index].name != name:
+                    self.terrain.move(name, index)
+        finally:
+            self._editing = False
         self._update_buttons()
 
     def move_selected(self, delta: int) -> None:
@@ -213,10 +231,8 @@ class LayerPanel(QWidget):
         if row < 0 or not (0 <= new < self.list.count()):
             return
         name = self.selected_name()
-        self.terrain.move(name, len(self.terrain.layers) - 1 - new)
-        self.refresh()
+        self.terrain.move(name, len(self.terrain.layers) - 1 - new)  # the event lists it
         self.select(name)
-        self.changed.emit()
 
     def zoom_selected(self) -> None:
         name = self.selected_name()
@@ -228,6 +244,4 @@ class LayerPanel(QWidget):
         name = self.selected_name()
         if name is None:
             return
-        self.terrain.remove(name)
-        self.refresh()
-        self.changed.emit()
+        self.terrain.remove(name)  # the stack's event updates the list

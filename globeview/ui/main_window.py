@@ -1,6 +1,9 @@
 """`MainWindow`: the globe view in the middle, the layer and plugin panels as docks, the
-display and tools toolbars, menus, and the status bar. It wires widgets to the model (terrain
-stack, scene, camera, plugin registry) and holds no algorithm of its own.
+display and tools toolbars, menus, and the status bar: a thin shell over the Qt-free model
+(`globeview.model.Globe`, made here before any GL exists and handed to the session). Widgets
+edit the model and subscribe to its events (``globe.events`` and ``globe.display.events``):
+a change made anywhere (a control, code, a plugin, the session's fallback) shows in every
+widget, and nothing calls a panel's refresh by hand. The window holds no algorithm of its own.
 
 The Tools toolbar and menu list the enabled tool plugins (rebuilt when plugins are enabled or
 disabled) as checkable actions, at most one active. Everything else a tool shows is built from
@@ -22,6 +25,7 @@ hidden (the hypsometric relief is what a person sees first; one tick shows the i
 from __future__ import annotations
 
 import logging
+import math
 from pathlib import Path
 from typing import Any
 
@@ -52,6 +56,7 @@ from PyQt6.QtWidgets import (
 
 from globeview.errors import GlobeviewError
 from globeview.model.camera import Camera, camera_for_bounds
+from globeview.model.globe import Globe
 from globeview.plugins.registry import PluginRegistry
 from globeview.terrain.stack import TerrainStack
 from globeview.terrain.store import TileStore
@@ -59,10 +64,12 @@ from globeview.ui.errors import ErrorReporter, UserMessage
 from globeview.ui.globe_widget import GlobeWidget
 from globeview.ui.layer_panel import LayerPanel
 from globeview.ui.loading import DemLoader, missing_path_error
+from globeview.ui.navigation import HOME_POSE
 from globeview.ui.plot_dock import install_plot_dock
 from globeview.ui.plugin_host import PluginHost, QSettingsBackend
-from globeview.ui.plugin_panel import PluginPanel
+from globeview.ui.plugin_panel import TAU_MAX_PX, TAU_MIN_PX, PluginPanel
 from globeview.ui.status import ELLIPSOIDAL, ORTHOMETRIC, StatusBar
+from globeview.ui.subscriptions import Subscriptions
 from globeview.ui.tool_options import (
     CommandSpec,
     ToolOptionsBar,
@@ -113,6 +120,10 @@ class MainWindow(QMainWindow):
     ) -> None:
         super().__init__()
         self._embedded_overlays = embedded_overlays
+        #: The tool asked for by `set_tool` until a frame is drawn with it (its activation
+        #: can fail until then).
+        self._activating: str | None = None
+        self._showing_display = False
         #: Overlay files asked for before the globe's GL (and session) existed.
         self._pending_overlays: list[str] = []
         self.setWindowTitle("globeview")
@@ -120,6 +131,15 @@ class MainWindow(QMainWindow):
         self.qsettings = settings or QSettings("globeview", "globeview")
         self.terrain = terrain
         self.errors = ErrorReporter(show_error, self)
+        #: The globe shown, as data (camera, layers, overlays, LOD provider, tool, tau,
+        #: display settings); every widget below shows it and edits it.
+        self.model = Globe(
+            terrain,
+            camera or Camera.from_lonlat(*HOME_POSE),
+            tau_px=_tau_setting(self.qsettings.value("view/tau")),
+        )
+        #: The window's own subscriptions to the model (cleared when it closes).
+        self.subscriptions = Subscriptions()
 
         self.status = StatusBar(self)
         self.setStatusBar(self.status)
@@ -137,21 +157,20 @@ class MainWindow(QMainWindow):
             # Interactive: a plugin call overrunning the frame budget again and again would
             # freeze the window, so it is disabled (headless runs only warn).
             registry = PluginRegistry(QSettingsBackend(self.qsettings), budget_policy="disable")
-        self.plugins = PluginHost(registry, self)
+        self.plugins = PluginHost(registry, self.model, self)
         self.plugins.notice.connect(self.errors.notify)
         if len(registry) == 0:
             self.plugins.discover()
         else:
             self.plugins.refresh()
 
-        self.globe = GlobeWidget(terrain, registry, camera, self.plugins.active, self)
+        self.globe = GlobeWidget(self.model, registry, self)
         self.setCentralWidget(self.globe)
 
         # Docks
-        self.layer_panel = LayerPanel(terrain)
+        self.layer_panel = LayerPanel(self.model)
         self.layer_dock = self._dock("Layers", "layers", self.layer_panel)
-        tau = _float(self.qsettings.value("view/tau"), 2.0)
-        self.plugin_panel = PluginPanel(self.plugins, tau)
+        self.plugin_panel = PluginPanel(self.plugins)
         # Scrollable: the panel's full height (plugin list, provider settings) must not set
         # the window's minimum height, or the window grows whenever another dock does.
         plugin_scroll = QScrollArea()
@@ -159,7 +178,6 @@ class MainWindow(QMainWindow):
         plugin_scroll.setFrameShape(QFrame.Shape.NoFrame)
         plugin_scroll.setWidget(self.plugin_panel)
         self.plugin_dock = self._dock("Plugins", "plugins", plugin_scroll)
-        self.globe.set_tau(self.plugin_panel.tau())
 
         self.loader = DemLoader(self)
         self._build_toolbar()
@@ -430,24 +448,42 @@ class MainWindow(QMainWindow):
         self.globe.request_frame()
 
     def active_tool_name(self) -> str | None:
-        """The session's active tool, or None."""
+        """The model's active tool, or None."""
         if self.globe.scene is None:
             return None
-        return self.globe.scene.active_tool if self.globe.active_tool() is not None else None
+        return self.model.tool if self.globe.active_tool() is not None else None
 
     def set_tool(self, name: str | None) -> bool:
-        """Activate a tool (None: none); returns whether it is active now."""
+        """Activate a tool (None: none); returns whether it is the model's tool now. The
+        toolbar, menu and options bar follow the model's ``tool`` event; a tool that fails
+        to activate is reported there (`_tool_changed`)."""
+        self._activating = name
         ok = self.globe.set_tool(name)
-        if not ok and name is not None:
-            why = self.plugins.failure_reason("tool", name)
-            self.errors.notify(f"tool {name} could not be activated" + (f": {why}" if why else ""))
-            self.plugins.refresh()
-        elif name is not None:
+        if not ok and name is not None and self._activating == name:
+            # Not reported by the event (e.g. the model's tool never changed).
+            self._report_activation_failure(name)
+        elif ok and name is not None:
             tool = self.globe.active_tool()
             label = getattr(tool, "label", name) or name
             self.status.notice(f"{label}: on (a drag still moves the globe; Escape leaves)")
-        self._sync_tools()
         return ok
+
+    def _tool_changed(self, *_args: object) -> None:
+        """The model's tool changed (a toolbar click, a command, code, Escape, or its plugin
+        failed): check its action and show its options. A tool asked for here that the model
+        drops before a frame was drawn with it failed to activate: say why."""
+        wanted = self._activating
+        if self.model.tool is None and wanted is not None:
+            self._report_activation_failure(wanted)
+        self._sync_tools()
+
+    def _report_activation_failure(self, name: str) -> None:
+        self._activating = None
+        why = self.plugins.failure_reason("tool", name)
+        if not why and self.plugins.registry.find("tool", name) is not None:
+            return  # deactivated, not failed
+        self.errors.notify(f"tool {name} could not be activated" + (f": {why}" if why else ""))
+        self.plugins.refresh()
 
     def _sync_tools(self, *_args: object) -> None:
         """Check the active tool's action; show its settings and commands (or hide them)."""
@@ -480,28 +516,29 @@ class MainWindow(QMainWindow):
         g = self.globe
         g.sceneReady.connect(self.plugins.bind)
         g.sceneReady.connect(self._scene_ready)
-        self.layer_panel.overlays.changed.connect(g.request_frame)
         g.frameRendered.connect(self.status.show_frame)
         g.frameRendered.connect(self._show_fallback_reason)  # after show_frame: on top of it
-        g.frameRendered.connect(lambda *_: self.plugins.after_frame())
-        g.frameRendered.connect(self._camera_changed)
+        g.frameRendered.connect(self._frame_drawn)
         g.cursorPicked.connect(self.status.show_pick)
-        g.cameraChanged.connect(self._camera_changed)
         g.renderFailed.connect(lambda exc: self.errors.notify(f"drawing failed: {exc}"))
         self.errors.notified.connect(self.status.notice)
-        self.layer_panel.changed.connect(g.request_frame)
         self.layer_panel.zoomRequested.connect(self.zoom_to_bounds)
-        self.plugin_panel.tauChanged.connect(self._tau_changed)
         self.plugins.lodChanged.connect(self._use_lod)
         self.plugins.redrawRequested.connect(g.request_frame)
         self.plugins.statusText.connect(self.status.notice)  # a plugin's set_status: no warning
         self.plugins.changed.connect(self.refresh_tools)
         g.sceneReady.connect(lambda _s: self.refresh_tools())
-        g.toolDeactivated.connect(self._sync_tools)
         g.keyUnhandled.connect(self._key_unhandled)
         self.exag_slider.valueChanged.connect(self._exaggeration_changed)
         self.wire_check.toggled.connect(self._wireframe_changed)
         self.hill_check.toggled.connect(self._hillshade_changed)
+        # The model's events: whoever changed it, the window shows it.
+        events, subs = self.model.events, self.subscriptions
+        subs.connect(events.camera, self._camera_changed)
+        subs.connect(events.tau_px, self._tau_changed)
+        subs.connect(events.tool, self._tool_changed)
+        subs.connect(self.model.display.events.all, self._show_display)
+        self._camera_changed()  # the altitude from the start, then on every camera event
         self.loader.started.connect(self._load_started)
         self.loader.progress.connect(self._load_progress)
         self.loader.loaded.connect(self._loaded)
@@ -522,35 +559,38 @@ class MainWindow(QMainWindow):
         state = s.value("window/state")
         if state is not None:
             self.restoreState(state)
-        self.exag_slider.setValue(round(_float(s.value("view/exaggeration"), 1.0) * 10))
-        self._exaggeration_changed(self.exag_slider.value())
-        self.wire_check.setChecked(_bool(s.value("view/wireframe"), False))
-        self.hill_check.setChecked(_bool(s.value("view/hillshade"), False))
+        display = self.model.display
+        display.exaggeration = _exaggeration_setting(s.value("view/exaggeration"))
+        display.wireframe = _bool(s.value("view/wireframe"), False)
+        display.hillshade = _bool(s.value("view/hillshade"), False)
+        self._show_display()
         self.ellipsoidal_action.setChecked(s.value(HEIGHT_REFERENCE_KEY) == ELLIPSOIDAL)
 
     def save_settings(self) -> None:
         s = self.qsettings
         s.setValue("window/geometry", self.saveGeometry())
         s.setValue("window/state", self.saveState())
-        s.setValue("view/tau", self.plugin_panel.tau())
-        s.setValue("view/exaggeration", self.globe.settings.exaggeration)
-        s.setValue("view/wireframe", self.globe.settings.wireframe)
-        s.setValue("view/hillshade", self.globe.settings.hillshade)
+        s.setValue("view/tau", self.model.tau_px)
+        s.setValue("view/exaggeration", self.model.display.exaggeration)
+        s.setValue("view/wireframe", self.model.display.wireframe)
+        s.setValue("view/hillshade", self.model.display.hillshade)
         s.setValue(HEIGHT_REFERENCE_KEY, self.status.height_reference)
         s.sync()
 
     # -- display ---------------------------------------------------------------------------
     def _camera_changed(self, *_args: object) -> None:
-        self.status.show_altitude(self.globe.camera.height)
+        self.status.show_altitude(self.model.camera.height)
 
-    def _tau_changed(self, tau_px: float) -> None:
-        self.globe.set_tau(tau_px)
-        self.qsettings.setValue("view/tau", tau_px)
+    def _tau_changed(self, *_args: object) -> None:
+        self.qsettings.setValue("view/tau", self.model.tau_px)
+
+    def _frame_drawn(self, *_args: object) -> None:
+        self._activating = None  # a frame was drawn with the tool: it is active
+        self.plugins.after_frame()
 
     def _use_lod(self, name: str) -> None:
         self.status.lod.setText(f"LOD {name}")
         self._show_fallback_reason()
-        self.globe.request_frame()
 
     def _show_fallback_reason(self, *_args: object) -> None:
         """After a fallback the LOD field's tooltip starts with the real reason (notices pass;
@@ -561,17 +601,32 @@ class MainWindow(QMainWindow):
             self.status.lod.setToolTip(f"{why}\n{tip}" if tip else why)
 
     def _exaggeration_changed(self, tenths: int) -> None:
-        self.globe.settings.exaggeration = tenths / 10.0
-        self.exag_label.setText(f"{tenths / 10.0:.1f}×")
-        self.globe.request_frame()
+        if not self._showing_display:
+            self.model.display.exaggeration = tenths / 10.0
 
     def _wireframe_changed(self, on: bool) -> None:
-        self.globe.settings.wireframe = bool(on)
-        self.globe.request_frame()
+        if not self._showing_display:
+            self.model.display.wireframe = bool(on)
 
     def _hillshade_changed(self, on: bool) -> None:
-        self.globe.settings.hillshade = bool(on)
-        self.globe.request_frame()
+        if not self._showing_display:
+            self.model.display.hillshade = bool(on)
+
+    def _show_display(self, *_args: object) -> None:
+        """Show the model's display settings in the toolbar (set here, from code or a
+        plugin); the label gives the exaggeration exactly, the slider as near as its range
+        allows. Moving the controls to show it does not set the model again."""
+        d = self.model.display
+        self._showing_display = True
+        try:
+            exag = float(d.exaggeration)
+            if math.isfinite(exag):
+                self.exag_slider.setValue(round(min(max(exag * 10, 1), EXAG_MAX_TENTHS)))
+            self.exag_label.setText(f"{exag:.1f}×")
+            self.wire_check.setChecked(bool(d.wireframe))
+            self.hill_check.setChecked(bool(d.hillshade))
+        finally:
+            self._showing_display = False
 
     def go_to(self, text: str) -> bool:
         """Fly to ``"lon, lat[, height]"`` (degrees, metres); a bad entry is a notice."""
@@ -651,22 +706,19 @@ class MainWindow(QMainWindow):
             return None
         try:
             with self.globe.gl_current():
-                layer = scene.add_overlay(str(path))
+                layer = scene.add_overlay(str(path))  # listed by the model's event
         except Exception as exc:
             self.errors.error(exc, "" if isinstance(exc, GlobeviewError) else "opening overlay")
-            self.layer_panel.overlays.refresh()
             return None
-        self.layer_panel.overlays.refresh()
         self.layer_panel.overlays.select(layer)
         self.status.notice(f"added {layer.kind} overlay {layer.name}")
         if layer.kind != "thematic":  # reopened from the recent list by content
             self.add_recent(path)
-        self.globe.request_frame()
         return layer
 
     def overlay_layers(self) -> list:
-        """The session's overlay layers, bottom first ([] before the globe is up)."""
-        return self.layer_panel.overlays.layers()
+        """The model's overlay layers, bottom first."""
+        return list(self.model.overlays)
 
     def _scene_ready(self, scene: Any) -> None:
         """The session exists (GL is current): bind the overlay panel, add the embedded
@@ -681,9 +733,9 @@ class MainWindow(QMainWindow):
                     for layer in layers:
                         if layer.kind in ("imagery", "thematic"):
                             layer.set_visible(scene.renderer, False)
+                self.model.overlays_changed()  # shown hidden in the panel
             except Exception as exc:
                 self.errors.error(exc, "adding the embedded overlays")
-            panel.refresh()
         pending, self._pending_overlays = self._pending_overlays, []
         for path in pending:
             self.open_overlay(path)
@@ -728,9 +780,7 @@ class MainWindow(QMainWindow):
             if any(ly.name == unique for ly in self.terrain.layers):
                 self.terrain.remove(unique)
             raise
-        self.layer_panel.refresh()
-        self.layer_panel.select(unique)
-        self.globe.request_frame()
+        self.layer_panel.select(unique)  # listed by the terrain event
         return unique
 
     # -- recent files ------------------------------------------------------------------------
@@ -788,9 +838,19 @@ class MainWindow(QMainWindow):
         self.globe.flight.stop()
         self.loader.shutdown()
         self.globe.release_gl()
-        # Nothing may keep the released session (and its terrain caches) alive.
+        # Nothing may keep the released session (and its terrain caches) alive, and the
+        # model (it may outlive the window) must not call the closed widgets.
         self.plugins.unbind()
         self.layer_panel.overlays.bind(None)
+        for subs in (
+            self.subscriptions,
+            self.globe.subscriptions,
+            self.plugins.subscriptions,
+            self.plugin_panel.subscriptions,
+            self.layer_panel.subscriptions,
+            self.layer_panel.overlays.subscriptions,
+        ):
+            subs.clear()
         super().closeEvent(event)
 
     def last_error(self) -> UserMessage | None:
@@ -819,6 +879,19 @@ def classify_path(path: str | Path, registry: Any = None) -> str:
         registry = PluginRegistry().discover()
     kind = choose_layer_type(registry, p)
     return "dem" if kind == "thematic" else "overlay"
+
+
+def _tau_setting(value: object) -> float:
+    """The saved tau (pixels) if it is one the tau slider shows, else the default 2 px (a
+    hand-edited or foreign settings file must not stop the window from opening)."""
+    tau = _float(value, 2.0)
+    return tau if TAU_MIN_PX <= tau <= TAU_MAX_PX else 2.0
+
+
+def _exaggeration_setting(value: object) -> float:
+    """The saved exaggeration if the slider shows it (0.1x .. 50x), else 1."""
+    exag = _float(value, 1.0)
+    return exag if 0.1 <= exag <= EXAG_MAX_TENTHS / 10.0 else 1.0
 
 
 def _float(value: object, default: float) -> float:

@@ -21,14 +21,15 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from PyQt6.QtCore import QObject, Qt, QTimer, pyqtSignal
 
 from globeview.geodesy import geodesic_inverse, ray_ellipsoid_intersection
+from globeview.lod.view_state import ViewState
 from globeview.model.camera import Camera
 from globeview.render.picking import Pick
-from globeview.render.scene import GlobeScene
 
 #: Camera pose: (lon deg, lat deg, height m, heading deg, pitch deg).
 Pose = tuple[float, float, float, float, float]
@@ -55,11 +56,18 @@ class _Drag:
     pivot: np.ndarray | None  # ECEF point at the view centre (tilt / heading)
 
 
+class HasCamera(Protocol):
+    """What navigation needs of the model: its current camera (`globeview.model.Globe`)."""
+
+    @property
+    def camera(self) -> Camera: ...
+
+
 class Navigator:
-    """Maps input to camera operations on ``scene.camera``.
+    """Maps input to camera operations on ``model.camera``.
 
     Args:
-        scene: the globe scene (its camera is changed in place).
+        model: the globe model (its camera is changed in place; `changed` announces it).
         pick: (x_px, y_px) -> the terrain point under a pixel of the last frame, or None.
         viewport: () -> the framebuffer size (width, height) in pixels.
         changed: called after every camera change (the widget schedules a frame).
@@ -67,12 +75,12 @@ class Navigator:
 
     def __init__(
         self,
-        scene: GlobeScene,
+        model: HasCamera,
         pick: Callable[[float, float], Pick | None],
         viewport: Callable[[], tuple[int, int]],
         changed: Callable[[], None],
     ) -> None:
-        self.scene = scene
+        self.model = model
         self._pick = pick
         self._viewport = viewport
         self._changed = changed
@@ -80,7 +88,7 @@ class Navigator:
 
     @property
     def camera(self) -> Camera:
-        return self.scene.camera
+        return self.model.camera
 
     @property
     def dragging(self) -> bool:
@@ -93,7 +101,7 @@ class Navigator:
         vp = self._viewport()
         if vp[0] <= 0 or vp[1] <= 0:
             return None
-        view = self.scene.view_state(vp)
+        view = ViewState.from_camera(self.camera, vp)  # only the eye and the ray are used
         p = np.asarray(
             ray_ellipsoid_intersection(view.eye, view.pixel_ray(x, y), h=height), np.float64
         )
@@ -219,7 +227,9 @@ def _ease(t: float) -> float:
 
 
 class CameraFlight(QObject):
-    """Flies ``camera`` to a pose over ``duration_s`` seconds, one step per timer tick.
+    """Flies ``model.camera`` (a `globeview.model.Globe`'s, or anything with a ``camera``)
+    to a pose over ``duration_s`` seconds, one step per timer tick (the camera in use when
+    the step is taken: a replaced camera is flown, not the old one).
 
     Signals: ``stepped`` after each step (schedule a frame), ``finished`` at the end.
     The timer runs only during a flight.
@@ -228,9 +238,9 @@ class CameraFlight(QObject):
     stepped = pyqtSignal()
     finished = pyqtSignal()
 
-    def __init__(self, camera: Camera, parent: QObject | None = None) -> None:
+    def __init__(self, model: HasCamera, parent: QObject | None = None) -> None:
         super().__init__(parent)
-        self.camera = camera
+        self.model = model
         self.duration_s = 1.0
         self._timer = QTimer(self)
         self._timer.setInterval(16)
@@ -239,6 +249,10 @@ class CameraFlight(QObject):
         self._to: Pose | None = None
         self._arc = 0.0
         self._t0 = 0.0
+
+    @property
+    def camera(self) -> Camera:
+        return self.model.camera
 
     @property
     def active(self) -> bool:

@@ -1,12 +1,13 @@
-"""The overlay panel: the session's overlay layers (imagery, thematic, vectors, points),
-topmost first.
+"""The overlay panel: the model's overlay layers (``Globe.overlays``: imagery, thematic,
+vectors, points), topmost first.
 
 Each row has a visibility checkbox; rows reorder by drag and drop or the ↑/↓ buttons (the
-session's ``overlay_layers`` is reordered and every layer re-attached, so the imagery drape
-composes in the listed order); "Remove" drops a layer. Below the list, the selected layer's
-style: opacity for imagery/thematic drapes, colour and width (vectors) or size (points).
-Every edit goes to the session's layer objects (`globeview.plugins.overlay_layers`) and emits
-``changed`` so the view redraws; nothing here draws.
+model's overlays are reordered and every layer re-attached, so the imagery drape composes in
+the listed order); "Remove" drops a layer. Below the list, the selected layer's style:
+opacity for imagery/thematic drapes, colour and width (vectors) or size (points). Every edit
+goes to the layer objects (`globeview.plugins.overlay_layers`) and is announced on the
+model (``globe.events.overlays``); the panel lists what that event says, whoever changed the
+overlays (the window, code, a plugin), and the view redraws on it. Nothing here draws.
 
 Vectors and points are always drawn over the imagery drape (they are separate passes); the
 order matters among drapes and among line layers.
@@ -33,6 +34,9 @@ from PyQt6.QtWidgets import (
     QVBoxLayout,
     QWidget,
 )
+
+from globeview.model.globe import Globe
+from globeview.ui.subscriptions import Subscriptions
 
 ID_ROLE = Qt.ItemDataRole.UserRole
 DRAPE_KINDS = ("imagery", "thematic")
@@ -69,20 +73,16 @@ def layer_opacity(layer: Any) -> float:
 
 
 class OverlayPanel(QWidget):
-    """Lists a session's overlay layers and edits visibility, order, opacity, style and
-    membership. Unbound (no session yet) it shows an empty, disabled list.
+    """Lists the model's overlay layers and edits visibility, order, opacity, style and
+    membership. Before a session is bound (no GL yet) the list is disabled."""
 
-    Signals:
-        changed(): an overlay changed (redraw).
-    """
-
-    changed = pyqtSignal()
-
-    def __init__(self, parent: QWidget | None = None) -> None:
+    def __init__(self, model: Globe, parent: QWidget | None = None) -> None:
         super().__init__(parent)
+        self.model = model
         self.session: Any = None
         self._gl: Callable[[], AbstractContextManager] = nullcontext
         self._updating = False
+        self._editing = False  # the list already shows the change the model announces
         self._by_id: dict[int, Any] = {}
 
         self.list = OverlayList()
@@ -146,12 +146,28 @@ class OverlayPanel(QWidget):
         layout.addWidget(self.list)
         layout.addLayout(buttons)
         layout.addLayout(style)
+        self.subscriptions = Subscriptions()
+        self.subscriptions.connect(model.events.overlays, self._overlays_changed)
         self.refresh()
+
+    def _overlays_changed(self, *_args: object) -> None:
+        if not self._editing:
+            self.refresh()
+
+    def _announce(self) -> None:
+        """Tell the model an overlay changed in place (the view redraws on its event); the
+        list is not rebuilt under the edit that made it."""
+        self._editing = True
+        try:
+            self.model.overlays_changed()
+        finally:
+            self._editing = False
 
     # -- model ----------------------------------------------------------------------------
     def bind(self, session: Any, gl: Callable[[], AbstractContextManager] | None = None) -> None:
-        """Show ``session``'s overlays; ``gl()`` makes the GL context current around attach /
-        detach (they create and release GL objects)."""
+        """Edit the overlays through ``session`` (None: none, the list is disabled); ``gl()``
+        makes the GL context current around attach / detach (they create and release GL
+        objects)."""
         self.session = session
         self._gl = gl or nullcontext
         self.refresh()
@@ -161,8 +177,8 @@ class OverlayPanel(QWidget):
         return None if self.session is None else self.session.renderer
 
     def layers(self) -> list:
-        """The session's overlay layers, bottom first."""
-        return [] if self.session is None else list(self.session.overlay_layers)
+        """The model's overlay layers, bottom first."""
+        return list(self.model.overlays)
 
     def names(self) -> list[str]:
         """Overlay names as listed, topmost first."""
@@ -180,7 +196,7 @@ class OverlayPanel(QWidget):
         return None if row < 0 else self.layer_at(row)
 
     def refresh(self) -> None:
-        """Rebuild the rows from the session (keeps the selection)."""
+        """Rebuild the rows from the model (keeps the selection)."""
         current = self.selected_layer()
         self._updating = True
         try:
@@ -255,7 +271,7 @@ class OverlayPanel(QWidget):
             return
         layer = self._by_id[item.data(ID_ROLE)]
         layer.set_visible(self.renderer, item.checkState() == Qt.CheckState.Checked)
-        self.changed.emit()
+        self._announce()
 
     def set_opacity(self, layer: Any, opacity: float) -> None:
         """Set a drape's opacity (0..1); the slider follows when it is selected."""
@@ -264,7 +280,7 @@ class OverlayPanel(QWidget):
         layer.set_opacity(self.renderer, opacity)
         if layer is self.selected_layer():
             self._update_controls()
-        self.changed.emit()
+        self._announce()
 
     def _opacity_changed(self, pct: int) -> None:
         self.opacity_value.setText(f"{pct} %")
@@ -281,7 +297,7 @@ class OverlayPanel(QWidget):
         _restyle(layer, self.renderer, color=rgba)
         if layer is self.selected_layer():
             self._show_color(rgba)
-        self.changed.emit()
+        self._announce()
 
     def choose_color(self) -> None:
         """Pick the selected layer's colour with a colour dialog."""
@@ -304,7 +320,7 @@ class OverlayPanel(QWidget):
             return
         if layer is self.selected_layer():
             self._update_controls()
-        self.changed.emit()
+        self._announce()
 
     def _width_changed(self, px: float) -> None:
         layer = self.selected_layer()
@@ -338,13 +354,11 @@ class OverlayPanel(QWidget):
         with self._gl():
             for layer in self.layers():
                 layer.detach(self.renderer)
-            self.session.overlay_layers[:] = order
+            self.model.set_overlay_order(order)  # the model's event lists the new order
             for layer in order:
                 layer.attach(self.renderer)
                 if not shown[id(layer)]:
                     layer.set_visible(self.renderer, False)
-        self.refresh()
-        self.changed.emit()
 
     def remove_selected(self) -> None:
         layer = self.selected_layer()
@@ -352,13 +366,11 @@ class OverlayPanel(QWidget):
             self.remove(layer)
 
     def remove(self, layer: Any) -> None:
-        """Take an overlay off the globe and out of the session."""
+        """Take an overlay off the globe and out of the model (its event updates the list)."""
         if self.session is None:
             return
         with self._gl():
             self.session.remove_overlay(layer)
-        self.refresh()
-        self.changed.emit()
 
 
 def _size_of(layer: Any) -> float:

@@ -22,8 +22,11 @@ from typing import Any
 from PyQt6.QtCore import QObject, QSettings, pyqtSignal
 
 from globeview.errors import GlobeviewError
+from globeview.model.globe import Globe
+from globeview.plugins.api import PluginKind
 from globeview.plugins.registry import PluginRecord, PluginRegistry
 from globeview.plugins.session import DEFAULT_LOD, GlobeSession
+from globeview.ui.subscriptions import Subscriptions
 
 log = logging.getLogger("globeview.ui")
 
@@ -49,11 +52,13 @@ class QSettingsBackend:
 
 
 class PluginHost(QObject):
-    """Plugin state for the UI, around a `PluginRegistry` and (once GL is up) a session.
+    """Plugin state for the UI, around a `PluginRegistry`, the `Globe` model and (once GL is
+    up) a session. The active LOD provider is the model's (``model.lod``): a choice here sets
+    it, and a change made anywhere (code, a fallback) comes back through its event.
 
     Signals:
         changed(): plugin records or the provider list changed (the panel refreshes).
-        lodChanged(str): the active LOD provider changed (a user choice or a fallback).
+        lodChanged(str): the model's LOD provider changed (a user choice, code or a fallback).
         redrawRequested(): a plugin or a setting asks for a frame.
         notice(str): a one-line message for the status bar (a failure: logged at WARNING).
         statusText(str): a plugin's own status line (`set_status`): the status bar only.
@@ -65,15 +70,65 @@ class PluginHost(QObject):
     notice = pyqtSignal(str)
     statusText = pyqtSignal(str)
 
-    def __init__(self, registry: PluginRegistry, parent: QObject | None = None) -> None:
+    def __init__(
+        self, registry: PluginRegistry, model: Globe, parent: QObject | None = None
+    ) -> None:
         super().__init__(parent)
         self.registry = registry
+        self.model = model
         self.session: GlobeSession | None = None
-        self.active = DEFAULT_LOD
         self._statuses: dict[str, str] = {}
         #: Why the last fallback happened ("" when the chosen provider is the one drawing):
         #: the window keeps it visible (LOD field tooltip, plugin panel) after notices pass.
         self.fallback_reason = ""
+        #: The provider in use before the model's last LOD event (to refuse a bad name).
+        self._lod_before = model.lod
+        self._quiet = False  # set while the host itself moves the model's provider
+        self.subscriptions = Subscriptions()
+        self.subscriptions.connect(model.events.lod, self._model_lod)
+
+    @property
+    def active(self) -> str:
+        """The active LOD provider: the model's."""
+        return self.model.lod
+
+    @active.setter
+    def active(self, name: str) -> None:
+        self.model.lod = name
+
+    def _model_lod(self, *_args: object) -> None:
+        """The model's LOD provider changed (a choice here, code, or a fallback): the session
+        follows and the panel and status bar are told (`lodChanged`). A name no enabled
+        plugin provides is a notice and the model goes back to the provider in use. When the
+        provider left had failed (the session fell back during a frame), the notice says why
+        and `fallback_reason` keeps it; a choice of another provider clears it."""
+        name, old = self.model.lod, self._lod_before
+        if name == old:
+            return  # a re-emission (psygnal emits nested changes at once)
+        if self.session is None and self.registry.find(PluginKind.LOD, name) is None:
+            self.notice.emit(f"no enabled LOD provider named {name!r:.80}")
+            self._set_model_lod(old)
+            return
+        self._lod_before = name
+        if not self._quiet:
+            why = self.failure_reason("lod", old)
+            self.fallback_reason = f"LOD provider {old} failed: {why}" if why else ""
+            if why:
+                self.notice.emit(f"{self.fallback_reason}; using {name}")
+                self._said_failed("lod", old)
+        self._apply(old)
+        if self.model.lod == name:
+            self.lodChanged.emit(name)
+            if self.fallback_reason and not self._quiet:
+                self.changed.emit()
+
+    def _set_model_lod(self, name: str) -> None:
+        """Set the model's provider without a second notice (the caller has said why)."""
+        quiet, self._quiet = self._quiet, True
+        try:
+            self.model.lod = name
+        finally:
+            self._quiet = quiet
 
     # -- RendererHooks (what PluginContext.renderer offers plugins) -------------------------
     def request_redraw(self) -> None:
@@ -139,14 +194,20 @@ class PluginHost(QObject):
                     self.notice.emit(f"plugin {rec.name} failed and was disabled: {rec.error}")
         self._statuses = {rec.name: rec.status for rec in self.registry}
         if falls_back:
-            self.active = DEFAULT_LOD if DEFAULT_LOD in available else next(iter(available))
+            new = DEFAULT_LOD if DEFAULT_LOD in available else next(iter(available))
             why = self.failure_reason("lod", old)
             self.fallback_reason = f"LOD provider {old} failed: {why}" if why else ""
             text = self.fallback_reason or f"LOD provider {old} is not available"
-            self.notice.emit(f"{text}; using {self.active}")
-            self._apply()
-            self.lodChanged.emit(self.active)
+            self.notice.emit(f"{text}; using {new}")
+            self._set_model_lod(new)  # the session, panel and status bar follow its event
         self.changed.emit()
+
+    def _said_failed(self, kind: str, name: str) -> None:
+        """The fallback notice named the failure of contribution ``name``: `refresh` does not
+        announce its plugin's failure again."""
+        for rec in self.registry:
+            if self._declares(rec, kind, name):
+                self._statuses[rec.name] = rec.status
 
     @staticmethod
     def _declares(rec: PluginRecord, kind: str, name: str) -> bool:
@@ -176,24 +237,27 @@ class PluginHost(QObject):
         self.session = None
         self.registry.attach(scene=None)
 
-    def _apply(self) -> None:
+    def _apply(self, previous: str | None = None) -> None:
+        """Make the session use the model's provider (it checks the name and loads only that
+        plugin). A name it refuses is a notice and the model goes back to ``previous``; a
+        provider whose plugin fails to load makes the session fall back, which comes back as
+        another LOD event (`_model_lod` says why)."""
         if self.session is None:
             return
         try:
-            self.session.set_lod(self.active)
-        except GlobeviewError as exc:
+            self.session.set_lod(self.model.lod)
+        except GlobeviewError as exc:  # the user's (or code's) error: no such provider
             self.notice.emit(str(exc))
-            self.active = self.session.lod_name
+            if previous is not None:
+                self._set_model_lod(previous)
 
     def choose(self, name: str) -> None:
-        """Make ``name`` the active LOD provider from the next frame on."""
+        """Make ``name`` the model's LOD provider from the next frame on (a user's choice:
+        the last fallback's reason is cleared)."""
         if name == self.active:
             return
-        self.active = name
         self.fallback_reason = ""
-        self._apply()
-        self.lodChanged.emit(self.active)
-        self.redrawRequested.emit()
+        self._set_model_lod(name)
 
     def configure(self, values: dict[str, Any]) -> None:
         """Apply and persist setting values of the active provider (isolated)."""
@@ -205,16 +269,10 @@ class PluginHost(QObject):
         self.redrawRequested.emit()
 
     def after_frame(self) -> None:
-        """Notice a fallback the session made during a frame (a provider failed)."""
+        """Report plugins that failed during a frame (their records changed)."""
         if self.session is None:
             return
+        # A provider failing in a frame made the session fall back: that came as a model
+        # event (`_model_lod` said why); here only the plugin list catches up.
         if any(rec.status != self._statuses.get(rec.name) for rec in self.registry):
             self.refresh()
-        if self.session.lod_name != self.active:
-            failed = self.active
-            self.active = self.session.lod_name
-            why = self.failure_reason("lod", failed) or "it drew nothing usable"
-            self.fallback_reason = f"LOD provider {failed} failed: {why}"
-            self.notice.emit(f"{self.fallback_reason}; using {self.active}")
-            self.lodChanged.emit(self.active)
-            self.changed.emit()

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from PyQt6.QtCore import Qt, pyqtSignal
+from PyQt6.QtCore import Qt
 from PyQt6.QtWidgets import (
     QComboBox,
     QFormLayout,
@@ -30,6 +30,7 @@ from PyQt6.QtWidgets import (
 from globeview.plugins.api import Setting
 from globeview.ui.plugin_host import PluginHost
 from globeview.ui.setting_editor import SettingEditor
+from globeview.ui.subscriptions import Subscriptions
 
 COLUMNS = ("Plugin", "Version", "Kind", "Status", "Description")
 #: tau slider: tenths of a pixel, 0.5 .. 32 px.
@@ -37,17 +38,15 @@ TAU_MIN_PX, TAU_MAX_PX = 0.5, 32.0
 
 
 class PluginPanel(QWidget):
-    """View of a `PluginHost`.
+    """View of a `PluginHost` and of the model's tau (``host.model.tau_px``): moving the
+    slider sets the model's tau, and a tau set anywhere (code, a plugin, settings) moves the
+    slider (the panel subscribes to ``model.events.tau_px``)."""
 
-    Signals:
-        tauChanged(float): the user moved the tau slider (pixels).
-    """
-
-    tauChanged = pyqtSignal(float)
-
-    def __init__(self, host: PluginHost, tau_px: float = 2.0, parent: QWidget | None = None):
+    def __init__(self, host: PluginHost, parent: QWidget | None = None):
         super().__init__(parent)
         self.host = host
+        self.model = host.model
+        self._showing_tau = False
         self._updating = False
         self.tree = QTreeWidget()
         self.tree.setColumnCount(len(COLUMNS))
@@ -70,7 +69,7 @@ class PluginPanel(QWidget):
         )
         self.tau_label = QLabel()
         self.tau_slider.valueChanged.connect(self._tau_moved)
-        self.set_tau(tau_px)
+        self._show_tau()
 
         self.settings_box = QGroupBox("Provider settings")
         self.settings_form = QFormLayout(self.settings_box)
@@ -97,6 +96,8 @@ class PluginPanel(QWidget):
 
         host.changed.connect(self.refresh)
         host.lodChanged.connect(lambda _name: self.refresh())
+        self.subscriptions = Subscriptions()
+        self.subscriptions.connect(self.model.events.tau_px, self._show_tau)
         self.refresh()
 
     # -- refresh from the host ------------------------------------------------------------
@@ -184,13 +185,25 @@ class PluginPanel(QWidget):
         self.host.configure(self.setting_values())
 
     def set_tau(self, tau_px: float) -> None:
-        """Show ``tau_px`` on the slider (emits tauChanged like a user move)."""
+        """Move the slider to ``tau_px`` (clamped to its range) as a user would: the model's
+        tau follows."""
         self.tau_slider.setValue(round(min(max(tau_px, TAU_MIN_PX), TAU_MAX_PX) * 10))
-        self._tau_moved(self.tau_slider.value())
 
     def tau(self) -> float:
-        return self.tau_slider.value() / 10.0
+        """The model's tau (pixels)."""
+        return self.model.tau_px
 
     def _tau_moved(self, value: int) -> None:
-        self.tau_label.setText(f"{value / 10.0:.1f} px")
-        self.tauChanged.emit(value / 10.0)
+        if not self._showing_tau:
+            self.model.tau_px = value / 10.0
+
+    def _show_tau(self, *_args: object) -> None:
+        """Show the model's tau: the label says it exactly, the slider as near as its range
+        and tenths allow (moving it there does not change the model)."""
+        tau = self.model.tau_px
+        self._showing_tau = True
+        try:
+            self.tau_slider.setValue(round(min(max(tau, TAU_MIN_PX), TAU_MAX_PX) * 10))
+        finally:
+            self._showing_tau = False
+        self.tau_label.setText(f"{tau:.1f} px")

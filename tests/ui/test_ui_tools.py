@@ -61,10 +61,12 @@ def test_toolbar_action_activates_collapse_and_drag_still_navigates(make_window,
     button = win.tools_toolbar.widgetForAction(act)
     qtbot.mouseClick(button, Qt.MouseButton.LeftButton)
     assert act.isChecked() and g.scene.active_tool == "collapse"
-    assert g.scene.renderer._hook is not None  # the displacement hook compiled
+    wait_frame(win)  # activation sets the model; the frame compiles the displacement hook
+    assert g.scene.renderer.displacement_hook is not None
     qtbot.mouseClick(button, Qt.MouseButton.LeftButton)
     assert not act.isChecked() and g.scene.active_tool is None
-    assert g.scene.renderer._hook is None
+    wait_frame(win)
+    assert g.scene.renderer.displacement_hook is None
     # The shortcut C (a window shortcut: the window must be the active one).
     win.activateWindow()
     qtbot.waitUntil(win.isActiveWindow, timeout=5000)
@@ -83,9 +85,9 @@ def test_toolbar_action_activates_collapse_and_drag_still_navigates(make_window,
     win.plugins.set_enabled("collapse", False)
     assert "collapse" not in win.tool_actions and win.tool_options.tool_name is None
     assert not any(k.startswith("collapse.") for k in win.command_actions)
-    assert g.scene.active_tool is None and g.scene.renderer._hook is None
+    assert g.scene.active_tool is None
     wait_frame(win)
-    assert g.overlay_drawn == 0
+    assert g.overlay_drawn == 0 and g.scene.renderer.displacement_hook is None
     win.plugins.set_enabled("collapse", True)
     assert "collapse" in win.tool_actions
 

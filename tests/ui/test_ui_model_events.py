@@ -1,0 +1,192 @@
+"""The window is a thin shell over the `Globe` model (issue #14): its widgets subscribe to
+the model's events, so a change made on the model from code (not through a widget) shows in
+every widget without anyone calling a refresh, and nothing the model is given from code
+brings the window down. Each test fails if the subscription it names is removed. A real
+window under Xvfb."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from PyQt6.QtCore import Qt
+
+from globeview.model.camera import Camera
+
+pytestmark = pytest.mark.gui
+
+
+def test_tau_set_on_the_model_moves_the_slider(make_window, wait_frame) -> None:
+    win = make_window()
+    panel = win.plugin_panel
+    win.model.tau_px = 7.3  # PluginPanel subscribes to model.events.tau_px
+    assert panel.tau_slider.value() == 73 and panel.tau_label.text() == "7.3 px"
+    assert win.globe.scene.tau_px == pytest.approx(7.3)
+    assert float(win.qsettings.value("view/tau")) == pytest.approx(7.3)  # the window's
+    # Beyond the slider's range: the label says the model's value, the slider stops at its
+    # end, and showing it there does not set the model back to the slider's value.
+    win.model.tau_px = 500.0
+    assert panel.tau_slider.value() == panel.tau_slider.maximum()
+    assert panel.tau_label.text() == "500.0 px" and win.model.tau_px == 500.0
+    wait_frame(win)
+    assert win.globe.last_stats.triangles > 0
+    # A bad tau is refused where it is set (one line) and nothing changes.
+    for bad in (float("nan"), 0.0, -1.0, math.inf):
+        with pytest.raises(ValueError, match="tau"):
+            win.model.tau_px = bad
+    assert win.model.tau_px == 500.0 and panel.tau_label.text() == "500.0 px"
+    # The user's slider still drives the model.
+    panel.tau_slider.setValue(45)
+    assert win.model.tau_px == pytest.approx(4.5) and win.globe.scene.tau_px == pytest.approx(4.5)
+
+
+def test_tool_set_on_the_model_checks_its_action(make_window, wait_frame) -> None:
+    win = make_window()
+    act = win.tool_actions["measure"]
+    assert not act.isChecked() and win.tool_options.tool_name is None
+    win.model.tool = "measure"  # the window subscribes to model.events.tool
+    assert act.isChecked() and win.tool_options.tool_name == "measure"
+    wait_frame(win)
+    assert win.model.tool == "measure" and win.active_tool_name() == "measure"
+    # The session's own switch (no window call) shows too.
+    win.globe.scene.activate_tool("collapse")
+    assert win.tool_actions["collapse"].isChecked() and not act.isChecked()
+    assert win.tool_options.tool_name == "collapse"
+    win.model.tool = None
+    assert not any(a.isChecked() for a in win.tool_actions.values())
+    assert win.tool_options.tool_name is None
+    wait_frame(win)
+    assert win.globe.scene.renderer.displacement_hook is None
+    # A tool no plugin provides, set from code: no action is checked, the globe keeps drawing.
+    win.model.tool = "no-such-tool"
+    wait_frame(win)
+    assert not any(a.isChecked() for a in win.tool_actions.values())
+    assert win.globe.last_stats.triangles > 0
+
+
+def test_overlays_changed_on_the_model_are_listed(make_window, wait_frame) -> None:
+    win = make_window()
+    panel = win.layer_panel.overlays
+    assert panel.names() == []
+    with win.globe.gl_current():  # the session attaches the layer's GL objects
+        layers = win.globe.scene.add_embedded_overlays(imagery=True)
+    # Added through the session, not the window: the model's event lists them.
+    assert len(layers) == 2
+    assert panel.names() == [ly.name for ly in reversed(layers)]
+    win.model.set_overlay_order(list(reversed(layers)))
+    assert panel.names() == [ly.name for ly in layers]
+    with win.globe.gl_current():
+        win.globe.scene.remove_overlay(layers[0])
+    assert panel.names() == [layers[1].name]
+    assert win.overlay_layers() == [layers[1]]
+    wait_frame(win)
+    assert win.globe.last_stats.triangles > 0
+
+
+def test_terrain_changed_on_the_model_is_listed(make_window, wait_frame) -> None:
+    win = make_window()
+    panel = win.layer_panel
+    names = panel.names()
+    assert names, "the embedded stack has layers"
+    top = names[0]
+    assert panel.list.item(0).checkState() == Qt.CheckState.Checked
+    win.terrain.set_visible(top, False)  # LayerPanel subscribes to model.events.terrain
+    assert panel.list.item(0).checkState() == Qt.CheckState.Unchecked
+    layer = next(ly for ly in win.terrain.layers if ly.name == top)
+    win.terrain.remove(top)
+    assert top not in panel.names()
+    win.terrain.add(layer.store, "again")
+    assert panel.names()[0] == "again"
+    wait_frame(win)
+    assert win.globe.last_stats.triangles > 0
+
+
+def test_lod_set_on_the_model_shows_in_panel_and_status(make_window, wait_frame) -> None:
+    win = make_window()
+    panel = win.plugin_panel
+    win.model.lod = "distance-regions"  # PluginHost subscribes to model.events.lod
+    assert panel.lod_combo.currentData() == "distance-regions"
+    assert win.status.lod.text() == "LOD distance-regions"
+    assert win.globe.scene.lod_name == "distance-regions"
+    wait_frame(win)
+    assert win.globe.last_stats.lod_provider == "distance-regions"
+    # A name no plugin provides: a one-line notice, and the provider in use stays.
+    win.model.lod = "no-such-lod"
+    assert win.model.lod == "distance-regions"
+    assert panel.lod_combo.currentData() == "distance-regions"
+    assert any("no-such-lod" in m.text for m in win.errors.history)
+    assert all("\n" not in m.text for m in win.errors.history)
+    wait_frame(win)
+    assert win.globe.last_stats.lod_provider == "distance-regions"
+    assert win.globe.last_stats.triangles > 0
+
+
+def test_display_settings_set_on_the_model_move_the_controls(
+    make_window, qtbot, wait_frame
+) -> None:
+    win = make_window()
+    display = win.model.display
+    display.exaggeration = 3.0  # the window subscribes to display.events
+    assert win.exag_slider.value() == 30 and win.exag_label.text() == "3.0×"
+    display.wireframe = True
+    display.hillshade = True
+    assert win.wire_check.isChecked() and win.hill_check.isChecked()
+    # Beyond the slider: the label is exact and the model keeps its value.
+    display.exaggeration = 80.0
+    assert win.exag_slider.value() == win.exag_slider.maximum()
+    assert win.exag_label.text() == "80.0×" and display.exaggeration == 80.0
+    # A NaN exaggeration from code: the frame fails in one reported line, the window lives
+    # on, and a good value draws again.
+    display.exaggeration = float("nan")
+    assert win.exag_label.text() == "nan×"
+    n = win.globe.frames
+    qtbot.waitUntil(  # the display event asked for the frame
+        lambda: any("exaggeration" in m.text for m in win.errors.history), timeout=5000
+    )
+    assert win.globe.frames == n
+    win.exag_slider.setValue(20)  # the user's slider drives the model again
+    assert display.exaggeration == pytest.approx(2.0)
+    wait_frame(win)
+    assert win.globe.last_stats.triangles > 0
+
+
+def test_camera_replaced_on_the_model_is_drawn_and_flown(make_window, qtbot, wait_frame) -> None:
+    win = make_window()
+    cam = Camera.from_lonlat(-122.0, 46.0, 3.0e5)
+    win.model.camera = cam  # the status bar and the widget subscribe to model.events.camera
+    assert win.status.altitude.text() == "alt 300.0 km"
+    assert win.globe.camera is cam and win.globe.scene.camera is cam
+    wait_frame(win)
+    assert np.allclose(win.globe.scene.last.view.eye, cam.eye)  # drawn from the new camera
+    # A flight moves the model's camera of now, not the one it was built with.
+    assert win.go_to("-121, 46, 200000")
+    qtbot.waitUntil(lambda: not win.globe.flight.active, timeout=5000)
+    assert cam.height == pytest.approx(2.0e5, rel=1e-3)
+    assert win.status.altitude.text() == "alt 200.0 km"
+
+
+def test_closed_window_leaves_the_model(make_window) -> None:
+    win = make_window()
+    model = win.model
+    subs = [
+        win.subscriptions,
+        win.globe.subscriptions,
+        win.plugins.subscriptions,
+        win.plugin_panel.subscriptions,
+        win.layer_panel.subscriptions,
+        win.layer_panel.overlays.subscriptions,
+    ]
+    assert all(len(s) > 0 for s in subs)
+    before = len(model.events.tau_px) + len(model.events.tool) + len(model.events.camera)
+    win.close()
+    assert all(len(s) == 0 for s in subs)
+    after = len(model.events.tau_px) + len(model.events.tool) + len(model.events.camera)
+    assert after < before
+    # The model outlives the window: changing it calls no closed widget.
+    model.tau_px = 3.0
+    model.display.exaggeration = 2.0
+    model.camera_moved()
+    model.lod = "wavelet"
+    model.overlays_changed()
+    model.terrain.set_visible(model.terrain.layers[0].name, False)
