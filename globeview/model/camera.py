@@ -194,7 +194,7 @@ class Camera:
         The far plane reaches past the horizon to the highest terrain that can peek over it:
         ``sqrt(h (2R + h)) + sqrt(H (2R + H))`` for camera height h and terrain height H.
         Depth precision does not come from these planes: the terrain shader writes a
-        logarithmic depth (see shaders/terrain.frag), so the near plane can stay small.
+        logarithmic depth (see shaders/log_depth.glsl), so the near plane can stay small.
         """
         r = WGS84.a
         h = max(self.height, 0.0)

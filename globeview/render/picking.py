@@ -36,7 +36,7 @@ class Pick:
 
 
 def depth_to_view_distance(depth: float | np.ndarray, far: float) -> np.ndarray:
-    """Invert the logarithmic depth of shaders/terrain.frag: w = 2^(d log2(1 + far)) - 1."""
+    """Invert the logarithmic depth of shaders/log_depth.glsl: w = 2^(d log2(1 + far)) - 1."""
     return np.exp2(np.asarray(depth, dtype=np.float64) * math.log2(1.0 + far)) - 1.0
 
 
