@@ -14,11 +14,7 @@ provider, tool or layer type imports that plugin alone (`PluginRegistry.find`).
 from __future__ import annotations
 
 import logging
-import math
-from collections.abc import Hashable
 from dataclasses import replace
-from numbers import Real
-from pathlib import Path
 
 import moderngl
 import numpy as np
@@ -30,13 +26,12 @@ from globeview.lod.view_state import ViewState
 from globeview.model.camera import Camera
 from globeview.model.display import DisplaySettings
 from globeview.model.globe import DEFAULT_LOD, Globe
-from globeview.plugins.api import Marker, NullRendererHooks, PluginKind, Polyline, Tool
-from globeview.plugins.overlay_layers import (
-    DrawnLayer,
-    ImageryOverlayLayer,
-    PointsLayer,
-    VectorLayer,
-)
+from globeview.plugins.api import NullRendererHooks, PluginKind, Tool
+from globeview.plugins.host_checks import has_method as _has_method
+from globeview.plugins.host_checks import hashable as _hashable
+from globeview.plugins.host_checks import overlay_problem as _overlay_problem
+from globeview.plugins.host_checks import uniforms_problem as _uniforms_problem
+from globeview.plugins.overlay_host import OverlayHost
 from globeview.plugins.registry import PluginRegistry
 from globeview.plugins.tool_host import ToolHost
 from globeview.render.frame_pipeline import FramePipeline
@@ -93,8 +88,7 @@ class GlobeSession(GlobeScene):
             registry.discover()
         self.registry = registry
         self.tool_host = ToolHost(globe, registry)
-        #: One line per overlay layer dropped because the GL refused it (at a frame).
-        self.overlay_errors: list[str] = []
+        self.overlay_host = OverlayHost(globe, registry)
         self._marker_heights: dict[tuple[float, float, float], float] = {}
         # Plugins get redraw/status hooks, not the GL renderer: headless they are recorded,
         # and the window attaches its own (redraw = widget.update, status = status bar).
@@ -146,6 +140,11 @@ class GlobeSession(GlobeScene):
     def settings(self) -> DisplaySettings:
         """The display settings (`Globe.display`, evented)."""
         return self.globe.display
+
+    @property
+    def overlay_errors(self) -> list[str]:
+        """One line per overlay dropped at a frame because the GPU side refused it."""
+        return self.overlay_host.errors
 
     @property
     def overlay_layers(self) -> list:
@@ -254,13 +253,7 @@ class GlobeSession(GlobeScene):
         the overlay layers' GPU twins. A layer the GL refuses (its limits) is dropped from
         the globe with a one-line message in ``overlay_errors`` (and the log)."""
         self.tool_host.prepare_gpu(self.renderer)
-        for part, why in self.renderer.overlays.sync(self.globe.overlays):
-            top = next((ly for ly in self.globe.overlays if _contains(ly, part)), part)
-            message = f"cannot draw {getattr(top, 'name', 'overlay')}: {why}"
-            log.warning("%s", message)
-            self.overlay_errors.append(message)
-            if top in self.globe.overlays:
-                self.globe.remove_overlay(top)
+        self.overlay_host.prepare_gpu(self.renderer)
 
     # -- checks of what tools return (garbage fails the tool's plugin, not the caller) -------
     def _fail(self, contribution, problem: str) -> None:
@@ -353,128 +346,31 @@ class GlobeSession(GlobeScene):
         lon, lat, h = ecef_to_lonlat(ecef)
         return Pick(ecef, float(lon), float(lat), float(h), p.on_terrain)
 
-    # -- overlay layers (any layer type, built-in or installed) --------------------------------
+    # -- overlay layers (any layer type, built-in or installed: plugins/overlay_host.py) ------
     def layer_types(self) -> list:
-        """The enabled layer types in dispatch order (`layer_dispatch.LayerTypeInfo`: name,
-        plugin, label, extensions), for menus and the Open Overlay filter."""
-        from globeview.plugins.layer_dispatch import layer_type_infos
-
-        return layer_type_infos(self.registry)
+        """The enabled layer types in dispatch order (`OverlayHost.layer_types`)."""
+        return self.overlay_host.layer_types()
 
     def overlay_file_filter(self) -> str:
         """The Open Overlay dialog's filter: every enabled layer type's patterns."""
-        from globeview.plugins.layer_dispatch import overlay_file_filter
-
-        return overlay_file_filter(self.registry)
+        return self.overlay_host.file_filter()
 
     def layer_type_for(self, path: str, layer_type: str | None = None) -> str:
-        """The name of the layer type that opens ``path`` (`layer_dispatch.choose_layer_type`:
-        an explicit ``layer_type``, then declared extensions, then content sniffing).
-        Raises a one-line `GlobeviewError` naming the installed types when none does."""
-        from globeview.plugins.layer_dispatch import choose_layer_type
-
-        return choose_layer_type(self.registry, path, layer_type)
+        """The name of the layer type that opens ``path`` (`OverlayHost.layer_type_for`)."""
+        return self.overlay_host.layer_type_for(path, layer_type)
 
     def add_overlay(self, path: str, layer_type: str | None = None, **style):
-        """Open a file as an overlay layer with the layer type dispatch picks (see
-        `layer_type_for`; ``path`` may be ``"TYPE:FILE"``) and show it on top.
-
-        The type's ``open()`` may return drawables (`globeview.plugins.drawables`), which
-        the host checks and draws, or an object with ``attach``/``detach``. Bad files raise
-        a one-line `GlobeviewError` and leave the plugin enabled; garbage returned, or a
-        crash, fails that layer type (reported) and raises a one-line `GlobeviewError`."""
-        from globeview.plugins.layer_dispatch import parse_layer_spec
-        from globeview.plugins.overlay_layers import as_drawables, host_layer
-
-        path = str(path)
-        if layer_type is None:
-            layer_type, path = parse_layer_spec(path)
-        name = self.layer_type_for(path, layer_type)
-        obj = self.registry.find(PluginKind.LAYER, name)
-        if obj is None:
-            raise GlobeviewError(f"layer type {name} is not available ({path})")
-        failed = object()
-        result = self.registry.invoke(obj, "open", path, default=failed, user_errors=True, **style)
-        layer = failed
-        own_drawables = result is not failed and as_drawables(result) is None
-        if own_drawables and _has_method(result, "drawables"):
-            # An object returning drawables: its drawables() is the plugin's code.
-            got = self.registry.call_for(obj, result.drawables, default=failed)
-            result = failed if got is failed else _Named(got, result, path)
-        if result is not failed:
-            try:
-                built, problem = host_layer(result, Path(path).name)
-            except GlobeviewError:  # e.g. a RasterFile GDAL cannot read: the user's file
-                raise
-            except Exception as exc:  # e.g. a drawable subclass whose property raises
-                built, problem = (
-                    None,
-                    "open() returned drawables the host cannot read ("
-                    + (f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")[
-                        :120
-                    ]
-                    + ")",
-                )
-            if problem is not None:
-                self._fail(obj, problem)
-            else:
-                layer = built
-        if layer is not failed and not isinstance(layer, _HOST_LAYERS):
-            # An API 1.0 layer object: every call into it is plugin code, isolated.
-            layer = _PluginLayer(layer, self.registry, obj, Path(path).name)
-            if not layer.attach(self.renderer):
-                layer = failed
-        elif layer is not failed:
-            # A host layer is a model: no GL here. Its GPU twin is made at the next frame
-            # (`prepare_gpu`), where a GL refusal drops the layer with a one-line message.
-            _check_drape_size(layer, self.renderer.overlays.imagery.tex_size, Path(path).name)
-        if layer is failed:
-            raise GlobeviewError(
-                f"layer type {name} could not open {Path(path).name}: {self._why(obj)}"
-            )
-        self.globe.add_overlay(layer)
-        return layer
-
-    def _why(self, contribution) -> str:
-        """The recorded reason a contribution (or its plugin) failed, one line."""
-        try:
-            plugin, cname = self.registry.contribution_of(contribution)
-        except (KeyError, AttributeError):
-            return "failed"
-        rec = self.registry.records.get(plugin)
-        if rec is None:
-            return "failed"
-        failure = getattr(rec, "failures", {}).get(cname)
-        if failure is not None and getattr(failure, "error", None):
-            return str(failure.error)
-        return rec.error or "failed"
+        """Open a file as an overlay layer and show it on top (`OverlayHost.open`): one-line
+        `GlobeviewError` for a bad file or a failing layer type; no GL."""
+        return self.overlay_host.open(path, layer_type, self.renderer, **style)
 
     def add_embedded_overlays(self, imagery: bool = False) -> list:
-        """The embedded default overlays: Natural Earth borders and coastlines (and the Blue
-        Marble imagery with ``imagery``), opened through the enabled built-in layer types
-        like any file (none when those types are disabled)."""
-        from globeview.terrain.dem import EMBEDDED_DATA_DIR
-
-        wanted = []
-        if imagery:
-            wanted.append(("imagery", EMBEDDED_DATA_DIR / "bluemarble_2048x1024.tif", {}))
-        wanted.append(
-            (
-                "vector",
-                EMBEDDED_DATA_DIR / "ne_110m_countries.geojson",
-                {"color": (1.0, 0.92, 0.35, 1.0), "width_px": 1.5},
-            )
-        )
-        layers = []
-        for kind, path, style in wanted:
-            # offers(): from the manifests, so no other layer plugin is imported for this.
-            if self.registry.offers(PluginKind.LAYER, kind):
-                layers.append(self.add_overlay(str(path), layer_type=kind, **style))
-        return layers
+        """The embedded default overlays (`OverlayHost.open_embedded`)."""
+        return self.overlay_host.open_embedded(self.renderer, imagery)
 
     def remove_overlay(self, layer) -> None:
-        layer.detach(self.renderer)
-        self.globe.remove_overlay(layer)
+        """Take ``layer`` off the globe (its GPU twin is released at the next frame)."""
+        self.overlay_host.remove(layer, self.renderer)
 
     def release_gl(self) -> None:
         """Release the GL objects the session owns (with its context current)."""
@@ -517,33 +413,6 @@ class GlobeSession(GlobeScene):
             self._marker_heights[key] = ground
         new = tuple(float(v) for v in np.asarray(lonlat_to_ecef(lon, lat, ground)).ravel())
         return replace(prim, position=new)
-
-
-def _contains(layer: object, part: object) -> bool:
-    """Whether ``part`` is ``layer`` or one of its parts (a `DrawnLayer`'s)."""
-    return layer is part or any(p is part for p in getattr(layer, "parts", ()) or ())
-
-
-def _check_drape_size(layer: object, tex_size: int, name: str) -> None:
-    """Refuse (one line) a drape whose texture size the renderer's imagery stack cannot
-    compose with (all drapes of a globe share one texture array)."""
-    from globeview.terrain.imagery import ImageryError
-
-    for part in getattr(layer, "parts", None) or [layer]:
-        if getattr(part, "gpu_kind", None) != "imagery":
-            continue
-        size = getattr(part.layer.source, "tex_size", tex_size)
-        if size != tex_size:
-            raise ImageryError(f"{name}: texture size {size} != {tex_size}")
-
-
-def _has_method(obj: object, name: str) -> bool:
-    """Whether ``obj`` (a plugin's object) has a callable ``name``; a hostile ``__getattr__``
-    that raises counts as no."""
-    try:
-        return callable(getattr(obj, name, None))
-    except Exception:
-        return False
 
 
 class ToolFrame:
@@ -628,113 +497,3 @@ class ToolFrame:
             return [], None
         displace = s._displace if s.displacing else None
         return [s._drape_marker(p) for p in prims], displace
-
-
-class _PluginLayer:
-    """An API 1.0 layer object (``attach``/``detach``, optional ``set_visible``) behind the
-    host's isolation: the overlay panel and the session call it only through here, so a
-    method that raises fails its layer type (one line) instead of the window. Listed with
-    kind 'plugin' and the object's ``name`` (default: the file's)."""
-
-    kind = "plugin"
-
-    def __init__(self, layer: object, registry: PluginRegistry, owner: object, path_name: str):
-        self.layer_object = layer
-        self._registry = registry
-        self._owner = owner  # the layer type that opened it: failures are its own
-        self.visible = True
-        try:
-            name = getattr(layer, "name", "")
-        except Exception:
-            name = ""
-        self.name = (name if isinstance(name, str) and name else path_name)[:200]
-
-    def _call(self, method: str, *args: object) -> bool:
-        if not _has_method(self.layer_object, method):
-            return False
-        failed = object()
-        fn = getattr(self.layer_object, method)
-        return self._registry.call_for(self._owner, fn, *args, default=failed) is not failed
-
-    def attach(self, renderer) -> bool:
-        return self._call("attach", renderer)
-
-    def detach(self, renderer) -> None:
-        self._call("detach", renderer)
-
-    def set_visible(self, renderer, visible: bool) -> None:
-        self.visible = bool(visible)
-        self._call("set_visible", renderer, self.visible)
-
-
-class _Named:
-    """A layer object's drawables with its ``name`` (the default: the file's)."""
-
-    def __init__(self, items: object, owner: object, path: str) -> None:
-        self.items = items
-        self.name = str(getattr(owner, "name", "") or Path(path).name)[:200]
-
-    def drawables(self) -> object:
-        return self.items
-
-
-#: The layer objects the host builds from drawables (their attach() is host code).
-_HOST_LAYERS = (DrawnLayer, ImageryOverlayLayer, PointsLayer, VectorLayer)
-
-#: Most overlay primitives a tool may draw in one frame.
-MAX_OVERLAY_PRIMITIVES = 100_000
-
-
-def _hashable(value: object) -> bool:
-    if not isinstance(value, Hashable):
-        return False
-    try:
-        hash(value)
-    except Exception:
-        return False
-    return True
-
-
-def _finite_numbers(values: object, lengths: tuple[int, ...]) -> bool:
-    """True for a real number (``1 in lengths``) or a sequence of ``lengths`` finite reals."""
-    if isinstance(values, Real) and not isinstance(values, bool):
-        return 1 in lengths and math.isfinite(values)
-    if not isinstance(values, tuple | list) or len(values) not in lengths:
-        return False
-    return all(isinstance(v, Real) and not isinstance(v, bool) and math.isfinite(v) for v in values)
-
-
-def _uniforms_problem(uniforms: object) -> str | None:
-    """What is wrong with a tool's ``displacement_uniforms`` result, or None."""
-    if not isinstance(uniforms, dict):
-        return f"{type(uniforms).__name__}, not a dict"
-    for name, value in uniforms.items():
-        if not isinstance(name, str) or not name.startswith("gv_u_"):
-            return f"uniform name {name!r:.40} (names start with 'gv_u_')"
-        if not _finite_numbers(value, (1, 2, 3, 4)):
-            return f"{name}={value!r:.40}, not a finite float or 2-4 finite floats"
-    return None
-
-
-def _overlay_problem(prims: list | tuple) -> str | None:
-    """What is wrong with a tool's ``overlay`` primitives, or None."""
-    if len(prims) > MAX_OVERLAY_PRIMITIVES:
-        return f"{len(prims)} primitives (at most {MAX_OVERLAY_PRIMITIVES})"
-    for p in prims:
-        if isinstance(p, Marker):
-            if not _finite_numbers(tuple(p.position), (3,)):
-                return f"a Marker at {p.position!r:.60}, not 3 finite ECEF coordinates"
-            if not isinstance(p.label, str):
-                return f"a Marker label of {type(p.label).__name__}, not text"
-        elif isinstance(p, Polyline):
-            try:
-                pts = np.asarray(p.points, dtype=np.float64)
-            except Exception:
-                return "a Polyline whose points are not numbers"
-            if pts.ndim != 2 or pts.shape[1] != 3 or not np.isfinite(pts).all():
-                return f"a Polyline with points of shape {pts.shape}, not finite (N, 3)"
-            if not isinstance(getattr(p, "depth_test", True), bool):
-                return f"a Polyline depth_test of {type(p.depth_test).__name__}, not a bool"
-        else:
-            return f"a {type(p).__name__}, not a Marker or Polyline"
-    return None

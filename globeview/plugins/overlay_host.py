@@ -1,0 +1,254 @@
+"""`OverlayHost`: opening files as overlay layers through the layer types plugins provide.
+
+The host side of a layer type's ``open()``: dispatch picks the type (an explicit one, the
+declared extensions, then content sniffing), its result is checked (drawables become the
+host's GL-free layer models, `globeview.plugins.overlay_layers`; an API 1.0 object with
+``attach``/``detach`` is wrapped so each call into it is isolated), and the layer is added to
+the `Globe` (an event). Garbage or a crash fails that layer type (one line, reported by the
+registry); a bad file is the user's error (one line, the plugin stays enabled).
+
+No GL happens when a host layer is opened, shown, restyled or removed: `prepare_gpu` (each
+frame, the context current) brings the renderer's GPU twins in line with the globe's
+overlays and drops a layer the GPU side refuses, with one line in `errors`.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+from globeview.errors import GlobeviewError
+from globeview.model.globe import Globe
+from globeview.plugins.api import PluginKind
+from globeview.plugins.host_checks import has_method
+from globeview.plugins.overlay_layers import (
+    DrawnLayer,
+    ImageryOverlayLayer,
+    PointsLayer,
+    VectorLayer,
+)
+from globeview.plugins.registry import PluginRegistry
+from globeview.render.renderer import GlobeRenderer
+
+__all__ = ["OverlayHost"]
+
+log = logging.getLogger("globeview.session")
+
+#: The layer objects the host builds from drawables (GL-free models).
+_HOST_LAYERS = (DrawnLayer, ImageryOverlayLayer, PointsLayer, VectorLayer)
+
+
+class OverlayHost:
+    """Opens overlays onto ``globe`` with the layer types of ``registry``."""
+
+    def __init__(self, globe: Globe, registry: PluginRegistry) -> None:
+        self.globe = globe
+        self.registry = registry
+        #: One line per overlay dropped at a frame because the GPU side refused it.
+        self.errors: list[str] = []
+
+    # -- layer types ---------------------------------------------------------------------------
+    def layer_types(self) -> list:
+        """The enabled layer types in dispatch order (`layer_dispatch.LayerTypeInfo`: name,
+        plugin, label, extensions), for menus and the Open Overlay filter."""
+        from globeview.plugins.layer_dispatch import layer_type_infos
+
+        return layer_type_infos(self.registry)
+
+    def file_filter(self) -> str:
+        """The Open Overlay dialog's filter: every enabled layer type's patterns."""
+        from globeview.plugins.layer_dispatch import overlay_file_filter
+
+        return overlay_file_filter(self.registry)
+
+    def layer_type_for(self, path: str, layer_type: str | None = None) -> str:
+        """The name of the layer type that opens ``path`` (`layer_dispatch.choose_layer_type`:
+        an explicit ``layer_type``, then declared extensions, then content sniffing).
+        Raises a one-line `GlobeviewError` naming the installed types when none does."""
+        from globeview.plugins.layer_dispatch import choose_layer_type
+
+        return choose_layer_type(self.registry, path, layer_type)
+
+    # -- opening and removing --------------------------------------------------------------------
+    def open(self, path: str, layer_type: str | None, renderer: GlobeRenderer, **style: Any) -> Any:
+        """Open a file as an overlay layer with the layer type dispatch picks (``path`` may
+        be ``"TYPE:FILE"``) and show it on top of the globe's overlays.
+
+        The type's ``open()`` may return drawables (`globeview.plugins.drawables`), which
+        the host checks and turns into layer models, or an API 1.0 object with
+        ``attach``/``detach`` (attached to ``renderer`` now: its GL is the plugin's). Bad
+        files raise a one-line `GlobeviewError` and leave the plugin enabled; garbage
+        returned, or a crash, fails that layer type (reported) and raises a one-line
+        `GlobeviewError`."""
+        from globeview.plugins.layer_dispatch import parse_layer_spec
+        from globeview.plugins.overlay_layers import as_drawables, host_layer
+
+        path = str(path)
+        if layer_type is None:
+            layer_type, path = parse_layer_spec(path)
+        name = self.layer_type_for(path, layer_type)
+        obj = self.registry.find(PluginKind.LAYER, name)
+        if obj is None:
+            raise GlobeviewError(f"layer type {name} is not available ({path})")
+        failed = object()
+        result = self.registry.invoke(obj, "open", path, default=failed, user_errors=True, **style)
+        layer: Any = failed
+        own_drawables = result is not failed and as_drawables(result) is None
+        if own_drawables and has_method(result, "drawables"):
+            # An object returning drawables: its drawables() is the plugin's code.
+            got = self.registry.call_for(obj, result.drawables, default=failed)
+            result = failed if got is failed else _Named(got, result, path)
+        if result is not failed:
+            try:
+                built, problem = host_layer(result, Path(path).name)
+            except GlobeviewError:  # e.g. a RasterFile GDAL cannot read: the user's file
+                raise
+            except Exception as exc:  # e.g. a drawable subclass whose property raises
+                first = str(exc).splitlines()[0] if str(exc) else ""
+                built, problem = (
+                    None,
+                    f"open() returned drawables the host cannot read "
+                    f"({f'{type(exc).__name__}: {first}'[:120]})",
+                )
+            if problem is not None:
+                self.registry.fail(obj, TypeError(problem))
+            else:
+                layer = built
+        if layer is not failed and not isinstance(layer, _HOST_LAYERS):
+            # An API 1.0 layer object: every call into it is plugin code, isolated.
+            layer = _PluginLayer(layer, self.registry, obj, Path(path).name)
+            if not layer.attach(renderer):
+                layer = failed
+        elif layer is not failed:
+            # A host layer is a model: no GL here. Its GPU twin is made at the next frame
+            # (`prepare_gpu`), where a GL refusal drops the layer with a one-line message.
+            _check_drape_size(layer, renderer.overlays.imagery.tex_size, Path(path).name)
+        if layer is failed:
+            raise GlobeviewError(
+                f"layer type {name} could not open {Path(path).name}: {self._why(obj)}"
+            )
+        self.globe.add_overlay(layer)
+        return layer
+
+    def open_embedded(self, renderer: GlobeRenderer, imagery: bool = False) -> list:
+        """The embedded default overlays: Natural Earth borders and coastlines (and the Blue
+        Marble imagery with ``imagery``), opened through the enabled built-in layer types
+        like any file (none when those types are disabled)."""
+        from globeview.terrain.dem import EMBEDDED_DATA_DIR
+
+        wanted: list[tuple[str, Path, dict]] = []
+        if imagery:
+            wanted.append(("imagery", EMBEDDED_DATA_DIR / "bluemarble_2048x1024.tif", {}))
+        wanted.append(
+            (
+                "vector",
+                EMBEDDED_DATA_DIR / "ne_110m_countries.geojson",
+                {"color": (1.0, 0.92, 0.35, 1.0), "width_px": 1.5},
+            )
+        )
+        layers = []
+        for kind, path, style in wanted:
+            # offers(): from the manifests, so no other layer plugin is imported for this.
+            if self.registry.offers(PluginKind.LAYER, kind):
+                layers.append(self.open(str(path), kind, renderer, **style))
+        return layers
+
+    def remove(self, layer: Any, renderer: GlobeRenderer) -> None:
+        """Take ``layer`` off the globe (an API 1.0 layer detaches itself from
+        ``renderer``; a host layer's GPU twin is released at the next frame)."""
+        layer.detach(renderer)
+        self.globe.remove_overlay(layer)
+
+    # -- the GPU side (at frame time) ------------------------------------------------------------
+    def prepare_gpu(self, renderer: GlobeRenderer) -> None:
+        """Bring ``renderer``'s overlay twins in line with the globe's overlays; a layer the
+        GPU side refuses (its limits) is dropped from the globe with one line in
+        ``errors`` (and the log)."""
+        for part, why in renderer.overlays.sync(self.globe.overlays):
+            top = next((ly for ly in self.globe.overlays if _contains(ly, part)), part)
+            message = f"cannot draw {getattr(top, 'name', 'overlay')}: {why}"
+            log.warning("%s", message)
+            self.errors.append(message)
+            if top in self.globe.overlays:
+                self.globe.remove_overlay(top)
+
+    def _why(self, contribution: object) -> str:
+        """The recorded reason a contribution (or its plugin) failed, one line."""
+        try:
+            plugin, cname = self.registry.contribution_of(contribution)
+        except (KeyError, AttributeError):
+            return "failed"
+        rec = self.registry.records.get(plugin)
+        if rec is None:
+            return "failed"
+        failure = getattr(rec, "failures", {}).get(cname)
+        if failure is not None and getattr(failure, "error", None):
+            return str(failure.error)
+        return rec.error or "failed"
+
+
+class _PluginLayer:
+    """An API 1.0 layer object (``attach``/``detach``, optional ``set_visible``) behind the
+    host's isolation: the overlay panel and the session call it only through here, so a
+    method that raises fails its layer type (one line) instead of the window. Listed with
+    kind 'plugin' and the object's ``name`` (default: the file's)."""
+
+    kind = "plugin"
+
+    def __init__(self, layer: object, registry: PluginRegistry, owner: object, path_name: str):
+        self.layer_object = layer
+        self._registry = registry
+        self._owner = owner  # the layer type that opened it: failures are its own
+        self.visible = True
+        try:
+            name = getattr(layer, "name", "")
+        except Exception:
+            name = ""
+        self.name = (name if isinstance(name, str) and name else path_name)[:200]
+
+    def _call(self, method: str, *args: object) -> bool:
+        if not has_method(self.layer_object, method):
+            return False
+        failed = object()
+        fn = getattr(self.layer_object, method)
+        return self._registry.call_for(self._owner, fn, *args, default=failed) is not failed
+
+    def attach(self, renderer) -> bool:
+        return self._call("attach", renderer)
+
+    def detach(self, renderer) -> None:
+        self._call("detach", renderer)
+
+    def set_visible(self, renderer, visible: bool) -> None:
+        self.visible = bool(visible)
+        self._call("set_visible", renderer, self.visible)
+
+
+class _Named:
+    """A layer object's drawables with its ``name`` (the default: the file's)."""
+
+    def __init__(self, items: object, owner: object, path: str) -> None:
+        self.items = items
+        self.name = str(getattr(owner, "name", "") or Path(path).name)[:200]
+
+    def drawables(self) -> object:
+        return self.items
+
+
+def _contains(layer: object, part: object) -> bool:
+    """Whether ``part`` is ``layer`` or one of its parts (a `DrawnLayer`'s)."""
+    return layer is part or any(p is part for p in getattr(layer, "parts", ()) or ())
+
+
+def _check_drape_size(layer: object, tex_size: int, name: str) -> None:
+    """Refuse (one line) a drape whose texture size the renderer's imagery stack cannot
+    compose with (all drapes of a globe share one texture array)."""
+    from globeview.terrain.imagery import ImageryError
+
+    for part in getattr(layer, "parts", None) or [layer]:
+        if getattr(part, "gpu_kind", None) != "imagery":
+            continue
+        size = getattr(part.layer.source, "tex_size", tex_size)
+        if size != tex_size:
+            raise ImageryError(f"{name}: texture size {size} != {tex_size}")
