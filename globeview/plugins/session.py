@@ -26,11 +26,12 @@ from globeview.lod.view_state import ViewState
 from globeview.model.camera import Camera
 from globeview.model.display import DisplaySettings
 from globeview.model.globe import DEFAULT_LOD, Globe
-from globeview.plugins.api import NullRendererHooks, PluginKind, Tool
+from globeview.plugins.api import NullRendererHooks, Tool
 from globeview.plugins.host_checks import has_method as _has_method
 from globeview.plugins.host_checks import hashable as _hashable
 from globeview.plugins.host_checks import overlay_problem as _overlay_problem
 from globeview.plugins.host_checks import uniforms_problem as _uniforms_problem
+from globeview.plugins.lod_host import LodHost
 from globeview.plugins.overlay_host import OverlayHost
 from globeview.plugins.registry import PluginRegistry
 from globeview.plugins.tool_host import ToolHost
@@ -87,6 +88,7 @@ class GlobeSession(GlobeScene):
             registry = PluginRegistry()
             registry.discover()
         self.registry = registry
+        self.lod_host = LodHost(globe, registry)
         self.tool_host = ToolHost(globe, registry)
         self.overlay_host = OverlayHost(globe, registry)
         self._marker_heights: dict[tuple[float, float, float], float] = {}
@@ -151,76 +153,27 @@ class GlobeSession(GlobeScene):
         """The overlay layers, bottom first (`Globe.overlays`)."""
         return self.globe.overlays
 
-    # -- LOD providers -------------------------------------------------------------------------
+    # -- LOD providers (plugins/lod_host.py) ---------------------------------------------------
     def lod_providers(self) -> dict:
-        """Name -> provider of every enabled LOD plugin contribution (imports them all: for
-        listing; the frame path loads only the active one)."""
-        return self.registry.lod_providers()
+        """Name -> provider of every enabled LOD plugin contribution (imports them all)."""
+        return self.lod_host.providers()
 
     def set_lod(self, name: str) -> None:
-        """Make ``name`` the active LOD provider (takes effect on the next frame). Imports
-        only the plugin that provides it.
-
-        A name no enabled plugin declares is the user's error (`GlobeviewError`). A provider
-        whose plugin fails to load is the plugin's: the registry reports it in one line and
-        the session falls back to `DEFAULT_LOD`, as it does for a provider failing later."""
-        if self.registry.find(PluginKind.LOD, name) is not None:
-            self.lod_name = name
-            return
-        declared_by_failed = any(
-            rec.manifest is not None
-            and any(
-                c.kind == PluginKind.LOD
-                and c.name == name
-                and rec.contribution_status(name) == "failed"
-                for c in rec.manifest.contributions
-            )
-            for rec in self.registry
-        )
-        if declared_by_failed and name != DEFAULT_LOD:
-            log.info("LOD provider %s failed to load; using %s", name, DEFAULT_LOD)
-            self.set_lod(DEFAULT_LOD)
-            return
-        known = ", ".join(sorted(self.registry.declared(PluginKind.LOD))) or "none"
-        rec = self.registry.records.get(name)
-        if rec is not None and rec.status == "failed":  # e.g. its manifest is invalid
-            raise GlobeviewError(
-                f"no enabled LOD provider named {name!r}: plugin {name} failed: {rec.error} "
-                f"(available: {known})"
-            )
-        if rec is not None and not rec.enabled:
-            raise GlobeviewError(
-                f"LOD provider {name!r} is disabled; `globeview plugins enable {name}` "
-                f"(available: {known})"
-            )
-        raise GlobeviewError(f"no enabled LOD provider named {name!r:.80} (available: {known})")
+        """Make ``name`` the active LOD provider, next frame (`LodHost.choose`: one-line
+        `GlobeviewError` for a name no enabled plugin provides; fallback to `DEFAULT_LOD`
+        when its plugin fails to load)."""
+        self.lod_host.choose(name)
 
     def reset_lod(self) -> None:
         """Make the active provider forget its per-view cache (before a measured frame)."""
-        provider = self.registry.find(PluginKind.LOD, self.lod_name)
-        if provider is not None:
-            self.registry.invoke(provider, "reset")
+        self.lod_host.reset()
 
     def _check_render_set(self, rs: RenderSet) -> None:
         """`RenderSet.validate` against this renderer's tiles (raises InvalidRenderSet)."""
         rs.validate(self.renderer.size, self.renderer.pool.verts_per_tile)
 
     def _select(self, view: ViewState, terrain: TerrainStack) -> RenderSet:
-        provider = self.registry.find(PluginKind.LOD, self.lod_name)
-        if provider is not None:
-            rs = self.registry.select(provider, view, terrain, check=self._check_render_set)
-            if rs is not None:
-                return rs
-        # The registry already reported the failure in one line; this is detail.
-        log.info("LOD provider %s unavailable; falling back to %s", self.lod_name, DEFAULT_LOD)
-        if self.lod_name != DEFAULT_LOD:
-            self.lod_name = DEFAULT_LOD
-            fallback = self.registry.find(PluginKind.LOD, DEFAULT_LOD)
-            if fallback is not None:
-                rs = self.registry.select(fallback, view, terrain, check=self._check_render_set)
-                if rs is not None:
-                    return rs
-        return RenderSet.empty()
+        return self.lod_host.select(view, terrain, self._check_render_set)
 
     # -- tools ---------------------------------------------------------------------------------
     def tools(self) -> dict:

@@ -1,0 +1,106 @@
+"""`LodHost`: which LOD provider chooses the tiles, and falling back when it fails.
+
+The active provider is a name on the `Globe` (``globe.lod``, an event). Choosing one imports
+only the plugin that provides it; a name no enabled plugin declares is the user's error (one
+line), a provider whose plugin fails to load or later fails a frame (raises, returns garbage:
+`RenderSet.validate`) is the plugin's: the registry reports it in one line and the globe
+falls back to the built-in `DEFAULT_LOD`.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+
+from globeview.errors import GlobeviewError
+from globeview.lod.render_set import RenderSet
+from globeview.lod.view_state import ViewState
+from globeview.model.globe import DEFAULT_LOD, Globe
+from globeview.plugins.api import PluginKind
+from globeview.plugins.registry import PluginRegistry
+from globeview.terrain.stack import TerrainStack
+
+__all__ = ["LodHost"]
+
+log = logging.getLogger("globeview.session")
+
+
+class LodHost:
+    """The LOD provider of ``globe``, its calls isolated by ``registry``."""
+
+    def __init__(self, globe: Globe, registry: PluginRegistry) -> None:
+        self.globe = globe
+        self.registry = registry
+
+    def providers(self) -> dict:
+        """Name -> provider of every enabled LOD plugin contribution (imports them all: for
+        listing; the frame path loads only the active one)."""
+        return self.registry.lod_providers()
+
+    def choose(self, name: str) -> None:
+        """Make ``name`` the active LOD provider (takes effect on the next frame).
+
+        A name no enabled plugin declares is the user's error (`GlobeviewError`). A provider
+        whose plugin fails to load is the plugin's: the registry reports it in one line and
+        the globe falls back to `DEFAULT_LOD`, as it does for a provider failing later."""
+        registry = self.registry
+        if registry.find(PluginKind.LOD, name) is not None:
+            self.globe.lod = name
+            return
+        declared_by_failed = any(
+            rec.manifest is not None
+            and any(
+                c.kind == PluginKind.LOD
+                and c.name == name
+                and rec.contribution_status(name) == "failed"
+                for c in rec.manifest.contributions
+            )
+            for rec in registry
+        )
+        if declared_by_failed and name != DEFAULT_LOD:
+            log.info("LOD provider %s failed to load; using %s", name, DEFAULT_LOD)
+            self.choose(DEFAULT_LOD)
+            return
+        known = ", ".join(sorted(registry.declared(PluginKind.LOD))) or "none"
+        rec = registry.records.get(name)
+        if rec is not None and rec.status == "failed":  # e.g. its manifest is invalid
+            raise GlobeviewError(
+                f"no enabled LOD provider named {name!r}: plugin {name} failed: {rec.error} "
+                f"(available: {known})"
+            )
+        if rec is not None and not rec.enabled:
+            raise GlobeviewError(
+                f"LOD provider {name!r} is disabled; `globeview plugins enable {name}` "
+                f"(available: {known})"
+            )
+        raise GlobeviewError(f"no enabled LOD provider named {name!r:.80} (available: {known})")
+
+    def reset(self) -> None:
+        """Make the active provider forget its per-view cache (before a measured frame)."""
+        provider = self.registry.find(PluginKind.LOD, self.globe.lod)
+        if provider is not None:
+            self.registry.invoke(provider, "reset")
+
+    def select(
+        self,
+        view: ViewState,
+        terrain: TerrainStack,
+        check: Callable[[RenderSet], None],
+    ) -> RenderSet:
+        """The active provider's render set for ``view`` (``check`` raises for garbage: the
+        provider fails); after a failure the `DEFAULT_LOD` provider's, else an empty set."""
+        provider = self.registry.find(PluginKind.LOD, self.globe.lod)
+        if provider is not None:
+            rs = self.registry.select(provider, view, terrain, check=check)
+            if rs is not None:
+                return rs
+        # The registry already reported the failure in one line; this is detail.
+        log.info("LOD provider %s unavailable; falling back to %s", self.globe.lod, DEFAULT_LOD)
+        if self.globe.lod != DEFAULT_LOD:
+            self.globe.lod = DEFAULT_LOD
+            fallback = self.registry.find(PluginKind.LOD, DEFAULT_LOD)
+            if fallback is not None:
+                rs = self.registry.select(fallback, view, terrain, check=check)
+                if rs is not None:
+                    return rs
+        return RenderSet.empty()
