@@ -29,7 +29,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from PyQt6.QtCore import QKeyCombination, QSettings, Qt
+from PyQt6.QtCore import QKeyCombination, QSettings, Qt, QTimer
 from PyQt6.QtGui import (
     QAction,
     QActionGroup,
@@ -124,6 +124,7 @@ class MainWindow(QMainWindow):
         #: can fail until then).
         self._activating: str | None = None
         self._showing_display = False
+        self._overlay_errors_seen = 0  # of the session's overlay_errors, reported
         #: Overlay files asked for before the globe's GL (and session) existed.
         self._pending_overlays: list[str] = []
         self.setWindowTitle("globeview")
@@ -587,6 +588,15 @@ class MainWindow(QMainWindow):
     def _frame_drawn(self, *_args: object) -> None:
         self._activating = None  # a frame was drawn with the tool: it is active
         self.plugins.after_frame()
+        scene = self.globe.scene
+        errors = [] if scene is None else scene.overlay_errors
+        if len(errors) > self._overlay_errors_seen:
+            # An overlay the GPU side refused (its limits) was dropped at this frame: say so
+            # in one line, after the frame (no dialog inside paintGL).
+            new = errors[self._overlay_errors_seen :]
+            self._overlay_errors_seen = len(errors)
+            for line in new:
+                QTimer.singleShot(0, lambda line=line: self.errors.error(GlobeviewError(line)))
 
     def _use_lod(self, name: str) -> None:
         self.status.lod.setText(f"LOD {name}")
@@ -705,6 +715,8 @@ class MainWindow(QMainWindow):
             self._pending_overlays.append(str(path))
             return None
         try:
+            # A host layer is a model (its GPU twin is made at the next frame); the context
+            # is for an API 1.0 plugin layer, whose attach() makes its own GL objects.
             with self.globe.gl_current():
                 layer = scene.add_overlay(str(path))  # listed by the model's event
         except Exception as exc:
@@ -727,13 +739,12 @@ class MainWindow(QMainWindow):
         panel.bind(scene, self.globe.gl_current)
         if self._embedded_overlays:
             self._embedded_overlays = False
-            try:
-                with self.globe.gl_current():
-                    layers = scene.add_embedded_overlays(imagery=True)
-                    for layer in layers:
-                        if layer.kind in ("imagery", "thematic"):
-                            layer.set_visible(scene.renderer, False)
-                self.model.overlays_changed()  # shown hidden in the panel
+            try:  # the built-in layer types' layers: models, no GL here
+                layers = scene.add_embedded_overlays(imagery=True)
+                for layer in layers:
+                    if layer.kind in ("imagery", "thematic"):
+                        layer.set_visible(None, False)
+                self.model.overlays_changed()  # listed hidden, drawn hidden
             except Exception as exc:
                 self.errors.error(exc, "adding the embedded overlays")
         pending, self._pending_overlays = self._pending_overlays, []

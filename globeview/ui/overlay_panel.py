@@ -165,9 +165,10 @@ class OverlayPanel(QWidget):
 
     # -- model ----------------------------------------------------------------------------
     def bind(self, session: Any, gl: Callable[[], AbstractContextManager] | None = None) -> None:
-        """Edit the overlays through ``session`` (None: none, the list is disabled); ``gl()``
-        makes the GL context current around attach / detach (they create and release GL
-        objects)."""
+        """Edit the overlays through ``session`` (None: none, the list is disabled). The
+        host's layers are models (no GL: the renderer makes their GPU twins at the next
+        frame); ``gl()`` makes the GL context current only around an API 1.0 plugin layer's
+        own calls (kind 'plugin': its attach/detach/set_visible make and free its GL)."""
         self.session = session
         self._gl = gl or nullcontext
         self.refresh()
@@ -175,6 +176,11 @@ class OverlayPanel(QWidget):
     @property
     def renderer(self) -> Any:
         return None if self.session is None else self.session.renderer
+
+    def _gl_for(self, layer: Any) -> AbstractContextManager:
+        """A current GL context for an API 1.0 plugin layer's own calls; nothing for the
+        host's layer models."""
+        return self._gl() if getattr(layer, "kind", "") == "plugin" else nullcontext()
 
     def layers(self) -> list:
         """The model's overlay layers, bottom first."""
@@ -270,7 +276,8 @@ class OverlayPanel(QWidget):
         if self._updating or self.renderer is None:
             return
         layer = self._by_id[item.data(ID_ROLE)]
-        layer.set_visible(self.renderer, item.checkState() == Qt.CheckState.Checked)
+        with self._gl_for(layer):
+            layer.set_visible(self.renderer, item.checkState() == Qt.CheckState.Checked)
         self._announce()
 
     def set_opacity(self, layer: Any, opacity: float) -> None:
@@ -345,20 +352,12 @@ class OverlayPanel(QWidget):
         self.select(listed[new])
 
     def _reorder(self, order: list) -> None:
-        """Put the session's overlays in ``order`` (bottom first) and re-attach them all, so
-        the renderer's drape and line order follow (visibility is kept)."""
+        """Put the model's overlays in ``order`` (bottom first): one event, which lists them
+        here and redraws (the renderer composes drapes and lines in the model's order)."""
         if self.session is None or order == self.layers():
             self.refresh()
             return
-        shown = {id(ly): layer_visible(ly) for ly in order}
-        with self._gl():
-            for layer in self.layers():
-                layer.detach(self.renderer)
-            self.model.set_overlay_order(order)  # the model's event lists the new order
-            for layer in order:
-                layer.attach(self.renderer)
-                if not shown[id(layer)]:
-                    layer.set_visible(self.renderer, False)
+        self.model.set_overlay_order(order)
 
     def remove_selected(self) -> None:
         layer = self.selected_layer()
@@ -369,7 +368,7 @@ class OverlayPanel(QWidget):
         """Take an overlay off the globe and out of the model (its event updates the list)."""
         if self.session is None:
             return
-        with self._gl():
+        with self._gl_for(layer):
             self.session.remove_overlay(layer)
 
 

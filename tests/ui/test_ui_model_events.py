@@ -69,18 +69,47 @@ def test_overlays_changed_on_the_model_are_listed(make_window, wait_frame) -> No
     win = make_window()
     panel = win.layer_panel.overlays
     assert panel.names() == []
-    with win.globe.gl_current():  # the session attaches the layer's GL objects
-        layers = win.globe.scene.add_embedded_overlays(imagery=True)
+    layers = win.globe.scene.add_embedded_overlays(imagery=True)  # models: no GL context
     # Added through the session, not the window: the model's event lists them.
     assert len(layers) == 2
     assert panel.names() == [ly.name for ly in reversed(layers)]
     win.model.set_overlay_order(list(reversed(layers)))
     assert panel.names() == [ly.name for ly in layers]
-    with win.globe.gl_current():
-        win.globe.scene.remove_overlay(layers[0])
+    win.globe.scene.remove_overlay(layers[0])
     assert panel.names() == [layers[1].name]
     assert win.overlay_layers() == [layers[1]]
     wait_frame(win)
+    assert win.globe.last_stats.triangles > 0
+
+
+def test_changing_the_model_from_the_window_makes_no_context_current(
+    make_window, wait_frame, monkeypatch
+) -> None:
+    """Tools, overlays (add, hide, restyle, reorder, remove), tau, LOD and display settings
+    change the model only; GPU objects follow at the next frame, which Qt draws with its
+    own context current."""
+    win = make_window(embedded_overlays=True)
+    calls = []
+    real = win.globe.makeCurrent
+    monkeypatch.setattr(win.globe, "makeCurrent", lambda: (calls.append(1), real())[1])
+    panel = win.layer_panel.overlays
+    assert win.set_tool("collapse") and win.set_tool("measure") and win.set_tool(None)
+    borders, marble = panel.layer_at(0), panel.layer_at(1)
+    panel.set_visible(marble, True)
+    panel.set_opacity(marble, 0.5)
+    panel.set_width(borders, 4.0)
+    panel.select(borders)
+    panel.move_selected(+1)
+    assert panel.names() == [marble.name, borders.name]
+    panel.remove(borders)
+    win.plugin_panel.tau_slider.setValue(40)
+    win.plugins.choose("wavelet")
+    win.exag_slider.setValue(25)
+    win.wire_check.setChecked(True)
+    assert calls == []
+    wait_frame(win)
+    assert win.globe.last_stats.lod_provider == "wavelet"
+    assert win.globe.scene.renderer.overlays.vectors == []  # the removed one's twin is freed
     assert win.globe.last_stats.triangles > 0
 
 

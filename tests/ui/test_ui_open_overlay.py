@@ -135,4 +135,7 @@ def test_a_drawing_of_several_drawables_is_one_row(make_window, stripes, frame_r
     assert not any(ov.visible for ov in win.globe.scene.renderer.overlays.points)
     panel.select(layer)
     panel.remove_selected()
-    assert win.overlay_layers() == [] and win.globe.scene.renderer.overlays.vectors == []
+    assert win.overlay_layers() == [] and panel.names() == []
+    wait_frame(win)  # the GPU twins of a removed layer are released at the next frame
+    assert win.globe.scene.renderer.overlays.vectors == []
+    assert win.globe.scene.renderer.overlays.points == []

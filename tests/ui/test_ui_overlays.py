@@ -150,7 +150,8 @@ def test_vector_style_order_and_remove(make_window, frame_rgb, redraw):
     assert ((frame_rgb(win)[..., 1] > 200) & (frame_rgb(win)[..., 0] < 90)).sum() > 50
     panel.select(borders)
     panel.remove_selected()
-    assert panel.names() == [BLUE_MARBLE]
+    assert panel.names() == [BLUE_MARBLE] and win.overlay_layers() == [panel.find(BLUE_MARBLE)]
+    redraw(win)  # the GPU twin of a removed layer is released at the next frame
     assert win.globe.scene.renderer.overlays.vectors == []
 
 
