@@ -7,6 +7,7 @@ window under Xvfb."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,6 +16,8 @@ from PyQt6.QtCore import Qt
 from globeview.model.camera import Camera
 
 pytestmark = pytest.mark.gui
+
+DATA = Path(__file__).resolve().parents[2] / "data"
 
 
 def test_tau_set_on_the_model_moves_the_slider(make_window, wait_frame) -> None:
@@ -219,3 +222,21 @@ def test_closed_window_leaves_the_model(make_window) -> None:
     model.lod = "wavelet"
     model.overlays_changed()
     model.terrain.set_visible(model.terrain.layers[0].name, False)
+
+
+def test_an_overlay_the_gpu_refuses_at_a_frame_is_reported_in_one_line(
+    make_window, qtbot, errors_shown, wait_frame
+) -> None:
+    win = make_window()
+    (cities,) = win.open_overlays([str(DATA / "ne_cities.geojson")])
+    wait_frame(win)
+    assert errors_shown == []
+    # A style the GPU side refuses, set from code: the frame drops the layer (one line).
+    cities.set_style(None, object_kind="bogus")
+    win.model.overlays_changed()
+    qtbot.waitUntil(lambda: bool(errors_shown), timeout=10000)
+    text = errors_shown[-1].text
+    assert "\n" not in text and "cannot draw" in text and cities.name in text
+    assert win.overlay_layers() == [] and win.layer_panel.overlays.names() == []
+    wait_frame(win)
+    assert win.globe.last_stats.triangles > 0 and len(errors_shown) == 1
