@@ -230,7 +230,7 @@ class FramePipeline:
         stats.extra.update(renderer.draw_overlays(view, drawn))
 
         # 7. The tool's overlay: markers and lines.
-        overlay_drawn = self.draw_tool_overlay(tool, view, fbo)
+        overlay_drawn = self._draw_tool_overlay(tool, view, fbo)
         renderer.ctx.finish()
 
         # 8. Stats.
@@ -239,7 +239,7 @@ class FramePipeline:
         self.last = FrameResult(view, render_set, stats, overlay_drawn, animating, fbo)
         return self.last
 
-    def draw_tool_overlay(
+    def _draw_tool_overlay(
         self, tool: FrameTool | None, view: ViewState, fbo: moderngl.Framebuffer
     ) -> int:
         """Draw the tool's overlay primitives over ``fbo``; returns the instances drawn."""

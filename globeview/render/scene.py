@@ -107,8 +107,6 @@ class GlobeScene:
     ) -> FrameResult:
         """Run one frame through the pipeline (`FramePipeline.run`)."""
         self.last = self.pipeline.run(fbo, viewport, now_s)
-        # The window's pick still reads _last_fbo (helper C switches it to last.target).
-        self._last_fbo = self.last.target
         return self.last
 
     def pick(self, x_px: float, y_px: float, to_true=None) -> Pick | None:
