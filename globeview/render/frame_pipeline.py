@@ -101,6 +101,7 @@ class FrameHost(Protocol):
     camera: Camera
     tau_px: float
     terrain: TerrainStack
+    lod_name: str  # the provider that drew, read after ``select`` (it may fall back)
 
     def prepare_gpu(self) -> None:
         """Create the GPU objects the model's state needs before drawing."""
@@ -235,7 +236,7 @@ class FramePipeline:
 
         # 8. Stats.
         renderer.finish_stats(stats, view, drawn, triangles, t0)
-        stats.lod_provider = getattr(host, "lod_name", "") or stats.lod_provider
+        stats.lod_provider = host.lod_name
         self.last = FrameResult(view, render_set, stats, overlay_drawn, animating, fbo)
         return self.last
 
