@@ -369,7 +369,7 @@ class GlobeRenderer:
         self.ctx.depth_func = "<"
         return int(counts.sum() // 3)
 
-    def draw_overlays(self, view: ViewState, render_set: RenderSet) -> dict[str, object]:
+    def draw_overlays(self, view: ViewState, render_set: RenderSet) -> dict[str, float]:
         """Draw the overlay layers' vectors and point objects, depth-tested against the
         terrain just drawn; returns their figures for ``FrameStats.extra``."""
         return self.overlays.draw(view, render_set, self.terrain, self.settings)
