@@ -182,6 +182,7 @@ class Bench:
         settings = old.settings
         s.renderer = GlobeRenderer(self.ctx, self.terrain, capacity=capacity)
         s.renderer.settings = settings
+        old.release()  # its tile pool (~100 MB of GPU memory) would outlive it otherwise
 
     def gl_objects(self) -> dict[str, int]:
         """The GL objects alive in the bench's context, by kind, as the one tracker counts
