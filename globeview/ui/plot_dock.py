@@ -334,7 +334,8 @@ class PlotDock(QDockWidget):
 
 def install_plot_dock(window: Any) -> PlotDock:
     """Add a (hidden) Plot dock to the main window and poll the active tool after every
-    frame. ``window`` has ``globe`` (the `GlobeWidget`), ``plugins`` (the `PluginHost`),
+    frame and tool change. ``window`` has ``globe`` (the `GlobeWidget`), ``model`` (the
+    `Globe`), ``subscriptions`` (its model subscriptions), ``plugins`` (the `PluginHost`),
     ``errors`` (`ErrorReporter`) and ``status`` (`StatusBar`)."""
     dock = PlotDock(window, window.errors.error, window.status.notice)
     window.addDockWidget(Qt.DockWidgetArea.RightDockWidgetArea, dock)
@@ -355,5 +356,6 @@ def install_plot_dock(window: Any) -> PlotDock:
             QTimer.singleShot(0, poll)
 
     globe.frameRendered.connect(after_frame)
-    globe.toolDeactivated.connect(after_frame)
+    # A tool switched anywhere (toolbar, Escape, code, its plugin failing): the model says.
+    window.subscriptions.connect(window.model.events.tool, after_frame)
     return dock
