@@ -240,3 +240,21 @@ def test_an_overlay_the_gpu_refuses_at_a_frame_is_reported_in_one_line(
     assert win.overlay_layers() == [] and win.layer_panel.overlays.names() == []
     wait_frame(win)
     assert win.globe.last_stats.triangles > 0 and len(errors_shown) == 1
+
+
+@pytest.mark.parametrize("bad", ["nan", "inf", "-3", "1e9", "abc", ""])
+def test_hostile_saved_view_settings_open_with_the_defaults(make_window, tmp_path, bad) -> None:
+    """A hand-edited settings file: a tau or exaggeration that is no number, or one outside
+    what the controls show, opens the window with the defaults (a NaN exaggeration used to
+    stop the window from opening)."""
+    from PyQt6.QtCore import QSettings
+
+    path = tmp_path / "hostile.ini"
+    s = QSettings(str(path), QSettings.Format.IniFormat)
+    s.setValue("view/tau", bad)
+    s.setValue("view/exaggeration", bad)
+    s.sync()
+    win = make_window(settings_path=path)
+    assert win.model.tau_px == 2.0 and win.plugin_panel.tau_label.text() == "2.0 px"
+    assert win.model.display.exaggeration == 1.0 and win.exag_label.text() == "1.0×"
+    assert win.globe.last_stats.triangles > 0
