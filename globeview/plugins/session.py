@@ -208,61 +208,21 @@ class GlobeSession(GlobeScene):
         self.tool_host.prepare_gpu(self.renderer)
         self.overlay_host.prepare_gpu(self.renderer)
 
-    # -- checks of what tools return (garbage fails the tool's plugin, not the caller) -------
+    # -- the tool's CPU side (plugins/tool_host.py; garbage fails the tool, not the caller) --
     def _fail(self, contribution, problem: str) -> None:
-        """Fail ``contribution`` (only it, not its plugin's others) for returning garbage
-        (``problem``, one line)."""
-        self.registry.fail(contribution, TypeError(problem))
+        """Fail ``contribution`` for returning garbage (`ToolHost.fail`)."""
+        self.tool_host.fail(contribution, problem)
 
     def _checked_points(self, tool, out, points: np.ndarray, what: str) -> np.ndarray | None:
-        """``out`` as float64 points shaped like ``points`` and finite wherever ``points``
-        is; otherwise the tool's plugin fails and None comes back."""
-        try:
-            arr = np.asarray(out, dtype=np.float64)
-        except Exception:
-            arr = None
-        if arr is None or arr.shape != points.shape:
-            got = "something else" if arr is None else f"shape {arr.shape}"
-            self._fail(tool, f"{what}() returned {got} for points of shape {points.shape}")
-            return None
-        if not np.isfinite(arr).all() and (~np.isfinite(arr) & np.isfinite(points)).any():
-            self._fail(tool, f"{what}() returned NaN or infinite coordinates")
-            return None
-        return arr
+        return self.tool_host.checked_points(tool, out, points, what)
 
     def _displace(self, points: np.ndarray) -> np.ndarray:
-        tool = self.tool()
-        if tool is None:
-            return points
-        out = self.registry.invoke(tool, "displacement_numpy", points, default=None)
-        if out is None:
-            return points
-        arr = self._checked_points(tool, out, np.asarray(points), "displacement_numpy")
-        return points if arr is None else arr
+        """The active tool's CPU displacement of ECEF ``points`` (`ToolHost.displace`)."""
+        return self.tool_host.displace(points)
 
     def _bend(self, points: np.ndarray, displaced: np.ndarray | None = None) -> np.ndarray:
-        """The active tool's bend bound (`Tool.displacement_bend_m`); the exact measure when
-        it returns None or its plugin has failed."""
-        from globeview.lod.culling import displacement_chord_error_m
-
-        tool = self.tool()
-        bend = None
-        if tool is not None:
-            bend = self.registry.invoke(tool, "displacement_bend_m", points, displaced)
-        if bend is not None:
-            try:
-                arr = np.asarray(bend, dtype=np.float64)
-            except Exception:
-                arr = None
-            want = np.shape(points)[:1]
-            if arr is None or arr.shape != want or not (np.isfinite(arr) & (arr >= 0)).all():
-                got = "something else" if arr is None else f"shape {arr.shape}"
-                self._fail(
-                    tool, f"displacement_bend_m() returned {got}, not {want} finite bends >= 0"
-                )
-            else:
-                return arr
-        return displacement_chord_error_m(self._displace, points, displaced)
+        """The active tool's bend bound (`ToolHost.bend`)."""
+        return self.tool_host.bend(points, displaced)
 
     # -- the frame (FramePipeline's host) ----------------------------------------------------
     def view_state(self, viewport: tuple[int, int]) -> ViewState:
@@ -283,13 +243,7 @@ class GlobeSession(GlobeScene):
         if tool is None or self.renderer.displacement_hook is None:
             return super().pick(x_px, y_px)
 
-        def to_true(drawn: np.ndarray) -> np.ndarray:
-            true = self.registry.invoke(tool, "displacement_inverse_numpy", drawn, default=None)
-            arr = None
-            if true is not None:
-                arr = self._checked_points(tool, true, drawn, "displacement_inverse_numpy")
-            return drawn if arr is None else arr
-
+        to_true = self.tool_host.to_true
         # The pick is refined against the terrain the pixel shows (the true place's), not the
         # DEM under the drawn place (issue #16: picked heights off by hundreds of metres).
         p = super().pick(x_px, y_px, to_true)
@@ -330,16 +284,7 @@ class GlobeSession(GlobeScene):
         self.pipeline.release()
         self.renderer.release()
 
-    # -- the active tool's overlay (markers, fold lines) ----------------------------------------
-    def draw_tool_overlay(self, fbo: moderngl.Framebuffer, view=None) -> int:
-        """Draw the active tool's overlay over ``fbo`` again; returns the instances drawn.
-        `render` draws it already (``FrameResult.overlay_drawn``): this stays only until
-        the window stops calling it (issue #14)."""
-        view = view if view is not None else (self.last.view if self.last else None)
-        if view is None:
-            return 0
-        return self.pipeline.draw_tool_overlay(self.frame_tool(), view, fbo)
-
+    # -- the active tool's overlay (markers, fold lines; drawn by the frame pipeline) -----------
     def _drape_marker(self, prim):
         """A marker on the ellipsoid (height < 1 m) lifted to the terrain surface (with the
         exaggeration), so it marks the ground the user clicked in oblique views too."""

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from globeview.errors import GlobeviewError
 from globeview.model.globe import Globe
 from globeview.plugins.api import PluginKind
@@ -131,3 +133,75 @@ class ToolHost:
             self._installed = self._installed_key = None
             return
         self._installed, self._installed_key = hook, want
+
+    # -- the tool's CPU side: displaced points, bend bounds, picks (checked) ------------------
+    def fail(self, contribution: Any, problem: str) -> None:
+        """Fail ``contribution`` (only it, not its plugin's others) for returning garbage
+        (``problem``, one line)."""
+        self.registry.fail(contribution, TypeError(problem))
+
+    def checked_points(
+        self, tool: Any, out: Any, points: np.ndarray, what: str
+    ) -> np.ndarray | None:
+        """``out`` as float64 points shaped like ``points`` and finite wherever ``points``
+        is; otherwise the tool fails and None comes back."""
+        try:
+            arr = np.asarray(out, dtype=np.float64)
+        except Exception:
+            arr = None
+        if arr is None or arr.shape != points.shape:
+            got = "something else" if arr is None else f"shape {arr.shape}"
+            self.fail(tool, f"{what}() returned {got} for points of shape {points.shape}")
+            return None
+        if not np.isfinite(arr).all() and (~np.isfinite(arr) & np.isfinite(points)).any():
+            self.fail(tool, f"{what}() returned NaN or infinite coordinates")
+            return None
+        return arr
+
+    def displace(self, points: np.ndarray) -> np.ndarray:
+        """Where the active tool draws ECEF ``points`` (m; `Tool.displacement_numpy`), or
+        ``points`` themselves without a tool or after it failed."""
+        tool = self.tool()
+        if tool is None:
+            return points
+        out = self.registry.invoke(tool, "displacement_numpy", points, default=None)
+        if out is None:
+            return points
+        arr = self.checked_points(tool, out, np.asarray(points), "displacement_numpy")
+        return points if arr is None else arr
+
+    def to_true(self, drawn: np.ndarray) -> np.ndarray:
+        """The true ECEF places of drawn points (`Tool.displacement_inverse_numpy`), or the
+        drawn points when the tool has no inverse or it failed."""
+        tool = self.tool()
+        if tool is None:
+            return drawn
+        true = self.registry.invoke(tool, "displacement_inverse_numpy", drawn, default=None)
+        arr = None
+        if true is not None:
+            arr = self.checked_points(tool, true, drawn, "displacement_inverse_numpy")
+        return drawn if arr is None else arr
+
+    def bend(self, points: np.ndarray, displaced: np.ndarray | None = None) -> np.ndarray:
+        """The active tool's bend bound per point (m, `Tool.displacement_bend_m`); the exact
+        chord measure when it returns None or its plugin has failed."""
+        from globeview.lod.culling import displacement_chord_error_m
+
+        tool = self.tool()
+        bend = None
+        if tool is not None:
+            bend = self.registry.invoke(tool, "displacement_bend_m", points, displaced)
+        if bend is not None:
+            try:
+                arr = np.asarray(bend, dtype=np.float64)
+            except Exception:
+                arr = None
+            want = np.shape(points)[:1]
+            if arr is None or arr.shape != want or not (np.isfinite(arr) & (arr >= 0)).all():
+                got = "something else" if arr is None else f"shape {arr.shape}"
+                self.fail(
+                    tool, f"displacement_bend_m() returned {got}, not {want} finite bends >= 0"
+                )
+            else:
+                return arr
+        return displacement_chord_error_m(self.displace, points, displaced)
