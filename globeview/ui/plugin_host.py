@@ -1,10 +1,12 @@
 """The UI's side of the plugin contract: the registry and the `GlobeSession` wired to the
 window.
 
-`PluginHost` lists the plugins and LOD providers for the panel, switches the session's active
-provider, applies provider settings, and turns plugin failures into one-line notices: the
-registry disables a plugin that raises, the session falls back to the built-in provider on
-that same frame, and `after_frame` notices the switch and tells the user. It is also the
+`PluginHost` lists the plugins and LOD providers for the panel, applies provider settings,
+and turns plugin failures into one-line notices. The active LOD provider is the model's
+(``Globe.lod``): choosing one sets it, and the host follows the model's ``lod`` event, so a
+provider set from code, or the session's fallback when a provider fails in a frame (the
+registry disables it, the session switches the model to the built-in provider on that same
+frame), reaches the panel and the status bar with the reason. It is also the
 `RendererHooks` object plugin contexts get (``request_redraw``, ``set_status``).
 
 `QSettingsBackend` is a `SettingsBackend` over the window's QSettings (JSON strings). The
