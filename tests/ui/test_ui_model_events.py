@@ -258,3 +258,18 @@ def test_hostile_saved_view_settings_open_with_the_defaults(make_window, tmp_pat
     assert win.model.tau_px == 2.0 and win.plugin_panel.tau_label.text() == "2.0 px"
     assert win.model.display.exaggeration == 1.0 and win.exag_label.text() == "1.0×"
     assert win.globe.last_stats.triangles > 0
+
+
+def test_the_window_draws_with_the_pipelines_camera_speed(make_window, qtbot) -> None:
+    """paintGL derives no speed: the frame pipeline does, from the model's camera history.
+    During a flight the frames see a speed; once still, one more frame sees none."""
+    win = make_window()
+    g = win.globe
+    assert g.scene.last.view.speed_mps == 0.0
+    seen = []
+    g.frameRendered.connect(lambda *_: seen.append(g.scene.last.view.speed_mps))
+    assert win.go_to("10, 45, 3000000")
+    qtbot.waitUntil(lambda: any(v > 1000.0 for v in seen), timeout=10000)
+    qtbot.waitUntil(lambda: not g.flight.active, timeout=10000)
+    # The settle frame after the flight (the camera still) sees no speed.
+    qtbot.waitUntil(lambda: seen[-1] == 0.0, timeout=10000)
