@@ -63,6 +63,13 @@ class LodPolicy:
 
     max_level: int = MAX_LEVEL
     max_tiles: int | None = None
+    #: Whether the class defines its own `cull` (set per class: the traversal skips calling
+    #: the base's, which keeps every tile).
+    overrides_cull: bool = False
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        cls.overrides_cull = cls.cull is not LodPolicy.cull
 
     def __init__(self, tau_px: float | None = None) -> None:
         self._tau_override = tau_px

@@ -97,6 +97,9 @@ def render_set_by_stride(
     if len(keys) == 0:
         return RenderSet.empty()
     combo = np.asarray(stride_idx, dtype=np.int64) * 4 + pole_codes(keys)
-    uniq, ids = np.unique(combo, return_inverse=True)
+    # = np.unique(combo, return_inverse=True) for these few small codes, without its sort.
+    present = np.bincount(combo, minlength=1) > 0
+    uniq = present.nonzero()[0]
+    ids = (np.cumsum(present) - 1).take(combo)
     variants = [IndexVariant(stride=int(2 ** (c // 4)), pole=_POLES[c % 4]) for c in uniq]
     return RenderSet(keys, ids, variants, error_px=error_px)

@@ -65,6 +65,8 @@ from globeview.terrain.stack import N_STRIDES, TerrainStack
 if TYPE_CHECKING:
     from globeview.lod.policy import LodPolicy
 
+_BOOL, _F64, _I64 = np.dtype(bool), np.dtype(np.float64), np.dtype(np.int64)
+
 #: Deepest level the walk goes to even where the data stops (curvature alone).
 MAX_LEVEL = 22
 
@@ -129,13 +131,17 @@ class TileCandidates:
     dist_m: np.ndarray
     px_per_m: np.ndarray
     err_m: np.ndarray
-    bend_m: np.ndarray
+    _bend: np.ndarray | None = field(repr=False)
     _lv: LevelTiles = field(repr=False)
     _dpts: np.ndarray | None = field(default=None, repr=False)
     scratch: dict[str, Any] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.slots)
+
+    @property
+    def bend_m(self) -> np.ndarray:
+        return np.zeros(len(self.slots)) if self._bend is None else self._bend
 
     @property
     def x(self) -> np.ndarray:
@@ -270,6 +276,7 @@ def _walk(view: ViewState, terrain: TerrainStack, policy: LodPolicy, cache: Tile
     # otherwise quadruple its candidates every level down to MAX_LEVEL.
     strict = policy.max_tiles is None
     budget = MAX_TILES if strict else min(int(policy.max_tiles), MAX_TILES)
+    own_cull = getattr(policy, "overrides_cull", True)  # the base's cull keeps every tile
 
     slots = cache.roots(terrain, size)
     out: list[tuple[int, LevelTiles, np.ndarray]] = []
@@ -314,29 +321,34 @@ def _walk(view: ViewState, terrain: TerrainStack, policy: LodPolicy, cache: Tile
             # = np.linalg.norm(d, axis=1) (the same operations, without its overhead)
             d = np.sqrt(np.add.reduce(d * d, axis=1)) - c[COL_RADIUS]
             dist = np.maximum(d, 1.0)
-            bend = np.zeros(m)
-            dpts = None
+            bend = dpts = None
         else:
             bend = lv.bends(ks, view)
             err = err + bend[:, None] * bend_frac[None, :]
             dpts = pts[fi]
             dist = bounding_distance(view, dpts, c[COL_MARGIN])
         tiles = TileCandidates(
-            view, terrain, level, size, ks, c, dist, k_px / dist, err, bend, lv, dpts
+            view, terrain, level, size, ks, c, dist, k_px / dist, err, bend, lv, dpts, {}
         )
         # The policy's own culling (e.g. Rishe's ground region), on the visible tiles only.
-        keep = policy.cull(tiles)
+        keep = policy.cull(tiles) if own_cull else None
         if keep is not None:
-            keep = _checked(policy, "cull", keep, (m,), bool)
+            keep = _checked(policy, "cull", keep, (m,), _BOOL)
         if keep is not None and not keep.all():
             ki = keep.nonzero()[0]
             if len(ki) == 0:
                 break
             tiles = _subset(tiles, ki)
             ks, m = tiles.slots, len(ki)
-        sse = _checked(policy, "error_px", policy.error_px(tiles), (m, N_STRIDES), np.float64)
+        # What a policy returns is checked (`_checked`); the plain case inline, without a call
+        # (a frame has a dozen levels and a few policy calls per level: calls add up).
+        sse = policy.error_px(tiles)
+        if type(sse) is not np.ndarray or sse.shape != (m, N_STRIDES) or sse.dtype is not _F64:
+            sse = _checked(policy, "error_px", sse, (m, N_STRIDES), _F64)
         if level < max_level:
-            refine = _checked(policy, "refine", policy.refine(tiles, sse), (m,), bool)
+            refine = policy.refine(tiles, sse)
+            if type(refine) is not np.ndarray or refine.shape != (m,) or refine.dtype is not _BOOL:
+                refine = _checked(policy, "refine", refine, (m,), _BOOL)
         else:
             refine = np.zeros(m, dtype=bool)
         # Budget: if refining everything would exceed the tile budget, refine the worst first.
@@ -344,24 +356,19 @@ def _walk(view: ViewState, terrain: TerrainStack, policy: LodPolicy, cache: Tile
         if n_ref:
             room, fanout = (budget - drawn - m, 3) if strict else (budget - drawn - (m - n_ref), 4)
             if n_ref * fanout > room:
-                priority = _checked(
-                    policy, "priority", policy.priority(tiles, sse), (m,), np.float64
-                )
+                priority = _checked(policy, "priority", policy.priority(tiles, sse), (m,), _F64)
                 refine = budget_refinement(refine, priority, room, fanout)
                 n_ref = int(np.count_nonzero(refine))
         if n_ref < m:
             ai = (~refine).nonzero()[0] if n_ref else np.arange(m)
             sse_acc = sse.take(ai, axis=0) if n_ref else sse
-            idx = _checked(
-                policy, "stride", policy.stride(tiles, sse_acc, ai), (len(ai),), np.int64
-            )
-            if idx.min() < 0 or idx.max() >= N_STRIDES:
-                name = type(policy).__name__
-                raise ValueError(f"{name}.stride returned indices outside 0..{N_STRIDES - 1}")
+            idx = policy.stride(tiles, sse_acc, ai)
+            if type(idx) is not np.ndarray or idx.shape != ai.shape or idx.dtype is not _I64:
+                idx = _checked(policy, "stride", idx, ai.shape, _I64)
             out.append((level, lv, ks.take(ai) if n_ref else ks))
             out_stride.append(idx)
             rows = np.arange(0, len(idx) * N_STRIDES, N_STRIDES)
-            out_err.append(sse_acc.ravel().take(rows + idx))
+            out_err.append(sse_acc.ravel().take(rows + idx, mode="clip"))  # checked below
             drawn += len(idx)
         if n_ref == 0:
             break
@@ -371,10 +378,15 @@ def _walk(view: ViewState, terrain: TerrainStack, policy: LodPolicy, cache: Tile
     if not out:
         empty = np.empty(0, dtype=np.int64)
         return Selection(np.empty((0, 3), dtype=np.int64), empty, np.empty(0), culled_f, culled_h)
+    stride_idx = np.concatenate(out_stride)
+    # Checked once per frame (the errors taken with a bad index above are dropped with it).
+    if stride_idx.min() < 0 or stride_idx.max() >= N_STRIDES:
+        name = type(policy).__name__
+        raise ValueError(f"{name}.stride returned indices outside 0..{N_STRIDES - 1}")
     keys = np.empty((drawn, 3), dtype=np.int64)
     keys[:, 0] = np.repeat([lvl for lvl, _, _ in out], [len(s) for _, _, s in out])
     keys[:, 1:] = np.concatenate([lv.xy.take(s, axis=0) for _, lv, s in out])
-    return Selection(keys, np.concatenate(out_stride), np.concatenate(out_err), culled_f, culled_h)
+    return Selection(keys, stride_idx, np.concatenate(out_err), culled_f, culled_h)
 
 
 def _checked(policy: LodPolicy, what: str, value: Any, shape: tuple[int, ...], dtype) -> np.ndarray:
@@ -385,9 +397,9 @@ def _checked(policy: LodPolicy, what: str, value: Any, shape: tuple[int, ...], d
         raise ValueError(
             f"{type(policy).__name__}.{what} returned shape {arr.shape}, expected {shape}"
         )
-    if dtype is np.int64 and arr.dtype.kind not in "iu":
+    if dtype is _I64 and arr.dtype.kind not in "iu":
         raise ValueError(f"{type(policy).__name__}.{what} returned {arr.dtype}, not integers")
-    if dtype is np.float64 and arr.dtype.kind not in "fiu":
+    if dtype is _F64 and arr.dtype.kind not in "fiu":
         raise ValueError(f"{type(policy).__name__}.{what} returned {arr.dtype}, not numbers")
     return arr.astype(dtype, copy=False)
 
@@ -409,7 +421,7 @@ def _subset(tiles: TileCandidates, idx: np.ndarray) -> TileCandidates:
         tiles.dist_m.take(idx),
         tiles.px_per_m.take(idx),
         tiles.err_m.take(idx, axis=0),
-        tiles.bend_m.take(idx),
+        None if tiles._bend is None else tiles._bend.take(idx),
         tiles._lv,
         None if tiles._dpts is None else tiles._dpts.take(idx, axis=0),
         scratch,
