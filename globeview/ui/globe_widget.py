@@ -184,7 +184,6 @@ class GlobeWidget(QOpenGLWidget):
         self.fps = 0.0
         self.last_stats: FrameStats | None = None
         self._last_paint = 0.0
-        self._last_eye = self.camera.eye.copy()
         self._render_error: str | None = None
         self.flight = CameraFlight(model, self)
         self.flight.stepped.connect(self._camera_moved)
@@ -325,8 +324,8 @@ class GlobeWidget(QOpenGLWidget):
             return None
         tool = self.scene.tools().get(self.scene.active_tool)
         if tool is None:
-            # Its plugin was disabled or failed: the session drops the displacement hook,
-            # which recompiles the terrain shader, so our context must be current.
+            # Its plugin was disabled or failed: the session leaves it (the model's tool
+            # becomes None, an event; the hook goes at the next frame, no GL here).
             self._anim.stop()
             self.scene.tool()  # leaves it: the model's tool is None (an event)
             self.toolDeactivated.emit()
