@@ -135,7 +135,10 @@ class Globe:
 
     # -- overlays --------------------------------------------------------------------------
     def add_overlay(self, layer: Any) -> None:
-        """Show ``layer`` on top of the other overlays."""
+        """Show ``layer`` on top of the other overlays (ValueError if it is shown already:
+        one layer object is one row, one GPU twin)."""
+        if any(ly is layer for ly in self.overlays):
+            raise ValueError(f"overlay {getattr(layer, 'name', layer)!r:.60} is shown already")
         self.overlays.append(layer)
         self.events.overlays.emit()
 

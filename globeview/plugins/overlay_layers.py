@@ -131,11 +131,19 @@ class _StyledLayer(_ModelLayer):
 
     def set_style(self, renderer: object = None, **style: Any) -> None:
         """Change style attributes (colour, width_px, size_px, ...); next frame. An unknown
-        name is refused (ValueError) and nothing changes."""
-        for k in style:
+        name or a bad value (`style_problem`) is refused (ValueError, one line) and nothing
+        changes: no frame trips over a NaN width or a colour that is not 3-4 numbers."""
+        for k, v in style.items():
             if k not in self.style_fields:
                 raise ValueError(f"{type(self).__name__} has no style {k!r}")
+            problem = style_problem(k, v)
+            if problem is not None:
+                raise ValueError(f"{type(self).__name__} style {problem}")
         for k, v in style.items():
+            if k in ("color", "label_color"):
+                v = tuple(float(c) for c in [*v, 1.0][:4])
+            elif k in ("width_px", "dash_px", "size_px", "scale_m"):
+                v = float(v)
             setattr(self, k, v)
         self.style_version += 1
 
@@ -203,6 +211,13 @@ class DrawnLayer(_ModelLayer):
                 p.set_opacity(renderer, opacity)
 
     def set_style(self, renderer: object = None, **style: Any) -> None:
+        # Checked for every part first, so a refused value changes no part.
+        for k, v in style.items():
+            if not any(k in getattr(p, "style_fields", ()) for p in self.parts):
+                raise ValueError(f"{self.name!r:.60} has no style {k!r}")
+            problem = style_problem(k, v)
+            if problem is not None:
+                raise ValueError(f"{self.name!r:.60} style {problem}")
         for p in self.parts:
             own = {k: v for k, v in style.items() if k in getattr(p, "style_fields", ())}
             if own and hasattr(p, "set_style"):
@@ -378,6 +393,23 @@ def drawable_problem(d: Any) -> str | None:
             return f"a RasterFile path of {type(d.path).__name__}"
         return None if _finite(d.opacity) else f"RasterFile opacity {d.opacity!r:.40}"
     return f"a {type(d).__name__}, not a drawable (Lines, Points, RasterDrape, RasterFile)"
+
+
+def style_problem(name: str, value: Any) -> str | None:
+    """What is wrong with one style value of a vector or point layer (one line), or None:
+    the same limits `drawable_problem` holds a layer type's drawables to."""
+    if name in ("color", "label_color"):
+        return _rgba_problem(value, name)
+    if name == "dash_px":
+        return None if _finite(value) and float(value) == 0 else _positive(value, name, 1e4)
+    if name in ("width_px", "size_px", "scale_m"):
+        limit = {"width_px": 200.0, "size_px": 500.0, "scale_m": 1e7}[name]
+        return _positive(value, name, limit)
+    if name == "labels":
+        return None if isinstance(value, bool) else f"labels {value!r:.40} is not True/False"
+    if name == "object_kind":
+        return None if value in POINT_KINDS else f"object_kind {value!r:.40} ({POINT_KINDS})"
+    return None
 
 
 def _finite(v: Any) -> bool:

@@ -115,3 +115,12 @@ def test_display_settings_events_once_per_change() -> None:
     globe.display.wireframe = True
     globe.display.wireframe = False
     assert [args[0] for args in got] == [True, False]  # psygnal passes (new, old)
+
+
+def test_an_overlay_is_shown_once(globe: Globe) -> None:
+    got = _recorder(globe.events.overlays)
+    a = object()
+    globe.add_overlay(a)
+    with pytest.raises(ValueError, match="shown already"):
+        globe.add_overlay(a)
+    assert globe.overlays == [a] and len(got) == 1

@@ -3,6 +3,8 @@ hostile sizes are bounded, an in-memory drape samples where its pixels lie."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -97,3 +99,44 @@ def test_array_drape_samples_where_its_pixels_lie() -> None:
     assert tuple(at(17.0, 3.0)) == (255, 255, 0, 255)
     assert at(30.0, 10.0)[3] == 0 and at(10.0, 30.0)[3] == 0  # outside: transparent
     assert src.tile_rgba((2, 0, 0)) is None  # a tile it does not reach
+
+
+# -- live style edits (issue #14: refused where set, nothing changes) --------------------------
+@pytest.mark.parametrize(
+    ("style", "reason"),
+    [
+        ({"width_px": float("nan")}, "width_px"),
+        ({"width_px": "wide"}, "not a number"),
+        ({"width_px": 0.0}, "not in (0, 200]"),
+        ({"color": (1.0, 0.0)}, "3 or 4"),
+        ({"color": (1.0, float("inf"), 0.0)}, "finite"),
+        ({"color": "red"}, "color"),
+        ({"dash_px": -3.0}, "dash_px"),
+        ({"lines": None}, "no style 'lines'"),
+        ({"color": (0.0, 1.0, 1.0), "width_px": -1.0}, "width_px"),
+    ],
+)
+def test_bad_live_style_is_refused_and_changes_nothing(style, reason) -> None:
+    from globeview.plugins.overlay_layers import vector_layer
+
+    layer = vector_layer(Lines([[(0.0, 0.0), (10.0, 10.0)]], color=(1, 1, 0)), "lines")
+    before = (layer.color, layer.width_px, layer.dash_px, layer.style_version)
+    with pytest.raises(ValueError, match=re.escape(reason)) as info:
+        layer.set_style(None, **style)
+    assert "\n" not in str(info.value)
+    assert (layer.color, layer.width_px, layer.dash_px, layer.style_version) == before
+
+
+def test_good_live_style_is_normalised_and_counted() -> None:
+    from globeview.plugins.overlay_layers import build_layer
+
+    drawing = build_layer(
+        [Lines([[(0.0, 0.0), (10.0, 10.0)]]), Points([1.0], [2.0], labels=["a"])], "both"
+    )
+    with pytest.raises(ValueError, match="size_px"):
+        drawing.set_style(None, color=(0, 1, 1), size_px=float("nan"))
+    assert [p.style_version for p in drawing.parts] == [0, 0]  # nothing changed
+    drawing.set_style(None, color=(0, 1, 1), size_px=12)
+    lines, points = drawing.parts
+    assert lines.color == points.color == (0.0, 1.0, 1.0, 1.0)
+    assert points.size_px == 12.0 and (lines.style_version, points.style_version) == (1, 1)
