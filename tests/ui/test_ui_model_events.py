@@ -273,3 +273,52 @@ def test_the_window_draws_with_the_pipelines_camera_speed(make_window, qtbot) ->
     qtbot.waitUntil(lambda: not g.flight.active, timeout=10000)
     # The settle frame after the flight (the camera still) sees no speed.
     qtbot.waitUntil(lambda: seen[-1] == 0.0, timeout=10000)
+
+
+BAD_GLSL_TOOL = """
+name = "bad-glsl"
+version = "0.1.0"
+description = "A tool whose displacement hook does not compile."
+kinds = ["tool"]
+api_version = "1.0"
+
+[[contributions]]
+name = "bad-glsl"
+kind = "tool"
+target = "bad_glsl.tool:BadGlsl"
+"""
+
+BAD_GLSL_MODULE = """
+from globeview.plugins.api import Tool
+
+
+class BadGlsl(Tool):
+    label = "Bad GLSL"
+
+    def displacement_glsl(self):
+        return "vec3 gv_displace(vec3 p) { return this is not GLSL; }"
+"""
+
+
+def test_a_tool_whose_hook_fails_at_the_next_frame_is_reported(
+    plugin_site, make_window, wait_frame
+) -> None:
+    """Activation only sets the model; the hook compiles in the next frame. When it does not
+    compile, the model's tool becomes None (an event) and the window names the tool's own
+    failure in one line, unchecks it, and keeps drawing."""
+    from globeview.plugins.registry import PluginRegistry
+    from globeview.plugins.settings import MemorySettings
+
+    plugin_site.add("bad_glsl", BAD_GLSL_TOOL, {"tool": BAD_GLSL_MODULE})
+    win = make_window(registry=PluginRegistry(MemorySettings()).discover())
+    assert win.set_tool("bad-glsl")  # accepted: nothing compiled yet
+    assert win.tool_actions["bad-glsl"].isChecked()
+    wait_frame(win)
+    assert win.model.tool is None and win.tool_options.tool_name is None
+    assert "bad-glsl" not in win.tool_actions or not win.tool_actions["bad-glsl"].isChecked()
+    texts = [m.text for m in win.errors.history]
+    mine = [t for t in texts if t.startswith("tool bad-glsl could not be activated: ")]
+    assert len(mine) == 1 and "\n" not in mine[0], texts
+    wait_frame(win)
+    assert win.globe.last_stats.triangles > 0
+    assert win.set_tool("measure")  # other tools still work
