@@ -393,9 +393,10 @@ class GlobeWidget(QOpenGLWidget):
 
     @contextmanager
     def gl_current(self) -> Iterator[None]:
-        """Make this widget's GL context current for the block (for creating or releasing GL
-        objects outside paintGL, e.g. attaching overlay layers); a no-op when it already is
-        (inside initializeGL / paintGL and their signals)."""
+        """Make this widget's GL context current for the block; a no-op when it already is
+        (inside initializeGL / paintGL and their signals). Model changes never need it (GPU
+        objects follow the model at the next frame): it is for an API 1.0 plugin layer's
+        own attach/detach/set_visible, which make and free the plugin's GL objects."""
         ctx = self.context()
         if ctx is None or QOpenGLContext.currentContext() is ctx:
             yield
