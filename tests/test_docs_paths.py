@@ -1,6 +1,6 @@
 """The maps in the docs stay true: every file or folder that CONTRIBUTING.md ("where does X
-live"), docs/architecture.md, docs/papers.md and the README's architecture section name in
-backticks exists, and the images and documents they link to exist. A module moved or renamed
+live"), docs/architecture.md, docs/papers.md, docs/collapse.md, docs/benchmarks.md and the
+README name in backticks exists, and the images and documents they link to exist. A module moved or renamed
 without its docs fails here, with the doc line that still names the old path."""
 
 from __future__ import annotations
@@ -13,7 +13,14 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 #: Documents whose backticked paths must exist.
-DOCS = ["CONTRIBUTING.md", "docs/architecture.md", "docs/papers.md", "README.md"]
+DOCS = [
+    "CONTRIBUTING.md",
+    "docs/architecture.md",
+    "docs/papers.md",
+    "docs/collapse.md",
+    "docs/benchmarks.md",
+    "README.md",
+]
 
 #: Top folders a backticked path may start with; layer folders are under globeview/.
 TOP = ("globeview/", "tests/", "benchmarks/", "docs/", "scripts/", "examples/", "data/")
