@@ -21,26 +21,34 @@ from globeview.model.camera import Camera
 from globeview.model.display import DisplaySettings
 from globeview.terrain.stack import TerrainStack
 
+#: Events emitted while an event is delivered wait for it to finish (see `GlobeEvents`).
+_QUEUED = "queued"
+
 #: The LOD provider a new globe starts with (a built-in plugin contribution).
 DEFAULT_LOD = "chunked-sse"
 
 
 class GlobeEvents(SignalGroup):
     """The signals of a `Globe`. Each passes the new value (``terrain`` and ``overlays``
-    pass nothing: read the globe)."""
+    pass nothing: read the globe).
+
+    A listener may change the globe while an event is delivered (the tool host sets
+    ``tool`` back to None when the named tool is unavailable): that event is queued until
+    the current one reached every listener, so all listeners see the changes in order and
+    the last event they see is the globe's state."""
 
     #: The camera moved or was replaced (argument: the `Camera`).
-    camera = Signal(object)
+    camera = Signal(object, reemission=_QUEUED)
     #: The active LOD provider's name changed.
-    lod = Signal(str)
+    lod = Signal(str, reemission=_QUEUED)
     #: The active tool's name changed (None: no tool).
-    tool = Signal(object)
+    tool = Signal(object, reemission=_QUEUED)
     #: The screen-space error threshold (pixels) changed.
-    tau_px = Signal(float)
+    tau_px = Signal(float, reemission=_QUEUED)
     #: Terrain layers were added, removed, moved, shown or hidden.
-    terrain = Signal()
+    terrain = Signal(reemission=_QUEUED)
     #: Overlay layers were added, removed, reordered, shown, hidden or restyled.
-    overlays = Signal()
+    overlays = Signal(reemission=_QUEUED)
 
 
 class Globe:

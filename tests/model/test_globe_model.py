@@ -124,3 +124,16 @@ def test_an_overlay_is_shown_once(globe: Globe) -> None:
     with pytest.raises(ValueError, match="shown already"):
         globe.add_overlay(a)
     assert globe.overlays == [a] and len(got) == 1
+
+
+def test_a_change_made_by_a_listener_reaches_everyone_after_the_first(globe: Globe) -> None:
+    # E.g. the tool host turning an unavailable tool name back to None while the name's
+    # event is delivered: every later listener sees both, in order, and the globe's state.
+    def refuse(name) -> None:
+        if name == "gone":
+            globe.tool = None
+
+    globe.events.tool.connect(refuse)
+    seen = _recorder(globe.events.tool)
+    globe.tool = "gone"
+    assert [args[0] for args in seen] == ["gone", None] and globe.tool is None

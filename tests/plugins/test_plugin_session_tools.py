@@ -116,3 +116,16 @@ def test_setting_the_globe_tool_directly_is_followed(
         assert s.renderer.displacement_hook is None
     finally:
         s.release_gl()
+
+
+def test_an_unavailable_tool_name_ends_as_none_for_every_listener(
+    globeview_gl, globeview_terrain, globeview_registry
+) -> None:
+    s = _session(globeview_gl, globeview_terrain, globeview_registry)
+    try:
+        seen: list = []
+        s.globe.events.tool.connect(seen.append)  # after the tool host's own listener
+        s.globe.tool = "no-such-tool"
+        assert seen == ["no-such-tool", None] and s.globe.tool is None
+    finally:
+        s.release_gl()
