@@ -113,6 +113,8 @@ class Globe:
 
     @lod.setter
     def lod(self, name: str) -> None:
+        if not isinstance(name, str):
+            raise TypeError(f"LOD provider name must be text, not {type(name).__name__}")
         if name != self._lod:
             self._lod = str(name)
             self.events.lod.emit(self._lod)
@@ -124,6 +126,8 @@ class Globe:
 
     @tool.setter
     def tool(self, name: str | None) -> None:
+        if name is not None and not isinstance(name, str):
+            raise TypeError(f"tool name must be text or None, not {type(name).__name__}")
         if name != self._tool:
             self._tool = name
             self.events.tool.emit(name)

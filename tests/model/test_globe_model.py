@@ -137,3 +137,13 @@ def test_a_change_made_by_a_listener_reaches_everyone_after_the_first(globe: Glo
     seen = _recorder(globe.events.tool)
     globe.tool = "gone"
     assert [args[0] for args in seen] == ["gone", None] and globe.tool is None
+
+
+@pytest.mark.parametrize("bad", [42, ["a"], b"collapse", 1.5])
+def test_names_that_are_not_text_are_refused(globe: Globe, bad) -> None:
+    seen = _recorder(globe.events.tool)
+    with pytest.raises(TypeError, match="must be text"):
+        globe.tool = bad
+    with pytest.raises(TypeError, match="must be text"):
+        globe.lod = bad
+    assert (globe.tool, globe.lod, seen) == (None, "chunked-sse", [])
