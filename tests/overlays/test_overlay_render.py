@@ -24,22 +24,18 @@ OUT.mkdir(parents=True, exist_ok=True)
 
 
 @pytest.fixture(scope="module")
-def session():
+def session(globeview_gl, globeview_terrain):
+    # The plugin-author fixtures: one GL context (each test is checked for GL leaks) and
+    # the embedded terrain in a temporary cache.
     from globeview.plugins.session import GlobeSession
-    from globeview.render.offscreen import OffscreenTarget, RenderError, create_headless_context
-    from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
+    from globeview.render.offscreen import OffscreenTarget
 
-    try:
-        ctx = create_headless_context()
-    except RenderError as exc:  # pragma: no cover - depends on the machine
-        pytest.skip(f"no headless OpenGL: {exc}")
-    terrain = TerrainStack.from_stores(embedded_stores())
-    s = GlobeSession(ctx, terrain, Camera.from_lonlat(0.0, 20.0, 2.0e7))
+    s = GlobeSession(globeview_gl, globeview_terrain, Camera.from_lonlat(0.0, 20.0, 2.0e7))
     s.settings.fog = False
-    s.target = OffscreenTarget(ctx, SIZE)
+    s.target = OffscreenTarget(globeview_gl, SIZE)
     yield s
-    s.renderer.overlays.release()
+    s.release_gl()
+    s.target.release()
 
 
 @pytest.fixture
