@@ -231,8 +231,13 @@ def test_an_overlay_the_gpu_refuses_at_a_frame_is_reported_in_one_line(
     (cities,) = win.open_overlays([str(DATA / "ne_cities.geojson")])
     wait_frame(win)
     assert errors_shown == []
-    # A style the GPU side refuses, set from code: the frame drops the layer (one line).
-    cities.set_style(None, object_kind="bogus")
+    # Code writing the model's fields past set_style's check: the GPU side refuses the
+    # style, and the frame drops the layer (one line).
+    assert cities.kind == "points"
+    with pytest.raises(ValueError):
+        cities.set_style(None, object_kind="bogus")
+    cities.object_kind = "bogus"
+    cities.style_version += 1
     win.model.overlays_changed()
     qtbot.waitUntil(lambda: bool(errors_shown), timeout=10000)
     text = errors_shown[-1].text
