@@ -106,7 +106,7 @@ class PluginHost(QObject):
         and `fallback_reason` keeps it; a choice of another provider clears it."""
         name, old = self.model.lod, self._lod_before
         if name == old:
-            return  # a re-emission (psygnal emits nested changes at once)
+            return  # nothing new (e.g. the queued event of a name set back here)
         if self.session is None and self.registry.find(PluginKind.LOD, name) is None:
             self.notice.emit(f"no enabled LOD provider named {name!r:.80}")
             self._set_model_lod(old)
