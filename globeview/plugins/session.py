@@ -96,7 +96,13 @@ class GlobeSession(GlobeScene):
         # and the window attaches its own (redraw = widget.update, status = status bar).
         self.hooks = NullRendererHooks()
         self.registry.attach(scene=self, terrain=terrain, camera=self.camera, renderer=self.hooks)
-        self.set_lod(lod or globe.lod)
+        try:
+            self.set_lod(lod or globe.lod)
+        except BaseException:
+            # No session comes back to release the renderer: release its GL objects here
+            # (a refused LOD name leaked a whole tile pool per attempt in a kept context).
+            self.release_gl()
+            raise
 
     # -- the model's state (one copy: the Globe's) ---------------------------------------------
     @property

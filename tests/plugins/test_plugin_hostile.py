@@ -17,6 +17,7 @@ sys.path, `PluginSite`) found by the real registry; the session tests draw with 
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -135,14 +136,24 @@ def test_huge_exception_message_is_cut_to_one_short_line(
 
 # -- garbage render sets at the host boundary (real session, real GL) -----------------------
 @pytest.fixture(scope="module")
-def gl():
-    from globeview.render.offscreen import OffscreenTarget, create_headless_context
-    from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
+def gl(globeview_gl, globeview_terrain):
+    # The plugin-author fixtures: one GL context, each test checked for GL leaks.
+    from globeview.render.offscreen import OffscreenTarget
 
-    ctx = create_headless_context()
-    yield ctx, OffscreenTarget(ctx, SIZE), TerrainStack.from_stores(embedded_stores())
-    ctx.release()
+    target = OffscreenTarget(globeview_gl, SIZE)
+    yield globeview_gl, target, globeview_terrain
+    target.release()
+
+
+#: Sessions the tests opened, released after each test (`globeview_gl` checks for leaks).
+_OPEN: list = []
+
+
+@pytest.fixture(autouse=True)
+def _release_sessions() -> Iterator[None]:
+    yield
+    while _OPEN:
+        _OPEN.pop().release_gl()
 
 
 def session(gl, reg: PluginRegistry, lod: str):
@@ -150,7 +161,9 @@ def session(gl, reg: PluginRegistry, lod: str):
     from globeview.plugins.session import GlobeSession
 
     ctx, _, terrain = gl
-    return GlobeSession(ctx, terrain, Camera.from_lonlat(0.0, 20.0, 2.0e7), reg, lod=lod)
+    s = GlobeSession(ctx, terrain, Camera.from_lonlat(0.0, 20.0, 2.0e7), reg, lod=lod)
+    _OPEN.append(s)
+    return s
 
 
 OK_SET = "rs = RenderSet([[0, 0, 0], [0, 1, 0]], [0, 0], [IndexVariant(stride=8, pole='both')])"

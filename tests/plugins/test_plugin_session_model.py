@@ -58,3 +58,17 @@ def test_unknown_lod_changes_nothing(session) -> None:
     with pytest.raises(GlobeviewError):
         session.set_lod("no-such-provider")
     assert session.lod_name == "chunked-sse" and seen == []
+
+
+def test_a_refused_lod_name_at_construction_leaves_no_gl_objects(
+    globeview_gl, globeview_terrain, globeview_registry
+) -> None:
+    from globeview.errors import GlobeviewError
+    from globeview.plugins.session import GlobeSession
+    from globeview.render.gpu_objects import gpu_objects
+
+    tracker = gpu_objects(globeview_gl)
+    before = tracker.counts()
+    with pytest.raises(GlobeviewError, match="no enabled LOD provider"):
+        GlobeSession(globeview_gl, globeview_terrain, registry=globeview_registry, lod="nope")
+    assert tracker.counts() == before
