@@ -501,6 +501,10 @@ def run(args: argparse.Namespace) -> int:
                 place_points(scene, tool, points, size)
     # The first frame uploads tiles; the second one is the steady-state frame we report.
     first = scene.render(target.fbo, size)
+    if scene.overlay_errors:  # a layer the GPU side refused (its limits): the user's, one line
+        from globeview.errors import GlobeviewError
+
+        raise GlobeviewError(f"{scene.overlay_errors[0]}; nothing written")
     scene.reset_lod()  # measure a full selection, not a cache hit
     result = scene.render(target.fbo, size)
     result.stats.tiles_uploaded = first.stats.tiles_uploaded

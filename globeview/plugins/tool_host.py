@@ -50,7 +50,7 @@ class ToolHost:
     def activate(self, name: str | None) -> None:
         """Make ``name`` the active tool (None: no tool); refuses a name no enabled plugin
         provides (`GlobeviewError`, one line). Activating the active tool again asks it
-        for its GLSL again (recompiled at the next frame)."""
+        for its GLSL again (compiled at the next frame if the text changed)."""
         if name is not None and self.find(name) is None:
             raise GlobeviewError(f"no enabled tool named {name!r:.80}")
         if name == self.globe.tool:
