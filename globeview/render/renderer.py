@@ -254,21 +254,7 @@ class GlobeRenderer:
 
     # -- drawing -----------------------------------------------------------------------------
     # A frame's renderer steps, in the order `FramePipeline.run` calls them: `load` (fit the
-    # pool, tile loading, upload), `draw_terrain`, `draw_overlays`, `finish_stats`. `draw`
-    # runs the four for callers that hold a render set already (tests, the pool benchmark).
-    def draw(
-        self, view: ViewState, render_set: RenderSet, target: moderngl.Framebuffer
-    ) -> FrameStats:
-        """Draw a render set into ``target`` and return the frame's figures (the pipeline's
-        steps after the LOD selection, without a tool)."""
-        t0 = time.perf_counter()
-        stats = FrameStats()
-        drawn = self.load(render_set, stats)
-        triangles = self.draw_terrain(view, drawn, target)
-        stats.extra.update(self.draw_overlays(view, drawn))
-        self.ctx.finish()
-        return self.finish_stats(stats, view, drawn, triangles, t0)
-
+    # pool, tile loading, upload), `draw_terrain`, `draw_overlays`, `finish_stats`.
     def load(self, render_set: RenderSet, stats: FrameStats) -> RenderSet:
         """Make the tiles of ``render_set`` resident: coarsen it to the pool's capacity
         (`_fit_pool`), then upload every missing tile (headless) or a budget of finished

@@ -106,15 +106,19 @@ def test_renderer_with_a_small_pool_draws_a_degraded_frame(gl_ctx, terrain, targ
     from globeview.model.camera import Camera
     from globeview.plugins.builtin.chunked.provider import select_tiles
     from globeview.render.renderer import GlobeRenderer
+    from globeview.render.scene import GlobeScene
 
-    renderer = GlobeRenderer(gl_ctx, terrain, capacity=16)
+    cam = Camera.from_lonlat(-71.3, 44.2, 3000.0, 0.0, -10.0)
+    view = ViewState.from_camera(cam, (160, 120), tau_px=1.0)
+    rs = select_tiles(view, terrain)
+    assert len(rs) > 16  # the view really wants more than the pool holds
+    # The frame runs through the pipeline, drawing this render set with a 16-slot pool.
+    scene = GlobeScene(gl_ctx, terrain, cam, lod=lambda v, t: rs)
+    scene.renderer.release()
+    scene.renderer = renderer = GlobeRenderer(gl_ctx, terrain, capacity=16)
     try:
-        cam = Camera.from_lonlat(-71.3, 44.2, 3000.0, 0.0, -10.0)
-        view = ViewState.from_camera(cam, (160, 120), tau_px=1.0)
-        rs = select_tiles(view, terrain)
-        assert len(rs) > 16  # the view really wants more than the pool holds
         tgt = targets((160, 120))
-        stats = renderer.draw(view, rs, tgt.fbo)
+        stats = scene.render(tgt.fbo, (160, 120)).stats
         assert 0 < stats.tiles_drawn <= 16
         assert stats.extra["tiles_coarsened"] > 0
         assert f"{len(rs)} tiles wanted, 16 slots" in stats.extra["degraded"]
@@ -125,9 +129,10 @@ def test_renderer_with_a_small_pool_draws_a_degraded_frame(gl_ctx, terrain, targ
         # The async (window) path with the same overflowing set never fails either.
         renderer.async_loading = True
         for _ in range(30):
-            stats = renderer.draw(view, rs, tgt.fbo)
+            stats = scene.render(tgt.fbo, (160, 120)).stats
             assert stats.tiles_drawn <= 16
     finally:
+        scene.pipeline.release()
         renderer.release()
 
 
