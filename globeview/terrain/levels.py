@@ -122,9 +122,6 @@ class LevelGrid:
         inside = (iy >= 0) & (iy < self.ny) & (ix < self.nx) & (tx >= 0) & (tx < self.ncols)
         return np.where(inside, iy, 0), np.where(inside, ix, 0), inside
 
-    def to_dict(self) -> dict[str, int]:
-        return {"x0": self.x0, "y0": self.y0, "nx": self.nx, "ny": self.ny}
-
 
 def _runs(pos: np.ndarray, idx: np.ndarray) -> list[tuple[int, int, int]]:
     """Split valid positions into runs where both the output position and the raster index
