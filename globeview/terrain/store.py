@@ -50,12 +50,9 @@ from globeview.terrain.store_schema import (
 )
 
 __all__ = [
-    "FORMAT_VERSION",
     "MANIFEST_NAME",
-    "STORE_FORMAT",
     "StoreIdentity",
     "TileStore",
-    "built_before_vdatums",
     "identify",
     "is_store_file",
     "read_manifest",
@@ -244,7 +241,7 @@ class TileStore:
                 f"{p}: store built before vertical datums (format version {version}, heights"
                 " not ellipsoidal); rebuild it with globeview ingest --force"
             )
-        if version != FORMAT_VERSION or isinstance(version, bool):
+        if version != FORMAT_VERSION:  # a bool (0/1) is never the current version
             raise StoreError(
                 f"{p}: store format version {str(version)[:20]} is not supported (this "
                 f"globeview reads version {FORMAT_VERSION}); re-run globeview ingest --force"

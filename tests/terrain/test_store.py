@@ -15,7 +15,8 @@ import rasterio
 from globeview.errors import StoreError
 from globeview.terrain.ingest import ingest
 from globeview.terrain.quadtree import TileKey
-from globeview.terrain.store import FORMAT_VERSION, TileStore
+from globeview.terrain.store import TileStore
+from globeview.terrain.store_schema import FORMAT_VERSION
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 

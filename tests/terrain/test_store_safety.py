@@ -20,7 +20,8 @@ from globeview.errors import StoreError
 from globeview.terrain.embedded import open_or_ingest, store_path_for
 from globeview.terrain.ingest import ingest
 from globeview.terrain.quadtree import TileKey
-from globeview.terrain.store import FORMAT_VERSION, STORE_FORMAT, TileStore, identify
+from globeview.terrain.store import TileStore, identify
+from globeview.terrain.store_schema import FORMAT_VERSION, STORE_FORMAT
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "data"
@@ -135,6 +136,19 @@ def test_newer_store_is_refused_without_force(store: Path, tmp_path: Path) -> No
     assert r.returncode == 2 and "newer globeview" in r.stderr
     with pytest.raises(StoreError, match="not supported"):
         TileStore.open(s)
+
+
+@pytest.mark.parametrize("version", [True, False, "4", 4.5, None])
+def test_a_version_that_is_not_this_format_number_is_refused(
+    store: Path, tmp_path: Path, version: object
+) -> None:
+    s = _copy(store, tmp_path)
+    man = json.loads((s / "manifest.json").read_text())
+    man["format_version"] = version
+    (s / "manifest.json").write_text(json.dumps(man))
+    with pytest.raises(StoreError) as err:
+        TileStore.open(s)
+    assert len(str(err.value).splitlines()) == 1
 
 
 def test_cached_store_of_another_version_is_rebuilt_silently(
