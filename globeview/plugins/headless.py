@@ -50,7 +50,7 @@ def place_points(
             lonlat_to_ecef(lon, lat, h * float(session.settings.exaggeration)), dtype=np.float64
         ).reshape(1, 3)
         if session.displacing:  # the tool moves the terrain (compiled or not yet)
-            drawn = session._displace(drawn)
+            drawn = session.tool_host.displace(drawn)
         x, y, _ = (float(v) for v in view.project(drawn)[0])
         for kind, held in (("press", frozenset({"left"})), ("release", frozenset())):
             event = PointerEvent(

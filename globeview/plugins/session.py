@@ -14,27 +14,20 @@ provider, tool or layer type imports that plugin alone (`PluginRegistry.find`).
 from __future__ import annotations
 
 import logging
-from dataclasses import replace
 
 import moderngl
-import numpy as np
 
-from globeview.errors import GlobeviewError
 from globeview.geodesy import ecef_to_lonlat
 from globeview.lod.render_set import RenderSet
 from globeview.lod.view_state import ViewState
 from globeview.model.camera import Camera
 from globeview.model.display import DisplaySettings
 from globeview.model.globe import DEFAULT_LOD, Globe
-from globeview.plugins.api import NullRendererHooks, Tool
-from globeview.plugins.host_checks import has_method as _has_method
-from globeview.plugins.host_checks import hashable as _hashable
-from globeview.plugins.host_checks import overlay_problem as _overlay_problem
-from globeview.plugins.host_checks import uniforms_problem as _uniforms_problem
+from globeview.plugins.api import NullRendererHooks
 from globeview.plugins.lod_host import LodHost
 from globeview.plugins.overlay_host import OverlayHost
 from globeview.plugins.registry import PluginRegistry
-from globeview.plugins.tool_host import ToolHost
+from globeview.plugins.tool_host import ToolFrame, ToolHost
 from globeview.render.frame_pipeline import FramePipeline
 from globeview.render.picking import Pick
 from globeview.render.renderer import GlobeRenderer
@@ -82,7 +75,6 @@ class GlobeSession(GlobeScene):
         # host (camera, tau, prepare_gpu, select, frame_tool).
         self.pipeline = FramePipeline(GlobeRenderer(ctx, terrain), self)
         self.renderer.settings = globe.display  # the renderer draws the model's settings
-        self.lod = self._select
         self.last: FrameResult | None = None
         if registry is None:
             registry = PluginRegistry()
@@ -91,7 +83,6 @@ class GlobeSession(GlobeScene):
         self.lod_host = LodHost(globe, registry)
         self.tool_host = ToolHost(globe, registry)
         self.overlay_host = OverlayHost(globe, registry)
-        self._marker_heights: dict[tuple[float, float, float], float] = {}
         # Plugins get redraw/status hooks, not the GL renderer: headless they are recorded,
         # and the window attaches its own (redraw = widget.update, status = status bar).
         self.hooks = NullRendererHooks()
@@ -178,8 +169,10 @@ class GlobeSession(GlobeScene):
         """`RenderSet.validate` against this renderer's tiles (raises InvalidRenderSet)."""
         rs.validate(self.renderer.size, self.renderer.pool.verts_per_tile)
 
-    def _select(self, view: ViewState, terrain: TerrainStack) -> RenderSet:
-        return self.lod_host.select(view, terrain, self._check_render_set)
+    def select(self, view: ViewState) -> RenderSet:
+        """The active provider's render set for ``view`` (`LodHost.select`; the frame
+        pipeline asks)."""
+        return self.lod_host.select(view, self.terrain, self._check_render_set)
 
     # -- tools ---------------------------------------------------------------------------------
     def tools(self) -> dict:
@@ -214,22 +207,6 @@ class GlobeSession(GlobeScene):
         self.tool_host.prepare_gpu(self.renderer)
         self.overlay_host.prepare_gpu(self.renderer)
 
-    # -- the tool's CPU side (plugins/tool_host.py; garbage fails the tool, not the caller) --
-    def _fail(self, contribution, problem: str) -> None:
-        """Fail ``contribution`` for returning garbage (`ToolHost.fail`)."""
-        self.tool_host.fail(contribution, problem)
-
-    def _checked_points(self, tool, out, points: np.ndarray, what: str) -> np.ndarray | None:
-        return self.tool_host.checked_points(tool, out, points, what)
-
-    def _displace(self, points: np.ndarray) -> np.ndarray:
-        """The active tool's CPU displacement of ECEF ``points`` (`ToolHost.displace`)."""
-        return self.tool_host.displace(points)
-
-    def _bend(self, points: np.ndarray, displaced: np.ndarray | None = None) -> np.ndarray:
-        """The active tool's bend bound (`ToolHost.bend`)."""
-        return self.tool_host.bend(points, displaced)
-
     # -- the frame (FramePipeline's host) ----------------------------------------------------
     def view_state(self, viewport: tuple[int, int]) -> ViewState:
         """The current camera's view with the active tool's displacement, as the next frame
@@ -239,9 +216,8 @@ class GlobeSession(GlobeScene):
         return view if tool is None else tool.shape_view(view)
 
     def frame_tool(self) -> ToolFrame | None:
-        """The active tool's part in the next frame (`FrameTool`), or None."""
-        tool = self.tool()
-        return None if tool is None else ToolFrame(self, tool)
+        """The active tool's part in the next frame (`ToolHost.frame_tool`), or None."""
+        return self.tool_host.frame_tool(self.renderer)
 
     def pick(self, x_px: float, y_px: float) -> Pick | None:
         """The true (un-displaced) terrain point under a pixel of the last frame."""
@@ -289,115 +265,3 @@ class GlobeSession(GlobeScene):
         """Release the GL objects the session owns (with its context current)."""
         self.pipeline.release()
         self.renderer.release()
-
-    # -- the active tool's overlay (markers, fold lines; drawn by the frame pipeline) -----------
-    def _drape_marker(self, prim):
-        """A marker on the ellipsoid (height < 1 m) lifted to the terrain surface (with the
-        exaggeration), so it marks the ground the user clicked in oblique views too."""
-        from dataclasses import replace
-
-        from globeview.geodesy import lonlat_to_ecef
-
-        pos = getattr(prim, "position", None)
-        if pos is None:
-            return prim
-        lon, lat, h = (float(v) for v in np.asarray(ecef_to_lonlat(np.asarray(pos))).ravel())
-        if abs(h) >= 1.0 or not self.terrain.visible_layers:
-            return prim
-        exag = float(self.settings.exaggeration)
-        key = (round(lon, 9), round(lat, 9), exag)
-        ground = self._marker_heights.get(key)
-        if ground is None:
-            try:
-                ground = float(self.terrain.height_at(lon, lat)) * exag
-            except GlobeviewError:  # no data there: keep it on the ellipsoid
-                ground = 0.0
-            if len(self._marker_heights) > 256:
-                self._marker_heights.clear()
-            self._marker_heights[key] = ground
-        new = tuple(float(v) for v in np.asarray(lonlat_to_ecef(lon, lat, ground)).ravel())
-        return replace(prim, position=new)
-
-
-class ToolFrame:
-    """The active tool's part in one frame (`globeview.render.frame_pipeline.FrameTool`):
-    its animation step, CPU displacement, shader uniforms and overlay, each the plugin's
-    code behind the host's checks. Garbage fails the tool (one line, its plugin's other
-    contributions stay) and the neutral value comes back, so the frame goes on without it."""
-
-    def __init__(self, session: GlobeSession, tool: object) -> None:
-        self.session = session
-        self.tool = tool
-
-    def _active(self) -> bool:
-        """Whether the tool is still the session's (it fails when it returns garbage)."""
-        return self.session.tool() is self.tool
-
-    def animate(self, now_s: float) -> bool:
-        if not _has_method(self.tool, "animate"):
-            return False
-        moving = self.session.registry.invoke(self.tool, "animate", now_s, default=False)
-        try:
-            return bool(moving)
-        except Exception:  # a hostile __bool__: the plugin's fault, not the frame's
-            self.session._fail(self.tool, f"animate() returned {type(moving).__name__}")
-            return False
-
-    def shape_view(self, view: ViewState) -> ViewState:
-        """``view`` plus the tool's CPU displacement (``displace``), its
-        ``displacement_key()`` if it has one and, when the tool overrides
-        `Tool.displacement_bend_m`, its bend bound (``displacement_bend``)."""
-        s, tool = self.session, self.tool
-        if not self._active() or not s.displacing:
-            return view
-        own_bend = getattr(type(tool), "displacement_bend_m", None) not in (
-            None,
-            Tool.displacement_bend_m,
-        )
-        key = None
-        if _has_method(tool, "displacement_key"):  # tools need not subclass Tool
-            key = s.registry.invoke(tool, "displacement_key")
-            if key is not None and not _hashable(key):
-                s._fail(tool, f"displacement_key() returned an unhashable {type(key).__name__}")
-                return view
-        return replace(
-            view,
-            displace=s._displace,
-            displacement_bend=s._bend if own_bend else None,
-            displacement_key=key,
-        )
-
-    def uniforms(self, view: ViewState) -> dict[str, object] | None:
-        s, tool = self.session, self.tool
-        if not self._active():
-            return None
-        hook = s.renderer.displacement_hook
-        if hook is None:
-            return {}
-        uniforms = s.registry.invoke(
-            tool, "displacement_uniforms", view, default=None, budgeted=True
-        )
-        problem = _uniforms_problem(uniforms) if uniforms is not None else None
-        if problem is not None:
-            s._fail(tool, f"displacement_uniforms() returned {problem}")
-        if uniforms is None or problem is not None:  # the tool failed: drop its hook
-            s.renderer.set_displacement_hook(None)
-            return None
-        hook.uniforms = dict(uniforms)
-        return dict(uniforms)
-
-    def overlay(self, view: ViewState) -> tuple[list, object]:
-        s, tool = self.session, self.tool
-        if not self._active():
-            return [], None
-        prims = s.registry.invoke(tool, "overlay", view, default=None, budgeted=True)
-        if not isinstance(prims, list | tuple) or not prims:
-            if prims is not None and not isinstance(prims, list | tuple):
-                s._fail(tool, f"overlay() returned {type(prims).__name__}, not a list")
-            return [], None
-        problem = _overlay_problem(prims)
-        if problem is not None:
-            s._fail(tool, f"overlay() returned {problem}")
-            return [], None
-        displace = s._displace if s.displacing else None
-        return [s._drape_marker(p) for p in prims], displace

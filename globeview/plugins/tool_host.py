@@ -14,17 +14,26 @@ follows it (deactivating the previous tool, fetching the new one's GLSL) on the 
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from globeview.errors import GlobeviewError
+from globeview.geodesy import ecef_to_lonlat, lonlat_to_ecef
+from globeview.lod.view_state import ViewState
 from globeview.model.globe import Globe
-from globeview.plugins.api import PluginKind
+from globeview.plugins.api import PluginKind, Tool
+from globeview.plugins.host_checks import (
+    has_method,
+    hashable,
+    overlay_problem,
+    uniforms_problem,
+)
 from globeview.plugins.registry import PluginRegistry
 from globeview.render.renderer import DisplacementHook, GlobeRenderer
 
-__all__ = ["ToolHost"]
+__all__ = ["ToolFrame", "ToolHost"]
 
 #: The host's tool name before it first followed the model (no tool is a valid name: None).
 _UNSET = object()
@@ -40,6 +49,7 @@ class ToolHost:
         self._glsl: str | None = None  # that tool's displacement GLSL (None: none)
         self._installed: DisplacementHook | None = None  # what prepare_gpu compiled
         self._installed_key: tuple[str, str] | None = None
+        self._marker_heights: dict[tuple[float, float, float], float] = {}
         globe.events.tool.connect(self._follow)
 
     # -- the model side (no GL) --------------------------------------------------------------
@@ -205,3 +215,125 @@ class ToolHost:
             else:
                 return arr
         return displacement_chord_error_m(self.displace, points, displaced)
+
+    # -- the tool in a frame -------------------------------------------------------------------
+    def frame_tool(self, renderer: GlobeRenderer) -> ToolFrame | None:
+        """The active tool's part in the next frame drawn by ``renderer``, or None."""
+        tool = self.tool()
+        return None if tool is None else ToolFrame(self, tool, renderer)
+
+    def drape_marker(self, prim: Any) -> Any:
+        """A marker on the ellipsoid (height < 1 m) lifted to the terrain surface (with the
+        exaggeration), so it marks the ground the user clicked in oblique views too."""
+        pos = getattr(prim, "position", None)
+        if pos is None:
+            return prim
+        lon, lat, h = (float(v) for v in np.asarray(ecef_to_lonlat(np.asarray(pos))).ravel())
+        terrain = self.globe.terrain
+        if abs(h) >= 1.0 or not terrain.visible_layers:
+            return prim
+        exag = float(self.globe.display.exaggeration)
+        key = (round(lon, 9), round(lat, 9), exag)
+        ground = self._marker_heights.get(key)
+        if ground is None:
+            try:
+                ground = float(terrain.height_at(lon, lat)) * exag
+            except GlobeviewError:  # no data there: keep it on the ellipsoid
+                ground = 0.0
+            if len(self._marker_heights) > 256:
+                self._marker_heights.clear()
+            self._marker_heights[key] = ground
+        new = tuple(float(v) for v in np.asarray(lonlat_to_ecef(lon, lat, ground)).ravel())
+        return replace(prim, position=new)
+
+
+class ToolFrame:
+    """The active tool's part in one frame (`globeview.render.frame_pipeline.FrameTool`):
+    its animation step, CPU displacement, shader uniforms and overlay, each the plugin's
+    code behind the host's checks. Garbage fails the tool (one line, its plugin's other
+    contributions stay) and the neutral value comes back, so the frame goes on without it.
+    The displacement hook itself is the tool host's (`ToolHost.prepare_gpu`): a frame never
+    installs or drops it, except that a tool failing during the frame is taken out of the
+    terrain shader at once (once: the tool stays failed)."""
+
+    def __init__(self, host: ToolHost, tool: Any, renderer: GlobeRenderer) -> None:
+        self.host = host
+        self.tool = tool
+        self.renderer = renderer
+
+    def _active(self) -> bool:
+        """Whether the tool is still the active one (it fails when it returns garbage)."""
+        return self.host.tool() is self.tool
+
+    def animate(self, now_s: float) -> bool:
+        if not has_method(self.tool, "animate"):
+            return False
+        moving = self.host.registry.invoke(self.tool, "animate", now_s, default=False)
+        try:
+            return bool(moving)
+        except Exception:  # a hostile __bool__: the plugin's fault, not the frame's
+            self.host.fail(self.tool, f"animate() returned {type(moving).__name__}")
+            return False
+
+    def shape_view(self, view: ViewState) -> ViewState:
+        """``view`` plus the tool's CPU displacement (``displace``), its
+        ``displacement_key()`` if it has one and, when the tool overrides
+        `Tool.displacement_bend_m`, its bend bound (``displacement_bend``)."""
+        host, tool = self.host, self.tool
+        if not self._active() or not host.displaces:
+            return view
+        own_bend = getattr(type(tool), "displacement_bend_m", None) not in (
+            None,
+            Tool.displacement_bend_m,
+        )
+        key = None
+        if has_method(tool, "displacement_key"):  # tools need not subclass Tool
+            key = host.registry.invoke(tool, "displacement_key")
+            if key is not None and not hashable(key):
+                host.fail(tool, f"displacement_key() returned an unhashable {type(key).__name__}")
+                return view
+        return replace(
+            view,
+            displace=host.displace,
+            displacement_bend=host.bend if own_bend else None,
+            displacement_key=key,
+        )
+
+    def uniforms(self, view: ViewState) -> dict[str, object] | None:
+        """The hook's ``gv_u_*`` uniforms for this frame (``{}`` without a hook, or when a
+        tool has no ``displacement_uniforms`` or returns None); None when the tool failed
+        (raised or returned garbage): its hook is then out of the terrain shader."""
+        host, tool = self.host, self.tool
+        if not self._active():
+            return None
+        if not host.displaces or not has_method(tool, "displacement_uniforms"):
+            return {}
+        failed = object()
+        uniforms = host.registry.invoke(
+            tool, "displacement_uniforms", view, default=failed, budgeted=True
+        )
+        if uniforms is None:
+            return {}
+        problem = None if uniforms is failed else uniforms_problem(uniforms)
+        if problem is not None:
+            host.fail(tool, f"displacement_uniforms() returned {problem}")
+        if uniforms is failed or problem is not None:
+            host.prepare_gpu(self.renderer)  # the tool failed: its hook goes, once
+            return None
+        return dict(uniforms)
+
+    def overlay(self, view: ViewState) -> tuple[list, Any]:
+        host, tool = self.host, self.tool
+        if not self._active():
+            return [], None
+        prims = host.registry.invoke(tool, "overlay", view, default=None, budgeted=True)
+        if not isinstance(prims, list | tuple) or not prims:
+            if prims is not None and not isinstance(prims, list | tuple):
+                host.fail(tool, f"overlay() returned {type(prims).__name__}, not a list")
+            return [], None
+        problem = overlay_problem(prims)
+        if problem is not None:
+            host.fail(tool, f"overlay() returned {problem}")
+            return [], None
+        displace = host.displace if host.displaces else None
+        return [host.drape_marker(p) for p in prims], displace

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import moderngl
 import numpy as np
@@ -50,12 +50,12 @@ class DisplacementHook:
 
     ``glsl`` defines ``vec3 gv_displace(vec3 rel, vec3 up, float h, vec3 center_rel)`` that
     returns the displaced eye-relative position; it replaces the identity chunk
-    shaders/displace.glsl, verbatim. ``uniforms`` are set every frame.
+    shaders/displace.glsl, verbatim. Its ``gv_u_*`` uniforms come with each frame
+    (`draw_terrain`'s ``uniforms``: the tool's `displacement_uniforms`), not stored here.
     """
 
     owner: str
     glsl: str
-    uniforms: dict[str, object] = field(default_factory=dict)
 
 
 class GlobeRenderer:
@@ -411,8 +411,6 @@ class GlobeRenderer:
         uni["u_fog_end"] = 1.6 * horizon if s.fog else 2e30
         uni["u_fog_color"] = (0.70, 0.78, 0.90)
         uni["u_wire_color"] = tuple(s.wire_color)
-        if self._hook is not None:
-            uni.update(self._hook.uniforms)
         if extra:
             uni.update(extra)
         p = self.program

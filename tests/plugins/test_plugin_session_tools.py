@@ -9,6 +9,7 @@ import pytest
 from globeview.plugins.registry import PluginRegistry
 from globeview.plugins.settings import MemorySettings
 from globeview.plugins.testing import PluginSite, plugin_manifest
+from globeview.render.gpu_objects import gpu_objects
 
 pytestmark = pytest.mark.gl
 SIZE = (96, 72)
@@ -127,5 +128,92 @@ def test_an_unavailable_tool_name_ends_as_none_for_every_listener(
         s.globe.events.tool.connect(seen.append)  # after the tool host's own listener
         s.globe.tool = "no-such-tool"
         assert seen == ["no-such-tool", None] and s.globe.tool is None
+    finally:
+        s.release_gl()
+
+
+UNIFORMS_SRC = """
+from globeview.plugins.api import Tool
+
+class Warp(Tool):
+    def displacement_glsl(self):
+        return {glsl!r}
+
+    def displacement_uniforms(self, view):
+        {body}
+"""
+
+
+@pytest.mark.parametrize(
+    ("body", "fails"),
+    [
+        ("return None", False),  # no uniforms this frame: {} (the hook stays compiled)
+        ("return {}", False),
+        ("return {'gv_u_k': float('nan')}", True),
+        ("raise RuntimeError('boom')", True),
+    ],
+)
+def test_uniforms_never_recompile_the_terrain_shader_per_frame(
+    plugin_site, globeview_gl, globeview_terrain, target, body, fails
+) -> None:
+    pkg = "gvt_uniwarp"
+    plugin_site.add(
+        pkg,
+        plugin_manifest("uni-warp", pkg, "tool", "Warp"),
+        {"impl": UNIFORMS_SRC.format(glsl=GOOD_GLSL, body=body)},
+    )
+    reg = PluginRegistry(MemorySettings()).discover()
+    s = _session(globeview_gl, globeview_terrain, reg)
+    try:
+        s.activate_tool("uni-warp")
+        s.render(target.fbo, SIZE)  # compiles the hook (and fails a bad tool once)
+        tracker = gpu_objects(globeview_gl)
+        mark = tracker.mark
+        for _ in range(5):
+            assert s.render(target.fbo, SIZE).stats.tiles_drawn > 0
+        # Every program a recompile makes goes through the tracker: none in 5 frames.
+        assert tracker.mark == mark
+        assert (reg.failure_of("uni-warp") is not None) == fails
+        assert (s.renderer.displacement_hook is None) == fails
+        assert (s.globe.tool is None) == fails
+    finally:
+        s.release_gl()
+
+
+def test_a_tool_without_uniforms_keeps_its_hook(
+    plugin_site, globeview_gl, globeview_terrain, target
+) -> None:
+    src = f"""
+class Warp:  # duck-typed: not a Tool subclass, no displacement_uniforms
+    def __init__(self, ctx=None):
+        self.ctx = ctx
+
+    def displacement_glsl(self):
+        return {GOOD_GLSL!r}
+
+    def displacement_numpy(self, points):
+        return points
+
+    def on_mouse(self, event):
+        return False
+
+    def on_key(self, event):
+        return False
+
+    def overlay(self, view):
+        return []
+"""
+    plugin_site.add(
+        "gvt_bare", plugin_manifest("bare-warp", "gvt_bare", "tool", "Warp"), {"impl": src}
+    )
+    reg = PluginRegistry(MemorySettings()).discover()
+    s = _session(globeview_gl, globeview_terrain, reg)
+    try:
+        s.activate_tool("bare-warp")
+        s.render(target.fbo, SIZE)
+        hook = s.renderer.displacement_hook
+        s.render(target.fbo, SIZE)
+        assert hook is not None and s.renderer.displacement_hook is hook
+        assert reg.failure_of("bare-warp") is None
     finally:
         s.release_gl()
