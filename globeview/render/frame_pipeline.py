@@ -178,7 +178,6 @@ class FramePipeline:
         self.host = host
         self.clock = clock
         self.motion = CameraMotion()
-        self.last: FrameResult | None = None
         self._tool_overlay: ToolOverlayRenderer | None = None  # made on first use
 
     def run(
@@ -237,8 +236,8 @@ class FramePipeline:
         # 8. Stats.
         renderer.finish_stats(stats, view, drawn, triangles, t0)
         stats.lod_provider = host.lod_name
-        self.last = FrameResult(view, render_set, stats, overlay_drawn, animating, fbo)
-        return self.last
+        # The host keeps the last frame (`GlobeScene.last`); the pipeline keeps none.
+        return FrameResult(view, render_set, stats, overlay_drawn, animating, fbo)
 
     def _draw_tool_overlay(
         self, tool: FrameTool | None, view: ViewState, fbo: moderngl.Framebuffer
