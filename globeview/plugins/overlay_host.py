@@ -47,6 +47,7 @@ class OverlayHost:
         self.registry = registry
         #: One line per overlay dropped at a frame because the GPU side refused it.
         self.errors: list[str] = []
+        self._detach: list[_PluginLayer] = []  # removed API 1.0 layers, detached next frame
 
     # -- layer types ---------------------------------------------------------------------------
     def layer_types(self) -> list:
@@ -77,10 +78,10 @@ class OverlayHost:
 
         The type's ``open()`` may return drawables (`globeview.plugins.drawables`), which
         the host checks and turns into layer models, or an API 1.0 object with
-        ``attach``/``detach`` (attached to ``renderer`` now: its GL is the plugin's). Bad
-        files raise a one-line `GlobeviewError` and leave the plugin enabled; garbage
-        returned, or a crash, fails that layer type (reported) and raises a one-line
-        `GlobeviewError`."""
+        ``attach``/``detach`` (attached at the next frame: its methods take the GL
+        renderer). Bad files raise a one-line `GlobeviewError` and leave the plugin
+        enabled; garbage returned, or a crash, fails that layer type (reported) and raises
+        a one-line `GlobeviewError`."""
         from globeview.plugins.layer_dispatch import parse_layer_spec
         from globeview.plugins.overlay_layers import as_drawables, host_layer
 
@@ -116,10 +117,9 @@ class OverlayHost:
             else:
                 layer = built
         if layer is not failed and not isinstance(layer, _HOST_LAYERS):
-            # An API 1.0 layer object: every call into it is plugin code, isolated.
+            # An API 1.0 layer object: every call into it is plugin code, isolated, and
+            # made at frame time (it takes the GL renderer): attached at the next frame.
             layer = _PluginLayer(layer, self.registry, obj, Path(path).name)
-            if not layer.attach(renderer):
-                layer = failed
         elif layer is not failed:
             # A host layer is a model: no GL here. Its GPU twin is made at the next frame
             # (`prepare_gpu`), where a GL refusal drops the layer with a one-line message.
@@ -154,24 +154,38 @@ class OverlayHost:
                 layers.append(self.open(str(path), kind, renderer, **style))
         return layers
 
-    def remove(self, layer: Any, renderer: GlobeRenderer) -> None:
-        """Take ``layer`` off the globe (an API 1.0 layer detaches itself from
-        ``renderer``; a host layer's GPU twin is released at the next frame)."""
-        layer.detach(renderer)
+    def remove(self, layer: Any, renderer: GlobeRenderer | None = None) -> None:
+        """Take ``layer`` off the globe; no GL: a host layer's GPU twin is released and an
+        API 1.0 layer object detached at the next frame."""
         self.globe.remove_overlay(layer)
+        if isinstance(layer, _PluginLayer) and layer.attached:
+            self._detach.append(layer)
 
     # -- the GPU side (at frame time) ------------------------------------------------------------
     def prepare_gpu(self, renderer: GlobeRenderer) -> None:
         """Bring ``renderer``'s overlay twins in line with the globe's overlays; a layer the
         GPU side refuses (its limits) is dropped from the globe with one line in
         ``errors`` (and the log)."""
+        while self._detach:
+            self._detach.pop().gpu_detach(renderer)
+        for layer in list(self.globe.overlays):
+            if not isinstance(layer, _PluginLayer):
+                continue
+            if not layer.attached and not layer.gpu_attach(renderer):
+                self._drop(layer, f"could not attach: {self._why(layer._owner)}")
+            else:
+                layer.gpu_show(renderer)
         for part, why in renderer.overlays.sync(self.globe.overlays):
             top = next((ly for ly in self.globe.overlays if _contains(ly, part)), part)
-            message = f"cannot draw {getattr(top, 'name', 'overlay')}: {why}"
-            log.warning("%s", message)
-            self.errors.append(message)
-            if top in self.globe.overlays:
-                self.globe.remove_overlay(top)
+            self._drop(top, why)
+
+    def _drop(self, layer: Any, why: str) -> None:
+        """Take a layer the frame could not draw off the globe, with one line."""
+        message = f"cannot draw {getattr(layer, 'name', 'overlay')}: {why}"[:300]
+        log.warning("%s", message)
+        self.errors.append(message)
+        if any(ly is layer for ly in self.globe.overlays):
+            self.globe.remove_overlay(layer)
 
     def _why(self, contribution: object) -> str:
         """The recorded reason a contribution (or its plugin) failed, one line."""
@@ -190,9 +204,10 @@ class OverlayHost:
 
 class _PluginLayer:
     """An API 1.0 layer object (``attach``/``detach``, optional ``set_visible``) behind the
-    host's isolation: the overlay panel and the session call it only through here, so a
-    method that raises fails its layer type (one line) instead of the window. Listed with
-    kind 'plugin' and the object's ``name`` (default: the file's)."""
+    host's isolation, listed with kind 'plugin' and the object's ``name`` (default: the
+    file's). Its methods take the GL renderer, so the host calls them only at frame time
+    (`OverlayHost.prepare_gpu`, the context current): ``set_visible`` here only records the
+    wish. A method that raises fails its layer type (one line) instead of the window."""
 
     kind = "plugin"
 
@@ -201,6 +216,8 @@ class _PluginLayer:
         self._registry = registry
         self._owner = owner  # the layer type that opened it: failures are its own
         self.visible = True
+        self.attached = False  # attach() ran (at a frame) and detach() has not
+        self.shown = True  # the visibility the object was last told
         try:
             name = getattr(layer, "name", "")
         except Exception:
@@ -214,15 +231,33 @@ class _PluginLayer:
         fn = getattr(self.layer_object, method)
         return self._registry.call_for(self._owner, fn, *args, default=failed) is not failed
 
-    def attach(self, renderer) -> bool:
-        return self._call("attach", renderer)
+    # -- the model side (no plugin call, no GL) ---------------------------------------------
+    def attach(self, renderer: object = None) -> None:
+        """Nothing now: the host attaches the object at the next frame."""
 
-    def detach(self, renderer) -> None:
-        self._call("detach", renderer)
+    def detach(self, renderer: object = None) -> None:
+        """Nothing now: the host detaches a removed object at the next frame."""
 
-    def set_visible(self, renderer, visible: bool) -> None:
+    def set_visible(self, renderer: object, visible: bool) -> None:
         self.visible = bool(visible)
-        self._call("set_visible", renderer, self.visible)
+
+    # -- the GPU side (OverlayHost.prepare_gpu, the context current) -------------------------
+    def gpu_attach(self, renderer: GlobeRenderer) -> bool:
+        """Attach the object; False when it failed (its layer type is reported)."""
+        self.attached = self._call("attach", renderer)
+        self.shown = True
+        return self.attached
+
+    def gpu_detach(self, renderer: GlobeRenderer) -> None:
+        if self.attached:
+            self._call("detach", renderer)
+            self.attached = False
+
+    def gpu_show(self, renderer: GlobeRenderer) -> None:
+        """Tell the object the visibility the model wants, once per change."""
+        if self.attached and self.shown != self.visible:
+            self.shown = self.visible
+            self._call("set_visible", renderer, self.visible)
 
 
 class _Named:

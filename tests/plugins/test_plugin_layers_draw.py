@@ -258,9 +258,15 @@ def test_an_api_1_0_layer_object_is_called_only_under_isolation(session, tmp_pat
     layer = session.add_overlay(str(f))
     assert layer.name == "old style" and layer.kind == "plugin"
     legacy = type(layer.layer_object)
-    assert legacy.attached == 1 and session.overlay_layers == [layer]
-    layer.set_visible(session.renderer, False)  # raises inside: the layer type fails
+    # Its methods take the GL renderer: the host calls them at frame time only.
+    assert legacy.attached == 0 and session.overlay_layers == [layer]
+    session.render(session.target.fbo, SIZE)
+    assert legacy.attached == 1
+    layer.set_visible(None, False)  # the model's wish; the object is told at the frame
     rec = session.registry.get("stripes")
+    assert rec.status == "ok"
+    session.render(session.target.fbo, SIZE)  # set_visible raises inside: the type fails
     assert rec.status == "failed" and "RuntimeError: nope" in rec.error
     session.remove_overlay(layer)  # no exception; the failed plugin is not called again
-    assert session.overlay_layers == []
+    session.render(session.target.fbo, SIZE)
+    assert session.overlay_layers == [] and legacy.attached == 1

@@ -91,3 +91,91 @@ def test_a_layer_the_gpu_side_refuses_is_dropped_with_one_line(session) -> None:
     assert msg.startswith("cannot draw spheres: ") and "\n" not in msg
     assert result.stats.extra.get("objects", 0) > 0  # the other layer is drawn
     session.remove_overlay(good)
+
+
+OLD_MANIFEST = """
+    name = "oldlayer"
+    version = "0.1.0"
+    description = "an API 1.0 layer object"
+    kinds = ["layer"]
+    api_version = "1.0"
+
+    [[contributions]]
+    name = "oldlayer"
+    kind = "layer"
+    target = "gvt_oldlayer.impl:OldType"
+    label = "Old"
+    extensions = [".old"]
+    """
+
+OLD_IMPL = """
+class Old:
+    name = "old style"
+    calls = []
+
+    def __init__(self, broken):
+        self.broken = broken
+
+    def attach(self, renderer):
+        Old.calls.append("attach")
+        if self.broken:
+            raise RuntimeError("no GL for you")
+
+    def detach(self, renderer):
+        Old.calls.append("detach")
+
+    def set_visible(self, renderer, visible):
+        Old.calls.append(f"visible {visible}")
+
+
+class OldType:
+    name = "oldlayer"
+    label = "Old"
+    extensions = (".old",)
+
+    def __init__(self, context=None):
+        self.context = context
+
+    def open(self, path, **style):
+        return Old(open(path).read().strip() == "broken")
+"""
+
+
+def test_api_1_0_layer_objects_are_called_at_frame_time(
+    globeview_gl, globeview_terrain, plugin_site, tmp_path
+) -> None:
+    from globeview.plugins.registry import PluginRegistry
+    from globeview.plugins.session import GlobeSession
+    from globeview.plugins.settings import MemorySettings
+    from globeview.render.offscreen import OffscreenTarget
+
+    plugin_site.add("gvt_oldlayer", OLD_MANIFEST, {"impl": OLD_IMPL})
+    good, broken = tmp_path / "good.old", tmp_path / "broken.old"
+    good.write_text("fine")
+    broken.write_text("broken")
+    reg = PluginRegistry(MemorySettings()).discover()
+    s = GlobeSession(globeview_gl, globeview_terrain, registry=reg)
+    target = OffscreenTarget(globeview_gl, SIZE)
+    try:
+        layer = s.add_overlay(str(good))
+        calls = type(layer.layer_object).calls
+        layer.set_visible(None, False)
+        assert calls == []  # opening and hiding called nothing (no GL, no context)
+        s.render(target.fbo, SIZE)
+        assert calls == ["attach", "visible False"]
+        s.render(target.fbo, SIZE)
+        assert calls == ["attach", "visible False"]  # told once per change
+        s.remove_overlay(layer)
+        assert calls[-1] == "visible False"
+        s.render(target.fbo, SIZE)
+        assert calls[-1] == "detach"
+        # An object whose attach raises: dropped at the frame, one line, its type fails.
+        s.add_overlay(str(broken))
+        assert s.render(target.fbo, SIZE).stats.tiles_drawn > 0
+        assert s.overlay_layers == [] and len(s.overlay_errors) == 1
+        msg = s.overlay_errors[0]
+        assert msg.startswith("cannot draw old style: could not attach: ") and "\n" not in msg
+        assert "no GL for you" in msg and reg.failure_of("oldlayer") is not None
+    finally:
+        s.release_gl()
+        target.release()
