@@ -148,8 +148,8 @@ class Camera:
 
     def lonlat_hpr(self) -> tuple[float, float, float, float, float, float]:
         """(lon, lat, height, heading, pitch, roll) in degrees and metres."""
-        lon, lat, h = ecef_to_lonlat(self.eye)
-        lon, lat, h = float(lon), float(lat), float(h)
+        lon_a, lat_a, h_a = ecef_to_lonlat(self.eye)
+        lon, lat, h = float(lon_a), float(lat_a), float(h_a)
         e, n, u = enu_basis(lon, lat)
         right, up, back = self.rotation
         fwd = -back

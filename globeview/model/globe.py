@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import weakref
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Final
 
 from psygnal import Signal, SignalGroup
 
@@ -22,7 +22,7 @@ from globeview.model.display import DisplaySettings
 from globeview.terrain.stack import TerrainStack
 
 #: Events emitted while an event is delivered wait for it to finish (see `GlobeEvents`).
-_QUEUED = "queued"
+_QUEUED: Final = "queued"
 
 #: The LOD provider a new globe starts with (a built-in plugin contribution).
 DEFAULT_LOD = "chunked-sse"
