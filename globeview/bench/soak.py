@@ -11,7 +11,7 @@ import gc
 import numpy as np
 
 from globeview.bench.flight import Flight, shipped_flights_dir
-from globeview.bench.harness import Bench, load_terrain, machine, rss_mb
+from globeview.bench.harness import Bench, fly, load_terrain, machine, rss_mb
 
 SOAK_FLIGHTS = ("global_approach.json", "canyon_run.json", "fast_pan.json", "regional_oblique.json")
 
@@ -44,10 +44,9 @@ def run_soak(
                 n = min(per_flight, frames - done)
                 if n <= 0:
                     break
-                for i, t in enumerate(fl.times(frames=n)):
-                    # Flight time stamps (the pipeline's speed); each flight is a new shot.
-                    bench.set_pose(fl.pose(float(t)), cut=i == 0)
-                    bench.frame(float(t))
+                # The harness's flight loop: flight time stamps (the pipeline's speed, no
+                # pause between sparse samples); each flight starts at rest.
+                fly(bench, fl, fl.times(frames=n), warm=False)
                 done += n
                 gc.collect()
                 objs = bench.gl_objects()
