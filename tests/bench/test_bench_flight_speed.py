@@ -58,6 +58,28 @@ def test_flight_frames_carry_the_flights_speed(bench) -> None:
 
 
 def test_measure_starts_each_view_at_rest(bench) -> None:
-    m = bench.measure((-71.3, 44.15, 9.0e3, 0.0, -30.0), frames=2, turn_deg=0.01)
+    """`Bench.measure` cuts the camera history: its view's first frame is at rest even when
+    the previous frame showed another place a moment before (not a 10 km jump in 0.1 s)."""
+    pose_a = (-71.3, 44.15, 9.0e3, 0.0, -30.0)
+    pose_b = (-71.2, 44.25, 9.0e3, 0.0, -30.0)  # ~14 km from A
+    bench.set_pose(pose_a, cut=True)
+    bench.frame(100.0)
+    pipeline, session = bench.session.pipeline, bench.session
+    speeds = []
+    select = session.select  # a spy around the real provider's selection
+
+    def spy(view):
+        speeds.append(view.speed_mps)
+        return select(view)
+
+    clock = pipeline.clock
+    pipeline.clock = lambda: 100.1  # measure's frames come 0.1 s after A's: no pause
+    session.select = spy
+    try:
+        m = bench.measure(pose_b, frames=2)
+    finally:
+        pipeline.clock = clock
+        del session.select
     assert m["triangles"] > 0 and m["frame_ms"] > 0
-    assert bench.session.last.view.speed_mps == 0.0  # turning in place: no speed
+    assert len(speeds) == 3  # the warm-up frame and the two measured ones
+    assert speeds[0] == 0.0  # the jump from A to B is a cut, not a move
