@@ -134,40 +134,6 @@ def open_close_cycle(
     return {"triangles": triangles, "refs": refs, "gl_objects": gl_live, "gl_left": gl_left}
 
 
-def unreleased_gl_objects(root: object, max_depth: int = 8) -> list[str]:
-    """Attribute paths (``renderer.pool.vbo``) of the moderngl objects reachable from ``root``
-    through globeview objects, dicts, lists, tuples and sets that are not released yet (the
-    context itself and framebuffers are skipped: their owner releases them)."""
-    import moderngl
-
-    seen: set[int] = set()
-    found: list[str] = []
-
-    def walk(obj: object, path: str, depth: int) -> None:
-        if id(obj) in seen or depth > max_depth:
-            return
-        seen.add(id(obj))
-        if isinstance(obj, moderngl.Context | moderngl.Framebuffer):
-            return
-        mglo = getattr(obj, "mglo", None)
-        if type(obj).__module__.startswith("moderngl"):
-            if mglo is not None and not isinstance(mglo, moderngl.InvalidObject):
-                found.append(path)
-            return
-        if isinstance(obj, dict):
-            for k, v in obj.items():
-                walk(v, f"{path}[{k!r}]", depth + 1)
-        elif isinstance(obj, list | tuple | set | frozenset):
-            for i, v in enumerate(obj):
-                walk(v, f"{path}[{i}]", depth + 1)
-        elif type(obj).__module__.startswith("globeview") and hasattr(obj, "__dict__"):
-            for k, v in vars(obj).items():
-                walk(v, f"{path}.{k}", depth + 1)
-
-    walk(root, type(root).__name__, 0)
-    return found
-
-
 def trim_heap() -> bool:
     """Give freed heap memory back to the system (glibc ``malloc_trim``) so that RSS shows
     what is held, not what the allocator keeps cached after a cycle freed its ~100 MB of tile

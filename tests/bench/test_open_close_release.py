@@ -33,10 +33,10 @@ def store_paths():
 def test_release_gl_releases_every_gl_object_of_the_session(store_paths):
     """In a context that outlives the session (a window, a script rendering many globes),
     anything release_gl misses stays in GPU memory: the tile pool alone is ~100 MB."""
-    from globeview.bench.soak import unreleased_gl_objects
     from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import MemorySettings
+    from globeview.render.gpu_objects import gpu_objects
     from globeview.render.offscreen import OffscreenTarget, create_headless_context
     from globeview.terrain.stack import TerrainStack
     from globeview.terrain.store import TileStore
@@ -45,16 +45,19 @@ def test_release_gl_releases_every_gl_object_of_the_session(store_paths):
     ctx = create_headless_context()
     try:
         target = OffscreenTarget(ctx, (96, 64))
+        tracker = gpu_objects(ctx)  # the one GL-object tracker: what the session makes
+        mark = tracker.mark
         session = GlobeSession(
             ctx,
             TerrainStack.from_stores(stores),
             registry=PluginRegistry(MemorySettings()).discover(),
         )
         assert session.render(target.fbo, (96, 64)).stats.triangles > 0
-        live = unreleased_gl_objects(session)
-        assert "GlobeSession.pipeline.renderer.pool.vbo" in live  # the walk sees the pool
+        live = [t for t in tracker.live if t.serial > mark]
+        owners = {t.owner for t in live}
+        assert "globeview.render.tile_pool" in owners  # the tracker sees the pool
         session.release_gl()
-        assert unreleased_gl_objects(session) == []
+        assert [str(t) for t in tracker.live if t.serial > mark] == []
         target.release()
     finally:
         ctx.release()
