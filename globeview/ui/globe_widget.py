@@ -264,8 +264,6 @@ class GlobeWidget(QOpenGLWidget):
             # Every LOD plugin is disabled: the globe cannot be drawn without one.
             self.registry.enable(DEFAULT_LOD)
             available = self.registry.lod_providers()
-        if self.model.lod not in available and available:
-            self.model.lod = DEFAULT_LOD if DEFAULT_LOD in available else next(iter(available))
         # The session draws the model (its camera, tau, LOD, tool, overlays and display
         # settings are the Globe's: one copy of the state).
         scene = GlobeSession(self.ctx, self.terrain, registry=self.registry, globe=self.model)

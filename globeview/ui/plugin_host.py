@@ -26,6 +26,7 @@ from PyQt6.QtCore import QObject, QSettings, pyqtSignal
 from globeview.errors import GlobeviewError
 from globeview.model.globe import Globe
 from globeview.plugins.api import PluginKind
+from globeview.plugins.lod_host import LodHost
 from globeview.plugins.registry import PluginRecord, PluginRegistry
 from globeview.plugins.session import DEFAULT_LOD, GlobeSession
 from globeview.ui.subscriptions import Subscriptions
@@ -83,9 +84,11 @@ class PluginHost(QObject):
         #: Why the last fallback happened ("" when the chosen provider is the one drawing):
         #: the window keeps it visible (LOD field tooltip, plugin panel) after notices pass.
         self.fallback_reason = ""
-        #: The provider in use before the model's last LOD event (to refuse a bad name).
+        #: The provider in use before the model's last LOD event (whose going is a fallback).
         self._lod_before = model.lod
-        self._quiet = False  # set while the host itself moves the model's provider
+        #: Validates a chosen name before the model changes (the session's `LodHost` does
+        #: the same on the same model and registry; this one works before GL is up).
+        self._lod_host = LodHost(model, registry)
         self.subscriptions = Subscriptions()
         self.subscriptions.connect(model.events.lod, self._model_lod)
 
@@ -94,43 +97,31 @@ class PluginHost(QObject):
         """The active LOD provider: the model's."""
         return self.model.lod
 
-    @active.setter
-    def active(self, name: str) -> None:
-        self.model.lod = name
-
     def _model_lod(self, *_args: object) -> None:
-        """The model's LOD provider changed (a choice here, code, or a fallback): the session
-        follows and the panel and status bar are told (`lodChanged`). A name no enabled
-        plugin provides is a notice and the model goes back to the provider in use. When the
-        provider left had failed (the session fell back during a frame), the notice says why
-        and `fallback_reason` keeps it; a choice of another provider clears it."""
+        """The model's LOD provider changed (a choice here, code, or a fallback): the panel
+        and status bar are told (`lodChanged`). When the provider left is no longer available
+        (it failed in a frame and the session fell back, or its plugin was disabled), the
+        notice says why and `fallback_reason` keeps it; any other change clears it."""
         name, old = self.model.lod, self._lod_before
         if name == old:
-            return  # nothing new (e.g. the queued event of a name set back here)
-        if self.session is None and self.registry.find(PluginKind.LOD, name) is None:
-            self.notice.emit(f"no enabled LOD provider named {name!r:.80}")
-            self._set_model_lod(old)
             return
         self._lod_before = name
-        if not self._quiet:
-            why = self.failure_reason("lod", old)
-            self.fallback_reason = f"LOD provider {old} failed: {why}" if why else ""
-            if why:
-                self.notice.emit(f"{self.fallback_reason}; using {name}")
-                self._said_failed("lod", old)
-        self._apply(old)
-        if self.model.lod == name:
-            self.lodChanged.emit(name)
-            if self.fallback_reason and not self._quiet:
-                self.changed.emit()
+        if self.registry.find(PluginKind.LOD, old) is None:
+            self._announce_fallback(old, name)
+        else:
+            self.fallback_reason = ""
+        self.lodChanged.emit(name)
 
-    def _set_model_lod(self, name: str) -> None:
-        """Set the model's provider without a second notice (the caller has said why)."""
-        quiet, self._quiet = self._quiet, True
-        try:
-            self.model.lod = name
-        finally:
-            self._quiet = quiet
+    def _announce_fallback(self, old: str, new: str) -> None:
+        """Say once why provider ``old`` gave way to ``new``; `refresh` does not announce its
+        plugin's failure again."""
+        why = self.failure_reason("lod", old)
+        self.fallback_reason = f"LOD provider {old} failed: {why}" if why else ""
+        text = self.fallback_reason or f"LOD provider {old} is not available"
+        self.notice.emit(f"{text}; using {new}")
+        for rec in self.registry:
+            if self._declares(rec, "lod", old):
+                self._statuses[rec.name] = rec.status
 
     # -- RendererHooks (what PluginContext.renderer offers plugins) -------------------------
     def request_redraw(self) -> None:
@@ -196,20 +187,9 @@ class PluginHost(QObject):
                     self.notice.emit(f"plugin {rec.name} failed and was disabled: {rec.error}")
         self._statuses = {rec.name: rec.status for rec in self.registry}
         if falls_back:
-            new = DEFAULT_LOD if DEFAULT_LOD in available else next(iter(available))
-            why = self.failure_reason("lod", old)
-            self.fallback_reason = f"LOD provider {old} failed: {why}" if why else ""
-            text = self.fallback_reason or f"LOD provider {old} is not available"
-            self.notice.emit(f"{text}; using {new}")
-            self._set_model_lod(new)  # the session, panel and status bar follow its event
+            # The model's event announces it (`_model_lod`: the provider left is unavailable).
+            self.model.lod = DEFAULT_LOD if DEFAULT_LOD in available else next(iter(available))
         self.changed.emit()
-
-    def _said_failed(self, kind: str, name: str) -> None:
-        """The fallback notice named the failure of contribution ``name``: `refresh` does not
-        announce its plugin's failure again."""
-        for rec in self.registry:
-            if self._declares(rec, kind, name):
-                self._statuses[rec.name] = rec.status
 
     @staticmethod
     def _declares(rec: PluginRecord, kind: str, name: str) -> bool:
@@ -230,7 +210,6 @@ class PluginHost(QObject):
         """Use ``session`` (created by the globe widget once GL is up)."""
         self.session = session
         self.registry.attach(renderer=self)  # the session attached scene, terrain, camera
-        self._apply()
         self.refresh()
 
     def unbind(self) -> None:
@@ -239,27 +218,22 @@ class PluginHost(QObject):
         self.session = None
         self.registry.attach(scene=None)
 
-    def _apply(self, previous: str | None = None) -> None:
-        """Make the session use the model's provider (it checks the name and loads only that
-        plugin). A name it refuses is a notice and the model goes back to ``previous``; a
-        provider whose plugin fails to load makes the session fall back, which comes back as
-        another LOD event (`_model_lod` says why)."""
-        if self.session is None:
-            return
-        try:
-            self.session.set_lod(self.model.lod)
-        except GlobeviewError as exc:  # the user's (or code's) error: no such provider
-            self.notice.emit(str(exc))
-            if previous is not None:
-                self._set_model_lod(previous)
-
     def choose(self, name: str) -> None:
-        """Make ``name`` the model's LOD provider from the next frame on (a user's choice:
-        the last fallback's reason is cleared)."""
+        """Make ``name`` the model's LOD provider from the next frame on (a user's choice).
+
+        The name is checked before the model changes: one no enabled plugin provides is a
+        notice and nothing changes; a provider whose plugin fails to load falls back to the
+        built-in one (the notice says why)."""
         if name == self.active:
             return
-        self.fallback_reason = ""
-        self._set_model_lod(name)
+        try:
+            self._lod_host.choose(name)
+        except GlobeviewError as exc:  # the user's (or code's) error: no such provider
+            self.notice.emit(str(exc))
+            return
+        if self.model.lod != name:  # its plugin failed to load: LodHost fell back
+            self._announce_fallback(name, self.model.lod)
+            self.refresh()  # the panel lists the failed plugin, its choice goes back
 
     def configure(self, values: dict[str, Any]) -> None:
         """Apply and persist setting values of the active provider (isolated)."""

@@ -14,6 +14,7 @@ import pytest
 from PyQt6.QtCore import Qt
 
 from globeview.model.camera import Camera
+from globeview.model.globe import DEFAULT_LOD
 
 pytestmark = pytest.mark.gui
 
@@ -143,14 +144,27 @@ def test_lod_set_on_the_model_shows_in_panel_and_status(make_window, wait_frame)
     assert win.globe.scene.lod_name == "distance-regions"
     wait_frame(win)
     assert win.globe.last_stats.lod_provider == "distance-regions"
-    # A name no plugin provides: a one-line notice, and the provider in use stays.
-    win.model.lod = "no-such-lod"
-    assert win.model.lod == "distance-regions"
+    # A name no plugin provides, chosen in the window: one notice, nothing changes.
+    events, shown = [], []
+    win.model.events.lod.connect(events.append)
+    win.plugins.lodChanged.connect(shown.append)
+    win.plugins.choose("no-such-lod")
+    assert events == [] and shown == [] and win.model.lod == "distance-regions"
     assert panel.lod_combo.currentData() == "distance-regions"
-    assert any("no-such-lod" in m.text for m in win.errors.history)
-    assert all("\n" not in m.text for m in win.errors.history)
+    assert [m.text for m in win.errors.history if "no-such-lod" in m.text] == [
+        m.text for m in win.errors.history[-1:]
+    ]
+    # Set on the model from code: the frame falls back to the built-in provider, once, and
+    # the notice names the name it left.
+    win.model.lod = "no-such-lod"
     wait_frame(win)
-    assert win.globe.last_stats.lod_provider == "distance-regions"
+    assert events == ["no-such-lod", DEFAULT_LOD]
+    assert win.model.lod == DEFAULT_LOD and panel.lod_combo.currentData() == DEFAULT_LOD
+    assert (
+        win.errors.history[-1].text
+        == f"LOD provider no-such-lod is not available; using {DEFAULT_LOD}"
+    )
+    assert all("\n" not in m.text for m in win.errors.history)
     assert win.globe.last_stats.triangles > 0
 
 
