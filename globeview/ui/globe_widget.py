@@ -16,7 +16,7 @@ Tools (the model's ``tool``, an enabled tool plugin): a left click — press and
 without moving more than `CLICK_SLOP_PX` — goes to the tool as a ``press`` and a ``release``
 `PointerEvent` (with the true, un-displaced picked point), a drag still navigates; cursor
 moves, wheel steps and key presses go to the tool first and to navigation when it does not
-consume them. Escape also deactivates the tool (``toolDeactivated``). While the frame says
+consume them. Escape also deactivates the tool (the model's tool is None). While the frame says
 the tool animates (``FrameResult.animating``) a 16 ms timer keeps frames coming.
 """
 
@@ -146,10 +146,7 @@ class GlobeWidget(QOpenGLWidget):
         sceneReady(object): the `GlobeSession`, once the GL context exists.
         frameRendered(object, float): each frame's `FrameStats` and the frame rate (Hz).
         cursorPicked(object): the `Pick` under the cursor (or None) as the mouse moves.
-        cameraChanged(): navigation or a flight moved the camera.
         renderFailed(object): an exception while drawing (the widget keeps running).
-        toolDeactivated(): the widget deactivated the active tool (Escape, or its plugin
-            failed).
         keyUnhandled(int, object): a key press neither the tool nor navigation took (Qt key,
             modifiers): the window matches it against the tool actions' shortcuts.
     """
@@ -157,9 +154,7 @@ class GlobeWidget(QOpenGLWidget):
     sceneReady = pyqtSignal(object)
     frameRendered = pyqtSignal(object, float)
     cursorPicked = pyqtSignal(object)
-    cameraChanged = pyqtSignal()
     renderFailed = pyqtSignal(object)
-    toolDeactivated = pyqtSignal()
     keyUnhandled = pyqtSignal(int, object)
 
     def __init__(
@@ -202,7 +197,7 @@ class GlobeWidget(QOpenGLWidget):
         # Every model change schedules a frame: nothing calls request_frame by hand for it.
         self.subscriptions = Subscriptions()
         events = model.events
-        self.subscriptions.connect(events.camera, self._model_camera)
+        self.subscriptions.connect(events.camera, self.request_frame)
         self.subscriptions.connect(events.tau_px, self.request_frame)
         self.subscriptions.connect(events.lod, self.request_frame)
         self.subscriptions.connect(events.tool, self._model_tool)
@@ -220,20 +215,6 @@ class GlobeWidget(QOpenGLWidget):
     def settings(self) -> DisplaySettings:
         """The model's display settings."""
         return self.model.display
-
-    @property
-    def tau_px(self) -> float:
-        """The model's screen-space error threshold (pixels)."""
-        return self.model.tau_px
-
-    @property
-    def lod(self) -> str:
-        """The model's LOD provider name."""
-        return self.model.lod
-
-    def _model_camera(self, *_args: object) -> None:
-        self.cameraChanged.emit()
-        self.update()
 
     def _model_tool(self, *_args: object) -> None:
         """The model's tool changed (here, from code, or its plugin failed): a pending click
@@ -324,9 +305,7 @@ class GlobeWidget(QOpenGLWidget):
         if tool is None:
             # Its plugin was disabled or failed: the session leaves it (the model's tool
             # becomes None, an event; the hook goes at the next frame, no GL here).
-            self._anim.stop()
-            self.scene.tool()  # leaves it: the model's tool is None (an event)
-            self.toolDeactivated.emit()
+            self.scene.tool()  # leaves it: the model's tool is None (an event, _model_tool)
         return tool
 
     def set_tool(self, name: str | None) -> bool:
@@ -383,11 +362,10 @@ class GlobeWidget(QOpenGLWidget):
         return used
 
     def deactivate_tool(self) -> None:
-        """Leave the active tool (its ``deactivate`` runs) and tell the window."""
+        """Leave the active tool (its ``deactivate`` runs; the model's tool event tells the
+        window and stops the animation timer, `_model_tool`)."""
         if self.scene is not None and self.scene.active_tool is not None:
             self.set_tool(None)
-            self._anim.stop()
-            self.toolDeactivated.emit()
 
     @contextmanager
     def gl_current(self) -> Iterator[None]:
