@@ -162,6 +162,7 @@ class GlobeWidget(QOpenGLWidget):
         model: Globe,
         registry: PluginRegistry,
         parent: QWidget | None = None,
+        subscriptions: Subscriptions | None = None,
     ) -> None:
         super().__init__(parent)
         self.setFormat(surface_format())
@@ -195,7 +196,8 @@ class GlobeWidget(QOpenGLWidget):
         self._anim.timeout.connect(self.update)
         self._click: tuple[float, float] | None = None  # left press a tool may get as a click
         # Every model change schedules a frame: nothing calls request_frame by hand for it.
-        self.subscriptions = Subscriptions()
+        #: The model subscriptions, the window's (cleared when it closes), or its own.
+        self.subscriptions = Subscriptions() if subscriptions is None else subscriptions
         events = model.events
         self.subscriptions.connect(events.camera, self.request_frame)
         self.subscriptions.connect(events.tau_px, self.request_frame)

@@ -74,7 +74,12 @@ class LayerPanel(QWidget):
 
     zoomRequested = pyqtSignal(object)
 
-    def __init__(self, model: Globe, parent: QWidget | None = None) -> None:
+    def __init__(
+        self,
+        model: Globe,
+        parent: QWidget | None = None,
+        subscriptions: Subscriptions | None = None,
+    ) -> None:
         super().__init__(parent)
         self.model = model
         self.terrain = model.terrain
@@ -115,7 +120,7 @@ class LayerPanel(QWidget):
         for b in (self.up_button, self.down_button, self.zoom_button, self.remove_button):
             buttons.addWidget(b)
         #: The overlay layers (bound to the session once the globe's GL is up).
-        self.overlays = OverlayPanel(model)
+        self.overlays = OverlayPanel(model, subscriptions=subscriptions)
         overlay_box = QGroupBox("Overlays")
         overlay_box.setObjectName("overlays-group")
         QVBoxLayout(overlay_box).addWidget(self.overlays)
@@ -131,7 +136,8 @@ class LayerPanel(QWidget):
         layout.setContentsMargins(4, 4, 4, 4)
         layout.addWidget(overlay_box)
         layout.addWidget(terrain_box)
-        self.subscriptions = Subscriptions()
+        #: The model subscriptions, the window's (cleared when it closes), or its own.
+        self.subscriptions = Subscriptions() if subscriptions is None else subscriptions
         self.subscriptions.connect(model.events.terrain, self._terrain_changed)
         self.refresh()
 

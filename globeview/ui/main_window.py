@@ -139,7 +139,8 @@ class MainWindow(QMainWindow):
             camera or Camera.from_lonlat(*HOME_POSE),
             tau_px=_tau_setting(self.qsettings.value("view/tau")),
         )
-        #: The window's own subscriptions to the model (cleared when it closes).
+        #: Every model subscription of the window and its children (they are handed this
+        #: one): cleared in one go when the window closes.
         self.subscriptions = Subscriptions()
 
         self.status = StatusBar(self)
@@ -158,20 +159,20 @@ class MainWindow(QMainWindow):
             # Interactive: a plugin call overrunning the frame budget again and again would
             # freeze the window, so it is disabled (headless runs only warn).
             registry = PluginRegistry(QSettingsBackend(self.qsettings), budget_policy="disable")
-        self.plugins = PluginHost(registry, self.model, self)
+        self.plugins = PluginHost(registry, self.model, self, self.subscriptions)
         self.plugins.notice.connect(self.errors.notify)
         if len(registry) == 0:
             self.plugins.discover()
         else:
             self.plugins.refresh()
 
-        self.globe = GlobeWidget(self.model, registry, self)
+        self.globe = GlobeWidget(self.model, registry, self, self.subscriptions)
         self.setCentralWidget(self.globe)
 
         # Docks
-        self.layer_panel = LayerPanel(self.model)
+        self.layer_panel = LayerPanel(self.model, subscriptions=self.subscriptions)
         self.layer_dock = self._dock("Layers", "layers", self.layer_panel)
-        self.plugin_panel = PluginPanel(self.plugins)
+        self.plugin_panel = PluginPanel(self.plugins, subscriptions=self.subscriptions)
         # Scrollable: the panel's full height (plugin list, provider settings) must not set
         # the window's minimum height, or the window grows whenever another dock does.
         plugin_scroll = QScrollArea()
@@ -853,15 +854,7 @@ class MainWindow(QMainWindow):
         # model (it may outlive the window) must not call the closed widgets.
         self.plugins.unbind()
         self.layer_panel.overlays.bind(None)
-        for subs in (
-            self.subscriptions,
-            self.globe.subscriptions,
-            self.plugins.subscriptions,
-            self.plugin_panel.subscriptions,
-            self.layer_panel.subscriptions,
-            self.layer_panel.overlays.subscriptions,
-        ):
-            subs.clear()
+        self.subscriptions.clear()  # the children's too: they were handed this one
         super().closeEvent(event)
 
     def last_error(self) -> UserMessage | None:

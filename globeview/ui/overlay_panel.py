@@ -76,7 +76,12 @@ class OverlayPanel(QWidget):
     """Lists the model's overlay layers and edits visibility, order, opacity, style and
     membership. Before a session is bound (no GL yet) the list is disabled."""
 
-    def __init__(self, model: Globe, parent: QWidget | None = None) -> None:
+    def __init__(
+        self,
+        model: Globe,
+        parent: QWidget | None = None,
+        subscriptions: Subscriptions | None = None,
+    ) -> None:
         super().__init__(parent)
         self.model = model
         self.session: Any = None
@@ -146,7 +151,8 @@ class OverlayPanel(QWidget):
         layout.addWidget(self.list)
         layout.addLayout(buttons)
         layout.addLayout(style)
-        self.subscriptions = Subscriptions()
+        #: The model subscriptions, the window's (cleared when it closes), or its own.
+        self.subscriptions = Subscriptions() if subscriptions is None else subscriptions
         self.subscriptions.connect(model.events.overlays, self._overlays_changed)
         self.refresh()
 

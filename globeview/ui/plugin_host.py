@@ -74,7 +74,11 @@ class PluginHost(QObject):
     statusText = pyqtSignal(str)
 
     def __init__(
-        self, registry: PluginRegistry, model: Globe, parent: QObject | None = None
+        self,
+        registry: PluginRegistry,
+        model: Globe,
+        parent: QObject | None = None,
+        subscriptions: Subscriptions | None = None,
     ) -> None:
         super().__init__(parent)
         self.registry = registry
@@ -89,7 +93,8 @@ class PluginHost(QObject):
         #: Validates a chosen name before the model changes (the session's `LodHost` does
         #: the same on the same model and registry; this one works before GL is up).
         self._lod_host = LodHost(model, registry)
-        self.subscriptions = Subscriptions()
+        #: The model subscriptions, the window's (cleared when it closes), or its own.
+        self.subscriptions = Subscriptions() if subscriptions is None else subscriptions
         self.subscriptions.connect(model.events.lod, self._model_lod)
 
     @property

@@ -42,7 +42,12 @@ class PluginPanel(QWidget):
     slider sets the model's tau, and a tau set anywhere (code, a plugin, settings) moves the
     slider (the panel subscribes to ``model.events.tau_px``)."""
 
-    def __init__(self, host: PluginHost, parent: QWidget | None = None):
+    def __init__(
+        self,
+        host: PluginHost,
+        parent: QWidget | None = None,
+        subscriptions: Subscriptions | None = None,
+    ) -> None:
         super().__init__(parent)
         self.host = host
         self.model = host.model
@@ -96,7 +101,8 @@ class PluginPanel(QWidget):
 
         host.changed.connect(self.refresh)
         host.lodChanged.connect(lambda _name: self.refresh())
-        self.subscriptions = Subscriptions()
+        #: The model subscriptions, the window's (cleared when it closes), or its own.
+        self.subscriptions = Subscriptions() if subscriptions is None else subscriptions
         self.subscriptions.connect(self.model.events.tau_px, self._show_tau)
         self.refresh()
 
