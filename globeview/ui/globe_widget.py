@@ -178,7 +178,6 @@ class GlobeWidget(QOpenGLWidget):
         self.scene: GlobeSession | None = None
         self.frames = 0
         self.fps = 0.0
-        self.last_stats: FrameStats | None = None
         self._last_paint = 0.0
         self._render_error: str | None = None
         self.flight = CameraFlight(model, self)
@@ -189,8 +188,7 @@ class GlobeWidget(QOpenGLWidget):
         self._settle.setSingleShot(True)
         self._settle.setInterval(150)
         self._settle.timeout.connect(self.update)
-        # Tools: animation repaints, the pending left click, overlay drawing.
-        self.overlay_drawn = 0
+        # Tools: animation repaints, the pending left click.
         self._anim = QTimer(self)
         self._anim.setInterval(ANIMATION_INTERVAL_MS)
         self._anim.timeout.connect(self.update)
@@ -217,6 +215,18 @@ class GlobeWidget(QOpenGLWidget):
     def settings(self) -> DisplaySettings:
         """The model's display settings."""
         return self.model.display
+
+    @property
+    def last_stats(self) -> FrameStats | None:
+        """The last drawn frame's statistics (the session's last frame), or None."""
+        last = None if self.scene is None else self.scene.last
+        return None if last is None else last.stats
+
+    @property
+    def overlay_drawn(self) -> int:
+        """Tool overlay instances (markers, line segments) the last frame drew (0: none)."""
+        last = None if self.scene is None else self.scene.last
+        return 0 if last is None else last.overlay_drawn
 
     def _model_tool(self, *_args: object) -> None:
         """The model's tool changed (here, from code, or its plugin failed): a pending click
@@ -285,8 +295,6 @@ class GlobeWidget(QOpenGLWidget):
         elif result.stats.frame_ms > 0:
             self.fps = 1000.0 / result.stats.frame_ms  # a lone frame: what it could sustain
         self._last_paint = now
-        self.overlay_drawn = result.overlay_drawn
-        self.last_stats = result.stats
         # The tool asked for another frame: keep the 16 ms repaint timer running.
         if result.animating and not self._anim.isActive():
             self._anim.start()
