@@ -485,6 +485,7 @@ class MainWindow(QMainWindow):
         if not why and self.plugins.registry.find("tool", name) is not None:
             return  # deactivated, not failed
         self.errors.notify(f"tool {name} could not be activated" + (f": {why}" if why else ""))
+        self.plugins.reported("tool", name)  # one line: refresh does not repeat the failure
         self.plugins.refresh()
 
     def _sync_tools(self, *_args: object) -> None:

@@ -118,14 +118,18 @@ class PluginHost(QObject):
         self.lodChanged.emit(name)
 
     def _announce_fallback(self, old: str, new: str) -> None:
-        """Say once why provider ``old`` gave way to ``new``; `refresh` does not announce its
-        plugin's failure again."""
+        """Say once why provider ``old`` gave way to ``new`` (and only here: `reported`)."""
         why = self.failure_reason("lod", old)
         self.fallback_reason = f"LOD provider {old} failed: {why}" if why else ""
         text = self.fallback_reason or f"LOD provider {old} is not available"
         self.notice.emit(f"{text}; using {new}")
+        self.reported("lod", old)
+
+    def reported(self, kind: str, name: str) -> None:
+        """A notice has named the failure of contribution ``name`` of ``kind``: `refresh`
+        does not announce its plugin's failure again."""
         for rec in self.registry:
-            if self._declares(rec, "lod", old):
+            if self._declares(rec, kind, name):
                 self._statuses[rec.name] = rec.status
 
     # -- RendererHooks (what PluginContext.renderer offers plugins) -------------------------

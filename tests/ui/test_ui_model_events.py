@@ -344,8 +344,9 @@ def test_a_tool_whose_hook_fails_at_the_next_frame_is_reported(
     assert win.model.tool is None and win.tool_options.tool_name is None
     assert "bad-glsl" not in win.tool_actions or not win.tool_actions["bad-glsl"].isChecked()
     texts = [m.text for m in win.errors.history]
-    mine = [t for t in texts if t.startswith("tool bad-glsl could not be activated: ")]
+    mine = [t for t in texts if "bad-glsl" in t]  # once: not again as a plugin failure
     assert len(mine) == 1 and "\n" not in mine[0], texts
+    assert mine[0].startswith("tool bad-glsl could not be activated: "), texts
     wait_frame(win)
     assert win.globe.last_stats.triangles > 0
     assert win.set_tool("measure")  # other tools still work
