@@ -25,8 +25,6 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import replace
 
 import moderngl
@@ -35,7 +33,6 @@ from PyQt6.QtGui import (
     QImage,
     QKeyEvent,
     QMouseEvent,
-    QOpenGLContext,
     QSurfaceFormat,
     QWheelEvent,
 )
@@ -376,22 +373,6 @@ class GlobeWidget(QOpenGLWidget):
         window and stops the animation timer, `_model_tool`)."""
         if self.scene is not None and self.scene.active_tool is not None:
             self.set_tool(None)
-
-    @contextmanager
-    def gl_current(self) -> Iterator[None]:
-        """Make this widget's GL context current for the block; a no-op when it already is
-        (inside initializeGL / paintGL and their signals). Model changes never need it (GPU
-        objects follow the model at the next frame): it is for an API 1.0 plugin layer's
-        own attach/detach/set_visible, which make and free the plugin's GL objects."""
-        ctx = self.context()
-        if ctx is None or QOpenGLContext.currentContext() is ctx:
-            yield
-            return
-        self.makeCurrent()
-        try:
-            yield
-        finally:
-            self.doneCurrent()
 
     def grab_image(self) -> QImage:
         """The current frame as an image (renders one if needed)."""

@@ -717,10 +717,8 @@ class MainWindow(QMainWindow):
             self._pending_overlays.append(str(path))
             return None
         try:
-            # A host layer is a model (its GPU twin is made at the next frame); the context
-            # is for an API 1.0 plugin layer, whose attach() makes its own GL objects.
-            with self.globe.gl_current():
-                layer = scene.add_overlay(str(path))  # listed by the model's event
+            # No GL here: the layer's GPU side is made at the next frame.
+            layer = scene.add_overlay(str(path))  # listed by the model's event
         except Exception as exc:
             self.errors.error(exc, "" if isinstance(exc, GlobeviewError) else "opening overlay")
             return None
@@ -738,7 +736,7 @@ class MainWindow(QMainWindow):
         """The session exists (GL is current): bind the overlay panel, add the embedded
         overlays (Blue Marble hidden) and any overlays asked for before."""
         panel = self.layer_panel.overlays
-        panel.bind(scene, self.globe.gl_current)
+        panel.bind(scene)
         if self._embedded_overlays:
             self._embedded_overlays = False
             try:  # the built-in layer types' layers: models, no GL here

@@ -2,8 +2,8 @@
 vectors, points), topmost first.
 
 Each row has a visibility checkbox; rows reorder by drag and drop or the ↑/↓ buttons (the
-model's overlays are reordered and every layer re-attached, so the imagery drape composes in
-the listed order); "Remove" drops a layer. Below the list, the selected layer's style:
+model's overlays are reordered, and the next frame composes the imagery drapes in the listed
+order); "Remove" drops a layer. Below the list, the selected layer's style:
 opacity for imagery/thematic drapes, colour and width (vectors) or size (points). Every edit
 goes to the layer objects (`globeview.plugins.overlay_layers`) and is announced on the
 model (``globe.events.overlays``); the panel lists what that event says, whoever changed the
@@ -15,8 +15,6 @@ order matters among drapes and among line layers.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from contextlib import AbstractContextManager, nullcontext
 from typing import Any
 
 from PyQt6.QtCore import Qt, pyqtSignal
@@ -85,7 +83,6 @@ class OverlayPanel(QWidget):
         super().__init__(parent)
         self.model = model
         self.session: Any = None
-        self._gl: Callable[[], AbstractContextManager] = nullcontext
         self._updating = False
         self._editing = False  # the list already shows the change the model announces
         self._by_id: dict[int, Any] = {}
@@ -170,23 +167,16 @@ class OverlayPanel(QWidget):
             self._editing = False
 
     # -- model ----------------------------------------------------------------------------
-    def bind(self, session: Any, gl: Callable[[], AbstractContextManager] | None = None) -> None:
-        """Edit the overlays through ``session`` (None: none, the list is disabled). The
-        host's layers are models (no GL: the renderer makes their GPU twins at the next
-        frame); ``gl()`` makes the GL context current only around an API 1.0 plugin layer's
-        own calls (kind 'plugin': its attach/detach/set_visible make and free its GL)."""
+    def bind(self, session: Any) -> None:
+        """Edit the overlays through ``session`` (None: none, the list is disabled). No edit
+        needs GL: the session makes, updates and frees the layers' GPU side (an API 1.0
+        plugin layer's own attach/detach/set_visible too) at the next frame."""
         self.session = session
-        self._gl = gl or nullcontext
         self.refresh()
 
     @property
     def renderer(self) -> Any:
         return None if self.session is None else self.session.renderer
-
-    def _gl_for(self, layer: Any) -> AbstractContextManager:
-        """A current GL context for an API 1.0 plugin layer's own calls; nothing for the
-        host's layer models."""
-        return self._gl() if getattr(layer, "kind", "") == "plugin" else nullcontext()
 
     def layers(self) -> list:
         """The model's overlay layers, bottom first."""
@@ -282,8 +272,7 @@ class OverlayPanel(QWidget):
         if self._updating or self.renderer is None:
             return
         layer = self._by_id[item.data(ID_ROLE)]
-        with self._gl_for(layer):
-            layer.set_visible(self.renderer, item.checkState() == Qt.CheckState.Checked)
+        layer.set_visible(self.renderer, item.checkState() == Qt.CheckState.Checked)
         self._announce()
 
     def set_opacity(self, layer: Any, opacity: float) -> None:
@@ -374,8 +363,7 @@ class OverlayPanel(QWidget):
         """Take an overlay off the globe and out of the model (its event updates the list)."""
         if self.session is None:
             return
-        with self._gl_for(layer):
-            self.session.remove_overlay(layer)
+        self.session.remove_overlay(layer)
 
 
 def _size_of(layer: Any) -> float:

@@ -89,7 +89,7 @@ def test_overlays_changed_on_the_model_are_listed(make_window, wait_frame) -> No
 def test_changing_the_model_from_the_window_makes_no_context_current(
     make_window, wait_frame, monkeypatch
 ) -> None:
-    """Tools, overlays (add, hide, restyle, reorder, remove), tau, LOD and display settings
+    """Tools, overlays (open, hide, restyle, reorder, remove), tau, LOD and display settings
     change the model only; GPU objects follow at the next frame, which Qt draws with its
     own context current."""
     win = make_window(embedded_overlays=True)
@@ -99,12 +99,13 @@ def test_changing_the_model_from_the_window_makes_no_context_current(
     panel = win.layer_panel.overlays
     assert win.set_tool("collapse") and win.set_tool("measure") and win.set_tool(None)
     borders, marble = panel.layer_at(0), panel.layer_at(1)
+    (cities,) = win.open_overlays([str(DATA / "ne_cities.geojson")])
     panel.set_visible(marble, True)
     panel.set_opacity(marble, 0.5)
     panel.set_width(borders, 4.0)
     panel.select(borders)
     panel.move_selected(+1)
-    assert panel.names() == [marble.name, borders.name]
+    assert panel.names() == [cities.name, marble.name, borders.name]
     panel.remove(borders)
     win.plugin_panel.tau_slider.setValue(40)
     win.plugins.choose("wavelet")
@@ -114,6 +115,7 @@ def test_changing_the_model_from_the_window_makes_no_context_current(
     wait_frame(win)
     assert win.globe.last_stats.lod_provider == "wavelet"
     assert win.globe.scene.renderer.overlays.vectors == []  # the removed one's twin is freed
+    assert len(win.globe.scene.renderer.overlays.points) == 1  # the opened one's is made
     assert win.globe.last_stats.triangles > 0
 
 
