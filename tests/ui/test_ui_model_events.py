@@ -352,3 +352,42 @@ def test_a_tool_whose_hook_fails_at_the_next_frame_is_reported(
     wait_frame(win)
     assert win.globe.last_stats.triangles > 0
     assert win.set_tool("measure")  # other tools still work
+
+
+UNLOADABLE_LOD_MANIFEST = """
+name = "unloadable-lod"
+version = "0.1.0"
+description = "An LOD provider whose module does not import."
+kinds = ["lod"]
+api_version = "1.0"
+
+[[contributions]]
+name = "unloadable-lod"
+kind = "lod"
+target = "unloadable_lod.provider:Provider"
+"""
+
+
+def test_choosing_a_provider_whose_plugin_does_not_load_keeps_the_model(
+    plugin_site, make_window, wait_frame
+) -> None:
+    """The name is checked before the model changes: the model never takes a provider that
+    cannot load (no lod event for it), the notice says why in one line, frames keep coming."""
+    from globeview.plugins.registry import PluginRegistry
+    from globeview.plugins.settings import MemorySettings
+
+    plugin_site.add(
+        "unloadable_lod", UNLOADABLE_LOD_MANIFEST, {"provider": "raise ImportError('no numpy 9')"}
+    )
+    win = make_window(registry=PluginRegistry(MemorySettings()).discover())
+    events, shown = [], []
+    win.model.events.lod.connect(events.append)
+    win.plugins.lodChanged.connect(shown.append)
+    win.plugins.choose("unloadable-lod")
+    assert events == [] and shown == [] and win.model.lod == DEFAULT_LOD
+    last = win.errors.history[-1].text
+    assert last.startswith("LOD provider unloadable-lod failed: ") and "no numpy 9" in last
+    assert last.endswith(f"; using {DEFAULT_LOD}") and "\n" not in last
+    assert win.plugin_panel.lod_combo.currentData() == DEFAULT_LOD
+    wait_frame(win)
+    assert win.globe.last_stats.triangles > 0
