@@ -155,8 +155,19 @@ class Globe:
         self.events.overlays.emit()
 
     def remove_overlay(self, layer: Any) -> None:
-        self.overlays.remove(layer)
+        """Take ``layer`` (this very object) off the globe (ValueError if it is not shown)."""
+        # By identity, not ==: a layer's fields may be numpy arrays, and two layers opened
+        # from one file hold equal data yet are two rows.
+        index = self._index(layer)
+        del self.overlays[index]
         self.events.overlays.emit()
+
+    def _index(self, layer: Any) -> int:
+        """Position of ``layer`` (by identity) in the overlays; ValueError if absent."""
+        for i, ly in enumerate(self.overlays):
+            if ly is layer:
+                return i
+        raise ValueError(f"overlay {getattr(layer, 'name', layer)!r:.60} is not shown")
 
     def set_overlay_order(self, layers: list[Any]) -> None:
         """Reorder the overlays (bottom first); ``layers`` must be the same layers."""

@@ -96,7 +96,10 @@ class _ModelLayer:
         self.visible = bool(visible)
 
 
-@dataclass
+# eq=False: a layer is equal only to itself (identity). The generated __eq__ would compare
+# numpy arrays field by field ("truth value of an array is ambiguous") whenever a list of
+# overlays is searched (``in``, ``remove``), and two files opened alike would be "equal".
+@dataclass(eq=False)
 class ImageryOverlayLayer(_ModelLayer):
     """An imagery/thematic drape. ``opacity`` 0..1; visibility and opacity live on the
     `ImageryLayer` the drape composes."""
@@ -148,7 +151,7 @@ class _StyledLayer(_ModelLayer):
         self.style_version += 1
 
 
-@dataclass
+@dataclass(eq=False)
 class VectorLayer(_StyledLayer):
     """Polylines (densified along geodesics or rhumb lines) with a line style: colour RGBA
     0..1, width and dash length in pixels."""
@@ -166,7 +169,7 @@ class VectorLayer(_StyledLayer):
     style_fields = ("color", "width_px", "dash_px")
 
 
-@dataclass
+@dataclass(eq=False)
 class PointsLayer(_StyledLayer):
     """Point objects: placemarks with labels, or boxes/cones (kind in overlay_points.KINDS);
     size in pixels for placemarks, scale in metres for objects."""

@@ -78,6 +78,26 @@ def test_a_restyled_layer_is_rebuilt_once(session) -> None:
     session.remove_overlay(layer)
 
 
+def test_a_file_opened_twice_is_two_rows_and_removing_one_keeps_the_other(session) -> None:
+    # Layers compare by identity: the dataclass __eq__ compared their numpy arrays, so
+    # removing one of two equal layers raised "truth value of an array is ambiguous".
+    first = session.add_overlay("data/ne_cities.geojson", layer_type="points")
+    second = session.add_overlay("data/ne_cities.geojson", layer_type="points")
+    assert first is not second and first != second
+    _frame(session)
+    assert len(session.renderer.overlays.points) == 2
+    session.remove_overlay(first)
+    assert session.overlay_layers == [second]
+    assert first not in session.overlay_layers and second in session.overlay_layers
+    result = _frame(session)
+    assert result.stats.extra.get("objects", 0) > 0  # the other one still draws
+    assert len(session.renderer.overlays.points) == 1
+    with pytest.raises(ValueError, match="not shown"):
+        session.remove_overlay(first)  # gone already: one line, the other stays
+    assert session.overlay_layers == [second]
+    session.remove_overlay(second)
+
+
 def test_a_layer_the_gpu_side_refuses_is_dropped_with_one_line(session) -> None:
     from globeview.plugins.overlay_layers import PointsLayer
 
