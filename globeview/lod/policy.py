@@ -10,18 +10,24 @@ only answers, for one level's visible tiles (`TileCandidates`, vectorised over N
 - `LodPolicy.stride`: for the tiles drawn, which index stride;
 - optionally `LodPolicy.cull` (its own culling on top of the frustum and horizon),
   `LodPolicy.max_tiles` and `LodPolicy.priority` (a tile budget: the worst refine first),
-  `LodPolicy.max_level`, `LodPolicy.render_set` (index variants, stitching) and
-  `LodPolicy.frame_stats`.
+  `LodPolicy.max_level`, `LodPolicy.stitch` or `LodPolicy.render_set` (index variants,
+  stitching) and `LodPolicy.frame_stats`.
 
-A new LOD provider is then a policy plus a manifest::
+A policy takes its settings as keyword arguments, so that a new LOD provider is a policy
+plus a manifest (`globeview.plugins.api.PolicyProvider` builds the policy from the
+provider's setting values each frame)::
 
     class CoarsePolicy(LodPolicy):
-        def refine(self, tiles, error_px):
-            return (error_px[:, 0] > 4 * self.tau_px) & tiles.has_finer
+        def __init__(self, factor=4.0):
+            super().__init__()
+            self.factor = factor
 
-    class CoarseProvider(LodProvider):
-        def select(self, view, terrain):
-            return traverse(view, terrain, CoarsePolicy())
+        def refine(self, tiles, error_px):
+            return (error_px[:, 0] > self.factor * self.tau_px) & tiles.has_finer
+
+    class CoarseProvider(PolicyProvider):
+        policy = CoarsePolicy
+        settings = (Setting("factor", "float", 4.0, min=1.0, max=64.0),)
 """
 
 from __future__ import annotations
@@ -32,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from globeview.lod.render_set import RenderSet
-from globeview.lod.stitching import render_set_by_stride
+from globeview.lod.stitching import render_set_by_stride, render_set_from_tiles
 from globeview.lod.traversal import MAX_LEVEL, Selection, TileCandidates
 from globeview.lod.view_state import ViewState
 from globeview.terrain.stack import N_STRIDES, TerrainStack
@@ -55,7 +61,10 @@ class LodPolicy:
 
     Attributes:
         max_level: deepest quadtree level to visit (at most `traversal.MAX_LEVEL`).
-        max_tiles: the tile budget (None: none).
+        max_tiles: the tile budget (None: none; `render_set.MAX_TILES` holds either way).
+        stitch: whether the default `render_set` stitches same-level neighbours drawn at
+            different strides (`render_set_from_tiles`) instead of leaving the cracks to the
+            skirts (`render_set_by_stride`).
         tau_px: the screen-space error threshold (pixels) of this frame; `begin` sets it
             from the view unless the policy was given one (``tau_px`` argument).
         view, terrain: the frame's, set by `begin`.
@@ -63,13 +72,7 @@ class LodPolicy:
 
     max_level: int = MAX_LEVEL
     max_tiles: int | None = None
-    #: Whether the class defines its own `cull` (set per class: the traversal skips calling
-    #: the base's, which keeps every tile).
-    overrides_cull: bool = False
-
-    def __init_subclass__(cls, **kwargs: Any) -> None:
-        super().__init_subclass__(**kwargs)
-        cls.overrides_cull = cls.cull is not LodPolicy.cull
+    stitch: bool = False
 
     def __init__(self, tau_px: float | None = None) -> None:
         self._tau_override = tau_px
@@ -98,7 +101,9 @@ class LodPolicy:
         return tiles.err_m * tiles.px_per_m[:, None]
 
     def refine(self, tiles: TileCandidates, error_px: np.ndarray) -> np.ndarray:
-        """(N,) bool: which tiles to replace by their children (never asked at max_level)."""
+        """(N,) bool: which tiles to replace by their children. Asked at every level,
+        ``max_level`` included (where the answer is ignored: nothing deeper is visited), so
+        what it leaves in ``tiles.scratch`` is always there for `stride`."""
         return (error_px[:, 0] > self.tau_px) & tiles.has_finer
 
     def priority(self, tiles: TileCandidates, error_px: np.ndarray) -> np.ndarray:
@@ -112,8 +117,13 @@ class LodPolicy:
 
     # -- the result -------------------------------------------------------------------------------
     def render_set(self, selection: Selection, size: int) -> RenderSet:
-        """The `RenderSet` of what the traversal drew (default: one index variant per stride
-        and pole, cracks hidden by skirts)."""
+        """The `RenderSet` of what the traversal drew (default: skirts and pole fans, and
+        with ``stitch`` same-level borders stitched; without, one index variant per stride
+        and pole, cracks hidden by the skirts)."""
+        if self.stitch:
+            return render_set_from_tiles(
+                selection.keys, selection.stride_idx, selection.error_px, size, True
+            )
         return render_set_by_stride(selection.keys, selection.stride_idx, selection.error_px)
 
 

@@ -11,11 +11,13 @@ The quadtree is walked level by level with numpy over all candidate tiles of a l
    test (`LodPolicy.cull`);
 3. the policy (`globeview.lod.policy.LodPolicy`, Cesium's ``QuadtreeTileProvider``) says
    what error each survivor has (`LodPolicy.error_px`), which to refine
-   (`LodPolicy.refine`), and, for those drawn, with which index stride (`LodPolicy.stride`);
+   (`LodPolicy.refine`, asked at every level; at ``max_level`` its answer is ignored), and,
+   for those drawn, with which index stride (`LodPolicy.stride`);
 4. a tile budget (`LodPolicy.max_tiles`) keeps the drawn count bounded: when refining every
-   tile that asks would exceed it, the worst (`LodPolicy.priority`) refine first (a soft
-   budget: a level's visible tiles are drawn anyway; without a policy budget, `MAX_TILES`
-   held strictly);
+   tile that asks would exceed it, the worst (`LodPolicy.priority`) refine first. The
+   policy's budget is soft (it bounds the children of refined tiles; a level's visible
+   tiles are drawn anyway), and `MAX_TILES` (the render set's limit) is always held
+   strictly on top of it, so every selection validates;
 5. refined tiles are replaced by their four children at the next level; the others are drawn.
 
 The result goes back to the policy (`LodPolicy.render_set`), which builds the `RenderSet`
@@ -35,6 +37,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -97,6 +100,12 @@ def displacement_key(view: ViewState) -> tuple | None:
 
 
 # -- what a policy sees of one level ----------------------------------------------------------
+def bend_fractions(size: int) -> np.ndarray:
+    """(N_STRIDES,) the share of a displacement's bend over a tile (measured across LATTICE-1
+    spans of its bounding lattice) that an edge of each stride 1, 2, 4.. spans (at most 1)."""
+    return np.minimum(1.0, 2.0 ** np.arange(N_STRIDES) * (LATTICE - 1) / (size - 1))
+
+
 @dataclass
 class TileCandidates:
     """One level's tiles that passed the frustum and horizon tests, as a policy sees them.
@@ -110,86 +119,99 @@ class TileCandidates:
         px_per_m: pixels one metre of error covers at that distance (``view.sse_factor /
             dist_m``).
         err_m: (N, N_STRIDES) geometric error (m) of drawing each tile at strides 1, 2, 4..:
-            height error x exaggeration + chord sag (+ the displacement's bend); inf where a
+            height error x exaggeration + chord sag (+ ``bend_m_strides``); inf where a
             stride exceeds the grid.
-        bend_m: the displacement's bend (m) at stride 1 (zeros without a displacement).
         scratch: a dict the policy may use to hand values from `LodPolicy.cull` /
-            `LodPolicy.refine` to `LodPolicy.stride` within the level.
+            `LodPolicy.refine` to `LodPolicy.stride` within the level. Arrays in it are per
+            tile (first axis N): when `LodPolicy.cull` drops tiles, every array whose first
+            axis has length N is cut to the kept rows (anything else is kept as it is).
 
-    Read on demand (cached per level): ``x``, ``y``, ``keys`` (N, 3), ``west``, ``south``,
-    ``east``, ``north`` (degrees), ``height_err_m`` (N, N_STRIDES, the store's, not
-    exaggerated), ``has_finer``, ``margin`` (m), ``points`` (N, K, 3) the bounding lattice
-    as drawn (displaced when displaced), ``points_true`` (never displaced).
+    Computed on first access and then kept for the level (`functools.cached_property`):
+    ``x``, ``y``, ``keys`` (N, 3), ``west``, ``south``, ``east``, ``north`` (degrees),
+    ``height_err_m`` (N, N_STRIDES, the store's, not exaggerated), ``has_finer``, ``margin``
+    (m), ``bend_m``, ``bend_m_strides``, ``points`` (N, K, 3) the bounding lattice as drawn
+    (displaced when displaced), ``points_true`` (never displaced).
     """
 
     view: ViewState
     terrain: TerrainStack
     level: int
     size: int
-    slots: np.ndarray
-    cols: np.ndarray
+    _slots: np.ndarray = field(repr=False)
+    _cols: np.ndarray = field(repr=False)
     dist_m: np.ndarray
     px_per_m: np.ndarray
     err_m: np.ndarray
     _bend: np.ndarray | None = field(repr=False)
+    _bend_strides: np.ndarray | None = field(repr=False)
     _lv: LevelTiles = field(repr=False)
     _dpts: np.ndarray | None = field(default=None, repr=False)
     scratch: dict[str, Any] = field(default_factory=dict)
 
     def __len__(self) -> int:
-        return len(self.slots)
+        return len(self._slots)
 
-    @property
+    @cached_property
     def bend_m(self) -> np.ndarray:
-        return np.zeros(len(self.slots)) if self._bend is None else self._bend
+        """(N,) the displacement's bend (m) over each tile's bounding lattice
+        (`culling.displacement_bend_m`; zeros without a displacement)."""
+        return np.zeros(len(self._slots)) if self._bend is None else self._bend
 
-    @property
+    @cached_property
+    def bend_m_strides(self) -> np.ndarray:
+        """(N, N_STRIDES) the bend (m) across an edge of each stride (`bend_fractions`), the
+        part of ``err_m`` a displacement adds (zeros without one)."""
+        if self._bend_strides is None:
+            return np.zeros((len(self._slots), N_STRIDES))
+        return self._bend_strides
+
+    @cached_property
     def x(self) -> np.ndarray:
-        return self._lv.xy[:, 0].take(self.slots)
+        return self._lv.xy[:, 0].take(self._slots)
 
-    @property
+    @cached_property
     def y(self) -> np.ndarray:
-        return self._lv.xy[:, 1].take(self.slots)
+        return self._lv.xy[:, 1].take(self._slots)
 
-    @property
+    @cached_property
     def keys(self) -> np.ndarray:
         """(N, 3) int64 rows (level, x, y)."""
-        out = np.empty((len(self.slots), 3), dtype=np.int64)
+        out = np.empty((len(self._slots), 3), dtype=np.int64)
         out[:, 0] = self.level
-        out[:, 1:] = self._lv.xy.take(self.slots, axis=0)
+        out[:, 1:] = self._lv.xy.take(self._slots, axis=0)
         return out
 
     @property
     def west(self) -> np.ndarray:
-        return self.cols[COL_WEST]
+        return self._cols[COL_WEST]
 
     @property
     def east(self) -> np.ndarray:
-        return self.cols[COL_EAST]
+        return self._cols[COL_EAST]
 
     @property
     def south(self) -> np.ndarray:
-        return self.cols[COL_SOUTH]
+        return self._cols[COL_SOUTH]
 
     @property
     def north(self) -> np.ndarray:
-        return self.cols[COL_NORTH]
+        return self._cols[COL_NORTH]
 
     @property
     def margin(self) -> np.ndarray:
-        return self.cols[COL_MARGIN]
+        return self._cols[COL_MARGIN]
 
-    @property
+    @cached_property
     def height_err_m(self) -> np.ndarray:
-        return self._lv.herr.take(self.slots, axis=0)
+        return self._lv.herr.take(self._slots, axis=0)
 
-    @property
+    @cached_property
     def has_finer(self) -> np.ndarray:
-        return self._lv.finer.take(self.slots)
+        return self._lv.finer.take(self._slots)
 
-    @property
+    @cached_property
     def points_true(self) -> np.ndarray:
-        return self._lv.pts.take(self.slots, axis=0)
+        return self._lv.pts.take(self._slots, axis=0)
 
     @property
     def points(self) -> np.ndarray:
@@ -267,16 +289,15 @@ def _walk(view: ViewState, terrain: TerrainStack, policy: LodPolicy, cache: Tile
         u0 = np.array([np.cos(lat0) * np.cos(lon0), np.cos(lat0) * np.sin(lon0), np.sin(lat0)])
     frame = FrustumFrame(view)
     # A displacement's bend shrinks with the stride (edges LATTICE-1 spans of the lattice).
-    bend_frac = np.minimum(1.0, 2.0 ** np.arange(N_STRIDES) * (LATTICE - 1) / (size - 1))
+    bend_frac = bend_fractions(size)
     max_level = min(int(policy.max_level), MAX_LEVEL)
     # The policy's budget is soft (chunked-sse's from the start): it bounds the children of
-    # refined tiles, not the tiles a level must draw anyway. A policy without one still gets
-    # the render set's limit, held strictly (a tile refined adds three to the drawn ones,
-    # which with the level's candidates stay within it): one that refines everything would
-    # otherwise quadruple its candidates every level down to MAX_LEVEL.
-    strict = policy.max_tiles is None
-    budget = MAX_TILES if strict else min(int(policy.max_tiles), MAX_TILES)
-    own_cull = getattr(policy, "overrides_cull", True)  # the base's cull keeps every tile
+    # refined tiles, not the tiles a level must draw anyway. The render set's limit is then
+    # held strictly on top of it, with or without a policy budget (a tile refined adds three
+    # to the drawn ones, which with the level's candidates stay within it, so the next
+    # level's candidates do too): a policy that refines everything would otherwise quadruple
+    # its candidates every level, and a soft budget near MAX_TILES could pass it.
+    soft = None if policy.max_tiles is None else min(int(policy.max_tiles), MAX_TILES)
 
     slots = cache.roots(terrain, size)
     out: list[tuple[int, LevelTiles, np.ndarray]] = []
@@ -321,50 +342,49 @@ def _walk(view: ViewState, terrain: TerrainStack, policy: LodPolicy, cache: Tile
             # = np.linalg.norm(d, axis=1) (the same operations, without its overhead)
             d = np.sqrt(np.add.reduce(d * d, axis=1)) - c[COL_RADIUS]
             dist = np.maximum(d, 1.0)
-            bend = dpts = None
+            bend = bend_s = dpts = None
         else:
+            assert pts is not None  # set above whenever displaced
             bend = lv.bends(ks, view)
-            err = err + bend[:, None] * bend_frac[None, :]
+            bend_s = bend[:, None] * bend_frac[None, :]
+            err = err + bend_s
             dpts = pts[fi]
             dist = bounding_distance(view, dpts, c[COL_MARGIN])
         tiles = TileCandidates(
-            view, terrain, level, size, ks, c, dist, k_px / dist, err, bend, lv, dpts, {}
+            view, terrain, level, size, ks, c, dist, k_px / dist, err, bend, bend_s, lv, dpts, {}
         )
         # The policy's own culling (e.g. Rishe's ground region), on the visible tiles only.
-        keep = policy.cull(tiles) if own_cull else None
-        if keep is not None:
-            keep = _checked(policy, "cull", keep, (m,), _BOOL)
+        # What a policy returns is checked (`_checked`: the plain case returns at once).
+        keep = _checked(policy, "cull", policy.cull(tiles), (m,), _BOOL, none_ok=True)
         if keep is not None and not keep.all():
             ki = keep.nonzero()[0]
             if len(ki) == 0:
                 break
             tiles = _subset(tiles, ki)
-            ks, m = tiles.slots, len(ki)
-        # What a policy returns is checked (`_checked`); the plain case inline, without a call
-        # (a frame has a dozen levels and a few policy calls per level: calls add up).
-        sse = policy.error_px(tiles)
-        if type(sse) is not np.ndarray or sse.shape != (m, N_STRIDES) or sse.dtype is not _F64:
-            sse = _checked(policy, "error_px", sse, (m, N_STRIDES), _F64)
-        if level < max_level:
-            refine = policy.refine(tiles, sse)
-            if type(refine) is not np.ndarray or refine.shape != (m,) or refine.dtype is not _BOOL:
-                refine = _checked(policy, "refine", refine, (m,), _BOOL)
-        else:
+            ks, m = tiles._slots, len(ki)
+        sse = _checked(policy, "error_px", policy.error_px(tiles), (m, N_STRIDES), _F64)
+        # Asked at every level (so what it leaves in tiles.scratch is there for stride());
+        # at the deepest level nothing refines.
+        refine = _checked(policy, "refine", policy.refine(tiles, sse), (m,), _BOOL)
+        if level >= max_level:
             refine = np.zeros(m, dtype=bool)
-        # Budget: if refining everything would exceed the tile budget, refine the worst first.
+        # Budget: if refining everything would exceed the tile budget, refine the worst
+        # first: the policy's (soft) budget, then the render set's limit (strict).
         n_ref = int(np.count_nonzero(refine))
-        if n_ref:
-            room, fanout = (budget - drawn - m, 3) if strict else (budget - drawn - (m - n_ref), 4)
-            if n_ref * fanout > room:
+        priority = None
+        if n_ref and soft is not None and n_ref * 4 > soft - drawn - (m - n_ref):
+            priority = _checked(policy, "priority", policy.priority(tiles, sse), (m,), _F64)
+            refine = budget_refinement(refine, priority, soft - drawn - (m - n_ref), 4)
+            n_ref = int(np.count_nonzero(refine))
+        if n_ref and drawn + m + 3 * n_ref > MAX_TILES:
+            if priority is None:
                 priority = _checked(policy, "priority", policy.priority(tiles, sse), (m,), _F64)
-                refine = budget_refinement(refine, priority, room, fanout)
-                n_ref = int(np.count_nonzero(refine))
+            refine = budget_refinement(refine, priority, MAX_TILES - drawn - m, 3)
+            n_ref = int(np.count_nonzero(refine))
         if n_ref < m:
             ai = (~refine).nonzero()[0] if n_ref else np.arange(m)
             sse_acc = sse.take(ai, axis=0) if n_ref else sse
-            idx = policy.stride(tiles, sse_acc, ai)
-            if type(idx) is not np.ndarray or idx.shape != ai.shape or idx.dtype is not _I64:
-                idx = _checked(policy, "stride", idx, ai.shape, _I64)
+            idx = _checked(policy, "stride", policy.stride(tiles, sse_acc, ai), ai.shape, _I64)
             out.append((level, lv, ks.take(ai) if n_ref else ks))
             out_stride.append(idx)
             rows = np.arange(0, len(idx) * N_STRIDES, N_STRIDES)
@@ -389,9 +409,23 @@ def _walk(view: ViewState, terrain: TerrainStack, policy: LodPolicy, cache: Tile
     return Selection(keys, stride_idx, np.concatenate(out_err), culled_f, culled_h)
 
 
-def _checked(policy: LodPolicy, what: str, value: Any, shape: tuple[int, ...], dtype) -> np.ndarray:
+def _checked(
+    policy: LodPolicy,
+    what: str,
+    value: Any,
+    shape: tuple[int, ...],
+    dtype: np.dtype,
+    none_ok: bool = False,
+) -> Any:
     """``value`` as an array of ``dtype`` after checking it has ``shape`` (one-line
-    ValueError naming the policy's method otherwise: a policy bug fails its provider)."""
+    ValueError naming the policy's method otherwise: a policy bug fails its provider).
+    With ``none_ok`` None passes as None (`LodPolicy.cull`: keep every tile)."""
+    # The plain case first, with no more work than these tests: a frame has a dozen levels
+    # and a few policy calls per level, so what each check costs adds up.
+    if type(value) is np.ndarray and value.dtype is dtype and value.shape == shape:
+        return value
+    if value is None and none_ok:
+        return None
     arr = np.asarray(value)
     if arr.shape != shape:
         raise ValueError(
@@ -406,9 +440,12 @@ def _checked(policy: LodPolicy, what: str, value: Any, shape: tuple[int, ...], d
 
 def _subset(tiles: TileCandidates, idx: np.ndarray) -> TileCandidates:
     """``tiles`` restricted to rows ``idx`` (the policy's scratch follows row-wise where it
-    holds per-tile arrays)."""
+    holds per-tile arrays: first axis of length N; scalars and other shapes stay)."""
+    n = len(tiles)
     scratch = {
-        k: v.take(idx, axis=0) if isinstance(v, np.ndarray) and len(v) == len(tiles) else v
+        k: v.take(idx, axis=0)
+        if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == n
+        else v
         for k, v in tiles.scratch.items()
     }
     return TileCandidates(
@@ -416,12 +453,13 @@ def _subset(tiles: TileCandidates, idx: np.ndarray) -> TileCandidates:
         tiles.terrain,
         tiles.level,
         tiles.size,
-        tiles.slots.take(idx),
-        tiles.cols.take(idx, axis=1),
+        tiles._slots.take(idx),
+        tiles._cols.take(idx, axis=1),
         tiles.dist_m.take(idx),
         tiles.px_per_m.take(idx),
         tiles.err_m.take(idx, axis=0),
         None if tiles._bend is None else tiles._bend.take(idx),
+        None if tiles._bend_strides is None else tiles._bend_strides.take(idx, axis=0),
         tiles._lv,
         None if tiles._dpts is None else tiles._dpts.take(idx, axis=0),
         scratch,

@@ -94,7 +94,13 @@ if TYPE_CHECKING:  # the lazy re-exports (`_REEXPORTS`), spelled out for type ch
     from globeview.lod.render_set import MAX_KEY_LEVEL, MAX_TILES, InvalidRenderSet, RenderSet
     from globeview.lod.stitching import neighbour_edge_strides, render_set_from_tiles
     from globeview.lod.tile_indices import IndexVariant
-    from globeview.lod.traversal import MAX_LEVEL, Selection, TileCandidates, traverse
+    from globeview.lod.traversal import (
+        MAX_LEVEL,
+        Selection,
+        TileCandidates,
+        displacement_key,
+        traverse,
+    )
     from globeview.lod.view_state import ViewState
     from globeview.render.tile_mesh import node_lonlat
     from globeview.terrain.quadtree import TileKey, level_shape, tile_bounds_arrays
@@ -124,6 +130,7 @@ __all__ = [
     "PluginKind",
     "PointerEvent",
     "Points",
+    "PolicyProvider",
     "Polyline",
     "ProviderUnavailable",
     "RasterDrape",
@@ -147,6 +154,7 @@ __all__ = [
     "cull_level",
     "displacement_bend_m",
     "displacement_chord_error_m",
+    "displacement_key",
     "ecef_to_lonlat",
     "enu_basis",
     "frustum_visible",
@@ -201,6 +209,7 @@ _REEXPORTS: dict[str, str] = {
     "Selection": "globeview.lod.traversal",
     "TileCandidates": "globeview.lod.traversal",
     "traverse": "globeview.lod.traversal",
+    "displacement_key": "globeview.lod.traversal",
     "node_lonlat": "globeview.render.tile_mesh",
     "ViewState": "globeview.lod.view_state",
     "TileKey": "globeview.terrain.quadtree",
@@ -447,6 +456,26 @@ class LodProvider(_Contribution):
     def reset(self) -> None:
         """Forget anything cached between frames (the next ``select`` computes afresh).
         The host calls it before measured frames; the default does nothing."""
+
+
+class PolicyProvider(LodProvider):
+    """An LOD provider that is one `LodPolicy` on the shared traversal: ``select`` builds
+    ``policy(**self.values)`` (the policy takes the provider's settings as keyword arguments,
+    one per `Setting`) and returns ``traverse(view, terrain, that policy)``. Adding an LOD
+    provider is then a policy class, this subclass naming it, and a manifest::
+
+        class CoarseProvider(PolicyProvider):
+            policy = CoarsePolicy
+            settings = (Setting("factor", "float", 4.0, min=1.0, max=64.0),)
+    """
+
+    #: The policy class, called with the setting values as keyword arguments each frame.
+    policy: type[LodPolicy]
+
+    def select(self, view: ViewState, terrain: Any) -> RenderSet:
+        from globeview.lod.traversal import traverse
+
+        return traverse(view, terrain, self.policy(**self.values))
 
 
 class ProviderUnavailable(Exception):

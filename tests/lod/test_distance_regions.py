@@ -11,7 +11,9 @@ import pytest
 
 from globeview.lod.stitching import neighbour_edge_strides
 from globeview.lod.tile_indices import IndexVariant, grid_indices
+from globeview.lod.traversal import traverse
 from globeview.plugins.builtin.regions.provider import (
+    RishePolicy,
     level_and_stride,
     mesh_resolution,
     node_spacing_m,
@@ -19,7 +21,6 @@ from globeview.plugins.builtin.regions.provider import (
     ring_of,
     ring_resolution,
     rishe_pitch_roll,
-    select_regions,
     speed_factor,
 )
 from globeview.plugins.testing import make_view
@@ -169,10 +170,8 @@ def _triangles(rs) -> int:
 
 
 def test_rings_cut_off_and_stats(terrain) -> None:
-    from globeview.plugins.builtin.regions.provider import RegionSettings
-
     v = make_view(-71.3, 44.15, 9000.0, 0.0, -30.0, viewport=(320, 240))
-    rs = select_regions(v, terrain)
+    rs = traverse(v, terrain, RishePolicy())
     st = rs.stats
     assert st["tiles_ring1"] > 0 and st["tiles_ring2"] > 0
     assert len(rs) == st["tiles_ring1"] + st["tiles_ring2"] + st["tiles_ring3"]
@@ -184,20 +183,17 @@ def test_rings_cut_off_and_stats(terrain) -> None:
     lv = rs.keys[:, 0]
     assert lv.max() > lv.min()
     # Without the cut-off nothing is cut and no fewer tiles are drawn.
-    rs2 = select_regions(v, terrain, RegionSettings(cutoff=False))
+    rs2 = traverse(v, terrain, RishePolicy(cutoff=False))
     assert rs2.stats["tiles_culled_cutoff"] == 0 and len(rs2) >= len(rs)
     # Looking straight down everything visible is ring 1 (Rishe §3.2).
-    down = select_regions(make_view(-71.3, 44.15, 9000.0, viewport=(320, 240)), terrain)
+    down = traverse(make_view(-71.3, 44.15, 9000.0, viewport=(320, 240)), terrain, RishePolicy())
     assert down.stats["tiles_ring2"] == 0 and down.stats["tiles_ring3"] == 0
 
 
 def test_larger_hr_ratio_refines_monotonically(terrain) -> None:
-    from globeview.plugins.builtin.regions.provider import RegionSettings
-
     v = make_view(-71.3, 44.15, 9000.0, 0.0, -30.0, viewport=(320, 240))
     counts = [
-        _triangles(select_regions(v, terrain, RegionSettings(hr_ratio=h)))
-        for h in (50.0, 200.0, 400.0)
+        _triangles(traverse(v, terrain, RishePolicy(hr_ratio=h))) for h in (50.0, 200.0, 400.0)
     ]
     assert counts[0] <= counts[1] <= counts[2] and counts[0] < counts[2]
 
@@ -297,3 +293,21 @@ def test_renders_without_cracks(gl_session, name: str) -> None:
     result = assert_crack_free(session, target, Camera.from_lonlat(*VIEWS[name]))
     assert session.lod_name == "distance-regions"  # the provider did not fail over
     assert result.stats.triangles > 0
+
+
+def test_the_finest_settings_stay_within_the_render_set_limit(terrain) -> None:
+    """HR_RATIO and rings at their largest and the largest tile budget the provider offers
+    (`MAX_TILES`): the selection passes its soft budget but never the render set's limit
+    (it drew 22839 tiles, and failed, before the traversal held that limit)."""
+    from globeview.plugins.api import MAX_TILES
+    from globeview.plugins.builtin.regions.provider import DistanceRegionsProvider
+
+    provider = DistanceRegionsProvider()
+    assert {s.name: s.max for s in provider.settings}["max_tiles"] == MAX_TILES
+    provider.configure(
+        {"max_tiles": MAX_TILES, "hr_ratio": 10000.0, "ring1": 100.0, "ring2": 1000.0,
+         "ring3": 10000.0}
+    )  # fmt: skip
+    rs = provider.select(make_view(-71.3, 44.15, 3.0e5, 0.0, -30.0), terrain)
+    assert MAX_TILES // 2 < len(rs) <= MAX_TILES
+    rs.validate(SIZE)

@@ -3,7 +3,8 @@
 The plugin under test is a real distribution (a package plus a .dist-info, found by
 importlib.metadata like a pip install) written against `globeview.plugins.api` only: a tiny
 policy (`DepthPolicy`: refine every visible tile down to a fixed depth, draw at stride 4) and
-a provider whose ``select`` is one call of the shared traversal. The tests check that the
+a provider that only names it (`PolicyProvider`: ``select`` is one call of the shared
+traversal with the policy built from the settings). The tests check that the
 shared traversal did the walking - the frustum and horizon culling, the per-terrain tile
 cache, the cull stats, the budget - that the policy's decisions shape the result, and that a
 policy returning garbage fails its own provider only, with a one-line reason.
@@ -39,42 +40,45 @@ MANIFEST = """
 POLICY = """
     import numpy as np
 
-    from globeview.plugins.api import LodPolicy, LodProvider, Setting, traverse
+    from globeview.plugins.api import (
+        LodPolicy, LodProvider, PolicyProvider, Setting, traverse,
+    )
 
 
     class DepthPolicy(LodPolicy):
-        '''Every visible tile refines down to ``depth``; drawn tiles use stride 4.'''
+        '''Every visible tile refines down to ``depth``; drawn tiles use stride 4 (handed
+        from refine to stride through the level's scratch).'''
 
-        def __init__(self, depth, max_tiles=None):
+        def __init__(self, depth=4, max_tiles=0):
             super().__init__()
             self.max_level = depth
-            self.max_tiles = max_tiles
+            self.max_tiles = max_tiles or None
             self.levels_seen = []
 
         def refine(self, tiles, error_px):
             self.levels_seen.append(tiles.level)
+            tiles.scratch["stride"] = np.full(len(tiles), 2)
             return np.ones(len(tiles), dtype=bool)
 
         def priority(self, tiles, error_px):
             return -tiles.dist_m  # the nearest refine first under a budget
 
         def stride(self, tiles, error_px, index):
-            return np.full(len(index), 2)
+            return tiles.scratch["stride"].take(index)
 
         def frame_stats(self):
-            return {"depth_levels": len(self.levels_seen)}
+            return {
+                "depth_levels": len(self.levels_seen),
+                "depth_deepest_refine": max(self.levels_seen),
+            }
 
 
-    class DepthProvider(LodProvider):
+    class DepthProvider(PolicyProvider):
+        policy = DepthPolicy
         settings = (
             Setting("depth", "int", 4, min=0, max=10),
-            Setting("max_tiles", "int", 0, min=0, max=5000),
+            Setting("max_tiles", "int", 0, min=0, max=16384),
         )
-
-        def select(self, view, terrain):
-            v = self.values
-            self.policy = DepthPolicy(v["depth"], v["max_tiles"] or None)
-            return traverse(view, terrain, self.policy)
 
 
     class BadPolicy(LodPolicy):
@@ -116,11 +120,13 @@ def test_a_policy_plugin_runs_on_the_shared_traversal(
     # The policy's decisions: every drawn tile at the policy's depth, stride 4 (index 2).
     assert set(rs.keys[:, 0].tolist()) == {4}
     assert [v.stride for v in rs.variants] and {v.stride for v in rs.variants} == {4}
-    assert provider.policy.levels_seen == [0, 1, 2, 3]  # refine() asked per level, not at 4
-    assert rs.stats["depth_levels"] == 4  # the policy's own stats reach the render set
+    # refine() is asked at every level, the deepest included (its answer ignored there), so
+    # the stride its scratch holds reaches stride() at level 4; the policy's own stats reach
+    # the render set.
+    assert rs.stats["depth_levels"] == 5 and rs.stats["depth_deepest_refine"] == 4
     # The traversal's work: culling (the drawn tiles pass the exact tests, some were culled)...
     assert _visible(view, globeview_terrain, rs.keys).all()
-    assert rs.stats["tiles_culled_frustum"] > 0 and rs.stats["tiles_culled_horizon"] >= 0
+    assert rs.stats["tiles_culled_frustum"] > 0
     assert len(rs) < 2 * 16 * 16  # far from every level-4 tile: an oblique regional view
     assert np.unique(rs.keys, axis=0).shape == rs.keys.shape  # a cut: no tile twice
     assert rs.stats["lod_ms"] > 0
@@ -213,3 +219,85 @@ def test_a_policy_without_a_budget_stays_within_the_render_set_limit(
     rs = traverse(headless_view(0.0, 20.0, 2.0e7), globeview_terrain, Everything())
     assert MAX_TILES // 2 < len(rs) <= MAX_TILES
     rs.validate(globeview_terrain.tile_size)
+
+
+def test_a_soft_budget_near_the_limit_still_stays_within_it(
+    globeview_terrain, headless_view
+) -> None:
+    """The policy's budget is soft (the level's other visible tiles are drawn anyway, up to
+    about twice it): with a budget near `MAX_TILES` the render set's limit is held strictly
+    on top, so a policy that refines everything still gets a set that validates."""
+    from globeview.plugins.api import MAX_TILES, LodPolicy, traverse
+
+    class Everything(LodPolicy):
+        max_tiles = 10000
+
+        def refine(self, tiles, error_px):
+            return np.ones(len(tiles), dtype=bool)
+
+    rs = traverse(headless_view(0.0, 20.0, 2.0e7), globeview_terrain, Everything())
+    assert 10000 < len(rs) <= MAX_TILES  # past the soft budget, not past the limit
+    rs.validate(globeview_terrain.tile_size)
+
+
+def test_the_traversal_culls_behind_the_horizon(globeview_terrain, headless_view) -> None:
+    """Looking along the ground from low, many tiles in the frustum lie behind the horizon:
+    the traversal culls them (counted), and what it draws passes the exact tests."""
+    from globeview.plugins.api import traverse
+
+    view = headless_view(-71.3, 44.27, 2000.0, 0.0, -2.0)
+    rs = traverse(view, globeview_terrain, _DepthOnly(6))
+    assert rs.stats["tiles_culled_horizon"] > 0
+    assert _visible(view, globeview_terrain, rs.keys[rs.keys[:, 0] == 6]).all()
+
+
+def test_a_policys_cull_cuts_its_per_tile_scratch_only(globeview_terrain, headless_view) -> None:
+    """What `LodPolicy.cull` leaves in ``tiles.scratch`` follows the kept tiles where it is
+    per tile (first axis N); a scalar array, a table of another length and a plain value
+    pass unchanged to `LodPolicy.refine` and `LodPolicy.stride`."""
+    from globeview.plugins.api import traverse
+
+    seen: list[tuple[int, int, float, int, str]] = []
+
+    class HalfCull(_DepthOnly):
+        def cull(self, tiles):
+            n = len(tiles)
+            tiles.scratch.update(
+                row=np.arange(n), scale=np.array(2.5), table=np.arange(n + 3), name="x"
+            )
+            return np.arange(n) % 2 == 0  # keep the even rows
+
+        def stride(self, tiles, error_px, index):
+            sc = tiles.scratch
+            assert np.array_equal(sc["row"], 2 * np.arange(len(tiles)))  # the kept rows
+            seen.append(
+                (len(tiles), len(sc["row"]), float(sc["scale"]), len(sc["table"]), sc["name"])
+            )
+            return np.zeros(len(index), dtype=np.int64)
+
+    rs = traverse(headless_view(0.0, 20.0, 2.0e7), globeview_terrain, HalfCull(2))
+    assert len(rs) > 0 and seen
+    for n, rows, scale, table, name in seen:
+        assert rows == n and scale == 2.5 and name == "x" and table > n
+
+
+def _depth_only_policy():
+    from globeview.plugins.api import LodPolicy
+
+    class DepthOnly(LodPolicy):
+        """Refine every visible tile down to ``depth`` (stride 1)."""
+
+        def __init__(self, depth: int) -> None:
+            super().__init__()
+            self.max_level = depth
+
+        def refine(self, tiles, error_px):
+            return np.ones(len(tiles), dtype=bool)
+
+        def stride(self, tiles, error_px, index):
+            return np.zeros(len(index), dtype=np.int64)
+
+    return DepthOnly
+
+
+_DepthOnly = _depth_only_policy()

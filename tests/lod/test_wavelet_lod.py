@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from globeview.lod.tile_indices import grid_indices
-from globeview.plugins.builtin.wavelet.provider import WaveletSettings, select_wavelet, stop_levels
+from globeview.lod.traversal import traverse
+from globeview.plugins.builtin.wavelet.provider import ZhangWaveletPolicy, stop_levels
 from globeview.plugins.testing import make_view
 
 MAGENTA = (1.0, 0.0, 1.0)
@@ -44,12 +45,12 @@ WM = (-71.3, 44.15, 9000.0, 0.0, -30.0)
 def test_larger_tau_draws_no_more_triangles(terrain, m: int) -> None:
     v = make_view(*WM, viewport=(320, 240))
     counts = [
-        _triangles(select_wavelet(v, terrain, WaveletSettings(m=m, tau_px=t)))
+        _triangles(traverse(v, terrain, ZhangWaveletPolicy(m=m, tau_px=t)))
         for t in (1.0, 2.0, 4.0, 8.0)
     ]
     assert all(a >= b for a, b in itertools.pairwise(counts)), counts
     assert counts[0] > counts[-1]
-    rs = select_wavelet(v, terrain, WaveletSettings(m=m))
+    rs = traverse(v, terrain, ZhangWaveletPolicy(m=m))
     stops = stop_levels(m)
     assert stops[rs.keys[:, 0]].all()  # tiles stop only on the M-band ladder
     assert rs.error_px is not None and len(rs.error_px) == len(rs)
@@ -62,7 +63,7 @@ def test_flat_tile_is_coarser_than_a_rough_one(terrain) -> None:
 
     def nadir_tile(lon: float, lat: float):
         v = make_view(lon, lat, 2.0e4, viewport=(320, 240))
-        rs = select_wavelet(v, terrain, WaveletSettings(static_m=5.0))
+        rs = traverse(v, terrain, ZhangWaveletPolicy(static_m=5.0))
         from globeview.terrain.quadtree import tile_bounds_arrays
 
         hits = [

@@ -40,34 +40,30 @@ x/y ratio is the viewport's width / height (the side that widens the footprint).
 The quadtree walk itself (culling, the per-terrain tile cache, the tile budget) is the shared
 traversal (`traverse`); this module is Rishe's policy on it (`RishePolicy`: the ground-region
 and cut-off culling, the rings' resolutions, the strides) and the formulas it uses. Stitching
-is the shared `render_set_from_tiles`.
+is the shared traversal's (`LodPolicy.stitch`: `render_set_from_tiles`), and the provider is
+a `PolicyProvider` naming the policy.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from globeview.plugins.api import (
-    LATTICE,
     MAX_LEVEL,
+    MAX_TILES,
     N_STRIDES,
     WGS84,
     LodPolicy,
-    LodProvider,
-    RenderSet,
-    Selection,
+    PolicyProvider,
     Setting,
     TerrainStack,
     TileCandidates,
     ViewState,
     enu_basis,
     lonlat_to_ecef,
-    render_set_from_tiles,
-    traverse,
 )
 
 #: Metres per degree of latitude (mean), to turn node spacings into metres.
@@ -222,36 +218,43 @@ def _bounding_quads(points: np.ndarray, grow: np.ndarray) -> np.ndarray:
 
 
 # -- the provider ------------------------------------------------------------------------------
-@dataclass
-class RegionSettings:
-    """Settings of the distance-region selection (see the module docstring)."""
-
-    hr_ratio: float = 400.0
-    c: float = 100.0
-    factors: tuple[float, float, float] = (2.0, 8.0, 20.0)
-    cutoff: bool = True
-    stitch: bool = True
-    max_tiles: int = 1500
-    #: Rishe's Tile_Size / Mesh_Grid_Size: texels of a (256 px) texture tile per mesh cell of
-    #: our 64-cell tiles. With 1 (one mesh cell per texel) the mesh is ~2 cells per pixel.
-    tile_over_grid: float = 4.0
-
-
 class RishePolicy(LodPolicy):
     """Rishe's distance-based region subdivision as a policy on the shared traversal (module
     docstring): per frame the region factor R, the ring-1 mesh resolution R_m and the
     ground-region estimate; per level the region / cut-off culling and the rings (`cull`),
     refinement while a tile's node spacing exceeds its ring's resolution (`refine`), and the
-    coarsest stride whose cell stays within it (`stride`); same-level borders stitched."""
+    coarsest stride whose cell stays within it (`stride`); same-level borders stitched.
 
-    def __init__(self, settings: RegionSettings | None = None) -> None:
+    Args (the provider's settings, module docstring):
+        hr_ratio: Rishe's HR_RATIO (larger: finer mesh); c: the speed constant C (m).
+        ring1, ring2, ring3: the rings' outer edges in units of R (sorted here).
+        cutoff: drop tiles beyond ring 3; max_tiles: the tile budget.
+        tile_over_grid: Rishe's Tile_Size / Mesh_Grid_Size: texels of a (256 px) texture
+            tile per mesh cell of our 64-cell tiles (with 1, ~2 mesh cells per pixel).
+        stitch: stitch same-level borders (Rishe §3.3).
+    """
+
+    def __init__(
+        self,
+        hr_ratio: float = 400.0,
+        c: float = 100.0,
+        ring1: float = 2.0,
+        ring2: float = 8.0,
+        ring3: float = 20.0,
+        cutoff: bool = True,
+        max_tiles: int = 1500,
+        tile_over_grid: float = 4.0,
+        stitch: bool = True,
+    ) -> None:
         super().__init__()
-        self.st = settings or RegionSettings()
-        self.max_tiles = self.st.max_tiles
+        self.hr_ratio, self.c, self.tile_over_grid = hr_ratio, c, tile_over_grid
+        f = sorted((ring1, ring2, ring3))
+        self.factors = (f[0], f[1], f[2])
+        self.cutoff, self.stitch = cutoff, stitch
+        self.max_tiles = max_tiles
 
     def begin(self, view: ViewState, terrain: TerrainStack) -> None:
         super().begin(view, terrain)
-        st = self.st
         self.lon0, self.lat0, h0 = view.eye_lonlat_h
         pitch_r, roll = rishe_pitch_roll(view)
         self.height = max(h0, 1.0)
@@ -259,15 +262,15 @@ class RishePolicy(LodPolicy):
         self.r_m = mesh_resolution(
             self.height,
             view.fovy_deg,
-            st.hr_ratio,
-            speed_factor(view.speed_mps, view.frame_rate_hz, st.c),
-            st.tile_over_grid,
+            self.hr_ratio,
+            speed_factor(view.speed_mps, view.frame_rate_hz, self.c),
+            self.tile_over_grid,
         )
         self.region, self.basis = ground_region(view)
         self.nadir = np.asarray(
             lonlat_to_ecef(self.lon0, self.lat0, 0.0), dtype=np.float64
         ).reshape(3)
-        self.far_ring = 4 if st.cutoff else 5  # ring 4 = beyond the cut-off distance
+        self.far_ring = 4 if self.cutoff else 5  # ring 4 = beyond the cut-off distance
         self.culled_r = self.culled_c = 0
         self.rings: list[np.ndarray] = []
 
@@ -292,7 +295,7 @@ class RishePolicy(LodPolicy):
         d = np.minimum(d_pts, np.max(np.abs(near[:, :2]), axis=1))
         if level == 0:
             d[:] = np.minimum(d, 0.0)  # the two hemispheres are always in range
-        ring = ring_of(d, self.r, self.st.factors)
+        ring = ring_of(d, self.r, self.factors)
         # The region test only makes sense for footprints in front of the tangent plane's
         # horizon; big tiles (curvature) and the nadir's own tile always pass.
         quad_idx = np.array([0, 2, 8, 6])  # lattice corners (NW, NE, SE, SW) at the lowest h
@@ -319,9 +322,7 @@ class RishePolicy(LodPolicy):
         if tiles.view.displace is not None:
             # The fold's bend at each stride, in pixels (chunked-sse's measure): refine where
             # even stride 1 leaves more than tau, else cap the stride where it stays within.
-            size = tiles.size
-            frac = np.minimum(1.0, 2.0 ** np.arange(N_STRIDES) * (LATTICE - 1) / (size - 1))
-            bend_px = tiles.bend_m[:, None] * frac[None, :] * tiles.px_per_m[:, None]
+            bend_px = tiles.bend_m_strides * tiles.px_per_m[:, None]
             bend_ok = bend_px <= self.tau_px
             refine |= ~bend_ok[:, 0]
             score = np.maximum(score, bend_px[:, 0] / self.tau_px)
@@ -334,8 +335,6 @@ class RishePolicy(LodPolicy):
     def stride(self, tiles: TileCandidates, error_px: np.ndarray, index: np.ndarray) -> np.ndarray:
         """The coarsest power-of-two stride whose cell is still within the ring's R_m."""
         sc = tiles.scratch
-        if "res" not in sc:  # the deepest level: refine() was not asked
-            self.refine(tiles, error_px)
         size = tiles.size
         k = np.floor(np.log2(np.maximum(sc["res"][index] / sc["spacing"], 1.0))).astype(np.int64)
         k = np.clip(k, 0, min(N_STRIDES - 1, int(math.log2(size - 1))))
@@ -346,12 +345,6 @@ class RishePolicy(LodPolicy):
             k = np.minimum(k, k_bend)
         self.rings.append(sc["ring"][index])
         return k
-
-    def render_set(self, selection: Selection, size: int) -> RenderSet:
-        """Rishe §3.3: same-level borders stitched (`render_set_from_tiles`)."""
-        return render_set_from_tiles(
-            selection.keys, selection.stride_idx, selection.error_px, size, self.st.stitch
-        )
 
     def frame_stats(self) -> dict[str, Any]:
         rings = np.concatenate(self.rings) if self.rings else np.empty(0, np.int64)
@@ -364,19 +357,12 @@ class RishePolicy(LodPolicy):
         }
 
 
-def select_regions(
-    view: ViewState, terrain: TerrainStack, settings: RegionSettings | None = None
-) -> RenderSet:
-    """Rishe's distance-based region subdivision on the quadtree (module docstring): the
-    shared traversal with `RishePolicy`."""
-    return traverse(view, terrain, RishePolicy(settings))
-
-
-class DistanceRegionsProvider(LodProvider):
+class DistanceRegionsProvider(PolicyProvider):
     """Rishe et al.'s distance-based region subdivision (see the module docstring)."""
 
     name = "distance-regions"
     label = "Distance regions (Rishe)"
+    policy = RishePolicy
     settings = (
         Setting("hr_ratio", "float", 400.0, min=10.0, max=10000.0, label="HR_RATIO",
                 help="Rishe's empirical constant: larger = finer mesh (unitless)."),
@@ -390,22 +376,5 @@ class DistanceRegionsProvider(LodProvider):
                 help="outer edge of ring 3 (the cut-off) in units of R."),
         Setting("cutoff", "bool", True, label="cut off beyond ring 3",
                 help="drop tiles farther than ring 3 (Rishe's artificial horizon)."),
-        Setting("max_tiles", "int", 1500, min=16, max=20000, label="tile budget"),
+        Setting("max_tiles", "int", 1500, min=16, max=MAX_TILES, label="tile budget"),
     )  # fmt: skip
-
-    def select(self, view: ViewState, terrain: TerrainStack) -> RenderSet:
-        if terrain is None or not terrain.layers:
-            return RenderSet.empty()
-        v = self.values
-        f = sorted((v["ring1"], v["ring2"], v["ring3"]))
-        return select_regions(
-            view,
-            terrain,
-            RegionSettings(
-                hr_ratio=v["hr_ratio"],
-                c=v["c"],
-                factors=(f[0], f[1], f[2]),
-                cutoff=v["cutoff"],
-                max_tiles=v["max_tiles"],
-            ),
-        )

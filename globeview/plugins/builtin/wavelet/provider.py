@@ -54,26 +54,20 @@ fewer triangles). Here:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from globeview.plugins.api import (
-    LATTICE,
     MAX_LEVEL,
+    MAX_TILES,
     N_STRIDES,
     LodPolicy,
-    LodProvider,
-    RenderSet,
-    Selection,
+    PolicyProvider,
     Setting,
     TerrainStack,
     TileCandidates,
     ViewState,
-    chord_sag,
-    render_set_from_tiles,
-    traverse,
 )
 
 
@@ -96,30 +90,29 @@ def stop_levels(m: int, max_level: int = MAX_LEVEL) -> np.ndarray:
     return ok
 
 
-@dataclass
-class WaveletSettings:
-    """M: bands per wavelet step (2, 3 or 4); static_m: roughness floor (m); tau_px: screen
-    error threshold (px, None = the view's); stitch: sew same-level neighbours."""
-
-    m: int = 2
-    static_m: float = 2.0
-    tau_px: float | None = None
-    stitch: bool = True
-    max_tiles: int = 1500
-
-
 class ZhangWaveletPolicy(LodPolicy):
     """Zhang §V level and stride choice as a policy on the shared traversal (module
     docstring): refine by static (roughness) and dynamic (distance) error, the chord sag and
     the M-band ladder (`refine`); draw with the coarsest stride within tau, flat tiles within
-    the roughness floor (`stride`); same-level borders sewn."""
+    the roughness floor (`stride`); same-level borders sewn.
 
-    def __init__(self, settings: WaveletSettings | None = None) -> None:
-        st = settings or WaveletSettings()
-        super().__init__(st.tau_px or None)
-        self.st = st
-        self.max_tiles = st.max_tiles
-        self.stops = stop_levels(st.m)
+    Args (the provider's settings): m: bands per wavelet step (2, 3 or 4; a choice's text is
+    taken too); static_m: the roughness floor (m); tau_px: the screen error threshold (px;
+    None or 0: the view's); max_tiles: the tile budget; stitch: sew same-level neighbours.
+    """
+
+    def __init__(
+        self,
+        m: int | str = 2,
+        static_m: float = 2.0,
+        tau_px: float | None = None,
+        max_tiles: int = 1500,
+        stitch: bool = True,
+    ) -> None:
+        super().__init__(tau_px or None)
+        self.m, self.static_m = int(m), float(static_m)
+        self.max_tiles, self.stitch = max_tiles, stitch
+        self.stops = stop_levels(self.m)
         self.flat_tiles = 0
 
     def begin(self, view: ViewState, terrain: TerrainStack) -> None:
@@ -128,19 +121,15 @@ class ZhangWaveletPolicy(LodPolicy):
         self.flat_tiles = 0
 
     def refine(self, tiles: TileCandidates, error_px: np.ndarray) -> np.ndarray:
-        tau, exag, size, level = self.tau_px, tiles.view.exaggeration, tiles.size, tiles.level
+        tau, exag, level = self.tau_px, tiles.view.exaggeration, tiles.level
         herr = tiles.height_err_m  # (N, 7) height error of the approximation, metres
         px_per_m = tiles.px_per_m
         static = herr[:, 0]
         dynamic = static * exag * px_per_m
-        node_deg = 180.0 / 2**level / (size - 1)
-        sag_px = float(chord_sag(node_deg)) * px_per_m
-        if tiles.view.displace is not None:
-            # The displacement's bend (fold lines) counts as geometry, like the sag
-            # (`TileCandidates.err_m` already holds it).
-            frac0 = min(1.0, (LATTICE - 1) / (size - 1))
-            sag_px = sag_px + tiles.bend_m * frac0 * px_per_m
-        rough = static > self.st.static_m
+        # The geometry error at stride 1: the chord sag plus the displacement's bend (fold
+        # lines), i.e. what `TileCandidates.err_m` adds to the exaggerated height error.
+        sag_px = (tiles.err_m[:, 0] - static * exag) * px_per_m
+        rough = static > self.static_m
         finer = tiles.has_finer
         want = (rough & (dynamic > tau) & finer) | (sag_px > tau)
         # A tile whose every coarser stride misses tau needs its full grid at this level: its
@@ -168,36 +157,23 @@ class ZhangWaveletPolicy(LodPolicy):
         total = tiles.err_m.take(index, axis=0)
         px_per_m = tiles.px_per_m.take(index)
         ok = error_px <= tau
-        flat = ~(herr[:, 0] > self.st.static_m)
+        flat = ~(herr[:, 0] > self.static_m)
         sag_ok = (total - herr * exag) * px_per_m[:, None] <= tau
-        ok = np.where(flat[:, None], ok | (sag_ok & (herr <= self.st.static_m)), ok)
+        ok = np.where(flat[:, None], ok | (sag_ok & (herr <= self.static_m)), ok)
         ok[:, self.max_stride_idx + 1 :] = False
         self.flat_tiles += int(np.count_nonzero(flat))
         return np.where(ok.any(axis=1), N_STRIDES - 1 - np.argmax(ok[:, ::-1], axis=1), 0)
-
-    def render_set(self, selection: Selection, size: int) -> RenderSet:
-        """Zhang Fig. 4: same-level neighbours sewn (`render_set_from_tiles`)."""
-        return render_set_from_tiles(
-            selection.keys, selection.stride_idx, selection.error_px, size, self.st.stitch
-        )
 
     def frame_stats(self) -> dict[str, Any]:
         return {"tiles_flat": self.flat_tiles}
 
 
-def select_wavelet(
-    view: ViewState, terrain: TerrainStack, settings: WaveletSettings | None = None
-) -> RenderSet:
-    """Zhang §V level and stride choice (module docstring): the shared traversal with
-    `ZhangWaveletPolicy`."""
-    return traverse(view, terrain, ZhangWaveletPolicy(settings))
-
-
-class WaveletProvider(LodProvider):
+class WaveletProvider(PolicyProvider):
     """Zhang et al.'s M-band wavelet LOD (see the module docstring)."""
 
     name = "wavelet"
     label = "M-band wavelet (Zhang)"
+    policy = ZhangWaveletPolicy
     settings = (
         Setting("m", "choice", "2", choices=("2", "3", "4"), label="M (bands)",
                 help="wavelet bands per level step: resolution divides by M per step."),
@@ -206,20 +182,5 @@ class WaveletProvider(LodProvider):
                 "count as flat and are not refined for detail."),
         Setting("tau_px", "float", 0.0, min=0.0, max=64.0, label="tau override (px)",
                 help="screen-space error threshold in pixels; 0 uses the view's."),
-        Setting("max_tiles", "int", 1500, min=16, max=20000, label="tile budget"),
+        Setting("max_tiles", "int", 1500, min=16, max=MAX_TILES, label="tile budget"),
     )  # fmt: skip
-
-    def select(self, view: ViewState, terrain: TerrainStack) -> RenderSet:
-        if terrain is None or not terrain.layers:
-            return RenderSet.empty()
-        v = self.values
-        return select_wavelet(
-            view,
-            terrain,
-            WaveletSettings(
-                m=int(v["m"]),
-                static_m=v["static_m"],
-                tau_px=v["tau_px"] or None,
-                max_tiles=v["max_tiles"],
-            ),
-        )
