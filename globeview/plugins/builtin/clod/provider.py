@@ -27,8 +27,9 @@ neighbour follows the fold, and a gap opens. The tiles come from the shared trav
 already adds the fold's bend to each tile's error; inside the tiles, the CLOD data are
 then built from the *displaced* nodes (`mesh.tile_clod`), so a vertex's error includes
 the bend and blocks a fold crosses refine until the chord error projects below tau. Those
-tiles are cached per displacement (a fingerprint: the displacement of a fixed set of probe
-points); with no displacement nothing changes and nothing extra is computed.
+tiles are cached per displacement (`displacement_key`: the tool's key and where the
+displacement moves a fixed set of probe points, the traversal's own cache key); with no
+displacement nothing changes and nothing extra is computed.
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ from globeview.plugins.api import (
     Setting,
     TerrainStack,
     ViewState,
-    lonlat_to_ecef,
+    displacement_key,
     traverse,
 )
 from globeview.plugins.builtin.clod.mesh import (
@@ -60,26 +61,6 @@ from globeview.plugins.builtin.clod.mesh import (
 
 #: Tiles whose CLOD data stays cached (about 170 kB each for 65 x 65 tiles).
 TILE_CACHE = 1500
-
-
-def _probe_points(n: int = 64) -> np.ndarray:
-    """(n, 3) ECEF points spread over the globe (a Fibonacci lattice at sea level)."""
-    k = np.arange(n) + 0.5
-    lat = np.degrees(np.arcsin(1.0 - 2.0 * k / n))
-    lon = (np.degrees(np.pi * (1.0 + 5.0**0.5) * k) + 180.0) % 360.0 - 180.0
-    return np.asarray(lonlat_to_ecef(lon, lat, 0.0), dtype=np.float64).reshape(n, 3)
-
-
-#: Points whose displaced positions identify a displacement (`displacement_fingerprint`).
-PROBES = _probe_points()
-
-
-def displacement_fingerprint(displace: Callable[[np.ndarray], np.ndarray] | None) -> bytes:
-    """A cache key for a displacement: the bytes of where it moves `PROBES` (b"" for none).
-    Two displacements that agree on every probe point share their cached CLOD tiles."""
-    if displace is None:
-        return b""
-    return np.asarray(displace(PROBES), dtype=np.float64).round(3).tobytes()
 
 
 class QuadtreeClodProvider(LodProvider):
@@ -149,9 +130,10 @@ class QuadtreeClodProvider(LodProvider):
         key: tuple[int, int, int],
         exag: float,
         displace: Callable[[np.ndarray], np.ndarray] | None = None,
-        dkey: bytes = b"",
+        dkey: tuple | None = None,
     ) -> TileClod:
-        """A tile's CLOD data (cached per exaggeration and displacement fingerprint ``dkey``)."""
+        """A tile's CLOD data (cached per exaggeration and displacement ``dkey``,
+        `displacement_key`)."""
         ck = (key, exag, dkey)
         hit = self._tiles.get(ck)
         if hit is not None:
@@ -187,7 +169,7 @@ class QuadtreeClodProvider(LodProvider):
         )
         keys = base.keys
         exag = float(view.exaggeration)
-        dkey = displacement_fingerprint(view.displace)
+        dkey = displacement_key(view)
         sig = (
             tau,
             exag,
@@ -239,7 +221,7 @@ class QuadtreeClodProvider(LodProvider):
         base: RenderSet,
         tau: float,
         exag: float,
-        dkey: bytes = b"",
+        dkey: tuple | None = None,
     ) -> RenderSet:
         if len(keys) == 0:
             rs = RenderSet.empty()
