@@ -230,7 +230,6 @@ class TileCache:
 
     def __init__(self) -> None:
         self.lock = threading.Lock()
-        self._terrain: weakref.ref | None = None
         self._key: tuple | None = None
         self.levels: dict[int, LevelTiles] = {}
 
@@ -242,11 +241,11 @@ class TileCache:
     def sync(self, terrain: TerrainStack, exag: float) -> None:
         """Drop everything unless it was computed for this terrain state and exaggeration
         (and keep the cache bounded: beyond `TILE_CACHE_CAP` tiles it starts afresh, all
-        levels at once, so children slots never dangle)."""
+        levels at once, so children slots never dangle). The cache belongs to one terrain
+        (`tile_cache_for`), so its state is the terrain's version."""
         key = (terrain.version, terrain.tile_size, exag)
-        same = self._terrain is not None and self._terrain() is terrain and self._key == key
-        if not same or self.held > TILE_CACHE_CAP:
-            self._terrain, self._key = weakref.ref(terrain), key
+        if self._key != key or self.held > TILE_CACHE_CAP:
+            self._key = key
             self.levels = {}
 
     def roots(self, terrain: TerrainStack, size: int) -> np.ndarray:
@@ -309,8 +308,7 @@ def tile_cache_for(terrain: TerrainStack) -> TileCache:
     key = id(terrain)
     with _CACHES_LOCK:
         cache = _CACHES.get(key)
-        alive = cache is not None and cache._terrain is not None and cache._terrain() is terrain
-        if cache is None or (cache._terrain is not None and not alive):
+        if cache is None:  # the finalizer drops an entry before its id can be reused
             cache = _CACHES[key] = TileCache()
             weakref.finalize(terrain, _CACHES.pop, key, None)
         return cache
