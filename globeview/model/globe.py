@@ -14,7 +14,7 @@ import weakref
 from collections.abc import Callable
 from typing import Any, Final
 
-from psygnal import Signal, SignalGroup
+from psygnal import Signal, SignalGroup, SignalInstance
 
 from globeview.lod.view_state import check_tau
 from globeview.model.camera import Camera
@@ -152,6 +152,12 @@ class Globe:
         if any(ly is layer for ly in self.overlays):
             raise ValueError(f"overlay {getattr(layer, 'name', layer)!r:.60} is shown already")
         self.overlays.append(layer)
+        changed = getattr(layer, "changed", None)
+        if isinstance(changed, SignalInstance):
+            # The layer's own setters (visibility, opacity, style), called by the window, by
+            # code or by a plugin, reach every listener as one `overlays` event. psygnal holds
+            # this bound method weakly: a layer does not keep a dropped globe alive.
+            changed.connect(self._overlay_changed)
         self.events.overlays.emit()
 
     def remove_overlay(self, layer: Any) -> None:
@@ -160,6 +166,9 @@ class Globe:
         # from one file hold equal data yet are two rows.
         index = self._index(layer)
         del self.overlays[index]
+        changed = getattr(layer, "changed", None)
+        if isinstance(changed, SignalInstance):
+            changed.disconnect(self._overlay_changed, missing_ok=True)
         self.events.overlays.emit()
 
     def _index(self, layer: Any) -> int:
@@ -178,7 +187,12 @@ class Globe:
             self.events.overlays.emit()
 
     def overlays_changed(self) -> None:
-        """Announce an in-place change of an overlay (visibility, opacity, style)."""
+        """Announce an in-place change of an overlay made without its setters (e.g. an
+        attribute written directly). The setters (``layer.set_visible(None, False)``,
+        ``set_opacity``, ``set_style``) announce themselves: one event per real change."""
+        self.events.overlays.emit()
+
+    def _overlay_changed(self) -> None:
         self.events.overlays.emit()
 
 

@@ -18,6 +18,8 @@ import logging
 from pathlib import Path
 from typing import Any
 
+from psygnal import Signal
+
 from globeview.errors import GlobeviewError
 from globeview.model.globe import Globe
 from globeview.plugins.api import PluginKind
@@ -210,6 +212,8 @@ class _PluginLayer:
     wish. A method that raises fails its layer type (one line) instead of the window."""
 
     kind = "plugin"
+    #: Emitted when the wanted visibility changed (the globe re-emits it as ``overlays``).
+    changed = Signal()
 
     def __init__(self, layer: object, registry: PluginRegistry, owner: object, path_name: str):
         self.layer_object = layer
@@ -238,8 +242,14 @@ class _PluginLayer:
     def detach(self, renderer: object = None) -> None:
         """Nothing now: the host detaches a removed object at the next frame."""
 
-    def set_visible(self, renderer: object, visible: bool) -> None:
+    def set_visible(self, renderer: object, visible: bool) -> bool:
+        """Record the visibility wanted (told to the object at the next frame); True (and
+        ``changed``) if it changed."""
+        if bool(visible) == self.visible:
+            return False
         self.visible = bool(visible)
+        self.changed.emit()
+        return True
 
     # -- the GPU side (OverlayHost.prepare_gpu, the context current) -------------------------
     def gpu_attach(self, renderer: GlobeRenderer) -> bool:

@@ -14,7 +14,10 @@ layer objects the session keeps and the overlay panel edits:
 Every layer object has ``name``, ``kind`` ('imagery', 'thematic', 'vector', 'points' or
 'drawing'), ``attach``/``detach``/``set_visible`` and, by kind, ``set_opacity`` or
 ``set_style``. They hold no GL objects: the renderer makes each layer's GPU twin when a
-frame draws it (`globeview.render.overlay_imagery.OverlaySet.sync`).
+frame draws it (`globeview.render.overlay_imagery.OverlaySet.sync`). Each setter that
+changes something emits the layer's ``changed`` signal once (nothing for a no-op); the
+`Globe` showing the layer re-emits it as ``globe.events.overlays``, so an edit made by
+code or a plugin reaches the window like one made in the overlay panel.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from psygnal import Signal
 
 from globeview.plugins.drawables import (
     INTERPOLATIONS,
@@ -82,9 +86,13 @@ _MEAN_RADIUS_M = 6_371_008.8
 # session's `_PluginLayer`) still attaches itself to the renderer. The ``renderer`` argument
 # of the setters is unused for the same reason (None is fine).
 class _ModelLayer:
-    """What every host layer model shares: shown or hidden, attach/detach are no-ops."""
+    """What every host layer model shares: shown or hidden, attach/detach are no-ops, and
+    ``changed`` (a psygnal signal, no arguments) emitted once per setter call that changed
+    something (`Globe.add_overlay` connects it to ``globe.events.overlays``)."""
 
     visible: bool
+    #: Emitted after a setter changed the layer (visibility, opacity, style).
+    changed = Signal()
 
     def attach(self, renderer: object = None) -> None:
         """Nothing to do: the GPU twin is made at draw time."""
@@ -92,8 +100,13 @@ class _ModelLayer:
     def detach(self, renderer: object = None) -> None:
         """Nothing to do: the renderer releases the twin of a layer gone from the model."""
 
-    def set_visible(self, renderer: object, visible: bool) -> None:
+    def set_visible(self, renderer: object, visible: bool) -> bool:
+        """Show or hide the layer (next frame); True (and ``changed``) if it changed."""
+        if bool(visible) == bool(self.visible):
+            return False
         self.visible = bool(visible)
+        self.changed.emit()
+        return True
 
 
 # eq=False: a layer is equal only to itself (identity). The generated __eq__ would compare
@@ -120,8 +133,18 @@ class ImageryOverlayLayer(_ModelLayer):
     def visible(self, value: bool) -> None:
         self.layer.visible = bool(value)
 
-    def set_opacity(self, renderer: object, opacity: float) -> None:
-        self.layer.opacity = float(np.clip(opacity, 0.0, 1.0))
+    def set_opacity(self, renderer: object, opacity: float) -> bool:
+        """Set the opacity, clipped to 0..1 (ValueError for NaN: nothing changes); True
+        (and ``changed``) if it changed."""
+        opacity = float(opacity)
+        if math.isnan(opacity):
+            raise ValueError(f"{self.name!r:.60} opacity {opacity!r} is not a number")
+        opacity = float(np.clip(opacity, 0.0, 1.0))
+        if opacity == float(self.layer.opacity):
+            return False
+        self.layer.opacity = opacity
+        self.changed.emit()
+        return True
 
 
 class _StyledLayer(_ModelLayer):
@@ -132,23 +155,32 @@ class _StyledLayer(_ModelLayer):
     #: The attributes `set_style` changes (the rest is the layer's data).
     style_fields: tuple[str, ...] = ()
 
-    def set_style(self, renderer: object = None, **style: Any) -> None:
+    def set_style(self, renderer: object = None, **style: Any) -> bool:
         """Change style attributes (colour, width_px, size_px, ...); next frame. An unknown
         name or a bad value (`style_problem`) is refused (ValueError, one line) and nothing
-        changes: no frame trips over a NaN width or a colour that is not 3-4 numbers."""
+        changes: no frame trips over a NaN width or a colour that is not 3-4 numbers.
+        True (and one ``changed``, one GPU rebuild) if a value differs from the current."""
         for k, v in style.items():
             if k not in self.style_fields:
                 raise ValueError(f"{type(self).__name__} has no style {k!r}")
             problem = style_problem(k, v)
             if problem is not None:
                 raise ValueError(f"{type(self).__name__} style {problem}")
+        new = {}
         for k, v in style.items():
             if k in ("color", "label_color"):
                 v = tuple(float(c) for c in [*v, 1.0][:4])
             elif k in ("width_px", "dash_px", "size_px", "scale_m"):
                 v = float(v)
+            if v != getattr(self, k):
+                new[k] = v
+        if not new:
+            return False
+        for k, v in new.items():
             setattr(self, k, v)
         self.style_version += 1
+        self.changed.emit()
+        return True
 
 
 @dataclass(eq=False)
@@ -203,17 +235,28 @@ class DrawnLayer(_ModelLayer):
         self.parts = list(parts)
         self.visible = True
 
-    def set_visible(self, renderer: object, visible: bool) -> None:
+    def set_visible(self, renderer: object, visible: bool) -> bool:
+        """Show or hide every part; one ``changed`` if the group's visibility changed."""
+        if bool(visible) == self.visible:
+            return False
         self.visible = bool(visible)
         for p in self.parts:
             p.set_visible(renderer, self.visible)
+        self.changed.emit()
+        return True
 
-    def set_opacity(self, renderer: object, opacity: float) -> None:
-        for p in self.parts:
-            if hasattr(p, "set_opacity"):
-                p.set_opacity(renderer, opacity)
+    def set_opacity(self, renderer: object, opacity: float) -> bool:
+        """Set every drape part's opacity; one ``changed`` if any part changed."""
+        if math.isnan(float(opacity)):
+            raise ValueError(f"{self.name!r:.60} opacity {opacity!r} is not a number")
+        changed = [
+            p.set_opacity(renderer, opacity) for p in self.parts if hasattr(p, "set_opacity")
+        ]
+        if any(changed):
+            self.changed.emit()
+        return any(changed)
 
-    def set_style(self, renderer: object = None, **style: Any) -> None:
+    def set_style(self, renderer: object = None, **style: Any) -> bool:
         # Checked for every part first, so a refused value changes no part.
         for k, v in style.items():
             if not any(k in getattr(p, "style_fields", ()) for p in self.parts):
@@ -221,10 +264,14 @@ class DrawnLayer(_ModelLayer):
             problem = style_problem(k, v)
             if problem is not None:
                 raise ValueError(f"{self.name!r:.60} style {problem}")
+        changed = False
         for p in self.parts:
             own = {k: v for k, v in style.items() if k in getattr(p, "style_fields", ())}
             if own and hasattr(p, "set_style"):
-                p.set_style(renderer, **own)
+                changed = bool(p.set_style(renderer, **own)) or changed
+        if changed:
+            self.changed.emit()
+        return changed
 
 
 # -- in-memory drapes ------------------------------------------------------------------------

@@ -145,6 +145,13 @@ class GlobeSession(GlobeScene):
         """One line per overlay dropped at a frame because the GPU side refused it."""
         return self.overlay_host.errors
 
+    def take_overlay_errors(self) -> list[str]:
+        """The `overlay_errors` not taken yet (oldest first), cleared: a window reports each
+        line once after the frame that produced it."""
+        taken = list(self.overlay_host.errors)
+        self.overlay_host.errors.clear()
+        return taken
+
     @property
     def overlay_layers(self) -> list:
         """The overlay layers, bottom first (`Globe.overlays`)."""

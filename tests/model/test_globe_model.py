@@ -147,3 +147,72 @@ def test_names_that_are_not_text_are_refused(globe: Globe, bad) -> None:
     with pytest.raises(TypeError, match="must be text"):
         globe.lod = bad
     assert (globe.tool, globe.lod, seen) == (None, "chunked-sse", [])
+
+
+def _points(name: str = "cities"):
+    import numpy as np
+
+    from globeview.plugins.overlay_layers import PointsLayer
+
+    return PointsLayer(name, np.array([10.0, 11.0]), np.array([46.0, 47.0]), ["a", "b"])
+
+
+def test_a_layer_setter_emits_one_overlays_event_per_real_change(globe: Globe) -> None:
+    # The setters announce themselves, so a plugin or script editing a layer reaches the
+    # window without anyone calling overlays_changed().
+    from globeview.plugins.overlay_layers import DrawnLayer
+
+    layer = _points()
+    globe.add_overlay(layer)
+    got = _recorder(globe.events.overlays)
+    assert layer.set_visible(None, False) is True
+    assert layer.set_visible(None, False) is False  # no change: no event
+    assert len(got) == 1 and layer.visible is False
+    version = layer.style_version
+    layer.set_style(None, size_px=14.0, color=(0, 1, 0))
+    layer.set_style(None, size_px=14.0, color=(0, 1, 0, 1))  # the same style
+    assert len(got) == 2 and layer.style_version == version + 1  # one GPU rebuild
+    with pytest.raises(ValueError, match="size_px"):
+        layer.set_style(None, size_px=math.nan)
+    assert len(got) == 2 and layer.size_px == 14.0
+    group = DrawnLayer("both", [_points("a"), _points("b")])
+    globe.add_overlay(group)
+    got.clear()
+    group.set_visible(None, False)
+    group.set_style(None, size_px=3.0)
+    assert len(got) == 2  # one per change, not one per part
+    globe.remove_overlay(layer)
+    got.clear()
+    layer.set_visible(None, True)  # off the globe: not the globe's event any more
+    assert got == []
+
+
+def test_a_layer_does_not_keep_a_dropped_globe_alive() -> None:
+    import gc
+    import weakref
+
+    layer = _points()
+    globe = Globe(TerrainStack())
+    globe.add_overlay(layer)
+    ref = weakref.ref(globe)
+    del globe
+    gc.collect()
+    assert ref() is None
+    layer.set_visible(None, False)  # its dead connection is dropped, nothing raises
+
+
+def test_a_drape_opacity_change_is_one_event_and_nan_is_refused(globe: Globe) -> None:
+    import numpy as np
+
+    from globeview.plugins.drawables import RasterDrape
+    from globeview.plugins.overlay_layers import drape_layer
+
+    drape = drape_layer(RasterDrape(np.zeros((4, 8, 4), np.uint8), (0, 0, 10, 5)), "d")
+    globe.add_overlay(drape)
+    got = _recorder(globe.events.overlays)
+    drape.set_opacity(None, 0.5)
+    drape.set_opacity(None, 0.5)
+    assert len(got) == 1
+    with pytest.raises(ValueError, match="not a number"):
+        drape.set_opacity(None, math.nan)
+    assert drape.layer.opacity == 0.5 and len(got) == 1

@@ -46,7 +46,7 @@ def test_model_changes_make_no_gl_objects_until_a_frame(session) -> None:
     borders.set_visible(None, False)
     cities.set_style(None, size_px=14.0)
     assert tracker.counts() == before  # nothing made without a frame
-    assert events == ["overlays", "overlays"]
+    assert events == ["overlays"] * 4  # two added, one hidden, one restyled
     result = _frame(session)
     assert sum(tracker.counts().values()) > sum(before.values())
     assert result.stats.extra.get("objects", 0) > 0  # the cities are drawn
@@ -98,6 +98,23 @@ def test_a_file_opened_twice_is_two_rows_and_removing_one_keeps_the_other(sessio
     session.remove_overlay(second)
 
 
+def test_hiding_a_layer_from_code_is_one_event_and_the_next_frame_shows_it(session) -> None:
+    # What a plugin or script does: call the layer's setter; the globe announces it.
+    cities = session.add_overlay("data/ne_cities.geojson", layer_type="points")
+    assert _frame(session).stats.extra.get("objects", 0) > 0
+    events: list = []
+    session.globe.events.overlays.connect(lambda: events.append("overlays"))
+    cities.set_visible(None, False)
+    assert events == ["overlays"]
+    assert not _frame(session).stats.extra.get("objects", 0)  # hidden at the next frame
+    cities.set_visible(None, False)
+    assert events == ["overlays"]  # no change, no event
+    cities.set_visible(None, True)
+    assert events == ["overlays", "overlays"]
+    assert _frame(session).stats.extra.get("objects", 0) > 0
+    session.remove_overlay(cities)
+
+
 def test_a_layer_the_gpu_side_refuses_is_dropped_with_one_line(session) -> None:
     from globeview.plugins.overlay_layers import PointsLayer
 
@@ -110,6 +127,8 @@ def test_a_layer_the_gpu_side_refuses_is_dropped_with_one_line(session) -> None:
     msg = session.overlay_errors[0]
     assert msg.startswith("cannot draw spheres: ") and "\n" not in msg
     assert result.stats.extra.get("objects", 0) > 0  # the other layer is drawn
+    assert session.take_overlay_errors() == [msg]
+    assert session.take_overlay_errors() == [] and session.overlay_errors == []  # taken once
     session.remove_overlay(good)
 
 
