@@ -12,6 +12,7 @@ import itertools
 import math
 from dataclasses import dataclass, field
 from numbers import Real
+from typing import cast
 
 import numpy as np
 
@@ -159,9 +160,9 @@ class RenderSet:
         if not isinstance(self.stats, dict):
             raise InvalidRenderSet(f"stats must be a dict, not {type(self.stats).__name__}")
         for k in _NUMERIC_STATS:
-            v = self.stats.get(k, 0.0)
-            if not isinstance(v, Real) or isinstance(v, bool) or not math.isfinite(v):
-                raise InvalidRenderSet(f"stats[{k!r}] must be a finite number, not {v!r:.40}")
+            stat = self.stats.get(k, 0.0)
+            if not isinstance(stat, Real) or isinstance(stat, bool) or not math.isfinite(stat):
+                raise InvalidRenderSet(f"stats[{k!r}] must be a finite number, not {stat!r:.40}")
 
     def _validate_custom(self, n: int, verts_per_tile: int | None) -> None:
         custom = self.custom_indices
@@ -278,15 +279,16 @@ def _json_scalar(v: object) -> float | int | bool | str | None:
     """``v`` as a JSON scalar, or None when it is not one (or not finite)."""
     if isinstance(v, np.generic):
         v = v.item()
+    # Exact types (type(v) is ...): a subclass (an IntEnum, a str subclass) is no JSON scalar.
     t = type(v)
     if t is bool:
-        return v  # type: ignore[return-value]
+        return cast(bool, v)
     if t is int:
-        return v if abs(v) < 2**63 else None  # type: ignore[return-value,operator]
+        return cast(int, v) if abs(cast(int, v)) < 2**63 else None
     if t is float:
-        return v if math.isfinite(v) else None  # type: ignore[return-value,arg-type]
+        return cast(float, v) if math.isfinite(cast(float, v)) else None
     if t is str:
-        return v[:MAX_STAT_TEXT_CHARS]  # type: ignore[index]
+        return cast(str, v)[:MAX_STAT_TEXT_CHARS]
     return None
 
 

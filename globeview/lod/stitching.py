@@ -12,9 +12,10 @@ from __future__ import annotations
 import numpy as np
 
 from globeview.lod.render_set import RenderSet
-from globeview.lod.tile_indices import IndexVariant
+from globeview.lod.tile_indices import IndexVariant, Pole
 
-_POLES = (None, "north", "south", "both")
+#: `pole_codes` 0..3 -> `IndexVariant.pole`.
+_POLES: tuple[Pole, ...] = (None, "north", "south", "both")
 
 
 def pole_codes(keys: np.ndarray) -> np.ndarray:
