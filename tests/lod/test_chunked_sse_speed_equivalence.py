@@ -19,12 +19,12 @@ import pytest
 from globeview.geodesy import WGS84, lonlat_to_ecef
 from globeview.lod import cached_culling, tile_cache
 from globeview.lod.culling import LATTICE, chord_sag, displacement_chord_error_m, horizon_cap
+from globeview.lod.policy import ScreenSpaceErrorPolicy
 from globeview.lod.render_set import RenderSet
 from globeview.lod.tile_indices import IndexVariant
-from globeview.lod.traversal import MAX_LEVEL
+from globeview.lod.traversal import MAX_LEVEL, traverse
 from globeview.lod.view_state import ViewState
 from globeview.model.camera import Camera
-from globeview.plugins.builtin.chunked.provider import ChunkedSettings, select_tiles
 from globeview.terrain.quadtree import tile_bounds_arrays
 from globeview.terrain.stack import N_STRIDES, TerrainStack
 
@@ -122,12 +122,27 @@ def _reference_stride_errors_m(level, height_err, exaggeration, size):
     return total
 
 
+def select_tiles(view: ViewState, terrain: TerrainStack, settings: dict | None = None) -> RenderSet:
+    """chunked-sse's selection: the shared traversal with `ScreenSpaceErrorPolicy`, built
+    from ``settings`` (its keyword arguments: tau_px, texel_px, max_tiles)."""
+    return traverse(view, terrain, ScreenSpaceErrorPolicy(**(settings or {})))
+
+
+@dataclasses.dataclass
+class _Settings:
+    """The original chunked-sse settings (the oracle's)."""
+
+    tau_px: float | None = None
+    texel_px: float = 1.5
+    max_tiles: int = 600
+
+
 def _reference_select_tiles(
-    view: ViewState, terrain: TerrainStack, settings: ChunkedSettings | None = None
+    view: ViewState, terrain: TerrainStack, settings: dict | None = None
 ) -> RenderSet:
     """The original (pre-optimisation) chunked-sse selection, verbatim but for the helpers'
-    names: the oracle the optimised `select_tiles` must match."""
-    settings = settings or ChunkedSettings()
+    names and its settings' type: the oracle the optimised `select_tiles` must match."""
+    settings = _Settings(**(settings or {}))
     tau = settings.tau_px if settings.tau_px is not None else view.tau_px
     size = terrain.tile_size
     k_px = view.sse_factor
@@ -303,7 +318,7 @@ def test_moving_camera_matches_reference(terrain) -> None:
     path += [(-122.1, 42.85, 6000.0 * (1 + i), 200.0, -25.0) for i in range(4)]
     path += [(179.5 + 0.25 * i, 10.0, 3e5, 0.0, -60.0) for i in range(4)]
     path += [(-71.3, 44.15, 9000.0, 0.0, -30.0)]
-    settings = [None, ChunkedSettings(texel_px=3.0), ChunkedSettings(max_tiles=64)]
+    settings = [None, {"texel_px": 3.0}, {"max_tiles": 64}]
     for i, cam in enumerate(path):
         exaggeration = 3.0 if i % 5 == 4 else 1.0
         view = _view(*cam, exaggeration=exaggeration)

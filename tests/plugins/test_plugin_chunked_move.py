@@ -1,6 +1,7 @@
 """The renderer's screen-space-error selection moved behind the LOD-provider interface: drawing
 through the plugin registry (GlobeSession, lod="chunked-sse") gives the same image, pixel for
-pixel, as calling the selection function directly (GlobeScene with lod=select_tiles)."""
+pixel, as calling the selection function directly (GlobeScene with lod = the shared
+traversal with ScreenSpaceErrorPolicy)."""
 
 from __future__ import annotations
 
@@ -15,7 +16,8 @@ VIEWS = [(0.0, 20.0, 2.0e7, 0.0, -90.0), (-71.3, 44.15, 9000.0, 0.0, -30.0)]
 
 
 def test_chunked_sse_plugin_renders_pixel_identical_to_the_direct_selection() -> None:
-    from globeview.plugins.builtin.chunked.provider import select_tiles
+    from globeview.lod.policy import ScreenSpaceErrorPolicy
+    from globeview.lod.traversal import traverse
     from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import MemorySettings
@@ -28,7 +30,7 @@ def test_chunked_sse_plugin_renders_pixel_identical_to_the_direct_selection() ->
     size = (240, 160)
     target = OffscreenTarget(ctx, size)
     terrain = TerrainStack.from_stores(embedded_stores())
-    direct = GlobeScene(ctx, terrain, lod=select_tiles)
+    direct = GlobeScene(ctx, terrain, lod=lambda v, t: traverse(v, t, ScreenSpaceErrorPolicy()))
     registry = PluginRegistry(MemorySettings()).discover()
     plugin = GlobeSession(ctx, terrain, registry=registry, lod="chunked-sse")
     for view in VIEWS:

@@ -36,10 +36,16 @@ def terrain():
 def _shared_scene(gl_ctx, terrain):
     # The renderer under test with the built-in chunked screen-space-error selection, called
     # directly (no plugin registry): these tests are about drawing, not plugin management.
-    from globeview.plugins.builtin.chunked.provider import select_tiles
+    from globeview.lod.policy import ScreenSpaceErrorPolicy
+    from globeview.lod.traversal import traverse
     from globeview.render.scene import GlobeScene
 
-    return GlobeScene(gl_ctx, terrain, Camera.from_lonlat(0.0, 20.0, 2.0e7), lod=select_tiles)
+    return GlobeScene(
+        gl_ctx,
+        terrain,
+        Camera.from_lonlat(0.0, 20.0, 2.0e7),
+        lod=lambda v, t: traverse(v, t, ScreenSpaceErrorPolicy()),
+    )
 
 
 @pytest.fixture

@@ -49,7 +49,8 @@ class RecordingTool:
 @pytest.fixture
 def recording_scene(gl_ctx, terrain):
     """A bare scene (chunked selection) whose host calls are logged in ``scene.log``."""
-    from globeview.plugins.builtin.chunked.provider import select_tiles
+    from globeview.lod.policy import ScreenSpaceErrorPolicy
+    from globeview.lod.traversal import traverse
     from globeview.render.offscreen import OffscreenTarget
     from globeview.render.scene import GlobeScene
 
@@ -64,7 +65,12 @@ def recording_scene(gl_ctx, terrain):
         def frame_tool(self):
             return self.tool
 
-    scene = Recording(gl_ctx, terrain, Camera.from_lonlat(-71.3, 44.2, 4.0e5), lod=select_tiles)
+    scene = Recording(
+        gl_ctx,
+        terrain,
+        Camera.from_lonlat(-71.3, 44.2, 4.0e5),
+        lod=lambda v, t: traverse(v, t, ScreenSpaceErrorPolicy()),
+    )
     scene.log = []
     scene.tool = RecordingTool(scene.log)
     target = OffscreenTarget(gl_ctx, SIZE)

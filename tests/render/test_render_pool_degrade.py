@@ -102,15 +102,16 @@ def test_parents_at_the_poles_get_pole_fans() -> None:
 
 @pytest.mark.gl
 def test_renderer_with_a_small_pool_draws_a_degraded_frame(gl_ctx, terrain, targets) -> None:
+    from globeview.lod.policy import ScreenSpaceErrorPolicy
+    from globeview.lod.traversal import traverse
     from globeview.lod.view_state import ViewState
     from globeview.model.camera import Camera
-    from globeview.plugins.builtin.chunked.provider import select_tiles
     from globeview.render.renderer import GlobeRenderer
     from globeview.render.scene import GlobeScene
 
     cam = Camera.from_lonlat(-71.3, 44.2, 3000.0, 0.0, -10.0)
     view = ViewState.from_camera(cam, (160, 120), tau_px=1.0)
-    rs = select_tiles(view, terrain)
+    rs = traverse(view, terrain, ScreenSpaceErrorPolicy())
     assert len(rs) > 16  # the view really wants more than the pool holds
     # The frame runs through the pipeline, drawing this render set with a 16-slot pool.
     scene = GlobeScene(gl_ctx, terrain, cam, lod=lambda v, t: rs)

@@ -20,12 +20,11 @@ apart: flat triangles cut under a curved globe, and at globe scale that dominate
 Cracks between tiles drawn at different levels or strides are hidden by skirts.
 
 This module holds the plugin glue only: the settings, and the reuse of the last selection
-while the view is unchanged.
+while the view is unchanged (why it overrides ``select`` rather than being a
+`PolicyProvider`).
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 from globeview.plugins.api import (
     LodProvider,
@@ -36,32 +35,6 @@ from globeview.plugins.api import (
     ViewState,
     traverse,
 )
-
-
-@dataclass
-class ChunkedSettings:
-    """Settings of the chunked selection.
-
-    tau_px: screen-space error threshold (pixels); None uses the ViewState's.
-    texel_px: refine while a texel of the tile's height/normal textures covers more pixels.
-    max_tiles: stop refining beyond this many drawn tiles (a safety budget).
-    """
-
-    tau_px: float | None = None
-    texel_px: float = 1.5
-    max_tiles: int = 600
-
-    def policy(self) -> ScreenSpaceErrorPolicy:
-        """The traversal policy with these settings."""
-        return ScreenSpaceErrorPolicy(self.tau_px, self.texel_px, self.max_tiles)
-
-
-def select_tiles(
-    view: ViewState, terrain: TerrainStack, settings: ChunkedSettings | None = None
-) -> RenderSet:
-    """Choose the tiles (and each one's index stride) for a view: the shared traversal with
-    the screen-space-error policy (module docstring)."""
-    return traverse(view, terrain, (settings or ChunkedSettings()).policy())
 
 
 class ChunkedSseProvider(LodProvider):
@@ -91,7 +64,7 @@ class ChunkedSseProvider(LodProvider):
         self._cache_key = self._cache = None
 
     def select(self, view: ViewState, terrain: TerrainStack) -> RenderSet:
-        if terrain is None or not terrain.layers:
+        if terrain is None or not terrain.layers:  # (before the key, which reads the terrain)
             return RenderSet.empty()
         # A repaint with an unchanged view (window expose, overlay redraw) reuses the last
         # selection; any camera move, setting or layer change recomputes it.
