@@ -10,8 +10,6 @@ frame is drawn, so changing the model never needs a GL context.
 
 from __future__ import annotations
 
-import weakref
-from collections.abc import Callable
 from typing import Any, Final
 
 from psygnal import Signal, SignalGroup, SignalInstance
@@ -79,9 +77,9 @@ class Globe:
         self._tau_px = check_tau(tau_px)
         self.display = display if display is not None else DisplaySettings()
         self.overlays: list[Any] = []
-        # A weak listener: a terrain outlives the globes shown on it (a test session's
-        # shared stack, a window reopening a globe), and must not keep them alive.
-        terrain.listeners.append(_WeakListener(self._terrain_changed, terrain.listeners))
+        # psygnal holds the bound method weakly: a terrain outlives the globes shown on it
+        # (a test session's shared stack, a window reopening a globe) without keeping them.
+        terrain.changed.connect(self._terrain_changed)
 
     # -- terrain ---------------------------------------------------------------------------
     @property
@@ -194,20 +192,3 @@ class Globe:
 
     def _overlay_changed(self) -> None:
         self.events.overlays.emit()
-
-
-class _WeakListener:
-    """A terrain listener calling a bound method without keeping its object alive; it drops
-    itself from ``owner_list`` once that object is gone."""
-
-    def __init__(self, method: Callable[[], None], owner_list: list) -> None:
-        self._method = weakref.WeakMethod(method)
-        self._owner_list = owner_list
-
-    def __call__(self) -> None:
-        method = self._method()
-        if method is None:
-            if self in self._owner_list:
-                self._owner_list.remove(self)
-            return
-        method()

@@ -20,10 +20,10 @@ Heights are metres above the ellipsoid; keys are (level, x, y) with y = 0 at the
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from psygnal import Signal
 
 from globeview.errors import StoreError
 from globeview.terrain.blend import BlendMask, interpolation_error, weight_change_bound
@@ -84,9 +84,6 @@ class TerrainStack:
         self._masks: dict[TileStore, BlendMask] = {}
         self._diffs: dict[tuple, tuple] = {}
         self._band_counts: dict[tuple[TileStore, int], int] = {}  # band tiles per level
-        #: Called (no arguments) after every change of the layers: added, removed, moved,
-        #: shown or hidden. The model (`globeview.model.Globe`) turns it into an event.
-        self.listeners: list[Callable[[], None]] = []
         self._check_sizes()
 
     # -- layer management --------------------------------------------------------------------
@@ -103,21 +100,33 @@ class TerrainStack:
         return layer
 
     def remove(self, name: str) -> None:
-        self.layers = [ly for ly in self.layers if ly.name != name]
-        self._changed()
+        """Remove the layers called ``name`` (none: nothing changes, no event)."""
+        kept = [ly for ly in self.layers if ly.name != name]
+        if len(kept) != len(self.layers):
+            self.layers = kept
+            self._changed()
 
     def set_visible(self, name: str, visible: bool) -> None:
-        for ly in self.layers:
-            if ly.name == name:
-                ly.visible = visible
-        self._changed()
+        """Show or hide the layers called ``name``; an event only if one changed."""
+        hits = [ly for ly in self.layers if ly.name == name and ly.visible != visible]
+        for ly in hits:
+            ly.visible = visible
+        if hits:
+            self._changed()
 
     def move(self, name: str, index: int) -> None:
-        """Move a layer to a new position (0 = bottom)."""
+        """Move a layer to a new position (0 = bottom); an event only if the order changed."""
         layer = next(ly for ly in self.layers if ly.name == name)
+        before = list(self.layers)
         self.layers.remove(layer)
         self.layers.insert(index, layer)
-        self._changed()
+        if any(a is not b for a, b in zip(before, self.layers, strict=True)):
+            self._changed()
+
+    #: Emitted (no arguments) after every change of the layers: added, removed, moved, shown
+    #: or hidden. The model (`globeview.model.Globe`) connects to it (psygnal holds a bound
+    #: method weakly: a stack does not keep the globes shown on it alive).
+    changed = Signal()
 
     def _changed(self) -> None:
         self.version += 1
@@ -131,8 +140,7 @@ class TerrainStack:
             kept = {ly.store for ly in self.layers}
             self._masks = {st: m for st, m in self._masks.items() if st in kept}
             self._tables = {k: v for k, v in self._tables.items() if k[0] in kept}
-        for listener in list(self.listeners):
-            listener()
+        self.changed.emit()
 
     def _check_sizes(self, layers: list[TerrainLayer] | None = None) -> None:
         sizes = {ly.store.tile_size for ly in (self.layers if layers is None else layers)}

@@ -90,9 +90,21 @@ def test_overlays_list_and_events(globe: Globe) -> None:
 
 
 def test_terrain_changes_reach_the_globe_once(globe: Globe) -> None:
+    from globeview.terrain.stack import TerrainLayer
+
+    terrain = globe.terrain
+    terrain.layers = [TerrainLayer(None, "a"), TerrainLayer(None, "b")]  # type: ignore[arg-type]
     got = _recorder(globe.events.terrain)
-    globe.terrain.set_visible("none", False)
+    terrain.set_visible("a", False)
     assert got == [()]
+    terrain.set_visible("a", False)  # already hidden
+    terrain.set_visible("none", False)  # no such layer
+    terrain.remove("none")
+    terrain.move("a", 0)  # already at the bottom
+    assert got == [()]  # no real change: no event
+    terrain.move("a", 1)
+    terrain.remove("b")
+    assert got == [(), (), ()] and [ly.name for ly in terrain.layers] == ["a"]
 
 
 def test_terrain_does_not_keep_a_dropped_globe_alive() -> None:
@@ -103,8 +115,7 @@ def test_terrain_does_not_keep_a_dropped_globe_alive() -> None:
     ref = weakref.ref(Globe(terrain))
     gc.collect()
     assert ref() is None
-    terrain.set_visible("none", True)  # the dead globe's listener drops itself
-    assert terrain.listeners == []
+    assert len(terrain.changed) == 0  # psygnal dropped the dead globe's connection
 
 
 def test_display_settings_events_once_per_change() -> None:
