@@ -269,6 +269,8 @@ class GlobeSession(GlobeScene):
         self.overlay_host.remove(layer, self.renderer)
 
     def release_gl(self) -> None:
-        """Release the GL objects the session owns (with its context current)."""
+        """Release the GL objects the session owns (with its context current), and stop
+        listening to the globe, which may outlive the session (a window's model)."""
+        self.tool_host.close()
         self.pipeline.release()
         self.renderer.release()

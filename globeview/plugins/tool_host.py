@@ -52,6 +52,11 @@ class ToolHost:
         self._marker_heights: dict[tuple[float, float, float], float] = {}
         globe.events.tool.connect(self._follow)
 
+    def close(self) -> None:
+        """Stop following the globe's tool (the session released its GL; the globe, a
+        window's model, may outlive it)."""
+        self.globe.events.tool.disconnect(self._follow, missing_ok=True)
+
     # -- the model side (no GL) --------------------------------------------------------------
     def find(self, name: str) -> Any:
         """The enabled tool ``name`` (importing only its plugin), or None."""

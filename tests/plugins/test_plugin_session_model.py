@@ -72,3 +72,21 @@ def test_a_refused_lod_name_at_construction_leaves_no_gl_objects(
     with pytest.raises(GlobeviewError, match="no enabled LOD provider"):
         GlobeSession(globeview_gl, globeview_terrain, registry=globeview_registry, lod="nope")
     assert tracker.counts() == before
+
+
+def test_release_gl_disconnects_the_session_from_the_globe(
+    globeview_gl, globeview_terrain, globeview_registry
+) -> None:
+    # A window's model outlives the sessions shown on it: a released session's tool host
+    # must not go on following (and holding) the globe's tool events.
+    from globeview.plugins.session import GlobeSession
+
+    globe = Globe(globeview_terrain)
+    before = len(globe.events.tool)
+    s = GlobeSession(globeview_gl, globeview_terrain, registry=globeview_registry, globe=globe)
+    assert len(globe.events.tool) == before + 1  # the tool host follows the globe
+    s.release_gl()
+    assert len(globe.events.tool) == before
+    globe.tool = None  # nothing of the released session runs
+    globe.tool = "measure"
+    assert globe.tool == "measure"  # no host resets it any more
