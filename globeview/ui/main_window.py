@@ -124,7 +124,6 @@ class MainWindow(QMainWindow):
         #: can fail until then).
         self._activating: str | None = None
         self._showing_display = False
-        self._overlay_errors_seen = 0  # of the session's overlay_errors, reported
         #: Overlay files asked for before the globe's GL (and session) existed.
         self._pending_overlays: list[str] = []
         self.setWindowTitle("globeview")
@@ -591,14 +590,10 @@ class MainWindow(QMainWindow):
         self._activating = None  # a frame was drawn with the tool: it is active
         self.plugins.after_frame()
         scene = self.globe.scene
-        errors = [] if scene is None else scene.overlay_errors
-        if len(errors) > self._overlay_errors_seen:
-            # An overlay the GPU side refused (its limits) was dropped at this frame: say so
-            # in one line, after the frame (no dialog inside paintGL).
-            new = errors[self._overlay_errors_seen :]
-            self._overlay_errors_seen = len(errors)
-            for line in new:
-                QTimer.singleShot(0, lambda line=line: self.errors.error(GlobeviewError(line)))
+        # An overlay the GPU side refused (its limits) was dropped at this frame: say so in
+        # one line, after the frame (no dialog inside paintGL).
+        for line in [] if scene is None else scene.take_overlay_errors():
+            QTimer.singleShot(0, lambda line=line: self.errors.error(GlobeviewError(line)))
 
     def _use_lod(self, name: str) -> None:
         self.status.lod.setText(f"LOD {name}")
