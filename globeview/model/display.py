@@ -4,8 +4,11 @@ colours), evented: each field has a signal under ``settings.events`` that fires 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from psygnal import evented
+
+from globeview.lod.view_state import check_exaggeration
 
 #: The colour of space behind the globe (linear RGB, 0..1).
 SPACE_RGB = (0.02, 0.02, 0.05)
@@ -16,8 +19,9 @@ SPACE_RGB = (0.02, 0.02, 0.05)
 class DisplaySettings:
     """Live display settings; all take effect on the next frame.
 
-    exaggeration: vertical exaggeration factor (1 = true heights; checked where a frame is
-    built, `globeview.lod.view_state.check_exaggeration`); background and wire_color: RGB,
+    exaggeration: vertical exaggeration factor (1 = true heights); refused where it is set
+    (`globeview.lod.view_state.check_exaggeration`: ValueError, one line with the range,
+    nothing changes, no event), so no frame trips over a NaN; background and wire_color: RGB,
     each 0..1. ``settings.events.<field>.connect(callback)`` subscribes to one field,
     ``settings.events.connect(callback)`` to all (psygnal).
     """
@@ -28,3 +32,10 @@ class DisplaySettings:
     fog: bool = True
     background: tuple[float, float, float] = SPACE_RGB
     wire_color: tuple[float, float, float] = (0.05, 0.05, 0.05)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        # psygnal's evented setter wraps this one and emits only after it returned, so a
+        # refused value raises before anything changes or any listener hears of it.
+        if name == "exaggeration":
+            value = check_exaggeration(value)
+        super().__setattr__(name, value)

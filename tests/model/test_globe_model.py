@@ -227,3 +227,16 @@ def test_a_drape_opacity_change_is_one_event_and_nan_is_refused(globe: Globe) ->
     with pytest.raises(ValueError, match="not a number"):
         drape.set_opacity(None, math.nan)
     assert drape.layer.opacity == 0.5 and len(got) == 1
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -1.0, 1e9, "x", None])
+def test_a_bad_exaggeration_is_refused_where_it_is_set(bad) -> None:
+    display = DisplaySettings()
+    display.exaggeration = 3
+    got = _recorder(display.events.exaggeration)
+    with pytest.raises(ValueError, match="exaggeration") as info:
+        display.exaggeration = bad
+    assert "\n" not in str(info.value)
+    assert display.exaggeration == 3.0 and got == []  # nothing changed, no event
+    with pytest.raises(ValueError, match="exaggeration"):
+        DisplaySettings(exaggeration=bad)
