@@ -5,9 +5,10 @@ Each row has a visibility checkbox; rows reorder by drag and drop or the ↑/↓
 model's overlays are reordered, and the next frame composes the imagery drapes in the listed
 order); "Remove" drops a layer. Below the list, the selected layer's style:
 opacity for imagery/thematic drapes, colour and width (vectors) or size (points). Every edit
-goes to the layer objects (`globeview.plugins.overlay_layers`) and is announced on the
-model (``globe.events.overlays``); the panel lists what that event says, whoever changed the
-overlays (the window, code, a plugin), and the view redraws on it. Nothing here draws.
+goes to the layer's setters (`globeview.plugins.overlay_layers`), which announce a real
+change (the layer's ``changed``, re-emitted by the Globe as ``globe.events.overlays``); the
+panel shows what that event says, whoever changed the overlays (the window, code, a plugin),
+and the view redraws on it. Nothing here draws.
 
 Vectors and points are always drawn over the imagery drape (they are separate passes); the
 order matters among drapes and among line layers.
@@ -84,7 +85,6 @@ class OverlayPanel(QWidget):
         self.model = model
         self.session: Any = None
         self._updating = False
-        self._editing = False  # the list already shows the change the model announces
         self._by_id: dict[int, Any] = {}
 
         self.list = OverlayList()
@@ -150,21 +150,8 @@ class OverlayPanel(QWidget):
         layout.addLayout(style)
         #: The model subscriptions, the window's (cleared when it closes), or its own.
         self.subscriptions = Subscriptions() if subscriptions is None else subscriptions
-        self.subscriptions.connect(model.events.overlays, self._overlays_changed)
+        self.subscriptions.connect(model.events.overlays, self.refresh)
         self.refresh()
-
-    def _overlays_changed(self, *_args: object) -> None:
-        if not self._editing:
-            self.refresh()
-
-    def _announce(self) -> None:
-        """Tell the model an overlay changed in place (the view redraws on its event); the
-        list is not rebuilt under the edit that made it."""
-        self._editing = True
-        try:
-            self.model.overlays_changed()
-        finally:
-            self._editing = False
 
     # -- model ----------------------------------------------------------------------------
     def bind(self, session: Any) -> None:
@@ -173,10 +160,6 @@ class OverlayPanel(QWidget):
         plugin layer's own attach/detach/set_visible too) at the next frame."""
         self.session = session
         self.refresh()
-
-    @property
-    def renderer(self) -> Any:
-        return None if self.session is None else self.session.renderer
 
     def layers(self) -> list:
         """The model's overlay layers, bottom first."""
@@ -197,8 +180,25 @@ class OverlayPanel(QWidget):
         row = self.list.currentRow()
         return None if row < 0 else self.layer_at(row)
 
-    def refresh(self) -> None:
-        """Rebuild the rows from the model (keeps the selection)."""
+    def refresh(self, *_args: object) -> None:
+        """Show the model's overlays (its ``overlays`` event): the same layers in the same
+        order are updated in place (an edit here is not rebuilt under itself); otherwise the
+        rows are rebuilt, keeping the selection."""
+        self.list.setEnabled(self.session is not None)
+        listed = [self.list.item(r).data(ID_ROLE) for r in range(self.list.count())]
+        if listed and listed == [id(ly) for ly in reversed(self.layers())]:
+            self._updating = True
+            try:
+                for r in range(self.list.count()):
+                    self.list.item(r).setCheckState(
+                        Qt.CheckState.Checked
+                        if layer_visible(self.layer_at(r))
+                        else Qt.CheckState.Unchecked
+                    )
+            finally:
+                self._updating = False
+            self._update_controls()
+            return
         current = self.selected_layer()
         self._updating = True
         try:
@@ -220,7 +220,6 @@ class OverlayPanel(QWidget):
                     self.list.setCurrentItem(item)
         finally:
             self._updating = False
-        self.list.setEnabled(self.session is not None)
         self._update_controls()
 
     def select(self, layer: Any) -> None:
@@ -269,20 +268,17 @@ class OverlayPanel(QWidget):
                 )
 
     def _item_changed(self, item: QListWidgetItem) -> None:
-        if self._updating or self.renderer is None:
+        if self._updating or self.session is None:
             return
         layer = self._by_id[item.data(ID_ROLE)]
-        layer.set_visible(self.renderer, item.checkState() == Qt.CheckState.Checked)
-        self._announce()
+        # The layer announces the change (globe.events.overlays): the view redraws.
+        layer.set_visible(None, item.checkState() == Qt.CheckState.Checked)
 
     def set_opacity(self, layer: Any, opacity: float) -> None:
         """Set a drape's opacity (0..1); the slider follows when it is selected."""
-        if layer.kind not in DRAPE_KINDS or self.renderer is None:
+        if layer.kind not in DRAPE_KINDS or self.session is None:
             return
-        layer.set_opacity(self.renderer, opacity)
-        if layer is self.selected_layer():
-            self._update_controls()
-        self._announce()
+        layer.set_opacity(None, opacity)  # announced by the layer; the slider follows
 
     def _opacity_changed(self, pct: int) -> None:
         self.opacity_value.setText(f"{pct} %")
@@ -296,10 +292,7 @@ class OverlayPanel(QWidget):
         if layer.kind not in ("vector", "points"):
             return
         rgba = (color.redF(), color.greenF(), color.blueF(), color.alphaF())
-        _restyle(layer, self.renderer, color=rgba)
-        if layer is self.selected_layer():
-            self._show_color(rgba)
-        self._announce()
+        layer.set_style(None, color=rgba)  # announced by the layer; the button follows
 
     def choose_color(self) -> None:
         """Pick the selected layer's colour with a colour dialog."""
@@ -315,14 +308,9 @@ class OverlayPanel(QWidget):
     def set_width(self, layer: Any, px: float) -> None:
         """Line width (vectors) or placemark size (points), in pixels."""
         if layer.kind == "vector":
-            _restyle(layer, self.renderer, width_px=float(px))
+            layer.set_style(None, width_px=float(px))  # announced by the layer
         elif layer.kind == "points":
-            _restyle(layer, self.renderer, size_px=float(px))
-        else:
-            return
-        if layer is self.selected_layer():
-            self._update_controls()
-        self._announce()
+            layer.set_style(None, size_px=float(px))
 
     def _width_changed(self, px: float) -> None:
         layer = self.selected_layer()
@@ -368,8 +356,3 @@ class OverlayPanel(QWidget):
 
 def _size_of(layer: Any) -> float:
     return float(layer.width_px if layer.kind == "vector" else layer.size_px)
-
-
-def _restyle(layer: Any, renderer: Any, **style: Any) -> None:
-    """Change a vector/points layer's style (colour, width, size) for the next frame."""
-    layer.set_style(renderer, **style)

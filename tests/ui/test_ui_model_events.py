@@ -86,6 +86,32 @@ def test_overlays_changed_on_the_model_are_listed(make_window, wait_frame) -> No
     assert win.globe.last_stats.triangles > 0
 
 
+def test_overlay_setters_called_from_code_show_in_the_panel(make_window, wait_frame) -> None:
+    """A script or plugin calling a layer's setters: the layer announces the change (the
+    Globe's overlays event), so the panel follows without anyone announcing by hand; an edit
+    in the panel is one event."""
+    win = make_window(embedded_overlays=True)
+    panel = win.layer_panel.overlays
+    borders, marble = panel.layer_at(0), panel.layer_at(1)
+    assert panel.list.item(1).checkState() == Qt.CheckState.Unchecked
+    marble.set_visible(None, True)
+    assert panel.list.item(1).checkState() == Qt.CheckState.Checked
+    panel.select(borders)
+    borders.set_style(None, width_px=7.0)
+    assert panel.width_spin.value() == 7.0
+    panel.select(marble)
+    marble.set_opacity(None, 0.25)
+    assert panel.opacity_slider.value() == 25 and panel.opacity_value.text() == "25 %"
+    events = []
+    win.model.events.overlays.connect(lambda *_a: events.append(1))
+    panel.set_visible(marble, False)  # as a click on the checkbox
+    assert events == [1] and not marble.visible
+    panel.set_width(borders, 7.0)  # no change: no event
+    assert events == [1]
+    wait_frame(win)
+    assert win.globe.last_stats.triangles > 0
+
+
 def test_changing_the_model_from_the_window_makes_no_context_current(
     make_window, wait_frame, monkeypatch
 ) -> None:
