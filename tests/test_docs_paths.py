@@ -1,7 +1,8 @@
 """The maps in the docs stay true: every file or folder that CONTRIBUTING.md ("where does X
 live"), docs/architecture.md, docs/papers.md, docs/collapse.md, docs/benchmarks.md and the
-README name in backticks exists, and the images and documents they link to exist. A module moved or renamed
-without its docs fails here, with the doc line that still names the old path."""
+README name in backticks exists, and the images and documents they link to exist. A module
+moved or renamed without its docs fails here, with the doc line that still names the old
+path."""
 
 from __future__ import annotations
 
