@@ -47,7 +47,7 @@ def main() -> int:
         ctx = create_headless_context()
         print(f"machine: {machine(str(ctx.info.get('GL_RENDERER', '?')))}")
         ctx.release()
-    except Exception as exc:  # the figures above stand without the machine line
+    except Exception as exc:  # noqa: BLE001  the figures above stand without the machine line
         print(f"machine: ? ({exc})")
     print(
         f"RSS after {res['warmup']} cycles {res['rss_after_warmup']:.1f} MB, after "

@@ -84,7 +84,7 @@ def test_table_and_points_off_the_data(env: dict[str, str]) -> None:
 
 
 @pytest.mark.parametrize(
-    "args, words",
+    ("args", "words"),
     [
         (["nan,44", "data/N44W072.hgt"], "finite"),
         (["-nan,44", "data/N44W072.hgt"], "finite"),

@@ -44,7 +44,7 @@ def test_an_error_while_writing_leaves_the_old_files_and_no_temporaries(
 ) -> None:
     a, b = tmp_path / "a.png", tmp_path / "b.json"
     a.write_bytes(b"old")
-    with pytest.raises((exc, OutputError)), atomic_outputs([a, b]) as (ta, _):
+    with pytest.raises((exc, OutputError)), atomic_outputs([a, b]) as (ta, _):  # noqa: PT012  write, then fail
         ta.write_bytes(b"new, half")
         raise exc(errno.EIO, "boom") if exc is OSError else exc()
     assert a.read_bytes() == b"old" and names(tmp_path) == ["a.png"]

@@ -155,7 +155,7 @@ class _CliLog(logging.Handler):
             if self.echo_all or (ours and record.levelno >= logging.WARNING):
                 first = (record.getMessage().strip().splitlines() or [""])[0]
                 print(f"globeview: {record.levelname.lower()}: {first}", file=sys.stderr)
-        except Exception:  # a log record must never take the command down
+        except Exception:  # noqa: BLE001  a log record must never take the command down
             pass
 
 
@@ -258,7 +258,7 @@ def main(argv: list[str] | None = None) -> int:
         where = f": {exc.filename}" if exc.filename else ""
         print(f"globeview: error: {exc.strerror}{where}", file=sys.stderr)
         return 2
-    except Exception as exc:
+    except Exception as exc:  # noqa: BLE001  last resort: a bug is one line plus the log (exit 1)
         return _internal_error(argv, exc, debug)
 
 

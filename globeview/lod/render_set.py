@@ -271,7 +271,7 @@ def clean_provider_stats(stats: object) -> tuple[dict[str, float | int | bool | 
             if value is not None:
                 kept[k[:MAX_STAT_KEY_CHARS]] = value
         return kept, total - len(kept)
-    except Exception:  # plugin data: drop it, never fail the frame
+    except Exception:  # noqa: BLE001  plugin data: drop it, never fail the frame
         return {}, total
 
 

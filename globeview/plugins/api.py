@@ -579,7 +579,7 @@ def _failure_reason(host: Any, instance: Any) -> str:
         rec = host.get(plugin)
         failure = rec.failures.get(name)
         return (failure.error if failure is not None else rec.error) or "unknown"
-    except Exception:  # a host without records: the reason is in the log
+    except Exception:  # noqa: BLE001  a host without records: the reason is in the log
         return "unknown (see the log)"
 
 

@@ -200,7 +200,7 @@ def raster_info(path: str | Path, stats: bool = False) -> RasterInfo:
             if stats and count >= 1:
                 st = ds.statistics(1, approx=True)
                 lo, hi = float(st.min), float(st.max)
-    except Exception as exc:
+    except Exception as exc:  # noqa: BLE001  GDAL/rasterio raise many types: the file's one-line error
         first = (str(exc).splitlines() or ["unreadable"])[0]
         raise GlobeviewError(f"{p.name}: cannot read as a raster ({first:.120})") from None
     return RasterInfo(count, palette, lo, hi)

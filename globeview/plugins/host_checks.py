@@ -27,7 +27,7 @@ def has_method(obj: object, name: str) -> bool:
     that raises counts as no."""
     try:
         return callable(getattr(obj, name, None))
-    except Exception:
+    except Exception:  # noqa: BLE001  plugin objects may raise anything: a failed check
         return False
 
 
@@ -40,7 +40,7 @@ def hashable(value: object) -> bool:
         return False
     try:
         hash(value)
-    except Exception:
+    except Exception:  # noqa: BLE001  plugin objects may raise anything: a failed check
         return False
     return True
 
@@ -79,7 +79,7 @@ def overlay_problem(prims: list | tuple) -> str | None:
         elif isinstance(p, Polyline):
             try:
                 pts = np.asarray(p.points, dtype=np.float64)
-            except Exception:
+            except Exception:  # noqa: BLE001  plugin objects may raise anything: a failed check
                 return "a Polyline whose points are not numbers"
             if pts.ndim != 2 or pts.shape[1] != 3 or not np.isfinite(pts).all():
                 return f"a Polyline with points of shape {pts.shape}, not finite (N, 3)"

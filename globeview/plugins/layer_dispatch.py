@@ -74,7 +74,7 @@ def _object_extensions(registry: Any, name: str) -> tuple[str, ...]:
     raw = getattr(obj, "extensions", ())
     try:
         exts = tuple(str(e).lower() for e in raw)[:32]
-    except Exception:
+    except Exception:  # noqa: BLE001  a plugin's hostile attribute: no extensions
         return ()
     return tuple(e for e in exts if e.startswith(".") and 1 < len(e) <= 50)
 

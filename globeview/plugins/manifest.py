@@ -82,7 +82,7 @@ def _short(value: Any, limit: int = 60) -> str:
     """``repr(value)`` cut to ``limit`` characters, for error messages."""
     try:
         text = repr(value)
-    except Exception:
+    except Exception:  # noqa: BLE001  a plugin value whose __repr__ raises
         text = f"<{type(value).__name__}>"
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
@@ -404,7 +404,7 @@ def locate_manifest(reference: str) -> Path:
     top, *rest = package.split(".")
     try:
         spec = importlib.util.find_spec(top)
-    except Exception as exc:  # a broken finder or package metadata: this plugin's problem
+    except Exception as exc:  # noqa: BLE001  a broken finder or package metadata: this plugin's problem
         raise ManifestError(f"cannot locate package {top!r}: {_short(str(exc), 120)}") from None
     if spec is None:
         raise ManifestError(f"package {top!r} of manifest {reference!r} is not installed")

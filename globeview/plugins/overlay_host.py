@@ -107,7 +107,7 @@ class OverlayHost:
                 built, problem = host_layer(result, Path(path).name)
             except GlobeviewError:  # e.g. a RasterFile GDAL cannot read: the user's file
                 raise
-            except Exception as exc:  # e.g. a drawable subclass whose property raises
+            except Exception as exc:  # noqa: BLE001  e.g. a drawable subclass whose property raises
                 first = str(exc).splitlines()[0] if str(exc) else ""
                 built, problem = (
                     None,
@@ -224,7 +224,7 @@ class _PluginLayer:
         self.shown = True  # the visibility the object was last told
         try:
             name = getattr(layer, "name", "")
-        except Exception:
+        except Exception:  # noqa: BLE001  a plugin object's attribute may raise anything
             name = ""
         self.name = (name if isinstance(name, str) and name else path_name)[:200]
 

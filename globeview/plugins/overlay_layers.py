@@ -351,7 +351,7 @@ def as_drawables(result: Any) -> list | None:
 def _rgba_problem(color: Any, what: str) -> str | None:
     try:
         c = [float(v) for v in color]
-    except Exception:
+    except Exception:  # noqa: BLE001  plugin data may raise anything: a one-line problem
         return f"{what} {color!r:.40} is not 3 or 4 numbers"
     if len(c) not in (3, 4) or not all(math.isfinite(v) for v in c):
         return f"{what} {color!r:.40} is not 3 or 4 finite numbers"
@@ -361,7 +361,7 @@ def _rgba_problem(color: Any, what: str) -> str | None:
 def _positive(value: Any, what: str, limit: float) -> str | None:
     try:
         v = float(value)
-    except Exception:
+    except Exception:  # noqa: BLE001  plugin data may raise anything: a one-line problem
         return f"{what} {value!r:.40} is not a number"
     if not (math.isfinite(v) and 0 < v <= limit):
         return f"{what} {v!r} is not in (0, {limit:g}]"
@@ -375,7 +375,7 @@ def drawable_problem(d: Any) -> str | None:
             return f"Lines interpolation {d.interpolation!r:.40} (one of {INTERPOLATIONS})"
         try:
             paths = d.path_list()
-        except Exception:
+        except Exception:  # noqa: BLE001  plugin data may raise anything: a one-line problem
             return "Lines paths that are not (N, 2) arrays of numbers"
         if not paths:
             return "Lines without a path"
@@ -400,7 +400,7 @@ def drawable_problem(d: Any) -> str | None:
         try:
             lon = np.asarray(d.lon, np.float64).reshape(-1)
             lat = np.asarray(d.lat, np.float64).reshape(-1)
-        except Exception:
+        except Exception:  # noqa: BLE001  plugin data may raise anything: a one-line problem
             return "Points lon/lat that are not numbers"
         if lon.shape != lat.shape or len(lon) == 0 or len(lon) > MAX_POINTS:
             return f"Points with {len(lon)} lon and {len(lat)} lat (1..{MAX_POINTS}, equal)"
@@ -431,7 +431,7 @@ def drawable_problem(d: Any) -> str | None:
             return f"a RasterDrape image of {a.shape[1]}x{a.shape[0]} (at most {MAX_DRAPE_SIDE})"
         try:
             w, s, e, n = (float(v) for v in d.bounds)
-        except Exception:
+        except Exception:  # noqa: BLE001  plugin data may raise anything: a one-line problem
             return f"RasterDrape bounds {d.bounds!r:.60}, not (west, south, east, north)"
         if not all(map(math.isfinite, (w, s, e, n))) or not (w < e and s < n):
             return f"RasterDrape bounds {d.bounds!r:.60}, not west < east, south < north"
@@ -465,7 +465,7 @@ def style_problem(name: str, value: Any) -> str | None:
 def _finite(v: Any) -> bool:
     try:
         return math.isfinite(float(v))
-    except Exception:
+    except Exception:  # noqa: BLE001  plugin data may raise anything: a one-line problem
         return False
 
 

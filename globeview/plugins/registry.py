@@ -107,7 +107,7 @@ def describe_exception(exc: BaseException) -> str:
     """``"ExcType: message"`` on one line, at most `MAX_MESSAGE_CHARS` characters."""
     try:
         msg = " ".join(str(exc).split())
-    except Exception:  # a plugin's exception whose __str__ itself raises
+    except Exception:  # noqa: BLE001  a plugin's exception whose __str__ itself raises
         msg = "<unprintable message>"
     text = f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__
     if len(text) > MAX_MESSAGE_CHARS:
@@ -360,7 +360,7 @@ class PluginRegistry:
             seen.add((ep.name, ep.value))
             try:
                 self._discover_one(ep)
-            except Exception as exc:  # hostile metadata: one plugin's problem, not discovery's
+            except Exception as exc:  # noqa: BLE001  hostile metadata: one plugin's problem, not discovery's
                 self._add_invalid(_clip(ep.name), ep.value, describe_exception(exc), False)
         for p in paths:
             self.add_path(p)
@@ -370,7 +370,7 @@ class PluginRegistry:
         dist = ep.dist
         try:
             source = f"{dist.metadata['Name']} {dist.version}" if dist else ep.value
-        except Exception:  # unreadable METADATA: the entry point still names the manifest
+        except Exception:  # noqa: BLE001  unreadable METADATA: the entry point still names the manifest
             source = ep.value
         builtin = _dist_name(ep) == BUILTIN_DISTRIBUTION
         try:
@@ -911,7 +911,7 @@ class PluginRegistry:
         message = describe_exception(exc)
         try:
             tb = "".join(traceback.format_exception(exc)).rstrip()
-        except Exception:  # a hostile exception object
+        except Exception:  # noqa: BLE001  a hostile exception object
             tb = message
         declared = (
             {c.name: c for c in rec.manifest.contributions}
@@ -1013,13 +1013,13 @@ def _plugin_entry_points() -> list[md.EntryPoint]:
     out: list[md.EntryPoint] = []
     try:
         dists = list(md.distributions())
-    except Exception as exc:
+    except Exception as exc:  # noqa: BLE001  installed metadata may be broken any way: skip, never fail discovery
         log.warning("plugin discovery failed: %s", describe_exception(exc))
         return out
     for dist in dists:
         try:
             out.extend(ep for ep in dist.entry_points if ep.group == ENTRY_POINT_GROUP)
-        except Exception as exc:
+        except Exception as exc:  # noqa: BLE001  installed metadata may be broken any way: skip, never fail discovery
             where = getattr(dist, "_path", None) or "a distribution"
             log.info(
                 "plugins of %s skipped: unreadable metadata: %s", where, describe_exception(exc)
@@ -1034,5 +1034,5 @@ def _dist_name(ep: md.EntryPoint) -> str:
         if dist is None:
             return ""
         return (dist.metadata["Name"] or "").lower().replace("_", "-")
-    except Exception:
+    except Exception:  # noqa: BLE001  installed metadata may be broken any way: skip, never fail discovery
         return ""

@@ -140,7 +140,7 @@ class ToolHost:
         hook = DisplacementHook(self.registry.owner_of(tool), want[1])
         try:
             renderer.set_displacement_hook(hook)
-        except Exception as exc:  # moderngl.Error: the plugin's GLSL failed to compile
+        except Exception as exc:  # noqa: BLE001  moderngl.Error: the plugin's GLSL failed to compile
             self.registry.fail(tool, exc)
             self.globe.tool = None
             if renderer.displacement_hook is not None:
@@ -162,7 +162,7 @@ class ToolHost:
         is; otherwise the tool fails and None comes back."""
         try:
             arr = np.asarray(out, dtype=np.float64)
-        except Exception:
+        except Exception:  # noqa: BLE001  plugin output may raise anything on conversion: the tool fails
             arr = None
         if arr is None or arr.shape != points.shape:
             got = "something else" if arr is None else f"shape {arr.shape}"
@@ -209,7 +209,7 @@ class ToolHost:
         if bend is not None:
             try:
                 arr = np.asarray(bend, dtype=np.float64)
-            except Exception:
+            except Exception:  # noqa: BLE001  plugin output may raise anything on conversion: the tool fails
                 arr = None
             want = np.shape(points)[:1]
             if arr is None or arr.shape != want or not (np.isfinite(arr) & (arr >= 0)).all():
@@ -276,7 +276,7 @@ class ToolFrame:
         moving = self.host.registry.invoke(self.tool, "animate", now_s, default=False)
         try:
             return bool(moving)
-        except Exception:  # a hostile __bool__: the plugin's fault, not the frame's
+        except Exception:  # noqa: BLE001  a hostile __bool__: the plugin's fault, not the frame's
             self.host.fail(self.tool, f"animate() returned {type(moving).__name__}")
             return False
 

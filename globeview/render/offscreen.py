@@ -29,7 +29,7 @@ def create_headless_context() -> moderngl.Context:
         return ctx
     try:
         ctx = moderngl.create_standalone_context(backend="egl", require=330)
-    except Exception as exc:  # moderngl raises plain Exception subclasses from glcontext
+    except Exception as exc:  # noqa: BLE001  moderngl raises plain Exception subclasses from glcontext
         raise RenderError(
             "cannot create a headless OpenGL context through EGL "
             f"({str(exc).splitlines()[0] if str(exc) else type(exc).__name__}); "

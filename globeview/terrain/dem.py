@@ -696,7 +696,7 @@ class Dem:
                 west, south, east, north = rasterio.warp.transform_bounds(
                     self.crs, WGS84, left, bottom, right, top, densify_pts=21
                 )
-            except Exception as exc:  # pyproj/GDAL raise several types here
+            except Exception as exc:  # noqa: BLE001  pyproj/GDAL raise several types here
                 raise DemError(
                     f"cannot place {self.path} on the globe from its CRS: {_short(exc)}"
                 ) from None

@@ -113,7 +113,7 @@ class RasterImagery:
         if crs is not None:
             try:
                 self.crs = CRS.from_user_input(crs)
-            except Exception:
+            except Exception:  # noqa: BLE001  pyproj/GDAL raise several types here: one line
                 raise ImageryError(f"{self.path.name}: unknown CRS {crs!r}") from None
         elif ds.crs is None:
             raise ImageryError(
@@ -151,7 +151,7 @@ class RasterImagery:
             west, south, east, north = rasterio.warp.transform_bounds(
                 self.crs, WGS84_CRS, *ds.bounds, densify_pts=21
             )
-        except Exception as exc:
+        except Exception as exc:  # noqa: BLE001  pyproj/GDAL raise several types here: one line
             raise ImageryError(
                 f"{self.path.name}: cannot transform bounds to WGS84 ({exc})"
             ) from None
@@ -238,7 +238,7 @@ class RasterImagery:
         try:
             b = rasterio.warp.transform_bounds(WGS84_CRS, self.crs, *tile_bounds(TileKey(*key)))
             win = ds.window(*b).intersection(rasterio.windows.Window(0, 0, ds.width, ds.height))
-        except Exception:  # no overlap, or bounds the CRS cannot take: warp as before
+        except Exception:  # noqa: BLE001  no overlap, or bounds the CRS cannot take: warp as before
             return None
         t = self.tex_size
         if max(win.width, win.height) <= MAX_SOURCE_PER_TEXEL * t:

@@ -59,7 +59,7 @@ def embedded_terrain() -> TerrainStack:
             f"made ({exc.strerror or exc}); set GLOBEVIEW_CACHE_DIR to a writable folder"
         ) from None
     if not embedded_stores_ready():
-        print(
+        print(  # noqa: T201  before the window exists, stderr is where this notice can go
             "globeview: preparing the embedded terrain (first run only, a few seconds)...",
             file=sys.stderr,
         )

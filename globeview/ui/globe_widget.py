@@ -275,7 +275,7 @@ class GlobeWidget(QOpenGLWidget):
         try:
             # The whole frame: camera speed, the tool's animation step and overlay included.
             result = self.scene.render(fbo, (w, h))
-        except Exception as exc:
+        except Exception as exc:  # noqa: BLE001  last resort: a failed frame is reported once, the window keeps drawing
             # Clear to the background so a failed frame is not garbage, and report once.
             fbo.use()
             fbo.clear(*self.settings.background, 1.0)

@@ -154,7 +154,7 @@ class DemLoader(QObject):
 
         try:
             store = open_store(path, hook, vdatum)
-        except BaseException as exc:  # delivered to the UI thread, never lost
+        except BaseException as exc:  # noqa: BLE001  delivered to the UI thread, never lost
             self._done.emit(path, None, exc)
             return
         self._done.emit(path, store, None)

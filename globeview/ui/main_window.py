@@ -313,7 +313,7 @@ class MainWindow(QMainWindow):
         the registry uses for each name)."""
         try:
             loaded = self.plugins.registry.contributions("tool")
-        except Exception:  # reported by tool_labels
+        except Exception:  # noqa: BLE001  reported by tool_labels
             return []
         specs: list[CommandSpec] = []
         for lc in loaded:
@@ -714,7 +714,7 @@ class MainWindow(QMainWindow):
         try:
             # No GL here: the layer's GPU side is made at the next frame.
             layer = scene.add_overlay(str(path))  # listed by the model's event
-        except Exception as exc:
+        except Exception as exc:  # noqa: BLE001  any failure is one line in a dialog, the window keeps working
             self.errors.error(exc, "" if isinstance(exc, GlobeviewError) else "opening overlay")
             return None
         self.layer_panel.overlays.select(layer)
@@ -739,7 +739,7 @@ class MainWindow(QMainWindow):
                 for layer in layers:
                     if layer.kind in ("imagery", "thematic"):
                         layer.set_visible(None, False)  # announced: listed and drawn hidden
-            except Exception as exc:
+            except Exception as exc:  # noqa: BLE001  any failure is one line in a dialog, the window keeps working
                 self.errors.error(exc, "adding the embedded overlays")
         pending, self._pending_overlays = self._pending_overlays, []
         for path in pending:
@@ -766,7 +766,7 @@ class MainWindow(QMainWindow):
     def _loaded(self, path: str, store: TileStore) -> None:
         try:
             self.add_store(store, Path(path).stem)
-        except Exception as exc:
+        except Exception as exc:  # noqa: BLE001  any failure is one line in a dialog, the window keeps working
             self.errors.error(exc, f"cannot add {Path(path).name}")
             return
         self.add_recent(path)

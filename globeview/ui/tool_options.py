@@ -201,7 +201,7 @@ def _settings(tool: Any) -> list[Setting]:
     """The tool's `Setting`s (ignoring anything else a hostile tool put there)."""
     try:
         return [s for s in (getattr(tool, "settings", ()) or ()) if isinstance(s, Setting)]
-    except Exception:  # a property that raises, a non-iterable: no controls, no crash
+    except Exception:  # noqa: BLE001  a property that raises, a non-iterable: no controls, no crash
         return []
 
 

@@ -43,12 +43,12 @@ def test_times_by_frames_and_fps():
     assert np.allclose(fl.times(frames=5), [0, 1, 2, 3, 4])
     assert len(fl.times(fps=2.0)) == 9
     assert len(fl.times(frames=1)) == 1
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="not both"):
         fl.times(frames=2, fps=1.0)
 
 
 @pytest.mark.parametrize(
-    "data, msg",
+    ("data", "msg"),
     [
         ({}, "keyframes"),
         ({"keyframes": [_kf(0, 0, 0, 1)]}, "at least 2"),

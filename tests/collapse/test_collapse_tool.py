@@ -67,7 +67,7 @@ def test_set_points_and_the_hook_contract(globeview_registry, tool, headless_vie
     assert "vec3 gv_displace(vec3 rel, vec3 up, float h, vec3 tile_center_rel)" in (
         reg.invoke(tool, "displacement_glsl")
     )
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="degrees apart"):
         tool.set_points(0.0, 0.0, 179.9, 0.0)
     assert reg.get("collapse").status == "ok"
 

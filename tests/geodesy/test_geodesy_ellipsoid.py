@@ -33,7 +33,7 @@ def test_sphere_is_degenerate() -> None:
 def test_frozen_and_validated() -> None:
     with pytest.raises(dataclasses.FrozenInstanceError):
         WGS84.a = 1.0  # type: ignore[misc]
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="semi-major axis"):
         Ellipsoid("bad", -1.0, 0.0)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="flattening"):
         Ellipsoid("bad", 1.0, 1.0)

@@ -92,7 +92,7 @@ def test_points_degenerate_and_invalid() -> None:
     lons, lats = geodesic_points(5.0, 5.0, 5.0, 5.0, 10.0)
     np.testing.assert_allclose(lons, [5.0, 5.0])
     np.testing.assert_allclose(lats, [5.0, 5.0])
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="spacing"):
         geodesic_points(0.0, 0.0, 1.0, 1.0, 0.0)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="spacing"):
         geodesic_points(0.0, 0.0, 1.0, 1.0, float("nan"))

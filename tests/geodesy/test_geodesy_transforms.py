@@ -136,7 +136,7 @@ def test_broadcasting_and_scalars() -> None:
     lon, lat, h = ecef_to_lonlat(xyz)
     assert lon.shape == lat.shape == h.shape == (4, 5)
     assert np.ndim(ecef_to_geodetic(1e7, 0.0, 0.0)[0]) == 0
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="shape"):
         ecef_to_lonlat(np.zeros((3, 2)))
 
 

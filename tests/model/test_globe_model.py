@@ -77,15 +77,15 @@ def test_overlays_list_and_events(globe: Globe) -> None:
     globe.set_overlay_order([b, a])
     globe.set_overlay_order([b, a])  # unchanged: no event
     assert globe.overlays == [b, a] and len(got) == 3
-    with pytest.raises(ValueError):
-        globe.set_overlay_order([a])  # not a reordering
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="not a reordering"):
+        globe.set_overlay_order([a])
+    with pytest.raises(ValueError, match="not a reordering"):
         globe.set_overlay_order([a, a])
     assert globe.overlays == [b, a] and len(got) == 3
     globe.remove_overlay(b)
     assert globe.overlays == [a] and len(got) == 4
-    with pytest.raises(ValueError):
-        globe.remove_overlay(b)  # not there: refused, no event
+    with pytest.raises(ValueError, match="is not shown"):  # not there: refused, no event
+        globe.remove_overlay(b)
     assert len(got) == 4
 
 

@@ -533,7 +533,10 @@ def test_unknown_provider_name_error_is_short(gl) -> None:
 
 
 def test_failure_traceback_goes_to_the_log_file_the_line_names(
-    plugin_site: PluginSite, headless_view, _failure_log_in_tmp: Path, caplog
+    plugin_site: PluginSite,
+    headless_view,
+    _failure_log_in_tmp: Path,  # noqa: PT019  its value, the log file, is read below
+    caplog,
 ) -> None:
     add_lod(plugin_site, "logged", "raise SystemExit('bye')")
     reg = registry()

@@ -250,7 +250,7 @@ def test_two_clicks_measure_third_restarts_escape_clears(measure) -> None:
 
 
 @pytest.mark.parametrize(
-    "points, words",
+    ("points", "words"),
     [
         ([LONDON, NEW_YORK, LONDON], "1 or 2 points"),
         ([], "1 or 2 points"),

@@ -44,7 +44,7 @@ def test_session_takes_a_globe_made_before_gl(globeview_gl, globeview_terrain, g
     try:
         assert s.globe is globe and s.lod_name == "quadtree-clod" and s.tau_px == 5.0
         assert s.settings.exaggeration == 2.0
-        with pytest.raises(ValueError):
+        with pytest.raises(ValueError, match="not the globe's terrain"):
             GlobeSession(globeview_gl, object(), registry=globeview_registry, globe=globe)
     finally:
         s.release_gl()

@@ -62,11 +62,11 @@ def test_setting_coerce() -> None:
     assert Setting("t", "float", 1.0, min=0.5).coerce(0.1) == 0.5
     b = Setting("b", "bool", False)
     assert b.coerce("yes") is True and b.coerce("off") is False
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="not a boolean"):
         b.coerce("maybe")
     c = Setting("mode", "choice", "a", choices=("a", "b"))
     assert c.coerce("b") == "b"
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="not one of"):
         c.coerce("z")
     # Stale or bad stored values fall back to defaults; unknown keys are dropped.
     assert resolve_settings([lvl, c], {"level": "x", "mode": "b", "gone": 1}) == {

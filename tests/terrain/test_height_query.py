@@ -123,7 +123,7 @@ def test_layer_that_answered(stack: TerrainStack) -> None:
 
 
 @pytest.mark.parametrize(
-    "lon,lat",
+    ("lon", "lat"),
     [(np.nan, 45.0), (10.0, np.inf), (10.0, 90.5), (10.0, -91.0)],
 )
 def test_bad_points_are_one_line_errors(lon: float, lat: float) -> None:

@@ -80,7 +80,7 @@ def test_constant_exact_with_zero_details(M: int) -> None:
     np.testing.assert_allclose(rec, a, rtol=1e-14)
 
 
-@pytest.mark.parametrize("M, levels", [(3, 1), (3, 2), (4, 1), (4, 2), (2, 3)])
+@pytest.mark.parametrize(("M", "levels"), [(3, 1), (3, 2), (4, 1), (4, 2), (2, 3)])
 def test_approximate_shapes_and_error(M: int, levels: int) -> None:
     rng = np.random.default_rng(M * 7 + levels)
     a = rng.normal(0.0, 10.0, size=(M**levels * 3, M**levels * 2))

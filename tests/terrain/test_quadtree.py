@@ -65,7 +65,7 @@ def test_parent_children_ancestor() -> None:
     nw, ne, sw, se = (tile_bounds(k) for k in kids)
     assert nw[0] == w and nw[3] == n and ne[2] == e and se[1] == s and sw[0] == w
     assert ancestor_at(TileKey(9, 37 * 16 + 5, 11 * 16 + 15), 5) == key
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="no parent"):
         parent(TileKey(0, 1, 0))
 
 

@@ -271,7 +271,7 @@ def test_an_overlay_the_gpu_refuses_at_a_frame_is_reported_in_one_line(
     # Code writing the model's fields past set_style's check: the GPU side refuses the
     # style, and the frame drops the layer (one line).
     assert cities.kind == "points"
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="style"):
         cities.set_style(None, object_kind="bogus")
     cities.object_kind = "bogus"
     cities.style_version += 1
