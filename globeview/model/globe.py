@@ -186,7 +186,7 @@ class Globe:
 
     def overlays_changed(self) -> None:
         """Announce an in-place change of an overlay made without its setters (e.g. an
-        attribute written directly). The setters (``layer.set_visible(None, False)``,
+        attribute written directly). The setters (``layer.set_visible(False)``,
         ``set_opacity``, ``set_style``) announce themselves: one event per real change."""
         self.events.overlays.emit()
 

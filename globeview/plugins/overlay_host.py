@@ -236,15 +236,10 @@ class _PluginLayer:
         return self._registry.call_for(self._owner, fn, *args, default=failed) is not failed
 
     # -- the model side (no plugin call, no GL) ---------------------------------------------
-    def attach(self, renderer: object = None) -> None:
-        """Nothing now: the host attaches the object at the next frame."""
-
-    def detach(self, renderer: object = None) -> None:
-        """Nothing now: the host detaches a removed object at the next frame."""
-
-    def set_visible(self, renderer: object, visible: bool) -> bool:
-        """Record the visibility wanted (told to the object at the next frame); True (and
-        ``changed``) if it changed."""
+    def set_visible(self, visible: bool) -> bool:
+        """Record the visibility wanted (told to the object, as API 1.0's
+        ``set_visible(renderer, visible)``, at the next frame); True (and ``changed``) if it
+        changed."""
         if bool(visible) == self.visible:
             return False
         self.visible = bool(visible)

@@ -12,9 +12,9 @@ layer objects the session keeps and the overlay panel edits:
 - `DrawnLayer`: several of these listed as one overlay.
 
 Every layer object has ``name``, ``kind`` ('imagery', 'thematic', 'vector', 'points' or
-'drawing'), ``attach``/``detach``/``set_visible`` and, by kind, ``set_opacity`` or
-``set_style``. They hold no GL objects: the renderer makes each layer's GPU twin when a
-frame draws it (`globeview.render.overlay_imagery.OverlaySet.sync`). Each setter that
+'drawing'), ``set_visible(visible)`` and, by kind, ``set_opacity(opacity)`` or
+``set_style(**style)``. They hold no GL objects: the renderer makes each layer's GPU twin
+when a frame draws it (`globeview.render.overlay_imagery.OverlaySet.sync`). Each setter that
 changes something emits the layer's ``changed`` signal once (nothing for a no-op); the
 `Globe` showing the layer re-emits it as ``globe.events.overlays``, so an edit made by
 code or a plugin reaches the window like one made in the overlay panel.
@@ -81,26 +81,19 @@ _MEAN_RADIUS_M = 6_371_008.8
 # -- layer objects (models: data + style + visible, no GL) ------------------------------------
 # The renderer builds each layer's GPU twin when a frame draws it
 # (`globeview.render.overlay_imagery.OverlaySet.sync`, by ``gpu_kind``), so opening, adding,
-# removing, showing or restyling an overlay never needs a GL context. ``attach``/``detach``
-# are no-ops kept so that callers treat every overlay alike: an API 1.0 plugin layer (the
-# session's `_PluginLayer`) still attaches itself to the renderer. The ``renderer`` argument
-# of the setters is unused for the same reason (None is fine).
+# removing, showing or restyling an overlay never needs a GL context, and the setters take
+# no renderer. (An API 1.0 plugin object is attached and told its visibility by
+# `OverlayHost.prepare_gpu` at frame time.)
 class _ModelLayer:
-    """What every host layer model shares: shown or hidden, attach/detach are no-ops, and
-    ``changed`` (a psygnal signal, no arguments) emitted once per setter call that changed
-    something (`Globe.add_overlay` connects it to ``globe.events.overlays``)."""
+    """What every host layer model shares: shown or hidden, and ``changed`` (a psygnal
+    signal, no arguments) emitted once per setter call that changed something
+    (`Globe.add_overlay` connects it to ``globe.events.overlays``)."""
 
     visible: bool
     #: Emitted after a setter changed the layer (visibility, opacity, style).
     changed = Signal()
 
-    def attach(self, renderer: object = None) -> None:
-        """Nothing to do: the GPU twin is made at draw time."""
-
-    def detach(self, renderer: object = None) -> None:
-        """Nothing to do: the renderer releases the twin of a layer gone from the model."""
-
-    def set_visible(self, renderer: object, visible: bool) -> bool:
+    def set_visible(self, visible: bool) -> bool:
         """Show or hide the layer (next frame); True (and ``changed``) if it changed."""
         if bool(visible) == bool(self.visible):
             return False
@@ -133,7 +126,7 @@ class ImageryOverlayLayer(_ModelLayer):
     def visible(self, value: bool) -> None:
         self.layer.visible = bool(value)
 
-    def set_opacity(self, renderer: object, opacity: float) -> bool:
+    def set_opacity(self, opacity: float) -> bool:
         """Set the opacity, clipped to 0..1 (ValueError for NaN: nothing changes); True
         (and ``changed``) if it changed."""
         opacity = float(opacity)
@@ -155,7 +148,7 @@ class _StyledLayer(_ModelLayer):
     #: The attributes `set_style` changes (the rest is the layer's data).
     style_fields: tuple[str, ...] = ()
 
-    def set_style(self, renderer: object = None, **style: Any) -> bool:
+    def set_style(self, **style: Any) -> bool:
         """Change style attributes (colour, width_px, size_px, ...); next frame. An unknown
         name or a bad value (`style_problem`) is refused (ValueError, one line) and nothing
         changes: no frame trips over a NaN width or a colour that is not 3-4 numbers.
@@ -235,28 +228,26 @@ class DrawnLayer(_ModelLayer):
         self.parts = list(parts)
         self.visible = True
 
-    def set_visible(self, renderer: object, visible: bool) -> bool:
+    def set_visible(self, visible: bool) -> bool:
         """Show or hide every part; one ``changed`` if the group's visibility changed."""
         if bool(visible) == self.visible:
             return False
         self.visible = bool(visible)
         for p in self.parts:
-            p.set_visible(renderer, self.visible)
+            p.set_visible(self.visible)
         self.changed.emit()
         return True
 
-    def set_opacity(self, renderer: object, opacity: float) -> bool:
+    def set_opacity(self, opacity: float) -> bool:
         """Set every drape part's opacity; one ``changed`` if any part changed."""
         if math.isnan(float(opacity)):
             raise ValueError(f"{self.name!r:.60} opacity {opacity!r} is not a number")
-        changed = [
-            p.set_opacity(renderer, opacity) for p in self.parts if hasattr(p, "set_opacity")
-        ]
+        changed = [p.set_opacity(opacity) for p in self.parts if hasattr(p, "set_opacity")]
         if any(changed):
             self.changed.emit()
         return any(changed)
 
-    def set_style(self, renderer: object = None, **style: Any) -> bool:
+    def set_style(self, **style: Any) -> bool:
         # Checked for every part first, so a refused value changes no part.
         for k, v in style.items():
             if not any(k in getattr(p, "style_fields", ()) for p in self.parts):
@@ -268,7 +259,7 @@ class DrawnLayer(_ModelLayer):
         for p in self.parts:
             own = {k: v for k, v in style.items() if k in getattr(p, "style_fields", ())}
             if own and hasattr(p, "set_style"):
-                changed = bool(p.set_style(renderer, **own)) or changed
+                changed = bool(p.set_style(**own)) or changed
         if changed:
             self.changed.emit()
         return changed

@@ -738,7 +738,7 @@ class MainWindow(QMainWindow):
                 layers = scene.add_embedded_overlays(imagery=True)
                 for layer in layers:
                     if layer.kind in ("imagery", "thematic"):
-                        layer.set_visible(None, False)  # announced: listed and drawn hidden
+                        layer.set_visible(False)  # announced: listed and drawn hidden
             except Exception as exc:  # noqa: BLE001  any failure is one line in a dialog, the window keeps working
                 self.errors.error(exc, "adding the embedded overlays")
         pending, self._pending_overlays = self._pending_overlays, []

@@ -272,13 +272,13 @@ class OverlayPanel(QWidget):
             return
         layer = self._by_id[item.data(ID_ROLE)]
         # The layer announces the change (globe.events.overlays): the view redraws.
-        layer.set_visible(None, item.checkState() == Qt.CheckState.Checked)
+        layer.set_visible(item.checkState() == Qt.CheckState.Checked)
 
     def set_opacity(self, layer: Any, opacity: float) -> None:
         """Set a drape's opacity (0..1); the slider follows when it is selected."""
         if layer.kind not in DRAPE_KINDS or self.session is None:
             return
-        layer.set_opacity(None, opacity)  # announced by the layer; the slider follows
+        layer.set_opacity(opacity)  # announced by the layer; the slider follows
 
     def _opacity_changed(self, pct: int) -> None:
         self.opacity_value.setText(f"{pct} %")
@@ -292,7 +292,7 @@ class OverlayPanel(QWidget):
         if layer.kind not in ("vector", "points"):
             return
         rgba = (color.redF(), color.greenF(), color.blueF(), color.alphaF())
-        layer.set_style(None, color=rgba)  # announced by the layer; the button follows
+        layer.set_style(color=rgba)  # announced by the layer; the button follows
 
     def choose_color(self) -> None:
         """Pick the selected layer's colour with a colour dialog."""
@@ -308,9 +308,9 @@ class OverlayPanel(QWidget):
     def set_width(self, layer: Any, px: float) -> None:
         """Line width (vectors) or placemark size (points), in pixels."""
         if layer.kind == "vector":
-            layer.set_style(None, width_px=float(px))  # announced by the layer
+            layer.set_style(width_px=float(px))  # announced by the layer
         elif layer.kind == "points":
-            layer.set_style(None, size_px=float(px))
+            layer.set_style(size_px=float(px))
 
     def _width_changed(self, px: float) -> None:
         layer = self.selected_layer()

@@ -176,25 +176,25 @@ def test_a_layer_setter_emits_one_overlays_event_per_real_change(globe: Globe) -
     layer = _points()
     globe.add_overlay(layer)
     got = _recorder(globe.events.overlays)
-    assert layer.set_visible(None, False) is True
-    assert layer.set_visible(None, False) is False  # no change: no event
+    assert layer.set_visible(False) is True
+    assert layer.set_visible(False) is False  # no change: no event
     assert len(got) == 1 and layer.visible is False
     version = layer.style_version
-    layer.set_style(None, size_px=14.0, color=(0, 1, 0))
-    layer.set_style(None, size_px=14.0, color=(0, 1, 0, 1))  # the same style
+    layer.set_style(size_px=14.0, color=(0, 1, 0))
+    layer.set_style(size_px=14.0, color=(0, 1, 0, 1))  # the same style
     assert len(got) == 2 and layer.style_version == version + 1  # one GPU rebuild
     with pytest.raises(ValueError, match="size_px"):
-        layer.set_style(None, size_px=math.nan)
+        layer.set_style(size_px=math.nan)
     assert len(got) == 2 and layer.size_px == 14.0
     group = DrawnLayer("both", [_points("a"), _points("b")])
     globe.add_overlay(group)
     got.clear()
-    group.set_visible(None, False)
-    group.set_style(None, size_px=3.0)
+    group.set_visible(False)
+    group.set_style(size_px=3.0)
     assert len(got) == 2  # one per change, not one per part
     globe.remove_overlay(layer)
     got.clear()
-    layer.set_visible(None, True)  # off the globe: not the globe's event any more
+    layer.set_visible(True)  # off the globe: not the globe's event any more
     assert got == []
 
 
@@ -209,7 +209,7 @@ def test_a_layer_does_not_keep_a_dropped_globe_alive() -> None:
     del globe
     gc.collect()
     assert ref() is None
-    layer.set_visible(None, False)  # its dead connection is dropped, nothing raises
+    layer.set_visible(False)  # its dead connection is dropped, nothing raises
 
 
 def test_a_drape_opacity_change_is_one_event_and_nan_is_refused(globe: Globe) -> None:
@@ -221,11 +221,11 @@ def test_a_drape_opacity_change_is_one_event_and_nan_is_refused(globe: Globe) ->
     drape = drape_layer(RasterDrape(np.zeros((4, 8, 4), np.uint8), (0, 0, 10, 5)), "d")
     globe.add_overlay(drape)
     got = _recorder(globe.events.overlays)
-    drape.set_opacity(None, 0.5)
-    drape.set_opacity(None, 0.5)
+    drape.set_opacity(0.5)
+    drape.set_opacity(0.5)
     assert len(got) == 1
     with pytest.raises(ValueError, match="not a number"):
-        drape.set_opacity(None, math.nan)
+        drape.set_opacity(math.nan)
     assert drape.layer.opacity == 0.5 and len(got) == 1
 
 

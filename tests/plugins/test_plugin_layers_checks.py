@@ -122,7 +122,7 @@ def test_bad_live_style_is_refused_and_changes_nothing(style, reason) -> None:
     layer = vector_layer(Lines([[(0.0, 0.0), (10.0, 10.0)]], color=(1, 1, 0)), "lines")
     before = (layer.color, layer.width_px, layer.dash_px, layer.style_version)
     with pytest.raises(ValueError, match=re.escape(reason)) as info:
-        layer.set_style(None, **style)
+        layer.set_style(**style)
     assert "\n" not in str(info.value)
     assert (layer.color, layer.width_px, layer.dash_px, layer.style_version) == before
 
@@ -134,9 +134,9 @@ def test_good_live_style_is_normalised_and_counted() -> None:
         [Lines([[(0.0, 0.0), (10.0, 10.0)]]), Points([1.0], [2.0], labels=["a"])], "both"
     )
     with pytest.raises(ValueError, match="size_px"):
-        drawing.set_style(None, color=(0, 1, 1), size_px=float("nan"))
+        drawing.set_style(color=(0, 1, 1), size_px=float("nan"))
     assert [p.style_version for p in drawing.parts] == [0, 0]  # nothing changed
-    drawing.set_style(None, color=(0, 1, 1), size_px=12)
+    drawing.set_style(color=(0, 1, 1), size_px=12)
     lines, points = drawing.parts
     assert lines.color == points.color == (0.0, 1.0, 1.0, 1.0)
     assert points.size_px == 12.0 and (lines.style_version, points.style_version) == (1, 1)

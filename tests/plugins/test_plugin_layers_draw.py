@@ -201,7 +201,7 @@ def test_external_plugin_drawables_land_where_they_lie(session, tmp_path) -> Non
     row, col = _pixel(view, 20.0, -10.0)
     assert white[row - 12 : row + 13, col : col + 60].sum() > 15
     # Toggling the layer hides every part.
-    layer.set_visible(session.renderer, False)
+    layer.set_visible(False)
     rgb2, _ = _render(session)
     assert not ((rgb2[..., 0] > 200) & (rgb2[..., 1] < 80) & (rgb2[..., 2] > 200)).any()
     session.remove_overlay(layer)
@@ -262,7 +262,7 @@ def test_an_api_1_0_layer_object_is_called_only_under_isolation(session, tmp_pat
     assert legacy.attached == 0 and session.overlay_layers == [layer]
     session.render(session.target.fbo, SIZE)
     assert legacy.attached == 1
-    layer.set_visible(None, False)  # the model's wish; the object is told at the frame
+    layer.set_visible(False)  # the model's wish; the object is told at the frame
     rec = session.registry.get("stripes")
     assert rec.status == "ok"
     session.render(session.target.fbo, SIZE)  # set_visible raises inside: the type fails

@@ -43,8 +43,8 @@ def test_model_changes_make_no_gl_objects_until_a_frame(session) -> None:
         session.add_overlay("data/ne_110m_countries.geojson", layer_type="vector"),
         session.add_overlay("data/ne_cities.geojson", layer_type="points"),
     )
-    borders.set_visible(None, False)
-    cities.set_style(None, size_px=14.0)
+    borders.set_visible(False)
+    cities.set_style(size_px=14.0)
     assert tracker.counts() == before  # nothing made without a frame
     assert events == ["overlays"] * 4  # two added, one hidden, one restyled
     result = _frame(session)
@@ -67,9 +67,9 @@ def test_a_restyled_layer_is_rebuilt_once(session) -> None:
     twin = session.renderer.overlays.vectors[-1]
     _frame(session)
     assert session.renderer.overlays.vectors[-1] is twin  # not rebuilt per frame
-    layer.set_style(None, color=(1.0, 0.0, 1.0, 1.0), width_px=3.0)
+    layer.set_style(color=(1.0, 0.0, 1.0, 1.0), width_px=3.0)
     with pytest.raises(ValueError, match="no style 'lines'"):
-        layer.set_style(None, lines=None)
+        layer.set_style(lines=None)
     counts = tracker.counts()
     _frame(session)
     new = session.renderer.overlays.vectors[-1]
@@ -104,12 +104,12 @@ def test_hiding_a_layer_from_code_is_one_event_and_the_next_frame_shows_it(sessi
     assert _frame(session).stats.extra.get("objects", 0) > 0
     events: list = []
     session.globe.events.overlays.connect(lambda: events.append("overlays"))
-    cities.set_visible(None, False)
+    cities.set_visible(False)
     assert events == ["overlays"]
     assert not _frame(session).stats.extra.get("objects", 0)  # hidden at the next frame
-    cities.set_visible(None, False)
+    cities.set_visible(False)
     assert events == ["overlays"]  # no change, no event
-    cities.set_visible(None, True)
+    cities.set_visible(True)
     assert events == ["overlays", "overlays"]
     assert _frame(session).stats.extra.get("objects", 0) > 0
     session.remove_overlay(cities)
@@ -198,7 +198,7 @@ def test_api_1_0_layer_objects_are_called_at_frame_time(
     try:
         layer = s.add_overlay(str(good))
         calls = type(layer.layer_object).calls
-        layer.set_visible(None, False)
+        layer.set_visible(False)
         assert calls == []  # opening and hiding called nothing (no GL, no context)
         s.render(target.fbo, SIZE)
         assert calls == ["attach", "visible False"]

@@ -94,13 +94,13 @@ def test_overlay_setters_called_from_code_show_in_the_panel(make_window, wait_fr
     panel = win.layer_panel.overlays
     borders, marble = panel.layer_at(0), panel.layer_at(1)
     assert panel.list.item(1).checkState() == Qt.CheckState.Unchecked
-    marble.set_visible(None, True)
+    marble.set_visible(True)
     assert panel.list.item(1).checkState() == Qt.CheckState.Checked
     panel.select(borders)
-    borders.set_style(None, width_px=7.0)
+    borders.set_style(width_px=7.0)
     assert panel.width_spin.value() == 7.0
     panel.select(marble)
-    marble.set_opacity(None, 0.25)
+    marble.set_opacity(0.25)
     assert panel.opacity_slider.value() == 25 and panel.opacity_value.text() == "25 %"
     events = []
     win.model.events.overlays.connect(lambda *_a: events.append(1))
@@ -272,7 +272,7 @@ def test_an_overlay_the_gpu_refuses_at_a_frame_is_reported_in_one_line(
     # style, and the frame drops the layer (one line).
     assert cities.kind == "points"
     with pytest.raises(ValueError, match="style"):
-        cities.set_style(None, object_kind="bogus")
+        cities.set_style(object_kind="bogus")
     cities.object_kind = "bogus"
     cities.style_version += 1
     win.model.overlays_changed()
