@@ -47,6 +47,7 @@ import contextlib
 import importlib
 import logging
 import math
+import weakref
 from collections.abc import MutableMapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -467,15 +468,61 @@ class PolicyProvider(LodProvider):
         class CoarseProvider(PolicyProvider):
             policy = CoarsePolicy
             settings = (Setting("factor", "float", 4.0, min=1.0, max=64.0),)
+
+    A repaint with an unchanged view (window expose, overlay redraw) reuses the last render
+    set (its stats then say ``lod_ms`` 0 and ``lod_cached`` 1); any change of the camera,
+    viewport, field of view, tau, exaggeration, navigation speed or frame rate, of a setting
+    or of the terrain (its ``version``) selects afresh, and so does every frame with a tool
+    displacement (``view.displace``), which can change between frames with the same view.
+    A policy that reads anything else of the view must not be wrapped this way.
     """
 
     #: The policy class, called with the setting values as keyword arguments each frame.
     policy: type[LodPolicy]
+    # The last selection and what it was selected for (`_reuse_key`); class defaults so that
+    # a subclass's __init__ need not call ours.
+    _reuse_key: tuple | None = None
+    _reuse: RenderSet | None = None
+    # The terrain it was for, weakly: an id alone could be a new terrain's after the old one
+    # was freed, and a strong reference would keep a closed terrain alive.
+    _reuse_terrain: weakref.ref | None = None
+
+    def reset(self) -> None:
+        self._reuse_key = self._reuse = self._reuse_terrain = None
 
     def select(self, view: ViewState, terrain: Any) -> RenderSet:
         from globeview.lod.traversal import traverse
 
-        return traverse(view, terrain, self.policy(**self.values))
+        if terrain is None or view.displace is not None:
+            self._reuse_key = self._reuse = self._reuse_terrain = None
+            return traverse(view, terrain, self.policy(**self.values))
+        key = (
+            view.eye.tobytes(),
+            view.rotation.tobytes(),
+            view.proj.tobytes(),  # near and far too
+            view.viewport,
+            view.fovy_deg,
+            view.tau_px,
+            view.exaggeration,
+            view.speed_mps,
+            view.frame_rate_hz,
+            terrain.version,
+            tuple(sorted(self.values.items())),
+        )
+        old = self._reuse_terrain
+        if (
+            self._reuse is not None
+            and key == self._reuse_key
+            and old is not None
+            and old() is terrain
+        ):
+            rs = self._reuse
+            rs.stats["lod_ms"] = 0.0
+            rs.stats["lod_cached"] = 1.0
+            return rs
+        rs = traverse(view, terrain, self.policy(**self.values))
+        self._reuse_key, self._reuse, self._reuse_terrain = key, rs, weakref.ref(terrain)
+        return rs
 
 
 class ProviderUnavailable(Exception):

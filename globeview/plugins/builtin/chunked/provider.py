@@ -19,29 +19,23 @@ apart: flat triangles cut under a curved globe, and at globe scale that dominate
 
 Cracks between tiles drawn at different levels or strides are hidden by skirts.
 
-This module holds the plugin glue only: the settings, and the reuse of the last selection
-while the view is unchanged (why it overrides ``select`` rather than being a
-`PolicyProvider`).
+This module holds the plugin glue only: a `PolicyProvider` naming the policy and its
+settings (the policy takes them as keyword arguments). `PolicyProvider` reuses the last
+selection while the view is unchanged.
 """
 
 from __future__ import annotations
 
-from globeview.plugins.api import (
-    LodProvider,
-    RenderSet,
-    ScreenSpaceErrorPolicy,
-    Setting,
-    TerrainStack,
-    ViewState,
-    traverse,
-)
+from globeview.plugins.api import PolicyProvider, ScreenSpaceErrorPolicy, Setting
 
 
-class ChunkedSseProvider(LodProvider):
+class ChunkedSseProvider(PolicyProvider):
     """The built-in default LOD provider (see the module docstring)."""
 
     name = "chunked-sse"
     label = "Chunked (screen-space error)"
+    # tau comes with the view (ViewState.tau_px): one threshold for every provider.
+    policy = ScreenSpaceErrorPolicy
     settings = (
         Setting(
             "texel_px",
@@ -54,40 +48,3 @@ class ChunkedSseProvider(LodProvider):
         ),
         Setting("max_tiles", "int", 600, min=16, max=2000, label="tile budget"),
     )
-
-    def __init__(self, context=None) -> None:
-        super().__init__(context)
-        self._cache_key: tuple | None = None
-        self._cache: RenderSet | None = None
-
-    def reset(self) -> None:
-        self._cache_key = self._cache = None
-
-    def select(self, view: ViewState, terrain: TerrainStack) -> RenderSet:
-        if terrain is None or not terrain.layers:  # (before the key, which reads the terrain)
-            return RenderSet.empty()
-        # A repaint with an unchanged view (window expose, overlay redraw) reuses the last
-        # selection; any camera move, setting or layer change recomputes it.
-        key = (
-            view.eye.tobytes(),
-            view.rotation.tobytes(),
-            view.viewport,
-            view.fovy_deg,
-            view.tau_px,
-            view.exaggeration,
-            view.displace is None,
-            id(terrain),
-            terrain.version,
-            tuple(sorted(self.values.items())),
-        )
-        if key == self._cache_key and self._cache is not None and view.displace is None:
-            rs = self._cache
-            rs.stats["lod_ms"] = 0.0
-            rs.stats["lod_cached"] = 1.0
-            return rs
-        v = self.values
-        # tau comes with the view (ViewState.tau_px): one threshold for every provider.
-        policy = ScreenSpaceErrorPolicy(texel_px=v["texel_px"], max_tiles=v["max_tiles"])
-        rs = traverse(view, terrain, policy)
-        self._cache_key, self._cache = key, rs
-        return rs
