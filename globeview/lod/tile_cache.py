@@ -19,7 +19,6 @@ radians.
 from __future__ import annotations
 
 import threading
-import weakref
 
 import numpy as np
 
@@ -297,18 +296,14 @@ class TileCache:
         return ch.T.ravel()
 
 
-#: id(terrain) -> its cache; an entry leaves with its terrain (weakref.finalize). Keyed by
-#: id because TerrainStack (a dataclass with value equality) is not hashable.
-_CACHES: dict[int, TileCache] = {}
-_CACHES_LOCK = threading.Lock()
-
-
 def tile_cache_for(terrain: TerrainStack) -> TileCache:
-    """The `TileCache` of ``terrain`` (created on first use, freed with the terrain)."""
-    key = id(terrain)
-    with _CACHES_LOCK:
-        cache = _CACHES.get(key)
-        if cache is None:  # the finalizer drops an entry before its id can be reused
-            cache = _CACHES[key] = TileCache()
-            weakref.finalize(terrain, _CACHES.pop, key, None)
-        return cache
+    """The `TileCache` of ``terrain`` (created on first use, freed with the terrain).
+
+    It lives in the terrain's opaque ``lod_cache`` slot, so it goes with the terrain and two
+    terrains never share one. Two threads asking at once for a terrain's first cache may each
+    build one; the last stored wins and the other is dropped after its one use (harmless: a
+    cache holds only facts recomputable from the terrain)."""
+    cache = terrain.lod_cache
+    if not isinstance(cache, TileCache):
+        cache = terrain.lod_cache = TileCache()
+    return cache

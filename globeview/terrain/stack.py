@@ -74,6 +74,9 @@ class TerrainStack:
     #: Feather each layer into those below across its border band (`globeview.terrain.blend`);
     #: False pastes them as they are (a cliff at each border: what benchmarks compare with).
     blend: bool = True
+    #: Opaque slot for the LOD layer's per-terrain cache (`globeview.lod.tile_cache` fills it
+    #: so the cache lives and dies with the terrain); terrain code never reads it.
+    lod_cache: object = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self.version = 0

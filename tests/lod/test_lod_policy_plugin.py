@@ -13,6 +13,7 @@ policy returning garbage fails its own provider only, with a one-line reason.
 from __future__ import annotations
 
 import gc
+import weakref
 
 import numpy as np
 import pytest
@@ -188,11 +189,11 @@ def test_tile_caches_are_per_terrain(globeview_terrain, headless_view) -> None:
     assert got.keys[:, 0].max() < want.keys[:, 0].max()
     again = traverse(view, globeview_terrain, ScreenSpaceErrorPolicy())
     assert np.array_equal(again.keys, want.keys)
-    key = id(other)
-    assert key in tile_cache._CACHES
+    assert other.lod_cache is b  # held by the terrain itself
+    gone = weakref.ref(b)
     del other, got, b
     gc.collect()
-    assert key not in tile_cache._CACHES
+    assert gone() is None
 
 
 @pytest.mark.gl
