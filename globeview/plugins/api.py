@@ -739,6 +739,20 @@ class Tool(_Contribution):
     (nearly) rigid overrides ``displacement_bend_m`` with a cheap conservative bound.
     """
 
+    def request_redraw(self) -> None:
+        """Ask the host for a new frame (the overlay or displacement changed). A no-op when
+        the tool was made without a context or the host's hooks lack the method."""
+        hook = getattr(getattr(self.context, "renderer", None), "request_redraw", None)
+        if callable(hook):
+            hook()
+
+    def set_status(self, text: str) -> None:
+        """Show one line in the host's status bar (headless: kept by `NullRendererHooks`);
+        a no-op without a context, as `request_redraw`."""
+        hook = getattr(getattr(self.context, "renderer", None), "set_status", None)
+        if callable(hook):
+            hook(text)
+
     def on_mouse(self, event: PointerEvent) -> bool:
         """Handle a pointer event; True when consumed."""
         return False

@@ -171,3 +171,16 @@ def test_builtin_manifests_target_the_hosts_api_version() -> None:
     assert len(manifests) >= 7
     for path in manifests:
         assert tomllib.loads(path.read_text())["api_version"] == API_VERSION, path.parent.name
+
+
+def test_a_tool_reaches_the_hosts_redraw_and_status_through_its_base_class() -> None:
+    from globeview.plugins.api import NullRendererHooks, PluginContext, Tool
+
+    hooks = NullRendererHooks()
+    tool = Tool(PluginContext(name="t", renderer=hooks))
+    tool.request_redraw()
+    tool.set_status("measure: A picked")
+    assert (hooks.redraws, hooks.status) == (1, "measure: A picked")
+    # Made without a context (tests, scripts) or with hooks lacking a method: nothing happens.
+    Tool().request_redraw()
+    Tool(PluginContext(name="t", renderer=object())).set_status("ignored")

@@ -136,7 +136,7 @@ class CollapseTool(Tool):
             self._start(1.0)
         else:
             self.progress, self._target, self._anim_start = 1.0, 1.0, None
-        self._redraw()
+        self.request_redraw()
 
     def place_points(self, points: Sequence[tuple[float, float]]) -> bool:
         """Headless input (`Tool.place_points`): A and B, collapsed at once to the ``ratio``
@@ -166,7 +166,7 @@ class CollapseTool(Tool):
         self.a = self.b = None
         self.progress, self._target, self._anim_start = 0.0, 0.0, None
         self._frame = None
-        self._redraw()
+        self.request_redraw()
 
     def _start(self, target: float) -> None:
         self._target = target
@@ -176,7 +176,7 @@ class CollapseTool(Tool):
         else:
             self._anim_from = self.progress
             self._anim_start = math.nan  # started by the next animate(now)
-        self._redraw()
+        self.request_redraw()
 
     def animate(self, now_s: float) -> bool:
         """Advance the animation to time ``now_s`` (s, any monotonic clock; the first call
@@ -195,12 +195,6 @@ class CollapseTool(Tool):
             return False
         return True
 
-    def _redraw(self) -> None:
-        # Tolerant: a host may pass renderer hooks without request_redraw.
-        hook = getattr(getattr(self.context, "renderer", None), "request_redraw", None)
-        if callable(hook):
-            hook()
-
     # -- events ------------------------------------------------------------------------------
     def on_mouse(self, event: PointerEvent) -> bool:
         """Left press on terrain: first sets A, second sets B and collapses; a press after
@@ -211,19 +205,19 @@ class CollapseTool(Tool):
         if self.a is None or self.b is not None:
             self.cancel()
             self.a = (lon, lat)
-            self._status(f"collapse: A at {lon:.4f}, {lat:.4f}; pick B")
+            self.set_status(f"collapse: A at {lon:.4f}, {lat:.4f}; pick B")
             return True
         try:
             CollapseFrame.from_lonlat(*self.a, lon, lat, self.ratio)
         except ValueError as exc:
-            self._status(f"collapse: {exc}")
+            self.set_status(f"collapse: {exc}")
             return True
         self.b = (lon, lat)
         self.progress = 0.0
         self._start(1.0)
         f = self.frame()
         d_km = 0.0 if f is None else CollapseFrame.from_lonlat(*self.a, *self.b, 1.0).d_m / 1e3
-        self._status(f"collapse: {d_km:.1f} km collapsed to {self.ratio * d_km:.1f} km")
+        self.set_status(f"collapse: {d_km:.1f} km collapsed to {self.ratio * d_km:.1f} km")
         return True
 
     def on_key(self, event: KeyEvent) -> bool:
@@ -240,11 +234,6 @@ class CollapseTool(Tool):
             self.collapse()
             return True
         return False
-
-    def _status(self, text: str) -> None:
-        hook = getattr(getattr(self.context, "renderer", None), "set_status", None)
-        if callable(hook):
-            hook(text)
 
     def deactivate(self) -> None:
         """Leaving the tool keeps nothing collapsed."""

@@ -136,8 +136,8 @@ class MeasureTool(Tool):
         elif old.get("units") != self.values["units"]:
             self._plot = None  # the axis unit changed
             if self.measurement is not None:
-                self._status(self.measurement.text(self.units))
-        self._redraw()
+                self.set_status(self.measurement.text(self.units))
+        self.request_redraw()
 
     @property
     def units(self) -> str:
@@ -154,7 +154,7 @@ class MeasureTool(Tool):
         """Drop both points and the measurement."""
         self.a = self.b = None
         self.measurement, self._plot, self._line = None, None, None
-        self._redraw()
+        self.request_redraw()
 
     def set_points(self, points: Sequence[Sequence[float]]) -> Measurement | None:
         """Headless input: one (lon, lat) sets A, two set A and B and measure (degrees).
@@ -203,7 +203,7 @@ class MeasureTool(Tool):
         try:
             s = sample_terrain(self._terrain(), lon, lat)
         except GlobeviewError as exc:
-            self._status(f"measure: no terrain heights ({exc})")
+            self.set_status(f"measure: no terrain heights ({exc})")
             nan = np.full(np.shape(lon), np.nan)
             return nan, np.zeros(np.shape(lon))
         return np.asarray(s.orthometric, np.float64), np.asarray(s.ellipsoidal, np.float64)
@@ -241,8 +241,8 @@ class MeasureTool(Tool):
         else:  # too few samples to follow the curve: a denser line for drawing only
             ll, la, _ = geodesic_samples(lon_a, lat_a, lon_b, lat_b, MIN_LINE_POINTS)
             self._line = np.stack([ll, la, self._heights(ll, la)[1]], axis=1)
-        self._status(m.text(self.units))
-        self._redraw()
+        self.set_status(m.text(self.units))
+        self.request_redraw()
         return m
 
     def _terrain_key(self) -> tuple[int, Any]:
@@ -287,8 +287,8 @@ class MeasureTool(Tool):
         if self.a is None or self.b is not None:
             self.clear()
             self.a = (lon, lat)
-            self._status(f"measure: A at {lon:.5f}, {lat:.5f}; pick B")
-            self._redraw()
+            self.set_status(f"measure: A at {lon:.5f}, {lat:.5f}; pick B")
+            self.request_redraw()
             return True
         self.b = (lon, lat)
         self._measure()
@@ -329,14 +329,3 @@ class MeasureTool(Tool):
         if self.values.get("show_chord"):
             out.append(Polyline(pts[[0, -1]], CHORD_RGBA, 2.0))
         return out
-
-    # -- host hooks --------------------------------------------------------------------------
-    def _redraw(self) -> None:
-        hook = getattr(getattr(self.context, "renderer", None), "request_redraw", None)
-        if callable(hook):
-            hook()
-
-    def _status(self, text: str) -> None:
-        hook = getattr(getattr(self.context, "renderer", None), "set_status", None)
-        if callable(hook):
-            hook(text)
