@@ -15,16 +15,10 @@ import time
 from pathlib import Path
 
 from globeview.bench.harness import Bench, parse_size
+from globeview.bench.views import VIEWS
 from globeview.terrain.embedded import embedded_stores
 from globeview.terrain.stack import TerrainStack
 
-# name -> (lon, lat, height m, heading, pitch)
-VIEWS = {
-    "global": (0.0, 20.0, 2.0e7, 0.0, -90.0),
-    "regional oblique (Alps, 300 km)": (8.0, 44.0, 3.0e5, 20.0, -35.0),
-    "low-altitude oblique (White Mountains, 9 km)": (-71.3, 44.15, 9.0e3, 0.0, -30.0),
-    "low-altitude oblique (Crater Lake, 6 km)": (-122.1, 42.85, 6.0e3, 200.0, -25.0),
-}
 TARGET_MS = 50.0
 
 
