@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import moderngl
@@ -34,10 +35,10 @@ from globeview.render.colour_ramp import ramp_texture_data
 from globeview.render.gpu_objects import gpu_objects
 from globeview.render.overlay_imagery import OverlaySet  # overlays:
 from globeview.render.shader_source import build_shader, explain_sources
-from globeview.render.tile_loader import TileLoader, substitute_missing
+from globeview.render.tile_loader import TileLoader, substitute_missing, tile_priority
 from globeview.render.tile_mesh import FLOATS_PER_VERTEX, TileMesh, build_tile_mesh
-from globeview.render.tile_pool import IndexPool, TilePool
-from globeview.terrain.quadtree import tile_bounds
+from globeview.render.tile_pool import IndexPool, TilePool, key_codes
+from globeview.terrain.quadtree import tile_bounds, tile_bounds_arrays
 from globeview.terrain.stack import TerrainStack
 
 RAMP_LO_M = -11000.0
@@ -95,8 +96,15 @@ class GlobeRenderer:
         # Interactive use (the window) loads tiles on worker threads and uploads at most
         # upload_budget per frame; headless renders load everything before drawing.
         self.async_loading = False
-        self.upload_budget = 12
+        # Uploading a finished tile is a few buffer writes (~0.1 ms): a frame takes every
+        # finished tile up to this many, so a view completes in few frames (it was 12, which
+        # made a 355-tile view wait ~30 frames after its tiles were built).
+        self.upload_budget = 96
+        self.load_workers = 2
         self.loader: TileLoader | None = None
+        #: Called on a worker thread when a background tile finished (the window schedules a
+        #: frame through it); None: nothing is told.
+        self.on_tile_ready: Callable[[], None] | None = None
         # overlays: imagery drape (texture array parallel to the pool), vectors, point objects.
         self.overlays = OverlaySet(ctx, capacity)
 
@@ -195,16 +203,42 @@ class GlobeRenderer:
 
     # -- tile loading ----------------------------------------------------------------------
     def build_mesh(self, key: tuple[int, int, int]) -> TileMesh:
-        heights = self.terrain.heights(key)
-        bounds = tile_bounds_tuple(key)
-        meta = self.terrain.metadata(key[0], np.array([key[1]]), np.array([key[2]]))
-        edge_m = math.radians(bounds[2] - bounds[0]) * WGS84.a
-        # Skirts must reach below any neighbour drawn at another level or stride: a few times
-        # this tile's coarsest height error plus a little of its size.
-        skirt = 3.0 * float(np.nanmax(meta.stride_error)) + 0.01 * edge_m + 10.0
-        # The apron (one node of the same-level neighbours around the tile) makes edge
-        # normals equal on both sides of a tile edge: no shading seams (issue #16).
-        return build_tile_mesh(bounds, heights, skirt, apron=self.terrain.heights_apron(key))
+        """Build one tile's mesh (the background loader's entry; thread-safe)."""
+        key = (int(key[0]), int(key[1]), int(key[2]))
+        return self.build_meshes(np.array([key], dtype=np.int64))[key]
+
+    def skirt_depths(self, keys: np.ndarray) -> np.ndarray:
+        """(N,) metres the skirts of tiles ``keys`` (N, 3) hang below their edges, from one
+        vectorised metadata call per level (per tile it cost ~0.5 ms, more than the mesh)."""
+        keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
+        out = np.empty(len(keys))
+        for level in np.unique(keys[:, 0]):
+            rows = np.nonzero(keys[:, 0] == level)[0]
+            meta = self.terrain.metadata(int(level), keys[rows, 1], keys[rows, 2])
+            west, _, east, _ = tile_bounds_arrays(int(level), keys[rows, 1], keys[rows, 2])
+            edge_m = np.radians(east - west) * WGS84.a
+            # Skirts must reach below any neighbour drawn at another level or stride: a few
+            # times this tile's coarsest height error plus a little of its size.
+            out[rows] = 3.0 * np.nanmax(meta.stride_error, axis=1) + 0.01 * edge_m + 10.0
+        return out
+
+    def build_meshes(self, keys: np.ndarray) -> dict[tuple[int, int, int], TileMesh]:
+        """Meshes of tiles ``keys`` (N, 3), by key tuple: the per-tile metadata in one call per
+        level, then heights, apron and mesh per tile."""
+        keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
+        skirts = self.skirt_depths(keys)
+        out: dict[tuple[int, int, int], TileMesh] = {}
+        for k, skirt in zip(keys.tolist(), skirts.tolist(), strict=True):
+            key = (k[0], k[1], k[2])
+            # The apron (one node of the same-level neighbours around the tile) makes edge
+            # normals equal on both sides of a tile edge: no shading seams (issue #16).
+            out[key] = build_tile_mesh(
+                tile_bounds_tuple(key),
+                self.terrain.heights(key),
+                skirt,
+                apron=self.terrain.heights_apron(key),
+            )
+        return out
 
     def _check_terrain_version(self) -> None:
         if self.terrain.version != self._terrain_version:
@@ -216,15 +250,36 @@ class GlobeRenderer:
     def ensure_resident(self, keys: np.ndarray) -> int:
         """Upload the tiles of ``keys`` that are not on the GPU yet; returns how many."""
         self._check_terrain_version()
-        return self.pool.load(keys, self.build_mesh)
+        keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
+        missing = np.unique(keys[self.pool.slots_of(keys) < 0], axis=0)
+        if not len(missing):
+            return 0
+        return self.pool.load(keys, self.build_meshes(missing).__getitem__)
 
-    def _load_async(self, render_set: RenderSet) -> tuple[RenderSet, int, int]:
-        """Upload a few finished tiles, stand in ancestors for the missing ones and queue
-        them (see tile_loader.py). Returns the render set to draw, tiles uploaded, loading."""
-        self._check_terrain_version()
+    def _tile_ready(self) -> None:
+        callback = self.on_tile_ready
+        if callback is not None:
+            callback()
+
+    def _ensure_loader(self) -> TileLoader:
         if self.loader is None:
-            self.loader = TileLoader(self.build_mesh)
-        ready = self.loader.take_ready(self.upload_budget)
+            self.loader = TileLoader(
+                self.build_mesh, workers=self.load_workers, on_ready=self._tile_ready
+            )
+        return self.loader
+
+    def _load_async(
+        self, render_set: RenderSet, extra: dict[str, float] | None = None
+    ) -> tuple[RenderSet, int, int]:
+        """Upload the finished tiles (up to ``upload_budget``), stand in ancestors for the
+        missing ones and queue them nearest the eye first (see tile_loader.py). Returns the
+        render set to draw, tiles uploaded, tiles loading; ``extra`` (the frame's
+        ``FrameStats.extra``) gets ``tiles_missing`` (tiles of the set not resident),
+        ``tiles_standin`` (ancestors drawn for them) and ``tiles_failed`` (missing tiles whose
+        build failed: they stay stood in until the layers change)."""
+        self._check_terrain_version()
+        loader = self._ensure_loader()
+        ready = loader.take_ready(self.upload_budget)
         if ready:
             meshes = dict(ready)
             ready_keys = np.array([k for k, _ in ready], dtype=np.int64)
@@ -232,9 +287,35 @@ class GlobeRenderer:
             # are requested again) rather than failing the frame.
             self.pool.load(ready_keys, meshes.__getitem__, protect=render_set.keys, partial=True)
         drawn, missing = substitute_missing(render_set, lambda k: self.pool.slots_of(k) >= 0)
-        if len(missing):
-            self.loader.request(missing)
-        return drawn, len(ready), self.loader.pending
+        # Nearest first, from the last frame's eye (this frame's view is made after loading);
+        # the first frame has none: coarse first.
+        eye = None if self.last_view is None else self.last_view.eye
+        priority = None if eye is None or not len(missing) else tile_priority(missing, eye)
+        loader.request(missing, priority)
+        failed = loader.failed
+        n_failed = sum(1 for k in missing.tolist() if tuple(k) in failed) if failed else 0
+        if extra is not None:
+            extra["tiles_missing"] = len(missing)
+            # Stand-ins: drawn tiles the provider did not ask for (ancestors).
+            asked = key_codes(render_set.keys)
+            extra["tiles_standin"] = int(np.count_nonzero(~np.isin(key_codes(drawn.keys), asked)))
+            extra["tiles_failed"] = n_failed
+        return drawn, len(ready), loader.pending
+
+    def prefetch(self, render_set: RenderSet, eye: np.ndarray) -> int:
+        """Build the tiles of ``render_set`` that are not resident ahead of any frame's
+        request (a camera flight's destination, ``eye`` its ECEF position in m), nearest
+        first; replaces the previous prefetch. Only with ``async_loading``. Returns how many
+        tiles were queued."""
+        if not self.async_loading:
+            return 0
+        self._check_terrain_version()
+        keys = render_set.keys
+        if len(keys) > self.pool.capacity:
+            keys = coarsen_to_fit(render_set, self.pool.capacity)[0].keys
+        missing = keys[self.pool.slots_of(keys) < 0]
+        self._ensure_loader().prefetch(missing, tile_priority(missing, eye))
+        return len(missing)
 
     def _fit_pool(self, render_set: RenderSet, stats: FrameStats) -> RenderSet:
         """The render set itself when the pool holds all its tiles; otherwise a coarser one
@@ -262,7 +343,9 @@ class GlobeRenderer:
         render set to draw; sets ``stats.tiles_uploaded`` and ``stats.tiles_loading``."""
         render_set = self._fit_pool(render_set, stats)
         if self.async_loading:
-            render_set, stats.tiles_uploaded, stats.tiles_loading = self._load_async(render_set)
+            render_set, stats.tiles_uploaded, stats.tiles_loading = self._load_async(
+                render_set, stats.extra
+            )
         else:
             stats.tiles_uploaded = self.ensure_resident(render_set.keys)
         return render_set

@@ -2,79 +2,230 @@
 
 Building a tile (reading its heights, meshing, averaging normals) takes milliseconds; a fast
 camera move can ask for a hundred new tiles in one frame. In the window the renderer therefore
-builds tiles on worker threads (numpy and GDAL release the GIL), uploads a few finished ones
-per frame, and until a tile is ready draws its nearest resident ancestor instead — never a
-hole, never an overlap (the ancestor replaces every requested tile below it). Headless renders
-load synchronously so every image is complete.
+builds tiles on worker threads (numpy and GDAL release the GIL), uploads the finished ones at
+the next frame, and until a tile is ready draws its nearest resident ancestor instead — never
+a hole, never an overlap (the ancestor replaces every requested tile below it). Headless
+renders load synchronously so every image is complete.
+
+Scheduling (issue #17: "Go to" -> complete view): the queue is a priority list, not a FIFO.
+
+* Each frame *replaces* the frame tier with the tiles that frame misses, nearest the eye
+  first (`tile_priority`): tiles a moving camera no longer wants are dropped before a worker
+  spends time on them (a 1 s flight across the globe asks for hundreds of tiles it passes).
+* A *prefetch* tier (`prefetch`, e.g. the destination of a camera flight) is built before the
+  frame tier and survives frame requests until it is built or replaced, so the destination's
+  tiles load while the flight is still under way.
+* ``on_ready`` is called (on a worker thread) when a tile finishes, so a window can schedule a
+  frame when there is something new to draw instead of redrawing in a busy loop that takes
+  the CPU from the workers.
 """
 
 from __future__ import annotations
 
+import logging
 import threading
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 
+from globeview.geodesy import lonlat_to_ecef
 from globeview.lod.render_set import RenderSet
 from globeview.lod.tile_indices import IndexVariant
 from globeview.render.tile_mesh import TileMesh
 
+log = logging.getLogger("globeview.render")
+
 Key = tuple[int, int, int]
+
+#: Mean Earth radius (m), for the tiles' ground radius in `tile_priority`.
+_EARTH_R_M = 6.371e6
+
+
+def tile_priority(keys: np.ndarray, eye: np.ndarray) -> np.ndarray:
+    """Load order key of tiles ``keys`` (N, 3: level, x, y) seen from ``eye`` (ECEF, m):
+    the distance (m) from the eye to the tile's nearest ground point, estimated as the
+    distance to the tile centre (on the ellipsoid) less the tile's half diagonal (its
+    size in degrees times the metres per degree, an over-estimate near the poles: a tile
+    there only loads earlier). Smaller loads first; the tile under the camera is 0."""
+    keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
+    size_deg = 180.0 / np.exp2(keys[:, 0].astype(np.float64))
+    lon = -180.0 + (keys[:, 1] + 0.5) * size_deg
+    lat = 90.0 - (keys[:, 2] + 0.5) * size_deg
+    centre = lonlat_to_ecef(lon, lat)
+    dist = np.linalg.norm(centre - np.asarray(eye, dtype=np.float64), axis=1)
+    half_diag = np.radians(size_deg) * _EARTH_R_M * (np.sqrt(2.0) / 2.0)
+    return np.maximum(dist - half_diag, 0.0)
+
+
+def _ordered(keys: np.ndarray, priority: np.ndarray | None) -> list[Key]:
+    """``keys`` as tuples, by ``priority`` (ascending), ties coarse level first; without
+    priorities coarse first (the order the tiles were asked in, within a level)."""
+    keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
+    if priority is None:
+        order = np.argsort(keys[:, 0], kind="stable")
+    else:
+        order = np.lexsort((keys[:, 0], np.asarray(priority, dtype=np.float64)))
+    return [(int(k[0]), int(k[1]), int(k[2])) for k in keys[order]]
 
 
 class TileLoader:
-    """Builds tile meshes on worker threads; the render thread collects finished ones."""
+    """Builds tile meshes on worker threads; the render thread collects finished ones.
 
-    def __init__(self, build: Callable[[Key], TileMesh], workers: int = 2) -> None:
+    Args:
+        build: ``build(key) -> TileMesh`` (called on the workers; must be thread-safe).
+        workers: worker threads.
+        on_ready: called on a worker thread after each tile finished (built or failed);
+            must be cheap and thread-safe (e.g. emit a Qt signal).
+    """
+
+    def __init__(
+        self,
+        build: Callable[[Key], TileMesh],
+        workers: int = 2,
+        on_ready: Callable[[], None] | None = None,
+    ) -> None:
+        if workers < 1:
+            raise ValueError(f"tile loader workers must be at least 1, got {workers}")
         self._build = build
-        self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="gv-tiles")
-        self._lock = threading.Lock()
-        self._pending: dict[Key, Future] = {}
+        self.on_ready = on_ready
+        self._cv = threading.Condition()
+        # Wanted, not started: dicts kept in load order (a dict is an ordered set here).
+        self._prefetch: dict[Key, None] = {}
+        self._queue: dict[Key, None] = {}
+        self._running: set[Key] = set()
+        self._ready: dict[Key, TileMesh] = {}
         self.failed: dict[Key, BaseException] = {}
+        # Bumped by cancel_all: a build that started before it is discarded when it ends.
+        self._generation = 0
+        self._stop = False
+        self._threads = [
+            threading.Thread(target=self._work, name=f"gv-tiles-{i}", daemon=True)
+            for i in range(workers)
+        ]
+        for t in self._threads:
+            t.start()
 
+    # -- figures -------------------------------------------------------------------------
     @property
     def pending(self) -> int:
-        return len(self._pending)
+        """Tiles asked for and not handed over yet: queued, being built, or built and
+        waiting for `take_ready`."""
+        with self._cv:
+            queued = len(self._queue) + sum(1 for k in self._prefetch if k not in self._queue)
+            return queued + len(self._running) + len(self._ready)
 
-    def request(self, keys: np.ndarray) -> None:
-        """Queue the tiles of ``keys`` (N, 3) that are not being built yet (coarse first)."""
-        keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
-        order = np.argsort(keys[:, 0], kind="stable")
-        with self._lock:
-            # A loop over the few tiles that are new this frame, not over every drawn tile.
-            for k in keys[order]:
-                key = (int(k[0]), int(k[1]), int(k[2]))
-                if key not in self._pending and key not in self.failed:
-                    self._pending[key] = self._pool.submit(self._build, key)
+    @property
+    def building(self) -> int:
+        """Tiles queued or being built (not counting finished ones waiting for upload)."""
+        with self._cv:
+            return len(self._queue.keys() | self._prefetch.keys()) + len(self._running)
+
+    @property
+    def ready(self) -> int:
+        """Finished tiles waiting for `take_ready`."""
+        with self._cv:
+            return len(self._ready)
+
+    # -- asking ----------------------------------------------------------------------------
+    def request(self, keys: np.ndarray, priority: np.ndarray | None = None) -> None:
+        """This frame's missing tiles ``keys`` (N, 3), ``priority`` ascending (e.g.
+        `tile_priority`; None: coarse first). Replaces the previous frame's request: queued
+        tiles not asked for again are dropped (those being built finish and are kept)."""
+        wanted = _ordered(keys, priority)
+        with self._cv:
+            self._queue = {
+                k: None
+                for k in wanted
+                if k not in self._running and k not in self._ready and k not in self.failed
+            }
+            if self._queue:
+                self._cv.notify_all()
+
+    def prefetch(self, keys: np.ndarray, priority: np.ndarray | None = None) -> None:
+        """Tiles to build ahead of every frame's request (a flight's destination); replaces
+        the previous prefetch. Tiles already resident should be left out by the caller."""
+        wanted = _ordered(keys, priority)
+        with self._cv:
+            self._prefetch = {
+                k: None
+                for k in wanted
+                if k not in self._running and k not in self._ready and k not in self.failed
+            }
+            if self._prefetch:
+                self._cv.notify_all()
 
     def take_ready(self, limit: int) -> list[tuple[Key, TileMesh]]:
-        """Up to ``limit`` finished meshes (removed from the queue)."""
+        """Up to ``limit`` finished meshes, in the order they finished (removed here)."""
         out: list[tuple[Key, TileMesh]] = []
-        with self._lock:
-            for key, fut in list(self._pending.items()):
-                if len(out) >= limit:
-                    break
-                if fut.done():
-                    del self._pending[key]
-                    exc = fut.exception()
-                    if exc is None:
-                        out.append((key, fut.result()))
-                    else:
-                        self.failed[key] = exc
+        with self._cv:
+            while self._ready and len(out) < limit:
+                key = next(iter(self._ready))
+                out.append((key, self._ready.pop(key)))
         return out
 
     def cancel_all(self) -> None:
-        """Forget queued work (e.g. after the terrain layers changed)."""
-        with self._lock:
-            for fut in self._pending.values():
-                fut.cancel()
-            self._pending.clear()
+        """Forget queued work, finished tiles and failures (e.g. after the terrain layers
+        changed): builds under way are discarded when they end."""
+        with self._cv:
+            self._generation += 1
+            self._prefetch.clear()
+            self._queue.clear()
+            self._running.clear()
+            self._ready.clear()
             self.failed.clear()
 
     def shutdown(self) -> None:
-        self.cancel_all()
-        self._pool.shutdown(wait=False, cancel_futures=True)
+        """Stop the workers (a build under way ends on its own; its result is dropped)."""
+        with self._cv:
+            self._stop = True
+            self._generation += 1
+            self._prefetch.clear()
+            self._queue.clear()
+            self._cv.notify_all()
+
+    # -- workers ---------------------------------------------------------------------------
+    def _next_key(self) -> Key | None:
+        """The next tile to build (prefetch first), or None when stopping. Holds _cv."""
+        while not self._stop:
+            for tier in (self._prefetch, self._queue):
+                while tier:
+                    key = next(iter(tier))
+                    del tier[key]
+                    # In both tiers, or finished meanwhile: skip.
+                    if key in self._running or key in self._ready or key in self.failed:
+                        continue
+                    return key
+            self._cv.wait()
+        return None
+
+    def _work(self) -> None:
+        while True:
+            with self._cv:
+                key = self._next_key()
+                if key is None:
+                    return
+                self._running.add(key)
+                generation = self._generation
+            try:
+                mesh: TileMesh | None = self._build(key)
+                exc: BaseException | None = None
+            except Exception as e:  # noqa: BLE001  a failed tile is counted, the others load
+                mesh, exc = None, e
+            with self._cv:
+                if generation != self._generation:
+                    continue  # cancelled meanwhile (new layers): the result is stale
+                self._running.discard(key)
+                if exc is None:
+                    assert mesh is not None
+                    self._ready[key] = mesh
+                else:
+                    self.failed[key] = exc
+            callback = self.on_ready
+            if callback is not None:
+                try:
+                    callback()
+                except Exception:  # a broken listener must not stop loading
+                    log.exception("tile loader: on_ready failed")
 
 
 def substitute_missing(

@@ -40,6 +40,7 @@ from PyQt6.QtOpenGLWidgets import QOpenGLWidget
 from PyQt6.QtWidgets import QWidget
 
 from globeview.lod.render_set import FrameStats
+from globeview.lod.view_state import ViewState
 from globeview.model.camera import Camera
 from globeview.model.display import DisplaySettings
 from globeview.model.globe import Globe
@@ -59,6 +60,11 @@ GL_VERSION = (3, 3)
 CLICK_SLOP_PX = 4.0
 #: Repaint interval while a tool animates (ms).
 ANIMATION_INTERVAL_MS = 16
+#: While tiles load in the background, at most one frame per this interval (ms) shows the
+#: tiles finished so far (the frame after the last tile comes at once). Redrawing in a busy
+#: loop took a core from the tile workers on a 2-core machine for frames that mostly showed
+#: nothing new (issue #17).
+LOADING_FRAME_MS = 100
 
 #: Qt keys -> `KeyEvent.key` names (printable keys use their lower-case text).
 _KEY_NAMES = {
@@ -153,6 +159,9 @@ class GlobeWidget(QOpenGLWidget):
     cursorPicked = pyqtSignal(object)
     renderFailed = pyqtSignal(object)
     keyUnhandled = pyqtSignal(int, object)
+    #: Emitted on a tile worker thread when a background tile finished; queued to the UI
+    #: thread (`_tiles_ready`).
+    _tileReady = pyqtSignal()
 
     def __init__(
         self,
@@ -179,7 +188,14 @@ class GlobeWidget(QOpenGLWidget):
         self._render_error: str | None = None
         self.flight = CameraFlight(model, self)
         self.flight.stepped.connect(self._camera_moved)
+        self.flight.started.connect(self.prefetch_pose)
         self.navigator: Navigator | None = None
+        # Frames while tiles stream in: scheduled by finished tiles, throttled.
+        self._loading_frame = QTimer(self)
+        self._loading_frame.setSingleShot(True)
+        self._loading_frame.setInterval(LOADING_FRAME_MS)
+        self._loading_frame.timeout.connect(self.update)
+        self._tileReady.connect(self._tiles_ready)
         # One extra frame after motion stops, so the speed-dependent LOD settles.
         self._settle = QTimer(self)
         self._settle.setSingleShot(True)
@@ -259,6 +275,8 @@ class GlobeWidget(QOpenGLWidget):
         scene = GlobeSession(self.ctx, self.terrain, registry=self.registry, globe=self.model)
         # Tiles load on worker threads; frames draw ancestors until they arrive.
         scene.renderer.async_loading = True
+        # A worker thread emits; Qt queues the call to this (the UI) thread.
+        scene.renderer.on_tile_ready = self._tileReady.emit
         self.scene = scene
         self.navigator = Navigator(self.model, self.pick, self.viewport_px, self._camera_moved)
         log.info("OpenGL %s on %s", self.ctx.info["GL_VERSION"], self.ctx.info["GL_RENDERER"])
@@ -299,9 +317,45 @@ class GlobeWidget(QOpenGLWidget):
             self._anim.stop()
         self.frameRendered.emit(result.stats, self.fps)
         if result.stats.tiles_loading > 0:
-            self.update()  # keep drawing while tiles stream in
+            # Finished tiles announce themselves (`_tiles_ready`); ones this frame had no
+            # budget for are drawn by the next frame.
+            self._tiles_ready()
         elif result.view.speed_mps > 0.0:
             self._settle.start()  # one more frame once still, for the speed-dependent LOD
+
+    # -- background tiles ------------------------------------------------------------------
+    def _tiles_ready(self) -> None:
+        """Tiles finished in the background: draw them. The frame after the last queued tile
+        is drawn at once; before that at most one per `LOADING_FRAME_MS`."""
+        loader = None if self.scene is None else self.scene.renderer.loader
+        if loader is None or loader.ready == 0:
+            return
+        if loader.building == 0:
+            self._loading_frame.stop()
+            self.update()
+        elif not self._loading_frame.isActive():
+            self._loading_frame.start()
+
+    def prefetch_pose(self, pose: tuple[float, float, float, float, float]) -> int:
+        """Start loading the tiles of the view from ``pose`` (lon, lat, height, heading,
+        pitch: a flight's destination) ahead of the frames on the way; returns how many
+        tiles were queued (0 before GL is up or when the pose is not a camera). A provider
+        that fails here is left to the next frame (which reports it)."""
+        if self.scene is None:
+            return 0
+        try:
+            camera = Camera.from_lonlat(*pose, fovy_deg=self.camera.fovy_deg)
+            view = ViewState.from_camera(
+                camera,
+                self.viewport_px(),
+                tau_px=self.model.tau_px,
+                exaggeration=self.settings.exaggeration,
+            )
+            render_set = self.scene.select(view)
+            return self.scene.renderer.prefetch(render_set, view.eye)
+        except Exception as exc:  # noqa: BLE001  prefetching is an optimisation only
+            log.info("no prefetch for %s: %s", pose, exc)
+            return 0
 
     # -- tools -------------------------------------------------------------------------------
     def active_tool(self):

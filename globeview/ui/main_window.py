@@ -203,9 +203,10 @@ class MainWindow(QMainWindow):
         self.addToolBar(tb)
         tb.addWidget(QLabel(" Go to "))
         self.goto_edit = QLineEdit()
-        self.goto_edit.setPlaceholderText("lon, lat[, height m]")
+        self.goto_edit.setPlaceholderText("lon, lat[, height m[, heading, pitch]]")
         self.goto_edit.setToolTip(
-            "Fly to a place: longitude and latitude in degrees, optionally a height in metres"
+            "Fly to a place: longitude and latitude in degrees, optionally a height in metres "
+            "and a heading and pitch in degrees (default: looking straight down)"
         )
         self.goto_edit.setMaximumWidth(220)
         self.goto_edit.returnPressed.connect(lambda: self.go_to(self.goto_edit.text()))
@@ -636,20 +637,31 @@ class MainWindow(QMainWindow):
             self._showing_display = False
 
     def go_to(self, text: str) -> bool:
-        """Fly to ``"lon, lat[, height]"`` (degrees, metres); a bad entry is a notice."""
+        """Fly to ``"lon, lat[, height[, heading, pitch]]"`` (degrees, metres; default
+        looking straight down); a bad entry is a notice."""
         try:
             vals = [float(v) for v in text.replace(";", ",").split(",") if v.strip()]
-            if len(vals) not in (2, 3):
+            if len(vals) not in (2, 3, 5) or not all(math.isfinite(v) for v in vals):
                 raise ValueError
         except ValueError:
-            self.errors.notify(f"go to: expected 'lon, lat' or 'lon, lat, height', not {text!r}")
+            self.errors.notify(
+                "go to: expected 'lon, lat', 'lon, lat, height' or "
+                f"'lon, lat, height, heading, pitch', not {text!r}"
+            )
             return False
         lon, lat = vals[0], vals[1]
         if not (-180.0 <= lon <= 360.0 and -90.0 <= lat <= 90.0):
             self.errors.notify(f"go to: {lon}, {lat} is not a longitude, latitude in degrees")
             return False
-        height = vals[2] if len(vals) == 3 else min(self.globe.camera.height, 2.0e6)
-        self.globe.flight.fly_to((lon, lat, max(height, 10.0), 0.0, -90.0))
+        height = vals[2] if len(vals) >= 3 else min(self.globe.camera.height, 2.0e6)
+        heading, pitch = (vals[3], vals[4]) if len(vals) == 5 else (0.0, -90.0)
+        pose = (lon, lat, max(height, 10.0), heading % 360.0, pitch)
+        try:  # the camera's own checks (height range, pitch), before the flight starts
+            Camera.from_lonlat(*pose)
+        except ValueError as exc:
+            self.errors.notify(f"go to: {exc}")
+            return False
+        self.globe.flight.fly_to(pose)
         return True
 
     def zoom_to_bounds(self, bounds: tuple[float, float, float, float]) -> None:

@@ -231,10 +231,13 @@ class CameraFlight(QObject):
     to a pose over ``duration_s`` seconds, one step per timer tick (the camera in use when
     the step is taken: a replaced camera is flown, not the old one).
 
-    Signals: ``stepped`` after each step (schedule a frame), ``finished`` at the end.
+    Signals: ``started(pose)`` when a flight begins, with its destination (lon, lat,
+    height, heading, pitch: the window loads the destination's tiles during the flight),
+    ``stepped`` after each step (schedule a frame), ``finished`` at the end.
     The timer runs only during a flight.
     """
 
+    started = pyqtSignal(object)
     stepped = pyqtSignal()
     finished = pyqtSignal()
 
@@ -267,6 +270,7 @@ class CameraFlight(QObject):
         self._arc = max(0.0, min(0.5 * float(dist), 1.5e7) - max(h, pose[2]))
         self.duration_s = max(float(duration_s), 0.0)
         self._t0 = time.perf_counter()
+        self.started.emit(self._to)
         if self.duration_s == 0.0:
             self._finish()
             return

@@ -66,6 +66,22 @@ def provider_tooltip(stats: FrameStats) -> str:
     return "\n".join(lines)
 
 
+def loading_text(stats: FrameStats) -> str:
+    """The loading field: "loading N tiles" while the frame's tiles stream in, with
+    ", M failed" when some could not be built ("M tiles failed" once nothing else loads);
+    "" when the view is complete."""
+    failed = int(stats.extra.get("tiles_failed", 0))
+    loading = int(stats.tiles_loading)
+    parts = []
+    if loading:
+        parts.append(f"loading {loading} tile{'s' if loading != 1 else ''}")
+    if failed:
+        parts.append(
+            f"{failed} failed" if loading else f"{failed} tile{'s' if failed != 1 else ''} failed"
+        )
+    return ", ".join(parts)
+
+
 class StatusBar(QStatusBar):
     """Permanent fields (cursor, altitude, fps, triangles, tiles, LOD) plus transient notices."""
 
@@ -80,10 +96,18 @@ class StatusBar(QStatusBar):
         self.fps = QLabel("— fps")
         self.triangles = QLabel("0 tris")
         self.tiles = QLabel("0 tiles")
-        self.tiles.setToolTip("Tiles drawn / loading")
+        self.tiles.setToolTip("Tiles drawn")
+        #: "loading N tiles" while tiles stream in (", M failed" for tiles that could not be
+        #: built, which stay stood in by coarser ones); empty when the view is complete.
+        self.loading = QLabel("")
+        self.loading.setToolTip(
+            "Tiles of this view still being built in the background (coarser ones are drawn "
+            "until they arrive)"
+        )
         self.lod = QLabel("LOD —")
         self.lod.setToolTip("Active LOD provider")
-        for w in (self.cursor, self.altitude, self.fps, self.triangles, self.tiles, self.lod):
+        fields = (self.cursor, self.altitude, self.fps, self.triangles, self.tiles, self.loading)
+        for w in (*fields, self.lod):
             self.addPermanentWidget(w)
         self._cursor_tooltip()
 
@@ -140,7 +164,8 @@ class StatusBar(QStatusBar):
         self.fps.setText(f"{fps:.0f} fps")
         self.fps.setToolTip(f"last frame: LOD {stats.lod_ms:.1f} ms, draw {stats.draw_ms:.1f} ms")
         self.triangles.setText(f"{stats.triangles:,} tris")
-        self.tiles.setText(f"{stats.tiles_drawn} tiles / {stats.tiles_loading} loading")
+        self.tiles.setText(f"{stats.tiles_drawn} tiles")
+        self.loading.setText(loading_text(stats))
         self.lod.setText(f"LOD {stats.lod_provider or '—'}")
         self.lod.setToolTip(provider_tooltip(stats))
 
