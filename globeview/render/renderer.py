@@ -291,9 +291,27 @@ class GlobeRenderer:
         # the first frame has none: coarse first.
         eye = None if self.last_view is None else self.last_view.eye
         priority = None if eye is None or not len(missing) else tile_priority(missing, eye)
-        loader.request(missing, priority)
         failed = loader.failed
-        n_failed = sum(1 for k in missing.tolist() if tuple(k) in failed) if failed else 0
+        bad = [tuple(k) for k in missing.tolist() if tuple(k) in failed] if failed else []
+        if bad:
+            # A tile that cannot be built would stay a hole where no ancestor is resident:
+            # ask for its nearest ancestor that has not failed (a loop over the few failed
+            # tiles, not over the frame's).
+            up = set()
+            for level, x, y in bad:
+                while level > 0 and (level, x, y) in failed:
+                    level, x, y = level - 1, x >> 1, y >> 1
+                if (level, x, y) not in failed:
+                    up.add((level, x, y))
+            extra_keys = np.array(sorted(up), dtype=np.int64).reshape(-1, 3)
+            extra_keys = extra_keys[self.pool.slots_of(extra_keys) < 0]
+            missing_keys = np.concatenate([missing, extra_keys])
+            if priority is not None:
+                priority = np.concatenate([priority, np.zeros(len(extra_keys))])
+        else:
+            missing_keys = missing
+        loader.request(missing_keys, priority)
+        n_failed = len(bad)
         if extra is not None:
             extra["tiles_missing"] = len(missing)
             # Stand-ins: drawn tiles the provider did not ask for (ancestors).

@@ -61,3 +61,51 @@ def test_async_frames_converge_to_the_synchronous_image(scene, targets) -> None:
     finally:
         scene.renderer.async_loading = False
         scene.renderer.settings.background = (0.0, 0.0, 0.0)
+
+
+def test_async_frames_count_missing_stand_in_and_failed_tiles(scene, targets) -> None:
+    """A tile that cannot be built (here: its build raises, as an unreadable store window
+    would) is counted in the frame's ``tiles_failed``, stays stood in by an ancestor, and
+    does not keep the view "loading"; the others load."""
+    size = (256, 192)
+    target = targets(size)
+    renderer = scene.renderer
+    scene.camera = Camera.from_lonlat(-71.3, 44.2, 60000.0, 0.0, -50.0)
+    real_build = renderer.build_mesh
+    deepest: set[tuple[int, int, int]] = set()
+
+    def build(key):
+        if key in deepest:
+            raise OSError(f"unreadable window for {key}")
+        return real_build(key)
+
+    if renderer.loader is not None:
+        renderer.loader.shutdown()
+        renderer.loader = None
+    renderer.pool.invalidate()
+    renderer.build_mesh = build  # the loader made at the next frame builds through it
+    renderer.async_loading = True
+    try:
+        first = scene.render(target.fbo, size)
+        keys = first.render_set.keys
+        level = int(keys[:, 0].max())
+        deepest.update(tuple(map(int, k)) for k in keys[keys[:, 0] == level][:2])
+        assert first.stats.extra["tiles_missing"] == len(keys)  # an empty pool
+        deadline = time.monotonic() + 60.0
+        while True:
+            result = scene.render(target.fbo, size)
+            if result.stats.tiles_loading == 0:
+                break
+            assert time.monotonic() < deadline, "tiles never finished loading"
+            time.sleep(0.02)
+        extra = result.stats.extra
+        assert extra["tiles_failed"] == 2 == extra["tiles_missing"]
+        assert extra["tiles_standin"] >= 1  # an ancestor covers the two failed tiles
+        assert result.stats.tiles_drawn >= 1
+    finally:
+        del renderer.build_mesh
+        if renderer.loader is not None:
+            renderer.loader.shutdown()
+            renderer.loader = None
+        renderer.pool.invalidate()
+        renderer.async_loading = False

@@ -125,6 +125,43 @@ def test_go_to_flies_the_camera(make_window, qtbot):
     assert abs(lon + 123.1) < 1e-6 and abs(lat - 49.3) < 1e-6 and abs(h - 80000) < 1.0
 
 
+def test_go_to_takes_a_heading_and_pitch_and_refuses_bad_ones(make_window, qtbot):
+    win = make_window()
+    for bad in ("-71.3, 44.15, 9000, 0", "-71.3, 44.15, 9000, 0, -95", "1, 2, nan", "1, 2, 1e12"):
+        assert not win.go_to(bad), bad
+        assert "go to" in win.statusBar().currentMessage()
+        assert not win.globe.flight.active
+    assert win.go_to("-71.3, 44.15, 9000, 370, -30")
+    qtbot.waitUntil(lambda: not win.globe.flight.active, timeout=5000)
+    lon, lat, h, heading, pitch, _ = win.globe.camera.lonlat_hpr()
+    assert abs(lon + 71.3) < 1e-6 and abs(lat - 44.15) < 1e-6 and abs(h - 9000) < 1.0
+    assert abs(heading - 10.0) < 1e-6 and abs(pitch + 30.0) < 1e-6
+
+
+def test_status_bar_says_loading_n_tiles_while_tiles_load_then_clears(make_window, qtbot):
+    """Go to a place whose tiles are not resident: frames say "loading N tiles" (N > 0)
+    while the tiles stream in, and the field is empty once the view is complete (every tile
+    drawn, no stand-ins)."""
+    win = make_window()
+    assert win.status.loading.text() == ""  # the start view is complete
+    shown: list[str] = []
+    win.globe.frameRendered.connect(lambda *_: shown.append(win.status.loading.text()))
+    assert win.go_to("-71.3, 44.15, 9000, 0, -30")
+    qtbot.waitUntil(
+        lambda: (
+            not win.globe.flight.active
+            and win.globe.last_stats.tiles_loading == 0
+            and win.globe.last_stats.extra.get("tiles_missing") == 0
+        ),
+        timeout=60000,
+    )
+    loading = [t for t in shown if t.startswith("loading ")]
+    assert loading, shown
+    assert all(int(t.split()[1]) > 0 and t.split()[2].startswith("tile") for t in loading)
+    assert win.status.loading.text() == ""
+    assert win.status.tiles.text() == f"{win.globe.last_stats.tiles_drawn} tiles"
+
+
 def test_bad_file_shows_an_error_and_the_window_keeps_working(
     make_window, tmp_path, qtbot, errors_shown, wait_frame
 ):
@@ -172,3 +209,15 @@ def test_settings_persist_between_windows(make_window, tmp_path):
     assert win2.globe.settings.hillshade
     assert win2.recent_files()[0].endswith("a.tif")
     assert win2.recent_menu.actions()[0].text().endswith("a.tif")
+
+
+def test_loading_text_counts_loading_and_failed_tiles():
+    from globeview.lod.render_set import FrameStats
+    from globeview.ui.status import loading_text
+
+    assert loading_text(FrameStats()) == ""
+    assert loading_text(FrameStats(tiles_loading=1)) == "loading 1 tile"
+    assert loading_text(FrameStats(tiles_loading=3, extra={"tiles_failed": 2})) == (
+        "loading 3 tiles, 2 failed"
+    )
+    assert loading_text(FrameStats(extra={"tiles_failed": 1})) == "1 tile failed"

@@ -1,0 +1,134 @@
+"""The background tile queue (render/tile_loader.py): nearest tiles first, a frame's request
+replaces the previous one (tiles a moving camera left behind are never built), a prefetch
+(a flight's destination) goes before every frame's request, failed tiles are counted and not
+retried, and a cancel discards builds under way. No GL: the builds here are plain callables
+(the renderer's real `build_mesh` runs in test_render_async_loading.py)."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from globeview.geodesy import lonlat_to_ecef
+from globeview.render.tile_loader import TileLoader, tile_priority
+
+
+class Recorder:
+    """A build that records the keys in the order it was called; the first call waits for
+    ``gate`` so the test can fill the queue while the (single) worker is busy."""
+
+    def __init__(self, fail: set | None = None) -> None:
+        self.gate = threading.Event()
+        self.started = threading.Event()
+        self.order: list[tuple[int, int, int]] = []
+        self.fail = fail or set()
+
+    def __call__(self, key):
+        self.order.append(key)
+        if len(self.order) == 1:
+            self.started.set()
+            assert self.gate.wait(10.0)
+        if key in self.fail:
+            raise OSError(f"unreadable tile {key}")
+        return ("mesh", key)
+
+
+def wait_for(cond, timeout: float = 10.0) -> None:
+    end = time.monotonic() + timeout
+    while not cond():
+        assert time.monotonic() < end, "timed out"
+        time.sleep(0.005)
+
+
+@pytest.fixture
+def busy_loader():
+    """A one-worker loader whose worker is blocked in its first build (key (0, 0, 0))."""
+    rec = Recorder(fail={(5, 1, 1)})
+    ready_calls = []
+    loader = TileLoader(rec, workers=1, on_ready=lambda: ready_calls.append(1))
+    loader.request(np.array([[0, 0, 0]]))
+    assert rec.started.wait(10.0)
+    yield loader, rec, ready_calls
+    rec.gate.set()
+    loader.shutdown()
+
+
+def test_priority_is_zero_under_the_eye_and_grows_with_distance() -> None:
+    eye = lonlat_to_ecef(-71.3, 44.15, 9000.0)
+    # Level 10 tiles: the one under the eye, one ~2 tiles east, one on the other side of Earth.
+    size = 180.0 / 2**10
+    x0, y0 = int((-71.3 + 180) / size), int((90 - 44.15) / size)
+    keys = np.array([[10, x0 + 2, y0], [10, x0, y0], [10, x0 + 1024, y0], [3, 4, 2]])
+    p = tile_priority(keys, eye)
+    assert p[1] == 0.0  # the eye is over this tile (its nearest point is under the eye)
+    assert 0.0 < p[0] < p[2]
+    assert p[3] == 0.0  # the coarse tile (22.5 deg) holding the point under the eye
+
+
+def test_frame_requests_load_nearest_first_and_replace_the_previous_one(busy_loader) -> None:
+    loader, rec, _ = busy_loader
+    far, mid, near = (5, 9, 9), (5, 3, 3), (5, 2, 2)
+    stale = (5, 20, 20)
+    loader.request(np.array([stale]))  # an earlier frame's tile, no longer wanted below
+    loader.request(np.array([far, near, mid]), priority=np.array([30.0, 1.0, 2.0]))
+    assert loader.pending == 4  # three queued + the one being built
+    rec.gate.set()
+    wait_for(lambda: loader.building == 0)
+    assert rec.order == [(0, 0, 0), near, mid, far]  # the stale tile was never built
+    got = loader.take_ready(2)
+    assert [k for k, _ in got] == [(0, 0, 0), near]  # in the order they finished, up to 2
+    assert loader.ready == 2 and loader.pending == 2
+
+
+def test_a_prefetch_goes_before_frame_requests_and_survives_them(busy_loader) -> None:
+    loader, rec, _ = busy_loader
+    dest = [(7, 1, 1), (7, 2, 1)]
+    loader.prefetch(np.array(dest), priority=np.array([1.0, 0.0]))
+    loader.request(np.array([(4, 0, 0)]))
+    loader.request(np.array([(4, 1, 0)]))  # a later frame: the prefetch stays queued
+    rec.gate.set()
+    wait_for(lambda: loader.building == 0)
+    assert rec.order == [(0, 0, 0), (7, 2, 1), (7, 1, 1), (4, 1, 0)]
+
+
+def test_a_failed_tile_is_counted_told_and_not_retried(busy_loader) -> None:
+    loader, rec, ready_calls = busy_loader
+    bad = (5, 1, 1)
+    loader.request(np.array([bad, (5, 1, 2)]))
+    rec.gate.set()
+    wait_for(lambda: len(ready_calls) == 3)  # each finished tile, the failed one too
+    assert isinstance(loader.failed[bad], OSError)
+    loader.request(np.array([bad]))  # asked again: not rebuilt
+    time.sleep(0.05)
+    assert rec.order.count(bad) == 1 and loader.building == 0
+    assert {k for k, _ in loader.take_ready(10)} == {(0, 0, 0), (5, 1, 2)}
+
+
+def test_cancel_discards_the_build_under_way_and_the_queue(busy_loader) -> None:
+    loader, rec, _ = busy_loader
+    loader.request(np.array([(6, 0, 0)]))
+    loader.cancel_all()  # new layers: what was being built is stale
+    assert loader.pending == 0
+    rec.gate.set()
+    time.sleep(0.1)
+    assert loader.take_ready(10) == [] and rec.order == [(0, 0, 0)]
+
+
+def test_a_broken_listener_does_not_stop_loading() -> None:
+    def boom() -> None:
+        raise RuntimeError("listener gone")
+
+    loader = TileLoader(lambda key: ("mesh", key), workers=2, on_ready=boom)
+    try:
+        loader.request(np.array([(3, 0, 0), (3, 1, 0), (3, 2, 0)]))
+        wait_for(lambda: loader.ready == 3)
+    finally:
+        loader.shutdown()
+
+
+def test_workers_must_be_at_least_one() -> None:
+    with pytest.raises(ValueError, match="at least 1"):
+        TileLoader(lambda key: None, workers=0)
