@@ -6,10 +6,21 @@ in drawn tiles are made resident (their instance data uploaded); each gets its h
 drawn mesh at the drawn stride (the same drape as the vectors, overlay_vectors.py), so objects
 sit on the surface the user sees. One instanced draw per object type (TREND §5.1.1), plus one
 for the labels: glyph strings rendered once with Pillow's default font into a text atlas.
+
+Boxes are drawn in two ways, chosen per box and per frame on the CPU (`sprite_classes`,
+vectorised): a box whose image is small and lies inside the viewport is one point sprite,
+ray-cast in the fragment shader (overlay_box_sprite.*), the others (near, large, at the
+viewport's edge) are instanced meshes; boxes wholly outside the view are not drawn. On
+llvmpipe an instanced draw costs about 3 us per instance whatever its vertex count, and vertex
+work runs on one core while fragments run on all. In the scene of issue #17 (10 000 boxes
+over Europe from 4 000 km, 320x240) the boxes cost about 33 ms as meshes and 8 ms as sprites
+(benchmarks/bench_overlays.py); llvmpipe's own cost per point (~0.13 us for a plain 1-pixel
+point) is the floor.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import moderngl
@@ -30,6 +41,69 @@ from globeview.render.shader_source import load_shader
 from globeview.terrain.vectors import drape_heights
 
 KINDS = ("placemark", "box", "cone")
+#: Boxes whose sprite would be wider than this (pixels) are drawn as meshes (GL's point size
+#: limit on Mesa is 255; a larger sprite also wastes fragments outside the box).
+SPRITE_MAX_PX = 64.0
+#: Bounding-sphere radius of the unit box (x, y in -0.5..0.5, z 0..1) about its centre.
+BOX_RADIUS = math.sqrt(0.75)
+
+
+def box_axes(ground: np.ndarray, heading_rad: np.ndarray, size_m: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) ECEF axes (m) of boxes standing at ECEF ``ground`` points (N, 3): rows x
+    (east turned clockwise by the heading), y (north, turned likewise) and z (the geodetic
+    up), each ``size_m`` long; the float64 twin of overlay_object.vert's frame."""
+    up = ground * np.asarray(INV_AXES2)
+    up /= np.linalg.norm(up, axis=1, keepdims=True)
+    east = np.cross([0.0, 0.0, 1.0], up) + np.array([1e-9, 0.0, 0.0])
+    east /= np.linalg.norm(east, axis=1, keepdims=True)
+    north = np.cross(up, east)
+    ch, sh = np.cos(heading_rad)[:, None], np.sin(heading_rad)[:, None]
+    axes = np.stack([ch * east - sh * north, sh * east + ch * north, up], axis=1)
+    return axes * np.asarray(size_m, np.float64)[:, None, None]
+
+
+def ndc_to_ecef(view: ViewState) -> np.ndarray:
+    """(3, 3) matrix taking (x, y, 1) in normalised device coordinates to the ECEF direction
+    of that pixel's ray, scaled to view depth 1 (camera z = -1)."""
+    p = np.asarray(view.proj, np.float64)
+    to_cam = np.array(
+        [
+            [1.0 / p[0, 0], 0.0, p[0, 2] / p[0, 0]],
+            [0.0, 1.0 / p[1, 1], p[1, 2] / p[1, 1]],
+            [0.0, 0.0, -1.0],
+        ]
+    )
+    return np.asarray(view.rotation, np.float64).T @ to_cam
+
+
+def sprite_classes(
+    view: ViewState, centres_rel: np.ndarray, radius_m: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which objects (bounding spheres: centres relative to the eye, ECEF metres (N, 3), radii
+    (N,) metres) to draw as point sprites and which as meshes: (sprite, mesh) boolean (N,).
+
+    Sprites: in front of the eye, at most ``SPRITE_MAX_PX`` wide, and wholly inside the
+    viewport (GL clips a point by its centre, so a sprite at the edge would vanish at once).
+    Meshes: the rest of those that may be visible; spheres wholly outside the view volume's
+    sides or behind the eye are in neither. The half-width is the vertex shader's:
+    r d / (w^2 px_m) pixels for a sphere at distance d and view depth w."""
+    cam = centres_rel @ np.asarray(view.rotation, np.float64).T
+    w = -cam[:, 2]
+    d = np.sqrt(np.einsum("ij,ij->i", cam, cam))
+    w_h, h_px = view.viewport
+    px_m = 2.0 * math.tan(math.radians(view.fovy_deg) / 2.0) / h_px
+    # The eye close to (or inside) the sphere: a mesh (wholly behind the eye: not drawn).
+    near = (w > -radius_m) & (w <= 2.0 * radius_m)
+    ws = np.where(near, 1.0, w)
+    half = 1.05 * radius_m * d / (ws * ws * px_m) + 1.0
+    p = np.asarray(view.proj, np.float64)
+    ndc_x = (p[0, 0] * cam[:, 0] + p[0, 2] * cam[:, 2]) / ws
+    ndc_y = (p[1, 1] * cam[:, 1] + p[1, 2] * cam[:, 2]) / ws
+    hx, hy = 2.0 * half / w_h, 2.0 * half / h_px
+    ax, ay = np.abs(ndc_x), np.abs(ndc_y)
+    seen = near | ((w > 0.0) & (ax <= 1.0 + hx) & (ay <= 1.0 + hy))
+    sprite = ~near & (w > 0.0) & (2.0 * half <= SPRITE_MAX_PX) & (ax <= 1.0 - hx) & (ay <= 1.0 - hy)
+    return sprite, seen & ~sprite
 
 
 def _box_mesh() -> np.ndarray:
@@ -175,14 +249,41 @@ class PointOverlay:
                 fragment_shader=load_shader("overlay_object.frag"),
             )
             mesh = _box_mesh() if self.style.kind == "box" else _cone_mesh()
+            if self.style.kind == "box":
+                # Small boxes as ray-cast point sprites (one vertex each): the instance rows
+                # read as plain per-vertex data. Which boxes go where is chosen per frame.
+                self.sprite_prog = gpu_objects(ctx).program(
+                    vertex_shader=load_shader("overlay_box_sprite.vert"),
+                    fragment_shader=load_shader("overlay_box_sprite.frag"),
+                )
+                nbytes = max(n, 1) * self.FLOATS * 4
+                self.meshes = gpu_objects(ctx).buffer(reserve=nbytes, dynamic=True)
+                self.sprites = gpu_objects(ctx).buffer(reserve=max(n, 1) * 15 * 4, dynamic=True)
+                self.sprite_vao = gpu_objects(ctx).vertex_array(
+                    self.sprite_prog,
+                    [(self.sprites, "3f 3f 3f 3f 3f", "in_hi", "in_lo", "in_ax", "in_ay", "in_az")],
+                )
             self.mesh = gpu_objects(ctx).buffer(mesh.tobytes())
             self.n_mesh = len(mesh)
+            # Boxes draw their mesh instances from their own buffer (those not drawn as sprites).
+            inst = self.meshes if self.style.kind == "box" else self.instances
             self.vao = gpu_objects(ctx).vertex_array(
                 self.program,
-                [(self.mesh, "3f 3f", "in_vpos", "in_vnrm"), (self.instances, fmt, *attrs)],
+                [(self.mesh, "3f 3f", "in_vpos", "in_vnrm"), (inst, fmt, *attrs)],
                 skip_errors=True,
             )
         self.label_prog = self.label_vao = self.atlas = self.rects = None
+        if self.style.kind != "box":
+            self.sprite_prog = self.sprite_vao = self.sprites = self.meshes = None
+        # Boxes: per resident box its instance row, its sprite row (hi, lo, the three axes in
+        # ECEF metres), bounding centre (ECEF, float64) and radius (m), and the last frame's
+        # split (sprite/mesh masks' bytes).
+        self._rows = np.zeros((0, self.FLOATS), np.float32)
+        self._sprite_rows = np.zeros((0, 15), np.float32)
+        self._centres = np.zeros((0, 3))
+        self._radii = np.zeros(0)
+        self._split: tuple[bytes, bytes] | None = None
+        self.n_sprites = self.n_meshes = 0
         if self.style.labels and self.names:
             uniq, inv = np.unique(np.array(self.names, dtype=object), return_inverse=True)
             self.label_of = inv.astype(np.float64)
@@ -236,8 +337,32 @@ class PointOverlay:
         ).astype(np.float32)
         if len(idx):
             self.instances.write(data.tobytes())
+        if self.style.kind == "box":
+            size = (self.scale[idx] * base).astype(np.float64)
+            axes = box_axes(pts, self.heading[idx], size)
+            self._rows, self._centres = data, pts + 0.5 * axes[:, 2]
+            self._sprite_rows = np.concatenate([hi, lo, axes.reshape(-1, 9)], axis=1).astype(
+                np.float32
+            )
+            self._radii = BOX_RADIUS * size
+            self._split = None
         self.resident = len(idx)
         return self.resident
+
+    def _split_boxes(self, view: ViewState) -> None:
+        """Choose sprites and meshes for this frame (`sprite_classes`) and upload each set's
+        rows when the choice changed."""
+        rel = self._centres - np.asarray(view.eye, np.float64)
+        sprite, mesh = sprite_classes(view, rel, self._radii)
+        key = (sprite.tobytes(), mesh.tobytes())
+        if key == self._split:
+            return
+        self._split = key
+        for buf, rows in ((self.sprites, self._sprite_rows), (self.meshes, self._rows)):
+            rows = rows[sprite if buf is self.sprites else mesh]
+            if len(rows):
+                buf.write(rows.tobytes())
+        self.n_sprites, self.n_meshes = int(sprite.sum()), int(mesh.sum())
 
     def draw(self, view: ViewState, render_set: RenderSet, terrain, exaggeration: float) -> int:
         if not self.visible:
@@ -257,6 +382,16 @@ class PointOverlay:
         set_uniforms(self.program, uni)
         if self.mesh is None:
             self.vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=n)
+        elif self.sprite_vao is not None:
+            self._split_boxes(view)
+            if self.n_meshes:
+                self.vao.render(moderngl.TRIANGLES, vertices=self.n_mesh, instances=self.n_meshes)
+            if self.n_sprites:
+                set_uniforms(self.sprite_prog, uni)
+                self.sprite_prog["u_ndc_to_ecef"].write(ndc_to_ecef(view).T.astype("f4").tobytes())
+                ctx.enable(moderngl.PROGRAM_POINT_SIZE)
+                self.sprite_vao.render(moderngl.POINTS, vertices=self.n_sprites)
+                ctx.disable(moderngl.PROGRAM_POINT_SIZE)
         else:
             self.vao.render(moderngl.TRIANGLES, vertices=self.n_mesh, instances=n)
         if self.label_vao is not None:
@@ -285,6 +420,10 @@ class PointOverlay:
         for obj in (
             self.vao,
             self.instances,
+            self.sprite_vao,
+            self.sprite_prog,
+            self.sprites,
+            self.meshes,
             self.program,
             self.mesh,
             self.label_vao,
