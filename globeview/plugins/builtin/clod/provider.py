@@ -16,7 +16,8 @@ threshold of tau pixels is ``tau' = tau / K``: at 720 px and 45 degrees (K = 869
 
 Caching. A tile's vertex errors, block maxima and radii are computed at its first use and kept
 (per exaggeration: errors are 3-D deviations of exaggerated positions, so exaggeration scales
-the height part of every error). The whole frame's result is reused while the tile set, the
+the height part of every error) in slot arrays (`tile_data.ClodTiles`: a frame reads the few
+nodes it visits in place; nothing per tile is stacked per frame). The whole frame's result is reused while the tile set, the
 settings and the view's projection are unchanged, the view direction turned by less than
 ``reuse_turn_deg`` and the eye moved by less than ``reuse_fraction`` of its distance to the
 nearest tile: the same index arrays are handed on (``stats["clod_cache_hits"]`` counts).
@@ -36,7 +37,6 @@ from __future__ import annotations
 
 import math
 import time
-from collections import OrderedDict
 from collections.abc import Callable
 
 import numpy as np
@@ -58,6 +58,7 @@ from globeview.plugins.builtin.clod.mesh import (
     tile_clod,
     triangulate,
 )
+from globeview.plugins.builtin.clod.tile_data import ClodTiles
 
 #: Tiles whose CLOD data stays cached (about 170 kB each for 65 x 65 tiles).
 TILE_CACHE = 1500
@@ -117,33 +118,28 @@ class QuadtreeClodProvider(LodProvider):
 
     def __init__(self, context=None) -> None:
         super().__init__(context)
-        self._tiles: OrderedDict[tuple, TileClod] = OrderedDict()
+        self._tiles = ClodTiles(TILE_CACHE)
         self._terrain_id: tuple[int, int] | None = None
         self._last: dict | None = None
         self.cache_hits = 0
         self.last_frame: ClodFrame | None = None
 
     # -- tile data -------------------------------------------------------------------------
-    def _tile(
+    def _slots(
         self,
         terrain: TerrainStack,
-        key: tuple[int, int, int],
+        keys: np.ndarray,
         exag: float,
         displace: Callable[[np.ndarray], np.ndarray] | None = None,
         dkey: tuple | None = None,
-    ) -> TileClod:
-        """A tile's CLOD data (cached per exaggeration and displacement ``dkey``,
-        `displacement_key`)."""
-        ck = (key, exag, dkey)
-        hit = self._tiles.get(ck)
-        if hit is not None:
-            self._tiles.move_to_end(ck)
-            return hit
-        data = tile_clod(key, terrain.heights(key), exag, displace)
-        self._tiles[ck] = data
-        while len(self._tiles) > TILE_CACHE:
-            self._tiles.popitem(last=False)
-        return data
+    ) -> np.ndarray:
+        """Slots in the packed cache (`ClodTiles`) holding the tiles' CLOD data for this
+        exaggeration and displacement ``dkey`` (`displacement_key`), built where missing."""
+
+        def build(key: tuple[int, int, int]) -> TileClod:
+            return tile_clod(key, terrain.heights(key), exag, displace)
+
+        return self._tiles.slots(keys, terrain.tile_size, (exag, dkey), build)
 
     def tau_px(self, view: ViewState) -> float:
         """The threshold in pixels: the setting, or the view's when the setting is 0."""
@@ -227,17 +223,16 @@ class QuadtreeClodProvider(LodProvider):
             rs = RenderSet.empty()
             rs.stats.update(base.stats)
             return rs
-        tiles = [
-            self._tile(terrain, (int(a), int(b), int(c)), exag, view.displace, dkey)
-            for a, b, c in keys
-        ]
-        origins = np.stack([t.origin for t in tiles])
-        bases = np.stack([t.basis for t in tiles])
-        eye_local, planes_local = view.in_local_frames(origins, bases)
+        slots = self._slots(terrain, keys, exag, view.displace, dkey)
+        data = self._tiles
+        eye_local, planes_local = view.in_local_frames(
+            data.origin.take(slots, axis=0), data.basis.take(slots, axis=0)
+        )
         k_px = view.sse_factor
         frame = clod_frame(
             keys,
-            tiles,
+            data,
+            slots,
             eye_local,
             planes_local,
             tau / k_px,
@@ -245,7 +240,7 @@ class QuadtreeClodProvider(LodProvider):
             cull=bool(self.values["cull_blocks"]),
         )
         self.last_frame = frame
-        size = tiles[0].pos.shape[0]
+        size = data.size
         chunks, counts = triangulate(frame, size, keys)
         rs = RenderSet(
             keys,
@@ -256,8 +251,11 @@ class QuadtreeClodProvider(LodProvider):
         )
         rs.stats.update(base.stats)
         # Nearest tile distance (for the reuse rule): the nearest node of any tile.
+        q = np.arange(0, size, size // 4)
         d = np.linalg.norm(
-            np.stack([t.pos[:: size // 4, :: size // 4].reshape(-1, 3) for t in tiles])
+            data.pos[slots[:, None, None], q[None, :, None], q[None, None, :]].reshape(
+                len(slots), -1, 3
+            )
             - eye_local[:, None, :],
             axis=-1,
         )

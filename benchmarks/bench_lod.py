@@ -1,0 +1,222 @@
+"""LOD selection benchmark: lod_ms per provider with a camera that moves, at every benchmark
+view (`globeview.bench.views.VIEWS`) and over the big benchmark DEM (`harness.big_dem_store`).
+
+Three camera motions per view (each frame a new view, so no provider reuses its last one):
+
+- ``turn``: the render benchmark's 0.01 degree yaw, alternating (under quadtree-clod's
+  0.05 degree reuse limit: clod hands on its meshes, the others select afresh);
+- ``move``: each frame the heading turns 0.2 degree (beyond quadtree-clod's 0.05 degree
+  reuse limit: clod rebuilds its meshes every frame) and the eye advances 0.2 % of its
+  height along it (a slow forward flight: 54 m/s at 9 km and 30 fps, so distance-regions'
+  speed factor stays near 1);
+- ``big-dem``: the poses of `globeview bench check`'s flight (flights/big_dem.json) over the
+  8192 x 8192 benchmark DEM, one frame every 0.25 s of flight time.
+
+Selection only: the session's active provider selects for the view the frame pipeline would
+build (`ViewState.from_camera` with the camera's speed from the motion), through the same
+host call as a frame (`GlobeSession.select`), without drawing. lod_ms is the provider's own
+figure (the frame statistics' lod_ms), wall_ms the time around the call; thread_ms the CPU
+time of this thread (less sensitive to the machine's load). Medians over the frames, after
+one warm-up pass over the same poses (the per-terrain tile cache and clod's per-tile data are
+then warm, as in an interactive session that has seen the area).
+
+Targets (issue #17 item 4) are printed beside the figures; they live here, never in tests.
+
+    .venv/bin/python benchmarks/bench_lod.py [--frames 20] [--lod NAME ...] [--view SUBSTR]
+        [--motion turn move big-dem] [--out FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+
+from globeview.bench.flight import Flight
+from globeview.bench.harness import Bench, load_terrain, parse_size
+from globeview.bench.views import VIEWS
+from globeview.errors import GlobeviewError
+from globeview.lod.view_state import ViewState
+
+FLIGHT = Path(__file__).resolve().parents[1] / "globeview" / "bench" / "flights" / "big_dem.json"
+MOTIONS = ("turn", "move", "big-dem")
+#: Seconds between frames of the ``move`` motion (the speed the pipeline would derive).
+DT_S = 1.0 / 30.0
+#: Flight seconds between the ``big-dem`` frames.
+BIG_DT_S = 0.25
+LOW_ALTITUDE_M = 50_000.0
+
+#: (provider, where) -> target lod_ms median; "where": "big-dem", "low" (low-altitude views
+#: and the big DEM), "White Mountains".
+TARGETS = {
+    ("chunked-sse", "big-dem"): 3.0,
+    ("distance-regions", "low"): 5.0,
+    ("wavelet", "low"): 5.0,
+    ("quadtree-clod", "White Mountains"): 10.0,
+}
+
+
+def move_poses(pose: tuple, frames: int) -> list[tuple]:
+    """``frames`` + 1 poses of the ``move`` motion from ``pose`` (lon, lat, h, heading,
+    pitch): per frame 0.2 % of the height forward along the heading and a 0.2 degree turn."""
+    lon, lat, h, heading, pitch = pose
+    r = 6_371_000.0
+    out = []
+    for i in range(frames + 1):
+        step = 0.002 * h * i
+        hd = math.radians(heading)
+        la = lat + math.degrees(step * math.cos(hd) / r)
+        lo = lon + math.degrees(step * math.sin(hd) / (r * math.cos(math.radians(lat))))
+        out.append((lo, la, h, heading + 0.2 * i, pitch))
+    return out
+
+
+def target_for(lod: str, view: str, motion: str, height: float) -> float | None:
+    if motion == "big-dem":
+        t = TARGETS.get((lod, "big-dem"))
+        if t is not None:
+            return t
+    if height <= LOW_ALTITUDE_M and (lod, "low") in TARGETS:
+        return TARGETS[(lod, "low")]
+    if "White Mountains" in view and motion == "move":
+        return TARGETS.get((lod, "White Mountains"))
+    return None
+
+
+def run_frames(bench: Bench, poses: list[tuple], times: list[float], turn: bool) -> dict:
+    """Select once per pose (the ``turn`` motion: one pose, yawed +-0.01 degree per frame);
+    returns medians of lod_ms, wall_ms, thread_ms and the tile and clod rebuild counts."""
+    s = bench.session
+    cam = s.camera
+    rows = []
+    prev_eye, prev_t = None, None
+    for i, t in enumerate(times):
+        if turn:
+            if i == 0:
+                cam.set_lonlat(*poses[0])
+            else:
+                cam.fly_yaw(0.01 * (-1) ** i)
+        else:
+            cam.set_lonlat(*poses[i])
+        eye = cam.eye.copy()
+        speed = 0.0
+        if prev_eye is not None and t > prev_t:
+            speed = float(math.dist(eye, prev_eye)) / (t - prev_t)
+        prev_eye, prev_t = eye, t
+        view = ViewState.from_camera(
+            cam,
+            bench.size,
+            tau_px=s.tau_px,
+            exaggeration=s.renderer.settings.exaggeration,
+            speed_mps=speed,
+        )
+        c0, w0 = time.thread_time(), time.perf_counter()
+        rs = s.select(view)
+        w1, c1 = time.perf_counter(), time.thread_time()
+        st = rs.stats
+        rows.append(
+            (
+                float(st.get("lod_ms", 0.0)),
+                (w1 - w0) * 1e3,
+                (c1 - c0) * 1e3,
+                len(rs.keys),
+                int(st.get("clod_reused", 0)),
+            )
+        )
+    med = statistics.median
+    return {
+        "lod_ms": med(r[0] for r in rows),
+        "wall_ms": med(r[1] for r in rows),
+        "thread_ms": med(r[2] for r in rows),
+        "lod_ms_max": max(r[0] for r in rows),
+        "tiles": int(med(r[3] for r in rows)),
+        "reused": sum(r[4] for r in rows),
+        "frames": len(rows),
+    }
+
+
+def cases(motions: list[str], view_filter: str | None, frames: int):
+    """(view name, motion, poses, times, turn) for every case asked for."""
+    for motion in motions:
+        if motion == "big-dem":
+            flight = Flight.load(FLIGHT)
+            n = max(frames, int(flight.duration / BIG_DT_S) + 1)
+            times = [min(i * BIG_DT_S, flight.duration) for i in range(n)]
+            poses = [flight.pose(t).as_tuple() for t in times]
+            yield "big DEM flight (4-8 km)", motion, poses, times, False
+            continue
+        for name, pose in VIEWS.items():
+            if view_filter and view_filter.lower() not in name.lower():
+                continue
+            times = [i * DT_S for i in range(frames + 1)]
+            if motion == "turn":
+                yield name, motion, [pose], times, True
+            else:
+                yield name, motion, move_poses(pose, frames), times, False
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--frames", type=int, default=20)
+    ap.add_argument("--size", default="1280x720")
+    ap.add_argument("--tau", type=float, default=2.0)
+    ap.add_argument("--lod", nargs="*", help="providers (default: every one installed)")
+    ap.add_argument("--motion", nargs="*", default=list(MOTIONS), choices=MOTIONS)
+    ap.add_argument("--view", help="only the VIEWS whose name contains this")
+    ap.add_argument("--out", help="also write the Markdown table to this file")
+    args = ap.parse_args()
+    if args.frames < 1:
+        raise GlobeviewError(f"--frames must be at least 1, not {args.frames}")
+    size = parse_size(args.size)
+
+    kind = "big-dem" if "big-dem" in args.motion else "embedded"
+    bench = Bench(load_terrain(kind), size)
+    providers = args.lod or bench.providers()
+    unknown = sorted(set(providers) - set(bench.providers()))
+    if unknown:
+        raise GlobeviewError(f"unknown LOD provider(s): {', '.join(unknown)}")
+    load = os.getloadavg()
+    lines = [
+        f"LOD selection benchmark, {size[0]}x{size[1]}, tau = {args.tau} px, "
+        f"{args.frames} frames per case, {time.strftime('%Y-%m-%d %H:%M %Z')}, "
+        f"{platform.machine()} ({len(os.sched_getaffinity(0))} cores), "
+        f"load {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}",
+        "",
+        "| provider | view | motion | tiles | lod_ms (median) | lod_ms (max) | thread_ms | "
+        "clod reused | target |",
+        "|---|---|---|---:|---:|---:|---:|---:|---|",
+    ]
+    print("\n".join(lines), flush=True)
+    all_cases = list(cases(args.motion, args.view, args.frames))
+    for lod in providers:
+        bench.use(lod, args.tau)
+        for name, motion, poses, times, turn in all_cases:
+            run_frames(bench, poses, times, turn)  # warm-up pass: tile facts, clod data
+            bench.session.reset_lod()
+            r = run_frames(bench, poses, times, turn)
+            bench.session.reset_lod()
+            tgt = target_for(lod, name, motion, poses[0][2])
+            verdict = (
+                ""
+                if tgt is None
+                else f"<= {tgt:g} ms: {'met' if r['lod_ms'] <= tgt else 'NOT met'}"
+            )
+            line = (
+                f"| {lod} | {name} | {motion} | {r['tiles']} | {r['lod_ms']:.2f} | "
+                f"{r['lod_ms_max']:.2f} | {r['thread_ms']:.2f} | {r['reused']}/{r['frames']} | "
+                f"{verdict} |"
+            )
+            lines.append(line)
+            print(line, flush=True)
+    bench.release()
+    if args.out:
+        Path(args.out).write_text("\n".join(lines) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
