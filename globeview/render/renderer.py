@@ -101,6 +101,7 @@ class GlobeRenderer:
         # made a 355-tile view wait ~30 frames after its tiles were built).
         self.upload_budget = 96
         self.load_workers = 2
+        self.load_batch = 8
         self.loader: TileLoader | None = None
         #: Called on a worker thread when a background tile finished (the window schedules a
         #: frame through it); None: nothing is told.
@@ -263,8 +264,14 @@ class GlobeRenderer:
 
     def _ensure_loader(self) -> TileLoader:
         if self.loader is None:
+            # Batches through `build_meshes` where the renderer has it (one metadata call per
+            # level for the batch instead of one per tile).
             self.loader = TileLoader(
-                self.build_mesh, workers=self.load_workers, on_ready=self._tile_ready
+                self.build_mesh,
+                workers=self.load_workers,
+                on_ready=self._tile_ready,
+                build_many=getattr(self, "build_meshes", None),
+                batch=self.load_batch,
             )
         return self.loader
 

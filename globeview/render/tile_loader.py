@@ -74,8 +74,13 @@ class TileLoader:
     Args:
         build: ``build(key) -> TileMesh`` (called on the workers; must be thread-safe).
         workers: worker threads.
-        on_ready: called on a worker thread after each tile finished (built or failed);
-            must be cheap and thread-safe (e.g. emit a Qt signal).
+        on_ready: called on a worker thread after each batch of tiles finished (built or
+            failed); must be cheap and thread-safe (e.g. emit a Qt signal).
+        build_many: optional ``build_many(keys (N, 3)) -> {key: TileMesh}`` that builds
+            several tiles in one call (vectorised metadata, fewer hand-overs of the GIL); a
+            worker then takes up to ``batch`` tiles at once, in load order. A batch that
+            raises is built again tile by tile with ``build`` so only the bad tile fails.
+        batch: most tiles per ``build_many`` call.
     """
 
     def __init__(
@@ -83,10 +88,16 @@ class TileLoader:
         build: Callable[[Key], TileMesh],
         workers: int = 2,
         on_ready: Callable[[], None] | None = None,
+        build_many: Callable[[np.ndarray], dict[Key, TileMesh]] | None = None,
+        batch: int = 8,
     ) -> None:
         if workers < 1:
             raise ValueError(f"tile loader workers must be at least 1, got {workers}")
+        if batch < 1:
+            raise ValueError(f"tile loader batch must be at least 1, got {batch}")
         self._build = build
+        self._build_many = build_many
+        self._batch = batch if build_many is not None else 1
         self.on_ready = on_ready
         self._cv = threading.Condition()
         # Wanted, not started: dicts kept in load order (a dict is an ordered set here).
@@ -184,42 +195,60 @@ class TileLoader:
             self._cv.notify_all()
 
     # -- workers ---------------------------------------------------------------------------
-    def _next_key(self) -> Key | None:
-        """The next tile to build (prefetch first), or None when stopping. Holds _cv."""
+    def _next_keys(self) -> list[Key] | None:
+        """Up to ``batch`` tiles to build next (prefetch first, in load order), or None when
+        stopping. Holds _cv."""
         while not self._stop:
+            out: list[Key] = []
             for tier in (self._prefetch, self._queue):
-                while tier:
+                while tier and len(out) < self._batch:
                     key = next(iter(tier))
                     del tier[key]
                     # In both tiers, or finished meanwhile: skip.
                     if key in self._running or key in self._ready or key in self.failed:
                         continue
-                    return key
+                    if key not in out:
+                        out.append(key)
+            if out:
+                return out
             self._cv.wait()
         return None
+
+    def _build_keys(self, keys: list[Key]) -> dict[Key, TileMesh | BaseException]:
+        """Build ``keys``: in one ``build_many`` call when there is one and several keys,
+        else (or when the batch raised) one by one, each failure kept as its exception."""
+        if self._build_many is not None and len(keys) > 1:
+            try:
+                meshes = self._build_many(np.array(keys, dtype=np.int64))
+                return {k: meshes[k] for k in keys}
+            except Exception:  # noqa: BLE001  find the bad tile below, one by one
+                pass
+        out: dict[Key, TileMesh | BaseException] = {}
+        for key in keys:
+            try:
+                out[key] = self._build(key)
+            except Exception as exc:  # noqa: BLE001  a failed tile is counted, others load
+                out[key] = exc
+        return out
 
     def _work(self) -> None:
         while True:
             with self._cv:
-                key = self._next_key()
-                if key is None:
+                keys = self._next_keys()
+                if keys is None:
                     return
-                self._running.add(key)
+                self._running.update(keys)
                 generation = self._generation
-            try:
-                mesh: TileMesh | None = self._build(key)
-                exc: BaseException | None = None
-            except Exception as e:  # noqa: BLE001  a failed tile is counted, the others load
-                mesh, exc = None, e
+            results = self._build_keys(keys)
             with self._cv:
                 if generation != self._generation:
-                    continue  # cancelled meanwhile (new layers): the result is stale
-                self._running.discard(key)
-                if exc is None:
-                    assert mesh is not None
-                    self._ready[key] = mesh
-                else:
-                    self.failed[key] = exc
+                    continue  # cancelled meanwhile (new layers): the results are stale
+                for key, res in results.items():
+                    self._running.discard(key)
+                    if isinstance(res, BaseException):
+                        self.failed[key] = res
+                    else:
+                        self._ready[key] = res
             callback = self.on_ready
             if callback is not None:
                 try:

@@ -64,26 +64,27 @@ def test_async_frames_converge_to_the_synchronous_image(scene, targets) -> None:
 
 
 def test_async_frames_count_missing_stand_in_and_failed_tiles(scene, targets) -> None:
-    """A tile that cannot be built (here: its build raises, as an unreadable store window
+    """A tile that cannot be built (here: its heights raise, as an unreadable store window
     would) is counted in the frame's ``tiles_failed``, stays stood in by an ancestor, and
     does not keep the view "loading"; the others load."""
     size = (256, 192)
     target = targets(size)
     renderer = scene.renderer
     scene.camera = Camera.from_lonlat(-71.3, 44.2, 60000.0, 0.0, -50.0)
-    real_build = renderer.build_mesh
+    terrain = renderer.terrain
+    real_heights = terrain.heights
     deepest: set[tuple[int, int, int]] = set()
 
-    def build(key):
-        if key in deepest:
+    def heights(key, *args, **kwargs):
+        if tuple(int(v) for v in key) in deepest:
             raise OSError(f"unreadable window for {key}")
-        return real_build(key)
+        return real_heights(key, *args, **kwargs)
 
     if renderer.loader is not None:
         renderer.loader.shutdown()
         renderer.loader = None
     renderer.pool.invalidate()
-    renderer.build_mesh = build  # the loader made at the next frame builds through it
+    terrain.heights = heights  # every build (batched or not) reads through it
     renderer.async_loading = True
     try:
         first = scene.render(target.fbo, size)
@@ -103,7 +104,7 @@ def test_async_frames_count_missing_stand_in_and_failed_tiles(scene, targets) ->
         assert extra["tiles_standin"] >= 1  # an ancestor covers the two failed tiles
         assert result.stats.tiles_drawn >= 1
     finally:
-        del renderer.build_mesh
+        del terrain.heights
         if renderer.loader is not None:
             renderer.loader.shutdown()
             renderer.loader = None

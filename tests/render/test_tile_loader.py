@@ -132,3 +132,34 @@ def test_a_broken_listener_does_not_stop_loading() -> None:
 def test_workers_must_be_at_least_one() -> None:
     with pytest.raises(ValueError, match="at least 1"):
         TileLoader(lambda key: None, workers=0)
+
+
+def test_batches_go_through_build_many_in_load_order_and_a_bad_tile_fails_alone() -> None:
+    batches: list[list[tuple[int, int, int]]] = []
+    bad = (6, 3, 0)
+
+    def build_many(keys):
+        ks = [tuple(map(int, k)) for k in keys]
+        batches.append(ks)
+        if bad in ks:
+            raise OSError("one unreadable tile in the batch")
+        return {k: ("mesh", k) for k in ks}
+
+    def build(key):
+        if key == bad:
+            raise OSError("unreadable")
+        return ("one", key)
+
+    keys = np.array([(6, i, 0) for i in range(7)])
+    loader = TileLoader(build, workers=1, build_many=build_many, batch=3)
+    try:
+        loader.request(keys, priority=np.arange(7.0))
+        wait_for(lambda: loader.building == 0 and loader.ready == 6)
+    finally:
+        loader.shutdown()
+    assert batches[0] == [(6, 0, 0), (6, 1, 0), (6, 2, 0)]
+    assert all(len(b) <= 3 for b in batches)
+    assert set(loader.failed) == {bad}
+    got = dict(loader.take_ready(10))
+    assert got[(6, 0, 0)] == ("mesh", (6, 0, 0))
+    assert got[(6, 4, 0)] == ("one", (6, 4, 0))  # its batch was rebuilt tile by tile
