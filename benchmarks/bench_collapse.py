@@ -1,7 +1,12 @@
 """Collapse cost: frame_ms, lod_ms and draw_ms of the same views with and without the
 terrain collapse (median of N frames, a tiny camera turn per frame so every frame selects and
-draws). Prints a Markdown table. The collapse's displacement runs in the vertex shader; on the
-CPU it only moves tile bounding points (9 per tile corner lattice), never vertices.
+draws), still and animating (``anim``: the ratio changes every frame, as while the tool's
+collapse animation runs, so nothing displaced can be reused). Prints a Markdown table. The
+collapse's displacement runs in the vertex shader; on the CPU it only moves tile bounding
+points (9 per tile corner lattice), never vertices.
+
+Targets (issue #17, item 5): a still collapse <= +10 % frame time over the same view without
+it; an animating collapse's lod_ms <= 5 ms.
 
     .venv/bin/python benchmarks/bench_collapse.py [--frames 9] [--size 1280x720]
 """
@@ -9,8 +14,10 @@ CPU it only moves tile bounding points (9 per tile corner lattice), never vertic
 from __future__ import annotations
 
 import argparse
+import os
+import statistics
 
-from globeview.bench.harness import Bench, parse_size
+from globeview.bench.harness import Bench, machine, parse_size
 from globeview.terrain.embedded import embedded_stores
 from globeview.terrain.stack import TerrainStack
 
@@ -27,6 +34,31 @@ VIEWS = {
 }
 
 
+def animate(bench: Bench, tool, cam: tuple, pair: tuple, frames: int) -> dict[str, float]:
+    """Medians over ``frames`` frames of a collapse animation: each frame sets the next
+    effective ratio (the tool's eased progress from 1 to ``pair[4]``) and turns a little."""
+    bench.set_pose(cam, cut=True)
+    tool.set_points(*pair[:4], 1.0)
+    bench.frame()
+    rows = []
+    n = max(int(frames), 1)
+    for i in range(n):
+        p = (i + 1) / n
+        ease = p * p * (3.0 - 2.0 * p)  # the tool's smoothstep
+        tool.set_points(*pair[:4], 1.0 + (pair[4] - 1.0) * ease)
+        bench.session.camera.fly_yaw(0.01 * (-1) ** i)
+        r, ms = bench.frame()
+        rows.append((ms, r.stats.lod_ms, r.stats.draw_ms, r.stats.triangles))
+    cols = list(zip(*rows, strict=True))
+    med = statistics.median
+    return {
+        "frame_ms": med(cols[0]),
+        "lod_ms": med(cols[1]),
+        "draw_ms": med(cols[2]),
+        "triangles": med(cols[3]),
+    }
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--frames", type=int, default=9)
@@ -37,7 +69,9 @@ def main() -> int:
     bench = Bench(TerrainStack.from_stores(embedded_stores()), size)
     session = bench.session
     tool = session.tools()["collapse"]
-    print(f"Collapse cost, {size[0]}x{size[1]}, chunked-sse, tau 2 px, {bench.gl_renderer}")
+    load = os.getloadavg()
+    print(f"Collapse cost, {size[0]}x{size[1]}, chunked-sse, tau 2 px, {args.frames} frames")
+    print(f"{machine(bench.gl_renderer)}; load {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
     print()
     print("| view | collapse | triangles | frame_ms | lod_ms | draw_ms |")
     print("|---|---|---:|---:|---:|---:|")
@@ -48,7 +82,8 @@ def main() -> int:
         tool.set_points(*pair[:4], pair[4])
         session.activate_tool("collapse")
         on = bench.measure(cam, args.frames, turn_deg=0.01)
-        for label, m in (("off", off), ("on", on)):
+        anim = animate(bench, tool, cam, pair, args.frames)
+        for label, m in (("off", off), ("on", on), ("anim", anim)):
             print(
                 f"| {name} | {label} | {m['triangles']:.0f} | {m['frame_ms']:.1f} | "
                 f"{m['lod_ms']:.1f} | {m['draw_ms']:.1f} |"

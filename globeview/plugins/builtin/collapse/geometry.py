@@ -31,7 +31,8 @@ Everything here takes and returns absolute ECEF metres (float64); the GPU twin
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections import OrderedDict
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
@@ -78,9 +79,80 @@ def rotate_about(v: np.ndarray, axis: np.ndarray, angle: np.ndarray) -> np.ndarr
     """Rotate vectors ``v`` (N, 3) about the unit ``axis`` (3,) by ``angle`` (N,) radians,
     right-handed (Rodrigues)."""
     angle = np.asarray(angle, dtype=np.float64)[..., None]
-    cross = np.cross(axis, v)
-    along = (v @ axis)[..., None] * axis
-    return v * np.cos(angle) + cross * np.sin(angle) + along * (1.0 - np.cos(angle))
+    ax = np.asarray(axis, dtype=np.float64)
+    # axis x v as one matrix product with axis's cross-product matrix (np.cross costs several
+    # times more on the LOD's small batches).
+    skew = np.array([[0.0, -ax[2], ax[1]], [ax[2], 0.0, -ax[0]], [-ax[1], ax[0], 0.0]])
+    cos = np.cos(angle)
+    return v * cos + (v @ skew.T) * np.sin(angle) + (v @ ax)[..., None] * ax * (1.0 - cos)
+
+
+def foot_points(points_ecef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Ellipsoid foot points (N, 3) ECEF m along the geodetic normal, and heights (N,) m, of
+    ECEF points (N, 3) m.
+
+    Vermeille's closed form (the one `ecef_to_geodetic` uses, outside-the-evolute branch),
+    trimmed to what the collapse needs: with k, d and dz as there, the geodetic latitude is
+    atan2(z, d), so the unit normal is (d/dz x/rho, d/dz y/rho, z/dz) and the foot point is
+    P - h n, with no angle, degree or `lonlat_to_ecef` round trip (a third of the numpy
+    calls: per-call overhead, not points, is what costs on the LOD's small batches). Points
+    within ~43 km of the Earth's centre (inside the evolute) go the general way."""
+    p = np.asarray(points_ecef, dtype=np.float64).reshape(-1, 3)
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    a, e2 = WGS84.a, WGS84.e2
+    e4 = e2 * e2
+    rho = np.hypot(x, y)
+    pp = (rho / a) ** 2
+    q = (1.0 - e2) * (z / a) ** 2
+    r = (pp + q - e4) / 6.0
+    border = 8.0 * r**3 + e4 * pp * q
+    if not (border > 0.0).all():
+        lon, lat, h = ecef_to_lonlat(p)
+        return np.asarray(lonlat_to_ecef(lon, lat, 0.0)).reshape(-1, 3), np.asarray(h)
+    rad1 = np.sqrt(border)
+    rad2 = np.sqrt(e4 * pp * q)
+    cb = np.cbrt((rad1 + rad2) ** 2)
+    # The two forms of Vermeille's root, chosen as `ecef_to_geodetic` chooses them.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tail = np.where(border > 10.0 * e2, 2.0 * r * r / cb, 0.5 * np.cbrt((rad1 - rad2) ** 2))
+    u = r + 0.5 * cb + tail
+    v = np.sqrt(u * u + e4 * q)
+    w = e2 * (u + v - q) / (2.0 * v)
+    k = (u + v) / (np.sqrt(w * w + u + v) + w)
+    d = k * rho / (k + e2)
+    dz = np.hypot(d, z)
+    h = (k + e2 - 1.0) * dz / k
+    # On the polar axis (rho = 0) the normal is (0, 0, sign z): any horizontal unit will do.
+    safe = np.where(rho > 0.0, rho, 1.0)
+    c = d / (dz * safe)
+    n = np.stack([c * x, c * y, z / dz], axis=1)
+    return p - h[:, None] * n, h
+
+
+class FootMemo:
+    """Foot points, heights and along-axis angles of recently moved point sets, for one A-B
+    pair (any ratio): while the collapse animates only the ratio changes, and the LOD moves
+    the same tile lattices every frame, so their feet are looked up, not recomputed. Keyed
+    by the points' bytes; the oldest of more than `SIZE` sets are dropped."""
+
+    SIZE = 96
+
+    def __init__(self) -> None:
+        self._sets: OrderedDict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = OrderedDict()
+
+    def get(self, p: np.ndarray, m: np.ndarray, t: np.ndarray):
+        """(foot, h, psi) of points ``p`` (N, 3) for axis directions ``m``, ``t``."""
+        key = (p.shape, p.tobytes())
+        hit = self._sets.get(key)
+        if hit is not None:
+            self._sets.move_to_end(key)
+            return hit
+        foot, h = foot_points(p)
+        psi = np.arctan2(foot @ t, foot @ m)
+        self._sets[key] = (foot, h, psi)
+        if len(self._sets) > self.SIZE:
+            self._sets.popitem(last=False)
+        return foot, h, psi
 
 
 def ellipsoid_point_along(directions: np.ndarray) -> np.ndarray:
@@ -92,7 +164,8 @@ def ellipsoid_point_along(directions: np.ndarray) -> np.ndarray:
 
 def geodetic_normal(points_on_ellipsoid: np.ndarray) -> np.ndarray:
     """Unit geodetic normals at ellipsoid points (N, 3) ECEF."""
-    return _unit(points_on_ellipsoid * INV_AXES2)
+    g = points_on_ellipsoid * INV_AXES2
+    return g / np.sqrt(np.einsum("...j,...j->...", g, g))[..., None]
 
 
 @dataclass(frozen=True)
@@ -120,13 +193,23 @@ class CollapseFrame:
     m_ecef: np.ndarray
     r_m: float
     psi0: float
+    #: Feet of recently moved points, shared by the frames of one A-B pair (`with_ratio`).
+    feet: FootMemo = field(default_factory=FootMemo, compare=False, repr=False)
 
     @classmethod
     def from_lonlat(
-        cls, lon_a: float, lat_a: float, lon_b: float, lat_b: float, ratio: float
+        cls,
+        lon_a: float,
+        lat_a: float,
+        lon_b: float,
+        lat_b: float,
+        ratio: float,
+        feet: FootMemo | None = None,
     ) -> CollapseFrame:
         """Build the frame. Raises ValueError for r outside (0, 1] or A, B (near-)antipodal.
-        A and B closer than ``MIN_SEPARATION_M`` give the identity (psi0 = 0)."""
+        A and B closer than ``MIN_SEPARATION_M`` give the identity (psi0 = 0). ``feet``: the
+        memo of another frame of the same A and B (default: a new one)."""
+        feet = FootMemo() if feet is None else feet
         if not (0.0 < ratio <= 1.0):
             raise ValueError(f"collapse ratio must lie in (0, 1], got {ratio!r}")
         fa = lonlat_to_ecef(lon_a, lat_a, 0.0)
@@ -147,17 +230,20 @@ class CollapseFrame:
             n = _unit(np.cross(m, [0.0, 0.0, 1.0]) + np.array([0.0, 1e-12, 0.0]))
             n = _unit(np.cross(m, np.cross(n, m)))
             return cls(lon_a, lat_a, lon_b, lat_b, 1.0, m, np.cross(n, m), n, m_ecef,
-                       float(np.linalg.norm(m_ecef)), 0.0)  # fmt: skip
+                       float(np.linalg.norm(m_ecef)), 0.0, feet)  # fmt: skip
         n = cross / sin_ang
         t = np.cross(n, m)
         return cls(
             float(lon_a), float(lat_a), float(lon_b), float(lat_b), float(ratio),
-            m, t, n, m_ecef, float(np.linalg.norm(m_ecef)), 0.5 * angle,
+            m, t, n, m_ecef, float(np.linalg.norm(m_ecef)), 0.5 * angle, feet,
         )  # fmt: skip
 
     def with_ratio(self, ratio: float) -> CollapseFrame:
-        """The same A and B with another ratio (the animation interpolates it)."""
-        return CollapseFrame.from_lonlat(self.lon_a, self.lat_a, self.lon_b, self.lat_b, ratio)
+        """The same A and B with another ratio (the animation interpolates it), sharing this
+        frame's memo of foot points."""
+        return CollapseFrame.from_lonlat(
+            self.lon_a, self.lat_a, self.lon_b, self.lat_b, ratio, self.feet
+        )
 
     # -- the along-axis coordinate --------------------------------------------------------------
     @property
@@ -203,15 +289,15 @@ class CollapseFrame:
     # -- the mapping ------------------------------------------------------------------------
     def _foot(self, points_ecef: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         p = np.asarray(points_ecef, dtype=np.float64).reshape(-1, 3)
-        lon, lat, h = ecef_to_lonlat(p)
-        return lonlat_to_ecef(lon, lat, 0.0), np.asarray(h), p
+        foot, h = foot_points(p)
+        return foot, h, p
 
     def _move(self, points_ecef: np.ndarray, inverse: bool) -> np.ndarray:
         shape = np.shape(points_ecef)
         if self.ratio == 1.0 or self.psi0 == 0.0:
             return np.asarray(points_ecef, dtype=np.float64).copy()
-        foot, h, p = self._foot(points_ecef)
-        psi = np.arctan2(foot @ self.t, foot @ self.m)
+        p = np.ascontiguousarray(points_ecef, dtype=np.float64).reshape(-1, 3)
+        foot, h, psi = self.feet.get(p, self.m, self.t)
         phi = self.rotation_angle(psi, inverse=inverse)
         g = ellipsoid_point_along(rotate_about(foot, self.n, phi))
         out = g + h[:, None] * geodetic_normal(g)

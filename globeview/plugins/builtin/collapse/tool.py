@@ -80,6 +80,7 @@ class CollapseTool(Tool):
         self._anim_from: float = 0.0
         self._anim_start: float | None = None
         self._frame: CollapseFrame | None = None  # cached for (a, b, effective ratio)
+        self._last: CollapseFrame | None = None  # the last frame made (its feet are reused)
 
     # -- state -----------------------------------------------------------------------------
     def configure(self, values: dict[str, Any]) -> None:
@@ -111,8 +112,16 @@ class CollapseTool(Tool):
         r = self.effective_ratio
         f = self._frame
         if f is None or (f.ratio != r and f.psi0 > 0.0):
-            f = CollapseFrame.from_lonlat(*self.a, *self.b, r)
-            self._frame = f
+            # The same A and B at another ratio (the animation): keep the memo of feet.
+            last = self._last
+            same = last is not None and (last.lon_a, last.lat_a) == self.a
+            feet = (
+                last.feet
+                if last is not None and same and (last.lon_b, last.lat_b) == self.b
+                else None
+            )
+            f = CollapseFrame.from_lonlat(*self.a, *self.b, r, feet)
+            self._frame = self._last = f
         return f
 
     def set_points(

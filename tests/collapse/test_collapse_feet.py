@@ -1,0 +1,63 @@
+"""The collapse's CPU twin, made cheaper for the LOD: foot points from the trimmed closed form
+agree with the geodesy module's round trip, frames of one A-B pair share their memo of feet
+(the animation changes only the ratio) and moving points through the memo gives the same
+result as moving them afresh."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from globeview.geodesy import ecef_to_lonlat, lonlat_to_ecef
+from globeview.plugins.builtin.collapse.geometry import CollapseFrame, FootMemo, foot_points
+
+
+def test_foot_points_match_the_geodesy_round_trip() -> None:
+    rng = np.random.default_rng(5)
+    n = 4000
+    lon = rng.uniform(-180.0, 180.0, n)
+    lat = np.concatenate([rng.uniform(-90.0, 90.0, n - 4), [90.0, -90.0, 0.0, 89.9999999]])
+    h = rng.uniform(-1.2e4, 2.0e6, n)
+    p = lonlat_to_ecef(lon, lat, h)
+    foot, hh = foot_points(p)
+    lo, la, h_ref = ecef_to_lonlat(p)
+    ref = lonlat_to_ecef(lo, la, 0.0)
+    assert np.max(np.abs(hh - h_ref)) < 1e-6
+    assert np.max(np.linalg.norm(foot - ref, axis=1)) < 1e-6
+    # Deep inside the Earth (inside the evolute) the general way is taken: still a foot point.
+    inner = np.array([[1.0e3, 2.0e3, 5.0e2], [0.0, 0.0, 0.0]])
+    f_in, h_in = foot_points(inner)
+    assert np.isfinite(f_in).all() and np.isfinite(h_in).all()
+
+
+def test_frames_of_one_pair_share_feet_and_agree_with_fresh_ones() -> None:
+    a_b = (-122.1, 43.0, -122.6, 48.05)
+    f1 = CollapseFrame.from_lonlat(*a_b, 0.5)
+    f2 = f1.with_ratio(0.2)
+    assert f2.feet is f1.feet
+    assert CollapseFrame.from_lonlat(*a_b, 0.2).feet is not f1.feet
+    rng = np.random.default_rng(9)
+    pts = lonlat_to_ecef(
+        rng.uniform(-125.0, -119.0, 500), rng.uniform(41.0, 50.0, 500), rng.uniform(0, 4e3, 500)
+    )
+    first = f1.forward(pts)
+    again = f1.forward(pts)  # from the memo
+    fresh = CollapseFrame.from_lonlat(*a_b, 0.5, FootMemo()).forward(pts)
+    assert np.array_equal(first, again) and np.array_equal(first, fresh)
+    assert np.array_equal(f2.forward(pts), CollapseFrame.from_lonlat(*a_b, 0.2).forward(pts))
+    assert np.max(np.linalg.norm(f2.inverse(f2.forward(pts)) - pts, axis=1)) <= 1e-3
+
+
+def test_the_tool_keeps_its_feet_while_animating() -> None:
+    from globeview.plugins.builtin.collapse.tool import CollapseTool
+
+    tool = CollapseTool()
+    tool.set_points(-122.1, 43.0, -122.6, 48.05, 0.1, animate=True)
+    tool.animate(0.0)
+    first = tool.frame()
+    tool.animate(0.2)
+    second = tool.frame()
+    assert first is not None and second is not None
+    assert second.ratio != first.ratio and second.feet is first.feet
+    tool.set_points(-120.0, 44.0, -118.0, 46.0, 0.1)  # another pair: a new memo
+    third = tool.frame()
+    assert third is not None and third.feet is not first.feet
