@@ -81,8 +81,9 @@ class TerrainStack:
     def __post_init__(self) -> None:
         self.version = 0
         self._lock = threading.Lock()
-        self._cache: dict[tuple[int, int, int], np.ndarray] = {}
-        self._order: list[tuple[int, int, int]] = []
+        # Composed tiles by (level, x, y); padded composed ancestors by (level, x, y, upto).
+        self._cache: dict[tuple[int, ...], np.ndarray] = {}
+        self._order: list[tuple[int, ...]] = []
         self._tables: dict[tuple[TileStore, int], tuple] = {}
         self._masks: dict[TileStore, BlendMask] = {}
         self._diffs: dict[tuple, tuple] = {}
@@ -536,7 +537,7 @@ class TerrainStack:
                 # cell with a nodata corner take the composed cell's interpolation (the layer
                 # alone is NaN there), so every finer level draws one surface.
                 ax, ay = key[1] >> f, key[2] >> f
-                anc = self._compose((st.max_level, ax, ay), i + 1)
+                anc = self._composed_padded((st.max_level, ax, ay), i + 1)[1:-1, 1:-1]
                 h = upsample_subtile(anc, f, key[1] - (ax << f), key[2] - (ay << f))
                 has = ~np.isnan(h)
             else:
@@ -551,31 +552,23 @@ class TerrainStack:
         float32 metres, row 0 north, for `build_tile_mesh`'s ``apron`` (normals at edge nodes
         then see the neighbours' triangles, exactly as if the tile had no edge).
 
-        The ring comes from the 8 same-level neighbours, composed by `heights` (so through its
-        tile cache: neighbours drawn in the same view are usually already there); columns wrap
-        across the antimeridian. Beyond the poles there is no neighbour: the ring row is
-        extrapolated linearly from the two rows inside (its latitude is clamped to the pole by
-        the mesh builder anyway). Outside any data the neighbours are the ellipsoid (height 0),
-        which is what `heights` composes there too.
+        The interior is `heights` (the same array values); the ring holds the 8 same-level
+        neighbours' nodes next to the edges, composed on the ring alone (`_compose_ring`:
+        equal to the neighbours' own `heights` up to float rounding, without composing
+        them); columns wrap across the antimeridian. Beyond the poles there is no
+        neighbour: the ring row is extrapolated linearly from the two rows inside (its
+        latitude is clamped to the pole by the mesh builder anyway). Outside any data the
+        ring is the ellipsoid (height 0), which is what `heights` composes there too.
         """
         level, x, y = (int(key[0]), int(key[1]), int(key[2]))
-        ncols, nrows = 2 << level, 1 << level
         size = self.tile_size
         out = np.empty((size + 2, size + 2), dtype=np.float32)
-        # Neighbouring tiles share their edge nodes, so the node beyond our edge is the
-        # neighbour's second row/column (index 1 or -2), not its first.
-        dst = {-1: slice(0, 1), 0: slice(1, size + 1), 1: slice(size + 1, size + 2)}
-        src = {-1: slice(size - 2, size - 1), 0: slice(0, size), 1: slice(1, 2)}
-        for dy in (-1, 0, 1):
-            ny = y + dy
-            if not 0 <= ny < nrows:
-                continue
-            for dx in (-1, 0, 1):
-                h = self.heights((level, (x + dx) % ncols, ny))
-                out[dst[dy], dst[dx]] = h[src[dy], src[dx]]
+        out[1:-1, 1:-1] = self.heights((level, x, y))
+        rows, cols = _ring_index(size)
+        out[rows, cols] = np.nan_to_num(self._compose_ring((level, x, y), len(self.visible_layers)))
         if y == 0:
             out[0] = 2.0 * out[1] - out[2]
-        if y == nrows - 1:
+        if y == (1 << level) - 1:
             out[-1] = 2.0 * out[-2] - out[-3]
         return out
 
@@ -583,15 +576,117 @@ class TerrainStack:
         level, x, y = key
         lm = st.max_level
         if level <= lm:
-            if not st.has_data(level, np.array([x]), np.array([y]))[0]:
+            if not st.has_tile(level, x, y):
                 return None
             return st.heights(key)
         f = level - lm
         ax, ay = x >> f, y >> f
-        if not st.has_data(lm, np.array([ax]), np.array([ay]))[0]:
+        if not st.has_tile(lm, ax, ay):
             return None
         anc = st.heights((lm, ax, ay))
         return upsample_subtile(anc, f, x - (ax << f), y - (ay << f))
+
+    # -- the apron ring ------------------------------------------------------------------------
+    # `heights_apron` needs one node beyond each edge of a tile. Composing the 8 neighbours
+    # for it cost twice the tile itself (a view's outer tiles have neighbours nobody else
+    # asks for; issue #17: 0.9 of 2 ms a tile). The ring is composed instead on its own
+    # 4 (size + 1) nodes, node by node as the neighbour composes them: each layer's ring
+    # heights from the store's padded window (`TileStore.heights_padded`: the neighbours'
+    # edge-adjacent nodes) or its finest ancestor's, interpolated; blend weights sampled at
+    # the ring's points. The same values as the neighbours' up to rounding: a bilinear
+    # gather instead of their separable matrix products (float64, then float32).
+    def _compose_ring(self, key: tuple[int, int, int], upto: int) -> np.ndarray:
+        """(4 (size + 1),) float32: the first ``upto`` visible layers composed at the ring
+        nodes of a tile (`_ring_index` order; NaN where none has data)."""
+        out = np.full(4 * (self.tile_size + 1), np.nan, dtype=np.float32)
+        for i, layer in enumerate(self.visible_layers[:upto]):
+            self._paste_ring(i, layer.store, key, out)
+        return out
+
+    def _paste_ring(
+        self, i: int, st: TileStore, key: tuple[int, int, int], out: np.ndarray
+    ) -> None:
+        """`_paste` on the ring nodes of a tile (``out``: the layers below there)."""
+        h = self._layer_ring(st, key)
+        if h is None:
+            return
+        has = ~np.isnan(h)
+        if i > 0 and self.blend:
+            w = self._blend_ring(st, key)
+            if w is not None:
+                f = key[0] - st.max_level
+                if f > 0:
+                    # The band finer than the layer's data: the blend at its finest level,
+                    # upsampled (as `_paste`), from the padded composed ancestor.
+                    ax, ay = key[1] >> f, key[2] >> f
+                    anc = self._composed_padded((st.max_level, ax, ay), i + 1)
+                    h = _upsample_ring(anc, f, key[1] - (ax << f), key[2] - (ay << f))
+                    has = ~np.isnan(h)
+                else:
+                    mixed = np.where(np.isnan(out), h, out + w * (h - out))
+                    h = np.where(has, mixed, np.nan).astype(np.float32)
+        np.copyto(out, h, where=has)
+
+    def _layer_ring(self, st: TileStore, key: tuple[int, int, int]) -> np.ndarray | None:
+        """A layer's own heights at a tile's ring nodes (NaN = no data), None where neither
+        the tile nor its neighbours have data of the layer."""
+        level, x, y = key
+        lm = st.max_level
+        rows, cols = _ring_index(self.tile_size)
+        if level <= lm:
+            if not st.has_data_near(level, x, y):
+                return None
+            return st.heights_padded(key)[rows, cols]
+        f = level - lm
+        ax, ay = x >> f, y >> f
+        if not st.has_data_near(lm, ax, ay):
+            return None
+        return _upsample_ring(st.heights_padded((lm, ax, ay)), f, x - (ax << f), y - (ay << f))
+
+    def _blend_ring(self, st: TileStore, key: tuple[int, int, int]) -> np.ndarray | None:
+        """(ring,) float32 weight of a layer over those below at a tile's ring nodes; None
+        where the tile grown by one node is deeper inside the layer than its band."""
+        mask = self._blend_mask(st)
+        w_, s_, e_, n_ = (float(v) for v in tile_bounds_arrays(*key))
+        size = self.tile_size
+        d_lon = (e_ - w_) / (size - 1)
+        d_lat = (n_ - s_) / (size - 1)
+        grown = (w_ - d_lon, s_ - d_lat, e_ + d_lon, n_ + d_lat)
+        if not mask.touches_band(*(np.atleast_1d(v) for v in grown))[0]:
+            return None
+        rows, cols = _ring_index(size)
+        t = np.arange(-1, size + 1, dtype=np.float64)
+        lon = (w_ + d_lon * t)[cols]
+        lat = (n_ - d_lat * t)[rows]
+        return mask.sample(lon, lat).astype(np.float32)
+
+    def _composed_padded(self, key: tuple[int, int, int], upto: int) -> np.ndarray:
+        """(size + 2)^2 float32: the first ``upto`` layers composed at a tile and its ring
+        (NaN where none has data). Cached with the composed tiles: a layer's border band
+        finer than its data upsamples one such ancestor for up to 4^f tiles."""
+        ckey = (int(key[0]), int(key[1]), int(key[2]), int(upto))
+        with self._lock:
+            hit = self._cache.get(ckey)
+        if hit is not None:
+            return hit
+        version = self.version
+        size = self.tile_size
+        out = np.empty((size + 2, size + 2), dtype=np.float32)
+        out[1:-1, 1:-1] = self._compose(key, upto)
+        rows, cols = _ring_index(size)
+        out[rows, cols] = self._compose_ring(key, upto)
+        self._remember(ckey, out, version)
+        return out
+
+    def _remember(self, ckey: tuple, value: np.ndarray, version: int) -> None:
+        """Cache ``value`` under ``ckey`` unless the layers changed since ``version``."""
+        with self._lock:
+            if version != self.version:  # the layers changed meanwhile: do not cache
+                return
+            self._cache[ckey] = value
+            self._order.append(ckey)
+            if len(self._order) > self.cache_tiles:
+                self._cache.pop(self._order.pop(0), None)
 
     def height_at(self, lon: float, lat: float, level: int | None = None) -> float:
         """Composed height (m) at a point, bilinear in the tile at ``level`` (default: the
@@ -607,6 +702,62 @@ class TerrainStack:
         c = (lon - w) / (e - w) * (size - 1)
         r = (n - lat) / (n - s) * (size - 1)
         return float(bilinear(h, np.array([r]), np.array([c]))[0])
+
+
+def _ring_index(size: int) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) of the ring nodes of a (size + 2)^2 padded tile: the top row, the bottom
+    row, then the left and right columns between them (4 (size + 1) nodes)."""
+    hit = _RING.get(size)
+    if hit is None:
+        n = size + 2
+        inner = np.arange(1, n - 1)
+        rows = np.concatenate([np.zeros(n, np.int64), np.full(n, n - 1), inner, inner])
+        cols = np.concatenate(
+            [np.arange(n), np.arange(n), np.zeros(n - 2, np.int64), np.full(n - 2, n - 1)]
+        )
+        hit = _RING[size] = (rows, cols)
+    return hit
+
+
+_RING: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _upsample_ring(anc: np.ndarray, f: int, dx: int, dy: int) -> np.ndarray:
+    """(ring,) float32: the ring nodes of a descendant tile ``f`` levels below the padded
+    ancestor ``anc`` ((size + 2)^2, `TileStore.heights_padded`), offset (dx, dy) tiles inside
+    it, interpolated bilinearly. Ring nodes beyond the ancestor's edge lie within its first
+    padded cell: the neighbouring ancestor's own bilinear surface there."""
+    size = anc.shape[0] - 2
+    cells = size - 1
+    scale = 2**f
+    t = np.arange(-1, size + 1, dtype=np.float64)
+    # Positions in the padded grid (+1): integers over a power of two, so exact.
+    rpos = (dy * cells + t + scale) / scale
+    cpos = (dx * cells + t + scale) / scale
+    rows, cols = _ring_index(size)
+    return _bilinear_nodes(anc, rpos[rows], cpos[cols]).astype(np.float32)
+
+
+def _bilinear_nodes(grid: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """`bilinear`, except that a corner with weight 0 is left out rather than multiplied by
+    0: a point on a grid line of ``grid`` takes its value from that line even where the next
+    one is NaN (the ring of a padded ancestor is NaN beyond a pole or the data, and ring
+    nodes on the ancestor's edge must keep the edge's value, as the neighbour has it)."""
+    nr, nc = grid.shape
+    r = np.clip(rows, 0.0, nr - 1.0)
+    c = np.clip(cols, 0.0, nc - 1.0)
+    r0 = np.minimum(np.floor(r).astype(np.int64), nr - 2)
+    c0 = np.minimum(np.floor(c).astype(np.int64), nc - 2)
+    fr = r - r0
+    fc = c - c0
+    g = grid.astype(np.float64)
+
+    def lerp(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
+        return np.where(t == 0.0, a, np.where(t == 1.0, b, a * (1 - t) + b * t))
+
+    top = lerp(g[r0, c0], g[r0, c0 + 1], fc)
+    bot = lerp(g[r0 + 1, c0], g[r0 + 1, c0 + 1], fc)
+    return lerp(top, bot, fr)
 
 
 def _stride_interpolation_errors(h: np.ndarray) -> np.ndarray:

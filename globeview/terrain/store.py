@@ -209,6 +209,8 @@ class TileStore:
         self._all_handles: list[rasterio.DatasetReader] = []
         self._pool: ThreadPoolExecutor | None = None
         self._closed = False
+        #: `_data_table`s by (level, grow); small, built on first use (races only rebuild).
+        self._tables: dict[tuple[int, int], np.ndarray] = {}
 
     # -- opening ---------------------------------------------------------------------------
 
@@ -355,40 +357,74 @@ class TileStore:
                 self._all_handles.append(ds)
         return ds
 
-    def _read_tile(self, key: TileKey) -> np.ndarray:
+    def _read_padded(self, key: TileKey) -> np.ndarray:
+        """A tile's nodes with one node beyond each edge: (tile_size + 2)^2 float32, NaN = no
+        data. The interior is the tile (all NaN outside the level's extent, as `heights`
+        serves it); the ring is the raster's next node on each side, which is the
+        same-level neighbour's (neighbouring tiles share their edge nodes), wrapping across
+        the antimeridian on a level that goes all the way round, NaN beyond the data."""
         size = self.tile_size
-        out = np.full((size, size), np.nan, dtype=np.float32)
+        out = np.full((size + 2, size + 2), np.nan, dtype=np.float32)
         if not (0 <= key.level <= self.max_level):
             return out
         grid = self._grids[key.level]
-        iy, ix, inside = grid.tile_slots(np.array(key.y), np.array(key.x))
-        if not bool(inside):
-            return out
         n = grid.tile_nodes
+        ncols = grid.ncols
+        iy = key.y - grid.y0
+        ix = (key.x - grid.x0) % ncols
+        if not grid.global_lon and ix == ncols - 1 and grid.nx < ncols:
+            ix = -1  # the tile just west of the extent: its east ring is the raster's column 1
+        r0, c0 = iy * n - 1, ix * n - 1  # raster row/column of the padded window's corner
+        r_lo, r_hi = max(r0, 0), min(r0 + size + 2, grid.height)
+        c_lo, c_hi = max(c0, 0), min(c0 + size + 2, grid.width)
+        if r_lo >= r_hi or c_lo >= c_hi:
+            return out
         ds = self._dataset(key.level)
         try:
-            out[:] = ds.read(1, window=Window(int(ix) * n, int(iy) * n, size, size))
+            out[r_lo - r0 : r_hi - r0, c_lo - c0 : c_hi - c0] = ds.read(
+                1, window=Window(c_lo, r_lo, c_hi - c_lo, r_hi - r_lo)
+            )
+            if grid.global_lon:
+                # Column -1 is the raster's column turn - 1, column turn + 1 its column 1
+                # (column turn repeats column 0: -180 = +180).
+                turn = ncols * n
+                rows = slice(r_lo - r0, r_hi - r0)
+                if c0 < 0:
+                    out[rows, 0] = ds.read(1, window=Window(turn - 1, r_lo, 1, r_hi - r_lo))[:, 0]
+                if c0 + size + 2 > grid.width:
+                    out[rows, -1] = ds.read(1, window=Window(1, r_lo, 1, r_hi - r_lo))[:, 0]
         except _READ_ERRORS as exc:
             # A level file damaged (truncated, rewritten) after the store was opened.
             raise StoreError(
                 f"cannot read tile {tuple(key)} from {self.path / self._levels[key.level].file}: "
                 f"{_short(exc)}"
             ) from None
+        # A node on the extent's edge belongs to the tile outside it too, which serves NaN:
+        # blank each part of the window whose tile lies outside the extent.
+        for dy, rows_ in ((-1, slice(0, 1)), (0, slice(1, size + 1)), (1, slice(size + 1, None))):
+            for dx, cols_ in (
+                (-1, slice(0, 1)),
+                (0, slice(1, size + 1)),
+                (1, slice(size + 1, None)),
+            ):
+                jx = ix + dx
+                if grid.global_lon:
+                    jx %= ncols
+                if not (0 <= iy + dy < grid.ny and 0 <= jx < grid.nx):
+                    out[rows_, cols_] = np.nan
         return out
 
-    def heights(self, key: TileKey | tuple[int, int, int]) -> np.ndarray:
-        """Heights (metres) of a tile's (tile_size x tile_size) nodes, float32, NaN = no data.
-
-        Row r, column c is the node at lon = west + c*d, lat = north - r*d. Served from an
-        LRU cache (thread-safe); the returned array is read-only and shared.
-        """
+    def heights_padded(self, key: TileKey | tuple[int, int, int]) -> np.ndarray:
+        """A tile's heights with one node beyond each edge ((tile_size + 2)^2 float32 metres,
+        NaN = no data; see `_read_padded`), from the same LRU cache as `heights`; read-only
+        and shared."""
         key = TileKey(*key)
         with self._lock:
             hit = self._cache.get(key)
             if hit is not None:
                 self._cache.move_to_end(key)
                 return hit
-        tile = self._read_tile(key)
+        tile = self._read_padded(key)
         tile.flags.writeable = False
         with self._lock:
             self._cache[key] = tile
@@ -396,6 +432,64 @@ class TileStore:
             while len(self._cache) > self._cache_tiles:
                 self._cache.popitem(last=False)
         return tile
+
+    def heights(self, key: TileKey | tuple[int, int, int]) -> np.ndarray:
+        """Heights (metres) of a tile's (tile_size x tile_size) nodes, float32, NaN = no data.
+
+        Row r, column c is the node at lon = west + c*d, lat = north - r*d. Served from an
+        LRU cache (thread-safe); the returned array is read-only and shared (a view of the
+        padded tile `heights_padded` caches: one window read serves both).
+        """
+        return self.heights_padded(key)[1:-1, 1:-1]
+
+    def has_tile(self, level: int, x: int, y: int) -> bool:
+        """`has_data` for one tile, without numpy's per-call overhead (the compose path asks
+        it for every layer of every tile)."""
+        return self._table_lookup(level, x, y, 0)
+
+    def has_data_near(self, level: int, x: int, y: int) -> bool:
+        """Whether the tile or any of its 8 same-level neighbours has data (a tile's ring of
+        neighbour nodes may hold data when the tile itself has none)."""
+        return self._table_lookup(level, x, y, 1)
+
+    def _table_lookup(self, level: int, x: int, y: int, grow: int) -> bool:
+        if not (0 <= level <= self.max_level):
+            return False
+        grid = self._grids[level]
+        iy = y - grid.y0
+        ix = (x - grid.x0) % grid.ncols
+        if not grid.global_lon and ix >= grid.nx:
+            # Just east (nx) or just west (ncols - 1) of the extent: the table's border.
+            ix = grid.nx if ix == grid.nx else (-1 if ix == grid.ncols - 1 else -2)
+        if not (-1 <= iy <= grid.ny and -1 <= ix <= grid.nx) or not (0 <= x < grid.ncols):
+            return False
+        return bool(self._data_table(level, grow)[iy + 1, ix + 1])
+
+    def _data_table(self, level: int, grow: int) -> np.ndarray:
+        """(ny + 2, nx + 2) bool: whether tile (iy, ix) of the level has data (``grow`` = 1:
+        it or one of its 8 neighbours), at [iy + 1, ix + 1], iy and ix from -1 (the tiles
+        just outside the extent) to ny and nx; columns wrap across the antimeridian on a
+        level that goes all the way round. Built once per level (a race only rebuilds it)."""
+        hit = self._tables.get((level, grow))
+        if hit is not None:
+            return hit
+        grid = self._grids[level]
+        has = np.isfinite(self._levels[level].hmin)
+        if grid.global_lon:
+            has = np.concatenate([has[:, -1:], has, has[:, :1]], axis=1)
+        else:
+            has = np.pad(has, ((0, 0), (1, 1)))
+        table = np.pad(has, ((1, 1), (0, 0)))
+        if grow:
+            q = np.pad(table, 1)
+            rows, cols = table.shape
+            near = np.zeros_like(table)
+            for dy in range(3):
+                for dx in range(3):
+                    near |= q[dy : dy + rows, dx : dx + cols]
+            table = near
+        self._tables[(level, grow)] = table
+        return table
 
     def cached(self, key: TileKey | tuple[int, int, int]) -> bool:
         """Whether a tile is in the cache now."""
