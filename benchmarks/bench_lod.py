@@ -16,9 +16,11 @@ Selection only: the session's active provider selects for the view the frame pip
 build (`ViewState.from_camera` with the camera's speed from the motion), through the same
 host call as a frame (`GlobeSession.select`), without drawing. lod_ms is the provider's own
 figure (the frame statistics' lod_ms), wall_ms the time around the call; thread_ms the CPU
-time of this thread (less sensitive to the machine's load). Medians over the frames, after
-one warm-up pass over the same poses (the per-terrain tile cache and clod's per-tile data are
-then warm, as in an interactive session that has seen the area).
+time of this thread (less sensitive to the machine's load). Medians over the frames of a
+second pass over the same poses (the per-terrain tile cache and clod's per-tile data are then
+warm, as in an interactive session that has seen the area); "lod_ms cold" is the first pass,
+which starts with an empty tile cache (the big-DEM target is judged on it: the flight of
+`globeview bench check` sees new tiles every frame).
 
 Targets (issue #17 item 4) are printed beside the figures; they live here, never in tests.
 
@@ -187,28 +189,34 @@ def main() -> int:
         f"load {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}",
         "",
         "| provider | view | motion | tiles | lod_ms (median) | lod_ms (max) | thread_ms | "
-        "clod reused | target |",
-        "|---|---|---|---:|---:|---:|---:|---:|---|",
+        "lod_ms cold | clod reused | target |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---|",
     ]
     print("\n".join(lines), flush=True)
     all_cases = list(cases(args.motion, args.view, args.frames))
     for lod in providers:
         bench.use(lod, args.tau)
         for name, motion, poses, times, turn in all_cases:
-            run_frames(bench, poses, times, turn)  # warm-up pass: tile facts, clod data
+            # Cold: the traversal's per-terrain tile cache starts empty (as on a first
+            # visit: the big-DEM flight of `globeview bench check` sees new tiles every
+            # frame); then warm: the same frames again.
+            bench.terrain.lod_cache = None
+            cold = run_frames(bench, poses, times, turn)
             bench.session.reset_lod()
             r = run_frames(bench, poses, times, turn)
             bench.session.reset_lod()
             tgt = target_for(lod, name, motion, poses[0][2])
+            # The big-DEM target is the flight's (cold); the others an interactive session's.
+            judged = cold if motion == "big-dem" else r
             verdict = (
                 ""
                 if tgt is None
-                else f"<= {tgt:g} ms: {'met' if r['lod_ms'] <= tgt else 'NOT met'}"
+                else f"<= {tgt:g} ms: {'met' if judged['lod_ms'] <= tgt else 'NOT met'}"
             )
             line = (
                 f"| {lod} | {name} | {motion} | {r['tiles']} | {r['lod_ms']:.2f} | "
-                f"{r['lod_ms_max']:.2f} | {r['thread_ms']:.2f} | {r['reused']}/{r['frames']} | "
-                f"{verdict} |"
+                f"{r['lod_ms_max']:.2f} | {r['thread_ms']:.2f} | {cold['lod_ms']:.2f} | "
+                f"{r['reused']}/{r['frames']} | {verdict} |"
             )
             lines.append(line)
             print(line, flush=True)

@@ -42,6 +42,21 @@ class FrustumFrame:
         self.tol = 1e-3 + 1e-12 * (float(np.abs(view.eye).sum()) + view.far)
         self.d_tol = self.d_eye + self.tol
 
+    def exact_planes(
+        self, points: np.ndarray, margin: np.ndarray, planes: np.ndarray
+    ) -> np.ndarray:
+        """`exact` testing each tile against the planes ``planes`` (N, 6) bool marks only
+        (those its prefilter left open; the others it passes): per tile and marked plane
+        the same operations on the same operands as `exact`, so the same answer, with a
+        sixth of the work where one plane is open."""
+        tile, plane = np.nonzero(planes)
+        rel = points.take(tile, axis=0) - self.eye  # (P, K, 3)
+        # einsum sums over j in order, as exact's "nkj,pj->npk" does (the same floats).
+        dist = np.einsum("nkj,nj->nk", rel, self.normals.take(plane, axis=0)).max(axis=1)
+        ok = dist + self.d_eye.take(plane) >= -margin.take(tile)
+        fails = np.bincount(tile.compress(~ok), minlength=len(points))
+        return fails == 0
+
     def exact(self, points: np.ndarray, margin: np.ndarray) -> np.ndarray:
         """`culling.frustum_visible`, the same operations on the same operands (so the same
         floats), with the per-view terms computed once."""
@@ -51,7 +66,7 @@ class FrustumFrame:
 
 def frustum_prefilter(
     frame: FrustumFrame, rel_centre: np.ndarray, margin: np.ndarray, sphere: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`frustum_visible` decided from each tile's bounding sphere where that is conclusive.
 
     With c the mean of a tile's points (``rel_centre`` = c - eye, (N, 3)) and r their
@@ -62,12 +77,15 @@ def frustum_prefilter(
     magnitudes), so they never disagree with the exact test; tiles neither decides come back
     as ambiguous, for the exact `frustum_visible` (`FrustumFrame.exact`).
 
-    Returns (visible, ambiguous), both (N,) bool; ``visible`` is False where ambiguous."""
-    # Over the planes, the least dist(c) + margin + tol.
-    m = (rel_centre @ frame.normals_t + frame.d_tol).min(axis=1) + margin
+    Returns (visible, ambiguous, open_planes): (N,) bool each, ``visible`` False where
+    ambiguous; and (N, 6) bool, the planes the centre does not settle (the only ones the
+    exact test of an ambiguous tile needs, `FrustumFrame.exact_planes`)."""
+    # Per plane dist(c) + margin + tol; over the planes, the least.
+    mp = rel_centre @ frame.normals_t + frame.d_tol + margin[:, None]
+    m = mp.min(axis=1)
     inside = m >= 2.0 * frame.tol  # dist(c) + margin >= tol on every plane
     outside = m + sphere < 0.0  # dist(c) + r + margin < -tol on some plane
-    return inside, ~(inside | outside)
+    return inside, ~(inside | outside), mp < 2.0 * frame.tol
 
 
 #: Slack (radians) of the horizon prefilter, far above the rounding of the exact test.

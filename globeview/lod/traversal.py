@@ -312,10 +312,14 @@ def _walk(view: ViewState, terrain: TerrainStack, policy: LodPolicy, cache: Tile
         pts = None
         if displace is None:
             rel_centre = lv.centre.take(slots, axis=0) - eye
-            vis_f, amb = frustum_prefilter(frame, rel_centre, c[COL_MARGIN], c[COL_SPHERE])
+            vis_f, amb, open_p = frustum_prefilter(frame, rel_centre, c[COL_MARGIN], c[COL_SPHERE])
             if np.count_nonzero(amb):
                 ai = amb.nonzero()[0]
-                vis_f[ai] = frame.exact(lv.pts.take(slots.take(ai), axis=0), c[COL_MARGIN].take(ai))
+                vis_f[ai] = frame.exact_planes(
+                    lv.pts.take(slots.take(ai), axis=0),
+                    c[COL_MARGIN].take(ai),
+                    open_p.take(ai, axis=0),
+                )
         else:
             lv.sync_displacement(dkey)
             pts = lv.displaced(slots, displace)

@@ -368,6 +368,7 @@ def test_prefilters_agree_with_exact_tests(terrain) -> None:
     """The conservative frustum / horizon prefilters never contradict the exact tests, on
     random tiles of many levels seen from random eyes (low to very high, any direction)."""
     rng = np.random.default_rng(7)
+    n_open = 0
     for level in (0, 1, 3, 6, 9, 12):
         n_side = 2**level
         x = rng.integers(0, 2 * n_side, 300)
@@ -387,7 +388,7 @@ def test_prefilters_agree_with_exact_tests(terrain) -> None:
             meta = terrain.metadata(level, x, y)
             # Frustum: decided tiles agree with the exact test.
             frame = cached_culling.FrustumFrame(view)
-            vis, amb = cached_culling.frustum_prefilter(
+            vis, amb, open_planes = cached_culling.frustum_prefilter(
                 frame,
                 facts["centre"] - view.eye,
                 c[tile_cache.COL_MARGIN],
@@ -396,9 +397,15 @@ def test_prefilters_agree_with_exact_tests(terrain) -> None:
             exact_f = _reference_frustum_visible(view, pts, c[tile_cache.COL_MARGIN])
             assert np.array_equal(vis[~amb], exact_f[~amb])
             assert np.array_equal(frame.exact(pts, c[tile_cache.COL_MARGIN]), exact_f)
+            # ... and so does the exact test of only the planes the prefilter left open.
+            ai = np.flatnonzero(amb)
+            got = frame.exact_planes(pts[ai], c[tile_cache.COL_MARGIN][ai], open_planes[ai])
+            assert np.array_equal(got, exact_f[ai])
+            n_open += len(ai)
             # Horizon: the prefiltered test equals the reference.
             cap = horizon_cap(view)
             lon0, lat0 = np.radians(view.eye_lonlat_h[:2])
             u0 = np.array([np.cos(lat0) * np.cos(lon0), np.cos(lat0) * np.sin(lon0), np.sin(lat0)])
             want = _reference_horizon_visible(view, w, s, e, n, meta.hmax, exaggeration)
             assert np.array_equal(cached_culling.horizon_visible_cached(view, cap, c, u0), want)
+    assert n_open > 20, n_open  # the plane-wise exact test met ambiguous tiles

@@ -41,7 +41,6 @@ import numpy as np
 
 from globeview.plugins.api import (
     enu_basis,
-    level_shape,
     lonlat_to_ecef,
     node_lonlat,
     tile_bounds_arrays,
@@ -308,9 +307,13 @@ def clod_frame(
         refine = (em > 0.0) & (em >= tau_ratio * np.maximum(room, 0.0))
         visible = np.ones(len(ct), dtype=bool)
         if cull:
+            # The planes' signed distances, sum over k in order as einsum("mpk,mk->mp")
+            # adds them (the same floats), without einsum's setup per call.
             pl = planes_local.take(ct, axis=0)
-            dist = np.einsum("mpk,mk->mp", pl[:, :, :3], centre) + pl[:, :, 3]
-            visible = np.all(dist >= -s[:, None], axis=1)
+            c3 = centre[:, None, :]
+            dist = pl[:, :, 0] * c3[..., 0] + pl[:, :, 1] * c3[..., 1]
+            dist = dist + pl[:, :, 2] * c3[..., 2] + pl[:, :, 3]
+            visible = (dist >= -s[:, None]).all(axis=1)
             refine &= visible
         blocks.append(np.sort(((ct * nc + ci) * nc + cj)[refine]))
         on[j + 1].reshape(-1)[blocks[j + 1]] = True
@@ -345,10 +348,13 @@ def clod_frame(
             edge = np.arange(size) * step
             va = en_f[(tile_base.take(a) + ea)[:, None] + edge]  # (P, size)
             vb = en_f[(tile_base.take(b) + eb)[:, None] + edge]
-            for tiles, mine, theirs, e0 in ((a, va, vb, ea), (b, vb, va, eb)):
-                p, k = np.nonzero(theirs & ~mine)
-                if len(p):
-                    new.append(tile_base.take(tiles.take(p)) + e0 + k * step)
+            differ = np.flatnonzero(va != vb)  # where one side has a vertex the other lacks
+            if len(differ) == 0:
+                continue
+            p, k = np.divmod(differ, size)
+            a_has = va.reshape(-1).take(differ)
+            tiles = np.where(a_has, b.take(p), a.take(p))  # the side that lacks it
+            new.append(tile_base.take(tiles) + np.where(a_has, eb, ea) + k * step)
         if not new or passes > 4 * n_levels + 4:
             break
         nodes = np.concatenate(new)
@@ -418,13 +424,16 @@ def _close(
             cand.append((bt + ((r - hh) // s2) * nb + (c - hh) // s2)[centre])
             hmid = rm == 0  # on a horizontal edge: the blocks above and below
             vmid = cm == 0  # on a vertical edge: the blocks left and right
+            # (Only the block beyond the midpoint's edge can fall outside the tile.)
+            above, below = r // s2 - 1, r // s2
+            left, right = c // s2 - 1, c // s2
+            bj_h, bi_v = (c - hh) // s2, (r - hh) // s2
             for sel, bi, bj in (
-                (hmid, r // s2 - 1, (c - hh) // s2),
-                (hmid, r // s2, (c - hh) // s2),
-                (vmid, (r - hh) // s2, c // s2 - 1),
-                (vmid, (r - hh) // s2, c // s2),
+                (hmid & (above >= 0), above, bj_h),
+                (hmid & (below < nb), below, bj_h),
+                (vmid & (left >= 0), bi_v, left),
+                (vmid & (right < nb), bi_v, right),
             ):
-                sel = sel & (bi >= 0) & (bi < nb) & (bj >= 0) & (bj < nb)
                 cand.append((bt + bi * nb + bj)[sel])
         new = np.empty(0, np.int64)
         if cand:
@@ -480,7 +489,7 @@ def _same_level_neighbours(keys: np.ndarray) -> tuple[tuple, tuple]:
         hit = sorted_code[i] == codes
         return np.where(hit, order[i], -1)
 
-    ncols = np.array([level_shape(int(lv))[0] for lv in level])
+    ncols = np.left_shift(2, level)  # level_shape(level)[0] = 2^(level + 1), per tile
     nrows = ncols // 2
     east = find((level << 58) | (y << 29) | ((x + 1) % ncols))
     south = find((level << 58) | (np.minimum(y + 1, nrows - 1) << 29) | x)

@@ -17,10 +17,11 @@ threshold of tau pixels is ``tau' = tau / K``: at 720 px and 45 degrees (K = 869
 Caching. A tile's vertex errors, block maxima and radii are computed at its first use and kept
 (per exaggeration: errors are 3-D deviations of exaggerated positions, so exaggeration scales
 the height part of every error) in slot arrays (`tile_data.ClodTiles`: a frame reads the few
-nodes it visits in place; nothing per tile is stacked per frame). The whole frame's result is reused while the tile set, the
-settings and the view's projection are unchanged, the view direction turned by less than
-``reuse_turn_deg`` and the eye moved by less than ``reuse_fraction`` of its distance to the
-nearest tile: the same index arrays are handed on (``stats["clod_cache_hits"]`` counts).
+nodes it visits in place; nothing per tile is stacked per frame). The whole frame's result is
+reused while the tile set, the settings and the view's projection are unchanged, the view
+direction turned by less than ``reuse_turn_deg`` and the eye moved by less than
+``reuse_fraction`` of its distance to the nearest tile: the same index arrays are handed on
+(``stats["clod_cache_hits"]`` counts).
 
 Displacement (a tool's ``view.displace``, e.g. the terrain collapse). The collapse is not affine
 at its fold lines: a long edge across a fold is drawn as a straight chord while a finer
@@ -261,7 +262,7 @@ class QuadtreeClodProvider(LodProvider):
         )
         rs.stats["clod_nearest_m"] = float(d.min())
         rs.stats["clod_triangles"] = int(counts.sum())
-        rs.stats["clod_vertices"] = int(frame.enabled.sum())
+        rs.stats["clod_vertices"] = int(np.count_nonzero(frame.enabled))
         rs.stats["clod_exchange_passes"] = frame.exchange_passes
         rs.stats["clod_tau_ratio"] = tau / k_px
         return rs
