@@ -22,17 +22,22 @@ them into the framebuffer the terrain was just drawn into:
 - Positions are formed **relative to the eye in float64** on the CPU and only then rounded to
   float32 for the GPU: no absolute ECEF coordinate is ever rounded to float32.
 - ``displace`` (the active tool's ``displacement_numpy``) is applied to every position first,
-  so primitives sit where the displaced (e.g. collapsed) terrain is drawn.
+  so primitives sit where the displaced (e.g. collapsed) terrain is drawn. The displaced
+  positions are kept between frames (`DisplacedMemo`) while the displacement stays the same
+  (`lod.traversal.displacement_key`: the tool's key and where it moves fixed probe points),
+  so a still collapse does not displace its fold lines again at every redraw.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from typing import Any
 
 import moderngl
 import numpy as np
 
+from globeview.lod.traversal import displacement_key
 from globeview.lod.view_state import INV_AXES2, ViewState
 from globeview.render.gpu_objects import gpu_objects
 from globeview.render.overlay_vectors import view_uniforms
@@ -65,6 +70,37 @@ def facing_eye(points_ecef: np.ndarray, eye: np.ndarray) -> np.ndarray:
     to_eye = np.asarray(eye, np.float64) - p
     dist = np.linalg.norm(to_eye, axis=1)
     return np.einsum("ij,ij->i", normal, to_eye) > -1e-3 * np.maximum(dist, 1.0)
+
+
+class DisplacedMemo:
+    """Displaced copies of the point arrays an overlay displaced, for one displacement: a
+    frame whose displacement key (`lod.traversal.displacement_key`) is unchanged looks them
+    up by their bytes instead of calling the tool again. At most `SIZE` arrays are kept."""
+
+    SIZE = 64
+
+    def __init__(self) -> None:
+        self._key: tuple | None = None
+        self._moved: dict[tuple, np.ndarray] = {}
+
+    def wrap(self, view: ViewState, displace: Displace) -> Displace:
+        """``displace`` memoised for this frame's displacement (the view's, with ``displace``)."""
+        key = displacement_key(replace(view, displace=displace))
+        if key != self._key:
+            self._key, self._moved = key, {}
+
+        def cached(points: np.ndarray) -> np.ndarray:
+            p = np.ascontiguousarray(points, np.float64)
+            k = (p.shape, p.tobytes())
+            out = self._moved.get(k)
+            if out is None:
+                out = np.asarray(displace(p), np.float64)
+                if len(self._moved) >= self.SIZE:
+                    self._moved.clear()
+                self._moved[k] = out
+            return out
+
+        return cached
 
 
 def _pieces(pts: np.ndarray) -> np.ndarray:
@@ -201,6 +237,7 @@ class ToolOverlayRenderer:
         self._rect_of: dict[str, np.ndarray] = {}
         self.drawn = 0
         self.labels_drawn = 0
+        self._displaced = DisplacedMemo()
 
     def _make_vao(self) -> moderngl.VertexArray:
         return gpu_objects(self.ctx).vertex_array(
@@ -254,6 +291,8 @@ class ToolOverlayRenderer:
     ) -> int:
         """Draw ``primitives`` over what ``target`` holds; returns the instances drawn
         (markers and segments; labels are counted in ``labels_drawn``)."""
+        if displace is not None:
+            displace = self._displaced.wrap(view, displace)
         data = overlay_instances(view, primitives, displace)
         self._ensure_atlas(primitives)
         labels = label_instances(view, primitives, self._rect_of, displace)

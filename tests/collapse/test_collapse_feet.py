@@ -61,3 +61,20 @@ def test_the_tool_keeps_its_feet_while_animating() -> None:
     tool.set_points(-120.0, 44.0, -118.0, 46.0, 0.1)  # another pair: a new memo
     third = tool.frame()
     assert third is not None and third.feet is not first.feet
+
+
+def test_the_overlay_is_made_once_per_frame() -> None:
+    """A still collapse hands the same primitives to every redraw; a new ratio makes new ones."""
+    from globeview.plugins.builtin.collapse.tool import CollapseTool
+
+    tool = CollapseTool()
+    tool.set_points(-122.1, 43.0, -122.6, 48.05, 0.1)
+    first, second = tool.overlay(None), tool.overlay(None)
+    assert len(first) == 5 and all(a is b for a, b in zip(first, second, strict=True))
+    tool.set_points(-122.1, 43.0, -122.6, 48.05, 0.2)
+    third = tool.overlay(None)
+    # Made again (the lines are in true coordinates: the same places at any ratio).
+    assert len(third) == 5 and third[2] is not first[2]
+    assert np.allclose(third[2].points, first[2].points)
+    tool.cancel()
+    assert tool.overlay(None) == []

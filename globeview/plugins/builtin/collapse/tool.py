@@ -81,6 +81,7 @@ class CollapseTool(Tool):
         self._anim_start: float | None = None
         self._frame: CollapseFrame | None = None  # cached for (a, b, effective ratio)
         self._last: CollapseFrame | None = None  # the last frame made (its feet are reused)
+        self._overlay: tuple | None = None  # (key, frame, primitives) of the last overlay()
 
     # -- state -----------------------------------------------------------------------------
     def configure(self, values: dict[str, Any]) -> None:
@@ -255,12 +256,22 @@ class CollapseTool(Tool):
         where the collapsed terrain is drawn. The central axis A-B is drawn thin. The lines lie
         on the ellipsoid, under any relief: they are feedback drawn on top (``depth_test=
         False``; the host drops what is beyond the horizon), not hidden by the mountains."""
+        f = self.frame()
+        # The primitives depend on A, B and the frame only (not on the view): made once per
+        # frame object, so a still collapse does not rebuild its lines every redraw.
+        key = (self.a, self.b, id(f))
+        if self._overlay is not None and self._overlay[0] == key and self._overlay[1] is f:
+            return list(self._overlay[2])
+        out = self._make_overlay(f)
+        self._overlay = (key, f, out)
+        return list(out)
+
+    def _make_overlay(self, f: CollapseFrame | None) -> list[Overlay]:
         out: list[Overlay] = []
         for p, label in ((self.a, "A"), (self.b, "B")):
             if p is not None:
                 pos = lonlat_to_ecef(p[0], p[1], 0.0)
                 out.append(Marker(tuple(float(v) for v in pos), (1.0, 0.3, 0.1, 1.0), 10.0, label))
-        f = self.frame()
         if f is None or f.psi0 == 0.0:
             return out
         half = min(max(2.0 * f.psi0, 0.002), 0.6)  # cross-axis extent (rad)
