@@ -32,19 +32,31 @@ provider's setting values each frame)::
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
 import numpy as np
 
+from globeview.lod.cheapest_cut import VisitedLevel, cut_within_budget
 from globeview.lod.render_set import RenderSet
-from globeview.lod.stitching import render_set_by_stride, render_set_from_tiles
+from globeview.lod.stitching import pole_codes, render_set_by_stride, render_set_from_tiles
+from globeview.lod.tile_indices import IndexVariant, Pole, grid_indices
 from globeview.lod.traversal import MAX_LEVEL, Selection, TileCandidates
-from globeview.lod.view_state import ViewState
+from globeview.lod.view_state import TAU_RANGE_PX, ViewState
 from globeview.terrain.stack import N_STRIDES, TerrainStack
 
 #: Weights picking the coarsest acceptable stride (`coarsest_stride_within`).
 _STRIDE_RANK = np.arange(1, N_STRIDES + 1)
+#: How many levels below the finest data *under each tile* (where ``has_finer`` turns false)
+#: the fewest-triangles cut may look: tiles there are their ancestor's data upsampled, and
+#: splitting a tile whose near corner needs a fine stride lets its far children draw coarser.
+BEYOND_DATA_LEVELS = 4
+#: Tiles nearer than this many tile widths are worth visiting the children of whatever their
+#: error (`ScreenSpaceErrorPolicy.refine`).
+NEAR_RATIO = 4.0
+#: `variant_triangles` for a stride beyond the tile's grid (never the cheapest choice).
+_NO_VARIANT = 1 << 40
 
 
 def coarsest_stride_within(error_px: np.ndarray, tau_px: float) -> np.ndarray:
@@ -52,6 +64,21 @@ def coarsest_stride_within(error_px: np.ndarray, tau_px: float) -> np.ndarray:
     pixels) is within ``tau_px``, or 0 (stride 1) where none is."""
     # The highest rank among the acceptable strides, minus one, or 0.
     return np.maximum((error_px <= tau_px) * _STRIDE_RANK, 1).max(axis=1) - 1
+
+
+@functools.lru_cache(maxsize=4)
+def variant_triangles(size: int) -> np.ndarray:
+    """(N_STRIDES, 4) triangles of a tile of ``size`` nodes per side drawn at stride 2**i with
+    skirts (`render_set_by_stride`'s variants) and pole code p (`pole_codes`: none, north,
+    south, both); `_NO_VARIANT` where the stride exceeds the grid. Read-only."""
+    poles: tuple[Pole, ...] = (None, "north", "south", "both")
+    out = np.full((N_STRIDES, 4), _NO_VARIANT, dtype=np.int64)
+    for i in range(N_STRIDES):
+        if (size - 1) % (1 << i) == 0:
+            for p, pole in enumerate(poles):
+                out[i, p] = len(grid_indices(size, IndexVariant(stride=1 << i, pole=pole))) // 3
+    out.flags.writeable = False
+    return out
 
 
 class LodPolicy:
@@ -134,26 +161,124 @@ class ScreenSpaceErrorPolicy(LodPolicy):
        the curved ellipsoid between vertices s nodes apart, `tile_cache.stride_errors_m`) is
        projected to pixels, ``e * K / d`` with K = viewport height / (2 tan(fovy/2)) and d a
        lower bound of the distance to the tile;
-    2. refine (replace by its four children) when that exceeds tau at stride 1 and finer data
-       exists, or when the tile's texels would be magnified beyond ``texel_px`` pixels and
-       finer data exists;
+    2. refine (replace by its four children) when that exceeds tau at stride 1, or when the
+       tile's texels would be magnified beyond ``texel_px`` pixels and finer data exists;
     3. draw the others with the coarsest index stride whose error still projects below tau
        (TREND's per-block resolution pyramid, applied to the whole tile);
     4. a budget of ``max_tiles`` drawn tiles: past it, the worst tiles refine first.
+
+    With ``min_triangles`` (chunked-sse's default) step 2 also visits the children of every
+    tile that could be drawn cheaper (its stride is not the whole tile), down to
+    `BEYOND_DATA_LEVELS` below the finest data, and the tiles drawn are the cheapest cut of
+    that tree (`cheapest_cut`): the fewest triangles meeting tau, never more as tau grows.
 
     Cracks between tiles drawn at different levels or strides are hidden by skirts.
     """
 
     def __init__(
-        self, tau_px: float | None = None, texel_px: float = 1.5, max_tiles: int = 600
+        self,
+        tau_px: float | None = None,
+        texel_px: float = 1.5,
+        max_tiles: int = 600,
+        min_triangles: bool = False,
     ) -> None:
         super().__init__(tau_px)
         self.texel_px = float(texel_px)
-        self.max_tiles = int(max_tiles)
+        self.min_triangles = bool(min_triangles)
+        # With min_triangles the budget bounds the cut (`cut_within_budget`), not the walk:
+        # a walk cut short by a budget that depends on tau would not be monotone in tau.
+        self.tile_budget = int(max_tiles)
+        self.max_tiles = None if self.min_triangles else self.tile_budget
+        self._visited: list[VisitedLevel] = []
+        self._hidden = 0
 
-    def refine(self, tiles: TileCandidates, error_px: np.ndarray) -> np.ndarray:
+    def begin(self, view: ViewState, terrain: TerrainStack) -> None:
+        super().begin(view, terrain)
+        self._visited = []
+        # The last level's tiles: has_finer and levels past the data (_levels_past_data).
+        self._finer: np.ndarray | None = None
+        self._past_data: np.ndarray | None = None
+
+    def _levels_past_data(self, keys: np.ndarray, has_finer: np.ndarray) -> np.ndarray:
+        """(N,) how many levels each tile lies below the finest data under it (0 within
+        the data: its level is the data's or coarser), from its parent's, the last level
+        visited (tiles of a level are children of refined tiles of the one before)."""
+        prev = self._visited[-1] if self._visited else None
+        if prev is None or self._past_data is None or self._finer is None or not len(prev.keys):
+            return np.zeros(len(keys), dtype=np.int64)
+        codes = (prev.keys[:, 1] << 31) | prev.keys[:, 2]
+        order = np.argsort(codes)
+        at = np.searchsorted(codes.take(order), ((keys[:, 1] >> 1) << 31) | (keys[:, 2] >> 1))
+        parent = order.take(np.minimum(at, len(codes) - 1))
+        up = self._past_data.take(parent)
+        # A parent with finer data below it has this tile within the data.
+        return np.where(self._finer.take(parent), 0, up + 1)
+
+    def frame_stats(self) -> dict[str, Any]:
+        if not self.min_triangles:
+            return {}
+        return {
+            "tiles_visited": sum(len(v.keys) for v in self._visited),
+            "tiles_hidden": self._hidden,
+        }
+
+    def _must_refine(self, tiles: TileCandidates, error_px: np.ndarray) -> np.ndarray:
         # A texel of the tile's height/normal textures: the level's tile width (m, on a
         # sphere of the mean radius) over its cells, projected.
         tile_m = math.radians(180.0 / 2**tiles.level) * 6.371e6
         texel = tile_m / (tiles.size - 1) * tiles.px_per_m
         return (error_px[:, 0] > self.tau_px) | ((texel > self.texel_px) & tiles.has_finer)
+
+    def refine(self, tiles: TileCandidates, error_px: np.ndarray) -> np.ndarray:
+        must = self._must_refine(tiles, error_px)
+        if not self.min_triangles:
+            return must
+        idx = coarsest_stride_within(error_px, self.tau_px)
+        keys = tiles.keys
+        table = variant_triangles(tiles.size)
+        pole = pole_codes(keys)
+        own = table[idx, pole]
+        coarsest = int(np.flatnonzero(table[:, 0] < _NO_VARIANT)[-1])
+        has_finer = tiles.has_finer
+        past = self._levels_past_data(keys, has_finer)
+        # Which tiles' children to visit. All that could be drawn cheaper (own over the one
+        # cell, the least any visible child costs) would be exact (cheapest_cut) but visits
+        # thousands of tiles whose children rarely pay, so only those within the data or
+        # BEYOND_DATA_LEVELS past it, and near
+        # ones (NEAR_RATIO tile widths) or far ones with a stride-1 error over the smallest
+        # tau a view accepts. A tile these leave out is one that no tau makes refine for its
+        # error (texels do not depend on tau), so whether it is a leaf does not depend on
+        # tau and the cut stays monotone in tau.
+        tile_m = math.radians(180.0 / 2**tiles.level) * 6.371e6
+        may_refine = error_px[:, 0] > TAU_RANGE_PX[0]
+        worth = (tiles.dist_m < NEAR_RATIO * tile_m) | may_refine
+        deeper = has_finer | (past < BEYOND_DATA_LEVELS) | may_refine
+        explore = deeper & worth & (own > table[coarsest, pole])
+        rows = np.arange(len(idx))
+        asked = must | explore
+        self._visited.append(
+            VisitedLevel(
+                keys, idx, own, must, error_px[rows, idx], asked, table[coarsest, pole], coarsest
+            )
+        )
+        self._finer, self._past_data = has_finer, past
+        tiles.scratch["ssep_must"] = must
+        tiles.scratch["ssep_own"] = own
+        return asked
+
+    def priority(self, tiles: TileCandidates, error_px: np.ndarray) -> np.ndarray:
+        if not self.min_triangles:
+            return error_px[:, 0]
+        # Within a budget, tiles that must refine come first (worst error first), then the
+        # ones whose children may save the most (largest own cost).
+        must, own = tiles.scratch["ssep_must"], tiles.scratch["ssep_own"]
+        return np.where(must, 1e15 + error_px[:, 0], own.astype(np.float64))
+
+    def render_set(self, selection: Selection, size: int) -> RenderSet:
+        if not self.min_triangles:
+            return super().render_set(selection, size)
+        keys, stride_idx, error_px, hidden = cut_within_budget(
+            self._visited, selection.keys, self.tile_budget
+        )
+        self._hidden = int(np.count_nonzero(hidden))
+        return render_set_by_stride(keys, stride_idx, error_px)

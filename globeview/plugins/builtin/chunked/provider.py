@@ -17,6 +17,13 @@ The error of a tile drawn with stride s is its height error (from the tile store
 vertical exaggeration plus the chord sag of the curved ellipsoid between vertices s nodes
 apart: flat triangles cut under a curved globe, and at globe scale that dominates.
 
+With ``min_triangles`` (the default) the walk also visits the children of tiles that could be
+drawn cheaper, and the tiles drawn are the cheapest cut of what it visited
+(`globeview.lod.cheapest_cut`): the fewest triangles meeting tau, and never more triangles
+for a larger tau. Without it, a tile whose nearest corner needs stride 1 is drawn whole at
+stride 1 (6.6x quadtree-clod's triangles at the White Mountains view, and a tau ladder that
+went 2 500 -> 10 928 triangles at the old Crater Lake view as tau rose from 1 to 2 px).
+
 Cracks between tiles drawn at different levels or strides are hidden by skirts.
 
 This module holds the plugin glue only: a `PolicyProvider` naming the policy and its
@@ -47,4 +54,12 @@ class ChunkedSseProvider(PolicyProvider):
             help="refine while a texel of the tile textures covers more pixels",
         ),
         Setting("max_tiles", "int", 600, min=16, max=2000, label="tile budget"),
+        Setting(
+            "min_triangles",
+            "bool",
+            True,
+            label="fewest triangles",
+            help="draw the cheapest set of tiles and strides within tau (children where they "
+            "save triangles); off: refine only tiles over tau",
+        ),
     )

@@ -1,0 +1,189 @@
+"""chunked-sse's fewest-triangles cut (`ScreenSpaceErrorPolicy(min_triangles=True)`,
+`globeview.lod.cheapest_cut`, issue #17): triangles never grow as tau grows, every drawn tile
+is within tau, the result is a cut of the quadtree, and it never draws more triangles than
+the plain refine-while-over-tau walk.
+
+Property test over seeded random views: half over the three regional DEMs (White Mountains,
+Crater Lake, Vancouver) from 1.5 to 300 km, half anywhere from 300 km to 20 000 km, any
+heading, pitch -90..-10 degrees, each over a tau ladder.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from globeview.lod.cheapest_cut import VisitedLevel, cheapest_cut
+from globeview.lod.policy import ScreenSpaceErrorPolicy, variant_triangles
+from globeview.lod.render_set import RenderSet
+from globeview.lod.traversal import traverse
+from globeview.plugins.builtin.chunked.provider import ChunkedSseProvider
+from globeview.plugins.testing import make_view
+
+LADDER = (0.5, 1.0, 2.0, 4.0, 8.0)
+N_VIEWS = 200
+#: (lon, lat) boxes of the regional DEMs the near half of the views look at.
+REGIONS = (
+    (-72.0, -71.0, 44.0, 45.0),
+    (-122.17, -122.05, 42.9, 42.98),
+    (-126.0, -122.0, 48.0, 50.0),
+)
+
+
+def _views(seed: int = 17) -> list[tuple[float, float, float, float, float]]:
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(N_VIEWS):
+        if i % 2 == 0:
+            w, e, s, n = REGIONS[(i // 2) % len(REGIONS)]
+            lon, lat = rng.uniform(w, e), rng.uniform(s, n) - 0.05
+            height = float(np.exp(rng.uniform(np.log(1.5e3), np.log(3e5))))
+        else:
+            lon, lat = rng.uniform(-180.0, 180.0), np.degrees(np.arcsin(rng.uniform(-1, 1)))
+            height = float(np.exp(rng.uniform(np.log(3e5), np.log(2e7))))
+        out.append((lon, lat, height, rng.uniform(0.0, 360.0), rng.uniform(-90.0, -10.0)))
+    return out
+
+
+def triangles(rs: RenderSet, size: int) -> int:
+    """Triangles the render set draws (its variants' index counts over its tiles)."""
+    if len(rs) == 0:
+        return 0
+    per_variant = np.array(
+        [
+            variant_triangles(size)[
+                v.stride.bit_length() - 1, ("", "north", "south", "both").index(v.pole or "")
+            ]
+            for v in rs.variants
+        ]
+    )
+    return int(per_variant.take(rs.variant_ids).sum())
+
+
+def _is_cut(keys: np.ndarray) -> bool:
+    """No tile twice and none together with one of its ancestors."""
+    seen = {tuple(k) for k in keys.tolist()}
+    if len(seen) != len(keys):
+        return False
+    for level, x, y in seen:
+        for up in range(1, level + 1):
+            if (level - up, x >> up, y >> up) in seen:
+                return False
+    return True
+
+
+def test_triangles_never_grow_with_tau_over_random_views(globeview_terrain) -> None:
+    size = globeview_terrain.tile_size
+    worse = []
+    for pose in _views():
+        counts = []
+        for tau in LADDER:
+            view = make_view(*pose, viewport=(1280, 720), tau_px=tau)
+            rs = traverse(view, globeview_terrain, ScreenSpaceErrorPolicy(min_triangles=True))
+            n = triangles(rs, size)
+            counts.append(n)
+            if len(rs):
+                assert float(np.max(rs.error_px)) <= tau, (pose, tau)
+            assert _is_cut(rs.keys), (pose, tau)
+            # The plain walk draws nothing for a refined tile with no visible child; the cut
+            # draws it as one cell (error 0 px: it covers no pixel), see cheapest_cut.
+            plain = traverse(view, globeview_terrain, ScreenSpaceErrorPolicy())
+            one_cell = int(variant_triangles(size)[-1].max())
+            assert n <= triangles(plain, size) + one_cell * rs.stats["tiles_hidden"], (pose, tau)
+        if any(b > a for a, b in itertools.pairwise(counts)):
+            worse.append((pose, counts))
+    assert not worse, f"{len(worse)} views draw more triangles at a larger tau: {worse[:3]}"
+
+
+def test_old_crater_lake_view_is_monotone(globeview_terrain) -> None:
+    """The view of the issue: 3 158 / 2 500 / 10 928 / 9 850 / 9 382 triangles at tau
+    0.5..8 with the plain walk (one level-10 tile drawn whole at stride 1 at tau 2)."""
+    size = globeview_terrain.tile_size
+    counts = []
+    for tau in LADDER:
+        view = make_view(-122.1, 42.85, 6.0e3, 200.0, -25.0, (1280, 720), tau_px=tau)
+        counts.append(
+            triangles(
+                traverse(view, globeview_terrain, ScreenSpaceErrorPolicy(min_triangles=True)), size
+            )
+        )
+    assert counts == sorted(counts, reverse=True), counts
+
+
+def test_chunked_sse_draws_the_cheapest_cut_by_default(globeview_terrain) -> None:
+    provider = ChunkedSseProvider()
+    assert provider.values["min_triangles"] is True
+    view = make_view(-71.3, 44.15, 9.0e3, 0.0, -30.0, (1280, 720))
+    got = provider.select(view, globeview_terrain)
+    want = traverse(view, globeview_terrain, ScreenSpaceErrorPolicy(min_triangles=True))
+    assert np.array_equal(got.keys, want.keys) and got.stats["tiles_visited"] > len(got)
+    plain = traverse(view, globeview_terrain, ScreenSpaceErrorPolicy())
+    size = globeview_terrain.tile_size
+    # 86 064 vs 123 778 triangles when written (2026-11, 1280x720, tau 2).
+    assert triangles(got, size) < 0.8 * triangles(plain, size)
+    provider.configure({"min_triangles": False})
+    again = provider.select(view, globeview_terrain)
+    assert np.array_equal(again.keys, plain.keys)
+
+
+def _level(keys, own, must, asked) -> VisitedLevel:
+    keys = np.asarray(keys, dtype=np.int64)
+    n = len(keys)
+    return VisitedLevel(
+        keys,
+        np.zeros(n, np.int64),
+        np.asarray(own),
+        np.asarray(must),
+        np.ones(n),
+        np.asarray(asked),
+        np.full(n, 2),
+        6,
+    )
+
+
+def test_cheapest_cut_by_hand() -> None:
+    """Root (0,0,0) costs 100; its children (1,0,0) 10 and (1,1,0) 30 (two are culled), and
+    (1,1,0)'s one visible child costs 40: the cut is the two children, 40 triangles."""
+    levels = [
+        _level([[0, 0, 0]], [100], [False], [True]),
+        _level([[1, 0, 0], [1, 1, 0]], [10, 30], [False, False], [False, True]),
+        _level([[2, 2, 1]], [40], [False], [False]),
+    ]
+    leaves = np.array([[1, 0, 0], [2, 2, 1]])
+    keys, stride, err, hidden = cheapest_cut(levels, leaves)
+    assert sorted(map(tuple, keys.tolist())) == [(1, 0, 0), (1, 1, 0)]
+    assert not hidden.any() and (stride == 0).all() and (err == 1.0).all()
+    # A tile that must refine draws its children even where they cost more ...
+    levels[1].must[1] = True
+    keys, _, _, _ = cheapest_cut(levels, leaves)
+    assert sorted(map(tuple, keys.tolist())) == [(1, 0, 0), (2, 2, 1)]
+    # ... and a refined tile none of whose children is visible covers no pixel: drawn as
+    # one cell (its coarsest stride), error 0.
+    keys, stride, err, hidden = cheapest_cut(levels[:2], leaves[:1])
+    assert keys.tolist() == [[1, 0, 0], [1, 1, 0]]
+    assert hidden.tolist() == [False, True] and stride.tolist() == [0, 6]
+    assert err.tolist() == [1.0, 0.0]
+    # A tile the walk did not refine (a budget said no) is drawn whatever the policy asked.
+    keys, _, _, hidden = cheapest_cut(levels[:2], np.array([[1, 0, 0], [1, 1, 0]]))
+    assert sorted(map(tuple, keys.tolist())) == [(1, 0, 0), (1, 1, 0)] and not hidden.any()
+
+
+def test_variant_triangles_match_the_index_buffers() -> None:
+    from globeview.lod.tile_indices import IndexVariant, grid_indices
+
+    table = variant_triangles(17)
+    assert not table.flags.writeable
+    for i in range(5):
+        assert table[i, 0] == len(grid_indices(17, IndexVariant(stride=1 << i))) // 3
+        assert table[i, 3] == len(grid_indices(17, IndexVariant(stride=1 << i, pole="both"))) // 3
+    assert (table[5:] > 1 << 30).all()  # strides beyond a 16-cell grid
+    assert (np.diff(table[:5], axis=0) < 0).all()  # coarser strides cost fewer triangles
+
+
+@pytest.mark.parametrize("bad", [-1, "x"])
+def test_min_triangles_setting_is_validated(bad) -> None:
+    provider = ChunkedSseProvider()
+    provider.configure({"min_triangles": bad})
+    assert isinstance(provider.values["min_triangles"], bool)
