@@ -1,5 +1,12 @@
 """Hypsometric colour ramp for land and a separate bathymetry ramp for water (thesis §5.1:
-land and water coloured apart), sampled into a 1-D texture over a height range (metres)."""
+land and water coloured apart), and the per-tile albedo texels baked from it.
+
+The terrain shader does not evaluate the ramp: each tile's node colours are baked once, when
+the tile is uploaded (`albedo_texels`), into an RGBA8 texture the fragment shader samples
+with one fetch (the ramp depends on the height alone, and the height of a node never changes
+while the tile is resident). On llvmpipe a float32 height fetch followed by a dependent ramp
+fetch cost about a third of a full-screen terrain frame.
+"""
 
 from __future__ import annotations
 
@@ -43,3 +50,97 @@ def ramp_texture_data(lo: float, hi: float, width: int) -> np.ndarray:
     """(1, width, 3) uint8 texels over [lo, hi] metres, texel centres at the sample heights."""
     h = lo + (np.arange(width) + 0.5) / width * (hi - lo)
     return (np.clip(ramp_colour(h), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)[None, :, :]
+
+
+#: Height range (metres) of the baked ramp and how many texels sample it: the ramp as the
+#: fragment shader used to sample it (a 1024-texel texture over [-11 km, 9 km], linear filter,
+#: clamped at the ends), so baked colours match the old per-pixel lookup at every node.
+RAMP_LO_M = -11000.0
+RAMP_HI_M = 9000.0
+RAMP_TEXELS = 1024
+
+#: Coasts. Baked colours alone would blur a coast over a whole texel (the water and land
+#: colours blended) where the per-pixel ramp drew it sharp. So each node also stores the
+#: ramp's water-to-land blend weight t(h) (albedo alpha: 0 below the ~20 m band around 0 m
+#: where the sampled ramp blends water into land, 1 above) and its height clamped to
+#: +-COAST_M (normal alpha, `coast_texels`). The fragment shader recomputes t from the
+#: interpolated height and adds ``jump * (t - interpolated node t)``: zero wherever the ramp
+#: has no jump in the cell, the coast's step drawn sharp where it has (`coast_ramp`).
+COAST_M = 100.0
+
+#: Heights are looked up in a table of baked colours every RAMP_STEP_M metres (the ramp's
+#: texels are 19.5 m apart, so rounding the height to 0.5 m moves a colour by well under one
+#: 8-bit level), one 32-bit RGBA word per entry: one gather per tile instead of a lerp.
+RAMP_STEP_M = 0.5
+
+_LUT32: np.ndarray | None = None
+
+
+def _albedo_lut() -> np.ndarray:
+    """(n,) uint32 RGBA8 words of the ramp every RAMP_STEP_M metres over [lo, hi]."""
+    global _LUT32
+    if _LUT32 is None:
+        ramp = ramp_texture_data(RAMP_LO_M, RAMP_HI_M, RAMP_TEXELS)[0].astype(np.float64)
+        h = np.arange(RAMP_LO_M, RAMP_HI_M + RAMP_STEP_M / 2, RAMP_STEP_M)
+        # The old shader's lookup: a linearly filtered, edge-clamped 1-D texture at
+        # u = (h - lo) / (hi - lo), texel centres at (i + 0.5) / RAMP_TEXELS.
+        x = np.clip((h - RAMP_LO_M) / (RAMP_HI_M - RAMP_LO_M) * RAMP_TEXELS - 0.5, 0, None)
+        texel_x = np.arange(RAMP_TEXELS, dtype=np.float64)
+        rgba = np.empty((len(h), 4), dtype=np.uint8)
+        for ch in range(3):
+            rgba[:, ch] = np.rint(np.interp(x, texel_x, ramp[:, ch]))
+        lo, hi = _coast_band()
+        rgba[:, 3] = np.rint(np.clip((h - lo) / (hi - lo), 0.0, 1.0) * 255.0)
+        _LUT32 = rgba.view(np.uint32).reshape(-1)
+    return _LUT32
+
+
+def albedo_texels(heights: np.ndarray) -> np.ndarray:
+    """(..., 4) uint8 RGBA albedo of heights (metres; NaN is treated as 0 m, heights beyond
+    the ramp's range take its end colours): the ramp colour of each height, alpha its coast
+    blend weight t (see COAST_M) (vectorised: one table gather, ~20 us for a 65x65 tile)."""
+    lut = _albedo_lut()
+    h = np.asarray(heights, dtype=np.float32)
+    # Index of the nearest table entry: clip first (inf stays finite), then round by
+    # truncating x + 0.5 (x >= 0); NaN becomes 0 m.
+    x = np.clip(np.atleast_1d(h), np.float32(RAMP_LO_M), np.float32(RAMP_HI_M))
+    x -= np.float32(RAMP_LO_M - 0.5 * RAMP_STEP_M)
+    x *= np.float32(1.0 / RAMP_STEP_M)
+    x[np.isnan(x)] = -RAMP_LO_M / RAMP_STEP_M + 0.5
+    return lut[x.astype(np.intp)].view(np.uint8).reshape(*h.shape, 4)
+
+
+def _coast_band() -> tuple[float, float]:
+    """(lo, hi) metres: the centres of the ramp texels either side of 0 m, between which the
+    sampled ramp blends water into land."""
+    texel_m = (RAMP_HI_M - RAMP_LO_M) / RAMP_TEXELS
+    below = np.floor((0.0 - RAMP_LO_M) / texel_m - 0.5)  # the last texel centre below 0 m
+    lo = RAMP_LO_M + (below + 0.5) * texel_m
+    return float(lo), float(lo + texel_m)
+
+
+def coast_ramp() -> dict[str, tuple[float, ...]]:
+    """The terrain shader's coast uniforms (see COAST_M): ``coast_jump``, the ramp's RGB step
+    (0..1) across the band, and ``coast_t`` = (scale, offset) with the blend weight
+    t = clamp(s * scale + offset, 0, 1) at s = clamped height / COAST_M."""
+    lo, hi = _coast_band()
+    ramp = ramp_texture_data(RAMP_LO_M, RAMP_HI_M, RAMP_TEXELS)[0].astype(np.float64) / 255.0
+    i = round((lo - RAMP_LO_M) / ((RAMP_HI_M - RAMP_LO_M) / RAMP_TEXELS) - 0.5)
+    jump = ramp[i + 1] - ramp[i]
+    # The band must lie inside the stored height range, else t could not be recomputed.
+    assert -COAST_M < lo < 0.0 <= hi < COAST_M
+    return {
+        "coast_jump": (float(jump[0]), float(jump[1]), float(jump[2])),
+        "coast_t": (COAST_M / (hi - lo), -lo / (hi - lo)),
+    }
+
+
+def coast_texels(heights: np.ndarray) -> np.ndarray:
+    """(...) uint8: height clamped to +-COAST_M as 127.5 + h * 127.5 / COAST_M (rounded), so
+    0 m and above decode non-negative and any water height negative; NaN as 0 m."""
+    h = np.nan_to_num(np.asarray(heights, dtype=np.float32), nan=0.0)
+    a = np.clip(h, -COAST_M, COAST_M) * np.float32(127.5 / COAST_M) + np.float32(127.5)
+    # Heights in (-COAST_M / 255, 0) would round up to 128 (land): keep them water.
+    return np.where(h < 0.0, np.minimum(np.rint(a), 127.0), np.maximum(np.rint(a), 128.0)).astype(
+        np.uint8
+    )

@@ -31,7 +31,7 @@ from globeview.lod.render_set import (
 from globeview.lod.tile_indices import IndexVariant
 from globeview.lod.view_state import INV_AXES2, ViewState
 from globeview.model.display import DisplaySettings
-from globeview.render.colour_ramp import ramp_texture_data
+from globeview.render.colour_ramp import coast_ramp
 from globeview.render.gpu_objects import gpu_objects
 from globeview.render.overlay_imagery import OverlaySet  # overlays:
 from globeview.render.shader_source import build_shader, explain_sources
@@ -40,9 +40,6 @@ from globeview.render.tile_mesh import FLOATS_PER_VERTEX, TileMesh, build_tile_m
 from globeview.render.tile_pool import IndexPool, TilePool, key_codes
 from globeview.terrain.quadtree import tile_bounds, tile_bounds_arrays
 from globeview.terrain.stack import TerrainStack
-
-RAMP_LO_M = -11000.0
-RAMP_HI_M = 9000.0
 
 
 @dataclass
@@ -78,7 +75,8 @@ class GlobeRenderer:
         self.indices.on_realloc = self._build_vao
         self._terrain_version = terrain.version
         self._hook: DisplacementHook | None = None
-        self._features = (False, False, True)  # imagery, hillshade, fog
+        # imagery, hillshade, fog, tilt, wireframe (TERRAIN_FEATURES)
+        self._features = (False, False, True, False, False)
         self.program = self._compile(None, self._features)
         self.instances = gpu_objects(ctx).buffer(reserve=capacity * 7 * 4, dynamic=True)
         self.commands = gpu_objects(ctx).buffer(reserve=capacity * 5 * 4, dynamic=True)
@@ -86,10 +84,6 @@ class GlobeRenderer:
         # here every frame; the buffer only grows (rarely), it is never created per frame.
         self.custom_ibo = gpu_objects(ctx).buffer(reserve=1 << 22, dynamic=True)
         self.custom_commands = gpu_objects(ctx).buffer(reserve=capacity * 5 * 4, dynamic=True)
-        ramp = ramp_texture_data(RAMP_LO_M, RAMP_HI_M, 1024)
-        self.ramp = gpu_objects(ctx).texture((ramp.shape[1], 1), 3, ramp.tobytes(), dtype="f1")
-        self.ramp.filter = (moderngl.LINEAR, moderngl.LINEAR)
-        self.ramp.repeat_x = False
         self.vao, self.custom_vao = self._make_vaos(self.program)
         self._variants = {self._features: (self.program, self.vao, self.custom_vao)}
         self.last_view: ViewState | None = None
@@ -110,18 +104,19 @@ class GlobeRenderer:
         self.overlays = OverlaySet(ctx, capacity)
 
     # -- shader program and displacement hooks --------------------------------------------
-    # The fragment shader's optional parts (imagery drape, hillshade, fog) are compiled in or
-    # out with #defines rather than switched by uniforms: llvmpipe shades a 4x4 block for
-    # both sides of a uniform branch, so a disabled drape still cost its texture fetch (about
-    # a third of a full-screen frame). Variants are compiled on first use and kept.
+    # The terrain shaders' optional parts (imagery drape, hillshade, fog, the exaggeration
+    # tilt, the hook's shade factor) are compiled in or out with #defines rather than switched
+    # by uniforms: llvmpipe shades a 4x4 block for both sides of a uniform branch, so a
+    # disabled drape still cost its texture fetch (about a third of a full-screen frame).
+    # Variants are compiled on first use and kept (`_use_features`).
     def _compile(
-        self, hook: DisplacementHook | None, features: tuple[bool, bool, bool]
+        self, hook: DisplacementHook | None, features: tuple[bool, ...]
     ) -> moderngl.Program:
         # The hook's text replaces the identity chunk displace.glsl (shaders/terrain.vert).
         replace = {"displace.glsl": hook.glsl} if hook is not None else None
-        vert = build_shader("terrain.vert", replace=replace)
-        names = ("GV_IMAGERY", "GV_HILLSHADE", "GV_FOG")
-        frag = build_shader("terrain.frag", defines=dict(zip(names, features, strict=True)))
+        defines = terrain_defines(features, hook is not None)
+        vert = build_shader("terrain.vert", replace=replace, defines=defines)
+        frag = build_shader("terrain.frag", defines=defines)
         try:
             return gpu_objects(self.ctx).program(vertex_shader=vert.text, fragment_shader=frag.text)
         except moderngl.Error as exc:  # say which piece (a hook: its own line numbers) failed,
@@ -129,7 +124,7 @@ class GlobeRenderer:
             where = explain_sources(str(exc), vertex=vert, fragment=frag)
             raise moderngl.Error(f"[{where}] {exc}") from exc
 
-    def _use_features(self, features: tuple[bool, bool, bool]) -> None:
+    def _use_features(self, features: tuple[bool, ...]) -> None:
         if features == self._features:
             return
         cached = self._variants.get(features)
@@ -431,7 +426,13 @@ class GlobeRenderer:
             self.custom_commands.write(ccmds.tobytes())
 
         self._use_features(
-            (self.overlays.imagery.active, bool(self.settings.hillshade), bool(self.settings.fog))
+            (
+                self.overlays.imagery.active,
+                bool(self.settings.hillshade),
+                bool(self.settings.fog),
+                float(self.settings.exaggeration) != 1.0,  # 1: the normals need no tilt
+                False,
+            )
         )
         self._set_uniforms(view, uniforms)
         target.use()
@@ -440,15 +441,17 @@ class GlobeRenderer:
         self.ctx.enable(moderngl.DEPTH_TEST)
         self.ctx.disable(moderngl.CULL_FACE)
         self.ctx.depth_func = "<"
-        self.pool.height_tex.use(0)
+        self.pool.albedo_tex.use(0)
         self.pool.normal_tex.use(1)
-        self.ramp.use(2)
         # overlays: upload stale imagery slots, bind the drape, set its uniforms.
         self.overlays.prepare(self.program, self.pool, slots, render_set.keys)
         passes = [0, 1] if self.settings.wireframe else [0]
         for mode in passes:
-            if "u_mode" in self.program:
-                self.program["u_mode"].value = mode
+            if mode == 1:
+                # The wire overlay is its own variant (one colour, no fetch): a uniform
+                # switch in the shaded program cost ~8 % of every shaded frame on llvmpipe.
+                self._use_features((False, False, False, False, True))
+                self._set_uniforms(view, uniforms)
             if "u_depth_bias" in self.program:
                 self.program["u_depth_bias"].value = 2e-6 if mode == 1 else 0.0
             self.ctx.wireframe = mode == 1
@@ -500,18 +503,16 @@ class GlobeRenderer:
         uni["u_proj"] = view.proj.T.astype("f4").tobytes()
         uni["u_exag"] = float(s.exaggeration)
         uni["u_inv_axes2"] = INV_AXES2
-        uni["u_heights"] = 0
+        uni["u_albedo"] = 0
         uni["u_normals"] = 1
-        uni["u_ramp"] = 2
-        uni["u_ramp_lo"] = RAMP_LO_M
-        uni["u_ramp_hi"] = RAMP_HI_M
+        for name, rgb in COAST_RAMP.items():
+            uni[f"u_{name}"] = rgb
         # A light from behind the viewer's upper left keeps the visible side lit and relief
         # readable at every scale.
         right, up, back = view.rotation
         light = 0.55 * back + 0.6 * up - 0.55 * right
         light = light / np.linalg.norm(light)
         uni["u_light"] = tuple(float(v) for v in light)
-        uni["u_hillshade"] = bool(s.hillshade)
         uni["u_log_far"] = 1.0 / math.log2(1.0 + view.far)
         h = max(float(ecef_to_lonlat(view.eye)[2]), 1.0)
         horizon = math.sqrt(h * (2 * WGS84.a + h))
@@ -537,11 +538,10 @@ class GlobeRenderer:
             self.commands,
             self.custom_ibo,
             self.custom_commands,
-            self.ramp,
             # The tile pool and the index pool: ~100 MB that would outlive the session in a
             # context that is kept (a window, a script rendering many globes).
             self.pool.vbo,
-            self.pool.height_tex,
+            self.pool.albedo_tex,
             self.pool.normal_tex,
             self.indices.buffer,
         ):
@@ -549,6 +549,20 @@ class GlobeRenderer:
         self.overlays.release()  # overlays:
         if self.loader is not None:
             self.loader.shutdown()
+
+
+#: The ramp near sea level, as the terrain shader's coast uniforms (u_land0, ...).
+COAST_RAMP = coast_ramp()
+
+#: The terrain shaders' feature defines, in the order of GlobeRenderer's features tuple.
+TERRAIN_FEATURES = ("GV_IMAGERY", "GV_HILLSHADE", "GV_FOG", "GV_TILT", "GV_WIREFRAME")
+
+
+def terrain_defines(features: tuple[bool, ...], hook: bool) -> dict[str, bool]:
+    """The #defines of a terrain program variant (both stages get the same): the features
+    (imagery drape, hillshade, fog, exaggeration tilt, the wireframe overlay's pass) and
+    GV_SHADE where a displacement hook is installed (only a hook sets a shade factor)."""
+    return {**dict(zip(TERRAIN_FEATURES, features, strict=True)), "GV_SHADE": hook}
 
 
 def coarsen_to_fit(render_set: RenderSet, capacity: int) -> tuple[RenderSet, int]:

@@ -13,6 +13,7 @@ import moderngl
 import numpy as np
 
 from globeview.lod.tile_indices import IndexVariant, grid_indices
+from globeview.render.colour_ramp import albedo_texels, coast_texels
 from globeview.render.gpu_objects import gpu_objects
 from globeview.render.tile_mesh import FLOATS_PER_VERTEX, TileMesh, vertices_per_tile
 
@@ -64,7 +65,14 @@ class IndexPool:
 
 
 class TilePool:
-    """Slots for resident tiles: vertices in one buffer, heights and normals in texture arrays.
+    """Slots for resident tiles: vertices in one buffer, albedo and normals in texture arrays.
+
+    Both arrays are RGBA8 with a layer per slot and a texel per node: ``albedo_tex`` holds
+    the ramp colour of each node's height (baked at upload, `colour_ramp.albedo_texels`),
+    ``normal_tex`` its unit ECEF normal as ``n * 0.5 + 0.5`` and, in alpha, its height near
+    sea level (`colour_ramp.coast_texels`: sharp coasts). The fragment shader reads one
+    texel of each (two fetches): RGBA8 is llvmpipe's fast sampling path, where the float32
+    height texture and the dependent ramp lookup it replaced were not.
 
     Args:
         ctx: the moderngl context.
@@ -80,11 +88,11 @@ class TilePool:
         self.vbo = gpu_objects(ctx).buffer(
             reserve=capacity * self.verts_per_tile * FLOATS_PER_VERTEX * 4
         )
-        self.height_tex = gpu_objects(ctx).texture_array((size, size, capacity), 1, dtype="f4")
+        self.albedo_tex = gpu_objects(ctx).texture_array((size, size, capacity), 4, dtype="f1")
         # Normals as 8-bit unsigned (n * 0.5 + 0.5): llvmpipe samples RGBA8 on its fast path,
         # half floats noticeably slower; 1/255 steps are ~0.5 degree, finer than shading needs.
         self.normal_tex = gpu_objects(ctx).texture_array((size, size, capacity), 4, dtype="f1")
-        for tex in (self.height_tex, self.normal_tex):
+        for tex in (self.albedo_tex, self.normal_tex):
             tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
             tex.repeat_x = False
             tex.repeat_y = False
@@ -170,12 +178,10 @@ class TilePool:
         stride = self.verts_per_tile * FLOATS_PER_VERTEX * 4
         self.vbo.write(mesh.vertices.tobytes(), offset=slot * stride)
         s = self.size
-        self.height_tex.write(
-            np.ascontiguousarray(mesh.heights, dtype=np.float32).tobytes(),
-            viewport=(0, 0, slot, s, s, 1),
-        )
-        nrm = np.concatenate([mesh.normals, np.zeros((s, s, 1), np.float32)], axis=2)
-        nrm8 = np.clip(np.rint((nrm * 0.5 + 0.5) * 255.0), 0, 255).astype(np.uint8)
+        self.albedo_tex.write(albedo_texels(mesh.heights).tobytes(), viewport=(0, 0, slot, s, s, 1))
+        nrm8 = np.zeros((s, s, 4), dtype=np.uint8)
+        nrm8[:, :, :3] = np.clip(np.rint(mesh.normals * 127.5 + 127.5), 0, 255)
+        nrm8[:, :, 3] = coast_texels(mesh.heights)
         self.normal_tex.write(nrm8.tobytes(), viewport=(0, 0, slot, s, s, 1))
         self.centers[slot] = mesh.center
         self.generation[slot] += 1

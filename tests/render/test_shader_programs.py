@@ -11,6 +11,7 @@ from pathlib import Path
 import moderngl
 import pytest
 
+from globeview.render.renderer import TERRAIN_FEATURES, terrain_defines
 from globeview.render.shader_source import (
     ShaderSourceError,
     build_shader,
@@ -20,7 +21,6 @@ from globeview.render.shader_source import (
 )
 
 SHADER_DIR = Path(__file__).resolve().parents[2] / "globeview" / "render" / "shaders"
-TERRAIN_FEATURES = ("GV_IMAGERY", "GV_HILLSHADE", "GV_FOG")
 
 
 @pytest.fixture
@@ -60,15 +60,26 @@ def test_every_vertex_fragment_pair_compiles(egl_ctx) -> None:
 
 @pytest.mark.parametrize("hook", [False, True], ids=["plain", "collapse-hook"])
 def test_every_terrain_variant_compiles(egl_ctx, hook: bool) -> None:
+    """Each shaded variant (imagery, hillshade, fog, tilt on or off) and the wireframe pass's
+    variant, with both stages given the same defines, as the renderer builds them."""
+    assert TERRAIN_FEATURES[-1] == "GV_WIREFRAME"
     replace = {"displace.glsl": collapse_glsl()} if hook else None
-    vert = load_shader("terrain.vert", replace=replace)
-    for flags in itertools.product((False, True), repeat=3):
-        frag = load_shader("terrain.frag", defines=dict(zip(TERRAIN_FEATURES, flags, strict=True)))
+    shaded = [(*f, False) for f in itertools.product((False, True), repeat=4)]
+    for flags in [*shaded, (False, False, False, False, True)]:
+        defines = terrain_defines(flags, hook)
+        vert = load_shader("terrain.vert", replace=replace, defines=defines)
+        frag = load_shader("terrain.frag", defines=defines)
         program = egl_ctx.program(vertex_shader=vert, fragment_shader=frag)
         try:
-            # The flags really switch code: the drape's sampler exists only with GV_IMAGERY.
-            assert ("u_imagery" in program) == flags[0]
-            assert ("u_fog_start" in program) == flags[2]
+            wire = flags[4]
+            # The flags really switch code: the drape's sampler exists only with GV_IMAGERY,
+            # the fog range only with GV_FOG (the vertex shader computes fog per vertex).
+            assert ("u_imagery" in program) == (flags[0] and not wire)
+            assert ("u_fog_start" in program) == (flags[2] and not wire)
+            # The wireframe variant draws one colour and fetches nothing.
+            assert ("u_wire_color" in program) == wire
+            assert ("u_albedo" in program) == (not wire)
+            assert ("u_coast_jump" in program) == (not wire)
             assert ("gv_u_map" in program) == hook
         finally:
             program.release()
@@ -113,12 +124,12 @@ def test_renderer_hook_errors_name_the_pieces(gl_ctx, terrain) -> None:
             renderer.set_displacement_hook(DisplacementHook("bad", bad))
         assert renderer.program is before
         # A fragment-shader error in the same message format names the fragment piece.
-        frag_msg = "GLSL Compiler failed\n\nfragment_shader\n=====\n0:10007(2): error: x\n"
+        frag_msg = "GLSL Compiler failed\n\nfragment_shader\n=====\n0:7(2): error: x\n"
         assert (
             explain_sources(
                 frag_msg, vertex=build_shader("terrain.vert"), fragment=build_shader("terrain.frag")
             )
-            == "fragment shader: 10007 = line 7 of ellipsoid.glsl"
+            == "fragment shader: 7 = line 7 of terrain.frag"
         )
         # An #include in hook text (moderngl would resolve it itself, with a KeyError) is a
         # one-line loader error: hooks are inserted verbatim, the host's chunks are not API.

@@ -2,6 +2,11 @@
 // Terrain tiles, relative-to-centre (relative_position.glsl): positions arrive relative to the
 // tile centre (float32, small), and the tile centre relative to the eye is computed per draw
 // in float64 on the CPU.
+//
+// Besides the position, this shader computes per vertex what varies smoothly enough to be
+// interpolated rather than evaluated per fragment (terrain.frag says why): the fog amount
+// (GV_FOG) and the local north-west light (GV_HILLSHADE). It gets the fragment shader's
+// feature defines, so it writes only the outputs that variant reads.
 #include "view.glsl"
 #include "log_depth.glsl"
 #include "relative_position.glsl"
@@ -9,6 +14,8 @@
 
 uniform float u_exag;        // vertical exaggeration (live)
 uniform float u_depth_bias;  // pulls the wireframe overlay in front of the surface
+uniform float u_fog_start;   // metres from the eye where fog begins
+uniform float u_fog_end;     // metres from the eye where it is full (60 %)
 
 in vec3 in_pos;              // ellipsoid point (h = 0) relative to the tile centre, metres
 in float in_h;               // height above the ellipsoid, metres
@@ -19,10 +26,18 @@ in float in_layer;           // per draw: slot of the tile in the texture arrays
 
 out vec2 v_uv;
 flat out float v_layer;
+#ifdef GV_TILT
 out vec3 v_up;
-out vec3 v_rel;
-// Shading factor a displacement hook may set (e.g. darkening the collapsed zone).
-out float v_shade;
+#endif
+#ifdef GV_HILLSHADE
+out vec3 v_hill_light;       // light from the north-west, 45 degrees up, in the local frame
+#endif
+#ifdef GV_SHADE
+out float v_shade;           // shading factor a displacement hook may set (e.g. the collapse)
+#endif
+#ifdef GV_FOG
+out float v_fog;             // fog amount (0..0.6) at this vertex
+#endif
 
 #define GV_HAS_SHADE 1
 float gv_shade = 1.0;
@@ -39,7 +54,18 @@ void main() {
     gl_Position.z = (gv_log_depth(w) - u_depth_bias) * gl_Position.w;
     v_uv = in_uv;
     v_layer = in_layer;
+#ifdef GV_TILT
     v_up = up;
-    v_rel = rel;
+#endif
+#ifdef GV_HILLSHADE
+    vec3 east, north;
+    gv_east_north(up, east, north);
+    v_hill_light = normalize(0.5 * (-east + north) + 0.7071 * up);
+#endif
+#ifdef GV_SHADE
     v_shade = gv_shade;
+#endif
+#ifdef GV_FOG
+    v_fog = 0.6 * smoothstep(u_fog_start, u_fog_end, length(rel));
+#endif
 }
