@@ -35,20 +35,23 @@ VIEWS = {
 
 
 def animate(bench: Bench, tool, cam: tuple, pair: tuple, frames: int) -> dict[str, float]:
-    """Medians over ``frames`` frames of a collapse animation: each frame sets the next
-    effective ratio (the tool's eased progress from 1 to ``pair[4]``) and turns a little."""
+    """Medians over ``frames`` frames of the tool's own collapse animation (A and B set with
+    ``animate=True``; the pipeline advances it with each frame's time stamp, ``frames``
+    frames spread over its `ANIMATION_S`), a tiny turn per frame. The first frame (ratio 1)
+    is not counted."""
+    from globeview.plugins.builtin.collapse.tool import ANIMATION_S
+
     bench.set_pose(cam, cut=True)
-    tool.set_points(*pair[:4], 1.0)
-    bench.frame()
+    tool.set_points(*pair[:4], pair[4], animate=True)
+    t0 = 1000.0
+    bench.frame(t0)  # starts the animation (progress 0)
     rows = []
     n = max(int(frames), 1)
     for i in range(n):
-        p = (i + 1) / n
-        ease = p * p * (3.0 - 2.0 * p)  # the tool's smoothstep
-        tool.set_points(*pair[:4], 1.0 + (pair[4] - 1.0) * ease)
         bench.session.camera.fly_yaw(0.01 * (-1) ** i)
-        r, ms = bench.frame()
+        r, ms = bench.frame(t0 + ANIMATION_S * (i + 1) / (n + 1))
         rows.append((ms, r.stats.lod_ms, r.stats.draw_ms, r.stats.triangles))
+    bench.frame(t0 + 2.0 * ANIMATION_S)  # ends it
     cols = list(zip(*rows, strict=True))
     med = statistics.median
     return {

@@ -78,3 +78,46 @@ def test_the_overlay_is_made_once_per_frame() -> None:
     assert np.allclose(third[2].points, first[2].points)
     tool.cancel()
     assert tool.overlay(None) == []
+
+
+def test_the_bend_grows_with_the_collapse() -> None:
+    """What the animation's bend relies on: for random tiles (levels 1-12, straddling the folds
+    too) and random pairs, the exact bend at any ratio between r and 1 is at most the bound
+    at r; and the tool's answer while animating is that bound."""
+    from globeview.geodesy import ecef_to_lonlat
+    from globeview.lod.culling import displacement_chord_error_m, tile_bounding_points
+    from globeview.plugins.builtin.collapse.tool import CollapseTool
+
+    rng = np.random.default_rng(21)
+    for _ in range(4):
+        lon_a, lat_a = rng.uniform(-180.0, 180.0), rng.uniform(-60.0, 60.0)
+        span = rng.uniform(0.1, 40.0)
+        lon_b, lat_b = lon_a + span * rng.uniform(-1, 1), lat_a + span * rng.uniform(-0.5, 0.5)
+        f = CollapseFrame.from_lonlat(lon_a, lat_a, lon_b, lat_b, float(rng.choice([0.05, 0.3])))
+        for level in (1, 3, 6, 9, 12):
+            size = 180.0 / 2**level
+            edge = np.concatenate([f.edge_line(sg * f.psi0, 0.05, 60) for sg in (-1.0, 1.0)])
+            lon, lat, _ = ecef_to_lonlat(edge)
+            w = np.concatenate([lon, rng.uniform(-180.0, 180.0, 60)]) - 0.5 * size
+            s = np.clip(np.concatenate([lat, rng.uniform(-80.0, 80.0, 60)]), -85.0, 80.0)
+            n = len(w)
+            pts, _ = tile_bounding_points(
+                w, s, w + size, s + size, np.zeros(n), rng.uniform(0.0, 4000.0, n)
+            )
+            bound = f.bend_bound_m(pts)
+            for r in np.linspace(f.ratio, 1.0, 6)[1:-1]:
+                exact = displacement_chord_error_m(f.with_ratio(float(r)).forward, pts)
+                assert np.all(exact <= bound + 1e-6), (level, r)
+    tool = CollapseTool()
+    tool.set_points(-123.0, 48.5, -118.0, 44.0, 0.1, animate=True)
+    tool.animate(0.0)
+    tool.animate(0.2)
+    assert tool.state == "collapsing" and 0.1 < tool.effective_ratio < 1.0
+    frame = CollapseFrame.from_lonlat(-123.0, 48.5, -118.0, 44.0, 0.1)
+    size = 180.0 / 2**7
+    pts, _ = tile_bounding_points(
+        np.array([-121.0]), np.array([46.0]), np.array([-121.0 + size]),
+        np.array([46.0 + size]), np.zeros(1), np.full(1, 1000.0),
+    )  # fmt: skip
+    np.testing.assert_allclose(tool.displacement_bend_m(pts), frame.bend_bound_m(pts))
+    np.testing.assert_allclose(tool.displacement_bend_m(pts), frame.bend_bound_m(pts))  # memo

@@ -82,6 +82,8 @@ class CollapseTool(Tool):
         self._frame: CollapseFrame | None = None  # cached for (a, b, effective ratio)
         self._last: CollapseFrame | None = None  # the last frame made (its feet are reused)
         self._overlay: tuple | None = None  # (key, frame, primitives) of the last overlay()
+        # While animating: (feet memo, the most collapsed frame, its bends by lattice bytes).
+        self._extreme: tuple | None = None
 
     # -- state -----------------------------------------------------------------------------
     def configure(self, values: dict[str, Any]) -> None:
@@ -315,10 +317,33 @@ class CollapseTool(Tool):
         self, points_ecef: np.ndarray, displaced: np.ndarray | None = None
     ) -> np.ndarray:
         """A cheap upper bound of the collapse's bend per tile bounding lattice (N, K, 3) ->
-        (N,) m: `CollapseFrame.bend_bound_m` (exact only for tiles a fold line crosses)."""
+        (N,) m: `CollapseFrame.bend_bound_m` (exact only for tiles a fold line crosses).
+
+        While the collapse animates, the bound of the animation's most collapsed frame (the
+        ``ratio`` setting; the effective ratio stays between it and 1): the map is a rotation
+        by (1 - r) g(psi) with g fixed by A and B, and its bend grows with 1 - r (checked
+        against the exact measure in tests/collapse/test_collapse_feet.py). That bound does
+        not change from frame to frame, so it is computed once per lattice and looked up by
+        the lattice's bytes, instead of measuring every tile again at every ratio."""
         f = self.frame()
         pts = np.asarray(points_ecef, dtype=np.float64)
-        return np.zeros(len(pts)) if f is None else f.bend_bound_m(pts, displaced)
+        if f is None:
+            return np.zeros(len(pts))
+        if self.state not in ("collapsing", "expanding") or self.ratio >= f.ratio:
+            return f.bend_bound_m(pts, displaced)
+        ext = self._extreme
+        if ext is None or ext[0] is not f.feet or ext[1].ratio != self.ratio:
+            ext = (f.feet, f.with_ratio(self.ratio), {})
+            self._extreme = ext
+        memo: dict = ext[2]
+        p = np.ascontiguousarray(pts)
+        key = (p.shape, p.tobytes())
+        bend = memo.get(key)
+        if bend is None:
+            if len(memo) >= 128:
+                memo.clear()
+            bend = memo[key] = ext[1].bend_bound_m(p)
+        return bend.copy()
 
     def displacement_inverse_numpy(self, points_ecef: np.ndarray) -> np.ndarray:
         """Drawn ECEF points (N, 3) -> true ones (exact inverse of ``displacement_numpy``)."""
