@@ -1,7 +1,7 @@
 """The renderer's screen-space-error selection moved behind the LOD-provider interface: drawing
 through the plugin registry (GlobeSession, lod="chunked-sse") gives the same image, pixel for
 pixel, as calling the selection function directly (GlobeScene with lod = the shared
-traversal with ScreenSpaceErrorPolicy)."""
+traversal with ScreenSpaceErrorPolicy, with chunked-sse's default min_triangles)."""
 
 from __future__ import annotations
 
@@ -30,7 +30,9 @@ def test_chunked_sse_plugin_renders_pixel_identical_to_the_direct_selection() ->
     size = (240, 160)
     target = OffscreenTarget(ctx, size)
     terrain = TerrainStack.from_stores(embedded_stores())
-    direct = GlobeScene(ctx, terrain, lod=lambda v, t: traverse(v, t, ScreenSpaceErrorPolicy()))
+    direct = GlobeScene(
+        ctx, terrain, lod=lambda v, t: traverse(v, t, ScreenSpaceErrorPolicy(min_triangles=True))
+    )
     registry = PluginRegistry(MemorySettings()).discover()
     plugin = GlobeSession(ctx, terrain, registry=registry, lod="chunked-sse")
     for view in VIEWS:
