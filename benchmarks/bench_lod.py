@@ -171,8 +171,12 @@ def main() -> int:
     ap.add_argument("--view", help="only the VIEWS whose name contains this")
     ap.add_argument("--out", help="also write the Markdown table to this file")
     args = ap.parse_args()
-    if args.frames < 1:
-        raise GlobeviewError(f"--frames must be at least 1, not {args.frames}")
+    if not 1 <= args.frames <= 10_000:
+        raise GlobeviewError(f"--frames must lie in 1..10000, not {args.frames}")
+    if not 0.05 <= args.tau <= 1000.0:
+        raise GlobeviewError(f"--tau must lie in 0.05..1000 px, not {args.tau}")
+    if args.view and not any(args.view.lower() in v.lower() for v in VIEWS):
+        raise GlobeviewError(f"--view {args.view!r} matches no view ({', '.join(VIEWS)})")
     size = parse_size(args.size)
 
     kind = "big-dem" if "big-dem" in args.motion else "embedded"

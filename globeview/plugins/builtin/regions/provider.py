@@ -206,6 +206,39 @@ def polygons_overlap(region: np.ndarray, quads: np.ndarray) -> np.ndarray:
     return ~np.any(sep, axis=1)
 
 
+def _edge_normals(poly: np.ndarray) -> np.ndarray:
+    """(..., K, 2) the edge normals of polygons (..., K, 2): those of `polygons_overlap`
+    (np.roll(poly, -1) is poly at (i + 1) % K), indexed rather than rolled."""
+    k = poly.shape[-2]
+    e = poly[..., (np.arange(k) + 1) % k, :] - poly
+    return np.stack([-e[..., 1], e[..., 0]], axis=-1)
+
+
+class RegionOverlap:
+    """`polygons_overlap` of one convex ``region`` (K, 2) with many quads, the region's own
+    axes and projections computed once (per frame) instead of per level: the same
+    separating-axis test with the same floating-point operations per tile, so the same
+    answers."""
+
+    def __init__(self, region: np.ndarray) -> None:
+        self.region = region
+        self.axes = _edge_normals(region)  # (K, 2)
+        pr = np.einsum("kj,aj->ak", region, self.axes)
+        self.lo, self.hi = pr.min(axis=1), pr.max(axis=1)
+
+    def __call__(self, quads: np.ndarray) -> np.ndarray:
+        """(N,) bool: does the region overlap each convex quad of ``quads`` (N, 4, 2)?"""
+        # The region's axes.
+        pq = np.einsum("nkj,aj->nak", quads, self.axes)
+        sep = (self.hi < pq.min(axis=2)) | (pq.max(axis=2) < self.lo)
+        # The quads' axes.
+        axes = _edge_normals(quads)  # (N, 4, 2)
+        pr = np.einsum("kj,naj->nak", self.region, axes)
+        pq = np.einsum("nkj,naj->nak", quads, axes)
+        sep_q = (pr.max(axis=2) < pq.min(axis=2)) | (pq.max(axis=2) < pr.min(axis=2))
+        return ~(sep.any(axis=1) | sep_q.any(axis=1))
+
+
 # -- helpers of the region test ---------------------------------------------------------------
 def _bounding_quads(points: np.ndarray, grow: np.ndarray) -> np.ndarray:
     """(N, 4, 2) counter-clockwise axis-aligned boxes around each tile's 2-D points
@@ -215,6 +248,20 @@ def _bounding_quads(points: np.ndarray, grow: np.ndarray) -> np.ndarray:
     return np.stack(
         [lo, np.stack([hi[:, 0], lo[:, 1]], 1), hi, np.stack([lo[:, 0], hi[:, 1]], 1)], axis=1
     )
+
+
+def _on_ellipsoid(lon_deg: np.ndarray, lat_deg: np.ndarray) -> np.ndarray:
+    """(N, 3) ECEF (m) of points on the ellipsoid: `lonlat_to_ecef` at height 0, the same
+    operations (adding a zero height is exact) without its broadcasting and copies."""
+    lon, lat = np.radians(lon_deg), np.radians(lat_deg)
+    sin_lat = np.sin(lat)
+    n = WGS84.a / np.sqrt(1.0 - WGS84.e2 * sin_lat * sin_lat)
+    rho = n * np.cos(lat)
+    out = np.empty((len(lon), 3))
+    out[:, 0] = rho * np.cos(lon)
+    out[:, 1] = rho * np.sin(lon)
+    out[:, 2] = n * (1.0 - WGS84.e2) * sin_lat
+    return out
 
 
 # -- the provider ------------------------------------------------------------------------------
@@ -267,6 +314,7 @@ class RishePolicy(LodPolicy):
             self.tile_over_grid,
         )
         self.region, self.basis = ground_region(view)
+        self.overlap = RegionOverlap(self.region)
         self.nadir = np.asarray(
             lonlat_to_ecef(self.lon0, self.lat0, 0.0), dtype=np.float64
         ).reshape(3)
@@ -288,9 +336,7 @@ class RishePolicy(LodPolicy):
         front = enu[..., 2] > -1.5 * (height + 2.0 * max(view.exaggeration, 1.0) * 9000.0)
         near_lon = np.clip((lon0 - w + 180.0) % 360.0 - 180.0 + w, w, e)
         near_lat = np.clip(lat0, s, n)
-        near = (np.asarray(lonlat_to_ecef(near_lon, near_lat, 0.0)).reshape(-1, 3) - nadir) @ (
-            basis.T
-        )
+        near = (_on_ellipsoid(near_lon, near_lat) - nadir) @ basis.T
         d_pts = np.where(front, np.max(np.abs(enu[..., :2]), axis=2), np.inf).min(axis=1)
         d = np.minimum(d_pts, np.max(np.abs(near[:, :2]), axis=1))
         if level == 0:
@@ -304,7 +350,13 @@ class RishePolicy(LodPolicy):
             # Displaced, the four corners no longer span the footprint (a fold bends its
             # sides): test the box around every lattice point, grown by the bend.
             quads = _bounding_quads(enu[:, : enu.shape[1] // 2, :2], tiles.bend_m)
-        in_reg = polygons_overlap(self.region, quads) | (level < 4) | (d == 0.0)
+        # (= polygons_overlap(self.region, quads) | (level < 4) | (d == 0.0), the test run
+        # only where its answer matters)
+        in_reg = np.ones(len(d), dtype=bool)
+        if level >= 4:
+            test = np.flatnonzero(d != 0.0)
+            if len(test):
+                in_reg[test] = self.overlap(quads.take(test, axis=0))
         near_enough = ring < self.far_ring
         self.culled_r += int(np.count_nonzero(~in_reg))
         self.culled_c += int(np.count_nonzero(in_reg & ~near_enough))
