@@ -87,22 +87,33 @@ def sprite_classes(
     Meshes: the rest of those that may be visible; spheres wholly outside the view volume's
     sides or behind the eye are in neither. The half-width is the vertex shader's:
     r d / (w^2 px_m) pixels for a sphere at distance d and view depth w."""
-    cam = centres_rel @ np.asarray(view.rotation, np.float64).T
-    w = -cam[:, 2]
-    d = np.sqrt(np.einsum("ij,ij->i", cam, cam))
-    w_h, h_px = view.viewport
-    px_m = 2.0 * math.tan(math.radians(view.fovy_deg) / 2.0) / h_px
-    # The eye close to (or inside) the sphere: a mesh (wholly behind the eye: not drawn).
-    near = (w > -radius_m) & (w <= 2.0 * radius_m)
-    ws = np.where(near, 1.0, w)
-    half = 1.05 * radius_m * d / (ws * ws * px_m) + 1.0
-    p = np.asarray(view.proj, np.float64)
-    ndc_x = (p[0, 0] * cam[:, 0] + p[0, 2] * cam[:, 2]) / ws
-    ndc_y = (p[1, 1] * cam[:, 1] + p[1, 2] * cam[:, 2]) / ws
-    hx, hy = 2.0 * half / w_h, 2.0 * half / h_px
-    ax, ay = np.abs(ndc_x), np.abs(ndc_y)
-    seen = near | ((w > 0.0) & (ax <= 1.0 + hx) & (ay <= 1.0 + hy))
-    sprite = ~near & (w > 0.0) & (2.0 * half <= SPRITE_MAX_PX) & (ax <= 1.0 - hx) & (ay <= 1.0 - hy)
+    # Non-finite rows (NaN or infinite positions or sizes) fail every comparison below.
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        cam = centres_rel @ np.asarray(view.rotation, np.float64).T
+        w = -cam[:, 2]
+        d = np.sqrt(np.einsum("ij,ij->i", cam, cam))
+        w_h, h_px = view.viewport
+        px_m = 2.0 * math.tan(math.radians(view.fovy_deg) / 2.0) / h_px
+        # The eye close to (or inside) the sphere: a mesh (wholly behind the eye: not drawn).
+        near = (w > -radius_m) & (w <= 2.0 * radius_m)
+        ws = np.where(near, 1.0, w)
+        half = 1.05 * radius_m * d / (ws * ws * px_m) + 1.0
+        p = np.asarray(view.proj, np.float64)
+        ndc_x = (p[0, 0] * cam[:, 0] + p[0, 2] * cam[:, 2]) / ws
+        ndc_y = (p[1, 1] * cam[:, 1] + p[1, 2] * cam[:, 2]) / ws
+        hx, hy = 2.0 * half / w_h, 2.0 * half / h_px
+        ax, ay = np.abs(ndc_x), np.abs(ndc_y)
+        seen = near | ((w > 0.0) & (ax <= 1.0 + hx) & (ay <= 1.0 + hy))
+        # A box of no size (a scale of 0) draws nothing; non-finite input fails every test above.
+        seen &= radius_m > 0.0
+        sprite = (
+            seen
+            & ~near
+            & (w > 0.0)
+            & (2.0 * half <= SPRITE_MAX_PX)
+            & (ax <= 1.0 - hx)
+            & (ay <= 1.0 - hy)
+        )
     return sprite, seen & ~sprite
 
 

@@ -115,3 +115,7 @@ def test_sprite_classes(session) -> None:
     radius = rng.uniform(1.0, 3.0e4, 5000)
     sprite, mesh = sprite_classes(view, rel, radius)
     assert not (sprite & mesh).any() and sprite.sum() > 100 and mesh.sum() > 100
+    # Hostile rows: no size, NaN or infinite positions: drawn in neither way.
+    rel = np.array([at(0, 0), [np.nan, 0.0, 0.0], [np.inf, 1.0, 1.0], at(0, 0)])
+    sprite, mesh = sprite_classes(view, rel, np.array([0.0, small, small, np.nan]))
+    assert not sprite.any() and not mesh.any()
