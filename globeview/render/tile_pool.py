@@ -13,7 +13,7 @@ import moderngl
 import numpy as np
 
 from globeview.lod.tile_indices import IndexVariant, grid_indices
-from globeview.render.colour_ramp import albedo_texels, coast_texels
+from globeview.render.colour_ramp import tile_texels
 from globeview.render.gpu_objects import gpu_objects
 from globeview.render.tile_mesh import FLOATS_PER_VERTEX, TileMesh, vertices_per_tile
 
@@ -68,7 +68,7 @@ class TilePool:
     """Slots for resident tiles: vertices in one buffer, albedo and normals in texture arrays.
 
     Both arrays are RGBA8 with a layer per slot and a texel per node: ``albedo_tex`` holds
-    the ramp colour of each node's height (baked at upload, `colour_ramp.albedo_texels`),
+    the ramp colour of each node's height (baked at upload, `colour_ramp.tile_texels`),
     ``normal_tex`` its unit ECEF normal as ``n * 0.5 + 0.5`` and, in alpha, its height near
     sea level (`colour_ramp.coast_texels`: sharp coasts). The fragment shader reads one
     texel of each (two fetches): RGBA8 is llvmpipe's fast sampling path, where the float32
@@ -178,10 +178,11 @@ class TilePool:
         stride = self.verts_per_tile * FLOATS_PER_VERTEX * 4
         self.vbo.write(mesh.vertices.tobytes(), offset=slot * stride)
         s = self.size
-        self.albedo_tex.write(albedo_texels(mesh.heights).tobytes(), viewport=(0, 0, slot, s, s, 1))
-        nrm8 = np.zeros((s, s, 4), dtype=np.uint8)
-        nrm8[:, :, :3] = np.clip(np.rint(mesh.normals * 127.5 + 127.5), 0, 255)
-        nrm8[:, :, 3] = coast_texels(mesh.heights)
+        albedo, coast = tile_texels(mesh.heights)
+        self.albedo_tex.write(albedo.tobytes(), viewport=(0, 0, slot, s, s, 1))
+        nrm8 = np.empty((s, s, 4), dtype=np.uint8)
+        nrm8[:, :, :3] = np.rint(mesh.normals * 127.5 + 127.5)  # unit normals: 0..255
+        nrm8[:, :, 3] = coast
         self.normal_tex.write(nrm8.tobytes(), viewport=(0, 0, slot, s, s, 1))
         self.centers[slot] = mesh.center
         self.generation[slot] += 1

@@ -17,6 +17,7 @@ from globeview.render.colour_ramp import (
     coast_texels,
     ramp_colour,
     ramp_texture_data,
+    tile_texels,
 )
 from globeview.render.tile_pool import TilePool
 
@@ -56,8 +57,10 @@ def test_baked_albedo_of_hostile_heights() -> None:
 
 
 def test_coast_texels_keep_water_and_land_apart() -> None:
-    water = np.array([-1e-6, -0.01, -0.3, -50.0, -1e4, -np.inf])
-    land = np.array([0.0, 1e-6, 0.3, 50.0, 1e4, np.inf])
+    # Heights are rounded to 0.5 m (RAMP_STEP_M): within 0.25 m of sea level they are 0 m,
+    # land (the ramp blends water into land over ~20 m there anyway).
+    water = np.array([-0.3, -0.5, -50.0, -1e4, -np.inf])
+    land = np.array([-0.2, 0.0, 1e-6, 0.3, 50.0, 1e4, np.inf])
     assert (coast_texels(water) <= 127).all() and (coast_texels(land) >= 128).all()
     assert coast_texels(np.array([np.nan]))[0] == 128  # as 0 m
     # Linear within the band (the shader interpolates it): +-COAST_M map to the ends.
@@ -100,6 +103,7 @@ def test_the_pool_uploads_baked_albedo_and_normals(gl_ctx, terrain) -> None:
         albedo = np.frombuffer(pool.albedo_tex.read(), np.uint8)[layer].reshape(s, s, 4)
         normal = np.frombuffer(pool.normal_tex.read(), np.uint8)[layer].reshape(s, s, 4)
         assert (albedo == albedo_texels(mesh.heights)).all()
+        assert (tile_texels(mesh.heights)[1] == coast_texels(mesh.heights)).all()
         assert (normal[:, :, 3] == coast_texels(mesh.heights)).all()
         decoded = normal[:, :, :3] / 255.0 * 2.0 - 1.0
         assert np.abs(decoded - mesh.normals).max() <= 1.0 / 255.0 + 1e-6
