@@ -40,7 +40,7 @@ import numpy as np
 
 from globeview.lod.cheapest_cut import VisitedLevel, cut_within_budget
 from globeview.lod.render_set import RenderSet
-from globeview.lod.stitching import pole_codes, render_set_by_stride, render_set_from_tiles
+from globeview.lod.stitching import render_set_by_stride, render_set_from_tiles
 from globeview.lod.tile_indices import IndexVariant, Pole, grid_indices
 from globeview.lod.traversal import MAX_LEVEL, Selection, TileCandidates
 from globeview.lod.view_state import TAU_RANGE_PX, ViewState
@@ -204,7 +204,9 @@ class ScreenSpaceErrorPolicy(LodPolicy):
         the data: its level is the data's or coarser), from its parent's, the last level
         visited (tiles of a level are children of refined tiles of the one before)."""
         prev = self._visited[-1] if self._visited else None
-        if prev is None or self._past_data is None or self._finer is None or not len(prev.keys):
+        finer = self._finer
+        if prev is None or self._past_data is None or finer is None or finer.all():
+            # Every parent had finer data below it (the common case above the data's depth).
             return np.zeros(len(keys), dtype=np.int64)
         codes = (prev.keys[:, 1] << 31) | prev.keys[:, 2]
         order = np.argsort(codes)
@@ -212,7 +214,7 @@ class ScreenSpaceErrorPolicy(LodPolicy):
         parent = order.take(np.minimum(at, len(codes) - 1))
         up = self._past_data.take(parent)
         # A parent with finer data below it has this tile within the data.
-        return np.where(self._finer.take(parent), 0, up + 1)
+        return np.where(finer.take(parent), 0, up + 1)
 
     def frame_stats(self) -> dict[str, Any]:
         if not self.min_triangles:
@@ -236,7 +238,9 @@ class ScreenSpaceErrorPolicy(LodPolicy):
         idx = coarsest_stride_within(error_px, self.tau_px)
         keys = tiles.keys
         table = variant_triangles(tiles.size)
-        pole = pole_codes(keys)
+        y = keys[:, 2]
+        # = pole_codes(keys) for one level, without its casts (a dozen calls per frame).
+        pole = (y == 0) + 2 * (y == (1 << tiles.level) - 1)
         own = table[idx, pole]
         coarsest = int(np.flatnonzero(table[:, 0] < _NO_VARIANT)[-1])
         has_finer = tiles.has_finer
