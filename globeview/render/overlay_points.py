@@ -10,7 +10,9 @@ for the labels: glyph strings rendered once with Pillow's default font into a te
 Boxes are drawn in two ways, chosen per box and per frame on the CPU (`sprite_classes`,
 vectorised): a box whose image is small and lies inside the viewport is one point sprite,
 ray-cast in the fragment shader (overlay_box_sprite.*), the others (near, large, at the
-viewport's edge) are instanced meshes; boxes wholly outside the view are not drawn. On
+viewport's edge) are instanced meshes; boxes wholly outside the view are not drawn.
+Placemarks likewise (`placemark_classes`): a point sprite each (overlay_placemark_sprite.*)
+inside the viewport, a billboard quad at its edges. On
 llvmpipe an instanced draw costs about 3 us per instance whatever its vertex count, and vertex
 work runs on one core while fragments run on all. In the scene of issue #17 (10 000 boxes
 over Europe from 4 000 km, 320x240) the boxes cost about 33 ms as meshes and 8 ms as sprites
@@ -74,6 +76,32 @@ def ndc_to_ecef(view: ViewState) -> np.ndarray:
         ]
     )
     return np.asarray(view.rotation, np.float64).T @ to_cam
+
+
+def placemark_classes(
+    view: ViewState, points_rel: np.ndarray, size_px: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which placemarks (ground points relative to the eye, ECEF metres (N, 3); squares of
+    ``size_px`` pixels standing on them) to draw as point sprites and which as billboard
+    quads: (sprite, quad) boolean (N,). Sprites: in front of the eye, at most
+    ``SPRITE_MAX_PX`` wide, the square wholly inside the viewport (GL clips a point by its
+    centre); quads: the rest of those whose square may reach into the view."""
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        cam = points_rel @ np.asarray(view.rotation, np.float64).T
+        w = -cam[:, 2]
+        ws = np.where(w > 0.0, w, 1.0)
+        p = np.asarray(view.proj, np.float64)
+        x = (p[0, 0] * cam[:, 0] + p[0, 2] * cam[:, 2]) / ws
+        y = (p[1, 1] * cam[:, 1] + p[1, 2] * cam[:, 2]) / ws
+        w_px, h_px = view.viewport
+        # The square in NDC: x +- s/W, y from the point up by 2 s/H (one pixel of margin).
+        hx = (size_px + 2.0) / w_px
+        sy, my = 2.0 * size_px / h_px, 2.0 / h_px
+        ok = (w > 0.0) & (size_px > 0.0)
+        seen = ok & (np.abs(x) <= 1.0 + hx) & (y >= -1.0 - sy - my) & (y <= 1.0 + my)
+        inside = (np.abs(x) <= 1.0 - hx) & (y >= -1.0 + my) & (y + sy <= 1.0 - my)
+        sprite = seen & inside & (size_px <= SPRITE_MAX_PX)
+    return sprite, seen & ~sprite
 
 
 def sprite_classes(
@@ -251,8 +279,20 @@ class PointOverlay:
                 fragment_shader=load_shader("overlay_billboard.frag"),
             )
             self.mesh = None
+            # Placemarks inside the viewport are point sprites (one vertex each, the instance
+            # rows read as plain per-vertex data); those at its edges are billboard quads.
+            nbytes = max(n, 1) * self.FLOATS * 4
+            self.meshes = gpu_objects(ctx).buffer(reserve=nbytes, dynamic=True)
+            self.sprites = gpu_objects(ctx).buffer(reserve=nbytes, dynamic=True)
             self.vao = gpu_objects(ctx).vertex_array(
-                self.program, [(self.instances, fmt, *attrs)], skip_errors=True
+                self.program, [(self.meshes, fmt, *attrs)], skip_errors=True
+            )
+            self.sprite_prog = gpu_objects(ctx).program(
+                vertex_shader=load_shader("overlay_placemark_sprite.vert"),
+                fragment_shader=load_shader("overlay_placemark_sprite.frag"),
+            )
+            self.sprite_vao = gpu_objects(ctx).vertex_array(
+                self.sprite_prog, [(self.sprites, fmt.removesuffix("/i"), *attrs)], skip_errors=True
             )
         else:
             self.program = gpu_objects(ctx).program(
@@ -284,7 +324,7 @@ class PointOverlay:
                 skip_errors=True,
             )
         self.label_prog = self.label_vao = self.atlas = self.rects = None
-        if self.style.kind != "box":
+        if self.style.kind == "cone":
             self.sprite_prog = self.sprite_vao = self.sprites = self.meshes = None
         # Boxes: per resident box its instance row, its sprite row (hi, lo, the three axes in
         # ECEF metres), bounding centre (ECEF, float64) and radius (m), and the last frame's
@@ -356,15 +396,20 @@ class PointOverlay:
                 np.float32
             )
             self._radii = BOX_RADIUS * size
-            self._split = None
+        elif self.style.kind == "placemark":
+            self._rows = self._sprite_rows = data
+            self._centres, self._radii = pts, data[:, 6].astype(np.float64)  # sizes in px
+        self._split = None
         self.resident = len(idx)
         return self.resident
 
-    def _split_boxes(self, view: ViewState) -> None:
-        """Choose sprites and meshes for this frame (`sprite_classes`) and upload each set's
-        rows when the choice changed."""
+    def _split_sprites(self, view: ViewState) -> None:
+        """Choose sprites and meshes (boxes) or quads (placemarks) for this frame
+        (`sprite_classes`, `placemark_classes`) and upload each set's rows when the choice
+        changed."""
         rel = self._centres - np.asarray(view.eye, np.float64)
-        sprite, mesh = sprite_classes(view, rel, self._radii)
+        classes = sprite_classes if self.style.kind == "box" else placemark_classes
+        sprite, mesh = classes(view, rel, self._radii)
         key = (sprite.tobytes(), mesh.tobytes())
         if key == self._split:
             return
@@ -391,15 +436,17 @@ class PointOverlay:
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.depth_func = "<="
         set_uniforms(self.program, uni)
-        if self.mesh is None:
-            self.vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=n)
-        elif self.sprite_vao is not None:
-            self._split_boxes(view)
-            if self.n_meshes:
+        if self.sprite_vao is not None:
+            self._split_sprites(view)
+            if self.n_meshes and self.mesh is None:
+                self.vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=self.n_meshes)
+            elif self.n_meshes:
                 self.vao.render(moderngl.TRIANGLES, vertices=self.n_mesh, instances=self.n_meshes)
             if self.n_sprites:
                 set_uniforms(self.sprite_prog, uni)
-                self.sprite_prog["u_ndc_to_ecef"].write(ndc_to_ecef(view).T.astype("f4").tobytes())
+                if self.mesh is not None:  # boxes: the pixel rays
+                    m = ndc_to_ecef(view).T.astype("f4").tobytes()
+                    self.sprite_prog["u_ndc_to_ecef"].write(m)
                 ctx.enable(moderngl.PROGRAM_POINT_SIZE)
                 self.sprite_vao.render(moderngl.POINTS, vertices=self.n_sprites)
                 ctx.disable(moderngl.PROGRAM_POINT_SIZE)

@@ -119,3 +119,33 @@ def test_sprite_classes(session) -> None:
     rel = np.array([at(0, 0), [np.nan, 0.0, 0.0], [np.inf, 1.0, 1.0], at(0, 0)])
     sprite, mesh = sprite_classes(view, rel, np.array([0.0, small, small, np.nan]))
     assert not sprite.any() and not mesh.any()
+
+
+@pytest.mark.parametrize(
+    "camera", [(10.0, 46.0, 4.0e6, 0.0, -90.0), (9.0, 44.0, 4.0e5, 30.0, -35.0)]
+)
+def test_placemark_sprites_look_like_billboards(session, camera, monkeypatch) -> None:
+    """Placemarks as point sprites (default) and as billboard quads (SPRITE_MAX_PX = 0) give
+    the same image; those at the viewport's edges stay quads, so none is cut off there."""
+    from globeview.render.overlay_points import PointOverlay, PointStyle
+
+    rng = np.random.default_rng(4)
+    n = 2000
+    lon, lat = rng.uniform(0.0, 20.0, n), rng.uniform(38.0, 54.0, n)
+    session.camera = Camera.from_lonlat(*camera)
+    ov = PointOverlay(session.ctx, lon, lat, None, PointStyle("placemark", size_px=9.0))
+    session.renderer.overlays.points.append(ov)
+    try:
+        session.render(session.target.fbo, SIZE)
+        quads = _render(session, ov, 0.0, monkeypatch).astype(int)
+        assert ov.n_sprites == 0 and ov.n_meshes > 0
+        sprites = _render(session, ov, 64.0, monkeypatch).astype(int)
+        assert ov.n_sprites > 0
+        assert ov.n_meshes > 0 or camera[2] > 1.0e6  # the oblique view has some at its edges
+    finally:
+        session.renderer.overlays.points.remove(ov)
+        ov.release()
+    red = (quads[..., 0] > 230) & (quads[..., 1] < 90)
+    assert red.sum() > 500
+    differ = np.abs(quads - sprites).max(axis=2) > 24
+    assert differ.sum() <= max(0.01 * red.sum(), 4), (differ.sum(), red.sum())
