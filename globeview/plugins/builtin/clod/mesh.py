@@ -355,10 +355,12 @@ def clod_frame(
             a_has = va.reshape(-1).take(differ)
             tiles = np.where(a_has, b.take(p), a.take(p))  # the side that lacks it
             new.append(tile_base.take(tiles) + np.where(a_has, eb, ea) + k * step)
-        if not new or passes > 4 * n_levels + 4:
+        if not new:
             break
         nodes = np.concatenate(new)
-        en_f[nodes] = True
+        en_f[nodes] = True  # (at the pass cap too, as the union it is)
+        if passes > 4 * n_levels + 4:
+            break
         todo = [np.empty(0, np.int64)] * n_levels
     for j in range(n_levels):
         if added[j]:
