@@ -178,43 +178,53 @@ def _normals_of(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
     north, averaged from the eight triangles (two per cell) around each node (edge nodes: the
     triangles they have).
 
-    Component arrays rather than (R, C, 3) stacks: each product then runs over one contiguous
-    plane (np.cross and np.linalg.norm on a trailing axis of 3 are several times slower); the
-    arithmetic per node is the same as before, in the same order.
+    Why it looks like this (issue #17: the normals were a third of a tile's build): one
+    component at a time (np.cross and np.linalg.norm on a trailing axis of 3 are several
+    times slower), and on the grid flattened row-major, where a node's east neighbour is the
+    next element and its south neighbour C elements on, so every operand is a contiguous
+    1-D slice (strided 2-D slices ran at half the speed). Cell i (its north-west node) is
+    then a cell for every i but the last column's, whose "cells" straddle two rows: they are
+    computed and zeroed before accumulating. The arithmetic per node is the reference's
+    (tests/render/test_tile_build.py), in the same order: the same bits.
     """
     r, c = x.shape
+    n = r * c
+    cells = (r - 1) * c - 1  # flat cell indices 0 .. cells - 1 (north-west nodes)
     # Relative to the middle node: small numbers, so the cross products keep their digits.
-    px, py, pz = (x - x[r // 2, c // 2], y - y[r // 2, c // 2], z - z[r // 2, c // 2])
-
-    def corners(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        # a (r, c), b (r, c+1) east, c (r+1, c) south, d (r+1, c+1)
-        return p[:-1, :-1], p[:-1, 1:], p[1:, :-1], p[1:, 1:]
-
-    (ax, bx, cx, dx), (ay, by, cy, dy), (az, bz, cz, dz) = corners(px), corners(py), corners(pz)
+    p = [(v - v[r // 2, c // 2]).ravel() for v in (x, y, z)]
+    east = [v[1:] - v[:-1] for v in p]  # node i -> i + 1
+    south = [v[c:] - v[:-c] for v in p]  # node i -> i + C
+    # Cell corners a = i, b = i + 1 (east), c = i + C (south), d = i + C + 1.
+    ca = [v[:cells] for v in south]
+    ba = [v[:cells] for v in east]
+    db = [v[1 : cells + 1] for v in south]
+    dc = [v[c : c + cells] for v in east]
     # Rows run south and columns east, so cross(south, east) points up (outward).
-    n1 = _cross(cx - ax, cy - ay, cz - az, bx - ax, by - ay, bz - az)  # triangle a, c, b
-    n2 = _cross(dx - bx, dy - by, dz - bz, dx - cx, dy - cy, dz - cz)  # triangle b, c, d
-    acc = np.zeros((3, r, c))
+    n1 = _cross(*ca, *ba)  # triangle a, c, b
+    n2 = _cross(*db, *dc)  # triangle b, c, d
+    acc = np.zeros((3, n))
     for k in range(3):
         cell = n1[k] + n2[k]
+        cell[c - 1 :: c] = 0.0  # the last column's wrap-around "cells"
         a = acc[k]
-        a[:-1, :-1] += cell
-        a[:-1, 1:] += cell
-        a[1:, :-1] += cell
-        a[1:, 1:] += cell
+        a[:cells] += cell  # the cell's north-west node
+        a[1 : cells + 1] += cell  # north-east
+        a[c : c + cells] += cell  # south-west
+        a[c + 1 :] += cell  # south-east
     norm = np.sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
     safe = np.maximum(norm, 1e-30)
-    out = np.empty((r, c, 3), dtype=np.float32)
+    out = np.empty((n, 3), dtype=np.float32)
     ok = norm > 1e-12
     if ok.all():
         for k in range(3):
-            out[:, :, k] = acc[k] / safe
-        return out
+            out[:, k] = acc[k] / safe
+        return out.reshape(r, c, 3)
     # A pole row collapses to one point: its cells are degenerate; fall back to the radial up.
-    rad = np.sqrt(x * x + y * y + z * z)
-    for k, comp in enumerate((x, y, z)):
-        out[:, :, k] = np.where(ok, acc[k] / safe, comp / rad)
-    return out
+    xf, yf, zf = x.ravel(), y.ravel(), z.ravel()
+    rad = np.sqrt(xf * xf + yf * yf + zf * zf)
+    for k, comp in enumerate((xf, yf, zf)):
+        out[:, k] = np.where(ok, acc[k] / safe, comp / rad)
+    return out.reshape(r, c, 3)
 
 
 def _vertex_normals_apron(

@@ -19,6 +19,7 @@ Heights are metres above the ellipsoid; keys are (level, x, y) with y = 0 at the
 
 from __future__ import annotations
 
+import functools
 import threading
 from dataclasses import dataclass, field
 
@@ -457,10 +458,9 @@ class TerrainStack:
         """(size, size) weight of a layer over those below at a tile's nodes; None where the
         whole tile is deeper inside the layer than its band (nothing to blend)."""
         mask = self._blend_mask(st)
-        tb = tile_bounds_arrays(*key)
-        if not mask.touches_band(*(np.atleast_1d(v) for v in tb))[0]:
+        w_, s_, e_, n_ = (float(v) for v in tile_bounds_arrays(*key))
+        if not mask.touches_band_one(w_, s_, e_, n_):
             return None
-        w_, s_, e_, n_ = (float(v) for v in tb)
         return mask.sample_grid(w_, s_, e_, n_, self.tile_size).astype(np.float32)
 
     def _layer_table(self, st: TileStore, level: int):
@@ -495,7 +495,8 @@ class TerrainStack:
             return hit
         version = self.version
         out = self._compose(key, len(self.visible_layers))
-        np.nan_to_num(out, copy=False, nan=0.0)
+        if not np.isfinite(out).all():  # (nan_to_num's own checks cost more than a compose step)
+            np.nan_to_num(out, copy=False, nan=0.0)
         with self._lock:
             if version != self.version:  # the layers changed meanwhile: do not cache
                 return out
@@ -565,7 +566,9 @@ class TerrainStack:
         out = np.empty((size + 2, size + 2), dtype=np.float32)
         out[1:-1, 1:-1] = self.heights((level, x, y))
         rows, cols = _ring_index(size)
-        out[rows, cols] = np.nan_to_num(self._compose_ring((level, x, y), len(self.visible_layers)))
+        ring = self._compose_ring((level, x, y), len(self.visible_layers))
+        ring[np.isnan(ring)] = 0.0  # no data: the ellipsoid, as `heights` composes it
+        out[rows, cols] = ring
         if y == 0:
             out[0] = 2.0 * out[1] - out[2]
         if y == (1 << level) - 1:
@@ -652,7 +655,7 @@ class TerrainStack:
         d_lon = (e_ - w_) / (size - 1)
         d_lat = (n_ - s_) / (size - 1)
         grown = (w_ - d_lon, s_ - d_lat, e_ + d_lon, n_ + d_lat)
-        if not mask.touches_band(*(np.atleast_1d(v) for v in grown))[0]:
+        if not mask.touches_band_one(*grown):
             return None
         rows, cols = _ring_index(size)
         t = np.arange(-1, size + 1, dtype=np.float64)
@@ -726,38 +729,50 @@ def _upsample_ring(anc: np.ndarray, f: int, dx: int, dy: int) -> np.ndarray:
     """(ring,) float32: the ring nodes of a descendant tile ``f`` levels below the padded
     ancestor ``anc`` ((size + 2)^2, `TileStore.heights_padded`), offset (dx, dy) tiles inside
     it, interpolated bilinearly. Ring nodes beyond the ancestor's edge lie within its first
-    padded cell: the neighbouring ancestor's own bilinear surface there."""
+    padded cell: the neighbouring ancestor's own bilinear surface there.
+
+    Separable, as the tile's own upsampling: the two ring rows are interpolated down the
+    ancestor's columns then along the row, the two ring columns the other way round (float64
+    sums of the same two terms per axis; a corner with weight 0 is left out, not multiplied by
+    0: a node on a grid line keeps that line's value even where the next one is NaN, as the
+    neighbour has it)."""
     size = anc.shape[0] - 2
+    r0, rf = _ring_axis(size, f, dy)
+    c0, cf = _ring_axis(size, f, dx)
+    g = anc.astype(np.float64)
+    n = size + 2
+    out = np.empty(4 * (size + 1))
+    for j, r in enumerate((0, n - 1)):  # the top and bottom ring rows
+        line = _lerp(g[r0[r]], g[r0[r] + 1], rf[r])  # along the ancestor's columns
+        out[j * n : (j + 1) * n] = _lerp(line[c0], line[c0 + 1], cf)
+    for j, c in enumerate((0, n - 1)):  # the left and right ring columns, between them
+        line = _lerp(g[:, c0[c]], g[:, c0[c] + 1], cf[c])
+        out[2 * n + j * (n - 2) : 2 * n + (j + 1) * (n - 2)] = _lerp(
+            line[r0[1:-1]], line[r0[1:-1] + 1], rf[1:-1]
+        )
+    return out.astype(np.float32)
+
+
+@functools.lru_cache(maxsize=1024)
+def _ring_axis(size: int, f: int, d: int) -> tuple[np.ndarray, np.ndarray]:
+    """(first node, fraction), each (size + 2,), of the padded nodes -1..size of a descendant
+    ``f`` levels below, at tile offset ``d``, along one axis of its padded ancestor (grid
+    positions exact: integers over a power of two). Read-only (shared by the cache)."""
     cells = size - 1
     scale = 2**f
-    t = np.arange(-1, size + 1, dtype=np.float64)
-    # Positions in the padded grid (+1): integers over a power of two, so exact.
-    rpos = (dy * cells + t + scale) / scale
-    cpos = (dx * cells + t + scale) / scale
-    rows, cols = _ring_index(size)
-    return _bilinear_nodes(anc, rpos[rows], cpos[cols]).astype(np.float32)
+    pos = (d * cells + np.arange(-1, size + 1, dtype=np.float64) + scale) / scale
+    i0 = np.minimum(np.floor(pos).astype(np.int64), size)  # at most the last cell's start
+    frac = pos - i0
+    i0.flags.writeable = False
+    frac.flags.writeable = False
+    return i0, frac
 
 
-def _bilinear_nodes(grid: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """`bilinear`, except that a corner with weight 0 is left out rather than multiplied by
-    0: a point on a grid line of ``grid`` takes its value from that line even where the next
-    one is NaN (the ring of a padded ancestor is NaN beyond a pole or the data, and ring
-    nodes on the ancestor's edge must keep the edge's value, as the neighbour has it)."""
-    nr, nc = grid.shape
-    r = np.clip(rows, 0.0, nr - 1.0)
-    c = np.clip(cols, 0.0, nc - 1.0)
-    r0 = np.minimum(np.floor(r).astype(np.int64), nr - 2)
-    c0 = np.minimum(np.floor(c).astype(np.int64), nc - 2)
-    fr = r - r0
-    fc = c - c0
-    g = grid.astype(np.float64)
-
-    def lerp(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
-        return np.where(t == 0.0, a, np.where(t == 1.0, b, a * (1 - t) + b * t))
-
-    top = lerp(g[r0, c0], g[r0, c0 + 1], fc)
-    bot = lerp(g[r0 + 1, c0], g[r0 + 1, c0 + 1], fc)
-    return lerp(top, bot, fr)
+def _lerp(a: np.ndarray, b: np.ndarray, t: np.ndarray | float) -> np.ndarray:
+    """a (1 - t) + b t, exactly a where t = 0 and b where t = 1 (NaN in the other unused)."""
+    if np.ndim(t) == 0:
+        return a if t == 0.0 else (b if t == 1.0 else a * (1.0 - t) + b * t)
+    return np.where(t == 0.0, a, np.where(t == 1.0, b, a * (1.0 - t) + b * t))
 
 
 def _stride_interpolation_errors(h: np.ndarray) -> np.ndarray:
@@ -819,11 +834,30 @@ def upsample_subtile(anc: np.ndarray, f: int, dx: int, dy: int) -> np.ndarray:
     cols = (dx * cells + t) / scale
     rows = (dy * cells + t) / scale
     if not np.isnan(anc).any():
-        # Bilinear is separable: two small matrix products instead of 4 gathers per node.
-        out = linear_weights(rows, size) @ anc.astype(np.float64) @ linear_weights(cols, size).T
-        return out.astype(np.float32)
+        # Bilinear is separable: two small matrix products instead of 4 gathers per node,
+        # over the window of ancestor nodes the tile spans (2^-f of it; the weights outside
+        # are 0, so the products are the same sums), with the weights cached per offset.
+        r0, wr = _window_weights(size, f, dy)
+        c0, wc = _window_weights(size, f, dx)
+        sub = anc[r0 : r0 + wr.shape[1], c0 : c0 + wc.shape[1]].astype(np.float64)
+        return (wr @ sub @ wc.T).astype(np.float32)
     rr, cc = np.meshgrid(rows, cols, indexing="ij")
     return bilinear(anc, rr.reshape(-1), cc.reshape(-1)).reshape(size, size).astype(np.float32)
+
+
+@functools.lru_cache(maxsize=2048)
+def _window_weights(size: int, f: int, d: int) -> tuple[int, np.ndarray]:
+    """(first node, (size, k) weights): `linear_weights` along one axis of a descendant
+    ``f`` levels below a (size, size) ancestor at tile offset ``d``, cut to the k ancestor
+    nodes with a non-zero column. Read-only (shared by the cache)."""
+    cells = size - 1
+    pos = (d * cells + np.arange(size, dtype=np.float64)) / 2**f
+    m = linear_weights(pos, size)
+    used = np.nonzero(m.any(axis=0))[0]
+    lo, hi = int(used[0]), int(used[-1]) + 1
+    w = np.ascontiguousarray(m[:, lo:hi])
+    w.flags.writeable = False
+    return lo, w
 
 
 def linear_weights(pos: np.ndarray, n: int) -> np.ndarray:

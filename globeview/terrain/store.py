@@ -199,6 +199,7 @@ class TileStore:
         self.pole_heights = (manifest.pole_heights or PoleHeights()).as_dict()
         self._levels: tuple[LevelRecord, ...] = manifest.levels
         self._grids = [lv.grid(self.tile_n) for lv in self._levels]
+        self._ncols = [g.ncols for g in self._grids]  # (a property computed on each use)
         for level in range(self.max_level + 1):
             self._open_level(level).close()
         self.tile_size = (1 << self.tile_n) + 1
@@ -365,11 +366,11 @@ class TileStore:
         the antimeridian on a level that goes all the way round, NaN beyond the data."""
         size = self.tile_size
         out = np.full((size + 2, size + 2), np.nan, dtype=np.float32)
-        if not (0 <= key.level <= self.max_level):
-            return out
+        if not (0 <= key.level <= self.max_level) or not 0 <= key.x < self._ncols[key.level]:
+            return out  # no such tile (`heights` serves NaN, as it always did)
         grid = self._grids[key.level]
         n = grid.tile_nodes
-        ncols = grid.ncols
+        ncols = self._ncols[key.level]
         iy = key.y - grid.y0
         ix = (key.x - grid.x0) % ncols
         if not grid.global_lon and ix == ncols - 1 and grid.nx < ncols:
@@ -456,12 +457,13 @@ class TileStore:
         if not (0 <= level <= self.max_level):
             return False
         grid = self._grids[level]
+        ncols = self._ncols[level]
         iy = y - grid.y0
-        ix = (x - grid.x0) % grid.ncols
-        if not grid.global_lon and ix >= grid.nx:
+        ix = (x - grid.x0) % ncols
+        if ix >= grid.nx and grid.nx < ncols:
             # Just east (nx) or just west (ncols - 1) of the extent: the table's border.
-            ix = grid.nx if ix == grid.nx else (-1 if ix == grid.ncols - 1 else -2)
-        if not (-1 <= iy <= grid.ny and -1 <= ix <= grid.nx) or not (0 <= x < grid.ncols):
+            ix = grid.nx if ix == grid.nx else (-1 if ix == ncols - 1 else -2)
+        if not (-1 <= iy <= grid.ny and -1 <= ix <= grid.nx) or not (0 <= x < ncols):
             return False
         return bool(self._data_table(level, grow)[iy + 1, ix + 1])
 
