@@ -316,16 +316,19 @@ class PointOverlay:
                 )
             self.mesh = gpu_objects(ctx).buffer(mesh.tobytes())
             self.n_mesh = len(mesh)
-            # Boxes draw their mesh instances from their own buffer (those not drawn as sprites).
-            inst = self.meshes if self.style.kind == "box" else self.instances
+            if self.style.kind == "cone":
+                # Cones draw only those in the view (the CPU culls them each frame, as boxes).
+                nbytes = max(n, 1) * self.FLOATS * 4
+                self.meshes = gpu_objects(ctx).buffer(reserve=nbytes, dynamic=True)
+                self.sprite_prog = self.sprite_vao = self.sprites = None
+            # The mesh instances come from their own buffer (those in view, not sprites).
+            inst = self.meshes
             self.vao = gpu_objects(ctx).vertex_array(
                 self.program,
                 [(self.mesh, "3f 3f", "in_vpos", "in_vnrm"), (inst, fmt, *attrs)],
                 skip_errors=True,
             )
         self.label_prog = self.label_vao = self.atlas = self.rects = None
-        if self.style.kind == "cone":
-            self.sprite_prog = self.sprite_vao = self.sprites = self.meshes = None
         # Boxes: per resident box its instance row, its sprite row (hi, lo, the three axes in
         # ECEF metres), bounding centre (ECEF, float64) and radius (m), and the last frame's
         # split (sprite/mesh masks' bytes).
@@ -388,7 +391,14 @@ class PointOverlay:
         ).astype(np.float32)
         if len(idx):
             self.instances.write(data.tobytes())
-        if self.style.kind == "box":
+        if self.style.kind == "cone":
+            size = (self.scale[idx] * base).astype(np.float64)
+            up = pts * np.asarray(INV_AXES2)
+            up /= np.linalg.norm(up, axis=1, keepdims=True)
+            # The unit cone's bounding sphere about (0, 0, 0.5) has radius sqrt(0.5) < BOX_RADIUS.
+            self._rows, self._centres = data, pts + up * (0.5 * size)[:, None]
+            self._radii = BOX_RADIUS * size
+        elif self.style.kind == "box":
             size = (self.scale[idx] * base).astype(np.float64)
             axes = box_axes(pts, self.heading[idx], size)
             self._rows, self._centres = data, pts + 0.5 * axes[:, 2]
@@ -408,13 +418,17 @@ class PointOverlay:
         (`sprite_classes`, `placemark_classes`) and upload each set's rows when the choice
         changed."""
         rel = self._centres - np.asarray(view.eye, np.float64)
-        classes = sprite_classes if self.style.kind == "box" else placemark_classes
+        classes = placemark_classes if self.style.kind == "placemark" else sprite_classes
         sprite, mesh = classes(view, rel, self._radii)
+        if self.sprites is None:  # cones: every one in view is a mesh
+            sprite, mesh = np.zeros_like(sprite), sprite | mesh
         key = (sprite.tobytes(), mesh.tobytes())
         if key == self._split:
             return
         self._split = key
         for buf, rows in ((self.sprites, self._sprite_rows), (self.meshes, self._rows)):
+            if buf is None:
+                continue
             rows = rows[sprite if buf is self.sprites else mesh]
             if len(rows):
                 buf.write(rows.tobytes())
@@ -436,22 +450,19 @@ class PointOverlay:
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.depth_func = "<="
         set_uniforms(self.program, uni)
-        if self.sprite_vao is not None:
-            self._split_sprites(view)
-            if self.n_meshes and self.mesh is None:
-                self.vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=self.n_meshes)
-            elif self.n_meshes:
-                self.vao.render(moderngl.TRIANGLES, vertices=self.n_mesh, instances=self.n_meshes)
-            if self.n_sprites:
-                set_uniforms(self.sprite_prog, uni)
-                if self.mesh is not None:  # boxes: the pixel rays
-                    m = ndc_to_ecef(view).T.astype("f4").tobytes()
-                    self.sprite_prog["u_ndc_to_ecef"].write(m)
-                ctx.enable(moderngl.PROGRAM_POINT_SIZE)
-                self.sprite_vao.render(moderngl.POINTS, vertices=self.n_sprites)
-                ctx.disable(moderngl.PROGRAM_POINT_SIZE)
-        else:
-            self.vao.render(moderngl.TRIANGLES, vertices=self.n_mesh, instances=n)
+        self._split_sprites(view)
+        if self.n_meshes and self.mesh is None:
+            self.vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=self.n_meshes)
+        elif self.n_meshes:
+            self.vao.render(moderngl.TRIANGLES, vertices=self.n_mesh, instances=self.n_meshes)
+        if self.n_sprites:
+            set_uniforms(self.sprite_prog, uni)
+            if self.mesh is not None:  # boxes: the pixel rays
+                m = ndc_to_ecef(view).T.astype("f4").tobytes()
+                self.sprite_prog["u_ndc_to_ecef"].write(m)
+            ctx.enable(moderngl.PROGRAM_POINT_SIZE)
+            self.sprite_vao.render(moderngl.POINTS, vertices=self.n_sprites)
+            ctx.disable(moderngl.PROGRAM_POINT_SIZE)
         if self.label_vao is not None:
             uni.update(
                 u_color=tuple(float(c) for c in self.style.label_color),

@@ -149,3 +149,31 @@ def test_placemark_sprites_look_like_billboards(session, camera, monkeypatch) ->
     assert red.sum() > 500
     differ = np.abs(quads - sprites).max(axis=2) > 24
     assert differ.sum() <= max(0.01 * red.sum(), 4), (differ.sum(), red.sum())
+
+
+def test_cones_out_of_view_are_culled_without_changing_the_image(session, monkeypatch) -> None:
+    """Cones are drawn only where they may be seen: the same image as drawing every resident
+    cone (the classes patched to keep all), with fewer instances drawn."""
+    import globeview.render.overlay_points as op
+    from globeview.render.overlay_points import PointOverlay, PointStyle
+
+    rng = np.random.default_rng(6)
+    n = 3000
+    lon, lat = rng.uniform(0.0, 20.0, n), rng.uniform(38.0, 54.0, n)
+    session.camera = Camera.from_lonlat(9.0, 44.0, 4.0e5, 30.0, -35.0)
+    ov = PointOverlay(session.ctx, lon, lat, None, PointStyle("cone", scale_m=8000.0))
+    session.renderer.overlays.points.append(ov)
+    try:
+        session.render(session.target.fbo, SIZE)
+        culled = session.target.read_rgb().astype(int)
+        drawn = ov.n_meshes
+        keep_all = lambda view, rel, radius: (np.zeros(len(rel), bool), np.ones(len(rel), bool))  # noqa: E731
+        monkeypatch.setattr(op, "sprite_classes", keep_all)
+        ov._split = None
+        session.render(session.target.fbo, SIZE)
+        every = session.target.read_rgb().astype(int)
+        assert ov.n_meshes == ov.resident > drawn > 0
+    finally:
+        session.renderer.overlays.points.remove(ov)
+        ov.release()
+    assert np.abs(culled - every).max() <= 2
