@@ -561,9 +561,9 @@ def triangulate(
         tri[:, :, 0] = centre
         tri[:, :, 1] = tri_b
         tri[:, :, 2] = tri_a
-        mask = np.stack(keep)
-        parts_t.append(np.broadcast_to(t, mask.shape)[mask])
-        parts_tri.append(tri[mask])
+        at = np.flatnonzero(np.stack(keep))  # (candidate k, block) in row-major order
+        parts_t.append(t.take(at % len(t)))
+        parts_tri.append(tri.reshape(-1, 3).take(at, axis=0))
 
     # Skirts along the enabled edge vertices of non-pole edges (north, south, west, east).
     level, _, y = np.asarray(keys, dtype=np.int64).reshape(-1, 3).T
@@ -584,7 +584,9 @@ def triangulate(
 
     all_t = np.concatenate(parts_t)
     all_tri = np.concatenate(parts_tri).astype(np.uint32)
-    order = np.argsort(all_t, kind="stable")
+    # Stable, so each tile keeps its triangles' order; tile rows fit int16 (MAX_TILES is
+    # 16 384), for which numpy's stable sort is a radix sort.
+    order = np.argsort(all_t.astype(np.int16) if t_n < 2**15 else all_t, kind="stable")
     counts = np.bincount(all_t, minlength=t_n)
     flat = all_tri[order].reshape(-1)
     ends = np.cumsum(counts * 3).tolist()
