@@ -39,10 +39,10 @@ from typing import Any
 import numpy as np
 
 from globeview.lod.cheapest_cut import VisitedLevel, cut_within_budget
-from globeview.lod.render_set import RenderSet
+from globeview.lod.render_set import MAX_TILES, RenderSet
 from globeview.lod.stitching import render_set_by_stride, render_set_from_tiles
 from globeview.lod.tile_indices import IndexVariant, Pole, grid_indices
-from globeview.lod.traversal import MAX_LEVEL, Selection, TileCandidates
+from globeview.lod.traversal import MAX_LEVEL, Selection, TileCandidates, traverse
 from globeview.lod.view_state import TAU_RANGE_PX, ViewState
 from globeview.terrain.stack import N_STRIDES, TerrainStack
 
@@ -52,6 +52,8 @@ _STRIDE_RANK = np.arange(1, N_STRIDES + 1)
 #: the fewest-triangles cut may look: tiles there are their ancestor's data upsampled, and
 #: splitting a tile whose near corner needs a fine stride lets its far children draw coarser.
 BEYOND_DATA_LEVELS = 4
+#: The walk's tile budget with min_triangles, in units of the cut's (`ScreenSpaceErrorPolicy`).
+WALK_BUDGET = 4
 #: Tiles nearer than this many tile widths are worth visiting the children of whatever their
 #: error (`ScreenSpaceErrorPolicy.refine`).
 NEAR_RATIO = 4.0
@@ -185,10 +187,12 @@ class ScreenSpaceErrorPolicy(LodPolicy):
         super().__init__(tau_px)
         self.texel_px = float(texel_px)
         self.min_triangles = bool(min_triangles)
-        # With min_triangles the budget bounds the cut (`cut_within_budget`), not the walk:
-        # a walk cut short by a budget that depends on tau would not be monotone in tau.
+        # With min_triangles the budget bounds the cut (`cut_within_budget`), and the walk only
+        # gets WALK_BUDGET times as much (a bound on its work in extreme views): a walk cut
+        # short by a budget that depends on tau would not be monotone in tau.
         self.tile_budget = int(max_tiles)
-        self.max_tiles = None if self.min_triangles else self.tile_budget
+        walk = min(WALK_BUDGET * self.tile_budget, MAX_TILES)
+        self.max_tiles = walk if self.min_triangles else self.tile_budget
         self._visited: list[VisitedLevel] = []
         self._hidden = 0
 
@@ -284,5 +288,13 @@ class ScreenSpaceErrorPolicy(LodPolicy):
         keys, stride_idx, error_px, hidden = cut_within_budget(
             self._visited, selection.keys, self.tile_budget
         )
+        if len(keys) > self.tile_budget and self.view is not None and self.terrain is not None:
+            # Tau asks for more tiles than the budget even with the fewest tiles per
+            # triangle (an extreme exaggeration or tau): the plain walk, whose budget refines
+            # the worst tiles first and leaves the rest over tau, as without min_triangles.
+            plain = ScreenSpaceErrorPolicy(self.tau_px, self.texel_px, self.tile_budget)
+            rs = traverse(self.view, self.terrain, plain)
+            rs.stats["cut_over_budget"] = 1.0
+            return rs
         self._hidden = int(np.count_nonzero(hidden))
         return render_set_by_stride(keys, stride_idx, error_px)

@@ -187,3 +187,28 @@ def test_min_triangles_setting_is_validated(bad) -> None:
     provider = ChunkedSseProvider()
     provider.configure({"min_triangles": bad})
     assert isinstance(provider.values["min_triangles"], bool)
+
+
+def test_a_view_tau_cannot_meet_within_the_budget_falls_back_to_the_plain_walk(
+    globeview_terrain,
+) -> None:
+    """Exaggeration 100 at the White Mountains: meeting tau would take more tiles than the
+    budget, so the selection is the plain walk's (the budget refines the worst tiles first)."""
+    view = make_view(-71.3, 44.15, 9.0e3, 0.0, -30.0, (1280, 720), exaggeration=100.0)
+    got = traverse(view, globeview_terrain, ScreenSpaceErrorPolicy(min_triangles=True))
+    plain = traverse(view, globeview_terrain, ScreenSpaceErrorPolicy())
+    assert got.stats["cut_over_budget"] == 1.0
+    assert np.array_equal(got.keys, plain.keys)
+    assert np.array_equal(got.variant_ids, plain.variant_ids)
+    # A budget under what the cheapest cut draws (393 tiles at tau 8) but over what tau
+    # needs: the cut trades triangles for tiles and stays within it (378 when written).
+    view = make_view(-71.3, 44.15, 9.0e3, 0.0, -30.0, (1280, 720), tau_px=8.0)
+    free = traverse(view, globeview_terrain, ScreenSpaceErrorPolicy(min_triangles=True))
+    rs = traverse(
+        view, globeview_terrain, ScreenSpaceErrorPolicy(min_triangles=True, max_tiles=380)
+    )
+    assert len(free) > 380 >= len(rs) and "cut_over_budget" not in rs.stats
+    assert float(rs.error_px.max()) <= 8.0
+    size = globeview_terrain.tile_size
+    plain = traverse(view, globeview_terrain, ScreenSpaceErrorPolicy(max_tiles=380))
+    assert triangles(free, size) <= triangles(rs, size) <= triangles(plain, size)
