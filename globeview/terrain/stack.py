@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import functools
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -37,6 +38,10 @@ N_STRIDES = 7
 #: Most tiles of a layer's border band whose |upper - lower| is measured exactly at one level
 #: (one-time work, ~1 ms a tile); finer levels bound it from the finest level within this.
 DIFF_TABLE_TILES = 1024
+
+
+#: "Not read yet" for `TerrainStack._paste`'s ``own`` (None means "read: no data").
+_UNREAD = object()
 
 
 @dataclass
@@ -509,19 +514,61 @@ class TerrainStack:
     def _compose(self, key: tuple[int, int, int], upto: int) -> np.ndarray:
         """The first ``upto`` visible layers composed at a tile (NaN where none has data)."""
         size = self.tile_size
+        layers = self.visible_layers[:upto]
+        first, own = self._opaque_layer(layers, key, self._layer_heights, self._tile_blends)
         out = np.full((size, size), np.nan, dtype=np.float32)
-        for i, layer in enumerate(self.visible_layers[:upto]):
-            self._paste(i, layer.store, key, out)
+        for i in range(first, len(layers)):
+            self._paste(i, layers[i].store, key, out, own.get(i, _UNREAD))
         return out
 
+    def _tile_blends(self, st: TileStore, key: tuple[int, int, int]) -> bool:
+        """Whether `_paste` blends the layer into those below at this tile (`_blend_weight`
+        is not None), without sampling the weights."""
+        mask = self._blend_mask(st)
+        w_, s_, e_, n_ = (float(v) for v in tile_bounds_arrays(*key))
+        return mask.touches_band_one(w_, s_, e_, n_)
+
+    def _opaque_layer(
+        self,
+        layers: list[TerrainLayer],
+        key: tuple[int, int, int],
+        heights_of: Callable[[TileStore, tuple[int, int, int]], np.ndarray | None],
+        blends: Callable[[TileStore, tuple[int, int, int]], bool],
+    ) -> tuple[int, dict[int, np.ndarray | None]]:
+        """(first layer to paste, {layer: its own heights read on the way}).
+
+        The highest layer with data at every node that does not blend here hides every layer
+        below it: pasting it over them copies it whole (`np.copyto` where it has data, i.e.
+        everywhere), so the composition may start there, bit for bit the same. Deep inside
+        a detailed layer that skips the base's and the other layers' upsampling (issue #17:
+        most of a tile's compose time). ``heights_of(st, key)`` gives a layer's own heights
+        (None: no data), ``blends(st, key)`` whether it blends at the key.
+        """
+        seen: dict[int, np.ndarray | None] = {}
+        for j in range(len(layers) - 1, -1, -1):
+            st = layers[j].store
+            h = seen[j] = heights_of(st, key)
+            if h is None or np.isnan(h).any():
+                continue
+            if j == 0 or not self.blend or not blends(st, key):
+                return j, seen
+        return 0, seen
+
     def _paste(
-        self, i: int, st: TileStore, key: tuple[int, int, int], out: np.ndarray
+        self,
+        i: int,
+        st: TileStore,
+        key: tuple[int, int, int],
+        out: np.ndarray,
+        own: np.ndarray | object | None = _UNREAD,
     ) -> np.ndarray | None:
         """Compose visible layer ``i`` over ``out`` (the layers below, NaN where none has
-        data) in place; returns the layer's own heights (None without data here)."""
-        h = self._layer_heights(st, key)
+        data) in place; returns the layer's own heights (None without data here). ``own``:
+        the layer's own heights at the key when already read (None: it has none there)."""
+        h = self._layer_heights(st, key) if own is _UNREAD else own
         if h is None:
             return None
+        assert isinstance(h, np.ndarray)
         has = ~np.isnan(h)
         # A layer over another one feathers into it near its data's edge; the bottom layer
         # has nothing to blend into.
@@ -601,18 +648,35 @@ class TerrainStack:
     def _compose_ring(self, key: tuple[int, int, int], upto: int) -> np.ndarray:
         """(4 (size + 1),) float32: the first ``upto`` visible layers composed at the ring
         nodes of a tile (`_ring_index` order; NaN where none has data)."""
+        layers = self.visible_layers[:upto]
+        first, own = self._opaque_layer(layers, key, self._layer_ring, self._ring_blends)
         out = np.full(4 * (self.tile_size + 1), np.nan, dtype=np.float32)
-        for i, layer in enumerate(self.visible_layers[:upto]):
-            self._paste_ring(i, layer.store, key, out)
+        for i in range(first, len(layers)):
+            self._paste_ring(i, layers[i].store, key, out, own.get(i, _UNREAD))
         return out
 
+    def _ring_blends(self, st: TileStore, key: tuple[int, int, int]) -> bool:
+        """Whether `_paste_ring` blends the layer at a tile's ring (`_blend_ring` not None)."""
+        w_, s_, e_, n_ = (float(v) for v in tile_bounds_arrays(*key))
+        d_lon = (e_ - w_) / (self.tile_size - 1)
+        d_lat = (n_ - s_) / (self.tile_size - 1)
+        mask = self._blend_mask(st)
+        return mask.touches_band_one(w_ - d_lon, s_ - d_lat, e_ + d_lon, n_ + d_lat)
+
     def _paste_ring(
-        self, i: int, st: TileStore, key: tuple[int, int, int], out: np.ndarray
+        self,
+        i: int,
+        st: TileStore,
+        key: tuple[int, int, int],
+        out: np.ndarray,
+        own: np.ndarray | object | None = _UNREAD,
     ) -> None:
-        """`_paste` on the ring nodes of a tile (``out``: the layers below there)."""
-        h = self._layer_ring(st, key)
+        """`_paste` on the ring nodes of a tile (``out``: the layers below there; ``own``:
+        the layer's ring heights when already read)."""
+        h = self._layer_ring(st, key) if own is _UNREAD else own
         if h is None:
             return
+        assert isinstance(h, np.ndarray)
         has = ~np.isnan(h)
         if i > 0 and self.blend:
             w = self._blend_ring(st, key)
