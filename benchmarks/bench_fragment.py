@@ -12,6 +12,8 @@ Passes, each ending with glFinish, timed alternately ``--rounds`` times per view
 - ``geometry``: the same draw with the terrain vertex shader and a constant-colour fragment
   shader: the floor that vertex shading, rasterisation and the depth test set for any
   terrain shading (the part no fragment-shader change can remove);
+- ``one fetch``: the same with a fragment shader that only samples the tile's albedo
+  texture once: the floor of any shading that reads a per-tile texture;
 - ``trivial``: the reference: clear colour and depth, one full-screen triangle, constant
   colour, depth test on (the cheapest frame that writes every pixel as the terrain does);
 - ``trivial (colour only)``: the same with no depth buffer work, for reference.
@@ -29,6 +31,7 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -36,6 +39,7 @@ import moderngl
 
 from globeview.bench.harness import Bench, machine, parse_size
 from globeview.bench.views import VIEWS
+from globeview.errors import GlobeviewError
 from globeview.lod.render_set import FrameStats
 from globeview.render.shader_source import build_shader
 from globeview.terrain.embedded import embedded_stores
@@ -52,6 +56,14 @@ void main() {  // one triangle covering the viewport
 _CONSTANT_FS = """#version 330
 out vec4 f_color;
 void main() { f_color = vec4(0.2, 0.3, 0.4, 1.0); }
+"""
+# Texture unit 0 holds the tile pool's albedo array while the terrain draws.
+_ONE_FETCH_FS = """#version 330
+uniform sampler2DArray u_albedo;
+in vec2 v_uv;
+flat in float v_layer;
+out vec4 f_color;
+void main() { f_color = vec4(texture(u_albedo, vec3(v_uv, v_layer)).rgb, 1.0); }
 """
 
 
@@ -70,6 +82,8 @@ class Passes:
         vert = build_shader("terrain.vert").text
         self._geometry = ctx.program(vertex_shader=vert, fragment_shader=_CONSTANT_FS)
         self._geometry_vaos = self.renderer._make_vaos(self._geometry)
+        self._fetch = ctx.program(vertex_shader=vert, fragment_shader=_ONE_FETCH_FS)
+        self._fetch_vaos = self.renderer._make_vaos(self._fetch)
 
     def trivial(self, depth: bool = True) -> None:
         self.fbo.use()
@@ -86,19 +100,32 @@ class Passes:
         self.ctx.finish()
 
     def geometry(self, view, render_set) -> None:
+        self._draw_with(self._geometry, self._geometry_vaos, view, render_set)
+
+    def one_fetch(self, view, render_set) -> None:
+        self._draw_with(self._fetch, self._fetch_vaos, view, render_set)
+
+    def _draw_with(self, program, vaos, view, render_set) -> None:
         r = self.renderer
         saved = (r.program, r.vao, r.custom_vao)
         # draw_terrain sets the uniforms the program has (the vertex shader's) and draws
         # through r.vao; _use_features keeps r.program while the features are unchanged.
-        r.program = self._geometry
-        r.vao, r.custom_vao = self._geometry_vaos
+        r.program = program
+        r.vao, r.custom_vao = vaos
         try:
             self.terrain(view, render_set)
         finally:
             r.program, r.vao, r.custom_vao = saved
 
     def release(self) -> None:
-        for obj in (*self._geometry_vaos, self._geometry, self._trivial_vao, self._trivial):
+        for obj in (
+            *self._geometry_vaos,
+            self._geometry,
+            *self._fetch_vaos,
+            self._fetch,
+            self._trivial_vao,
+            self._trivial,
+        ):
             obj.release()
 
 
@@ -119,14 +146,16 @@ def measure_view(passes: Passes, pose, rounds: int) -> dict[str, object]:
     runs: dict[str, list[tuple[float, float]]] = {
         "terrain": [],
         "geometry": [],
+        "one_fetch": [],
         "trivial": [],
         "trivial_colour": [],
     }
     passes.terrain(view, render_set)  # warm: first use of a program variant compiles it
-    for _ in range(max(int(rounds), 1)):
+    for _ in range(int(rounds)):
         runs["terrain"].append(timed(passes.terrain, view, render_set))
         runs["trivial"].append(timed(passes.trivial, True))
         runs["geometry"].append(timed(passes.geometry, view, render_set))
+        runs["one_fetch"].append(timed(passes.one_fetch, view, render_set))
         runs["trivial_colour"].append(timed(passes.trivial, False))
     med = statistics.median
     out: dict[str, object] = {
@@ -143,7 +172,13 @@ def main() -> int:
     ap.add_argument("--size", default="1280x720")
     ap.add_argument("--out", help="also write the Markdown table to this file")
     args = ap.parse_args()
-    size = parse_size(args.size)
+    try:
+        size = parse_size(args.size)
+        if not 1 <= args.rounds <= 10000:
+            raise GlobeviewError(f"--rounds must be 1..10000, not {args.rounds}")
+    except GlobeviewError as exc:
+        print(f"bench_fragment: {exc}", file=sys.stderr)
+        return 2
 
     bench = Bench(TerrainStack.from_stores(embedded_stores()), size)
     passes = Passes(bench)
@@ -155,20 +190,23 @@ def main() -> int:
         "",
         "Medians, ms (CPU: process time, all threads). ratio = terrain / trivial (CPU); "
         f"target <= {TARGET_RATIO:.0f}x. geometry: terrain vertices with a constant-colour "
-        "fragment shader (the floor of any shading).",
+        "fragment shader (the floor of any shading); one fetch: the same sampling the tile "
+        "albedo once (the floor of any textured shading); floors as ratios to trivial.",
         "",
-        "| view | triangles | terrain wall | terrain CPU | geometry CPU | trivial CPU | "
-        "trivial colour-only CPU | ratio | geometry / trivial | "
+        "| view | triangles | terrain wall | terrain CPU | geometry CPU | one fetch CPU | "
+        "trivial CPU | trivial colour-only CPU | ratio | geometry floor | one-fetch floor | "
         f"<= {TARGET_RATIO:.0f}x |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---|",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
     for name, pose in VIEWS.items():
         r = measure_view(passes, pose, args.rounds)
-        ter, geo, tri, col = r["terrain"], r["geometry"], r["trivial"], r["trivial_colour"]
+        ter, geo, one = r["terrain"], r["geometry"], r["one_fetch"]
+        tri, col = r["trivial"], r["trivial_colour"]
         ratio = ter[1] / tri[1]
         lines.append(
             f"| {name} | {r['triangles']} | {ter[0]:.2f} | {ter[1]:.2f} | {geo[1]:.2f} | "
-            f"{tri[1]:.2f} | {col[1]:.2f} | {ratio:.1f}x | {geo[1] / tri[1]:.1f}x | "
+            f"{one[1]:.2f} | {tri[1]:.2f} | {col[1]:.2f} | {ratio:.1f}x | "
+            f"{geo[1] / tri[1]:.1f}x | {one[1] / tri[1]:.1f}x | "
             f"{'yes' if ratio <= TARGET_RATIO else 'no'} |"
         )
     passes.release()
