@@ -60,6 +60,8 @@ __all__ = [
 
 MANIFEST_NAME = "manifest.json"
 DEFAULT_CACHE_TILES = 256
+#: Decoded raster blocks a store keeps (256 x 256 float32: 256 KB each, so 16 MB).
+BLOCK_CACHE = 64
 # The per-tile arrays of a `LevelRecord` that `TileStore._lookup` serves.
 _TileArray = Literal["error", "hmin", "hmax", "stride_error"]
 
@@ -210,6 +212,7 @@ class TileStore:
         self._all_handles: list[rasterio.DatasetReader] = []
         self._pool: ThreadPoolExecutor | None = None
         self._closed = False
+        self._blocks: OrderedDict[tuple[int, int, int], np.ndarray] = OrderedDict()
         #: `_data_table`s by (level, grow); small, built on first use (races only rebuild).
         self._tables: dict[tuple[int, int], np.ndarray] = {}
 
@@ -380,10 +383,9 @@ class TileStore:
         c_lo, c_hi = max(c0, 0), min(c0 + size + 2, grid.width)
         if r_lo >= r_hi or c_lo >= c_hi:
             return out
-        ds = self._dataset(key.level)
         try:
-            out[r_lo - r0 : r_hi - r0, c_lo - c0 : c_hi - c0] = ds.read(
-                1, window=Window(c_lo, r_lo, c_hi - c_lo, r_hi - r_lo)
+            self._read_into(
+                key.level, r_lo, c_lo, out[r_lo - r0 : r_hi - r0, c_lo - c0 : c_hi - c0]
             )
             if grid.global_lon:
                 # Column -1 is the raster's column turn - 1, column turn + 1 its column 1
@@ -391,9 +393,9 @@ class TileStore:
                 turn = ncols * n
                 rows = slice(r_lo - r0, r_hi - r0)
                 if c0 < 0:
-                    out[rows, 0] = ds.read(1, window=Window(turn - 1, r_lo, 1, r_hi - r_lo))[:, 0]
+                    self._read_into(key.level, r_lo, turn - 1, out[rows, :1])
                 if c0 + size + 2 > grid.width:
-                    out[rows, -1] = ds.read(1, window=Window(1, r_lo, 1, r_hi - r_lo))[:, 0]
+                    self._read_into(key.level, r_lo, 1, out[rows, -1:])
         except _READ_ERRORS as exc:
             # A level file damaged (truncated, rewritten) after the store was opened.
             raise StoreError(
@@ -414,6 +416,44 @@ class TileStore:
                 if not (0 <= iy + dy < grid.ny and 0 <= jx < grid.nx):
                     out[rows_, cols_] = np.nan
         return out
+
+    def _read_into(self, level: int, row: int, col: int, out: np.ndarray) -> None:
+        """Fill ``out`` with the level raster's nodes from (row, col) on, from whole GDAL
+        blocks kept decoded in `_blocks`: a tile window spans up to 4 blocks, and a view's
+        tiles share them (a 67 x 67 window read cost ~0.11 ms, a copy out of cached blocks
+        ~0.01 ms; each 256 x 256 block is read and inflated once)."""
+        ds = self._dataset(level)
+        bh, bw = ds.block_shapes[0]
+        h, w = out.shape
+        for bi in range(row // bh, (row + h - 1) // bh + 1):
+            for bj in range(col // bw, (col + w - 1) // bw + 1):
+                block = self._block(ds, level, bi, bj, bh, bw)
+                r_a, r_b = max(row, bi * bh), min(row + h, (bi + 1) * bh)
+                c_a, c_b = max(col, bj * bw), min(col + w, (bj + 1) * bw)
+                out[r_a - row : r_b - row, c_a - col : c_b - col] = block[
+                    r_a - bi * bh : r_b - bi * bh, c_a - bj * bw : c_b - bj * bw
+                ]
+
+    def _block(
+        self, ds: rasterio.DatasetReader, level: int, bi: int, bj: int, bh: int, bw: int
+    ) -> np.ndarray:
+        """GDAL block (bi, bj) of a level raster, decoded (an LRU of BLOCK_CACHE blocks)."""
+        key = (level, bi, bj)
+        with self._lock:
+            hit = self._blocks.get(key)
+            if hit is not None:
+                self._blocks.move_to_end(key)
+                return hit
+        r0, c0 = bi * bh, bj * bw
+        grid = self._grids[level]
+        block = ds.read(
+            1, window=Window(c0, r0, min(bw, grid.width - c0), min(bh, grid.height - r0))
+        )
+        with self._lock:
+            self._blocks[key] = block
+            while len(self._blocks) > BLOCK_CACHE:
+                self._blocks.popitem(last=False)
+        return block
 
     def heights_padded(self, key: TileKey | tuple[int, int, int]) -> np.ndarray:
         """A tile's heights with one node beyond each edge ((tile_size + 2)^2 float32 metres,
@@ -521,6 +561,7 @@ class TileStore:
                 ds.close()
             self._all_handles.clear()
             self._cache.clear()
+            self._blocks.clear()
         self._local = threading.local()
 
     def __enter__(self) -> TileStore:
