@@ -30,6 +30,7 @@ Everything here takes and returns absolute ECEF metres (float64); the GPU twin
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections import OrderedDict
 from dataclasses import dataclass, field
@@ -146,14 +147,17 @@ class FootMemo:
         key = (p.shape, p.tobytes())
         hit = self._sets.get(key)
         if hit is not None:
-            self._sets.move_to_end(key)
+            # Another thread (picking beside the LOD) may have dropped it meanwhile: harmless.
+            with contextlib.suppress(KeyError):
+                self._sets.move_to_end(key)
             return hit
         foot, h = foot_points(p)
         xyz = foot @ mtn.T
         psi = np.arctan2(xyz[:, 1], xyz[:, 0])
         self._sets[key] = (xyz, h, psi)
         if len(self._sets) > self.SIZE:
-            self._sets.popitem(last=False)
+            with contextlib.suppress(KeyError):
+                self._sets.popitem(last=False)
         return xyz, h, psi
 
 
