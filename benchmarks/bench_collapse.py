@@ -16,8 +16,10 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
+import sys
 
 from globeview.bench.harness import Bench, machine, parse_size
+from globeview.errors import GlobeviewError
 from globeview.terrain.embedded import embedded_stores
 from globeview.terrain.stack import TerrainStack
 
@@ -96,4 +98,8 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    try:
+        raise SystemExit(main())
+    except GlobeviewError as exc:  # bad arguments: one line, exit 2 (as the CLI)
+        print(f"error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None

@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import sys
 import time
 
 import numpy as np
@@ -167,4 +168,8 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    try:
+        raise SystemExit(main())
+    except GlobeviewError as exc:  # bad arguments: one line, exit 2 (as the CLI)
+        print(f"error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
