@@ -21,6 +21,14 @@ from globeview.terrain.stack import TerrainStack, TileMetadata
 LATTICE = 3
 
 
+def norm3(v: np.ndarray) -> np.ndarray:
+    """np.linalg.norm(v, axis=-1) for vectors of 3 components (the last axis): the same
+    operations in the same order (x² + y², then + z²: numpy reduces a 3-long axis that way),
+    so the same floats, ~4x faster (a reduce over a 3-long axis pays a loop per vector)."""
+    w = v * v
+    return np.sqrt(w[..., 0] + w[..., 1] + w[..., 2])
+
+
 def chord_sag(angle_deg: np.ndarray | float, radius: float = WGS84.a) -> np.ndarray:
     """How far (m) a straight chord spanning ``angle_deg`` of arc dips below the sphere."""
     half = np.radians(np.asarray(angle_deg, dtype=np.float64)) / 2.0
@@ -188,8 +196,8 @@ def bounding_distance(view: ViewState, points: np.ndarray, margin: np.ndarray) -
 
     Uses the bounding sphere of the tile's points (centre = their mean)."""
     centre = points.mean(axis=1)
-    radius = np.max(np.linalg.norm(points - centre[:, None, :], axis=2), axis=1) + margin
-    d = np.linalg.norm(centre - view.eye, axis=1) - radius
+    radius = np.max(norm3(points - centre[:, None, :]), axis=1) + margin
+    d = norm3(centre - view.eye) - radius
     return np.maximum(d, 1.0)
 
 
@@ -231,7 +239,7 @@ def displacement_chord_error_m(
         disp = np.asarray(displaced, dtype=np.float64)
         da, db = disp[:, ia], disp[:, ib]
         dm = np.asarray(displace(mid.reshape(-1, 3)), dtype=np.float64).reshape(mid.shape)
-    return np.max(np.linalg.norm(dm - 0.5 * (da + db), axis=-1), axis=1)
+    return np.max(norm3(dm - 0.5 * (da + db)), axis=1)
 
 
 def displacement_bend_m(

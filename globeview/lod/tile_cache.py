@@ -27,6 +27,7 @@ from globeview.lod.culling import (
     chord_sag,
     displacement_bend_m,
     horizon_peak_angle,
+    norm3,
     tile_bounding_points,
 )
 from globeview.lod.view_state import ViewState
@@ -202,7 +203,7 @@ def tile_facts(
     meta = terrain.metadata(level, x, y)
     pts, margin = tile_bounding_points(w, s, e, n, meta.hmin, meta.hmax, exag)
     centre = pts.mean(axis=1)
-    sphere = np.max(np.linalg.norm(pts - centre[:, None, :], axis=2), axis=1)
+    sphere = np.max(norm3(pts - centre[:, None, :]), axis=1)
     cols = np.empty((N_COLS, len(x)))
     cols[COL_WEST], cols[COL_EAST], cols[COL_SPAN] = w, e, np.radians(e - w)
     cols[COL_SOUTH_R], cols[COL_NORTH_R] = np.radians(s), np.radians(n)

@@ -48,7 +48,13 @@ from globeview.lod.cached_culling import (
     frustum_prefilter,
     horizon_visible_cached,
 )
-from globeview.lod.culling import LATTICE, bounding_distance, frustum_visible, horizon_cap
+from globeview.lod.culling import (
+    LATTICE,
+    bounding_distance,
+    frustum_visible,
+    horizon_cap,
+    norm3,
+)
 from globeview.lod.render_set import MAX_TILES, RenderSet
 from globeview.lod.tile_cache import (
     COL_EAST,
@@ -343,8 +349,7 @@ def _walk(view: ViewState, terrain: TerrainStack, policy: LodPolicy, cache: Tile
         err = lv.err.take(ks, axis=0)
         if displace is None:
             d = rel_centre.take(fi, axis=0) if m < n else rel_centre
-            # = np.linalg.norm(d, axis=1) (the same operations, without its overhead)
-            d = np.sqrt(np.add.reduce(d * d, axis=1)) - c[COL_RADIUS]
+            d = norm3(d) - c[COL_RADIUS]
             dist = np.maximum(d, 1.0)
             bend = bend_s = dpts = None
         else:

@@ -161,3 +161,19 @@ def test_frame_from_the_packed_cache_is_deterministic_in_slot_order() -> None:
     assert (a.enabled == b.enabled).all() and np.array_equal(a.error_px, b.error_px)
     assert all((x == y).all() for x, y in zip(a.on, b.on, strict=True))
     assert a.enabled.sum() > 4 * 4  # more than the corners
+
+
+def test_three_vector_norms_are_numpys_bit_for_bit() -> None:
+    """The 3-vector norms of the LOD fast paths (`culling.norm3`, clod's `_norm`) give
+    np.linalg.norm's floats exactly, on contiguous and strided inputs of any leading shape."""
+    from globeview.lod.culling import norm3
+    from globeview.plugins.builtin.clod.mesh import _norm
+
+    rng = np.random.default_rng(11)
+    v = rng.normal(size=(40, 33, 3)) * 10.0 ** rng.uniform(-3, 7, (40, 33, 1))
+    v[0, 0] = 0.0
+    v[0, 1] = [-0.0, 1e-150, 1e150]
+    for x in (v, v[::3, 1::2], v.reshape(-1, 3), v.transpose(1, 0, 2)):
+        want = np.linalg.norm(x, axis=-1)
+        assert np.array_equal(norm3(x), want)
+        assert np.array_equal(_norm(x), want)

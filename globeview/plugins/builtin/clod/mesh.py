@@ -80,6 +80,14 @@ def n_block_levels(size: int) -> int:
     return levels
 
 
+def _norm(v: np.ndarray) -> np.ndarray:
+    """np.linalg.norm(v, axis=-1) of 3-vectors: the same operations in the same order
+    (x² + y², then + z²), so the same floats, ~4x faster (numpy's reduce over a 3-long axis
+    pays a loop per vector)."""
+    w = v * v
+    return np.sqrt(w[..., 0] + w[..., 1] + w[..., 2])
+
+
 def tile_clod(
     key: tuple[int, int, int],
     heights: np.ndarray,
@@ -115,14 +123,10 @@ def tile_clod(
         s2 = 2 * hh
         # Horizontal edge midpoints (rows 0, 2h, ..; cols h, 3h, ..) between (r, c -+ h).
         c = pos[::s2, hh::s2]
-        err[::s2, hh::s2] = np.linalg.norm(
-            c - 0.5 * (pos[::s2, 0 : n - hh + 1 : s2] + pos[::s2, s2::s2]), axis=-1
-        )
+        err[::s2, hh::s2] = _norm(c - 0.5 * (pos[::s2, 0 : n - hh + 1 : s2] + pos[::s2, s2::s2]))
         # Vertical edge midpoints between (r -+ h, c).
         c = pos[hh::s2, ::s2]
-        err[hh::s2, ::s2] = np.linalg.norm(
-            c - 0.5 * (pos[0 : n - hh + 1 : s2, ::s2] + pos[s2::s2, ::s2]), axis=-1
-        )
+        err[hh::s2, ::s2] = _norm(c - 0.5 * (pos[0 : n - hh + 1 : s2, ::s2] + pos[s2::s2, ::s2]))
         # Block centres: against both diagonals (the one through the parent's centre is the
         # one the parent's fan uses; the max of the two is conservative and symmetric).
         c = pos[hh::s2, hh::s2]
@@ -131,8 +135,8 @@ def tile_clod(
         ne = pos[0 : n - hh + 1 : s2, s2::s2]
         sw = pos[s2::s2, 0 : n - hh + 1 : s2]
         err[hh::s2, hh::s2] = np.maximum(
-            np.linalg.norm(c - 0.5 * (nw + se), axis=-1),
-            np.linalg.norm(c - 0.5 * (ne + sw), axis=-1),
+            _norm(c - 0.5 * (nw + se)),
+            _norm(c - 0.5 * (ne + sw)),
         )
 
     emax: list[np.ndarray] = [np.empty(0)] * n_levels
@@ -157,7 +161,7 @@ def tile_clod(
             pos[s2::s2, 0:n:s2],
             pos[s2::s2, s2::s2],
         ]
-        r = np.maximum.reduce([np.linalg.norm(q - centre, axis=-1) for q in corners])
+        r = np.maximum.reduce([_norm(q - centre) for q in corners])
         if j == n_levels - 1:
             # 3 x 3 nodes: the midpoints too.
             mids = [
@@ -166,15 +170,13 @@ def tile_clod(
                 pos[hh::s2, 0:n:s2],
                 pos[hh::s2, s2::s2],
             ]
-            r = np.maximum(
-                r, np.maximum.reduce([np.linalg.norm(q - centre, axis=-1) for q in mids])
-            )
+            r = np.maximum(r, np.maximum.reduce([_norm(q - centre) for q in mids]))
         else:
             ch = emax[j + 1].reshape(nb, 2, nb, 2)
             own = np.maximum(own, ch.max(axis=(1, 3)))
             # Children's spheres, moved to this centre (triangle inequality).
             cc = pos[hh // 2 :: hh, hh // 2 :: hh].reshape(nb, 2, nb, 2, 3)
-            off = np.linalg.norm(cc - centre[:, None, :, None, :], axis=-1)
+            off = _norm(cc - centre[:, None, :, None, :])
             r = np.maximum(r, (radius[j + 1].reshape(nb, 2, nb, 2) + off).max(axis=(1, 3)))
         emax[j] = own
         radius[j] = r
@@ -215,12 +217,6 @@ class ClodArrays(Protocol):
     err: np.ndarray
     emax: list[np.ndarray]
     radius: list[np.ndarray]
-
-
-def _norm(v: np.ndarray) -> np.ndarray:
-    """np.linalg.norm(v, axis=-1): the same operations (so the same floats), without its
-    overhead (a frame calls it a few dozen times on small arrays)."""
-    return np.sqrt(np.add.reduce(v * v, axis=-1))
 
 
 def clod_frame(

@@ -337,8 +337,10 @@ class RishePolicy(LodPolicy):
         near_lon = np.clip((lon0 - w + 180.0) % 360.0 - 180.0 + w, w, e)
         near_lat = np.clip(lat0, s, n)
         near = (_on_ellipsoid(near_lon, near_lat) - nadir) @ basis.T
-        d_pts = np.where(front, np.max(np.abs(enu[..., :2]), axis=2), np.inf).min(axis=1)
-        d = np.minimum(d_pts, np.max(np.abs(near[:, :2]), axis=1))
+        # max(|east|, |north|) per point (np.max over the 2-long axis, without its loop)
+        cheb = np.maximum(np.abs(enu[..., 0]), np.abs(enu[..., 1]))
+        d_pts = np.where(front, cheb, np.inf).min(axis=1)
+        d = np.minimum(d_pts, np.maximum(np.abs(near[:, 0]), np.abs(near[:, 1])))
         if level == 0:
             d[:] = np.minimum(d, 0.0)  # the two hemispheres are always in range
         ring = ring_of(d, self.r, self.factors)
