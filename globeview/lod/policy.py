@@ -191,13 +191,16 @@ class ScreenSpaceErrorPolicy(LodPolicy):
         # gets WALK_BUDGET times as much (a bound on its work in extreme views): a walk cut
         # short by a budget that depends on tau would not be monotone in tau.
         self.tile_budget = int(max_tiles)
-        walk = min(WALK_BUDGET * self.tile_budget, MAX_TILES)
-        self.max_tiles = walk if self.min_triangles else self.tile_budget
+        self._walk_budget = min(WALK_BUDGET * self.tile_budget, MAX_TILES)
+        self.max_tiles = self._walk_budget if self.min_triangles else self.tile_budget
+        self._cut = self.min_triangles
         self._visited: list[VisitedLevel] = []
         self._hidden = 0
 
     def begin(self, view: ViewState, terrain: TerrainStack) -> None:
         super().begin(view, terrain)
+        self._cut = self.min_triangles
+        self.max_tiles = self._walk_budget if self._cut else self.tile_budget
         self._visited = []
         # The last level's tiles: has_finer and levels past the data (_levels_past_data).
         self._finer: np.ndarray | None = None
@@ -221,7 +224,7 @@ class ScreenSpaceErrorPolicy(LodPolicy):
         return np.where(finer.take(parent), 0, up + 1)
 
     def frame_stats(self) -> dict[str, Any]:
-        if not self.min_triangles:
+        if not self._cut:
             return {}
         return {
             "tiles_visited": sum(len(v.keys) for v in self._visited),
@@ -237,7 +240,7 @@ class ScreenSpaceErrorPolicy(LodPolicy):
 
     def refine(self, tiles: TileCandidates, error_px: np.ndarray) -> np.ndarray:
         must = self._must_refine(tiles, error_px)
-        if not self.min_triangles:
+        if not self._cut:
             return must
         idx = coarsest_stride_within(error_px, self.tau_px)
         keys = tiles.keys
@@ -262,6 +265,13 @@ class ScreenSpaceErrorPolicy(LodPolicy):
         worth = (tiles.dist_m < NEAR_RATIO * tile_m) | may_refine
         deeper = has_finer | (past < BEYOND_DATA_LEVELS) | may_refine
         explore = deeper & worth & (own > table[coarsest, pole])
+        if tiles.view.displace is not None:
+            # Not where a displacement (a tool's, e.g. the collapse) bends the tile: culling
+            # tests displaced bounding lattices, which a fold likely bends past between their
+            # points, and a cut that keeps some children and drops culled ones opened a hole
+            # at the collapse's fold (tests/collapse). The bend does not depend on tau; where
+            # it is zero (an identity displacement, or away from the folds) nothing changes.
+            explore &= tiles.bend_m <= 0.0
         rows = np.arange(len(idx))
         asked = must | explore
         self._visited.append(
@@ -275,7 +285,7 @@ class ScreenSpaceErrorPolicy(LodPolicy):
         return asked
 
     def priority(self, tiles: TileCandidates, error_px: np.ndarray) -> np.ndarray:
-        if not self.min_triangles:
+        if not self._cut:
             return error_px[:, 0]
         # Within a budget, tiles that must refine come first (worst error first), then the
         # ones whose children may save the most (largest own cost).
@@ -283,7 +293,7 @@ class ScreenSpaceErrorPolicy(LodPolicy):
         return np.where(must, 1e15 + error_px[:, 0], own.astype(np.float64))
 
     def render_set(self, selection: Selection, size: int) -> RenderSet:
-        if not self.min_triangles:
+        if not self._cut:
             return super().render_set(selection, size)
         keys, stride_idx, error_px, hidden = cut_within_budget(
             self._visited, selection.keys, self.tile_budget
