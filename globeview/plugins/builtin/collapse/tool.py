@@ -46,6 +46,9 @@ def collapse_glsl() -> str:
 
 #: Duration of the collapse / expand animation (s).
 ANIMATION_S = 0.5
+#: While animating, the LOD's bend bound is that of the effective ratio rounded toward the
+#: final one to one of this many steps (recomputed at each step only).
+BEND_STEPS = 4
 
 
 def _ease(p: float) -> float:
@@ -82,7 +85,8 @@ class CollapseTool(Tool):
         self._frame: CollapseFrame | None = None  # cached for (a, b, effective ratio)
         self._last: CollapseFrame | None = None  # the last frame made (its feet are reused)
         self._overlay: tuple | None = None  # (key, frame, primitives) of the last overlay()
-        # While animating: (feet memo, the most collapsed frame, its bends by lattice bytes).
+        # While animating: (feet memo, the frame of the current bend step, its bends by
+        # lattice bytes).
         self._extreme: tuple | None = None
 
     # -- state -----------------------------------------------------------------------------
@@ -319,21 +323,27 @@ class CollapseTool(Tool):
         """A cheap upper bound of the collapse's bend per tile bounding lattice (N, K, 3) ->
         (N,) m: `CollapseFrame.bend_bound_m` (exact only for tiles a fold line crosses).
 
-        While the collapse animates, the bound of the animation's most collapsed frame (the
-        ``ratio`` setting; the effective ratio stays between it and 1): the map is a rotation
-        by (1 - r) g(psi) with g fixed by A and B, and its bend grows with 1 - r (checked
-        against the exact measure in tests/collapse/test_collapse_feet.py). That bound does
-        not change from frame to frame, so it is computed once per lattice and looked up by
-        the lattice's bytes, instead of measuring every tile again at every ratio."""
+        While the collapse animates, the bound of a slightly more collapsed frame: the
+        effective ratio rounded toward the ``ratio`` setting to one of `BEND_STEPS` steps
+        (the effective ratio stays between the setting and 1). The map is a rotation by
+        (1 - r) g(psi) with g fixed by A and B, and its bend grows with 1 - r (checked against
+        the exact measure in tests/collapse/test_collapse_feet.py), so that bound covers the
+        frame drawn; it changes only at each step, so it is computed once per lattice and
+        step and looked up by the lattice's bytes in between, instead of measuring every
+        tile again at every ratio. The steps keep the refinement close to the animation's
+        (rounding to the final ratio at once would draw the final triangles from the start)."""
         f = self.frame()
         pts = np.asarray(points_ecef, dtype=np.float64)
         if f is None:
             return np.zeros(len(pts))
         if self.state not in ("collapsing", "expanding") or self.ratio >= f.ratio:
             return f.bend_bound_m(pts, displaced)
+        share = (1.0 - f.ratio) / (1.0 - self.ratio)  # how far collapsed, 0..1
+        step = min(math.ceil(share * BEND_STEPS - 1e-9), BEND_STEPS)
+        r_step = 1.0 - (1.0 - self.ratio) * step / BEND_STEPS
         ext = self._extreme
-        if ext is None or ext[0] is not f.feet or ext[1].ratio != self.ratio:
-            ext = (f.feet, f.with_ratio(self.ratio), {})
+        if ext is None or ext[0] is not f.feet or ext[1].ratio != r_step:
+            ext = (f.feet, f.with_ratio(r_step), {})
             self._extreme = ext
         memo: dict = ext[2]
         p = np.ascontiguousarray(pts)
