@@ -53,7 +53,18 @@ def collapse_glsl() -> str:
 def test_every_vertex_fragment_pair_compiles(egl_ctx) -> None:
     stems = sorted(p.stem for p in SHADER_DIR.glob("*.vert"))
     assert stems == sorted(p.stem for p in SHADER_DIR.glob("*.frag"))
-    assert len(stems) == 7
+    # Named, so a shader pair that goes missing (or a new one nobody compiles) fails here.
+    assert set(stems) == {
+        "overlay_billboard",
+        "overlay_box_sprite",
+        "overlay_label",
+        "overlay_line",
+        "overlay_object",
+        "overlay_placemark_sprite",
+        "overlay_tool",
+        "overlay_tool_label",
+        "terrain",
+    }
     for stem in stems:
         compile_pair(egl_ctx, load_shader(f"{stem}.vert"), load_shader(f"{stem}.frag"))
 
