@@ -206,7 +206,53 @@ class GlobeRenderer:
     def build_mesh(self, key: tuple[int, int, int]) -> TileMesh:
         """Build one tile's mesh (the background loader's entry; thread-safe)."""
         key = (int(key[0]), int(key[1]), int(key[2]))
-        return self.build_meshes(np.array([key], dtype=np.int64))[key]
+        return self._build_one(key, self._skirt_depth(key))
+
+    # Skirt depths for the loader's one-tile builds: one metadata call cost ~0.2 ms a tile
+    # (a fifth of a build), a call for the tile's aligned 4 x 4 block ~0.3 ms, and the loader
+    # asks for neighbouring tiles together. {key: depth} for one terrain version; bounded.
+    _skirt_cache: dict[tuple[int, int, int], float] | None = None
+    _skirt_version = -1
+    _skirt_lock = threading.Lock()
+
+    def _skirt_depth(self, key: tuple[int, int, int]) -> float:
+        """`skirt_depths` of one tile, computed with its aligned 4 x 4 block and cached."""
+        version = self.terrain.version
+        with self._skirt_lock:
+            if self._skirt_cache is None or self._skirt_version != version:
+                self._skirt_cache, self._skirt_version = {}, version
+            hit = self._skirt_cache.get(key)
+        if hit is not None:
+            return hit
+        level, x, y = key
+        xs = (x & ~3) + np.arange(4)
+        ys = (y & ~3) + np.arange(4)
+        xs, ys = xs[xs < (2 << level)], ys[ys < (1 << level)]
+        block = np.stack(
+            [np.full(len(xs) * len(ys), level), np.tile(xs, len(ys)), np.repeat(ys, len(xs))],
+            axis=1,
+        )
+        depths = self.skirt_depths(block)
+        with self._skirt_lock:
+            if self._skirt_version == version:
+                if len(self._skirt_cache) > 1 << 16:
+                    self._skirt_cache.clear()
+                for k, d in zip(block.tolist(), depths.tolist(), strict=True):
+                    self._skirt_cache[(k[0], k[1], k[2])] = d
+        row = np.nonzero((block[:, 1] == x) & (block[:, 2] == y))[0]
+        if not len(row):  # a key off the level's grid: as the batch path computes it
+            return float(self.skirt_depths(np.array([key]))[0])
+        return float(depths[int(row[0])])
+
+    def _build_one(self, key: tuple[int, int, int], skirt: float) -> TileMesh:
+        # The apron (one node of the same-level neighbours around the tile) makes edge
+        # normals equal on both sides of a tile edge: no shading seams (issue #16).
+        return build_tile_mesh(
+            tile_bounds_tuple(key),
+            self.terrain.heights(key),
+            skirt,
+            apron=self.terrain.heights_apron(key),
+        )
 
     def skirt_depths(self, keys: np.ndarray) -> np.ndarray:
         """(N,) metres the skirts of tiles ``keys`` (N, 3) hang below their edges, from one
@@ -228,18 +274,9 @@ class GlobeRenderer:
         level, then heights, apron and mesh per tile."""
         keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
         skirts = self.skirt_depths(keys)
-        terrain = self.terrain
 
         def build(item: tuple[list[int], float]) -> TileMesh:
-            key = (item[0][0], item[0][1], item[0][2])
-            # The apron (one node of the same-level neighbours around the tile) makes edge
-            # normals equal on both sides of a tile edge: no shading seams (issue #16).
-            return build_tile_mesh(
-                tile_bounds_tuple(key),
-                terrain.heights(key),
-                item[1],
-                apron=terrain.heights_apron(key),
-            )
+            return self._build_one((item[0][0], item[0][1], item[0][2]), item[1])
 
         items = list(zip(keys.tolist(), skirts.tolist(), strict=True))
         if len(items) >= BATCH_THREADS_FROM and BUILD_THREADS > 1:

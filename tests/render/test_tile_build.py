@@ -157,6 +157,18 @@ def test_batched_skirt_depths_equal_per_tile(stack):
             np.testing.assert_array_equal(threaded[k].normals, serial[k].normals)
         one = r.build_mesh((lv, x, y))
         np.testing.assert_array_equal(one.vertices, threaded[(lv, x, y)].vertices)
+        # The loader's one-tile builds take skirt depths computed per 4 x 4 block and cached:
+        # the same numbers, at the grid's edges too, and none kept across a layer change.
+        for k in [(0, 0, 0), (0, 3, 0), (1, 3, 1), (lv, x + 3, y - 5), (lv, x, y)]:
+            assert r._skirt_depth(k) == r.skirt_depths(np.array([k]))[0]
+        name = next(ly.name for ly in stack.layers[1:] if ly.store.has_tile(lv, x, y))
+        before = r._skirt_depth((lv, x, y))
+        stack.set_visible(name, False)
+        try:
+            assert r._skirt_depth((lv, x, y)) == r.skirt_depths(np.array([(lv, x, y)]))[0]
+            assert r._skirt_depth((lv, x, y)) != before  # the detail layer's errors are gone
+        finally:
+            stack.set_visible(name, True)
         r.release()
     finally:
         ctx.release()
