@@ -334,16 +334,18 @@ def clod_frame(
         passes += 1
         _close(on, en_f, lev, size, nodes, todo, added)
         new = []
-        for a, b, ea, eb in (
-            (pairs_ew[0], pairs_ew[1], n, 0),  # the east column of a, the west column of b
-            (pairs_ns[0], pairs_ns[1], n * size, 0),  # the south row of a, the north row of b
+        for a, b, ea, eb, step in (
+            # the east column of a, the west column of b; one edge node to the next: a row
+            (pairs_ew[0], pairs_ew[1], n, 0, size),
+            # the south row of a, the north row of b; one edge node to the next: a column
+            (pairs_ns[0], pairs_ns[1], n * size, 0, 1),
         ):
             if len(a) == 0:
                 continue
-            step = size if ea == n else 1  # from one edge node to the next
-            edge = np.arange(size) * step
-            va = en_f[(tile_base.take(a) + ea)[:, None] + edge]  # (P, size)
-            vb = en_f[(tile_base.take(b) + eb)[:, None] + edge]
+            if step == size:  # (P, size) each: the shared edge as each side has it
+                va, vb = enabled[a, :, n], enabled[b, :, 0]
+            else:
+                va, vb = enabled[a, n, :], enabled[b, 0, :]
             differ = np.flatnonzero(va != vb)  # where one side has a vertex the other lacks
             if len(differ) == 0:
                 continue
