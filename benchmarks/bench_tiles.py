@@ -15,8 +15,8 @@ store, and the big-DEM flight's median frame with synchronous loading.
    - normals: the apron normals;
    - upload:  the GPU writes of one slot (vertex buffer, height and normal texture layers);
    - total:   `GlobeRenderer.build_meshes` + upload over the sample as a frame loads it
-              (stack cache empty, stores warm), process CPU time: in one thread (the figure
-              the target is about) and on the build threads (wall time is what they save).
+              (stack cache empty, stores warm), process CPU time: the figure the target is
+              about.
 
 Targets (printed as PASS/FAIL): total <= 1 ms per tile; the flight's median frame <= 100 ms.
 
@@ -129,26 +129,15 @@ def stage_times(bench: Bench, keys: list[tuple[int, int, int]]) -> dict[str, tup
     out["upload"] = _since(t, n)
     pool.invalidate()
 
-    from globeview.render import renderer as renderer_module
-
-    threads = renderer_module.BUILD_THREADS
-    for label, workers in (("total, 1 thread", 1), (f"total, {threads} threads", threads)):
-        renderer_module.BUILD_THREADS = workers
-        try:
-            _clear_composed(terrain)
-            # Process CPU time: the build threads' too (and GL's, for the uploads).
-            c0, t0 = time.process_time(), time.perf_counter()
-            built = renderer.build_meshes(karr)
-            for slot, key in zip(slots, keys, strict=True):
-                pool._upload(int(slot), built[key])
-            bench.ctx.finish()
-            out[label] = (
-                (time.process_time() - c0) * 1e3 / n,
-                (time.perf_counter() - t0) * 1e3 / n,
-            )
-        finally:
-            renderer_module.BUILD_THREADS = threads
-        pool.invalidate()
+    _clear_composed(terrain)
+    # Process CPU time (GL's too, for the uploads).
+    c0, t0 = time.process_time(), time.perf_counter()
+    built = renderer.build_meshes(karr)
+    for slot, key in zip(slots, keys, strict=True):
+        pool._upload(int(slot), built[key])
+    bench.ctx.finish()
+    out["total"] = ((time.process_time() - c0) * 1e3 / n, (time.perf_counter() - t0) * 1e3 / n)
+    pool.invalidate()
     return out
 
 
@@ -209,7 +198,7 @@ def main() -> int:
             cpu = statistics.median(r[stage][0] for r in runs)
             wall = statistics.median(r[stage][1] for r in runs)
             print(f"| {stage} | {cpu:.3f} | {wall:.3f} |")
-        total = statistics.median(r["total, 1 thread"][0] for r in runs)
+        total = statistics.median(r["total"][0] for r in runs)
     finally:
         bench.release()
     load_after = load_average()

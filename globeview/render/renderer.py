@@ -17,7 +17,6 @@ import math
 import threading
 import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import moderngl
@@ -97,9 +96,9 @@ class GlobeRenderer:
         # made a 355-tile view wait ~30 frames after its tiles were built).
         self.upload_budget = 256
         self.load_workers = 2
-        # Tiles per background build call: below build_meshes' own threading threshold
-        # (BATCH_THREADS_FROM), so the loader's threads do not each fan out to more threads
-        # fighting over the GIL (one thread built 355 tiles in 0.47 s, two in 0.92 s).
+        # Tiles per background build call (`build_meshes`: one metadata call per batch);
+        # small, so the nearest tiles come back first. More threads do not help: the build
+        # is GIL-bound (one thread built 355 tiles in 0.47 s, two in 0.92 s).
         self.load_batch = 4
         self.loader: TileLoader | None = None
         #: Called on a worker thread when a background tile finished (the window schedules a
@@ -275,17 +274,14 @@ class GlobeRenderer:
         keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
         skirts = self.skirt_depths(keys)
 
-        def build(item: tuple[list[int], float]) -> TileMesh:
-            return self._build_one((item[0][0], item[0][1], item[0][2]), item[1])
-
-        items = list(zip(keys.tolist(), skirts.tolist(), strict=True))
-        if len(items) >= BATCH_THREADS_FROM and BUILD_THREADS > 1:
-            # A frame's batch on a few threads: numpy's array loops and GDAL's reads release
-            # the GIL for part of each tile (the rest is Python: not a multiple of the cores).
-            meshes = list(_build_pool().map(build, items, chunksize=4))
-        else:
-            meshes = [build(item) for item in items]
-        return {(k[0], k[1], k[2]): m for (k, _), m in zip(items, meshes, strict=True)}
+        # In the calling thread: a build thread pool gained nothing measurable (2 threads on
+        # 2 cores, big-DEM flight: load 98 vs 93.5 ms a frame): a tile's numpy operations are
+        # on ~4k elements, so the GIL-held Python between them dominates.
+        out: dict[tuple[int, int, int], TileMesh] = {}
+        for k, skirt in zip(keys.tolist(), skirts.tolist(), strict=True):
+            key = (k[0], k[1], k[2])
+            out[key] = self._build_one(key, skirt)
+        return out
 
     def _check_terrain_version(self) -> None:
         if self.terrain.version != self._terrain_version:
@@ -707,23 +703,6 @@ def _rebuild_render_set(
         error_px=err if render_set.error_px is not None else None,
         stats=dict(render_set.stats),
     )
-
-
-#: Threads `GlobeRenderer.build_meshes` spreads a batch of at least BATCH_THREADS_FROM tiles
-#: over (the synchronous load of a headless frame; the window's loader has its own workers).
-BUILD_THREADS = 2
-BATCH_THREADS_FROM = 8
-_BUILD_POOL: ThreadPoolExecutor | None = None
-_BUILD_POOL_LOCK = threading.Lock()
-
-
-def _build_pool() -> ThreadPoolExecutor:
-    """The process's tile build threads (created on first use, idle between batches)."""
-    global _BUILD_POOL
-    with _BUILD_POOL_LOCK:
-        if _BUILD_POOL is None:
-            _BUILD_POOL = ThreadPoolExecutor(BUILD_THREADS, thread_name_prefix="tilebuild")
-        return _BUILD_POOL
 
 
 def tile_bounds_tuple(key: tuple[int, int, int]) -> tuple[float, float, float, float]:

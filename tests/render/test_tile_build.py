@@ -139,24 +139,12 @@ def test_batched_skirt_depths_equal_per_tile(stack):
             edge_m = math.radians(bounds[2] - bounds[0]) * WGS84.a
             want = 3.0 * float(np.nanmax(meta.stride_error)) + 0.01 * edge_m + 10.0
             assert depth == want
-        # One tile alone (the loader's path), a batch in the calling thread and a batch on
-        # the build threads: the same meshes.
-        from globeview.render import renderer as renderer_module
-
-        threaded = r.build_meshes(keys)
-        assert len(keys) >= renderer_module.BATCH_THREADS_FROM
-        old = renderer_module.BUILD_THREADS
-        renderer_module.BUILD_THREADS = 1
-        try:
-            serial = r.build_meshes(keys)
-        finally:
-            renderer_module.BUILD_THREADS = old
-        assert list(threaded) == [tuple(int(v) for v in k) for k in keys]
-        for k in threaded:
-            np.testing.assert_array_equal(threaded[k].vertices, serial[k].vertices)
-            np.testing.assert_array_equal(threaded[k].normals, serial[k].normals)
+        # One tile alone (the loader's path) and in a batch: the same mesh.
+        batch = r.build_meshes(keys)
+        assert list(batch) == [tuple(int(v) for v in k) for k in keys]
         one = r.build_mesh((lv, x, y))
-        np.testing.assert_array_equal(one.vertices, threaded[(lv, x, y)].vertices)
+        np.testing.assert_array_equal(one.vertices, batch[(lv, x, y)].vertices)
+        np.testing.assert_array_equal(one.normals, batch[(lv, x, y)].normals)
         # The loader's one-tile builds take skirt depths computed per 4 x 4 block and cached:
         # the same numbers, at the grid's edges too, and none kept across a layer change.
         for k in [(0, 0, 0), (0, 3, 0), (1, 3, 1), (lv, x + 3, y - 5), (lv, x, y)]:
