@@ -170,10 +170,7 @@ def main() -> int:
         s = summary(rows)
         uploaded = [r.tiles_uploaded for r in rows] if hasattr(rows[0], "tiles_uploaded") else []
 
-        print(
-            f"Tile build benchmark, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
-            f"{machine(bench.gl_renderer)}, load {load_before[0]:.2f}"
-        )
+        print(f"Tile build benchmark, {machine(bench.gl_renderer)}, load {load_before[0]:.2f}")
         print(
             f"flight {flight.name!r}, {args.frames} frames, {w}x{h}, chunked-sse, tau 2 px, "
             f"synchronous loading: frame_ms median {s['frame_ms_median']:.1f} (p95 "
