@@ -95,10 +95,13 @@ class GlobeRenderer:
         # finished tile up to this many, so a view completes in few frames (it was 12, which
         # made a 355-tile view wait ~30 frames after its tiles were built).
         self.upload_budget = 256
-        self.load_workers = 2
+        # One background build thread: the build is GIL-bound (one thread built 355 tiles in
+        # 0.47 s, two in 0.92 s), and in the window two also took GIL time from the frames
+        # (White Mountains Go to -> complete 0.90-0.98 s with one, 1.05-1.33 s with two;
+        # benchmarks/bench_goto.py --workers, load 2.2-2.6).
+        self.load_workers = 1
         # Tiles per background build call (`build_meshes`: one metadata call per batch);
-        # small, so the nearest tiles come back first. More threads do not help: the build
-        # is GIL-bound (one thread built 355 tiles in 0.47 s, two in 0.92 s).
+        # small, so the nearest tiles come back first.
         self.load_batch = 4
         self.loader: TileLoader | None = None
         #: Called on a worker thread when a background tile finished (the window schedules a

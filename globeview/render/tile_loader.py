@@ -132,6 +132,12 @@ class TileLoader:
             return len(self._queue.keys() | self._prefetch.keys()) + len(self._running)
 
     @property
+    def prefetching(self) -> int:
+        """Prefetch tiles still queued (not started)."""
+        with self._cv:
+            return len(self._prefetch)
+
+    @property
     def ready(self) -> int:
         """Finished tiles waiting for `take_ready`."""
         with self._cv:

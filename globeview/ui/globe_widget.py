@@ -28,6 +28,7 @@ import time
 from dataclasses import replace
 
 import moderngl
+import numpy as np
 from PyQt6.QtCore import QEvent, QPointF, Qt, QTimer, pyqtSignal
 from PyQt6.QtGui import (
     QImage,
@@ -63,8 +64,10 @@ ANIMATION_INTERVAL_MS = 16
 #: While tiles load in the background, at most one frame per this interval (ms) shows the
 #: tiles finished so far (the frame after the last tile comes at once). Redrawing in a busy
 #: loop took a core from the tile workers on a 2-core machine for frames that mostly showed
-#: nothing new (issue #17).
-LOADING_FRAME_MS = 100
+#: nothing new: a White Mountains loading frame costs 60-100 ms of CPU while 387 tiles cost
+#: ~0.5 s to build, and the ancestors it draws change little until the last tiles land
+#: (issue #17).
+LOADING_FRAME_MS = 500
 
 #: Qt keys -> `KeyEvent.key` names (printable keys use their lower-case text).
 _KEY_NAMES = {
@@ -189,6 +192,7 @@ class GlobeWidget(QOpenGLWidget):
         self.flight = CameraFlight(model, self)
         self.flight.stepped.connect(self._camera_moved)
         self.flight.started.connect(self.prefetch_pose)
+        self.flight.stopped.connect(self._drop_prefetch)
         self.navigator: Navigator | None = None
         # Frames while tiles stream in: scheduled by finished tiles, throttled.
         self._loading_frame = QTimer(self)
@@ -335,6 +339,12 @@ class GlobeWidget(QOpenGLWidget):
             self.update()
         elif not self._loading_frame.isActive():
             self._loading_frame.start()
+
+    def _drop_prefetch(self) -> None:
+        """A flight was cut short: its destination's tiles no longer go first."""
+        loader = None if self.scene is None else self.scene.renderer.loader
+        if loader is not None:
+            loader.prefetch(np.empty((0, 3), np.int64))
 
     def prefetch_pose(self, pose: tuple[float, float, float, float, float]) -> int:
         """Start loading the tiles of the view from ``pose`` (lon, lat, height, heading,

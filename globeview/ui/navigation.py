@@ -233,13 +233,15 @@ class CameraFlight(QObject):
 
     Signals: ``started(pose)`` when a flight begins, with its destination (lon, lat,
     height, heading, pitch: the window loads the destination's tiles during the flight),
-    ``stepped`` after each step (schedule a frame), ``finished`` at the end.
+    ``stepped`` after each step (schedule a frame), ``finished`` at the end, ``stopped``
+    when `stop` cut a flight short (its destination is not wanted any more).
     The timer runs only during a flight.
     """
 
     started = pyqtSignal(object)
     stepped = pyqtSignal()
     finished = pyqtSignal()
+    stopped = pyqtSignal()
 
     def __init__(self, model: HasCamera, parent: QObject | None = None) -> None:
         super().__init__(parent)
@@ -281,8 +283,10 @@ class CameraFlight(QObject):
         self.fly_to((lon, lat, h, heading, pitch), duration_s)
 
     def stop(self) -> None:
-        """Stop where the camera is now."""
-        self._timer.stop()
+        """Stop where the camera is now (``stopped`` if a flight was under way)."""
+        if self._timer.isActive():
+            self._timer.stop()
+            self.stopped.emit()
 
     def _tick(self) -> None:
         assert self._from is not None and self._to is not None

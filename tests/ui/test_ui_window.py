@@ -138,6 +138,22 @@ def test_go_to_takes_a_heading_and_pitch_and_refuses_bad_ones(make_window, qtbot
     assert abs(heading - 10.0) < 1e-6 and abs(pitch + 30.0) < 1e-6
 
 
+def test_a_flight_loads_its_destination_first_until_it_is_cut_short(make_window, qtbot):
+    """Go to queues the destination view's tiles as the flight starts (ahead of the frames
+    on the way); stopping the flight (the user took the camera) drops what is still
+    queued of them."""
+    win = make_window()
+    g = win.globe
+    queued = g.prefetch_pose((-71.3, 44.15, 9000.0, 0.0, -30.0))
+    assert queued > 50  # the White Mountains view: hundreds of tiles, none resident yet
+    assert g.prefetch_pose((float("nan"), 0.0, 1.0, 0.0, -90.0)) == 0  # not a camera: none
+    assert win.go_to("-121.7, 46.85, 8000, 90, -25")  # another place: replaces the prefetch
+    loader = g.scene.renderer.loader
+    assert loader.prefetching > 0
+    g.flight.stop()
+    assert not g.flight.active and loader.prefetching == 0
+
+
 def test_status_bar_says_loading_n_tiles_while_tiles_load_then_clears(make_window, qtbot):
     """Go to a place whose tiles are not resident: frames say "loading N tiles" (N > 0)
     while the tiles stream in, and the field is empty once the view is complete (every tile
