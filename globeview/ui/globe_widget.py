@@ -332,12 +332,13 @@ class GlobeWidget(QOpenGLWidget):
         """Tiles finished in the background: draw them. The frame after the last queued tile
         is drawn at once; before that at most one per `LOADING_FRAME_MS`."""
         loader = None if self.scene is None else self.scene.renderer.loader
-        if loader is None or loader.ready == 0:
+        if loader is None:
             return
         if loader.building == 0:
+            # The last tile (or the last failure: the status must stop saying "loading").
             self._loading_frame.stop()
             self.update()
-        elif not self._loading_frame.isActive():
+        elif loader.ready and not self._loading_frame.isActive():
             self._loading_frame.start()
 
     def _drop_prefetch(self) -> None:

@@ -227,6 +227,38 @@ def test_settings_persist_between_windows(make_window, tmp_path):
     assert win2.recent_menu.actions()[0].text().endswith("a.tif")
 
 
+def test_tiles_that_cannot_be_built_are_counted_and_do_not_keep_it_loading(make_window, qtbot):
+    """Tiles whose heights cannot be read (here: every tile below level 9 over the White
+    Mountains raises, as an unreadable store would) end as "N tiles failed" in the status
+    bar, stood in by coarser tiles; the field does not stay at "loading"."""
+    win = make_window()
+    terrain = win.globe.scene.renderer.terrain
+    real_heights = terrain.heights
+
+    def heights(key, *args, **kwargs):
+        if int(key[0]) >= 9:
+            raise OSError(f"unreadable window for {tuple(key)}")
+        return real_heights(key, *args, **kwargs)
+
+    terrain.heights = heights
+    try:
+        assert win.go_to("-71.3, 44.15, 9000, 0, -30")
+        qtbot.waitUntil(
+            lambda: (
+                not win.globe.flight.active
+                and win.globe.last_stats.tiles_loading == 0
+                and win.globe.last_stats.extra.get("tiles_failed", 0) > 0
+            ),
+            timeout=60000,
+        )
+        stats = win.globe.last_stats
+        failed = int(stats.extra["tiles_failed"])
+        assert win.status.loading.text() == f"{failed} tiles failed"
+        assert stats.extra["tiles_standin"] > 0 and stats.tiles_drawn > 0
+    finally:
+        del terrain.heights
+
+
 def test_loading_text_counts_loading_and_failed_tiles():
     from globeview.lod.render_set import FrameStats
     from globeview.ui.status import loading_text
