@@ -104,12 +104,39 @@ def _synthetic_tile(key: tuple[int, int, int], size: int = 17):
     return tile_clod(key, rng.normal(0.0, 300.0, (size, size)).astype(np.float32), 1.0)
 
 
+def _synthetic_tiles(keys):
+    return [_synthetic_tile(k) for k in keys]
+
+
+def test_tiles_built_together_equal_tiles_built_alone() -> None:
+    """`tile_clods` (the batch the provider builds its misses with) gives each tile's data
+    bit for bit as `tile_clod` alone, with and without a displacement."""
+    from globeview.plugins.builtin.clod.mesh import tile_clods
+
+    keys = [(6, 20, 10), (6, 21, 10), (9, 300, 80), (3, 0, 0)]
+    rng = np.random.default_rng(5)
+    heights = [rng.normal(0.0, 500.0, (17, 17)).astype(np.float32) for _ in keys]
+
+    def squash(p: np.ndarray) -> np.ndarray:  # not affine: bends tiles
+        r = np.linalg.norm(p, axis=-1, keepdims=True)
+        return p * (1.0 - 1e-4 * np.tanh(p[..., :1] / 1e6)) * (r / r)
+
+    for displace in (None, squash):
+        batch = tile_clods(keys, heights, 2.0, displace)
+        for k, h, got in zip(keys, heights, batch, strict=True):
+            one = tile_clod(k, h, 2.0, displace)
+            for name in ("origin", "basis", "pos", "err"):
+                assert np.array_equal(getattr(got, name), getattr(one, name)), name
+            for a, b in zip(got.emax + got.radius, one.emax + one.radius, strict=True):
+                assert np.array_equal(a, b)
+
+
 def test_packed_cache_returns_the_data_it_was_given() -> None:
     built: list[tuple] = []
 
-    def build(key):
-        built.append(key)
-        return _synthetic_tile(key)
+    def build(keys):
+        built.extend(keys)
+        return [_synthetic_tile(k) for k in keys]
 
     cache = ClodTiles(capacity=8)
     keys_a = np.array([[6, x, 20] for x in range(6)])
@@ -153,8 +180,8 @@ def test_frame_from_the_packed_cache_is_deterministic_in_slot_order() -> None:
     frames = []
     for order in (slice(None), slice(None, None, -1)):
         cache = ClodTiles(16)
-        cache.slots(keys[order], 17, "g", _synthetic_tile)
-        slots = cache.slots(keys, 17, "g", _synthetic_tile)
+        cache.slots(keys[order], 17, "g", _synthetic_tiles)
+        slots = cache.slots(keys, 17, "g", _synthetic_tiles)
         eye, planes = view.in_local_frames(cache.origin[slots], cache.basis[slots])
         frames.append(clod_frame(keys, cache, slots, eye, planes, 2.0 / view.sse_factor, 1.0))
     a, b = frames

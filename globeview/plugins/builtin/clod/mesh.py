@@ -94,16 +94,114 @@ def tile_clod(
     exaggeration: float,
     displace: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> TileClod:
-    """Precompute a tile's vertex errors, block error maxima and block radii (vectorised).
+    """Precompute a tile's vertex errors, block error maxima and block radii (vectorised):
+    `tile_clods` of one tile."""
+    return tile_clods([key], [heights], exaggeration, displace)[0]
+
+
+def tile_clods(
+    keys: list[tuple[int, int, int]],
+    heights: list[np.ndarray],
+    exaggeration: float,
+    displace: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> list[TileClod]:
+    """`TileClod` of several tiles (their ``heights``, (size, size) each): the node positions
+    per tile, the errors, maxima and radii of all of them in one pass of array operations
+    (the same per-element operations as for one tile, so the same floats).
 
     ``displace`` (a ViewState's CPU displacement, (M, 3) -> (M, 3) ECEF) moves the nodes where
     the vertex shader draws them before anything is measured: the vertex errors then include
     how far the displacement bends the surface away from straight edges (the collapse's fold
     lines), and radii and distances are those of the drawn geometry, so blocks a fold crosses
     refine like rough terrain (no gap opens along the fold)."""
+    frames = [
+        _tile_positions(k, h, exaggeration, displace) for k, h in zip(keys, heights, strict=True)
+    ]
+    pos = np.stack([p for _, _, p in frames])  # (B, size, size, 3)
+    b_n, size = pos.shape[0], pos.shape[1]
+    n = size - 1
+
+    err = np.zeros((b_n, size, size))
+    n_levels = n_block_levels(size)
+    for j in range(n_levels):
+        hh = n >> (j + 1)
+        s2 = 2 * hh
+        # Horizontal edge midpoints (rows 0, 2h, ..; cols h, 3h, ..) between (r, c -+ h).
+        c = pos[:, ::s2, hh::s2]
+        err[:, ::s2, hh::s2] = _norm(
+            c - 0.5 * (pos[:, ::s2, 0 : n - hh + 1 : s2] + pos[:, ::s2, s2::s2])
+        )
+        # Vertical edge midpoints between (r -+ h, c).
+        c = pos[:, hh::s2, ::s2]
+        err[:, hh::s2, ::s2] = _norm(
+            c - 0.5 * (pos[:, 0 : n - hh + 1 : s2, ::s2] + pos[:, s2::s2, ::s2])
+        )
+        # Block centres: against both diagonals (the one through the parent's centre is the
+        # one the parent's fan uses; the max of the two is conservative and symmetric).
+        c = pos[:, hh::s2, hh::s2]
+        nw = pos[:, 0 : n - hh + 1 : s2, 0 : n - hh + 1 : s2]
+        se = pos[:, s2::s2, s2::s2]
+        ne = pos[:, 0 : n - hh + 1 : s2, s2::s2]
+        sw = pos[:, s2::s2, 0 : n - hh + 1 : s2]
+        err[:, hh::s2, hh::s2] = np.maximum(_norm(c - 0.5 * (nw + se)), _norm(c - 0.5 * (ne + sw)))
+
+    emax: list[np.ndarray] = [np.empty(0)] * n_levels
+    radius: list[np.ndarray] = [np.empty(0)] * n_levels
+    for j in range(n_levels - 1, -1, -1):
+        hh = n >> (j + 1)
+        s2 = 2 * hh
+        nb = 1 << j
+        own = np.maximum.reduce(
+            [
+                err[:, hh::s2, hh::s2],  # centre
+                err[:, 0:n:s2, hh::s2],  # north midpoint
+                err[:, s2::s2, hh::s2],  # south midpoint
+                err[:, hh::s2, 0:n:s2],  # west midpoint
+                err[:, hh::s2, s2::s2],  # east midpoint
+            ]
+        )
+        centre = pos[:, hh::s2, hh::s2]
+        corners = [
+            pos[:, 0:n:s2, 0:n:s2],
+            pos[:, 0:n:s2, s2::s2],
+            pos[:, s2::s2, 0:n:s2],
+            pos[:, s2::s2, s2::s2],
+        ]
+        r = np.maximum.reduce([_norm(q - centre) for q in corners])
+        if j == n_levels - 1:
+            # 3 x 3 nodes: the midpoints too.
+            mids = [
+                pos[:, 0:n:s2, hh::s2],
+                pos[:, s2::s2, hh::s2],
+                pos[:, hh::s2, 0:n:s2],
+                pos[:, hh::s2, s2::s2],
+            ]
+            r = np.maximum(r, np.maximum.reduce([_norm(q - centre) for q in mids]))
+        else:
+            ch = emax[j + 1].reshape(b_n, nb, 2, nb, 2)
+            own = np.maximum(own, ch.max(axis=(2, 4)))
+            # Children's spheres, moved to this centre (triangle inequality).
+            cc = pos[:, hh // 2 :: hh, hh // 2 :: hh].reshape(b_n, nb, 2, nb, 2, 3)
+            off = _norm(cc - centre[:, :, None, :, None, :])
+            r = np.maximum(r, (radius[j + 1].reshape(b_n, nb, 2, nb, 2) + off).max(axis=(2, 4)))
+        emax[j] = own
+        radius[j] = r
+    return [
+        TileClod(o, bs, pos[i], err[i], [e[i] for e in emax], [q[i] for q in radius])
+        for i, (o, bs, _) in enumerate(frames)
+    ]
+
+
+def _tile_positions(
+    key: tuple[int, int, int],
+    heights: np.ndarray,
+    exaggeration: float,
+    displace: Callable[[np.ndarray], np.ndarray] | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A tile's ENU frame (origin (3,) ECEF, basis (3, 3) rows E, N, U) and its nodes in it
+    (size, size, 3), metres, heights x exaggeration, displaced where ``displace`` is given."""
     level, x, y = key
     size = heights.shape[0]
-    n = size - 1
     w, s, e, nn = (float(v) for v in tile_bounds_arrays(level, x, y))
     lon, lat = node_lonlat((w, s, e, nn), size)
     lon_g, lat_g = np.meshgrid(lon, lat)
@@ -114,73 +212,7 @@ def tile_clod(
     ecef = np.asarray(lonlat_to_ecef(lon_g, lat_g, h), dtype=np.float64)
     if displace is not None:
         ecef = np.asarray(displace(ecef.reshape(-1, 3)), dtype=np.float64).reshape(ecef.shape)
-    pos = (ecef - origin) @ basis.T  # (size, size, 3) in ENU
-
-    err = np.zeros((size, size))
-    n_levels = n_block_levels(size)
-    for j in range(n_levels):
-        hh = n >> (j + 1)
-        s2 = 2 * hh
-        # Horizontal edge midpoints (rows 0, 2h, ..; cols h, 3h, ..) between (r, c -+ h).
-        c = pos[::s2, hh::s2]
-        err[::s2, hh::s2] = _norm(c - 0.5 * (pos[::s2, 0 : n - hh + 1 : s2] + pos[::s2, s2::s2]))
-        # Vertical edge midpoints between (r -+ h, c).
-        c = pos[hh::s2, ::s2]
-        err[hh::s2, ::s2] = _norm(c - 0.5 * (pos[0 : n - hh + 1 : s2, ::s2] + pos[s2::s2, ::s2]))
-        # Block centres: against both diagonals (the one through the parent's centre is the
-        # one the parent's fan uses; the max of the two is conservative and symmetric).
-        c = pos[hh::s2, hh::s2]
-        nw = pos[0 : n - hh + 1 : s2, 0 : n - hh + 1 : s2]
-        se = pos[s2::s2, s2::s2]
-        ne = pos[0 : n - hh + 1 : s2, s2::s2]
-        sw = pos[s2::s2, 0 : n - hh + 1 : s2]
-        err[hh::s2, hh::s2] = np.maximum(
-            _norm(c - 0.5 * (nw + se)),
-            _norm(c - 0.5 * (ne + sw)),
-        )
-
-    emax: list[np.ndarray] = [np.empty(0)] * n_levels
-    radius: list[np.ndarray] = [np.empty(0)] * n_levels
-    for j in range(n_levels - 1, -1, -1):
-        hh = n >> (j + 1)
-        s2 = 2 * hh
-        nb = 1 << j
-        own = np.maximum.reduce(
-            [
-                err[hh::s2, hh::s2],  # centre
-                err[0:n:s2, hh::s2],  # north midpoint
-                err[s2::s2, hh::s2],  # south midpoint
-                err[hh::s2, 0:n:s2],  # west midpoint
-                err[hh::s2, s2::s2],  # east midpoint
-            ]
-        )
-        centre = pos[hh::s2, hh::s2]
-        corners = [
-            pos[0:n:s2, 0:n:s2],
-            pos[0:n:s2, s2::s2],
-            pos[s2::s2, 0:n:s2],
-            pos[s2::s2, s2::s2],
-        ]
-        r = np.maximum.reduce([_norm(q - centre) for q in corners])
-        if j == n_levels - 1:
-            # 3 x 3 nodes: the midpoints too.
-            mids = [
-                pos[0:n:s2, hh::s2],
-                pos[s2::s2, hh::s2],
-                pos[hh::s2, 0:n:s2],
-                pos[hh::s2, s2::s2],
-            ]
-            r = np.maximum(r, np.maximum.reduce([_norm(q - centre) for q in mids]))
-        else:
-            ch = emax[j + 1].reshape(nb, 2, nb, 2)
-            own = np.maximum(own, ch.max(axis=(1, 3)))
-            # Children's spheres, moved to this centre (triangle inequality).
-            cc = pos[hh // 2 :: hh, hh // 2 :: hh].reshape(nb, 2, nb, 2, 3)
-            off = _norm(cc - centre[:, None, :, None, :])
-            r = np.maximum(r, (radius[j + 1].reshape(nb, 2, nb, 2) + off).max(axis=(1, 3)))
-        emax[j] = own
-        radius[j] = r
-    return TileClod(origin, basis, pos, err, emax, radius)
+    return origin, basis, (ecef - origin) @ basis.T
 
 
 # -- per-frame selection ----------------------------------------------------------------------

@@ -56,13 +56,15 @@ from globeview.plugins.builtin.clod.mesh import (
     ClodFrame,
     TileClod,
     clod_frame,
-    tile_clod,
+    tile_clods,
     triangulate,
 )
 from globeview.plugins.builtin.clod.tile_data import ClodTiles
 
 #: Tiles whose CLOD data stays cached (about 170 kB each for 65 x 65 tiles).
 TILE_CACHE = 1500
+#: Tiles whose CLOD data is built in one pass (bounds the pass's temporaries, ~1 MB a tile).
+BUILD_BATCH = 64
 
 
 class QuadtreeClodProvider(LodProvider):
@@ -137,8 +139,13 @@ class QuadtreeClodProvider(LodProvider):
         """Slots in the packed cache (`ClodTiles`) holding the tiles' CLOD data for this
         exaggeration and displacement ``dkey`` (`displacement_key`), built where missing."""
 
-        def build(key: tuple[int, int, int]) -> TileClod:
-            return tile_clod(key, terrain.heights(key), exag, displace)
+        def build(keys: list[tuple[int, int, int]]) -> list[TileClod]:
+            # In batches: the errors of many tiles in one pass of array operations.
+            out: list[TileClod] = []
+            for i in range(0, len(keys), BUILD_BATCH):
+                part = keys[i : i + BUILD_BATCH]
+                out += tile_clods(part, [terrain.heights(k) for k in part], exag, displace)
+            return out
 
         return self._tiles.slots(keys, terrain.tile_size, (exag, dkey), build)
 

@@ -142,11 +142,12 @@ class ClodTiles:
         keys: np.ndarray,
         size: int,
         generation: Hashable,
-        build: Callable[[tuple[int, int, int]], TileClod],
+        build: Callable[[list[tuple[int, int, int]]], list[TileClod]],
     ) -> np.ndarray:
         """(N,) slots holding the data of tiles ``keys`` (N, 3) for ``generation`` (what the
-        data depends on besides the tile: exaggeration, displacement), calling ``build(key)``
-        for the tiles not cached. ``keys`` must be distinct (a render set's are)."""
+        data depends on besides the tile: exaggeration, displacement), calling ``build`` once
+        with the keys of the tiles not cached (it returns their data in that order). ``keys``
+        must be distinct (a render set's are)."""
         if size != self.size:
             self._alloc(size, 0)
         self._clock += 1
@@ -166,9 +167,10 @@ class ClodTiles:
         self.last_used[out[out >= 0]] = self._clock
         if len(miss):
             free = self._free_slots(len(miss), gid)
-            k = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
-            for i, slot in zip(miss.tolist(), free.tolist(), strict=True):
-                self._put(slot, build((int(k[i, 0]), int(k[i, 1]), int(k[i, 2]))))
+            k = np.asarray(keys, dtype=np.int64).reshape(-1, 3).take(miss, axis=0)
+            built = build([(int(a), int(b), int(c)) for a, b, c in k.tolist()])
+            for slot, data in zip(free.tolist(), built, strict=True):
+                self._put(slot, data)
             out[miss] = free
             self.slot_gen[free] = gid
             self.slot_code[free] = codes[miss]
