@@ -204,3 +204,23 @@ def test_three_vector_norms_are_numpys_bit_for_bit() -> None:
         want = np.linalg.norm(x, axis=-1)
         assert np.array_equal(norm3(x), want)
         assert np.array_equal(_norm(x), want)
+
+
+def test_grid_positions_are_lonlat_to_ecef_bit_for_bit() -> None:
+    """clod's node positions with per-row / per-column trigonometry equal `lonlat_to_ecef`
+    of the meshgrid, on tiles of many levels (poles and the antimeridian included)."""
+    from globeview.geodesy import lonlat_to_ecef
+    from globeview.plugins.builtin.clod.mesh import _grid_ecef
+    from globeview.plugins.api import node_lonlat, tile_bounds_arrays
+
+    rng = np.random.default_rng(2)
+    tiles = [(0, 0, 0), (0, 1, 0), (5, 63, 31), (5, 0, 0)]
+    for _ in range(60):
+        lv = int(rng.integers(0, 22))
+        tiles.append((lv, int(rng.integers(0, 2 << lv)), int(rng.integers(0, 1 << lv))))
+    for level, x, y in tiles:
+        w, s, e, n = (float(v) for v in tile_bounds_arrays(level, x, y))
+        lon, lat = node_lonlat((w, s, e, n), 33)
+        h = rng.normal(0.0, 2000.0, (33, 33))
+        want = np.asarray(lonlat_to_ecef(*np.meshgrid(lon, lat), h))
+        assert np.array_equal(_grid_ecef(lon, lat, h), want), (level, x, y)

@@ -40,6 +40,7 @@ from typing import Protocol
 import numpy as np
 
 from globeview.plugins.api import (
+    WGS84,
     enu_basis,
     lonlat_to_ecef,
     node_lonlat,
@@ -192,6 +193,23 @@ def tile_clods(
     ]
 
 
+def _grid_ecef(lon_deg: np.ndarray, lat_deg: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """(rows, cols, 3) ECEF (m) of a grid's nodes: ``lonlat_to_ecef`` of
+    ``np.meshgrid(lon_deg, lat_deg)`` and heights ``h`` (rows, cols), with the same operations
+    per node (so the same floats), but the trigonometry once per row (latitude) and column
+    (longitude) instead of per node."""
+    lon = np.radians(np.asarray(lon_deg, dtype=np.float64))
+    lat = np.radians(np.asarray(lat_deg, dtype=np.float64))
+    sin_lat, cos_lat = np.sin(lat)[:, None], np.cos(lat)[:, None]
+    n = WGS84.a / np.sqrt(1.0 - WGS84.e2 * sin_lat * sin_lat)  # prime-vertical radius
+    rho = (n + h) * cos_lat
+    out = np.empty((*h.shape, 3))
+    out[..., 0] = rho * np.cos(lon)[None, :]
+    out[..., 1] = rho * np.sin(lon)[None, :]
+    out[..., 2] = (n * (1.0 - WGS84.e2) + h) * sin_lat
+    return out
+
+
 def _tile_positions(
     key: tuple[int, int, int],
     heights: np.ndarray,
@@ -204,12 +222,11 @@ def _tile_positions(
     size = heights.shape[0]
     w, s, e, nn = (float(v) for v in tile_bounds_arrays(level, x, y))
     lon, lat = node_lonlat((w, s, e, nn), size)
-    lon_g, lat_g = np.meshgrid(lon, lat)
     mid_lon, mid_lat = 0.5 * (w + e), 0.5 * (s + nn)
     origin = np.asarray(lonlat_to_ecef(mid_lon, mid_lat, 0.0), dtype=np.float64).reshape(3)
     basis = enu_basis(mid_lon, mid_lat)
     h = heights.astype(np.float64) * exaggeration
-    ecef = np.asarray(lonlat_to_ecef(lon_g, lat_g, h), dtype=np.float64)
+    ecef = _grid_ecef(lon, lat, h)
     if displace is not None:
         ecef = np.asarray(displace(ecef.reshape(-1, 3)), dtype=np.float64).reshape(ecef.shape)
     return origin, basis, (ecef - origin) @ basis.T
