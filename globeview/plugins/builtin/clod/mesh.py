@@ -320,8 +320,8 @@ def clod_frame(
     for j in range(n_levels):
         hh = n >> (j + 1)
         nb = 1 << j
-        t, rest = np.divmod(blocks[j], nb * nb)
-        bi, bj = np.divmod(rest, nb)
+        # (Divisions by powers of two as shifts and masks: numpy's integer // and % are slow.)
+        t, bi, bj = blocks[j] >> (2 * j), (blocks[j] >> j) & (nb - 1), blocks[j] & (nb - 1)
         local = ((2 * bi + 1) * hh) * size + (2 * bj + 1) * hh  # block centres
         # Vertex test on the four edge midpoints (north, south, west, east) of every
         # refined block, all at once.
@@ -460,6 +460,7 @@ def _close(
     for j in range(n_levels - 1, -1, -1):
         hh = n >> (j + 1)
         s2 = 2 * hh
+        sh = s2.bit_length() - 1  # x // s2 = x >> sh, x % s2 = x & (s2 - 1) (powers of two)
         nb = 1 << j
         on_f = on[j].reshape(-1)
         cand = [] if parents is None else [parents]
@@ -467,23 +468,23 @@ def _close(
             g = np.concatenate(pend[j])
             t, loc = np.divmod(g, s2n)
             r, c = np.divmod(loc, size)
-            bt = t * (nb * nb)
-            rm, cm = r % s2, c % s2
+            bt = t << (2 * j)
+            rm, cm = r & (s2 - 1), c & (s2 - 1)
             centre = (rm == hh) & (cm == hh)
-            cand.append((bt + ((r - hh) // s2) * nb + (c - hh) // s2)[centre])
+            cand.append((bt + (((r - hh) >> sh) << j) + ((c - hh) >> sh))[centre])
             hmid = rm == 0  # on a horizontal edge: the blocks above and below
             vmid = cm == 0  # on a vertical edge: the blocks left and right
             # (Only the block beyond the midpoint's edge can fall outside the tile.)
-            above, below = r // s2 - 1, r // s2
-            left, right = c // s2 - 1, c // s2
-            bj_h, bi_v = (c - hh) // s2, (r - hh) // s2
+            below, right = r >> sh, c >> sh
+            above, left = below - 1, right - 1
+            bj_h, bi_v = (c - hh) >> sh, (r - hh) >> sh
             for sel, bi, bj in (
                 (hmid & (above >= 0), above, bj_h),
                 (hmid & (below < nb), below, bj_h),
                 (vmid & (left >= 0), bi_v, left),
                 (vmid & (right < nb), bi_v, right),
             ):
-                cand.append((bt + bi * nb + bj)[sel])
+                cand.append((bt + (bi << j) + bj)[sel])
         new = np.empty(0, np.int64)
         if cand:
             cc = np.concatenate(cand)
@@ -498,8 +499,7 @@ def _close(
         if len(new) == 0:
             parents = None
             continue
-        t, rest = np.divmod(new, nb * nb)
-        bi, bj = np.divmod(rest, nb)
+        t, bi, bj = new >> (2 * j), (new >> j) & (nb - 1), new & (nb - 1)
         nw = t * s2n + (2 * bi * hh) * size + 2 * bj * hh  # north-west corner
         en_f[nw + hh * size + hh] = True  # centre
         k = np.concatenate([nw, nw + s2, nw + s2 * size, nw + s2 * size + s2])
@@ -507,7 +507,7 @@ def _close(
         if len(k):
             en_f[k] = True
             _bucket(pend, lev, s2n, k)
-        parents = (t * (nb // 2) + bi // 2) * (nb // 2) + bj // 2 if j > 0 else None
+        parents = (((t << (j - 1)) + (bi >> 1)) << (j - 1)) + (bj >> 1) if j > 0 else None
 
 
 def _bucket(pend: list[list[np.ndarray]], lev: np.ndarray, s2n: int, g: np.ndarray) -> None:
