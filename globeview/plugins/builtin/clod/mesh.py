@@ -33,6 +33,7 @@ Per frame (`clod_frame`):
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
@@ -415,6 +416,7 @@ def clod_frame(
     return ClodFrame(on, enabled, error_px, passes, blocks)
 
 
+@functools.lru_cache(maxsize=8)
 def _node_levels(size: int) -> np.ndarray:
     """(size, size) int: the block level j whose centre or edge midpoint each node is
     (for node (r, c), hh = n >> (j + 1) is the largest power of two dividing both r and c);
@@ -427,7 +429,9 @@ def _node_levels(size: int) -> np.ndarray:
         tz[(k % (1 << b) == 0) & (tz == n_levels)] = b
     tz[0] = tz[n] = n_levels
     m = np.minimum(tz[:, None], tz[None, :])
-    return np.where(m >= n_levels, -1, n_levels - 1 - m)
+    out = np.where(m >= n_levels, -1, n_levels - 1 - m)
+    out.setflags(write=False)  # cached: shared by every frame
+    return out
 
 
 def _close(
