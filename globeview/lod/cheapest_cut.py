@@ -28,8 +28,14 @@ not depend on tau, so by induction from the deepest level T(t, tau) is a minimum
 none of which grows (an empty tile costs ``floor`` at every tau, the least an unrefined
 tile costs). The walk's pruning is exact: it does not visit the children of a tile
 whose own cost is the cheapest any visible tile can have (stride = whole tile), which no
-non-empty set of visible children beats. Tile budgets (`LodPolicy.max_tiles`, `MAX_TILES`)
-cut the visited tree and can break the argument; they bind only in extreme views.
+non-empty set of visible children beats; the tiles it leaves out for other reasons (far
+and smooth, deep past the data) are left out at every tau, so they are leaves at every tau.
+
+Where the argument holds: a tile budget that pruned the visited tree by anything that
+depends on tau would break it, so the walk has none (`ScreenSpaceErrorPolicy` counts the
+tiles visited and gives up past its budget, drawing the plain walk), and the cut's own
+budget (`cut_within_budget`) keeps the cut only while it fits; a cut traded for fewer
+tiles, and the plain walk, are not monotone in tau.
 """
 
 from __future__ import annotations
@@ -136,21 +142,37 @@ def cheapest_cut(
     return cat(out_k), cat(out_s), cat(out_e), cat(out_h)
 
 
+#: `cheapest_cut`'s per-tile cost that makes it the fewest-tiles cut: more than any difference
+#: in triangles (at most `render_set.MAX_TILES` tiles of at most ~10 000 triangles each), so
+#: a cut with fewer tiles always costs less, and small enough that the sums (<= ~2e13) stay
+#: exact integers in float64.
+FEWEST_TILES = 1e9
+
+
 def cut_within_budget(
     levels: list[VisitedLevel], leaf_keys: np.ndarray, max_tiles: int | None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """`cheapest_cut`, and when that draws more than ``max_tiles`` tiles, the cut with the
-    smallest per-tile cost (bisected, a dozen passes) that draws at most ``max_tiles``: the
-    fewest triangles for that many tiles, near enough. Tiles that must refine still do, so a
-    budget below what tau needs is exceeded (as the walk's soft budget is). Where the budget
-    binds the cut is no longer monotone in tau (the multiplier depends on tau)."""
+) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], str]:
+    """`cheapest_cut` held to ``max_tiles`` tiles, and how (the second item):
+
+    - ``"free"``: the cheapest cut draws at most ``max_tiles``; it is returned;
+    - ``"over"``: even the cut with the fewest tiles (only the tiles that must refine do)
+      draws more; that cut is returned (one pass, found before any search: the caller draws
+      something else, `ScreenSpaceErrorPolicy.render_set`);
+    - ``"traded"``: the cut with the smallest per-tile cost (bisected, a dozen passes) that
+      draws at most ``max_tiles``: the fewest triangles for that many tiles, near enough.
+      Here the cut is no longer monotone in tau (the multiplier depends on tau).
+    """
     cut = cheapest_cut(levels, leaf_keys)
     if max_tiles is None or len(cut[0]) <= max_tiles:
-        return cut
+        return cut, "free"
+    best = cheapest_cut(levels, leaf_keys, FEWEST_TILES)
+    if len(best[0]) > max_tiles:
+        return best, "over"
     lo, hi = 0.0, 1.0
-    while hi < 1e9:
-        best = cheapest_cut(levels, leaf_keys, hi)
-        if len(best[0]) <= max_tiles:
+    while hi < FEWEST_TILES:
+        trial = cheapest_cut(levels, leaf_keys, hi)
+        if len(trial[0]) <= max_tiles:
+            best = trial
             break
         lo, hi = hi, hi * 8.0
     for _ in range(12):
@@ -160,4 +182,4 @@ def cut_within_budget(
             hi, best = mid, trial
         else:
             lo = mid
-    return best
+    return best, "traded"

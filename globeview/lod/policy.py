@@ -52,8 +52,10 @@ _STRIDE_RANK = np.arange(1, N_STRIDES + 1)
 #: the fewest-triangles cut may look: tiles there are their ancestor's data upsampled, and
 #: splitting a tile whose near corner needs a fine stride lets its far children draw coarser.
 BEYOND_DATA_LEVELS = 4
-#: The walk's tile budget with min_triangles, in units of the cut's (`ScreenSpaceErrorPolicy`).
-WALK_BUDGET = 4
+#: The walk's budget with min_triangles, in tiles visited, in units of the cut's budget
+#: (`ScreenSpaceErrorPolicy`): a bound on its work (the benchmark views visit 40-640 tiles;
+#: exaggeration 30 at 5 km in the White Mountains would visit over 5 000).
+WALK_BUDGET = 8
 #: Tiles nearer than this many tile widths are worth visiting the children of whatever their
 #: error (`ScreenSpaceErrorPolicy.refine`).
 NEAR_RATIO = 4.0
@@ -172,7 +174,22 @@ class ScreenSpaceErrorPolicy(LodPolicy):
     With ``min_triangles`` (chunked-sse's default) step 2 also visits the children of every
     tile that could be drawn cheaper (its stride is not the whole tile), down to
     `BEYOND_DATA_LEVELS` below the finest data, and the tiles drawn are the cheapest cut of
-    that tree (`cheapest_cut`): the fewest triangles meeting tau, never more as tau grows.
+    that tree (`cheapest_cut`): the fewest triangles meeting tau. Budgets, and where the
+    guarantee "never more triangles as tau grows" holds (render set stats say which case a
+    frame is in):
+
+    - the walk visits at most `WALK_BUDGET` x ``max_tiles`` tiles (counted in `refine`, no
+      pruning: the tree visited is the same as without a budget, or the walk stops); a view
+      tau cannot meet within it, or whose fewest-tiles cut draws more than ``max_tiles``, is
+      drawn by the plain walk above (stat ``cut_over_budget``). Both counts never grow with
+      tau, so these views are those under some tau*: one interval of a tau ladder;
+    - where the cheapest cut draws more than ``max_tiles`` but the fewest-tiles cut does
+      not, the cut trades triangles for tiles (stat ``cut_traded``, `cut_within_budget`);
+    - otherwise (no stat; every benchmark view at exaggeration 1 and the default budget)
+      the cut is drawn as is, every tile within tau, and its triangles never grow with tau
+      over any range of tau drawn this way (the argument in `globeview.lod.cheapest_cut`).
+      Across the cases it may: the plain walk is not monotone in tau (the reason for the
+      cut), and it leaves tiles over tau where the cut at a larger tau draws them finer.
 
     Cracks between tiles drawn at different levels or strides are hidden by skirts.
     """
@@ -187,21 +204,28 @@ class ScreenSpaceErrorPolicy(LodPolicy):
         super().__init__(tau_px)
         self.texel_px = float(texel_px)
         self.min_triangles = bool(min_triangles)
-        # With min_triangles the budget bounds the cut (`cut_within_budget`), and the walk only
-        # gets WALK_BUDGET times as much (a bound on its work in extreme views): a walk cut
-        # short by a budget that depends on tau would not be monotone in tau.
+        # With min_triangles the budget bounds the cut (`cut_within_budget`), and the walk gets
+        # WALK_BUDGET times as much (a bound on its work), held by `refine` itself, not the
+        # traversal's budget: that one prunes by a priority, which would make the tree visited,
+        # and so the cut, depend on tau. A walk that would pass it stops and the plain walk is
+        # drawn instead (`render_set`).
         self.tile_budget = int(max_tiles)
         self._walk_budget = min(WALK_BUDGET * self.tile_budget, MAX_TILES)
-        self.max_tiles = self._walk_budget if self.min_triangles else self.tile_budget
+        self.max_tiles = None if self.min_triangles else self.tile_budget
         self._cut = self.min_triangles
         self._visited: list[VisitedLevel] = []
         self._hidden = 0
+        self._seen = 0
+        self._over = False
 
     def begin(self, view: ViewState, terrain: TerrainStack) -> None:
         super().begin(view, terrain)
         self._cut = self.min_triangles
-        self.max_tiles = self._walk_budget if self._cut else self.tile_budget
+        self.max_tiles = None if self._cut else self.tile_budget
         self._visited = []
+        # Tiles the walk has visited so far, and whether it passed _walk_budget.
+        self._seen = 0
+        self._over = False
         # The last level's tiles: has_finer and levels past the data (_levels_past_data).
         self._finer: np.ndarray | None = None
         self._past_data: np.ndarray | None = None
@@ -280,31 +304,41 @@ class ScreenSpaceErrorPolicy(LodPolicy):
             )
         )
         self._finer, self._past_data = has_finer, past
-        tiles.scratch["ssep_must"] = must
-        tiles.scratch["ssep_own"] = own
+        # The walk's budget, all or nothing: past it the walk stops here and `render_set` draws
+        # the plain walk. It counts the tiles visited so far and the refined tiles' four
+        # children each: a larger tau asks fewer tiles to refine (must and own only shrink), so
+        # it visits a subtree of what a smaller tau visits, and a view within the budget at
+        # one tau is within it at every larger tau. The tiles a walk within it visits do not
+        # depend on the budget.
+        m = len(asked)
+        n_ref = int(np.count_nonzero(asked)) if tiles.level < min(self.max_level, MAX_LEVEL) else 0
+        self._seen += m
+        if self._seen + 4 * n_ref > self._walk_budget:
+            self._over = True
+            return np.zeros(m, dtype=bool)
         return asked
-
-    def priority(self, tiles: TileCandidates, error_px: np.ndarray) -> np.ndarray:
-        if not self._cut:
-            return error_px[:, 0]
-        # Within a budget, tiles that must refine come first (worst error first), then the
-        # ones whose children may save the most (largest own cost).
-        must, own = tiles.scratch["ssep_must"], tiles.scratch["ssep_own"]
-        return np.where(must, 1e15 + error_px[:, 0], own.astype(np.float64))
 
     def render_set(self, selection: Selection, size: int) -> RenderSet:
         if not self._cut:
             return super().render_set(selection, size)
-        keys, stride_idx, error_px, hidden = cut_within_budget(
-            self._visited, selection.keys, self.tile_budget
-        )
-        if len(keys) > self.tile_budget and self.view is not None and self.terrain is not None:
-            # Tau asks for more tiles than the budget even with the fewest tiles per
-            # triangle (an extreme exaggeration or tau): the plain walk, whose budget refines
-            # the worst tiles first and leaves the rest over tau, as without min_triangles.
+        how = "over"
+        if not self._over:
+            (keys, stride_idx, error_px, hidden), how = cut_within_budget(
+                self._visited, selection.keys, self.tile_budget
+            )
+        if how == "over":
+            # The walk passed its budget, or tau asks for more tiles than the cut's even with
+            # the fewest tiles (an extreme exaggeration or tau): the plain walk, whose budget
+            # refines the worst tiles first and leaves the rest over tau, as without
+            # min_triangles. Both are found early (the walk stops, `cut_within_budget` tries
+            # the fewest-tiles cut first), so this costs about one plain walk more.
+            assert self.view is not None and self.terrain is not None  # set by begin
             plain = ScreenSpaceErrorPolicy(self.tau_px, self.texel_px, self.tile_budget)
             rs = traverse(self.view, self.terrain, plain)
             rs.stats["cut_over_budget"] = 1.0
             return rs
         self._hidden = int(np.count_nonzero(hidden))
-        return render_set_by_stride(keys, stride_idx, error_px)
+        rs = render_set_by_stride(keys, stride_idx, error_px)
+        if how == "traded":
+            rs.stats["cut_traded"] = 1.0
+        return rs
