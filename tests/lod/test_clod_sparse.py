@@ -210,8 +210,8 @@ def test_grid_positions_are_lonlat_to_ecef_bit_for_bit() -> None:
     """clod's node positions with per-row / per-column trigonometry equal `lonlat_to_ecef`
     of the meshgrid, on tiles of many levels (poles and the antimeridian included)."""
     from globeview.geodesy import lonlat_to_ecef
-    from globeview.plugins.builtin.clod.mesh import _grid_ecef
     from globeview.plugins.api import node_lonlat, tile_bounds_arrays
+    from globeview.plugins.builtin.clod.mesh import _grid_ecef
 
     rng = np.random.default_rng(2)
     tiles = [(0, 0, 0), (0, 1, 0), (5, 63, 31), (5, 0, 0)]
