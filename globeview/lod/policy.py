@@ -229,6 +229,23 @@ class ScreenSpaceErrorPolicy(LodPolicy):
         # The last level's tiles: has_finer and levels past the data (_levels_past_data).
         self._finer: np.ndarray | None = None
         self._past_data: np.ndarray | None = None
+        # This level's parent rows (_parent_rows), and the fewest-tiles cut's lower bound:
+        # the last level's tiles it refines (must, all ancestors must too; None at the roots)
+        # and the tiles it draws at the levels above (`refine`).
+        self._parents: np.ndarray | None = None
+        self._fewest_refines: np.ndarray | None = None
+        self._fewest_drawn = 0
+
+    def _parent_rows(self, keys: np.ndarray) -> np.ndarray:
+        """(N,) the row of each tile's parent in the last level visited (tiles of a level are
+        children of refined tiles of the one before), computed once per level."""
+        if self._parents is None:
+            prev = self._visited[-1].keys
+            codes = (prev[:, 1] << 31) | prev[:, 2]
+            order = np.argsort(codes)
+            at = np.searchsorted(codes.take(order), ((keys[:, 1] >> 1) << 31) | (keys[:, 2] >> 1))
+            self._parents = order.take(np.minimum(at, len(codes) - 1))
+        return self._parents
 
     def _levels_past_data(self, keys: np.ndarray, has_finer: np.ndarray) -> np.ndarray:
         """(N,) how many levels each tile lies below the finest data under it (0 within
@@ -239,13 +256,28 @@ class ScreenSpaceErrorPolicy(LodPolicy):
         if prev is None or self._past_data is None or finer is None or finer.all():
             # Every parent had finer data below it (the common case above the data's depth).
             return np.zeros(len(keys), dtype=np.int64)
-        codes = (prev.keys[:, 1] << 31) | prev.keys[:, 2]
-        order = np.argsort(codes)
-        at = np.searchsorted(codes.take(order), ((keys[:, 1] >> 1) << 31) | (keys[:, 2] >> 1))
-        parent = order.take(np.minimum(at, len(codes) - 1))
+        parent = self._parent_rows(keys)
         up = self._past_data.take(parent)
         # A parent with finer data below it has this tile within the data.
         return np.where(finer.take(parent), 0, up + 1)
+
+    def _fewest_over(self, keys: np.ndarray, must: np.ndarray) -> bool:
+        """Whether the fewest-tiles cut (`cut_within_budget`: only tiles that must refine
+        do) is sure to draw more than ``tile_budget`` tiles, from the levels walked so far:
+        it draws each tile it reaches that need not refine, and at least one tile for each
+        it refines (a lower bound). Also keeps the bound's state for the next level."""
+        prev = self._fewest_refines
+        if prev is None or prev.all():
+            refines = must  # every parent refined in the fewest-tiles cut (the roots: none)
+            self._fewest_drawn += len(must) - int(np.count_nonzero(must))
+        elif not prev.any():
+            refines = np.zeros(len(must), dtype=bool)
+        else:
+            reached = prev.take(self._parent_rows(keys))
+            refines = reached & must
+            self._fewest_drawn += int(np.count_nonzero(reached & ~must))
+        self._fewest_refines = refines
+        return self._fewest_drawn + int(np.count_nonzero(refines)) > self.tile_budget
 
     def frame_stats(self) -> dict[str, Any]:
         if not self._cut:
@@ -266,6 +298,12 @@ class ScreenSpaceErrorPolicy(LodPolicy):
         must = self._must_refine(tiles, error_px)
         if not self._cut:
             return must
+        self._parents = None
+        if self._fewest_over(tiles.keys, must):
+            # The fewest-tiles cut will draw more than the cut's budget (`render_set` would
+            # find so after the walk, `cut_within_budget`): stop now.
+            self._over = True
+            return np.zeros(len(must), dtype=bool)
         idx = coarsest_stride_within(error_px, self.tau_px)
         keys = tiles.keys
         table = variant_triangles(tiles.size)
