@@ -6,9 +6,9 @@ standalone context (tests, `globeview render`, benchmarks).
 One frame is one multi-draw call: every resident tile lives in a slot of the shared vertex
 buffer and texture arrays (tile_pool.py); per draw, an instanced attribute carries the tile's
 centre relative to the eye (computed in float64 on the CPU, then rounded to float32: the
-relative-to-centre scheme) and its texture-array layer; a per-frame indirect command buffer
-(count, first index, base vertex, base instance) is built with numpy. No GL object is created
-per frame in steady state.
+relative-to-centre scheme), its texture-array layer and its coast scale (tile_pool.py); a
+per-frame indirect command buffer (count, first index, base vertex, base instance) is built
+with numpy. No GL object is created per frame in steady state.
 """
 
 from __future__ import annotations
@@ -79,7 +79,7 @@ class GlobeRenderer:
         # imagery, hillshade, fog, tilt, wireframe (TERRAIN_FEATURES)
         self._features = (False, False, True, False, False)
         self.program = self._compile(None, self._features)
-        self.instances = gpu_objects(ctx).buffer(reserve=capacity * 7 * 4, dynamic=True)
+        self.instances = gpu_objects(ctx).buffer(reserve=capacity * 8 * 4, dynamic=True)
         self.commands = gpu_objects(ctx).buffer(reserve=capacity * 5 * 4, dynamic=True)
         # Providers that triangulate each tile themselves (quadtree-clod) write their indices
         # here every frame; the buffer only grows (rarely), it is never created per frame.
@@ -169,7 +169,14 @@ class GlobeRenderer:
     def _make_vaos(self, program: moderngl.Program):
         content = [
             (self.pool.vbo, "3f 1f 2f", "in_pos", "in_h", "in_uv"),
-            (self.instances, "3f 3f 1f/i", "in_center_rel", "in_center", "in_layer"),
+            (
+                self.instances,
+                "3f 3f 1f 1f/i",
+                "in_center_rel",
+                "in_center",
+                "in_layer",
+                "in_coast_scale",
+            ),
         ]
         # skip_errors: a shader variant may not use every attribute.
         vao = gpu_objects(self.ctx).vertex_array(
@@ -463,7 +470,13 @@ class GlobeRenderer:
         custom_sorted = custom[order]
         centers = self.pool.centers[slots]
         inst = np.concatenate(
-            [(centers - view.eye), centers, slots[:, None].astype(np.float64)], axis=1
+            [
+                centers - view.eye,
+                centers,
+                slots[:, None].astype(np.float64),
+                self.pool.coast_scale[slots, None],
+            ],
+            axis=1,
         ).astype(np.float32)
         n_var = int(np.count_nonzero(~custom))
         if n:
@@ -601,7 +614,7 @@ class GlobeRenderer:
             self.loader.shutdown()
 
 
-#: The ramp near sea level, as the terrain shader's coast uniforms (u_land0, ...).
+#: The ramp near sea level, as the terrain shader's coast uniforms (u_coast_jump, u_coast_t).
 COAST_RAMP = coast_ramp()
 
 #: The terrain shaders' feature defines, in the order of GlobeRenderer's features tuple.

@@ -69,10 +69,11 @@ class TilePool:
 
     Both arrays are RGBA8 with a layer per slot and a texel per node: ``albedo_tex`` holds
     the ramp colour of each node's height (baked at upload, `colour_ramp.tile_texels`),
-    ``normal_tex`` its unit ECEF normal as ``n * 0.5 + 0.5`` and, in alpha, its height near
-    sea level (`colour_ramp.coast_texels`: sharp coasts). The fragment shader reads one
-    texel of each (two fetches): RGBA8 is llvmpipe's fast sampling path, where the float32
-    height texture and the dependent ramp lookup it replaced were not.
+    ``normal_tex`` its unit ECEF normal as ``n * 0.5 + 0.5`` and, in alpha, its height over
+    the tile's coast scale ``coast_scale[slot]`` (metres, `colour_ramp.coast_texels`: sharp
+    coasts; the renderer passes it per draw). The fragment shader reads one texel of each
+    (two fetches): RGBA8 is llvmpipe's fast sampling path, where the float32 height texture
+    and the dependent ramp lookup it replaced were not.
 
     Args:
         ctx: the moderngl context.
@@ -99,6 +100,7 @@ class TilePool:
         # Per-slot state (numpy, so frame lookups vectorise).
         self.codes = np.full(capacity, -1, dtype=np.int64)
         self.centers = np.zeros((capacity, 3), dtype=np.float64)
+        self.coast_scale = np.ones(capacity, dtype=np.float64)  # metres (see above)
         self.last_used = np.zeros(capacity, dtype=np.int64)
         self.generation = np.zeros(capacity, dtype=np.int64)
         self._sorted_codes = np.empty(0, dtype=np.int64)
@@ -178,11 +180,12 @@ class TilePool:
         stride = self.verts_per_tile * FLOATS_PER_VERTEX * 4
         self.vbo.write(mesh.vertices.tobytes(), offset=slot * stride)
         s = self.size
-        albedo, coast = tile_texels(mesh.heights)
+        albedo, coast, coast_scale = tile_texels(mesh.heights)
         self.albedo_tex.write(albedo.tobytes(), viewport=(0, 0, slot, s, s, 1))
         nrm8 = np.empty((s, s, 4), dtype=np.uint8)
         nrm8[:, :, :3] = np.rint(mesh.normals * 127.5 + 127.5)  # unit normals: 0..255
         nrm8[:, :, 3] = coast
         self.normal_tex.write(nrm8.tobytes(), viewport=(0, 0, slot, s, s, 1))
         self.centers[slot] = mesh.center
+        self.coast_scale[slot] = coast_scale
         self.generation[slot] += 1

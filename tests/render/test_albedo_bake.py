@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from globeview.render.colour_ramp import (
-    COAST_M,
+    COAST_MIN_M,
     RAMP_HI_M,
     RAMP_LO_M,
     RAMP_TEXELS,
@@ -56,29 +56,77 @@ def test_baked_albedo_of_hostile_heights() -> None:
     assert albedo_texels(np.zeros((65, 65), np.float32)).shape == (65, 65, 4)
 
 
+def decoded(codes: np.ndarray, scale: float) -> np.ndarray:
+    """The height (metres) the terrain shader decodes from coast texels: (2 a - 1) s."""
+    return (codes.astype(float) / 255.0 * 2.0 - 1.0) * scale
+
+
 def test_coast_texels_keep_water_and_land_apart() -> None:
     # Heights are rounded to 0.5 m (RAMP_STEP_M): within 0.25 m of sea level they are 0 m,
     # land (the ramp blends water into land over ~20 m there anyway).
-    water = np.array([-0.3, -0.5, -50.0, -1e4, -np.inf])
-    land = np.array([-0.2, 0.0, 1e-6, 0.3, 50.0, 1e4, np.inf])
-    assert (coast_texels(water) <= 127).all() and (coast_texels(land) >= 128).all()
-    assert coast_texels(np.array([np.nan]))[0] == 128  # as 0 m
-    # Linear within the band (the shader interpolates it): +-COAST_M map to the ends.
-    assert coast_texels(np.array([-COAST_M, COAST_M])).tolist() == [0, 255]
-    assert abs(int(coast_texels(np.array([COAST_M / 2]))[0]) - 191) <= 1
+    water = [-0.3, -0.5, -50.0, -1e4, -np.inf]
+    land = [-0.2, 0.0, 1e-6, 0.3, 50.0, 1e4, np.inf]
+    for line in (np.array(water + land), np.array([-0.5, 0.0, -0.5, 9000.0, -11000.0, 0.5])):
+        codes, scale = coast_texels(line)
+        assert ((codes <= 127) == (np.nan_to_num(line, posinf=1, neginf=-1) < -0.25)).all()
+        assert COAST_MIN_M <= scale <= 11000.0
+    codes, scale = coast_texels(np.array([np.nan, np.nan]))
+    assert codes.tolist() == [128, 128] and scale == COAST_MIN_M  # as 0 m
+    # Linear (the shader interpolates it): a coast's nodes are divided by one scale.
+    codes, scale = coast_texels(np.array([-COAST_MIN_M, COAST_MIN_M / 2, COAST_MIN_M]))
+    assert scale == COAST_MIN_M and codes[0] == 0 and codes[2] == 255
+    assert abs(int(codes[1]) - 191) <= 1
+    for shape in ((0, 0), (1, 0), (0, 1), (1, 1), (65, 65), ()):
+        codes, scale = coast_texels(np.zeros(shape, np.float32))
+        assert codes.shape == shape and scale == COAST_MIN_M
+
+
+def test_coast_crosses_zero_where_the_heights_do() -> None:
+    """The coast lies where the linearly interpolated height crosses 0 m, however far the
+    cell's nodes lie beyond the band: a clamped encoding (+-100 m) put the coast of a
+    -150 / +1000 m cell at 48 % of the cell instead of 13 %."""
+    f = np.linspace(0.0, 1.0, 100001)
+    for a_h, b_h in ((-150.0, 1000.0), (-1000.0, 150.0), (-40.0, 60.0), (-3.0, 2500.0)):
+        # A 2x2 grid (one cell) with the edge from node a to node b; the far row is land.
+        grid = np.array([[a_h, b_h], [6000.0, 6000.0]])
+        codes, scale = coast_texels(grid)
+        h = decoded(codes[0], scale)
+        along = (1 - f) * h[0] + f * h[1]  # the shader's interpolated height on that edge
+        true = a_h / (a_h - b_h)
+        got = f[np.argmax(np.sign(along) != np.sign(along[0]))]
+        # 8 bits over +-scale: the nodes are within half a code of their height.
+        tol = 0.5 * scale / 127.5 / abs(b_h - a_h) + 1e-4
+        assert abs(got - true) <= tol, (a_h, b_h, got, true)
+
+
+def test_cells_away_from_the_coast_keep_their_blend() -> None:
+    """Nodes of cells wholly out of the band decode out of it (t stays 0 or 1 there, so
+    such cells get no coast correction), however large the tile's scale."""
+    lo, hi = -13.671875, 5.859375  # the band: the ramp texel centres either side of 0 m
+    rng = np.random.default_rng(3)
+    for side in (1.0, -1.0):  # a tile of lowland, then one of shallow water
+        # Heights on the table's 0.5 m steps, out of the band (from 6 m, -14 m on).
+        grid = side * np.round(rng.uniform(6.0 if side > 0 else 14.0, 40.0, (17, 17)) * 2) / 2
+        grid[0, 0], grid[0, 1] = -600.0, 450.0  # one steep coast cell: a large scale
+        codes, scale = coast_texels(grid)
+        assert scale == 600.0  # 4.7 m a code: nearest codes could decode into the band
+        h = decoded(codes, scale)
+        away = np.ones(grid.shape, bool)
+        away[:2, :2] = False  # the coast cell's nodes
+        assert ((h >= hi) if side > 0 else (h <= lo))[away].all()
 
 
 def test_coast_uniforms_reproduce_the_sampled_blend() -> None:
-    """The shader's coast blend t(s) is the albedo alpha of the same height (so cells with no
+    """The shader's coast blend t(h) is the albedo alpha of the same height (so cells with no
     coast get no correction), and its jump is the ramp's step across sea level."""
     u = coast_ramp()
     scale, offset = u["coast_t"]
-    h = np.linspace(-COAST_M, COAST_M, 4001)
-    s = coast_texels(h).astype(float) / 255.0 * 2.0 - 1.0
-    t = np.clip(s * scale + offset, 0.0, 1.0)
+    h = np.linspace(-COAST_MIN_M, COAST_MIN_M, 4001)
+    codes, s = coast_texels(h)
+    t = np.clip(decoded(codes, s) * scale + offset, 0.0, 1.0)
     alpha = albedo_texels(h)[:, 3] / 255.0
-    # 8-bit heights (0.8 m steps, the blend rises 1/19.5 a metre) and 8-bit weights.
-    assert np.abs(t - alpha).max() <= 0.045
+    # 8-bit heights (0.13 m steps, the blend rises 1/19.5 a metre) and 8-bit weights.
+    assert np.abs(t - alpha).max() <= 0.01
     assert alpha[0] == 0.0 and alpha[-1] == 1.0
     texel_m = (RAMP_HI_M - RAMP_LO_M) / RAMP_TEXELS  # the texel centres either side of 0 m:
     lo = RAMP_LO_M + (np.floor(-RAMP_LO_M / texel_m - 0.5) + 0.5) * texel_m
@@ -88,7 +136,8 @@ def test_coast_uniforms_reproduce_the_sampled_blend() -> None:
 
 def test_the_pool_uploads_baked_albedo_and_normals(gl_ctx, terrain) -> None:
     """What the shader samples for a real tile: albedo RGB = the baked ramp, albedo alpha =
-    the coast blend, normal RGB = n * 0.5 + 0.5, normal alpha = the clamped height."""
+    the coast blend, normal RGB = n * 0.5 + 0.5, normal alpha = the height over the tile's
+    coast scale (kept per slot for the draw)."""
     from globeview.render.renderer import GlobeRenderer
 
     renderer = GlobeRenderer(gl_ctx, terrain, capacity=4)
@@ -103,8 +152,10 @@ def test_the_pool_uploads_baked_albedo_and_normals(gl_ctx, terrain) -> None:
         albedo = np.frombuffer(pool.albedo_tex.read(), np.uint8)[layer].reshape(s, s, 4)
         normal = np.frombuffer(pool.normal_tex.read(), np.uint8)[layer].reshape(s, s, 4)
         assert (albedo == albedo_texels(mesh.heights)).all()
-        assert (tile_texels(mesh.heights)[1] == coast_texels(mesh.heights)).all()
-        assert (normal[:, :, 3] == coast_texels(mesh.heights)).all()
+        codes, scale = coast_texels(mesh.heights)
+        _, tile_codes, tile_scale = tile_texels(mesh.heights)
+        assert (tile_codes == codes).all() and tile_scale == scale
+        assert (normal[:, :, 3] == codes).all() and pool.coast_scale[slot] == scale
         decoded = normal[:, :, :3] / 255.0 * 2.0 - 1.0
         assert np.abs(decoded - mesh.normals).max() <= 1.0 / 255.0 + 1e-6
     finally:

@@ -17,11 +17,9 @@
 
 uniform sampler2DArray u_albedo;   // RGBA8: ramp colour of each node; alpha: its coast blend t
 uniform sampler2DArray u_normals;  // RGBA8: unit ECEF normal * 0.5 + 0.5 of each node; alpha:
-                                   // its height clamped to +-COAST_M, * 0.5 / COAST_M + 0.5
-// Coasts (colour_ramp.COAST_M says how): the ramp's colour step from water to land, and
-// (scale, offset) giving its blend weight t from the clamped height s in [-1, 1].
+                                   // its height over the tile's coast scale, * 0.5 + 0.5
+// Coasts (colour_ramp.COAST_MIN_M says how): the ramp's colour step from water to land.
 uniform vec3 u_coast_jump;
-uniform vec2 u_coast_t;
 uniform float u_exag;
 uniform vec3 u_light;            // ECEF unit vector toward the light
 uniform vec3 u_wire_color;       // GV_WIREFRAME
@@ -35,6 +33,8 @@ uniform float u_tile_nodes;       // nodes per terrain tile side
 
 in vec2 v_uv;
 flat in float v_layer;
+flat in vec3 v_coast;            // (x, y): the coast blend (unclamped) at the normal's alpha
+                                 // a is a * x + y; z: how far at.a may move it (terrain.vert)
 #ifdef GV_TILT
 in vec3 v_up;                    // unit ellipsoid normal at the vertices (interpolated)
 #endif
@@ -60,7 +60,14 @@ void main() {
     // Sharp coasts: the baked colours blend water into land across a whole texel; replace
     // that blend (the node weights, interpolated: at.a) by the one at the interpolated
     // height, as the per-pixel ramp drew it. Zero where a cell has no coast.
-    float t = clamp((nt.a * 2.0 - 1.0) * u_coast_t.x + u_coast_t.y, 0.0, 1.0);
+    // Two estimates of the blend before its clamp: from the normal's alpha, the height over
+    // the tile's scale (the coast where the interpolated height crosses 0 m, but in whole
+    // 8-bit codes: llvmpipe filters RGBA8 to codes, s / 127.5 m); and at.a, the node weights
+    // interpolated (exact where the cell's nodes all lie in the ~20 m band, wrong where one
+    // is beyond it). The second may move the first by a fraction of a code (v_coast.z).
+    float u = nt.a * v_coast.x + v_coast.y;
+    u += clamp(at.a - u, -v_coast.z, v_coast.z);
+    float t = clamp(u, 0.0, 1.0);
     vec3 albedo = at.rgb + u_coast_jump * (t - at.a);
 #ifdef GV_IMAGERY
     if (u_imagery_on > 0.5) {  // overlays: node uv -> tile fraction -> interior texels

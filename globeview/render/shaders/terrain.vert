@@ -23,9 +23,15 @@ in vec2 in_uv;               // texel centre of this node in the tile's textures
 in vec3 in_center_rel;       // per draw: tile centre - eye, metres
 in vec3 in_center;           // per draw: tile centre, ECEF metres (for directions only)
 in float in_layer;           // per draw: slot of the tile in the texture arrays
+in float in_coast_scale;     // per draw: the tile's coast scale s, metres (colour_ramp.py)
+uniform vec2 u_coast_t;      // the coast blend t = clamp(h * x + y, 0, 1) at height h (m)
+// How far (in 8-bit codes of the coast texel) terrain.frag lets the interpolated node blend
+// move the blend from the coast texel: a quarter code (colour_ramp.COAST_MIN_M says why).
+#define COAST_REFINE_CODES 0.25
 
 out vec2 v_uv;
 flat out float v_layer;
+flat out vec3 v_coast;       // the coast blend from the textures' alphas (terrain.frag)
 #ifdef GV_TILT
 out vec3 v_up;
 #endif
@@ -54,6 +60,10 @@ void main() {
     gl_Position.z = (gv_log_depth(w) - u_depth_bias) * gl_Position.w;
     v_uv = in_uv;
     v_layer = in_layer;
+    // The normal's alpha a is the height over the tile's scale s: h = (2 a - 1) s, so
+    // h * x + y = a * 2ks + (y - ks) with k = u_coast_t.x; one 8-bit code of a is ks / 127.5.
+    float k = in_coast_scale * u_coast_t.x;
+    v_coast = vec3(2.0 * k, u_coast_t.y - k, COAST_REFINE_CODES * k / 127.5);
 #ifdef GV_TILT
     v_up = up;
 #endif
