@@ -68,6 +68,10 @@ def _ordered(keys: np.ndarray, priority: np.ndarray | None) -> list[Key]:
     return [(int(k[0]), int(k[1]), int(k[2])) for k in keys[order]]
 
 
+#: How long `TileLoader.shutdown` waits for each worker's build under way (seconds).
+JOIN_TIMEOUT_S = 5.0
+
+
 class TileLoader:
     """Builds tile meshes on worker threads; the render thread collects finished ones.
 
@@ -191,14 +195,22 @@ class TileLoader:
             self._ready.clear()
             self.failed.clear()
 
-    def shutdown(self) -> None:
-        """Stop the workers (a build under way ends on its own; its result is dropped)."""
+    def shutdown(self, timeout_s: float = JOIN_TIMEOUT_S) -> None:
+        """Stop the workers and wait (up to ``timeout_s`` each) for a build under way to end;
+        its result is dropped. A worker's frame holds the loader and so the build callables
+        (the renderer, the terrain, their datasets): waiting is what lets a closed window's
+        session be freed at once and its stores close with no read in flight."""
         with self._cv:
             self._stop = True
             self._generation += 1
             self._prefetch.clear()
             self._queue.clear()
             self._cv.notify_all()
+        me = threading.current_thread()
+        for t in self._threads:
+            if t is not me and t.is_alive():
+                t.join(timeout_s)
+        self.on_ready = None
 
     # -- workers ---------------------------------------------------------------------------
     def _next_keys(self) -> list[Key] | None:
@@ -252,7 +264,9 @@ class TileLoader:
                 for key, res in results.items():
                     self._running.discard(key)
                     if isinstance(res, BaseException):
-                        self.failed[key] = res
+                        # Without its traceback: the frames would keep the batch's meshes
+                        # (~0.5 MB a failure) alive for as long as the failure is remembered.
+                        self.failed[key] = res.with_traceback(None)
                     else:
                         self._ready[key] = res
             callback = self.on_ready

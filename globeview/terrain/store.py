@@ -355,10 +355,15 @@ class TileStore:
             handles = self._local.handles = {}
         ds = handles.get(level)
         if ds is None:
+            if self._closed:  # a worker thread still building after close() opens nothing
+                raise StoreError(f"{self.path}: the store is closed")
             ds = self._open_level(level)
-            handles[level] = ds
             with self._lock:
+                if self._closed:  # close() ran while this thread was opening the file
+                    ds.close()
+                    raise StoreError(f"{self.path}: the store is closed")
                 self._all_handles.append(ds)
+            handles[level] = ds
         return ds
 
     def _read_padded(self, key: TileKey) -> np.ndarray:

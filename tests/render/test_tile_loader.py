@@ -163,3 +163,34 @@ def test_batches_go_through_build_many_in_load_order_and_a_bad_tile_fails_alone(
     got = dict(loader.take_ready(10))
     assert got[(6, 0, 0)] == ("mesh", (6, 0, 0))
     assert got[(6, 4, 0)] == ("one", (6, 4, 0))  # its batch was rebuilt tile by tile
+
+
+def test_shutdown_waits_for_the_build_under_way_and_frees_the_build() -> None:
+    """A closed window's renderer must be garbage at once: after shutdown no worker is
+    alive (a worker's frame holds the loader and so the build callables)."""
+    import gc
+    import weakref
+
+    rec = Recorder()
+    loader = TileLoader(rec, workers=2)
+    loader.request(np.array([[0, 0, 0]]))
+    assert rec.started.wait(10.0)
+    threading.Timer(0.2, rec.gate.set).start()  # the build under way ends after shutdown began
+    loader.shutdown()
+    assert not any(t.is_alive() for t in loader._threads)
+    ref = weakref.ref(rec)
+    del rec, loader
+    gc.collect()
+    assert ref() is None
+
+
+def test_a_failure_is_remembered_without_its_traceback(busy_loader) -> None:
+    """The traceback's frames would keep the batch's other meshes alive as long as the
+    failure is remembered."""
+    loader, rec, _ = busy_loader
+    loader.request(np.array([[5, 1, 1]]))
+    rec.gate.set()
+    wait_for(lambda: (5, 1, 1) in loader.failed)
+    exc = loader.failed[(5, 1, 1)]
+    assert isinstance(exc, OSError) and "unreadable tile" in str(exc)
+    assert exc.__traceback__ is None
