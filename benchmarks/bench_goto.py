@@ -45,9 +45,10 @@ def _load() -> str:
 
 
 def _cpu_s() -> float:
-    """CPU seconds (user + system) of this process and its live descendants (the tile
-    builder, a grandchild under forkserver): the work the Go to cost, less sensitive to
-    other load than wall time."""
+    """CPU seconds (user + system) of this process and its live descendants: the work the
+    Go to cost, less sensitive to other load than wall time. The tile builder is a thread of
+    this process, so ``process_time`` already counts it; the walk over live child processes
+    finds none in the current design and is kept so the figure stays whole if one is added."""
     total = time.process_time()
     tick = os.sysconf("SC_CLK_TCK")
     todo, seen = [os.getpid()], set()

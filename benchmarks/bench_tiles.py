@@ -13,7 +13,8 @@ store, and the big-DEM flight's median frame with synchronous loading.
    - skirts:  the per-tile metadata for the skirt depths, one vectorised call per level;
    - mesh:    vertices and skirts (`build_tile_mesh` less its normals);
    - normals: the apron normals;
-   - upload:  the GPU writes of one slot (vertex buffer, height and normal texture layers);
+   - upload:  the GPU writes of one slot (vertex buffer, the albedo texture layer and the
+              RGBA8 normal (+ coast) layer, the albedo baked from the heights there);
    - total:   `GlobeRenderer.build_meshes` + upload over the sample as a frame loads it
               (stack cache empty, stores warm), process CPU time: the figure the target is
               about.

@@ -2,10 +2,12 @@
 
 Building a tile (reading its heights, meshing, averaging normals) takes milliseconds; a fast
 camera move can ask for a hundred new tiles in one frame. In the window the renderer therefore
-builds tiles on worker threads (numpy and GDAL release the GIL), uploads the finished ones at
-the next frame, and until a tile is ready draws its nearest resident ancestor instead — never
-a hole, never an overlap (the ancestor replaces every requested tile below it). Headless
-renders load synchronously so every image is complete.
+builds tiles off the UI thread (one worker thread: the build is mostly GIL-bound numpy on
+small arrays, and a second thread took time from the frames without building faster; the
+loader itself takes any number of workers), uploads the finished ones at the next frame,
+and until a tile is ready draws its nearest resident ancestor instead — never a hole, never
+an overlap (the ancestor replaces every requested tile below it). Headless renders load
+synchronously so every image is complete.
 
 Scheduling (issue #17: "Go to" -> complete view): the queue is a priority list, not a FIFO.
 
@@ -15,9 +17,10 @@ Scheduling (issue #17: "Go to" -> complete view): the queue is a priority list, 
 * A *prefetch* tier (`prefetch`, e.g. the destination of a camera flight) is built before the
   frame tier and survives frame requests until it is built or replaced, so the destination's
   tiles load while the flight is still under way.
-* ``on_ready`` is called (on a worker thread) when a tile finishes, so a window can schedule a
-  frame when there is something new to draw instead of redrawing in a busy loop that takes
-  the CPU from the workers.
+* ``on_ready`` is called (on a worker thread) once per finished batch of tiles (up to
+  ``batch`` tiles, failures included; not for a batch discarded by `TileLoader.cancel_all`),
+  so a window can schedule a frame when there is something new to draw instead of
+  redrawing in a busy loop that takes the CPU from the workers.
 """
 
 from __future__ import annotations

@@ -350,8 +350,15 @@ class GlobeWidget(QOpenGLWidget):
     def prefetch_pose(self, pose: tuple[float, float, float, float, float]) -> int:
         """Start loading the tiles of the view from ``pose`` (lon, lat, height, heading,
         pitch: a flight's destination) ahead of the frames on the way; returns how many
-        tiles were queued (0 before GL is up or when the pose is not a camera). A provider
-        that fails here is left to the next frame (which reports it)."""
+        tiles were queued (0 before GL is up or when the pose is not a camera).
+
+        The selection goes through the frame path (`scene.select` -> `LodHost.select`): a
+        provider that fails here is reported and its plugin failed at once, exactly as in a
+        frame, and the globe falls back to the default provider (the prefetch then uses
+        that one's selection); its time counts against the frame-path budget, so a slow
+        select of a far, cold destination can be reported as an overrun. The ``except``
+        below catches only what is not a provider's: a pose that is not a camera, a
+        renderer error."""
         if self.scene is None:
             return 0
         try:
