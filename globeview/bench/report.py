@@ -1,5 +1,5 @@
 """Generated benchmark blocks in Markdown documents, and the line that names where and when
-a figure was measured.
+a figure was measured (the machine line itself is `globeview.bench.harness.machine`).
 
 `benchmarks/publish.py` runs the benchmark scripts and writes each one's output between a pair
 of markers in docs/benchmarks.md or README.md::
@@ -17,9 +17,7 @@ llvmpipe rewrites the ``@cpu`` blocks and leaves the ``@gpu`` ones (dated) alone
 from __future__ import annotations
 
 import os
-import platform
 import re
-import time
 
 _OPEN = re.compile(r"<!-- bench:([A-Za-z0-9_.@-]+) -->")
 
@@ -35,17 +33,6 @@ def load_average() -> tuple[float, float, float]:
     except OSError:
         nan = float("nan")
         return (nan, nan, nan)
-
-
-def machine_line(gl_renderer: str) -> str:
-    """Where a figure was measured: GL renderer, CPU architecture and usable cores."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return f"{gl_renderer}, {platform.machine()} ({cores} cores)"
-
-
-def utc_stamp() -> str:
-    """Now, to the minute, in UTC (the reference clock of every published figure)."""
-    return time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
 
 
 def machine_tag(gl_renderer: str) -> str:
