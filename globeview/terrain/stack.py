@@ -601,11 +601,16 @@ class TerrainStack:
         then see the neighbours' triangles, exactly as if the tile had no edge).
 
         The interior is `heights` (the same array values); the ring holds the 8 same-level
-        neighbours' nodes next to the edges, composed on the ring alone (`_compose_ring`:
-        equal to the neighbours' own `heights` up to float rounding, without composing
-        them); columns wrap across the antimeridian. Beyond the poles there is no
-        neighbour: the ring row is extrapolated linearly from the two rows inside (its
-        latitude is clamped to the pole by the mesh builder anyway). Outside any data the
+        neighbours' nodes next to the edges, composed on the ring alone (`_compose_ring`)
+        without composing the neighbours: equal to the neighbours' own `heights` there up to
+        float rounding (the neighbours' separable products against a bilinear gather: under
+        1 mm over the embedded layers' extent edges at their finest level - 1 to + 3, with and
+        without blending, and at DEMs ending at +-180; tests/render/test_tile_build.py).
+        Where a layer's data edge lies on this tile's edge finer than the layer's data, the
+        ring nodes on that side are the neighbours' `heights` themselves
+        (`_ring_from_neighbours`). Columns wrap across the antimeridian. Beyond the poles
+        there is no neighbour: the ring row is extrapolated linearly from the two rows inside
+        (its latitude is clamped to the pole by the mesh builder anyway). Outside any data the
         ring is the ellipsoid (height 0), which is what `heights` composes there too.
         """
         level, x, y = (int(key[0]), int(key[1]), int(key[2]))
@@ -644,16 +649,78 @@ class TerrainStack:
     # heights from the store's padded window (`TileStore.heights_padded`: the neighbours'
     # edge-adjacent nodes) or its finest ancestor's, interpolated; blend weights sampled at
     # the ring's points. The same values as the neighbours' up to rounding: a bilinear
-    # gather instead of their separable matrix products (float64, then float32).
+    # gather instead of their separable matrix products (float64, then float32), NaN where
+    # their `bilinear` has NaN. One case cannot be had from this tile's side: finer than a
+    # layer's data, where the layer's data edge lies on this tile's edge, the neighbour
+    # upsamples a different ancestor, and the store serves the shared edge nodes from the
+    # ancestor outside the extent as NaN (N44W072's 45 N edge, a DEM ending at +-180). Those
+    # ring nodes are copied from the neighbour's composition (`_ring_from_neighbours`).
     def _compose_ring(self, key: tuple[int, int, int], upto: int) -> np.ndarray:
         """(4 (size + 1),) float32: the first ``upto`` visible layers composed at the ring
         nodes of a tile (`_ring_index` order; NaN where none has data)."""
-        layers = self.visible_layers[:upto]
+        visible = self.visible_layers
+        layers = visible[:upto]
         first, own = self._opaque_layer(layers, key, self._layer_ring, self._ring_blends)
         out = np.full(4 * (self.tile_size + 1), np.nan, dtype=np.float32)
         for i in range(first, len(layers)):
             self._paste_ring(i, layers[i].store, key, out, own.get(i, _UNREAD))
+        level, x, y = key
+        for dy, dx in self._ring_from_neighbours(key, layers):
+            # Where a layer's data edge lies on this tile's edge, finer than the layer's data,
+            # the two sides upsample different ancestors that disagree on the shared edge
+            # nodes (the one outside the extent serves NaN there, as `heights` always did):
+            # the ring takes the neighbour's own composition (rare tiles: data edges only).
+            nkey = (level, (x + dx) % (2 << level), y + dy)
+            nb = self.heights(nkey) if upto == len(visible) else self._compose(nkey, upto)
+            sel, src_r, src_c = _ring_segment(self.tile_size, dy, dx)
+            out[sel] = nb[src_r, src_c]
         return out
+
+    def _ring_from_neighbours(
+        self, key: tuple[int, int, int], layers: list[TerrainLayer]
+    ) -> list[tuple[int, int]]:
+        """The neighbours (dy, dx) whose ring nodes must be read from their composition: for
+        a layer finer than its data here (level > its max level), a neighbour whose finest
+        ancestor differs from this tile's and has tile data where this one has none or the
+        other way round (`TileStore.has_tile`; the store serves NaN on the shared edge from
+        the ancestor outside the layer's extent). Empty for nearly every tile: a tile
+        strictly inside its ancestor, or with every ancestor around on the same side of the
+        layer's data edge."""
+        level, x, y = key
+        ncols, nrows = 2 << level, 1 << level
+        need: set[tuple[int, int]] = set()
+        for layer in layers:
+            st = layer.store
+            lm = st.max_level
+            f = level - lm
+            if f <= 0:
+                continue
+            # The side (-1, +1, or 0: none) on which the tile touches its ancestor's edge,
+            # per axis (f >= 1: at most one side each); beyond a pole there is no neighbour
+            # (`heights_apron` extrapolates that row).
+            m = (1 << f) - 1
+            sx = -1 if x & m == 0 else (1 if x & m == m else 0)
+            sy = -1 if y & m == 0 else (1 if y & m == m else 0)
+            if not 0 <= y + sy < nrows:
+                sy = 0
+            if not (sx or sy):
+                continue  # every neighbour shares this tile's ancestor
+            ax, ay = x >> f, y >> f
+            mine = st.has_tile(lm, ax, ay)
+            nax = ((x + sx) % ncols) >> f
+            # Whether the ancestor across the column edge, the row edge, the corner differs.
+            across_x = bool(sx) and st.has_tile(lm, nax, ay) != mine
+            across_y = bool(sy) and st.has_tile(lm, ax, ay + sy) != mine
+            corner = bool(sx and sy) and st.has_tile(lm, nax, ay + sy) != mine
+            if across_x:  # the neighbours on that column side, but the corner's
+                need.update(
+                    (dy, sx) for dy in (-1, 0, 1) if (dy != sy or not sy) and 0 <= y + dy < nrows
+                )
+            if across_y:  # the neighbours on that row side, but the corner's
+                need.update((sy, dx) for dx in (-1, 0, 1) if dx != sx or not sx)
+            if corner:
+                need.add((sy, sx))
+        return sorted(need)
 
     def _ring_blends(self, st: TileStore, key: tuple[int, int, int]) -> bool:
         """Whether `_paste_ring` blends the layer at a tile's ring (`_blend_ring` not None)."""
@@ -789,6 +856,24 @@ def _ring_index(size: int) -> tuple[np.ndarray, np.ndarray]:
 _RING: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
 
+@functools.lru_cache(maxsize=64)
+def _ring_segment(size: int, dy: int, dx: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(ring positions, rows, cols): the ring nodes (`_ring_index` order) that lie in the
+    same-level neighbour (dy, dx) of a tile, and their (row, col) in that neighbour's
+    (size, size) heights (neighbouring tiles share their edge nodes: the node beyond an
+    edge is the neighbour's second row or column). Read-only (shared by the cache)."""
+    rows, cols = _ring_index(size)
+    ry = np.where(rows == 0, -1, np.where(rows == size + 1, 1, 0))
+    cx = np.where(cols == 0, -1, np.where(cols == size + 1, 1, 0))
+    sel = np.nonzero((ry == dy) & (cx == dx))[0]
+    src = {-1: size - 2, 1: 1}
+    src_r = np.full(sel.shape, src[dy]) if dy else rows[sel] - 1
+    src_c = np.full(sel.shape, src[dx]) if dx else cols[sel] - 1
+    for a in (sel, src_r, src_c):
+        a.flags.writeable = False
+    return sel, src_r, src_c
+
+
 def _upsample_ring(anc: np.ndarray, f: int, dx: int, dy: int) -> np.ndarray:
     """(ring,) float32: the ring nodes of a descendant tile ``f`` levels below the padded
     ancestor ``anc`` ((size + 2)^2, `TileStore.heights_padded`), offset (dx, dy) tiles inside
@@ -797,9 +882,11 @@ def _upsample_ring(anc: np.ndarray, f: int, dx: int, dy: int) -> np.ndarray:
 
     Separable, as the tile's own upsampling: the two ring rows are interpolated down the
     ancestor's columns then along the row, the two ring columns the other way round (float64
-    sums of the same two terms per axis; a corner with weight 0 is left out, not multiplied by
-    0: a node on a grid line keeps that line's value even where the next one is NaN, as the
-    neighbour has it)."""
+    sums of the same two terms per axis). NaN as `bilinear` has it, which the neighbour's
+    `upsample_subtile` uses when its ancestor has NaN: the result is NaN where any corner of
+    the node's cell is NaN, a corner of weight 0 included (NaN * 0), the cell chosen as
+    `bilinear` chooses it in the neighbour's ancestor (`_ring_axis`). Where that ancestor has
+    no NaN the two agree up to float rounding (the neighbour's separable products)."""
     size = anc.shape[0] - 2
     r0, rf = _ring_axis(size, f, dy)
     c0, cf = _ring_axis(size, f, dx)
@@ -821,11 +908,18 @@ def _upsample_ring(anc: np.ndarray, f: int, dx: int, dy: int) -> np.ndarray:
 def _ring_axis(size: int, f: int, d: int) -> tuple[np.ndarray, np.ndarray]:
     """(first node, fraction), each (size + 2,), of the padded nodes -1..size of a descendant
     ``f`` levels below, at tile offset ``d``, along one axis of its padded ancestor (grid
-    positions exact: integers over a power of two). Read-only (shared by the cache)."""
+    positions exact: integers over a power of two). Read-only (shared by the cache).
+
+    The cell is the one `bilinear` takes in the ancestor that holds the node (this tile's,
+    or for a node beyond its edge, in (size, size + 1) or (0, 1), the neighbouring one's
+    first cell): the floor, except on the ancestor's last node (padded ``size``), which
+    belongs to its last cell with fraction 1, as `bilinear` clamps it. That choice decides
+    which weight-0 corner makes a node NaN (`_upsample_ring`)."""
     cells = size - 1
     scale = 2**f
     pos = (d * cells + np.arange(-1, size + 1, dtype=np.float64) + scale) / scale
-    i0 = np.minimum(np.floor(pos).astype(np.int64), size)  # at most the last cell's start
+    i0 = np.floor(pos).astype(np.int64)
+    i0[pos == size] = size - 1  # the ancestor's last node: its last cell, fraction 1
     frac = pos - i0
     i0.flags.writeable = False
     frac.flags.writeable = False
@@ -833,10 +927,9 @@ def _ring_axis(size: int, f: int, d: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _lerp(a: np.ndarray, b: np.ndarray, t: np.ndarray | float) -> np.ndarray:
-    """a (1 - t) + b t, exactly a where t = 0 and b where t = 1 (NaN in the other unused)."""
-    if np.ndim(t) == 0:
-        return a if t == 0.0 else (b if t == 1.0 else a * (1.0 - t) + b * t)
-    return np.where(t == 0.0, a, np.where(t == 1.0, b, a * (1.0 - t) + b * t))
+    """a (1 - t) + b t: exactly a where t = 0 and b where t = 1 when both are finite, NaN
+    where either is NaN, its weight 0 included (`bilinear`'s rule)."""
+    return a * (1.0 - t) + b * t
 
 
 def _stride_interpolation_errors(h: np.ndarray) -> np.ndarray:

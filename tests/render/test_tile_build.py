@@ -236,3 +236,83 @@ def test_apron_ring_matches_the_neighbours_heights(stack, lon, lat, levels):
             key = (lv, (x + dx) % (2 << lv), y)
             worst = _ring_vs_neighbours(stack.heights_apron, stack.heights, key, 1 << lv)
             assert worst <= 1e-3, (key, worst)
+
+
+def _apron_matches_around(stack, keys):
+    """Every key and its 8 neighbours: ring vs the neighbours' heights, <= 1 mm."""
+    for lv, x, y in keys:
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                if not 0 <= y + dy < 1 << lv:
+                    continue
+                key = (lv, (x + dx) % (2 << lv), y + dy)
+                worst = _ring_vs_neighbours(stack.heights_apron, stack.heights, key, 1 << lv)
+                assert worst <= 1e-3, (key, worst)
+
+
+@pytest.fixture(scope="module")
+def unblended_stack():
+    from globeview.terrain.embedded import embedded_stores
+    from globeview.terrain.stack import TerrainStack
+
+    st = TerrainStack.from_stores(embedded_stores())
+    st.blend = False
+    return st
+
+
+@pytest.mark.parametrize("blend", [True, False])
+@pytest.mark.parametrize(
+    "keys",
+    [
+        # N44W072's north edge (45 N) on a tile edge, finer than its data (max level 12): the
+        # tile north of it upsamples an ancestor outside the layer's extent (the store serves
+        # NaN on the shared edge there), its neighbour one inside (review of #17: 0.17 m).
+        [(13, 4947, 2047), _key(14, -71.3, 44.999)],
+        [_key(13, -71.7, 44.001), _key(14, -72.0, 44.5)],  # its south and west edges
+        # Vancouver's ragged nodata edge finer than its data (max level 7): NaN corners of
+        # weight 0 count as the neighbour's bilinear upsampling counts them.
+        [(8, 80, 59), _key(9, -123.1, 49.3)],
+    ],
+)
+def test_apron_ring_at_layer_edges_finer_than_the_data(stack, unblended_stack, blend, keys):
+    _apron_matches_around(stack if blend else unblended_stack, keys)
+
+
+@pytest.fixture(scope="module")
+def antimeridian_stack(tmp_path_factory):
+    """The embedded terrain under two small DEMs ending at the antimeridian: 179..180 E at
+    10..11 N and -180..-179 E at 20..21 N (1/240 degree: finest level 9)."""
+    import rasterio
+    from rasterio.transform import Affine
+
+    from globeview.terrain.embedded import embedded_stores
+    from globeview.terrain.ingest import ingest
+    from globeview.terrain.stack import TerrainStack
+    from globeview.terrain.store import TileStore
+
+    tmp = tmp_path_factory.mktemp("am")
+    stores = list(embedded_stores())
+    for name, west, north in (("east", 179.0, 11.0), ("west", -180.0, 21.0)):
+        yy, xx = np.mgrid[0:240, 0:240]
+        data = (500 + 300 * np.sin(xx / 17.0) * np.cos(yy / 23.0) + 2 * xx).astype(np.float32)
+        tif = tmp / f"{name}.tif"
+        prof = dict(driver="GTiff", width=240, height=240, count=1, dtype="float32")
+        prof.update(crs="EPSG:4326", transform=Affine(1 / 240, 0, west, 0, -1 / 240, north))
+        with rasterio.open(tif, "w", **prof) as ds:
+            ds.write(data, 1)
+        ingest([tif], tmp / name, tile_n=6, vdatum="ellipsoid")
+        stores.append(TileStore.open(tmp / name))
+    return TerrainStack.from_stores(stores)
+
+
+@pytest.mark.parametrize("level", [10, 11])
+@pytest.mark.parametrize("lat", [10.5, 20.5])
+def test_apron_ring_at_a_layer_edge_on_the_antimeridian(antimeridian_stack, level, lat):
+    """Tiles on both sides of +-180, finer than the layers' data (max level 9): on each
+    side one tile's ancestor lies inside a DEM and its neighbour's across the antimeridian
+    outside it (column 0 wraps to the last column)."""
+    assert antimeridian_stack.layers[-1].store.max_level == 9
+    last = (2 << level) - 1
+    keys = [_key(level, 179.999, lat), _key(level, -179.999, lat)]
+    assert {k[1] for k in keys} == {0, last}
+    _apron_matches_around(antimeridian_stack, keys)
