@@ -29,6 +29,7 @@ from psygnal import Signal
 
 from globeview.errors import StoreError
 from globeview.terrain.blend import BlendMask, interpolation_error, weight_change_bound
+from globeview.terrain.drawn_error import AncestorErrors
 from globeview.terrain.quadtree import node_spacing, tile_bounds_arrays
 from globeview.terrain.store import TileStore
 
@@ -38,6 +39,10 @@ N_STRIDES = 7
 #: Most tiles of a layer's border band whose |upper - lower| is measured exactly at one level
 #: (one-time work, ~1 ms a tile); finer levels bound it from the finest level within this.
 DIFF_TABLE_TILES = 1024
+
+#: Most ancestors' `AncestorErrors` tables kept (`TerrainStack._measured_virtual`; up to
+#: ~140 kB each); past it the cache starts again.
+VIRTUAL_CACHE_TILES = 256
 
 
 #: "Not read yet" for `TerrainStack._paste`'s ``own`` (None means "read: no data").
@@ -94,6 +99,9 @@ class TerrainStack:
         self._masks: dict[TileStore, BlendMask] = {}
         self._diffs: dict[tuple, tuple] = {}
         self._band_counts: dict[tuple[TileStore, int], int] = {}  # band tiles per level
+        # Error tables of the ancestors of tiles finer than a layer's data (what they hold,
+        # level, x, y), built on first request (`_measured_virtual`).
+        self._virtual: dict[tuple, AncestorErrors | None] = {}
         self._check_sizes()
 
     # -- layer management --------------------------------------------------------------------
@@ -145,6 +153,7 @@ class TerrainStack:
             self._order.clear()
             self._diffs.clear()  # |upper - lower| bounds depend on which layers lie below
             self._band_counts.clear()
+            self._virtual.clear()
             # Keyed by the store objects (not id(): a removed store's id may be reused by the
             # next one opened); forget removed stores.
             kept = {ly.store for ly in self.layers}
@@ -203,12 +212,11 @@ class TerrainStack:
                 if level < lm:
                     has_finer |= ok
             else:
-                # Finer than the layer's data: its finest ancestor, upsampled. The height
-                # error of stride s here is that of stride s / 2^f on the ancestor, and zero
-                # below one ancestor cell.
-                e = np.zeros((n, N_STRIDES))
-                if f < N_STRIDES:
-                    e[:, f:] = rows[:, 3 : 3 + N_STRIDES - f]
+                # Finer than the layer's data: its finest ancestor, upsampled. Each such tile's
+                # errors are measured on its own nodes (`drawn_error`): the ancestor's
+                # whole-tile errors (stride s here is stride s / 2^f there) bound them too,
+                # but loosely, so refining below the data never lowered an error.
+                e = self._virtual_errors(st, level, x, y, ok, rows)
             blended = ok & covered  # this layer over data of layers below: its border band
             if i > 0 and self.blend and blended.any():
                 e = e + self._blend_error(i, st, level, x, y, blended, e, err)
@@ -220,6 +228,83 @@ class TerrainStack:
         hmin = np.where(covered, np.minimum(hmin, 0.0), 0.0)
         hmax = np.where(covered, np.maximum(hmax, 0.0), 0.0)
         return TileMetadata(err, hmin, hmax, has_finer, covered)
+
+    def _virtual_errors(
+        self, st: TileStore, level: int, x: np.ndarray, y: np.ndarray, ok: np.ndarray, rows
+    ) -> np.ndarray:
+        """(N, N_STRIDES) metres: stride errors of tiles (level, x, y) finer than layer
+        ``st``'s data, where ``ok``; ``rows`` their ancestors' `_layer_table` rows.
+
+        The `drawn_error` bound on each tile's part of its ancestor (plus the ancestor's
+        stride-1 error) where measured (`_measured_virtual`), else the ancestor's whole-tile
+        errors (stride s here is stride s / 2^f there, 0 below one ancestor cell)."""
+        f = level - st.max_level
+        old = np.zeros((len(x), N_STRIDES))
+        if f < N_STRIDES:
+            old[:, f:] = rows[:, 3 : 3 + N_STRIDES - f]
+        new = self._measured_virtual(
+            (st, -1),
+            level,
+            st.max_level,
+            x,
+            y,
+            ok,
+            rows[:, 3],
+            functools.partial(self._layer_heights, st),
+        )
+        return np.where(np.isfinite(new), new, old)
+
+    def _measured_virtual(
+        self,
+        tag: tuple,
+        level: int,
+        lm: int,
+        x: np.ndarray,
+        y: np.ndarray,
+        ok: np.ndarray,
+        base: np.ndarray,
+        ancestor: Callable[[tuple[int, int, int]], np.ndarray | None],
+    ) -> np.ndarray:
+        """(N, N_STRIDES) metres: the `drawn_error` bound on the tiles (level, x, y) where
+        ``ok``, whose nodes are their ancestor's bilinear surface at level ``lm`` <
+        ``level``, ``ancestor(key)`` that ancestor's nodes and ``base`` (N,) its stride-1
+        error; inf where not measured (not ``ok``, a pole row (drawn as a fan), no data).
+        The ancestors' tables are built once per ancestor and ``tag`` (what the nodes are),
+        kept until the layers change."""
+        n = len(x)
+        out = np.full((n, N_STRIDES), np.inf)
+        idx = np.flatnonzero(ok & (y > 0) & (y < (1 << level) - 1))
+        if not len(idx):
+            return out
+        f = level - lm
+        xs, ys = x[idx], y[idx]
+        codes = (xs >> f) << 32 | (ys >> f)
+        uniq, inv = np.unique(codes, return_inverse=True)
+        term = np.full((len(idx), N_STRIDES), np.inf)
+        # One pass per ancestor (a few per level: descendants share them), vectorised over
+        # its descendants.
+        for u, code in enumerate(uniq):
+            ax, ay = int(code >> 32), int(code & 0xFFFFFFFF)
+            key = (*tag, lm, ax, ay)
+            with self._lock:
+                hit = self._virtual.get(key, _UNREAD)
+            if isinstance(hit, AncestorErrors) or hit is None:
+                tables = hit
+            else:
+                anc = ancestor((lm, ax, ay))
+                tables = AncestorErrors(anc) if anc is not None else None
+                with self._lock:
+                    if len(self._virtual) >= VIRTUAL_CACHE_TILES:
+                        self._virtual.clear()
+                    self._virtual[key] = tables
+            if tables is None:
+                continue
+            sel = inv == u
+            term[sel] = tables.bounds(f, xs[sel] - (ax << f), ys[sel] - (ay << f))
+        # NaN (nodes without data): nothing measured, the caller's bound stands.
+        term[np.isnan(term).any(axis=1)] = np.inf
+        out[idx] = base[idx, None] + term
+        return out
 
     # -- the border blend ----------------------------------------------------------------------
     def _blend_error(
@@ -267,8 +352,31 @@ class TerrainStack:
             total = np.repeat(at_lm[:, :1], N_STRIDES, axis=1)
             if f < N_STRIDES:
                 total[:, f:] = at_lm[:, : N_STRIDES - f]
+            # Measured on the tile where it can be: the composed surface here is the
+            # composed ancestor's bilinear surface sampled (`_paste`), whose error is at most
+            # at_lm's stride 1, so `drawn_error`'s bound holds with that as the base.
+            measured = self._measured_virtual(
+                (st, i),
+                level,
+                lm,
+                x,
+                y,
+                inband,
+                at_lm[:, 0],
+                functools.partial(self._band_ancestor, i),
+            )
+            # There the composed surface is those nodes alone (the layer's own heights are
+            # not drawn), so the measured bound replaces the layer's: the "extra" may be < 0.
+            exact = np.isfinite(measured)
+            extra = np.where(exact, measured - e_upper, np.maximum(total - e_upper, 0.0))
+            return np.where(inband[:, None], extra, 0.0)
         extra = np.maximum(total - e_upper, 0.0)
         return np.where(inband[:, None], extra, 0.0)
+
+    def _band_ancestor(self, i: int, key: tuple[int, int, int]) -> np.ndarray:
+        """The first ``i + 1`` visible layers composed at a tile at layer ``i``'s finest
+        level, as `_paste` upsamples it inside the layer's border band below that level."""
+        return self._composed_padded(key, i + 1)[1:-1, 1:-1]
 
     def _blend_total(
         self,
