@@ -110,12 +110,13 @@ def command_of(job: Job) -> list[str]:
     return cmd
 
 
-def run_job(job: Job, where: str) -> str:
+def run_job(job: Job, renderer: str) -> str:
     """Run ``job`` and return its block body (header line + output).
 
     Raises:
         RuntimeError: the script failed (one line: its last line of stderr).
     """
+    where = machine(renderer)  # with the time the job starts
     load0 = load_average()[0]
     t0 = time.perf_counter()
     proc = subprocess.run(command_of(job), cwd=ROOT, capture_output=True, text=True)
@@ -163,7 +164,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"publish: unknown job {unknown[0]!r} (see --list)", file=sys.stderr)
         return 2
     renderer = gl_renderer()
-    tag, where = machine_tag(renderer), machine(renderer)
+    tag = machine_tag(renderer)
     texts = {doc: doc.read_text() for job in JOBS.values() for doc in job.documents}
     chosen = args.jobs or list(JOBS)
     for name in chosen:  # every block in place before minutes of benchmarks
@@ -176,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
         job = JOBS[name]
         print(f"publish: {name} ...", file=sys.stderr, flush=True)
         try:
-            body = run_job(job, where)
+            body = run_job(job, renderer)
             for doc in job.documents:
                 texts[doc] = replace_block(texts[doc], f"{name}@{tag}", body)
         except (RuntimeError, BlockError) as exc:
