@@ -81,7 +81,8 @@ def bilinear_node_error(h: np.ndarray, s: int) -> np.ndarray:
 
 class AncestorErrors:
     """Per-ancestor tables for `bounds`: built once from the ancestor's (size, size) node
-    heights (metres, row 0 north; NaN where no data); up to ~170 kB."""
+    heights (metres, row 0 north; NaN where no data). They grow as levels below are asked
+    for, to about 0.16 MB for a 65-node tile (size^2 x ~37 bytes); `nbytes` says how much."""
 
     def __init__(self, anc: np.ndarray) -> None:
         self._h = np.asarray(anc, dtype=np.float64)
@@ -92,6 +93,12 @@ class AncestorErrors:
         #: cells' max is then the max over its nodes.
         self._cells: dict[int, np.ndarray] = {}
         self._tables: dict[int, np.ndarray] = {}
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held now: the heights and every table built so far."""
+        held = [self._h, *self._cells.values(), *self._tables.values()]
+        return sum(a.nbytes for a in held)
 
     def _block_max(self, k: int, f: int) -> np.ndarray:
         """(2^f, 2^f): max of |S_{2^k} - node| over the nodes of each descendant ``f``
@@ -119,7 +126,8 @@ class AncestorErrors:
 
     def _table(self, f: int) -> np.ndarray:
         """(2^f, 2^f, N_STRIDES) `bounds` of every descendant ``f`` < log2(cells) levels below,
-        by (dy, dx); built once per f (float32: at most ~40 kB for all f together)."""
+        by (dy, dx); built once per f (float32; all f together about 4 x cells^2 x N_STRIDES
+        bytes)."""
         hit = self._tables.get(f)
         if hit is not None:
             return hit

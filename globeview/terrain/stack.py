@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import functools
 import threading
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -40,9 +41,9 @@ N_STRIDES = 7
 #: (one-time work, ~1 ms a tile); finer levels bound it from the finest level within this.
 DIFF_TABLE_TILES = 1024
 
-#: Most ancestors' `AncestorErrors` tables kept (`TerrainStack._measured_virtual`; up to
-#: ~140 kB each); past it the cache starts again.
-VIRTUAL_CACHE_TILES = 256
+#: Bytes of ancestors' `AncestorErrors` tables kept (`TerrainStack._measured_virtual`;
+#: ~0.16 MB each for 65-node tiles); past it the least recently used go.
+VIRTUAL_CACHE_BYTES = 64 << 20
 
 
 #: "Not read yet" for `TerrainStack._paste`'s ``own`` (None means "read: no data").
@@ -101,7 +102,7 @@ class TerrainStack:
         self._band_counts: dict[tuple[TileStore, int], int] = {}  # band tiles per level
         # Error tables of the ancestors of tiles finer than a layer's data (what they hold,
         # level, x, y), built on first request (`_measured_virtual`).
-        self._virtual: dict[tuple, AncestorErrors | None] = {}
+        self._virtual: OrderedDict[tuple, AncestorErrors | None] = OrderedDict()
         self._check_sizes()
 
     # -- layer management --------------------------------------------------------------------
@@ -276,35 +277,49 @@ class TerrainStack:
         idx = np.flatnonzero(ok & (y > 0) & (y < (1 << level) - 1))
         if not len(idx):
             return out
+        version = self.version  # a table built while the layers change is not kept
         f = level - lm
+        codes = (x[idx] >> f) << 32 | (y[idx] >> f)
+        # Descendants grouped by ancestor: sorted once, each group a slice.
+        order = np.argsort(codes, kind="stable")
+        idx, codes = idx[order], codes[order]
         xs, ys = x[idx], y[idx]
-        codes = (xs >> f) << 32 | (ys >> f)
-        uniq, inv = np.unique(codes, return_inverse=True)
+        uniq, starts = np.unique(codes, return_index=True)
+        ends = np.append(starts[1:], len(codes))
         term = np.full((len(idx), N_STRIDES), np.inf)
         # One pass per ancestor (a few per level: descendants share them), vectorised over
         # its descendants.
-        for u, code in enumerate(uniq):
-            ax, ay = int(code >> 32), int(code & 0xFFFFFFFF)
+        for code, a, b in zip(uniq.tolist(), starts.tolist(), ends.tolist(), strict=True):
+            ax, ay = code >> 32, code & 0xFFFFFFFF
             key = (*tag, lm, ax, ay)
             with self._lock:
                 hit = self._virtual.get(key, _UNREAD)
+                if hit is not _UNREAD:
+                    self._virtual.move_to_end(key)
             if isinstance(hit, AncestorErrors) or hit is None:
                 tables = hit
             else:
                 anc = ancestor((lm, ax, ay))
                 tables = AncestorErrors(anc) if anc is not None else None
                 with self._lock:
-                    if len(self._virtual) >= VIRTUAL_CACHE_TILES:
-                        self._virtual.clear()
-                    self._virtual[key] = tables
+                    if self.version == version:
+                        self._virtual[key] = tables
+                        self._trim_virtual()
             if tables is None:
                 continue
-            sel = inv == u
-            term[sel] = tables.bounds(f, xs[sel] - (ax << f), ys[sel] - (ay << f))
+            term[a:b] = tables.bounds(f, xs[a:b] - (ax << f), ys[a:b] - (ay << f))
         # NaN (nodes without data): nothing measured, the caller's bound stands.
         term[np.isnan(term).any(axis=1)] = np.inf
         out[idx] = base[idx, None] + term
         return out
+
+    def _trim_virtual(self) -> None:
+        """Drop the least recently used ancestor tables past `VIRTUAL_CACHE_BYTES` (the
+        newest always stays). Holds _lock."""
+        held = sum(t.nbytes for t in self._virtual.values() if t is not None)
+        while held > VIRTUAL_CACHE_BYTES and len(self._virtual) > 1:
+            _, old = self._virtual.popitem(last=False)
+            held -= old.nbytes if old is not None else 0
 
     # -- the border blend ----------------------------------------------------------------------
     def _blend_error(
