@@ -103,6 +103,8 @@ class TerrainStack:
         # Error tables of the ancestors of tiles finer than a layer's data (what they hold,
         # level, x, y), built on first request (`_measured_virtual`).
         self._virtual: OrderedDict[tuple, AncestorErrors | None] = OrderedDict()
+        self._virtual_sizes: dict[tuple, int] = {}  # bytes held by each entry of _virtual
+        self._virtual_bytes = 0  # their sum
         self._check_sizes()
 
     # -- layer management --------------------------------------------------------------------
@@ -155,6 +157,8 @@ class TerrainStack:
             self._diffs.clear()  # |upper - lower| bounds depend on which layers lie below
             self._band_counts.clear()
             self._virtual.clear()
+            self._virtual_sizes.clear()
+            self._virtual_bytes = 0
             # Keyed by the store objects (not id(): a removed store's id may be reused by the
             # next one opened); forget removed stores.
             kept = {ly.store for ly in self.layers}
@@ -294,32 +298,34 @@ class TerrainStack:
             key = (*tag, lm, ax, ay)
             with self._lock:
                 hit = self._virtual.get(key, _UNREAD)
-                if hit is not _UNREAD:
-                    self._virtual.move_to_end(key)
             if isinstance(hit, AncestorErrors) or hit is None:
                 tables = hit
             else:
                 anc = ancestor((lm, ax, ay))
                 tables = AncestorErrors(anc) if anc is not None else None
-                with self._lock:
-                    if self.version == version:
-                        self._virtual[key] = tables
-                        self._trim_virtual()
-            if tables is None:
-                continue
-            term[a:b] = tables.bounds(f, xs[a:b] - (ax << f), ys[a:b] - (ay << f))
+            if tables is not None:
+                term[a:b] = tables.bounds(f, xs[a:b] - (ax << f), ys[a:b] - (ay << f))
+            with self._lock:  # (re)counted after bounds: its tables grow on first use
+                if self.version == version:
+                    self._account_virtual(key, tables)
         # NaN (nodes without data): nothing measured, the caller's bound stands.
         term[np.isnan(term).any(axis=1)] = np.inf
         out[idx] = base[idx, None] + term
         return out
 
-    def _trim_virtual(self) -> None:
-        """Drop the least recently used ancestor tables past `VIRTUAL_CACHE_BYTES` (the
-        newest always stays). Holds _lock."""
-        held = sum(t.nbytes for t in self._virtual.values() if t is not None)
-        while held > VIRTUAL_CACHE_BYTES and len(self._virtual) > 1:
-            _, old = self._virtual.popitem(last=False)
-            held -= old.nbytes if old is not None else 0
+    def _account_virtual(self, key: tuple, tables: AncestorErrors | None) -> None:
+        """Keep (or re-measure, after its tables grew) ``tables`` under ``key`` as the most
+        recently used, and drop the least recently used past `VIRTUAL_CACHE_BYTES` (the
+        newest always stays). Sizes are kept per entry so this is O(1) a call, not a sum
+        over the cache. Holds _lock."""
+        size = tables.nbytes if tables is not None else 0
+        self._virtual_bytes += size - self._virtual_sizes.get(key, 0)
+        self._virtual_sizes[key] = size
+        self._virtual[key] = tables
+        self._virtual.move_to_end(key)
+        while self._virtual_bytes > VIRTUAL_CACHE_BYTES and len(self._virtual) > 1:
+            gone, _ = self._virtual.popitem(last=False)
+            self._virtual_bytes -= self._virtual_sizes.pop(gone)
 
     # -- the border blend ----------------------------------------------------------------------
     def _blend_error(
