@@ -9,6 +9,7 @@ from globeview.geodesy.enu import ecef_to_enu, enu_basis, enu_to_ecef, surface_n
 from globeview.geodesy.geodesic import geodesic_direct, geodesic_inverse, geodesic_points
 from globeview.geodesy.rays import ray_ellipsoid_intersection, ray_ellipsoid_t
 from globeview.geodesy.transforms import (
+    ecef_foot_points,
     ecef_to_geodetic,
     ecef_to_lonlat,
     geodetic_to_ecef,
@@ -20,6 +21,7 @@ __all__ = [
     "SPHERE",
     "WGS84",
     "Ellipsoid",
+    "ecef_foot_points",
     "ecef_to_enu",
     "ecef_to_geodetic",
     "ecef_to_lonlat",

@@ -33,7 +33,8 @@ defined here it re-exports, under the same names, what a provider, tool or layer
   `frustum_visible`, `horizon_visible`, `bounding_distance`, `cull_level`, `chord_sag`, ...);
 - the shared quadtree traversal an LOD provider steers with a policy (`traverse`,
   `LodPolicy`, `ScreenSpaceErrorPolicy`, `TileCandidates`, `render_set_from_tiles`, ...);
-- geodesy on WGS84 (`WGS84`, `lonlat_to_ecef`, `ecef_to_lonlat`, `enu_basis`, geodesics);
+- geodesy on WGS84 (`WGS84`, `lonlat_to_ecef`, `ecef_to_lonlat`, `ecef_foot_points`,
+  `enu_basis`, geodesics);
 - errors: `GlobeviewError`, the base of every one-line user error.
 
 The renderer and terrain re-exports are imported on first use (PEP 562 ``__getattr__``), so
@@ -76,7 +77,7 @@ from globeview.plugins.geo import (
 from globeview.plugins.tool_output import Plot, read_csv_columns
 
 if TYPE_CHECKING:  # the lazy re-exports (`_REEXPORTS`), spelled out for type checkers
-    from globeview.geodesy import WGS84, enu_basis
+    from globeview.geodesy import WGS84, ecef_foot_points, enu_basis
     from globeview.lod.culling import (
         LATTICE,
         bounding_distance,
@@ -156,6 +157,7 @@ __all__ = [
     "displacement_bend_m",
     "displacement_chord_error_m",
     "displacement_key",
+    "ecef_foot_points",
     "ecef_to_lonlat",
     "enu_basis",
     "frustum_visible",
@@ -183,6 +185,7 @@ __all__ = [
 #: built-ins and the example). Imported on first access, see the module docstring.
 _REEXPORTS: dict[str, str] = {
     "WGS84": "globeview.geodesy",
+    "ecef_foot_points": "globeview.geodesy",
     "enu_basis": "globeview.geodesy",
     "LATTICE": "globeview.lod.culling",
     "bounding_distance": "globeview.lod.culling",

@@ -7,8 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from globeview.geodesy import ecef_foot_points as foot_points
 from globeview.geodesy import ecef_to_lonlat, lonlat_to_ecef
-from globeview.plugins.builtin.collapse.geometry import CollapseFrame, FootMemo, foot_points
+from globeview.plugins.builtin.collapse.geometry import CollapseFrame, FootMemo
 
 
 def test_foot_points_match_the_geodesy_round_trip() -> None:

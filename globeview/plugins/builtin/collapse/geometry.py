@@ -41,7 +41,7 @@ import numpy as np
 from globeview.plugins.api import (
     WGS84,
     displacement_chord_error_m,
-    ecef_to_lonlat,
+    ecef_foot_points,
     lonlat_to_ecef,
 )
 
@@ -88,48 +88,6 @@ def rotate_about(v: np.ndarray, axis: np.ndarray, angle: np.ndarray) -> np.ndarr
     return v * cos + (v @ skew.T) * np.sin(angle) + (v @ ax)[..., None] * ax * (1.0 - cos)
 
 
-def foot_points(points_ecef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Ellipsoid foot points (N, 3) ECEF m along the geodetic normal, and heights (N,) m, of
-    ECEF points (N, 3) m.
-
-    Vermeille's closed form (the one `ecef_to_geodetic` uses, outside-the-evolute branch),
-    trimmed to what the collapse needs: with k, d and dz as there, the geodetic latitude is
-    atan2(z, d), so the unit normal is (d/dz x/rho, d/dz y/rho, z/dz) and the foot point is
-    P - h n, with no angle, degree or `lonlat_to_ecef` round trip (a third of the numpy
-    calls: per-call overhead, not points, is what costs on the LOD's small batches). Points
-    within ~43 km of the Earth's centre (inside the evolute) go the general way."""
-    p = np.asarray(points_ecef, dtype=np.float64).reshape(-1, 3)
-    x, y, z = p[:, 0], p[:, 1], p[:, 2]
-    a, e2 = WGS84.a, WGS84.e2
-    e4 = e2 * e2
-    rho = np.hypot(x, y)
-    pp = (rho / a) ** 2
-    q = (1.0 - e2) * (z / a) ** 2
-    r = (pp + q - e4) / 6.0
-    border = 8.0 * r**3 + e4 * pp * q
-    if not (border > 0.0).all():
-        lon, lat, h = ecef_to_lonlat(p)
-        return np.asarray(lonlat_to_ecef(lon, lat, 0.0)).reshape(-1, 3), np.asarray(h)
-    rad1 = np.sqrt(border)
-    rad2 = np.sqrt(e4 * pp * q)
-    cb = np.cbrt((rad1 + rad2) ** 2)
-    # The two forms of Vermeille's root, chosen as `ecef_to_geodetic` chooses them.
-    with np.errstate(divide="ignore", invalid="ignore"):
-        tail = np.where(border > 10.0 * e2, 2.0 * r * r / cb, 0.5 * np.cbrt((rad1 - rad2) ** 2))
-    u = r + 0.5 * cb + tail
-    v = np.sqrt(u * u + e4 * q)
-    w = e2 * (u + v - q) / (2.0 * v)
-    k = (u + v) / (np.sqrt(w * w + u + v) + w)
-    d = k * rho / (k + e2)
-    dz = np.hypot(d, z)
-    h = (k + e2 - 1.0) * dz / k
-    # On the polar axis (rho = 0) the normal is (0, 0, sign z): any horizontal unit will do.
-    safe = np.where(rho > 0.0, rho, 1.0)
-    c = d / (dz * safe)
-    n = np.stack([c * x, c * y, z / dz], axis=1)
-    return p - h[:, None] * n, h
-
-
 class FootMemo:
     """Foot points, heights and along-axis angles of recently moved point sets, for one A-B
     pair (any ratio): while the collapse animates only the ratio changes, and the LOD moves
@@ -151,7 +109,7 @@ class FootMemo:
             with contextlib.suppress(KeyError):
                 self._sets.move_to_end(key)
             return hit
-        foot, h = foot_points(p)
+        foot, h = ecef_foot_points(p)
         xyz = foot @ mtn.T
         psi = np.arctan2(xyz[:, 1], xyz[:, 0])
         self._sets[key] = (xyz, h, psi)
@@ -295,7 +253,7 @@ class CollapseFrame:
     # -- the mapping ------------------------------------------------------------------------
     def _foot(self, points_ecef: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         p = np.asarray(points_ecef, dtype=np.float64).reshape(-1, 3)
-        foot, h = foot_points(p)
+        foot, h = ecef_foot_points(p)
         return foot, h, p
 
     def _move(self, points_ecef: np.ndarray, inverse: bool) -> np.ndarray:
