@@ -21,12 +21,18 @@ Scheduling (issue #17: "Go to" -> complete view): the queue is a priority list, 
   ``batch`` tiles, failures included; not for a batch discarded by `TileLoader.cancel_all`),
   so a window can schedule a frame when there is something new to draw instead of
   redrawing in a busy loop that takes the CPU from the workers.
+
+A failed tile is not asked for again at once (its nearest ancestor stands in, see
+`substitute_missing`), but only for `retry_failed_s` seconds: a store read over HTTP fails
+while its server is down or overloaded and serves the tile again later (issue #18), and a
+local file that was unreadable stays just as cheap to try again a few times a minute.
 """
 
 from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Callable
 
 import numpy as np
@@ -73,6 +79,8 @@ def _ordered(keys: np.ndarray, priority: np.ndarray | None) -> list[Key]:
 
 #: How long `TileLoader.shutdown` waits for each worker's build under way (seconds).
 JOIN_TIMEOUT_S = 5.0
+#: Seconds a failed tile is left alone before a frame's request may build it again.
+RETRY_FAILED_S = 15.0
 
 
 class TileLoader:
@@ -88,6 +96,8 @@ class TileLoader:
             worker then takes up to ``batch`` tiles at once, in load order. A batch that
             raises is built again tile by tile with ``build`` so only the bad tile fails.
         batch: most tiles per ``build_many`` call.
+        retry_failed_s: a failed tile is kept in `failed` (and not built again) for this
+            many seconds; the next request or prefetch after that tries it again.
     """
 
     def __init__(
@@ -97,11 +107,15 @@ class TileLoader:
         on_ready: Callable[[], None] | None = None,
         build_many: Callable[[np.ndarray], dict[Key, TileMesh]] | None = None,
         batch: int = 8,
+        retry_failed_s: float = RETRY_FAILED_S,
     ) -> None:
         if workers < 1:
             raise ValueError(f"tile loader workers must be at least 1, got {workers}")
         if batch < 1:
             raise ValueError(f"tile loader batch must be at least 1, got {batch}")
+        if not retry_failed_s >= 0:  # NaN too
+            raise ValueError(f"retry_failed_s must be >= 0 seconds, got {retry_failed_s}")
+        self.retry_failed_s = float(retry_failed_s)
         self._build = build
         self._build_many = build_many
         self._batch = batch if build_many is not None else 1
@@ -113,6 +127,7 @@ class TileLoader:
         self._running: set[Key] = set()
         self._ready: dict[Key, TileMesh] = {}
         self.failed: dict[Key, BaseException] = {}
+        self._failed_at: dict[Key, float] = {}  # time.monotonic() of each failure
         # Bumped by cancel_all: a build that started before it is discarded when it ends.
         self._generation = 0
         self._stop = False
@@ -157,6 +172,7 @@ class TileLoader:
         tiles not asked for again are dropped (those being built finish and are kept)."""
         wanted = _ordered(keys, priority)
         with self._cv:
+            self._expire_failures()
             self._queue = {
                 k: None
                 for k in wanted
@@ -170,6 +186,7 @@ class TileLoader:
         the previous prefetch. Tiles already resident should be left out by the caller."""
         wanted = _ordered(keys, priority)
         with self._cv:
+            self._expire_failures()
             self._prefetch = {
                 k: None
                 for k in wanted
@@ -197,6 +214,7 @@ class TileLoader:
             self._running.clear()
             self._ready.clear()
             self.failed.clear()
+            self._failed_at.clear()
 
     def shutdown(self, timeout_s: float = JOIN_TIMEOUT_S) -> None:
         """Stop the workers and wait (up to ``timeout_s`` each) for a build under way to end;
@@ -214,6 +232,20 @@ class TileLoader:
             if t is not me and t.is_alive():
                 t.join(timeout_s)
         self.on_ready = None
+
+    def _expire_failures(self) -> None:
+        """Forget failures older than `retry_failed_s` (they may be asked for again). Holds
+        _cv. The oldest come first (dicts keep insertion order), so the loop stops at the
+        first failure still fresh: no walk over every failure each frame."""
+        if not self._failed_at:
+            return
+        cutoff = time.monotonic() - self.retry_failed_s
+        while self._failed_at:
+            key, when = next(iter(self._failed_at.items()))
+            if when > cutoff:
+                break
+            del self._failed_at[key]
+            self.failed.pop(key, None)
 
     # -- workers ---------------------------------------------------------------------------
     def _next_keys(self) -> list[Key] | None:
@@ -270,6 +302,8 @@ class TileLoader:
                         # Without its traceback: the frames would keep the batch's meshes
                         # (~0.5 MB a failure) alive for as long as the failure is remembered.
                         self.failed[key] = res.with_traceback(None)
+                        self._failed_at.pop(key, None)  # re-inserted last: oldest first
+                        self._failed_at[key] = time.monotonic()
                     else:
                         self._ready[key] = res
             callback = self.on_ready

@@ -1,8 +1,9 @@
 """The background tile queue (render/tile_loader.py): nearest tiles first, a frame's request
 replaces the previous one (tiles a moving camera left behind are never built), a prefetch
 (a flight's destination) goes before every frame's request, failed tiles are counted and not
-retried, and a cancel discards builds under way. No GL: the builds here are plain callables
-(the renderer's real `build_mesh` runs in test_render_async_loading.py)."""
+retried until `retry_failed_s` has passed, and a cancel discards builds under way. No GL:
+the builds here are plain callables (the renderer's real `build_mesh` runs in
+test_render_async_loading.py)."""
 
 from __future__ import annotations
 
@@ -105,6 +106,43 @@ def test_a_failed_tile_is_counted_told_and_not_retried(busy_loader) -> None:
     time.sleep(0.05)
     assert rec.order.count(bad) == 1 and loader.building == 0
     assert {k for k, _ in loader.take_ready(10)} == {(0, 0, 0), (5, 1, 2)}
+
+
+def test_a_failed_tile_is_tried_again_once_its_retry_delay_has_passed() -> None:
+    """A store over HTTP fails while its server is down: after ``retry_failed_s`` the next
+    request builds the tile again, and a success then replaces the failure."""
+    down = threading.Event()
+    down.set()
+    calls: list[tuple[int, int, int]] = []
+
+    def build(key):
+        calls.append(key)
+        if down.is_set():
+            raise OSError("HTTP 503 for a chunk")
+        return ("mesh", key)
+
+    loader = TileLoader(build, workers=1, retry_failed_s=0.3)
+    try:
+        key = (6, 3, 3)
+        loader.request(np.array([key]))
+        wait_for(lambda: key in loader.failed)
+        loader.request(np.array([key]))  # at once: still failed, not rebuilt
+        time.sleep(0.05)
+        assert calls == [key] and key in loader.failed
+        down.clear()  # the server is back
+        time.sleep(0.35)
+        loader.request(np.array([key]))
+        wait_for(lambda: loader.ready == 1)
+        assert calls == [key, key] and key not in loader.failed
+        assert [k for k, _ in loader.take_ready(5)] == [key]
+    finally:
+        loader.shutdown()
+
+
+@pytest.mark.parametrize("bad", [-1.0, float("nan")])
+def test_a_negative_or_nan_retry_delay_is_refused(bad: float) -> None:
+    with pytest.raises(ValueError, match="retry_failed_s"):
+        TileLoader(lambda key: ("mesh", key), retry_failed_s=bad)
 
 
 def test_cancel_discards_the_build_under_way_and_the_queue(busy_loader) -> None:
