@@ -1,95 +1,524 @@
-"""Benchmark `globeview ingest` on a big synthetic-detail DEM against GDAL's overview build.
+"""Ingest benchmark (issue #18 item 4): today's ingest, the Dask ingest on 1 and all cores, a
+2-process `distributed.LocalCluster`, and GDAL's overview build, on the same rasters.
 
-Prints: source size, ingest wall time, MB/s (source bytes / wall), peak RSS of the ingest
-child process (ru_maxrss), store size; then the wall time of GDAL's own overview build
-(rasterio build_overviews, Resampling.average = ``gdaladdo -r average``) on a copy of the same
-raster, as the reference figure. A script that prints figures, not a timed test.
+For each raster size (the synthetic-detail DEM of benchmarks/make_big_dem.py, N x N float32
+over 1 x 1 degree, cached in benchmarks/cache/) it runs, each in a fresh child process:
 
-    python benchmarks/bench_ingest.py [--size 16384]
+- ``today``: the ingest before issue #18 (commit a46750e), extracted once with ``git archive``
+  into benchmarks/cache/baseline-a46750e and run with PYTHONPATH pointing there (skipped, with
+  a note, outside a git checkout);
+- ``dask 1`` / ``dask N``: `globeview.terrain.ingest.ingest(..., workers=1 | os.cpu_count())`,
+  Dask's local scheduler;
+- ``cluster 2x1``: a `distributed.LocalCluster(n_workers=2, processes=True,
+  threads_per_worker=1)`, the ingest given ``scheduler=cluster.scheduler_address``;
+- ``gdal ovr``: GDAL's own overview build of a copy of the raster (rasterio
+  ``build_overviews``, Resampling.average = ``gdaladdo -r average``), the reference.
+
+Figures: wall (the ingest call alone, in the child), CPU (user + system of every process of
+the run: the child and its reaped children via ``os.wait4``; for the cluster the workers' own
+``getrusage`` deltas asked with ``client.run``), MB/s (source bytes / wall), peak RSS per
+worker (``ru_maxrss``: for an in-process run the whole child, all its threads; for the
+cluster the largest worker), store size. Then the per-tile costs that docs/scale.md
+extrapolates, the scaling 1 core -> all cores, and the targets, met or not met:
+
+- Dask ingest on all cores <= 3x GDAL's overview time;
+- peak RSS per worker <= 512 MB at every raster size;
+- near-linear scaling: speedup(1 -> N cores) >= 0.8 N.
+
+Stores are built in temporary folders (never benchmarks/cache/store_*) and removed. A script
+that prints figures, not a timed test; wall times on a shared machine vary with its load
+(printed).
+
+    python benchmarks/bench_ingest.py [--sizes 4096,8192] [--rounds 1] [--skip today,cluster]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import platform
 import shutil
+import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from make_big_dem import CACHE, make
-
-INGEST = (
-    "import sys; from globeview.terrain.ingest import ingest; "
-    "ingest([sys.argv[1]], sys.argv[2], force=True, progress=False)"
-)
-OVERVIEWS = (
-    "import sys, rasterio; from rasterio.enums import Resampling\n"
-    "with rasterio.open(sys.argv[1], 'r+') as ds:\n"
-    "    f = [2**k for k in range(1, 16) if max(ds.shape) >> k >= 256]\n"
-    "    ds.build_overviews(f, Resampling.average)\n"
-)
+ROOT = Path(__file__).resolve().parents[1]
+CACHE = ROOT / "benchmarks" / "cache"
+BASE_COMMIT = "a46750e"
+BASELINE = CACHE / f"baseline-{BASE_COMMIT}"
+RUNS = ("today", "dask1", "daskN", "cluster", "gdal")
+SIZE_RANGE = (256, 32768)
+#: Targets of issue #18 item 4.
+RATIO_TARGET = 3.0  # Dask all cores / GDAL overview wall time
+RSS_TARGET_MB = 512.0  # per worker, at any raster size
+SCALING_TARGET = 0.8  # speedup / cores counted as "near-linear"
 
 
-def _child(code: str, *args: str) -> tuple[float, float]:
-    """Run python code in a child; return (wall seconds, child's peak RSS in MB)."""
-    t = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-c", code, *args])
-    # wait4 gives this child's own rusage (RUSAGE_CHILDREN would be the max over all children).
+class BenchError(Exception):
+    """A bad argument or an unusable environment (one line, exit status 2)."""
+
+
+# ---------------------------------------------------------------------------------------------
+# The children (this file run with --child JSON): each times one ingest and prints one JSON line
+
+
+def _cpu_self_and_children() -> float:
+    import resource
+
+    a = resource.getrusage(resource.RUSAGE_SELF)
+    b = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
+
+
+def _worker_usage() -> tuple[float, float]:
+    """(CPU seconds, peak RSS MB) of the process it runs in (a dask worker)."""
+    import resource
+
+    u = resource.getrusage(resource.RUSAGE_SELF)
+    return u.ru_utime + u.ru_stime, u.ru_maxrss / 1024.0
+
+
+def _child(spec: dict) -> None:
+    kind, src, out = spec["kind"], spec["src"], spec["out"]
+    result: dict[str, object] = {}
+    if kind == "gdal":
+        import rasterio
+        from rasterio.enums import Resampling
+
+        t, c = time.perf_counter(), _cpu_self_and_children()
+        with rasterio.open(src, "r+") as ds:
+            f = [2**k for k in range(1, 16) if max(ds.shape) >> k >= 256]
+            ds.build_overviews(f, Resampling.average)
+        result = {"wall": time.perf_counter() - t, "cpu": _cpu_self_and_children() - c}
+    elif kind == "cluster":
+        from distributed import Client, LocalCluster
+
+        from globeview.terrain.ingest import ingest
+
+        t0 = time.perf_counter()
+        with (
+            LocalCluster(
+                n_workers=2, processes=True, threads_per_worker=1, dashboard_address=None
+            ) as cluster,
+            Client(cluster) as client,
+        ):
+            start = time.perf_counter() - t0
+            before = client.run(_worker_usage)
+            t, c = time.perf_counter(), _cpu_self_and_children()
+            ingest([src], out, force=True, progress=False, scheduler=cluster.scheduler_address)
+            wall, cpu_here = time.perf_counter() - t, _cpu_self_and_children() - c
+            after = client.run(_worker_usage)
+        worker_cpu = sum(after[w][0] - before[w][0] for w in after)
+        result = {
+            "wall": wall,
+            "cpu": cpu_here + worker_cpu,
+            "start": start,
+            "worker_rss": max(v[1] for v in after.values()),
+            "workers": len(after),
+        }
+    else:
+        from globeview.terrain.ingest import ingest
+
+        kw = spec.get("kwargs", {})
+        t, c = time.perf_counter(), _cpu_self_and_children()
+        ingest([src], out, force=True, progress=False, **kw)
+        result = {"wall": time.perf_counter() - t, "cpu": _cpu_self_and_children() - c}
+    print("RESULT " + json.dumps(result), flush=True)
+
+
+def _api_child() -> None:
+    """Print which knobs today's `ingest` takes (the Dask API of issue #18 may not be there)."""
+    import inspect
+
+    from globeview.terrain.ingest import ingest
+
+    print("RESULT " + json.dumps(sorted(inspect.signature(ingest).parameters)))
+
+
+# ---------------------------------------------------------------------------------------------
+# The parent: stays small (no numpy): a forked child's ru_maxrss starts at the parent's RSS.
+
+
+def _wait_child(spec: dict, env: dict[str, str] | None = None) -> dict:
+    """Run one child (this file with --child); its JSON result plus ``rss`` (MB: ru_maxrss of
+    the child and its reaped children) and ``cpu_rusage`` (s, their user + system), from
+    os.wait4 (Popen would reap the child first: its pipes are read by threads instead)."""
+    import threading
+
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--child", json.dumps(spec)]
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT
+    )
+    chunks: dict[str, str] = {}
+
+    def drain(name: str, stream) -> None:
+        chunks[name] = stream.read()
+
+    readers = [
+        threading.Thread(target=drain, args=("out", proc.stdout)),
+        threading.Thread(target=drain, args=("err", proc.stderr)),
+    ]
+    for r in readers:
+        r.start()
     _, status, usage = os.wait4(proc.pid, 0)
-    wall = time.perf_counter() - t
     proc.returncode = os.waitstatus_to_exitcode(status)
+    for r in readers:
+        r.join()
+    out, err = chunks.get("out", ""), chunks.get("err", "")
     if proc.returncode:
-        raise SystemExit(f"child failed with exit code {proc.returncode}")
-    return wall, usage.ru_maxrss / 1024.0
+        last = (err.strip().splitlines() or ["no message"])[-1]
+        raise RuntimeError(f"{spec['kind']} failed (exit {proc.returncode}): {last}")
+    line = next((ln for ln in out.splitlines() if ln.startswith("RESULT ")), None)
+    if line is None:
+        raise RuntimeError(f"{spec['kind']} printed no result")
+    res = json.loads(line[len("RESULT ") :])
+    if isinstance(res, dict):
+        res["rss"] = usage.ru_maxrss / 1024.0
+        res["cpu_rusage"] = usage.ru_utime + usage.ru_stime
+    return res
 
 
-def _du(path: Path) -> float:
+def _baseline_tree() -> Path | None:
+    """The package as of BASE_COMMIT, extracted once (None outside a git checkout)."""
+    if (BASELINE / "globeview" / "terrain" / "ingest.py").exists():
+        return BASELINE
+    if shutil.which("git") is None or not (ROOT / ".git").exists():
+        return None
+    tmp = Path(tempfile.mkdtemp(prefix="baseline-", dir=CACHE))
+    try:
+        archive = subprocess.run(
+            ["git", "-C", str(ROOT), "archive", BASE_COMMIT, "globeview"],
+            capture_output=True,
+            check=False,
+        )
+        if archive.returncode != 0:
+            return None
+        subprocess.run(["tar", "-x", "-C", str(tmp)], input=archive.stdout, check=True)
+        tmp.rename(BASELINE)  # atomic: a half-extracted tree is never taken for the baseline
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return BASELINE
+
+
+def _source(size: int) -> Path:
+    """The N x N benchmark DEM (generated once, in a child: a forked child's ru_maxrss starts at
+    its parent's RSS, so the parent stays small)."""
+    path = CACHE / f"big_dem_{size}.tif"
+    if not path.exists():
+        CACHE.mkdir(parents=True, exist_ok=True)
+        gen = subprocess.run(
+            [sys.executable, str(ROOT / "benchmarks" / "make_big_dem.py"), "--size", str(size)],
+            capture_output=True,
+            text=True,
+        )
+        if gen.returncode != 0 or not path.exists():
+            last = (gen.stderr.strip().splitlines() or ["no message"])[-1]
+            raise BenchError(f"cannot make the {size}x{size} benchmark DEM: {last}")
+    return path
+
+
+def _du_mb(path: Path) -> float:
     return sum(p.stat().st_size for p in path.rglob("*") if p.is_file()) / 1e6
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--size", type=int, default=16384)
-    args = ap.parse_args()
-    # Generate in a child: a fork inherits this process's RSS, which would leak into the
-    # children's ru_maxrss figure if the generator ran here.
-    subprocess.run(
-        [
-            sys.executable,
-            str(Path(__file__).with_name("make_big_dem.py")),
-            "--size",
-            str(args.size),
-        ],
-        check=True,
-    )
-    src = make(args.size, quiet=True)  # cached now: just the path
-    mb = src.stat().st_size / 1e6
-    print(
-        f"source      {src.name}: {args.size}x{args.size} float32, {mb:.0f} MB "
-        "(SRTM3 N44W072 + SYNTHETIC fractal detail)"
-    )
-    out = CACHE / f"store_{args.size}"
-    wall, rss = _child(INGEST, str(src), str(out))
-    print(
-        f"ingest      {wall:.1f} s wall, {mb / wall:.1f} MB/s, peak RSS {rss:.0f} MB, "
-        f"store {_du(out):.0f} MB"
-    )
-    copy = CACHE / f"ovr_copy_{args.size}.tif"
-    shutil.copy(src, copy)
+def _store_facts(store: Path) -> dict[str, float]:
+    """Levels, tiles and chunks of a built store, from its manifest (format 4 or 5)."""
+    m = json.loads((store / "manifest.json").read_text())
+    levels = m["levels"]
+    fine = levels[-1]
+    n = 1 << int(m["tile_n"])
+    nx, ny = int(fine["extent"]["nx"]), int(fine["extent"]["ny"])
+    chunks = sum(len(lv["chunks"]) for lv in levels if "chunks" in lv)
+    return {
+        "format": int(m.get("format_version", 0)),
+        "max_level": int(m["max_level"]),
+        "tile_n": int(m["tile_n"]),
+        "tiles_fine": nx * ny,
+        "tiles": sum(int(lv["extent"]["nx"]) * int(lv["extent"]["ny"]) for lv in levels),
+        "nodes_fine": (nx * n + 1) * (ny * n + 1),
+        "chunks": chunks,
+        "chunks_fine": len(fine.get("chunks", [])),
+        "mb": _du_mb(store),
+    }
+
+
+def _same_errors(a: Path, b: Path) -> bool:
+    """Whether two stores hold the same per-tile errors and height ranges (manifest arrays)."""
+    la = json.loads((a / "manifest.json").read_text())["levels"]
+    lb = json.loads((b / "manifest.json").read_text())["levels"]
+    keys = ("error", "hmin", "hmax", "stride_error")
+    return len(la) == len(lb) and all(x[k] == y[k] for x, y in zip(la, lb) for k in keys)
+
+
+def _one_line_parser() -> argparse.ArgumentParser:
+    class Parser(argparse.ArgumentParser):
+        def error(self, message: str):  # type: ignore[override]
+            raise BenchError(message)
+
+    ap = Parser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", default="4096,8192", help="raster sizes N (N x N), comma separated")
+    ap.add_argument("--rounds", type=int, default=1, help="runs of each row (medians)")
+    ap.add_argument("--skip", default="", help=f"rows to leave out, of {','.join(RUNS)}")
+    ap.add_argument("--child", help=argparse.SUPPRESS)
+    ap.add_argument("--api", action="store_true", help=argparse.SUPPRESS)
+    return ap
+
+
+def _parse(argv: list[str] | None) -> argparse.Namespace:
+    args = _one_line_parser().parse_args(argv)
     try:
-        wall_o, _ = _child(OVERVIEWS, str(copy))
-    finally:
-        copy.unlink(missing_ok=True)
-        Path(str(copy) + ".ovr").unlink(missing_ok=True)
-    print(f"gdal ovr    {wall_o:.1f} s wall (build_overviews average, internal, uncompressed)")
-    print(
-        f"ratio       ingest / overviews = {wall / wall_o:.2f} (target <= 1); "
-        f"peak RSS target <= 512 MB: {'ok' if rss <= 512 else 'MISSED'}"
+        sizes = [int(s) for s in args.sizes.split(",") if s.strip()]
+    except ValueError:
+        raise BenchError(
+            f"--sizes must be integers separated by commas, not {args.sizes!r}"
+        ) from None
+    if not sizes or any(not (SIZE_RANGE[0] <= s <= SIZE_RANGE[1]) for s in sizes):
+        raise BenchError(f"--sizes must each be in {SIZE_RANGE[0]}..{SIZE_RANGE[1]}: {args.sizes}")
+    args.sizes = sizes
+    if not (1 <= args.rounds <= 20):
+        raise BenchError(f"--rounds must be in 1..20, got {args.rounds}")
+    skip = {s.strip() for s in args.skip.split(",") if s.strip()}
+    bad = skip - set(RUNS)
+    if bad:
+        raise BenchError(f"--skip takes {','.join(RUNS)}, not {sorted(bad)[0]!r}")
+    args.skip = skip
+    return args
+
+
+def _header() -> str:
+    cpu = platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next(
+                (ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), cpu
+            )
+    except OSError:
+        pass
+    load = " ".join(f"{v:.2f}" for v in os.getloadavg())
+    return (
+        f"Ingest benchmark, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, {cpu}, "
+        f"{os.cpu_count()} cores, load {load}"
     )
+
+
+def _median_run(rounds: int, spec: dict, env: dict[str, str] | None = None) -> dict:
+    """Medians over ``rounds`` children of one row (peak RSS: the largest)."""
+    runs = [_wait_child(spec, env) for _ in range(rounds)]
+    out = {k: statistics.median(r[k] for r in runs) for k in runs[0] if k != "rss"}
+    out["rss"] = max(r["rss"] for r in runs)
+    if "worker_rss" in runs[0]:
+        out["worker_rss"] = max(r["worker_rss"] for r in runs)
+    return out
+
+
+def bench_size(size: int, args: argparse.Namespace, api: list[str], tmp: Path) -> dict:
+    """Every row for one raster size; prints its table; returns the figures by row."""
+    src = _source(size)
+    mb = src.stat().st_size / 1e6
+    cores = os.cpu_count() or 1
+    has_dask = "workers" in api and "scheduler" in api
+    print(f"\n### {size}x{size} float32, {mb:.0f} MB (SRTM3 N44W072 + SYNTHETIC fractal detail)\n")
+    print("| run | wall s | CPU s | MB/s | peak RSS MB per worker | store MB |")
+    print("|---|---:|---:|---:|---:|---:|")
+    rows: dict[str, dict] = {}
+    stores: dict[str, Path] = {}
+    notes: list[str] = []
+
+    def row(name: str, label: str, spec: dict, env: dict[str, str] | None = None) -> None:
+        if name in args.skip:
+            return
+        out = tmp / f"store_{name}_{size}"
+        spec = {**spec, "src": str(src), "out": str(out)}
+        try:
+            r = _median_run(args.rounds, spec, env)
+        except RuntimeError as exc:
+            notes.append(f"{label}: {exc}")
+            return
+        rss = r.get("worker_rss", r["rss"])
+        store_mb = _du_mb(out) if out.exists() else float("nan")
+        rows[name] = {**r, "rss_worker": rss, "store_mb": store_mb}
+        if out.exists():
+            stores[name] = out
+        print(
+            f"| {label} | {r['wall']:.1f} | {r['cpu']:.1f} | {mb / r['wall']:.1f} | "
+            f"{rss:.0f} | {store_mb:.0f} |",
+            flush=True,
+        )
+
+    if "today" not in args.skip:
+        base = _baseline_tree()
+        if base is None:
+            notes.append(f"today (commit {BASE_COMMIT}): skipped, not in a git checkout")
+        else:
+            env = {**os.environ, "PYTHONPATH": str(base), "GLOBEVIEW_DATA_DIR": str(ROOT / "data")}
+            row("today", f"today (commit {BASE_COMMIT}, serial)", {"kind": "ingest"}, env)
+    if has_dask:
+        row("dask1", "Dask, 1 worker", {"kind": "ingest", "kwargs": {"workers": 1}})
+        row("daskN", f"Dask, {cores} workers", {"kind": "ingest", "kwargs": {"workers": cores}})
+        row("cluster", "LocalCluster 2 processes x 1 thread", {"kind": "cluster"})
+    else:
+        # Until the Dask API lands: the checkout's own ingest, once, so the script still runs.
+        row("dask1", "this checkout (no workers= yet)", {"kind": "ingest"})
+        notes.append("ingest() takes no workers=/scheduler= yet: Dask and cluster rows skipped")
+    if "gdal" not in args.skip:
+        copy = tmp / f"ovr_copy_{size}.tif"
+        shutil.copy(src, copy)
+        try:
+            r = _median_run(args.rounds, {"kind": "gdal", "src": str(copy), "out": ""})
+            rows["gdal"] = {**r, "rss_worker": r["rss"], "store_mb": float("nan")}
+            print(
+                f"| GDAL overviews (build_overviews average) | {r['wall']:.2f} | {r['cpu']:.2f} | "
+                f"{mb / r['wall']:.0f} | {r['rss']:.0f} | - |"
+            )
+        except RuntimeError as exc:
+            notes.append(f"gdal: {exc}")
+        finally:
+            copy.unlink(missing_ok=True)
+            Path(str(copy) + ".ovr").unlink(missing_ok=True)
+    if "cluster" in rows:
+        notes.append(
+            f"cluster: {rows['cluster']['start']:.1f} s to start it (not in its wall time); "
+            "CPU = the client's + both workers' getrusage deltas; RSS = the largest worker"
+        )
+    print()
+    for n in notes:
+        print(f"- {n}")
+    ref = next((k for k in ("today", "daskN", "dask1") if k in stores), None)
+    if ref is not None:
+        facts = _store_facts(stores[ref])
+        rows["facts"] = facts
+        same = [k for k in stores if k != ref and _same_errors(stores[ref], stores[k])]
+        differ = [k for k in stores if k != ref and k not in same]
+        if same or differ:
+            print(
+                f"- per-tile errors and height ranges equal to {ref}'s: "
+                f"{', '.join(same) or 'none'}"
+                + (f"; DIFFER: {', '.join(differ)}" if differ else "")
+            )
+        for k in stores:
+            if k != ref:
+                facts_k = _store_facts(stores[k])
+                if facts_k["chunks"]:
+                    rows["facts_v5"] = facts_k
+        best = rows.get("daskN") or rows.get("dask1") or rows.get(ref)
+        f5 = rows.get("facts_v5", facts)
+        print(
+            f"- pyramid: levels 0..{facts['max_level']}, tiles of {(1 << facts['tile_n']) + 1}^2 "
+            f"nodes; finest level {facts['tiles_fine']} tiles, {facts['nodes_fine'] / 1e6:.1f} M "
+            f"nodes; {facts['tiles']} tiles in all"
+            + (
+                f"; {f5['chunks']} chunk files ({f5['chunks_fine']} at the finest)"
+                if f5["chunks"]
+                else ""
+            )
+        )
+        if best is not None:
+            print(
+                f"- per-tile cost ({'Dask ' if best is not rows.get(ref) else ''}CPU): "
+                f"{best['cpu'] / facts['tiles'] * 1e3:.2f} ms a tile, "
+                f"{best['cpu'] / facts['nodes_fine'] * 1e9:.0f} ns a finest-level node"
+                + (f", {best['cpu'] / f5['chunks']:.2f} s a chunk" if f5["chunks"] else "")
+                + f"; store {f5['mb'] * 1e6 / facts['nodes_fine']:.2f} bytes a finest-level node "
+                f"({f5['mb'] * 1e6 / (4 * facts['nodes_fine']):.2f} of float32)"
+            )
+    for p in stores.values():
+        shutil.rmtree(p, ignore_errors=True)
+    return rows
+
+
+def _verdict(ok: bool | None) -> str:
+    return "not measured" if ok is None else ("met" if ok else "NOT MET")
+
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        args = _parse(argv)
+        if args.child is not None:
+            _child(json.loads(args.child))
+            return 0
+        if args.api:
+            _api_child()
+            return 0
+        if not (ROOT / "globeview").is_dir():
+            raise BenchError("run from a source checkout (benchmarks/ beside globeview/)")
+        print(_header())
+        print(
+            f"Targets (issue #18): Dask ingest on all cores <= {RATIO_TARGET:g}x GDAL's overview "
+            f"time; peak RSS per worker <= {RSS_TARGET_MB:.0f} MB at every size; speedup 1 -> "
+            f"N cores >= {SCALING_TARGET:g} N"
+        )
+        api = _api()
+        CACHE.mkdir(parents=True, exist_ok=True)
+        results: dict[int, dict] = {}
+        with tempfile.TemporaryDirectory(prefix="bench-ingest-", dir=CACHE) as tmp:
+            for size in args.sizes:
+                results[size] = bench_size(size, args, api, Path(tmp))
+        _targets(results)
+        return 0
+    except BenchError as exc:
+        print(f"bench_ingest: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def _api() -> list[str]:
+    proc = subprocess.run(
+        [sys.executable, str(Path(__file__).resolve()), "--api"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
+    line = next((ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")), None)
+    if proc.returncode or line is None:
+        last = (proc.stderr.strip().splitlines() or ["no message"])[-1]
+        raise BenchError(f"cannot import globeview.terrain.ingest: {last}")
+    return list(json.loads(line[len("RESULT ") :]))
+
+
+def _targets(results: dict[int, dict]) -> None:
+    cores = os.cpu_count() or 1
+    print("\nTargets")
+    print()
+    for size, rows in results.items():
+        gdal, dask_n, dask_1, today = (rows.get(k) for k in ("gdal", "daskN", "dask1", "today"))
+        parts = [f"- {size}^2:"]
+        if gdal and today:
+            parts.append(f"today / GDAL = {today['wall'] / gdal['wall']:.1f}x;")
+        if gdal and dask_n:
+            ratio = dask_n["wall"] / gdal["wall"]
+            parts.append(
+                f"Dask {cores} cores / GDAL = {ratio:.1f}x (<= {RATIO_TARGET:g}x: "
+                f"{_verdict(ratio <= RATIO_TARGET)});"
+            )
+        if dask_1 and dask_n:
+            speedup = dask_1["wall"] / dask_n["wall"]
+            cpu_ratio = dask_n["cpu"] / dask_1["cpu"]
+            parts.append(
+                f"speedup 1 -> {cores} cores {speedup:.2f}x wall, CPU {cpu_ratio:.2f}x "
+                f"of 1 core's (>= {SCALING_TARGET * cores:.1f}x: "
+                f"{_verdict(speedup >= SCALING_TARGET * cores)})"
+            )
+        if today and dask_n:
+            parts.append(
+                f"; Dask {cores} cores is {today['wall'] / dask_n['wall']:.1f}x faster than today"
+            )
+        print(" ".join(parts))
+    worst = [
+        (r["rss_worker"], f"{size}^2 {k}")
+        for size, rows in results.items()
+        for k, r in rows.items()
+        if k in ("dask1", "daskN", "cluster")
+    ]
+    if worst:
+        mb, where = max(worst)
+        print(
+            f"- peak RSS per worker: at most {mb:.0f} MB ({where}) (<= {RSS_TARGET_MB:.0f} MB at "
+            f"every size: {_verdict(mb <= RSS_TARGET_MB)})"
+        )
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())
