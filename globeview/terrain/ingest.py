@@ -65,6 +65,7 @@ except ImportError:  # pragma: no cover - not POSIX: no stale-build cleaning
 
 from globeview.errors import DemError, StoreError
 from globeview.terrain.dem import Dem, check_dem_path, open_dem
+from globeview.terrain.level_chunks import write_chunk, write_level_vrt
 from globeview.terrain.levels import LevelGrid, read_level_nodes
 from globeview.terrain.quadtree import (
     DEFAULT_TILE_N,
@@ -81,9 +82,11 @@ from globeview.terrain.store import (
     is_store_file,
 )
 from globeview.terrain.store_schema import (
+    CHUNK_TARGET_NODES,
     FORMAT_VERSION,
     MAX_LEVEL_LIMIT,
     TILE_N_RANGE,
+    ChunkArray,
     Extent,
     IngestParams,
     LevelRecord,
@@ -92,6 +95,7 @@ from globeview.terrain.store_schema import (
     StoreHeader,
     StoreManifest,
     built_before_vdatums,
+    chunk_nodes_for,
 )
 from globeview.terrain.tile_errors import (
     cell_max,
@@ -120,7 +124,8 @@ STRIDES = (2, 4, 8, 16, 32, 64)
 
 # A window is about this many nodes a side: big enough that per-window Python overhead is
 # negligible, small enough that a window and its temporaries stay in tens of MB.
-_WINDOW_NODES = 1024
+# The windows are the store's chunks (format 5): one file each.
+_WINDOW_NODES = CHUNK_TARGET_NODES
 # GDAL block cache during the build. rasterio's default (5% of RAM) would make the peak RSS
 # depend on the machine; a fixed cache keeps the bound. Enough for a row of 256x256 blocks
 # of a 64k-node-wide level.
@@ -163,7 +168,9 @@ class _LevelStats:
     error: np.ndarray
     stride_delta: np.ndarray  # (ny, nx, len(STRIDES)): max |S_s - S_1| per tile, see below
     pole: dict[str, float | None] = field(default_factory=dict)
-    sha256: str = ""
+    sha256: str = ""  # of the level's VRT
+    chunks: list[tuple[int, int]] = field(default_factory=list)  # (cy, cx) written, row-major
+    chunk_sha256: list[str] = field(default_factory=list)
 
 
 # What a failed build raises (disk full, read-only, a GDAL write error): one StoreError line.
@@ -276,27 +283,6 @@ def _windows(grid: LevelGrid) -> Iterator[tuple[int, int, int, int]]:
 def _count_windows(grid: LevelGrid) -> int:
     k = max(1, _WINDOW_NODES // grid.tile_nodes)
     return -(-grid.ny // k) * -(-grid.nx // k)
-
-
-def _profile(grid: LevelGrid) -> dict:
-    return {
-        "driver": "GTiff",
-        "dtype": "float32",
-        "count": 1,
-        "width": grid.width,
-        "height": grid.height,
-        "crs": "EPSG:4326",
-        "transform": grid.transform,
-        "nodata": float("nan"),
-        "tiled": True,
-        "blockxsize": 256,
-        "blockysize": 256,
-        "compress": "deflate",
-        "predictor": 3,
-        "zlevel": 6,
-        "num_threads": "ALL_CPUS",
-        "bigtiff": "IF_SAFER",
-    }
 
 
 # ---------------------------------------------------------------------------------------------
@@ -473,19 +459,16 @@ class _Builder:
     def _write_level(self, lv: int) -> None:
         grid = self.grids[lv]
         s_n = grid.tile_nodes
+        k = max(1, _WINDOW_NODES // s_n)
         st = _LevelStats(
             hmin=np.full((grid.ny, grid.nx), np.nan),
             hmax=np.full((grid.ny, grid.nx), np.nan),
             error=np.full((grid.ny, grid.nx), np.nan),
             stride_delta=np.zeros((grid.ny, grid.nx, len(STRIDES))),
         )
-        path = self.out_dir / grid.file_name
         fine_path = self.out_dir / self.grids[lv + 1].file_name if lv < self.max_level else None
         with contextlib.ExitStack() as stack:
             fine_ds = stack.enter_context(rasterio.open(fine_path)) if fine_path else None
-            dst = stack.enter_context(rasterio.open(path, "w", **_profile(grid)))
-            dst.update_tags(AREA_OR_POINT="Point")
-            dst.update_tags(1, LEVEL=str(lv), TILE_N=str(self.tile_n))
             first_col: np.ndarray | None = None
             for by, bx, kty, ktx in _windows(grid):
                 h, w = kty * s_n + 1, ktx * s_n + 1
@@ -499,15 +482,19 @@ class _Builder:
                     if bx + ktx == grid.nx and first_col is not None:
                         arr[:, -1] = first_col
                 self._tile_stats(st, arr, by, bx)
-                # Write the half-open part; the last window row/column also writes its edge.
+                # The chunk is the half-open part; the last row/column of chunks also holds
+                # the raster's edge.
                 hh = h if by + kty == grid.ny else h - 1
                 ww = w if bx + ktx == grid.nx else w - 1
                 self.writes += 1
                 _fault_point(self.writes)
-                dst.write(arr[:hh, :ww], 1, window=Window(bx * s_n, by * s_n, ww, hh))
+                sha = write_chunk(self.out_dir, grid, k * s_n, by // k, bx // k, arr[:hh, :ww])
+                if sha is not None:
+                    st.chunks.append((by // k, bx // k))
+                    st.chunk_sha256.append(sha)
                 self.tick(1)
         st.pole = {k: (v if self._pole_row_in(grid, k) else None) for k, v in self.pole.items()}
-        st.sha256 = _sha256(path)
+        st.sha256 = write_level_vrt(self.out_dir / grid.file_name, grid, k * s_n, st.chunks)
         self.stats[lv] = st
 
     @staticmethod
@@ -618,6 +605,9 @@ class _Builder:
                     level_error=float(np.nanmax(err)) if has.any() else None,
                     pole_heights=PoleHeights(**st.pole),
                     sha256=st.sha256,
+                    chunk_nodes=chunk_nodes_for(self.tile_n),
+                    chunks=ChunkArray(np.array(st.chunks, dtype=np.int64).reshape(-1, 2)),
+                    chunk_sha256=tuple(st.chunk_sha256),
                 )
             )
         w, s, e, n = _union_bounds(self.sources)

@@ -84,7 +84,8 @@ class LevelGrid:
 
     @property
     def file_name(self) -> str:
-        return f"level_{self.level:02d}.tif"
+        """The level's GDAL VRT (mosaic of its chunk files, see `store_schema`)."""
+        return f"level_{self.level:02d}.vrt"
 
     @property
     def gr0(self) -> int:

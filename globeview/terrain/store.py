@@ -75,7 +75,11 @@ RASTER_ERRORS: tuple[type[BaseException], ...] = (RasterioError, _CPLE)
 _READ_ERRORS: tuple[type[BaseException], ...] = (*RASTER_ERRORS, ValueError)
 
 # Files globeview writes in a store (GDAL may add a .aux.xml next to a level).
-_STORE_FILE = re.compile(r"^(manifest\.json(\.part)?|level_\d\d\.tif(\.aux\.xml)?)$")
+# (Format 5: level_LL.vrt mosaics chunk files level_LL_rRRRR_cCCCC.tif; .npz sidecars hold
+# per-chunk build facts; level_LL.tif is format 4's one file per level.)
+_STORE_FILE = re.compile(
+    r"^(manifest\.json(\.part)?|level_\d\d(_r\d{4,}_c\d{4,})?\.(tif|vrt|npz)(\.aux\.xml)?)$"
+)
 
 
 def is_store_file(name: str) -> bool:
@@ -259,20 +263,22 @@ class TileStore:
         return cls(p, manifest, cache_tiles)
 
     def verify(self) -> None:
-        """Check every level file against its sha256 in the manifest (reads all data).
+        """Check every level file (the VRT and each chunk file) against its sha256 in the
+        manifest (reads all data).
 
-        Raises StoreError naming the first level that does not match.
+        Raises StoreError naming the first file that does not match.
         """
         for lv in self._levels:
-            h = hashlib.sha256()
-            try:
-                with (self.path / lv.file).open("rb") as f:
-                    while chunk := f.read(1 << 20):
-                        h.update(chunk)
-            except OSError as exc:
-                raise StoreError(f"cannot read {self.path / lv.file}: {exc.strerror}") from None
-            if h.hexdigest() != lv.sha256:
-                raise StoreError(f"{self.path / lv.file} is damaged (checksum mismatch)")
+            for name, want in ((lv.file, lv.sha256), *zip(lv.chunk_files(), lv.chunk_sha256)):
+                h = hashlib.sha256()
+                try:
+                    with (self.path / name).open("rb") as f:
+                        while chunk := f.read(1 << 20):
+                            h.update(chunk)
+                except OSError as exc:
+                    raise StoreError(f"cannot read {self.path / name}: {exc.strerror}") from None
+                if h.hexdigest() != want:
+                    raise StoreError(f"{self.path / name} is damaged (checksum mismatch)")
 
     # -- metadata (vectorised) ---------------------------------------------------------------
 
@@ -337,6 +343,11 @@ class TileStore:
         path = self.path / self._levels[level].file
         if not path.is_file():
             raise StoreError(f"{path}: level file is missing; re-run globeview ingest --force")
+        for name in self._levels[level].chunk_files():
+            if not (self.path / name).is_file():
+                raise StoreError(
+                    f"{self.path / name}: level file is missing; re-run globeview ingest --force"
+                )
         try:
             ds = rasterio.open(path)
         except RASTER_ERRORS as exc:

@@ -16,7 +16,9 @@ format 4), angles are degrees (EPSG:4326 lon/lat), tile extents are quadtree til
 of their level (see `globeview.terrain.levels`). Per-tile arrays are (ny, nx) over the
 level's extent, NaN (JSON ``null``) where a tile has no data.
 
-Versions: 4 heights are ellipsoidal (each source's vertical datum recorded); 3 added the
+Versions: 5 splits each level into chunk files (``level_LL_rRRRR_cCCCC.tif``, one per ingest
+window, so many writers can fill a level and HTTP serves it in pieces) mosaicked by a GDAL VRT
+``level_LL.vrt``; 4 heights are ellipsoidal (each source's vertical datum recorded); 3 added the
 ``format`` marker (heights were the sources' own); 2 had no marker. Only `FORMAT_VERSION` is
 read; older stores are rebuilt (`built_before_vdatums` says which must be), newer ones are
 refused.
@@ -46,6 +48,7 @@ __all__ = [
     "STORE_FORMAT",
     "TILE_N_RANGE",
     "VDATUM_FORMAT_VERSION",
+    "ChunkArray",
     "Extent",
     "IngestParams",
     "LevelRecord",
@@ -55,11 +58,15 @@ __all__ = [
     "StoreHeader",
     "StoreManifest",
     "built_before_vdatums",
+    "chunk_file_name",
+    "chunk_grid_shape",
+    "chunk_nodes_for",
+    "level_file_name",
     "write_json_array",
 ]
 
 STORE_FORMAT = "globeview-tile-store"
-FORMAT_VERSION = 4
+FORMAT_VERSION = 5
 # The first version whose heights are ellipsoidal: older stores must never be mixed with newer.
 VDATUM_FORMAT_VERSION = 4
 MAX_LEVEL_LIMIT = 22  # 180/2^22/64 degrees ~ 7 mm at the equator: far past any DEM
@@ -69,6 +76,39 @@ MAX_STRIDE = 1 << 20
 
 # A field whose own fields sit in the enclosing JSON object instead of a nested one.
 _INLINE = "inline"
+
+#: A level chunk is about this many nodes a side (the ingest window): big enough that the
+#: per-chunk overhead (a task, a file, a GDAL open) is small, small enough that a chunk and its
+#: temporaries stay in tens of MB (bounded memory per ingest task).
+CHUNK_TARGET_NODES = 1024
+#: An (m, 2) integer array of (chunk row, chunk column) pairs (a distinct annotation: decoded
+#: as integers, not as the float64 per-tile arrays).
+ChunkArray = typing.NewType("ChunkArray", np.ndarray)
+_SHA256 = re.compile(r"^[0-9a-f]{64}$")
+
+
+def chunk_nodes_for(tile_n: int) -> int:
+    """Chunk side C in node intervals: k * 2^tile_n with k = max(1, 1024 // 2^tile_n)."""
+    return max(1, CHUNK_TARGET_NODES >> tile_n) << tile_n
+
+
+def level_file_name(level: int) -> str:
+    """The VRT that mosaics a level's chunk files (what ``gdalinfo`` / QGIS open)."""
+    return f"level_{level:02d}.vrt"
+
+
+def chunk_file_name(level: int, cy: int, cx: int) -> str:
+    """Chunk (cy, cx) of a level: raster rows [cy*C, (cy+1)*C), columns [cx*C, (cx+1)*C)
+    (the last chunk row/column also holds the raster's last row/column)."""
+    return f"level_{level:02d}_r{cy:04d}_c{cx:04d}.tif"
+
+
+def chunk_grid_shape(grid: LevelGrid, chunk_nodes: int) -> tuple[int, int]:
+    """(chunk rows, chunk columns) of a level raster."""
+    return (
+        -(-(grid.height - 1) // chunk_nodes),
+        -(-(grid.width - 1) // chunk_nodes),
+    )
 
 
 class ManifestError(ValueError):
@@ -176,7 +216,9 @@ class LevelRecord:
     error: (ny, nx) max |tile bilinear surface - finest data| over each tile; hmin, hmax:
     (ny, nx) sample range; stride_error: (ny, nx, len(strides)) bounds on the error of the
     tile drawn every s-th sample; level_error: max of error (None for a level without data);
-    sha256: of the level file (`TileStore.verify`).
+    sha256: of the level file, the VRT (`TileStore.verify`); chunk_nodes: chunk side C in
+    node intervals; chunks: (m, 2) (chunk row, chunk column) of the chunk files present,
+    row-major (a chunk whose nodes are all NaN has no file); chunk_sha256: their sha256s.
     """
 
     level: int
@@ -188,6 +230,9 @@ class LevelRecord:
     hmax: np.ndarray
     stride_error: np.ndarray
     sha256: str
+    chunk_nodes: int
+    chunks: ChunkArray
+    chunk_sha256: tuple[str, ...]
     level_error: float | None = None
     pole_heights: PoleHeights | None = None
 
@@ -208,7 +253,7 @@ class LevelRecord:
         _in_range(e.nx, f"{where}.extent.nx", 1, ncols)
         _in_range(e.ny, f"{where}.extent.ny", 1, nrows - e.y0)
         # Only the name globeview writes: a manifest must not point outside its store.
-        want = self.grid(tile_n).file_name
+        want = level_file_name(index)
         if self.file != want:
             raise ManifestError(f"{where}.file {self.file[:60]!r} is not its level file {want}")
         shape = (e.ny, e.nx)
@@ -226,6 +271,28 @@ class LevelRecord:
             (self.error < 0).any() or (self.stride_error < 0).any()
         ):
             raise ManifestError(f"{where}: negative tile errors")
+        self._check_chunks(where, tile_n)
+
+    def _check_chunks(self, where: str, tile_n: int) -> None:
+        s_n = 1 << tile_n
+        _in_range(self.chunk_nodes, f"{where}.chunk_nodes", s_n, 1 << 20)
+        if self.chunk_nodes % s_n:
+            raise ManifestError(f"{where}.chunk_nodes is not a multiple of 2^tile_n")
+        c = self.chunks
+        if c.ndim != 2 or c.shape[1] != 2:
+            raise ManifestError(f"{where}.chunks has shape {c.shape}, expected (m, 2)")
+        rows, cols = chunk_grid_shape(self.grid(tile_n), self.chunk_nodes)
+        if ((c[:, 0] < 0) | (c[:, 0] >= rows) | (c[:, 1] < 0) | (c[:, 1] >= cols)).any():
+            raise ManifestError(f"{where}.chunks holds a chunk outside the level")
+        key = c[:, 0] * cols + c[:, 1]
+        if (np.diff(key) <= 0).any():
+            raise ManifestError(f"{where}.chunks is not in row-major order without repeats")
+        if len(self.chunk_sha256) != len(c) or not all(_SHA256.match(h) for h in self.chunk_sha256):
+            raise ManifestError(f"{where}.chunk_sha256 must hold one sha256 per chunk")
+
+    def chunk_files(self) -> list[str]:
+        """The names of the level's chunk files, in `chunks` order."""
+        return [chunk_file_name(self.level, int(cy), int(cx)) for cy, cx in self.chunks]
 
 
 @dataclass(frozen=True, eq=False)
@@ -346,6 +413,8 @@ def _decode(tp: Any, value: object, where: str) -> object:
         if not isinstance(value, str):
             raise ManifestError(f"{where} must be a string, got {str(value)[:40]}")
         return value
+    if tp is ChunkArray:
+        return _decode_chunks(value, where)
     if tp is np.ndarray:
         return _decode_array(value, where)
     if is_dataclass(tp) and isinstance(tp, type):
@@ -383,6 +452,18 @@ def _decode_array(value: object, where: str) -> np.ndarray:
     except (ValueError, TypeError, OverflowError) as exc:
         raise ManifestError(f"{where} is not an array of numbers ({type(exc).__name__})") from None
     return a
+
+
+def _decode_chunks(value: object, where: str) -> np.ndarray:
+    """An (m, 2) int64 array of chunk indices from nested lists of integers."""
+    if not isinstance(value, list) or not all(
+        isinstance(r, list)
+        and len(r) == 2
+        and all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v < 1 << 31 for v in r)
+        for r in value
+    ):
+        raise ManifestError(f"{where} must be a list of [row, column] integer pairs")
+    return np.array(value, dtype=np.int64).reshape(len(value), 2)
 
 
 # ---------------------------------------------------------------------------------------------

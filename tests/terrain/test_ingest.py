@@ -69,19 +69,40 @@ def _write_tif(
 
 
 def test_levels_are_valid_geotiffs(etopo_store: Path) -> None:
+    """Each level is a VRT (what gdalinfo / QGIS open) over chunk files that are valid
+    GeoTIFFs on their own, at their place in the level (store format 5)."""
     st = TileStore.open(etopo_store)
     n = 2**st.tile_n
     for lv in range(st.max_level + 1):
-        with rasterio.open(etopo_store / f"level_{lv:02d}.tif") as ds:
+        rec = st.manifest.levels[lv]
+        assert rec.file == f"level_{lv:02d}.vrt"
+        with rasterio.open(etopo_store / rec.file) as ds:
+            assert ds.driver == "VRT"
             assert ds.crs.to_epsg() == 4326
             assert ds.tags()["AREA_OR_POINT"] == "Point"
-            assert ds.block_shapes[0] == (256, 256) or max(ds.shape) < 256
             assert ds.shape == (2**lv * n + 1, 2 ** (lv + 1) * n + 1)
             # Pixel (0, 0) centre is the node at (-180, 90).
             assert ds.xy(0, 0) == pytest.approx((-180.0, 90.0))
             assert np.isnan(ds.nodata)
             data = ds.read(1)
             assert np.isfinite(data).all()
+        assert len(rec.chunks) == len(rec.chunk_sha256) > 0
+        c = rec.chunk_nodes
+        for (cy, cx), name in zip(rec.chunks, rec.chunk_files()):
+            assert name == f"level_{lv:02d}_r{cy:04d}_c{cx:04d}.tif"
+            with rasterio.open(etopo_store / name) as ch:
+                assert ch.driver == "GTiff" and ch.crs.to_epsg() == 4326
+                assert ch.block_shapes[0] == (256, 256) or max(ch.shape) < 256
+                assert ch.tags()["AREA_OR_POINT"] == "Point" and np.isnan(ch.nodata)
+                assert ch.xy(0, 0) == pytest.approx(
+                    (
+                        -180.0 + cx * c * 360.0 / (ds.width - 1),
+                        90.0 - cy * c * 180.0 / (ds.height - 1),
+                    )
+                )
+                r1 = ds.height if (cy + 1) * c >= ds.height - 1 else (cy + 1) * c
+                c1 = ds.width if (cx + 1) * c >= ds.width - 1 else (cx + 1) * c
+                np.testing.assert_array_equal(ch.read(1), data[cy * c : r1, cx * c : c1])
     man = json.loads((etopo_store / "manifest.json").read_text())
     assert man["levels"][0]["extent"] == {"x0": 0, "y0": 0, "nx": 2, "ny": 1}
 

@@ -20,6 +20,7 @@ from globeview.terrain.store import MANIFEST_NAME, TileStore
 from globeview.terrain.store_schema import (
     FORMAT_VERSION,
     STORE_FORMAT,
+    ChunkArray,
     Extent,
     IngestParams,
     LevelRecord,
@@ -42,7 +43,7 @@ def _level(level: int, nx: int, ny: int, rng: np.random.Generator) -> LevelRecor
     stride = err[..., None] + np.arange(len(STRIDES))
     return LevelRecord(
         level=level,
-        file=f"level_{level:02d}.tif",
+        file=f"level_{level:02d}.vrt",
         extent=Extent(0, 0, nx, ny),
         node_spacing_deg=180.0 / 2**level / 4,
         error=err,
@@ -50,6 +51,9 @@ def _level(level: int, nx: int, ny: int, rng: np.random.Generator) -> LevelRecor
         hmax=hmin + 50.0,
         stride_error=stride,
         sha256="ab" * 32,
+        chunk_nodes=4,
+        chunks=ChunkArray(np.array([[0, 0]] if level == 0 else [[0, 1], [1, 0]], np.int64)),
+        chunk_sha256=("ef" * 32,) * (1 if level == 0 else 2),
         level_error=float(np.nanmax(err)),
         pole_heights=PoleHeights(north=12.5, south=None),
     )
@@ -105,6 +109,9 @@ def test_round_trip_is_exact() -> None:
             b.level_error,
             b.pole_heights,
         )
+        np.testing.assert_array_equal(a.chunks, b.chunks)
+        assert b.chunks.dtype == np.int64
+        assert (a.chunk_nodes, a.chunk_sha256) == (b.chunk_nodes, b.chunk_sha256)
 
 
 def test_json_keys_are_the_field_names() -> None:
@@ -145,10 +152,11 @@ def _rewrite(store: Path, tmp_path: Path, change) -> Path:
 @pytest.mark.parametrize(
     ("change", "needle"),
     [
-        (lambda m: m.update(format_version=FORMAT_VERSION + 1), "version 5 is not supported"),
+        (lambda m: m.update(format_version=FORMAT_VERSION + 1), "version 6 is not supported"),
+        (lambda m: m.update(format_version=4), "format version 4 is not supported"),
         (lambda m: m.update(format_version="4"), "version 4 is not supported"),
         (lambda m: m.update(format_version=True), "version True is not supported"),
-        (lambda m: m.update(format_version=4.0), "format_version 4.0 is not supported"),
+        (lambda m: m.update(format_version=5.0), "format_version 5.0 is not supported"),
         (lambda m: m.update(format_version=3), "built before vertical datums"),
         (lambda m: m["levels"][0]["extent"].pop("nx"), "levels[0].extent.nx is missing"),
         (lambda m: m["levels"][1].update(level_error="x"), "levels[1].level_error must be a"),
@@ -161,6 +169,10 @@ def _rewrite(store: Path, tmp_path: Path, change) -> Path:
         (lambda m: m["levels"][2].update(hmax=[[1e400]]), "levels[2].hmax"),
         (lambda m: m["levels"][2].update(file="../x.tif"), "is not its level file"),
         (lambda m: m.update(levels=[[[[[[[]]]]]]]), "levels[0] must be an object"),
+        (lambda m: m["levels"][-1].update(chunks=[[0, 99]]), "chunk outside the level"),
+        (lambda m: m["levels"][-1].update(chunks=[[0, 0.5]]), "integer pairs"),
+        (lambda m: m["levels"][-1].update(chunk_sha256=[]), "one sha256 per chunk"),
+        (lambda m: m["levels"][-1].update(chunk_nodes=65), "not a multiple of 2^tile_n"),
     ],
 )
 def test_malformed_or_other_version_is_one_store_error(

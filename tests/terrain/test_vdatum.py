@@ -22,6 +22,7 @@ from globeview.errors import DemError, StoreError
 from globeview.terrain.dem import open_dem
 from globeview.terrain.ingest import ingest
 from globeview.terrain.store import TileStore
+from globeview.terrain.store_schema import FORMAT_VERSION
 from globeview.terrain.vdatum import VerticalDatum, egm96, parse_vdatum
 
 DATA = Path(__file__).resolve().parents[2] / "data"
@@ -244,7 +245,7 @@ def test_store_built_before_vdatums_is_refused_in_one_line(
     assert (old / "manifest.json").read_bytes() == before
     r = _cli("ingest", str(SRTM), "--out", str(old), "--quiet", "--force", cache=tmp_path / "c")
     assert r.returncode == 0, r.stderr
-    assert json.loads((old / "manifest.json").read_text())["format_version"] == 4
+    assert json.loads((old / "manifest.json").read_text())["format_version"] == FORMAT_VERSION
 
 
 def test_cached_store_built_before_vdatums_is_rebuilt_silently(
@@ -258,7 +259,7 @@ def test_cached_store_built_before_vdatums_is_rebuilt_silently(
     cached = store_path_for(src)
     _as_version_3(cached)
     st = open_or_ingest(src)
-    assert st.manifest.header.format_version == 4
+    assert st.manifest.header.format_version == FORMAT_VERSION
     assert st.manifest.sources[0].vertical_datum == "egm96"
     st.close()
 

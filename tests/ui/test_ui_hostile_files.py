@@ -71,7 +71,7 @@ def _damaged_store(tmp: Path) -> Path:
 
     store = tmp / "hill_store"
     ingest([_write_tif(tmp / "hill_src.tif", _hill(256))], store)
-    levels = sorted(store.glob("level_*.tif"))
+    levels = sorted(store.glob("level_??.vrt"))  # format 5: a level is a VRT over chunk files
     assert len(levels) >= 2
     _write_tif(levels[-1], np.full((300, 200), 7.0, np.float32))
     return store
