@@ -158,3 +158,24 @@ def test_bad_dimensions_and_halo_rejected() -> None:
         approximate_window(np.zeros((21, 21), dtype=np.float32), 1)
     with pytest.raises(WaveletError, match="halo"):
         approximate_window(np.zeros((21, 21), dtype=np.float32), 2, "bior4.4")
+
+
+@pytest.mark.parametrize("wavelet", ["bior2.2", "bior4.4", "bior6.8"])
+@pytest.mark.parametrize("step", [2, 3, 4])
+@pytest.mark.parametrize("rows", [1, 3, 16, 1000])
+def test_strip_filter_is_the_whole_array_filter(wavelet: str, step: int, rows: int) -> None:
+    """The cache-sized strips of ``_separable`` give the whole-array passes' floats, bit for
+    bit, on heights with NaN (the all-valid, NaN-aware and mask passes all use it) and -0."""
+    from globeview.terrain.wavelet import _filter_decimate, _separable
+
+    rng = np.random.default_rng(step * 100 + rows)
+    taps = lowpass_kernel(wavelet)
+    for shape in [(taps.size, taps.size), (taps.size + 37, taps.size + 5), (83, 61)]:
+        x = (rng.normal(size=shape) * 300.0).astype(np.float32)
+        x[rng.random(shape) < 0.1] = -0.0
+        x[rng.random(shape) < 0.05] = np.nan
+        for k in (taps, np.ones_like(taps), np.clip(taps, 0.0, None)):
+            whole = _filter_decimate(_filter_decimate(x, k, 1, step), k, 0, step)
+            got = _separable(x, k, step, rows)
+            assert got.shape == whole.shape
+            np.testing.assert_array_equal(got.view(np.int32), whole.view(np.int32))
