@@ -404,7 +404,6 @@ def bench_size(size: int, args: argparse.Namespace, api: list[str], tmp: Path) -
                 facts_k = _store_facts(stores[k])
                 if facts_k["chunks"]:
                     rows["facts_v5"] = facts_k
-        best = rows.get("daskN") or rows.get("dask1") or rows.get(ref)
         f5 = rows.get("facts_v5", facts)
         print(
             f"- pyramid: levels 0..{facts['max_level']}, tiles of {(1 << facts['tile_n']) + 1}^2 "
@@ -415,16 +414,18 @@ def bench_size(size: int, args: argparse.Namespace, api: list[str], tmp: Path) -
                 if f5["chunks"]
                 else ""
             )
+            + f"; store {f5['mb'] * 1e6 / facts['nodes_fine']:.2f} bytes a finest-level node "
+            f"({f5['mb'] * 1e6 / (4 * facts['nodes_fine']):.2f} of float32)"
         )
-        if best is not None:
-            print(
-                f"- per-tile cost ({'Dask ' if best is not rows.get(ref) else ''}CPU): "
-                f"{best['cpu'] / facts['tiles'] * 1e3:.2f} ms a tile, "
-                f"{best['cpu'] / facts['nodes_fine'] * 1e9:.0f} ns a finest-level node"
-                + (f", {best['cpu'] / f5['chunks']:.2f} s a chunk" if f5["chunks"] else "")
-                + f"; store {f5['mb'] * 1e6 / facts['nodes_fine']:.2f} bytes a finest-level node "
-                f"({f5['mb'] * 1e6 / (4 * facts['nodes_fine']):.2f} of float32)"
-            )
+        costs = [
+            f"{k} {r['cpu'] / facts['nodes_fine'] * 1e9:.0f} ns / "
+            f"{r['cpu'] / facts['tiles'] * 1e3:.2f} ms"
+            + (f" / {r['cpu'] / f5['chunks']:.2f} s" if f5["chunks"] else "")
+            for k, r in rows.items()
+            if k in ("today", "dask1", "daskN", "cluster")
+        ]
+        what = "finest-level node / tile" + (" / chunk file" if f5["chunks"] else "")
+        print(f"- CPU a {what} (every level's work counted): {'; '.join(costs)}")
     for p in stores.values():
         shutil.rmtree(p, ignore_errors=True)
     return rows
