@@ -1,0 +1,132 @@
+"""The ingest, remote-store and planet-scale benchmark scripts (issue #18): bad arguments are
+one line and exit 2, a tiny ingest run prints every row and a verdict per target, the planet
+arithmetic is consistent, and the remote benchmark counts what the server sent. Structure
+and figures' consistency only, never timings (the targets live in the scripts' output)."""
+
+from __future__ import annotations
+
+import http.client
+import importlib.util
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+BENCH = ROOT / "benchmarks"
+
+
+def _script(name: str, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, str(BENCH / name), *args],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=timeout,
+    )
+
+
+def _module(name: str):
+    spec = importlib.util.spec_from_file_location(name, BENCH / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses and pickling look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize(
+    ("script", "args", "needle"),
+    [
+        ("bench_ingest.py", ["--sizes", "x"], "--sizes"),
+        ("bench_ingest.py", ["--sizes", "100000"], "--sizes"),
+        ("bench_ingest.py", ["--rounds", "0"], "--rounds"),
+        ("bench_ingest.py", ["--skip", "nope"], "--skip"),
+        ("bench_ingest.py", ["--bogus"], "unrecognized"),
+        ("bench_remote.py", ["--size", "3"], "--size"),
+        ("bench_remote.py", ["--timeout", "nan"], "--timeout"),
+        ("bench_remote.py", ["--dem", "/no/such/dem.tif"], "--dem"),
+        ("bench_remote.py", ["--store", "/"], "not a store"),
+        ("bench_remote.py", ["--dem", "a", "--store", "b"], "not allowed"),
+        ("scale_planet.py", ["--level", "x"], "--level"),
+        ("scale_planet.py", ["--hours", "nan"], "--hours"),
+        ("scale_planet.py", ["--land-dem", "/no/such.tif"], "--land-dem"),
+    ],
+)
+def test_bad_arguments_are_one_line_and_exit_2(script: str, args: list[str], needle: str) -> None:
+    proc = _script(script, *args, timeout=60)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert needle in lines[0] and "Traceback" not in proc.stderr
+    assert proc.stdout == ""
+
+
+def test_tiny_ingest_run_prints_every_row_and_each_target(tmp_path: Path) -> None:
+    before = {p.name for p in (BENCH / "cache").glob("bench-ingest-*")}
+    proc = _script("bench_ingest.py", "--sizes", "512", "--skip", "cluster")
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout
+    assert re.search(r"Ingest benchmark, \d{4}-\d{2}-\d{2} .* cores, load ", out)
+    rows = [ln for ln in out.splitlines() if ln.startswith("| ") and "---" not in ln][1:]
+    labels = [r.split("|")[1].strip() for r in rows]
+    assert any(lb.startswith("GDAL overviews") for lb in labels)
+    if (ROOT / ".git").exists():
+        assert any(lb.startswith("today (commit a46750e") for lb in labels)
+    assert any(lb.startswith(("Dask, 1 worker", "this checkout")) for lb in labels)
+    for r in rows:  # wall, CPU, MB/s, RSS: positive numbers
+        cells = [c.strip() for c in r.split("|")[2:6]]
+        assert all(float(c) > 0 for c in cells), r
+    # The stores of every ingest row hold the same errors (today's vs the checkout's).
+    assert re.search(r"per-tile errors and height ranges equal to \w+'s: [a-zA-Z0-9]", out)
+    assert "DIFFER" not in out
+    assert re.search(r"pyramid: levels 0\.\.\d+, tiles of 65\^2 nodes", out)
+    assert re.search(r"peak RSS per worker: at most \d+ MB .*: (met|NOT MET)\)", out)
+    # Its temporary stores are gone; the shared benchmark store was not touched.
+    assert {p.name for p in (BENCH / "cache").glob("bench-ingest-*")} == before
+
+
+def test_planet_arithmetic_is_consistent() -> None:
+    proc = _script("scale_planet.py", "--level", "9", "--cpu-ns-per-node", "1000", "--hours", "8")
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout
+    cells = int(re.search(r"any sample > 0 m in etopo20.tif\): (\d+)", out).group(1))
+    assert 10_000 < cells <= 14_277  # ETOPO 20' misses small islands SRTM has tiles for
+    nodes = float(re.search(r"finest level over land: .* ([\d.e+]+) nodes", out).group(1))
+    core_h = float(re.search(r"([\d,]+) core-hours", out).group(1).replace(",", ""))
+    assert core_h == pytest.approx(nodes * 1e-6 / 3600, rel=0.01, abs=1)
+    # Level 9 of 65-node tiles: 1024 x 512 tiles; the band 56 S..60 N is rows 128.....
+    fine_extent = int(re.search(r"\(([\d,]+) at the finest\)", out).group(1).replace(",", ""))
+    rows = fine_extent // 1024
+    assert fine_extent == rows * 1024 and 116 / 180 * 512 <= rows <= 116 / 180 * 512 + 2
+    tiles = int(re.search(r"finest level over land: ([\d,]+) tiles", out).group(1).replace(",", ""))
+    assert tiles < fine_extent  # land only
+
+
+def test_remote_traffic_counts_requests_and_body_bytes(tmp_path: Path) -> None:
+    from globeview.bench.http_server import StaticServer
+
+    bench_remote = _module("bench_remote")
+    store = tmp_path / "s"
+    store.mkdir()
+    (store / "manifest.json").write_text("{}")
+    (store / "level_00_r0000_c0000.tif").write_bytes(bytes(1000))
+    with StaticServer(tmp_path).start() as server:
+        host, port = server.url.removeprefix("http://").split(":")
+        conn = http.client.HTTPConnection(host, int(port), timeout=10)
+        for path, rng in (
+            ("/s/manifest.json", None),
+            ("/s/level_00_r0000_c0000.tif", "bytes=0-99"),
+            ("/s/level_00_r0000_c0000.tif", "bytes=900-"),
+            ("/s/level_00_r0000_c0000.tif", "bytes=-10"),
+            ("/s/missing.tif", None),
+        ):
+            conn.request("GET", path, headers={"Range": rng} if rng else {})
+            conn.getresponse().read()
+        conn.close()
+        n, manifest, sent, by_status = bench_remote._traffic(server, tmp_path)
+    assert (n, manifest) == (5, 1)
+    assert sent == 2 + 100 + 100 + 10
+    assert by_status == {200: 1, 206: 3, 404: 1}
