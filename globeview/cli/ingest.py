@@ -1,9 +1,21 @@
-"""`globeview ingest`: build a tile-pyramid store (GeoTIFF per level + manifest) from DEMs."""
+"""`globeview ingest`: build a tile-pyramid store (chunked GeoTIFFs per level, a VRT per level
+and a manifest) from DEMs, as a Dask task graph: on the local scheduler with ``--workers N``
+threads (default: every core), or on an existing ``dask.distributed`` cluster with
+``--scheduler tcp://HOST:PORT`` (the store folder must then be on a filesystem the workers
+share)."""
 
 from __future__ import annotations
 
 import argparse
+import re
 import sys
+
+#: Most local workers `--workers` takes: more threads than any machine has cores only adds
+#: memory (each task holds a window of the raster), and a typo of 10^6 must not start them.
+MAX_WORKERS = 4096
+
+#: ``tcp://HOST:PORT``: a host name, an IPv4 address or a bracketed IPv6 address, and a port.
+_SCHEDULER = re.compile(r"^tcp://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9][A-Za-z0-9.-]{0,252}):(\d{1,5})$")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -26,14 +38,81 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         " .hgt and mean-sea-level DEMs EGM96, else assumed EGM96); stores hold ellipsoidal"
         " heights",
     )
+    parser.add_argument(
+        "--workers",
+        metavar="N",
+        default=None,
+        help="local Dask workers (threads) building tiles at once, 1.."
+        f"{MAX_WORKERS} (default: every core); not with --scheduler",
+    )
+    parser.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:PORT",
+        default=None,
+        help="run the ingest graph on this existing dask.distributed scheduler (the --out "
+        "folder must be on a filesystem its workers share)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--force", action="store_true", help="rebuild even if up to date")
+
+
+def parse_workers(text: str | None) -> int | None:
+    """``--workers N``: an integer in 1..`MAX_WORKERS` (None: not given, every core)."""
+    from globeview.errors import GlobeviewError
+
+    if text is None:
+        return None
+    try:
+        n = int(str(text).strip())
+    except ValueError:
+        raise GlobeviewError(f"--workers must be a whole number >= 1, not {text!r:.40}") from None
+    if not 1 <= n <= MAX_WORKERS:
+        raise GlobeviewError(f"--workers must be in 1..{MAX_WORKERS}, not {n}")
+    return n
+
+
+def parse_scheduler(text: str | None) -> str | None:
+    """``--scheduler tcp://HOST:PORT`` (port 1..65535), returned as given (None: not given).
+    Only the form is checked here; whether a scheduler answers there is the ingest's (a
+    one-line error after a timeout)."""
+    from globeview.errors import GlobeviewError
+
+    if text is None:
+        return None
+    m = _SCHEDULER.match(str(text).strip())
+    if m is None or not 1 <= int(m.group(2)) <= 65535:
+        raise GlobeviewError(
+            f"--scheduler must be a dask.distributed address tcp://HOST:PORT, not {text!r:.80}"
+        )
+    return str(text).strip()
+
+
+def parallel_kwargs(args: argparse.Namespace, ingest_fn) -> dict:
+    """The ingest's ``workers``/``scheduler`` keywords from the checked options."""
+    import inspect
+
+    from globeview.errors import GlobeviewError
+
+    workers = parse_workers(args.workers)
+    scheduler = parse_scheduler(args.scheduler)
+    if workers is not None and scheduler is not None:
+        raise GlobeviewError(
+            "--workers is for the local scheduler; a --scheduler cluster has its own workers"
+        )
+    kwargs = {"workers": workers, "scheduler": scheduler}
+    accepted = inspect.signature(ingest_fn).parameters
+    given = {k: v for k, v in kwargs.items() if v is not None}
+    missing = [k for k in given if k not in accepted]
+    if missing:  # an ingest without the Dask graph (never in a release)
+        raise GlobeviewError(f"--{missing[0]} is not supported by this ingest")
+    return given
 
 
 def run(args: argparse.Namespace) -> int:
     """Build the store; prints a one-line summary. Errors are GlobeviewErrors (exit 2)."""
     from globeview.terrain.ingest import ingest
 
+    parallel = parallel_kwargs(args, ingest)  # checked before any source is read
     result = ingest(
         args.sources,
         args.out,
@@ -45,6 +124,7 @@ def run(args: argparse.Namespace) -> int:
         force=args.force,
         # A bar only on a terminal: piped or logged, tqdm's redraws would be many lines.
         progress=not args.quiet and sys.stderr.isatty(),
+        **parallel,
     )
     if result.up_to_date:
         print(f"{result.path}: store is up to date")
