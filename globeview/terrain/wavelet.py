@@ -201,7 +201,18 @@ def filter_decimate_grid(fine: np.ndarray, taps: np.ndarray, step: int) -> np.nd
     h = taps.size // 2
     # np.pad reflects repeatedly when a side is shorter than h and keeps 1-node sides constant.
     padded = np.pad(a, h, mode="reflect", reflect_type="odd")
+    return _filter_padded(padded, a[::step, ::step], taps, step)
 
+
+def _filter_padded(
+    padded: np.ndarray, centres: np.ndarray, taps: np.ndarray, step: int
+) -> np.ndarray:
+    """``filter_decimate_grid`` on an array already padded by the kernel's half-width:
+    output node i is centred on ``padded[step*i + h]``, whose value is ``centres[i]``.
+
+    Every output node depends only on its own support and centre (the NaN rule included),
+    so a window cut from a larger padded array gives those nodes' whole-array values.
+    """
     invalid = np.isnan(padded)
     if not invalid.any():
         return _separable(padded, taps, step)
@@ -214,7 +225,7 @@ def filter_decimate_grid(fine: np.ndarray, taps: np.ndarray, step: int) -> np.nd
     den = _separable((~invalid).astype(np.float32), positive, step)
     convex = np.divide(num, den, out=np.full_like(num, np.nan), where=den > 0)
     out = np.where(touched, convex, exact)
-    out[np.isnan(a[::step, ::step])] = np.nan
+    out[np.isnan(centres)] = np.nan
     return out.astype(np.float32, copy=False)
 
 
@@ -260,6 +271,18 @@ def approximate_window(
     a = np.asarray(fine_padded, dtype=np.float32)
     if a.ndim != 2 or min(a.shape) < 2 * halo + 1:
         raise WaveletError(f"window of shape {a.shape} is too small for a halo of {halo} nodes")
-    coarse = approximate_grid(a, wavelet)
-    k = halo // 2
-    return coarse[k:-k, k:-k]
+    if a.shape[0] % 2 != 1 or a.shape[1] % 2 != 1:
+        raise WaveletError(
+            f"a grid-registered level needs sides of 2*m+1 nodes (odd sides), "
+            f"got {a.shape[0]} x {a.shape[1]}"
+        )
+    # The interior coarse nodes read only the window's own nodes (halo >= the kernel's half
+    # width h), so filter them straight from the window: the mirror padding approximate_grid
+    # would add and the halo/2 border nodes it would compute and drop never reach them. The
+    # same operations per kept node, without the padded copy of the window.
+    taps = lowpass_kernel(wavelet)
+    d = halo - taps.size // 2
+    core = a[d : a.shape[0] - d, d : a.shape[1] - d]
+    return _filter_padded(
+        core, a[halo : a.shape[0] - halo : 2, halo : a.shape[1] - halo : 2], taps, 2
+    )

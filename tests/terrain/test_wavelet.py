@@ -179,3 +179,31 @@ def test_strip_filter_is_the_whole_array_filter(wavelet: str, step: int, rows: i
             got = _separable(x, k, step, rows)
             assert got.shape == whole.shape
             np.testing.assert_array_equal(got.view(np.int32), whole.view(np.int32))
+
+
+@pytest.mark.parametrize("wavelet", WAVELETS)
+@pytest.mark.parametrize("extra", [0, 2, 6])
+def test_window_path_is_the_padded_whole_window(wavelet: str, extra: int) -> None:
+    """approximate_window filters straight from the window; it must give, bit for bit, the
+    interior of approximate_grid on the window (its former implementation), also with NaN in
+    the supports, NaN only in the outer ring, -0 and a halo wider than needed."""
+    rng = np.random.default_rng(extra + len(wavelet))
+    halo = kernel_halo(wavelet) + extra
+    for shape in [(2 * halo + 1, 2 * halo + 1), (2 * halo + 41, 2 * halo + 17)]:
+        for case in ("valid", "nan", "ring"):
+            x = rng.normal(400.0, 90.0, size=shape).astype(np.float32)
+            x[rng.random(shape) < 0.1] = -0.0
+            if case == "nan":
+                x[rng.random(shape) < 0.08] = np.nan
+            elif case == "ring":
+                x[0, :] = np.nan
+            k = halo // 2
+            old = approximate_grid(x, wavelet)[k:-k, k:-k]
+            got = approximate_window(x, halo, wavelet)
+            assert got.shape == old.shape
+            np.testing.assert_array_equal(got.view(np.int32), old.view(np.int32))
+
+
+def test_window_with_even_sides_is_refused() -> None:
+    with pytest.raises(WaveletError, match="odd sides"):
+        approximate_window(np.zeros((22, 21), dtype=np.float32), 2)
