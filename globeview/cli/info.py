@@ -1,4 +1,6 @@
-"""`globeview info`: describe DEM rasters (bounds, resolution, nodata, value range)."""
+"""`globeview info`: describe DEM rasters (bounds, resolution, nodata, value range) and tile
+stores, local folders or URLs of stores served over HTTP (levels, chunks, sources; only the
+manifest is read)."""
 
 from __future__ import annotations
 
@@ -10,8 +12,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "dems",
         nargs="*",
-        metavar="DEM",
-        help="raster files GDAL can read (default: the embedded DEMs)",
+        metavar="DEM|STORE|URL",
+        help="raster files GDAL can read, tile store folders or store URLs "
+        "(https://HOST/path/store) (default: the embedded DEMs)",
     )
     parser.add_argument(
         "--crs",
@@ -41,6 +44,9 @@ def run(args: argparse.Namespace) -> int:
         paths = [*map(str, embedded_dem_paths()), *paths]
     infos = []
     for p in paths:
+        if is_store(p):
+            infos.append(store_info(p))
+            continue
         with open_dem(p, crs=args.crs, vdatum=args.vdatum) as dem:
             infos.append(dem.info)
     if args.json:
@@ -48,3 +54,92 @@ def run(args: argparse.Namespace) -> int:
     else:
         print("\n\n".join(i.summary() for i in infos))
     return 0
+
+
+def is_store(text: str) -> bool:
+    """A store URL (any ``scheme://``: `check_store_url` says which are read) or a folder."""
+    from pathlib import Path
+
+    from globeview.plugins.store_sources import is_store_url
+
+    return is_store_url(text) or Path(text).is_dir()
+
+
+class StoreInfo:
+    """What `globeview info` says about a tile store (from its manifest alone)."""
+
+    def __init__(self, where: str, store) -> None:
+        m = store.manifest
+        self.where = where
+        self.format_version = m.header.format_version
+        self.created_by = m.header.created_by
+        self.tile_n = store.tile_n
+        self.max_level = store.max_level
+        self.wavelet = m.wavelet
+        self.bounds = tuple(float(v) for v in store.bounds)
+        self.sources = [
+            {"path": s.path, "crs": s.crs, "vertical_datum": s.vertical_datum} for s in m.sources
+        ]
+        self.levels = []
+        for lv in m.levels:
+            chunks = getattr(lv, "chunks", None)
+            self.levels.append(
+                {
+                    "level": int(lv.level),
+                    "file": lv.file,
+                    "chunk_files": None if chunks is None else len(chunks),
+                    "node_spacing_deg": float(lv.node_spacing_deg),
+                    "max_error_m": None if lv.level_error is None else float(lv.level_error),
+                }
+            )
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "store": self.where,
+            "format_version": self.format_version,
+            "created_by": self.created_by,
+            "tile_n": self.tile_n,
+            "max_level": self.max_level,
+            "wavelet": self.wavelet,
+            "bounds": list(self.bounds),
+            "sources": self.sources,
+            "levels": self.levels,
+        }
+
+    def summary(self) -> str:
+        w, s, e, n = self.bounds
+        chunks = [lv["chunk_files"] for lv in self.levels if lv["chunk_files"] is not None]
+        finest = self.levels[-1] if self.levels else None
+        lines = [
+            f"{self.where}",
+            f"  tile store, format {self.format_version} ({self.created_by})",
+            f"  levels 0..{self.max_level}, tiles of {(1 << self.tile_n) + 1} samples a side, "
+            f"wavelet {self.wavelet}",
+            f"  bounds: {w:.6f}..{e:.6f} E, {s:.6f}..{n:.6f} N",
+        ]
+        if chunks:
+            lines.append(f"  chunk files: {sum(chunks)} over {len(chunks)} levels")
+        if finest is not None:
+            lines.append(
+                f"  finest level {finest['level']}: node spacing "
+                f"{finest['node_spacing_deg'] * 3600:.3f} arc-seconds"
+            )
+        for src in self.sources:
+            lines.append(f"  source: {src['path']} ({src['crs']}, {src['vertical_datum']})")
+        return "\n".join(lines)
+
+
+def store_info(text: str) -> StoreInfo:
+    """Open a store (a folder or a URL: the manifest only) and describe it."""
+    from globeview.plugins.store_sources import check_store_url, is_store_url, open_store_url
+    from globeview.terrain.store import TileStore
+
+    if is_store_url(text):
+        where = check_store_url(text)
+        store = open_store_url(where)
+    else:
+        where, store = text, TileStore.open(text)
+    try:
+        return StoreInfo(where, store)
+    finally:
+        store.close()

@@ -10,8 +10,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "sources",
         nargs="*",
-        metavar="STORE|DEM",
-        help="tile stores or DEM files (DEMs are ingested into the cache once); "
+        metavar="STORE|URL|DEM",
+        help="tile store folders, store URLs (https://HOST/path/store, read over HTTP with "
+        "a local disk cache) or DEM files (DEMs are ingested into the cache once); "
         "none: the embedded data",
     )
     parser.add_argument("--out", "-o", required=True, help="PNG file to write")
@@ -308,10 +309,13 @@ def check_inputs(args: argparse.Namespace) -> None:
     from pathlib import Path
 
     from globeview.errors import GlobeviewError
+    from globeview.plugins.store_sources import check_store_url, is_store_url
     from globeview.terrain.dem import check_dem_path
 
     for src in args.sources:
-        if not Path(src).is_dir():  # a folder is a store, checked when it is opened
+        if is_store_url(src):
+            check_store_url(src)  # the URL's form; the server is asked when it is opened
+        elif not Path(src).is_dir():  # a folder is a store, checked when it is opened
             check_dem_path(Path(src))
     from globeview.plugins.layer_dispatch import parse_layer_spec
 
@@ -335,10 +339,11 @@ def check_cache_writable(
     from globeview.errors import GlobeviewError
     from globeview.fileio import writable_folder_problem
     from globeview.paths import cache_dir
+    from globeview.plugins.store_sources import is_store_url
     from globeview.terrain.embedded import embedded_stores_ready, store_path_for
     from globeview.terrain.store import identify
 
-    dems = [Path(s) for s in sources if not Path(s).is_dir()]
+    dems = [Path(s) for s in sources if not is_store_url(s) and not Path(s).is_dir()]
     if sources:
         needed = any(
             not identify(store_path_for(p, crs=crs, vdatum=vdatum)).is_current for p in dems
@@ -362,11 +367,12 @@ def cache_message(problem: str) -> str:
 
 
 def open_sources(sources: list[str], crs: str | None, vdatum: str | None = None):
-    """Tile stores for the given stores/DEMs (DEMs ingested into the cache; ``crs`` and
-    ``vdatum`` apply to the DEMs, a store already holds ellipsoidal heights)."""
+    """Tile stores for the given stores/store URLs/DEMs (DEMs ingested into the cache;
+    ``crs`` and ``vdatum`` apply to the DEMs, a store already holds ellipsoidal heights)."""
     from pathlib import Path
 
     from globeview.errors import GlobeviewError
+    from globeview.plugins.store_sources import is_store_url, open_store_url
     from globeview.terrain.embedded import embedded_stores, open_or_ingest
     from globeview.terrain.store import TileStore
 
@@ -375,7 +381,9 @@ def open_sources(sources: list[str], crs: str | None, vdatum: str | None = None)
     stores = []
     for src in sources:
         p = Path(src)
-        if p.is_dir() and (p / "manifest.json").exists():
+        if is_store_url(src):
+            stores.append(open_store_url(src))
+        elif p.is_dir() and (p / "manifest.json").exists():
             stores.append(TileStore.open(p))
         elif p.is_dir():
             raise GlobeviewError(f"{p} is a directory but not a globeview tile store")

@@ -68,6 +68,11 @@ ANIMATION_INTERVAL_MS = 16
 #: ~0.5 s to build, and the ancestors it draws change little until the last tiles land
 #: (issue #17).
 LOADING_FRAME_MS = 500
+#: With a remote layer, the cursor is picked again this long after the mouse stops (ms): the
+#: UI thread never waits for the network, so a pick over a finest tile not fetched yet is the
+#: depth buffer's (unrefined) point while the store fetches the tile in the background; the
+#: second pick reads the tile from the cache and refines the height the status bar shows.
+REPICK_MS = 400
 
 #: Qt keys -> `KeyEvent.key` names (printable keys use their lower-case text).
 _KEY_NAMES = {
@@ -210,6 +215,12 @@ class GlobeWidget(QOpenGLWidget):
         self._anim.setInterval(ANIMATION_INTERVAL_MS)
         self._anim.timeout.connect(self.update)
         self._click: tuple[float, float] | None = None  # left press a tool may get as a click
+        # Remote layers: the cursor picked again once the mouse rests (see REPICK_MS).
+        self._repick = QTimer(self)
+        self._repick.setSingleShot(True)
+        self._repick.setInterval(REPICK_MS)
+        self._repick.timeout.connect(self._pick_again)
+        self._cursor_px: tuple[float, float] | None = None
         # Every model change schedules a frame: nothing calls request_frame by hand for it.
         #: The model subscriptions, the window's (cleared when it closes), or its own.
         self.subscriptions = Subscriptions() if subscriptions is None else subscriptions
@@ -467,6 +478,17 @@ class GlobeWidget(QOpenGLWidget):
         finally:
             self.doneCurrent()
 
+    def has_remote_layers(self) -> bool:
+        """Whether a visible layer is a store read over HTTP (its tiles may not be here yet)."""
+        return any(bool(getattr(ly.store, "is_remote", False)) for ly in self.terrain.layers)
+
+    def _pick_again(self) -> None:
+        """The cursor rested (`REPICK_MS`): pick it again, now that the finest tile under it
+        may have arrived in the background."""
+        if self._cursor_px is None or (self.navigator is not None and self.navigator.dragging):
+            return
+        self.cursorPicked.emit(self.pick(*self._cursor_px))
+
     # -- camera ------------------------------------------------------------------------------
     def _camera_moved(self) -> None:
         """Navigation or a flight moved the camera in place: the model announces it (the
@@ -510,6 +532,9 @@ class GlobeWidget(QOpenGLWidget):
         else:
             hit = self.pick(x, y)
             self.cursorPicked.emit(hit)
+            self._cursor_px = (x, y)
+            if self.has_remote_layers():
+                self._repick.start()
             if self.active_tool() is not None:
                 mods = modifier_names(event.modifiers())
                 buttons = button_names(event.buttons())

@@ -50,16 +50,28 @@ def missing_path_error(path: str | Path) -> GlobeviewError:
 
 
 def open_store(path: str | Path, on_progress=None, vdatum: str | None = None) -> TileStore:
-    """A tile store for ``path``: a store directory is opened as is; a DEM file is ingested
+    """A tile store for ``path``: a store directory or a store URL (http/https, read remotely)
+    is opened as is; a DEM file is ingested
     into the user cache once (an unchanged file opens instantly the next time). ``vdatum``
     ("egm96" or "ellipsoid") overrides the DEM's vertical datum (None: from the file).
 
     Raises:
         GlobeviewError: the path is neither a DEM globeview can read nor a tile store.
     """
+    from globeview.plugins.store_sources import is_store_url, open_store_url
     from globeview.terrain.embedded import store_path_for
     from globeview.terrain.ingest import ingest
 
+    if is_store_url(str(path)):
+        # A store over HTTP: the manifest is fetched here, on the loader's thread (the
+        # remote reader's timeouts and retries bound the wait; Cancel discards the result).
+        store = open_store_url(str(path))
+        try:
+            warm_remote_store(store)
+        except BaseException:
+            store.close()
+            raise
+        return store
     p = Path(path)
     if p.is_dir():
         if (p / MANIFEST_NAME).exists():
@@ -77,6 +89,19 @@ def open_store(path: str | Path, on_progress=None, vdatum: str | None = None) ->
         ) from None
     ingest([p], out, vdatum=vdatum, **_ingest_kwargs(ingest, on_progress))
     return TileStore.open(out)
+
+
+def warm_remote_store(store: TileStore) -> None:
+    """Fetch, on the calling (loader) thread, what the window's UI thread reads of a remote
+    store before any frame can have fetched it: the tiles of its blend mask (`BlendMask`, a
+    few dozen coarse tiles, read whole the first time the layer is composed or selected).
+    The UI thread never waits for the network (`MainWindow.add_store`), and a mask it could
+    not build would fail the LOD selection; later reads (the border band's difference tables,
+    tiles finer than the layer's data) are bounded without the tiles until they arrive.
+    Raises `StoreError` (one line) when those tiles cannot be read: the layer is not added."""
+    from globeview.terrain.blend import BlendMask
+
+    BlendMask(store)  # reads the mask level's tiles into the store's and the disk cache
 
 
 def _ingest_kwargs(ingest_fn, on_progress) -> dict:

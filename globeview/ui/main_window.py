@@ -16,7 +16,9 @@ keyboard shortcuts — that activate the tool and call the declared method (`too
 Overlays (imagery, thematic rasters, vectors, points) live in the session
 (``GlobeSession.overlay_layers``) and are listed in the layer panel's "Overlays" group. File >
 Open Overlay… opens any raster or GeoJSON as an overlay (a single-band raster becomes a
-thematic drape); File > Open DEM… opens terrain; drag and drop, recent files and the command
+thematic drape); File > Open DEM… opens terrain; File > Open URL… opens a tile store served over
+HTTP (remembered in Open Recent like files; its tiles stream in, those that fail stay stood in
+by coarser ones and are counted in the status bar); drag and drop, recent files and the command
 line decide by content (`classify_path`): GeoJSON and RGB(A)/paletted rasters are overlays,
 single-band numeric rasters and tile store folders are DEMs. With ``embedded_overlays`` the
 window starts with the Natural Earth borders shown and the Blue Marble drape listed but
@@ -26,6 +28,7 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -58,6 +61,7 @@ from globeview.errors import GlobeviewError
 from globeview.model.camera import Camera, camera_for_bounds
 from globeview.model.globe import Globe
 from globeview.plugins.registry import PluginRegistry
+from globeview.plugins.store_sources import check_store_url, is_store_url
 from globeview.terrain.stack import TerrainStack
 from globeview.terrain.store import TileStore
 from globeview.ui.errors import ErrorReporter, UserMessage
@@ -65,6 +69,7 @@ from globeview.ui.globe_widget import GlobeWidget
 from globeview.ui.layer_panel import LayerPanel
 from globeview.ui.loading import DemLoader, missing_path_error
 from globeview.ui.navigation import HOME_POSE
+from globeview.ui.open_url import ask_store_url
 from globeview.ui.plot_dock import install_plot_dock
 from globeview.ui.plugin_host import PluginHost, QSettingsBackend
 from globeview.ui.plugin_panel import TAU_MAX_PX, TAU_MIN_PX, PluginPanel
@@ -136,6 +141,9 @@ class MainWindow(QMainWindow):
         self.qsettings = settings or QSettings("globeview", "globeview")
         self.terrain = terrain
         self.errors = ErrorReporter(show_error, self)
+        #: How File > Open URL… asks for the URL: ``ask_url(parent, initial) -> str | None``
+        #: (the checked URL or None when cancelled); tests put a function of their own here.
+        self.ask_url = ask_store_url
         #: The globe shown, as data (camera, layers, overlays, LOD provider, tool, tau,
         #: display settings); every widget below shows it and edits it.
         self.model = Globe(
@@ -247,6 +255,13 @@ class MainWindow(QMainWindow):
         )
         self.open_overlay_action.triggered.connect(self.open_overlay_dialog)
         file_menu.addAction(self.open_overlay_action)
+        self.open_url_action = QAction("Open &URL…", self)
+        self.open_url_action.setShortcut(QKeySequence("Ctrl+U"))
+        self.open_url_action.setToolTip(
+            "Open a tile store served over HTTP(S) by its URL (tiles stream in as needed)"
+        )
+        self.open_url_action.triggered.connect(self.open_url_dialog)
+        file_menu.addAction(self.open_url_action)
         self.recent_menu = file_menu.addMenu("Open &Recent")
         self.export_action = QAction("&Export Image…", self)
         self.export_action.setShortcut(QKeySequence("Ctrl+E"))
@@ -686,6 +701,9 @@ class MainWindow(QMainWindow):
         for p in paths:
             if not p:
                 continue
+            if is_store_url(str(p)):  # a store over HTTP (a recent URL, a dropped link)
+                self.open_url(str(p))
+                continue
             try:
                 kind = classify_path(p, self.plugins.registry)
             except GlobeviewError as exc:
@@ -702,6 +720,27 @@ class MainWindow(QMainWindow):
         for p in paths:
             if p:
                 self.loader.load(str(p), vdatum)
+
+    def open_url_dialog(self) -> None:
+        """File > Open URL…: ask for a store URL (the last one opened filled in) and open it."""
+        last = next((f for f in self.recent_files() if is_store_url(f)), "")
+        url = self.ask_url(self, last)
+        if url:
+            self.open_url(url)
+
+    def open_url(self, text: str) -> bool:
+        """Open the tile store at URL ``text`` in the background (its manifest is fetched by
+        the loader's worker thread, never on the UI thread). A URL of the wrong form
+        (`check_store_url`: ftp://, file://, no host, a bad port) is one line in a dialog at
+        once; an unreachable server or a folder that is not a store is one line when the
+        loader gives up (`_load_failed`). Returns whether the load was queued."""
+        try:
+            url = check_store_url(text)
+        except GlobeviewError as exc:
+            self.errors.error(exc)
+            return False
+        self.loader.load(url)
+        return True
 
     # -- overlays ----------------------------------------------------------------------------
     def open_overlay_dialog(self) -> None:
@@ -763,7 +802,7 @@ class MainWindow(QMainWindow):
             self.open_overlay(path)
 
     def _load_started(self, path: str) -> None:
-        self.load_label.setText(f"Opening {Path(path).name}…")
+        self.load_label.setText(f"Opening {source_name(path, stem=False)}…")
         self.load_bar.setRange(0, 0)  # indeterminate until progress arrives
         for w in (self.load_label, self.load_bar, self.cancel_button):
             w.show()
@@ -778,19 +817,24 @@ class MainWindow(QMainWindow):
             w.hide()
 
     def _load_failed(self, path: str, exc: BaseException) -> None:
-        self.errors.error(exc, f"cannot open {Path(path).name}")
+        self.errors.error(exc, f"cannot open {source_name(path, stem=False)}")
 
     def _loaded(self, path: str, store: TileStore) -> None:
         try:
-            self.add_store(store, Path(path).stem)
+            self.add_store(store, source_name(path))
         except Exception as exc:  # noqa: BLE001  any failure is one line in a dialog, the window keeps working
-            self.errors.error(exc, f"cannot add {Path(path).name}")
+            self.errors.error(exc, f"cannot add {source_name(path, stem=False)}")
             return
         self.add_recent(path)
         self.zoom_to_bounds(tuple(store.bounds))
 
     def add_store(self, store: TileStore, name: str) -> str:
         """Add a store as the top layer under a unique name; returns the name."""
+        if bool(getattr(store, "is_remote", False)):
+            # Read over HTTP: the UI thread (frames, picking, tools) only ever uses what is
+            # already fetched; a read that would wait raises TileNotReady at once and the
+            # store fetches the tile in the background (globeview.terrain.remote).
+            store.forbid_network_on(threading.get_ident())
         taken = {ly.name for ly in self.terrain.layers}
         unique, n = name, 2
         while unique in taken:
@@ -815,7 +859,8 @@ class MainWindow(QMainWindow):
         return [str(v) for v in val]
 
     def add_recent(self, path: str) -> None:
-        p = str(Path(path).absolute())
+        """Put a file, folder or store URL first in File > Open Recent (at most `MAX_RECENT`)."""
+        p = str(path) if is_store_url(str(path)) else str(Path(path).absolute())
         files = [p] + [f for f in self.recent_files() if f != p]
         self.qsettings.setValue("files/recent", files[:MAX_RECENT])
         self._update_recent_menu()
@@ -849,7 +894,11 @@ class MainWindow(QMainWindow):
             event.acceptProposedAction()
 
     def dropEvent(self, event: QDropEvent) -> None:
-        paths = [u.toLocalFile() for u in event.mimeData().urls() if u.isLocalFile()]
+        paths = [
+            u.toLocalFile() if u.isLocalFile() else u.toString()
+            for u in event.mimeData().urls()
+            if u.isLocalFile() or u.scheme() in ("http", "https")  # a link to a store
+        ]
         if paths:
             event.acceptProposedAction()
             self.open_paths(paths)
@@ -869,6 +918,19 @@ class MainWindow(QMainWindow):
 
     def last_error(self) -> UserMessage | None:
         return self.errors.history[-1] if self.errors.history else None
+
+
+def source_name(path: str, stem: bool = True) -> str:
+    """What the window calls an opened source: a file's stem (``name`` with ``stem`` False),
+    a store folder's name, or a store URL's last path segment (decoded; the host when the
+    path is empty)."""
+    if is_store_url(path):
+        import urllib.parse
+
+        parts = urllib.parse.urlsplit(path)
+        last = urllib.parse.unquote(parts.path.rstrip("/").rsplit("/", 1)[-1])
+        return last or parts.hostname or path
+    return Path(path).stem if stem else Path(path).name
 
 
 def classify_path(path: str | Path, registry: Any = None) -> str:
