@@ -8,6 +8,7 @@ from collections.abc import Callable
 
 import moderngl
 
+from globeview.errors import StoreError
 from globeview.lod.render_set import RenderSet
 from globeview.lod.view_state import ViewState, check_tau
 from globeview.model.camera import Camera
@@ -122,4 +123,10 @@ class GlobeScene:
             def height_at(lon: float, lat: float) -> float:
                 return terrain.height_at(lon, lat, level=terrain.max_level)
 
-        return pick(self.last.view, self.last.target, x_px, y_px, height_at, to_true)
+        try:
+            return pick(self.last.view, self.last.target, x_px, y_px, height_at, to_true)
+        except StoreError:
+            # The finest tile under the pixel cannot be read now (a remote store's tile that
+            # failed, or one not fetched yet on the window's UI thread, which never waits for
+            # the network): the depth buffer's point, on the mesh drawn, unrefined.
+            return pick(self.last.view, self.last.target, x_px, y_px, None, to_true)

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import functools
 import threading
+import time
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -40,6 +41,10 @@ N_STRIDES = 7
 #: Most tiles of a layer's border band whose |upper - lower| is measured exactly at one level
 #: (one-time work, ~1 ms a tile); finer levels bound it from the finest level within this.
 DIFF_TABLE_TILES = 1024
+#: Seconds before the band tiles a `_difference_table` could not read (a remote store's tile
+#: that failed, or one not fetched yet on a thread that may not wait for the network: the
+#: window's UI thread) are tried again; until then they are bounded by their height ranges.
+DIFF_RETRY_S = 2.0
 
 #: Bytes of ancestors' `AncestorErrors` tables kept (`TerrainStack._measured_virtual`;
 #: ~0.16 MB each for 65-node tiles); past it the least recently used go.
@@ -99,6 +104,8 @@ class TerrainStack:
         self._tables: dict[tuple[TileStore, int], tuple] = {}
         self._masks: dict[TileStore, BlendMask] = {}
         self._diffs: dict[tuple, tuple] = {}
+        # _diffs entries with unread band tiles: key -> (time.monotonic() to retry, tiles).
+        self._diffs_unread: dict[tuple, tuple[float, list[tuple[int, int]]]] = {}
         self._band_counts: dict[tuple[TileStore, int], int] = {}  # band tiles per level
         # Error tables of the ancestors of tiles finer than a layer's data (what they hold,
         # level, x, y), built on first request (`_measured_virtual`).
@@ -155,6 +162,7 @@ class TerrainStack:
             self._cache.clear()
             self._order.clear()
             self._diffs.clear()  # |upper - lower| bounds depend on which layers lie below
+            self._diffs_unread.clear()
             self._band_counts.clear()
             self._virtual.clear()
             self._virtual_sizes.clear()
@@ -301,7 +309,14 @@ class TerrainStack:
             if isinstance(hit, AncestorErrors) or hit is None:
                 tables = hit
             else:
-                anc = ancestor((lm, ax, ay))
+                try:
+                    anc = ancestor((lm, ax, ay))
+                except StoreError:
+                    # Unreadable now (a remote store's tile that failed, or one not fetched
+                    # yet on the UI thread, which never waits for the network): not measured
+                    # (the caller's bound stands) and nothing kept, so a later call measures
+                    # it once the tile is there.
+                    continue
                 tables = AncestorErrors(anc) if anc is not None else None
             if tables is not None:
                 term[a:b] = tables.bounds(f, xs[a:b] - (ax << f), ys[a:b] - (ay << f))
@@ -537,23 +552,41 @@ class TerrainStack:
         key = (st, below, level)
         with self._lock:
             hit = self._diffs.get(key)
-        if hit is not None:
+            unread = self._diffs_unread.get(key)
+        if hit is not None and (unread is None or time.monotonic() < unread[0]):
             return hit
-        mask = self._blend_mask(st)
+        version = self.version
         grid = st.level_grid(level)
         ys, xs = np.mgrid[grid.y0 : grid.y0 + grid.ny, grid.x0 : grid.x0 + grid.nx]
         xs = xs % grid.ncols
-        todo = st.has_data(level, xs, ys)
-        todo &= mask.touches_band(*tile_bounds_arrays(level, xs, ys))
-        table = np.zeros(todo.shape)
-        spread = np.zeros((*todo.shape, N_STRIDES))
-        measured = np.zeros((*todo.shape, N_STRIDES))
-        for j, c in zip(*np.nonzero(todo), strict=True):
+        if hit is None:
+            mask = self._blend_mask(st)
+            todo = st.has_data(level, xs, ys)
+            todo &= mask.touches_band(*tile_bounds_arrays(level, xs, ys))
+            tiles = [(int(j), int(c)) for j, c in zip(*np.nonzero(todo), strict=True)]
+            table = np.zeros(todo.shape)
+            spread = np.zeros((*todo.shape, N_STRIDES))
+            measured = np.zeros((*todo.shape, N_STRIDES))
+        else:  # only the tiles that could not be read last time, into copies
+            assert unread is not None
+            tiles = unread[1]
+            table, spread, measured = (a.copy() for a in hit[1:])
+        missed: list[tuple[int, int]] = []
+        for j, c in tiles:
             tile = (level, int(xs[j, c]), int(ys[j, c]))
-            lower = self._compose(tile, i)
-            composed = lower.copy()
-            upper = self._paste(i, st, tile, composed)
+            try:
+                lower = self._compose(tile, i)
+                composed = lower.copy()
+                upper = self._paste(i, st, tile, composed)
+            except StoreError:
+                # A tile that cannot be read now (see DIFF_RETRY_S): bounded from the height
+                # ranges below, measured again later.
+                missed.append((j, c))
+                continue
             if upper is None:
+                table[j, c] = 0.0
+                spread[j, c] = 0.0
+                measured[j, c] = 0.0
                 continue
             # Where either is missing the node is one layer's own: B_i = L_i + w_i * 0 with
             # the continuous w_i (U taken as L where U has no data, L as U where L has none),
@@ -564,10 +597,45 @@ class TerrainStack:
             table[j, c] = float(np.abs(delta).max())
             spread[j, c] = _cell_spreads(delta)
             measured[j, c] = _stride_interpolation_errors(composed)
+        if missed:
+            self._bound_unread(i, st, level, xs, ys, missed, table, spread, measured)
         hit = (grid, table, spread, measured)
         with self._lock:
-            self._diffs[key] = hit
+            if self.version == version:  # the layers changed meanwhile: do not keep it
+                self._diffs[key] = hit
+                if missed:
+                    self._diffs_unread[key] = (time.monotonic() + DIFF_RETRY_S, missed)
+                else:
+                    self._diffs_unread.pop(key, None)
         return hit
+
+    def _bound_unread(
+        self,
+        i: int,
+        st: TileStore,
+        level: int,
+        xs: np.ndarray,
+        ys: np.ndarray,
+        tiles: list[tuple[int, int]],
+        table: np.ndarray,
+        spread: np.ndarray,
+        measured: np.ndarray,
+    ) -> None:
+        """Fill `_difference_table`'s rows of band tiles that could not be read with bounds
+        from the manifests alone: |U - L| <= max(U_max - L_min, L_max - U_min) from layer
+        ``i``'s and the composed lower layers' height ranges (`_metadata`), a drawn cell's
+        spread of U - L <= twice that, and E(s) not measured (inf: `_blend_total` keeps its
+        algebraic bound). Looser than the measured values, never smaller."""
+        jj = np.array([t[0] for t in tiles])
+        cc = np.array([t[1] for t in tiles])
+        x, y = xs[jj, cc], ys[jj, cc]
+        u_lo, u_hi = (np.nan_to_num(v.astype(np.float64)) for v in st.tile_hrange(level, x, y))
+        below = self._metadata(level, x, y, i)
+        d = np.maximum(u_hi - below.hmin, below.hmax - u_lo)
+        d = np.maximum(d, 0.0)
+        table[jj, cc] = d
+        spread[jj, cc] = 2.0 * d[:, None]
+        measured[jj, cc] = np.inf
 
     def blend_weight(self, i: int, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
         """Weight (0..1) of visible layer ``i`` over the layers below at points (degrees): 1
