@@ -57,3 +57,102 @@ def test_urls_of_the_wrong_form_are_one_line(tmp_path: Path, command: str, url: 
     res = globeview(command, url, *extra, cache=tmp_path / "c")
     assert needle in one_error_line(res)
     assert not out.exists()
+
+
+DATA = Path(__file__).resolve().parents[2] / "data"
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    """A folder served on 127.0.0.1 holding the Vancouver store twice ("store" and
+    "a store", a name with a space), a folder that is not a store and one whose
+    manifest.json is 1 GB (sparse)."""
+    import shutil
+
+    from globeview.bench.http_server import StaticServer
+    from globeview.terrain.ingest import ingest
+
+    root = tmp_path_factory.mktemp("www")
+    ingest([DATA / "topobathy_vancouver.tif"], root / "store")
+    shutil.copytree(root / "store", root / "a store")
+    (root / "notstore").mkdir()
+    (root / "notstore" / "readme.txt").write_text("hello")
+    (root / "huge").mkdir()
+    with open(root / "huge" / "manifest.json", "wb") as f:
+        f.truncate(1 << 30)
+    with StaticServer(root) as server:
+        yield server, root
+
+
+def test_render_url_writes_the_local_stores_png(served, tmp_path: Path) -> None:
+    server, root = served
+    server.clear_faults()
+    view = ["--size", "320x240", "--camera", "-123.2,49.2,60000,20,-50"]
+    local = globeview("render", str(root / "store"), "-o", str(tmp_path / "l.png"), *view,
+                      cache=tmp_path / "c1")  # fmt: skip
+    remote = globeview("render", f"{server.url}/store", "-o", str(tmp_path / "r.png"), *view,
+                       "--stats", str(tmp_path / "r.json"), cache=tmp_path / "c2")  # fmt: skip
+    assert local.returncode == 0 and remote.returncode == 0, local.stderr + remote.stderr
+    assert (tmp_path / "l.png").read_bytes() == (tmp_path / "r.png").read_bytes()
+    assert server.requests("*/store/level_*"), "the tiles came over HTTP"
+    # A name with a space, typed as is: sent percent-encoded, the same picture.
+    spaced = globeview("render", f"{server.url}/a store", "-o", str(tmp_path / "s.png"), *view,
+                       cache=tmp_path / "c3")  # fmt: skip
+    assert spaced.returncode == 0, spaced.stderr
+    assert (tmp_path / "s.png").read_bytes() == (tmp_path / "l.png").read_bytes()
+
+
+def test_info_url_describes_the_store(served, tmp_path: Path) -> None:
+    import json
+
+    server, root = served
+    server.clear_faults()
+    res = globeview("info", f"{server.url}/store", cache=tmp_path / "c")
+    assert res.returncode == 0, res.stderr
+    assert "tile store, format 5" in res.stdout and "levels 0..7" in res.stdout
+    res = globeview("info", "--json", f"{server.url}/store", str(root / "store"), cache=tmp_path)
+    remote, local = json.loads(res.stdout)
+    assert remote["store"] == f"{server.url}/store"
+    assert {k: v for k, v in remote.items() if k != "store"} == {
+        k: v for k, v in local.items() if k != "store"
+    }
+
+
+@pytest.mark.parametrize("command", ["render", "info"])
+@pytest.mark.parametrize(
+    ("where", "needle"),
+    [
+        ("closed port", "connection refused"),
+        ("notstore", "not a globeview tile store"),
+        ("missing", "not a globeview tile store"),
+        ("huge", "too large"),
+    ],
+)
+def test_unreadable_stores_are_one_line(served, tmp_path: Path, command, where, needle) -> None:
+    server, _ = served
+    server.clear_faults()
+    url = (
+        f"http://127.0.0.1:{closed_port()}/store"
+        if where == "closed port"
+        else (f"{server.url}/{where}")
+    )
+    out = tmp_path / "x.png"
+    extra = ["--out", str(out), "--size", "64x48"] if command == "render" else []
+    res = globeview(command, url, *extra, cache=tmp_path / "c", timeout=120)
+    assert needle in one_error_line(res)
+    assert not out.exists()
+
+
+def test_a_server_failing_tiles_is_one_line_and_writes_nothing(served, tmp_path: Path) -> None:
+    server, _ = served
+    server.clear_faults()
+    server.fault("*/store/level_0[4-7]_*", status=500)
+    try:
+        out = tmp_path / "x.png"
+        res = globeview("render", f"{server.url}/store", "-o", str(out), "--size", "320x240",
+                        cache=tmp_path / "c", timeout=180)  # fmt: skip
+        line = one_error_line(res)
+        assert "500" in line, line
+        assert not out.exists()
+    finally:
+        server.clear_faults()
