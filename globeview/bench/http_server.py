@@ -32,6 +32,7 @@ from __future__ import annotations
 import fnmatch
 import os
 import re
+import sys
 import threading
 import time
 import urllib.parse
@@ -185,6 +186,12 @@ class _Server(ThreadingHTTPServer):
     daemon_threads = True
     allow_reuse_address = True
     owner: StaticServer
+
+    def handle_error(self, request: object, client_address: object) -> None:
+        """A client closing its connection (a timeout, a dropped read) is no server error."""
+        exc = sys.exc_info()[1]
+        if not isinstance(exc, ConnectionError | TimeoutError):
+            super().handle_error(request, client_address)  # type: ignore[arg-type]
 
 
 class StaticServer:

@@ -42,6 +42,8 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import contextvars
+import hashlib
 import io
 import re
 import threading
@@ -74,6 +76,7 @@ __all__ = [
     "RemoteOptions",
     "RemoteSource",
     "TileNotReady",
+    "close_dataset",
     "fetch",
     "is_url",
     "take_error",
@@ -97,9 +100,16 @@ class _RemoteBytes:
 
     _MEMORY_PAGES = 8
 
-    def __init__(self, url: str, sha256: str | None, opts: RemoteOptions) -> None:
+    def __init__(
+        self,
+        url: str,
+        sha256: str | None,
+        opts: RemoteOptions,
+        no_network: frozenset[int] | set[int] = frozenset(),
+    ) -> None:
         self.url = url
         self.opts = opts
+        self.no_network = no_network  # thread idents that must not wait on the network
         self.page = opts.page_bytes
         self.key = sha256 if sha256 is not None and _SHA256.match(sha256) else None
         self.cache = opts.cache()
@@ -139,6 +149,8 @@ class _RemoteBytes:
         """Fetch pages first..last (inclusive) in one range request into memory and the
         disk cache; returns the pages got (every page of the file when the server sent it
         whole)."""
+        if threading.get_ident() in self.no_network:
+            raise TileNotReady(f"{_short_url(self.url)}: not loaded yet")
         p = self.page
         end = (last + 1) * p if self._size is None else min((last + 1) * p, self._size)
         ans = fetch(self.url, self.opts, (first * p, end))
@@ -214,9 +226,9 @@ class _RemoteBytes:
 _errors = threading.local()
 
 
-def take_error() -> RemoteError | None:
-    """The `RemoteError` of this thread's last failed remote read since the last call (and
-    forget it); None if there was none."""
+def take_error() -> StoreError | None:
+    """The `RemoteError` (or `TileNotReady`) of this thread's last failed remote read since
+    the last call (and forget it); None if there was none."""
     err = getattr(_errors, "error", None)
     _errors.error = None
     return err
@@ -267,7 +279,7 @@ class _RemoteFile(io.RawIOBase):
         crash (a failed size read as a huge length), so the callbacks never raise."""
         try:
             return fn()
-        except RemoteError as exc:
+        except StoreError as exc:
             _errors.error = exc
         except Exception as exc:  # noqa: BLE001 - never into GDAL; reported by the store
             _errors.error = RemoteError(f"reading over HTTP: {type(exc).__name__}: {exc}", "")
@@ -310,16 +322,33 @@ class _Opener(FileContainer):
         raise PermissionError(path)
 
 
-# Remote datasets still open: closed before the interpreter exits (GDAL calling into a
-# Python file object during teardown crashes).
-_open_datasets: weakref.WeakSet[Any] = weakref.WeakSet()
+# Remote datasets still open, with the context they were opened in. rasterio keeps its
+# opener's file objects in ContextVars, so a dataset must be closed in its opening thread's
+# context (a close from another thread, as `TileStore.close` does, raised KeyError inside
+# rasterio); and they are closed before the interpreter exits (GDAL calling into a Python
+# file object during teardown crashes).
+_open_datasets: weakref.WeakKeyDictionary[Any, contextvars.Context] = weakref.WeakKeyDictionary()
+_open_lock = threading.Lock()
+
+
+def close_dataset(ds: rasterio.DatasetReader) -> None:
+    """Close a dataset from any thread: a remote one in the context it was opened in."""
+    with _open_lock:
+        ctx = _open_datasets.pop(ds, None)
+    if ctx is None:
+        ds.close()
+    else:
+        ctx.run(ds.close)
 
 
 @atexit.register
 def _close_all() -> None:
-    for ds in list(_open_datasets):
+    with _open_lock:
+        items = list(_open_datasets.items())
+        _open_datasets.clear()
+    for ds, ctx in items:
         with contextlib.suppress(Exception):  # best effort at exit
-            ds.close()
+            ctx.run(ds.close)
 
 
 @dataclass
@@ -336,10 +365,25 @@ class RemoteSource:
         self._files: dict[str, _RemoteBytes] = {}
         self._lock = threading.Lock()
         self._opener = _Opener(self._files)
+        self._no_network: set[int] = set()
+
+    def forbid_network_on(self, thread_ident: int) -> None:
+        """Reads on this thread (e.g. a window's UI thread) never wait on the network: bytes
+        in neither memory nor the disk cache raise `TileNotReady` at once."""
+        self._no_network.add(int(thread_ident))
 
     def url(self, name: str) -> str:
         """The URL of a file of the store."""
         return f"{self.base_url}/{urllib.parse.quote(name)}"
+
+    def describe(self, name: str) -> str:
+        """A file's URL, for messages."""
+        return self.url(name)
+
+    def sha256(self, name: str) -> str:
+        """The sha256 of a whole store file fetched afresh (for `TileStore.verify`; at most
+        `WHOLE_FILE_LIMIT` bytes)."""
+        return hashlib.sha256(fetch(self.url(name), self.options, None).body).hexdigest()
 
     def read_manifest(self, name: str) -> bytes:
         """The manifest's bytes (at most `RemoteOptions.max_manifest_mb`); StoreError one
@@ -363,7 +407,8 @@ class RemoteSource:
         with self._lock:
             data = self._files.get(url)
             if data is None or data.key != sha256:
-                data = self._files[url] = _RemoteBytes(url, sha256, self.options)
+                data = _RemoteBytes(url, sha256, self.options, self._no_network)
+                self._files[url] = data
         take_error()
         try:
             ds = rasterio.open(url, opener=self._opener, sharing=False)
@@ -372,5 +417,6 @@ class RemoteSource:
             if err is not None:
                 raise err from None
             raise
-        _open_datasets.add(ds)
+        with _open_lock:
+            _open_datasets[ds] = contextvars.copy_context()
         return ds

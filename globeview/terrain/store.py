@@ -7,6 +7,13 @@ A store is a directory with ``manifest.json`` and one grid-registered GeoTIFF pe
 
 Heights are metres; tile metadata (``error``, ``hmin``, ``hmax``, stride errors) are metres.
 
+A store may also be a URL (``http(s)://host/path/store``, see `globeview.terrain.remote`):
+the same folder served by any static HTTP server. Tiles are read from the level's chunk files
+(``level_LL_rRRRR_cCCCC.tif``) directly, locally and remotely alike (`_LocalFiles`,
+`remote.RemoteSource`): only the chunks a tile's window touches are opened, and a remote
+chunk's bytes come by HTTP range requests through a disk cache. A tile that cannot be
+fetched is one `StoreError` line naming the URL and the HTTP status.
+
 The manifest's format is defined once, as typed dataclasses, in
 `globeview.terrain.store_schema` (ingest writes a `StoreManifest`, this module reads one).
 
@@ -23,19 +30,23 @@ import hashlib
 import json
 import re
 import threading
+import urllib.parse
 from collections import OrderedDict
 from collections.abc import Iterable
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from types import TracebackType
-from typing import Literal
+from typing import Literal, Protocol
 
 import numpy as np
 import rasterio
+from affine import Affine
 from rasterio.errors import RasterioError
 from rasterio.windows import Window
 
 from globeview.errors import StoreError
+from globeview.terrain import remote
+from globeview.terrain.level_chunks import chunk_window
 from globeview.terrain.levels import LevelGrid
 from globeview.terrain.quadtree import TileKey
 from globeview.terrain.store_schema import (
@@ -47,6 +58,8 @@ from globeview.terrain.store_schema import (
     StoreHeader,
     StoreManifest,
     built_before_vdatums,
+    chunk_file_name,
+    chunk_grid_shape,
 )
 
 __all__ = [
@@ -62,6 +75,8 @@ MANIFEST_NAME = "manifest.json"
 DEFAULT_CACHE_TILES = 256
 #: Decoded raster blocks a store keeps (256 x 256 float32: 256 KB each, so 16 MB).
 BLOCK_CACHE = 64
+#: Chunk datasets a thread keeps open (least recently used closed first).
+HANDLES_PER_THREAD = 32
 # The per-tile arrays of a `LevelRecord` that `TileStore._lookup` serves.
 _TileArray = Literal["error", "hmin", "hmax", "stride_error"]
 
@@ -175,11 +190,92 @@ def _check_level_file(path: Path, ds: rasterio.DatasetReader, grid: LevelGrid) -
         )
 
 
+def _checked_manifest(where: str, raw: dict[str, object]) -> StoreManifest:
+    """The manifest of the store at ``where`` (a folder or URL) from its parsed JSON, checked:
+    the format version this globeview reads, then the whole schema (StoreError one line)."""
+    version = StoreHeader.peek(raw).format_version
+    if built_before_vdatums(version):
+        raise StoreError(
+            f"{where}: store built before vertical datums (format version {version}, heights"
+            " not ellipsoidal); rebuild it with globeview ingest --force"
+        )
+    if version != FORMAT_VERSION:  # a bool (0/1) is never the current version
+        raise StoreError(
+            f"{where}: store format version {str(version)[:20]} is not supported (this "
+            f"globeview reads version {FORMAT_VERSION}); re-run globeview ingest --force"
+        )
+    try:
+        return StoreManifest.from_json(raw)
+    except ManifestError as exc:
+        raise StoreError(f"{where}: damaged {MANIFEST_NAME} ({_short(exc)})") from None
+
+
+def _check_chunk(where: str, ds: rasterio.DatasetReader, grid: LevelGrid, window: tuple) -> None:
+    """StoreError unless ``ds`` is the chunk file the manifest describes (its window of
+    ``grid``'s raster: size, float32, the level's geotransform moved to its corner)."""
+    r0, c0, h, w = window
+    want = grid.transform @ Affine.translation(c0, r0)
+    if (
+        (ds.width, ds.height) != (w, h)
+        or ds.count != 1
+        or ds.dtypes[0] != "float32"
+        or not ds.transform.almost_equals(want, precision=grid.d * 1e-6)
+    ):
+        raise StoreError(
+            f"{where} does not match the store's manifest ({ds.width}x{ds.height} "
+            f"{ds.dtypes[0]}, expected {w}x{h} float32 at its place in the level); re-run "
+            "globeview ingest --force"
+        )
+
+
+class _Files(Protocol):
+    """Where a store's files are: a local folder (`_LocalFiles`) or a URL
+    (`remote.RemoteSource`)."""
+
+    def describe(self, name: str) -> str: ...
+
+    def open_raster(self, name: str, sha256: str | None) -> rasterio.DatasetReader: ...
+
+    def sha256(self, name: str) -> str: ...
+
+
+class _LocalFiles:
+    """A store folder on disk."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+
+    def describe(self, name: str) -> str:
+        return str(self.folder / name)
+
+    def open_raster(self, name: str, sha256: str | None) -> rasterio.DatasetReader:
+        """Open a store raster; StoreError naming it when missing (rasterio's error when
+        damaged)."""
+        path = self.folder / name
+        if not path.is_file():
+            raise StoreError(f"{path}: level file is missing; re-run globeview ingest --force")
+        return rasterio.open(path)
+
+    def sha256(self, name: str) -> str:
+        """The sha256 of a store file (StoreError naming it when unreadable)."""
+        h = hashlib.sha256()
+        try:
+            with (self.folder / name).open("rb") as f:
+                while chunk := f.read(1 << 20):
+                    h.update(chunk)
+        except OSError as exc:
+            raise StoreError(f"cannot read {self.folder / name}: {exc.strerror}") from None
+        return h.hexdigest()
+
+
 class TileStore:
     """A tile pyramid on disk. Open with `TileStore.open(path)`; thread-safe reads.
 
     Attributes:
-        path: the store directory.
+        path: the store directory (a remote store: its URL's path, so ``path.name`` names
+            it too).
+        url: the store's URL (no trailing slash) when it is read over HTTP, else None.
+        location: the folder or the URL, for people.
         manifest: the checked manifest (`StoreManifest`: sources with their vertical datums,
             ingest parameters, levels with their per-tile metadata).
         tile_n: tiles have 2^tile_n node intervals a side.
@@ -193,9 +289,16 @@ class TileStore:
     """
 
     def __init__(
-        self, path: Path, manifest: StoreManifest, cache_tiles: int = DEFAULT_CACHE_TILES
+        self,
+        path: Path,
+        manifest: StoreManifest,
+        cache_tiles: int = DEFAULT_CACHE_TILES,
+        files: remote.RemoteSource | None = None,
     ) -> None:
         self.path = path
+        self.url: str | None = files.base_url if files is not None else None
+        self.location = self.url if self.url is not None else str(path)
+        self._files: _Files = files if files is not None else _LocalFiles(path)
         self.manifest = manifest
         self.tile_n = manifest.tile_n
         self.max_level = manifest.max_level
@@ -206,30 +309,52 @@ class TileStore:
         self._levels: tuple[LevelRecord, ...] = manifest.levels
         self._grids = [lv.grid(self.tile_n) for lv in self._levels]
         self._ncols = [g.ncols for g in self._grids]  # (a property computed on each use)
-        for level in range(self.max_level + 1):
-            self._open_level(level).close()
+        # Chunk (cy, cx) of each level -> its index in the level's `chunks` (a missing one
+        # reads as NaN), and the chunk grid's shape.
+        self._chunk_index = [
+            {(int(cy), int(cx)): i for i, (cy, cx) in enumerate(lv.chunks)} for lv in self._levels
+        ]
+        self._chunk_shape = [
+            chunk_grid_shape(g, lv.chunk_nodes) for g, lv in zip(self._grids, self._levels)
+        ]
+        if files is None:  # a local store checks its files now (cheap); a remote one on use
+            for level in range(self.max_level + 1):
+                self._open_level(level).close()
         self.tile_size = (1 << self.tile_n) + 1
         self._cache: OrderedDict[TileKey, np.ndarray] = OrderedDict()
         self._cache_tiles = max(1, int(cache_tiles))
         self._lock = threading.Lock()
         self._local = threading.local()
-        self._all_handles: list[rasterio.DatasetReader] = []
+        self._all_handles: set[rasterio.DatasetReader] = set()
+        #: GDAL block shape of each chunk file opened so far, by (level, chunk index).
+        self._block_shapes: dict[tuple[int, int], tuple[int, int]] = {}
         self._pool: ThreadPoolExecutor | None = None
         self._closed = False
-        self._blocks: OrderedDict[tuple[int, int, int], np.ndarray] = OrderedDict()
+        #: Decoded blocks by (level, chunk index, block row, block column).
+        self._blocks: OrderedDict[tuple[int, int, int, int], np.ndarray] = OrderedDict()
         #: `_data_table`s by (level, grow); small, built on first use (races only rebuild).
         self._tables: dict[tuple[int, int], np.ndarray] = {}
 
     # -- opening ---------------------------------------------------------------------------
 
     @classmethod
-    def open(cls, path: str | Path, cache_tiles: int = DEFAULT_CACHE_TILES) -> TileStore:
-        """Open a store directory. Reads only the manifest (fast); no checksum pass.
+    def open(
+        cls,
+        path: str | Path,
+        cache_tiles: int = DEFAULT_CACHE_TILES,
+        remote_options: remote.RemoteOptions | None = None,
+    ) -> TileStore:
+        """Open a store directory, or a store URL (``http(s)://``, read over HTTP with
+        ``remote_options``, default `remote.RemoteOptions()`). Reads only the manifest
+        (fast); no checksum pass.
 
         Raises:
             StoreError: not a directory, no/unreadable/corrupt manifest, unsupported
-                format_version, or a missing level file.
+                format_version, or a missing level file; for a URL: unreachable, HTTP 404
+                (not a store) or another HTTP error, a manifest over its size bound.
         """
+        if isinstance(path, str) and remote.is_url(path):
+            return cls._open_url(path, cache_tiles, remote_options or remote.RemoteOptions())
         p = Path(path)
         mpath = p / MANIFEST_NAME
         if not p.is_dir():
@@ -245,22 +370,34 @@ class TileStore:
         ident = identify(p.resolve())  # a symlink to a store reads as the store
         if not ident.is_globeview:
             raise StoreError(f"{p} is not a globeview tile store ({MANIFEST_NAME} is not ours)")
-        version = StoreHeader.peek(raw).format_version
-        if built_before_vdatums(version):
-            raise StoreError(
-                f"{p}: store built before vertical datums (format version {version}, heights"
-                " not ellipsoidal); rebuild it with globeview ingest --force"
-            )
-        if version != FORMAT_VERSION:  # a bool (0/1) is never the current version
-            raise StoreError(
-                f"{p}: store format version {str(version)[:20]} is not supported (this "
-                f"globeview reads version {FORMAT_VERSION}); re-run globeview ingest --force"
-            )
+        return cls(p, _checked_manifest(str(p), raw), cache_tiles)
+
+    @classmethod
+    def _open_url(cls, url: str, cache_tiles: int, options: remote.RemoteOptions) -> TileStore:
+        """`open` for a store URL: its manifest fetched (bounded) and checked as a local one."""
+        files = remote.RemoteSource(url, options)
+        where = files.base_url
+        data = files.read_manifest(MANIFEST_NAME)
         try:
-            manifest = StoreManifest.from_json(raw)
-        except ManifestError as exc:
-            raise StoreError(f"{p}: damaged {MANIFEST_NAME} ({_short(exc)})") from None
-        return cls(p, manifest, cache_tiles)
+            raw = json.loads(data.decode("utf-8"))
+        except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+            raise StoreError(
+                f"{files.url(MANIFEST_NAME)}: unreadable manifest ({type(exc).__name__})"
+            ) from None
+        if not isinstance(raw, dict):
+            raise StoreError(f"{files.url(MANIFEST_NAME)}: unreadable manifest (not a JSON object)")
+        if StoreHeader.peek(raw).format != STORE_FORMAT:
+            raise StoreError(f"{where} is not a globeview tile store ({MANIFEST_NAME} is not ours)")
+        manifest = _checked_manifest(where, raw)
+        path = Path(urllib.parse.unquote(urllib.parse.urlsplit(where).path) or "/")
+        return cls(path, manifest, cache_tiles, files)
+
+    def forbid_network_on(self, thread_ident: int) -> None:
+        """Reads on this thread (a window's UI thread) never wait on the network: a tile of a
+        remote store whose bytes are not cached raises `remote.TileNotReady` at once and is
+        loaded in the background (a later call finds it cached). No effect on a local store."""
+        if isinstance(self._files, remote.RemoteSource):
+            self._files.forbid_network_on(thread_ident)
 
     def verify(self) -> None:
         """Check every level file (the VRT and each chunk file) against its sha256 in the
@@ -270,15 +407,8 @@ class TileStore:
         """
         for lv in self._levels:
             for name, want in ((lv.file, lv.sha256), *zip(lv.chunk_files(), lv.chunk_sha256)):
-                h = hashlib.sha256()
-                try:
-                    with (self.path / name).open("rb") as f:
-                        while chunk := f.read(1 << 20):
-                            h.update(chunk)
-                except OSError as exc:
-                    raise StoreError(f"cannot read {self.path / name}: {exc.strerror}") from None
-                if h.hexdigest() != want:
-                    raise StoreError(f"{self.path / name} is damaged (checksum mismatch)")
+                if self._files.sha256(name) != want:
+                    raise StoreError(f"{self._files.describe(name)} is damaged (checksum mismatch)")
 
     # -- metadata (vectorised) ---------------------------------------------------------------
 
@@ -359,23 +489,75 @@ class TileStore:
             raise
         return ds
 
-    def _dataset(self, level: int) -> rasterio.DatasetReader:
-        """This thread's handle on a level raster (GDAL datasets are not thread-safe)."""
-        handles = getattr(self._local, "handles", None)
-        if handles is None:
-            handles = self._local.handles = {}
-        ds = handles.get(level)
-        if ds is None:
-            if self._closed:  # a worker thread still building after close() opens nothing
-                raise StoreError(f"{self.path}: the store is closed")
-            ds = self._open_level(level)
-            with self._lock:
-                if self._closed:  # close() ran while this thread was opening the file
-                    ds.close()
-                    raise StoreError(f"{self.path}: the store is closed")
-                self._all_handles.append(ds)
-            handles[level] = ds
+    def _open_chunk(self, level: int, index: int) -> rasterio.DatasetReader:
+        """Open chunk ``index`` of a level (local or over HTTP), checked against the manifest;
+        StoreError naming the file (a remote one: its URL and the HTTP status)."""
+        lv = self._levels[level]
+        cy, cx = (int(v) for v in lv.chunks[index])
+        name = chunk_file_name(level, cy, cx)
+        where = self._files.describe(name)
+        grid = self._grids[level]
+        remote.take_error()
+        try:
+            ds = self._files.open_raster(name, lv.chunk_sha256[index])
+        except RASTER_ERRORS as exc:
+            err = remote.take_error()
+            if err is not None:
+                raise err from None
+            raise StoreError(f"{where} is damaged: {_short(exc)}") from None
+        try:
+            _check_chunk(where, ds, grid, chunk_window(grid, lv.chunk_nodes, cy, cx))
+        except BaseException:
+            ds.close()
+            raise
+        with self._lock:
+            self._block_shapes[(level, index)] = ds.block_shapes[0]
         return ds
+
+    def _chunk_where(self, level: int, index: int) -> str:
+        """The path or URL of chunk ``index`` of a level, for messages."""
+        cy, cx = (int(v) for v in self._levels[level].chunks[index])
+        return self._files.describe(chunk_file_name(level, cy, cx))
+
+    def _chunk_dataset(self, level: int, index: int) -> rasterio.DatasetReader:
+        """This thread's handle on chunk ``index`` of a level (GDAL datasets are not
+        thread-safe), opened on first use; a thread keeps its HANDLES_PER_THREAD most
+        recently used ones open."""
+        handles: OrderedDict[tuple[int, int], rasterio.DatasetReader] | None = getattr(
+            self._local, "handles", None
+        )
+        if handles is None:
+            handles = self._local.handles = OrderedDict()
+        key = (level, index)
+        ds = handles.get(key)
+        if ds is not None:
+            handles.move_to_end(key)
+            return ds
+        if self._closed:  # a worker thread still building after close() opens nothing
+            raise StoreError(f"{self.location}: the store is closed")
+        ds = self._open_chunk(level, index)
+        with self._lock:
+            if self._closed:  # close() ran while this thread was opening the file
+                ds.close()
+                raise StoreError(f"{self.location}: the store is closed")
+            self._all_handles.add(ds)
+        handles[key] = ds
+        while len(handles) > HANDLES_PER_THREAD:
+            self._close_handle(handles.popitem(last=False)[1])
+        return ds
+
+    def _drop_chunk_dataset(self, level: int, index: int) -> None:
+        """Close this thread's handle on a chunk after a failed read (the next read opens
+        it afresh: a server back up, a file replaced)."""
+        handles = getattr(self._local, "handles", None)
+        ds = handles.pop((level, index), None) if handles is not None else None
+        if ds is not None:
+            self._close_handle(ds)
+
+    def _close_handle(self, ds: rasterio.DatasetReader) -> None:
+        with self._lock:
+            self._all_handles.discard(ds)
+        remote.close_dataset(ds)
 
     def _read_padded(self, key: TileKey) -> np.ndarray:
         """A tile's nodes with one node beyond each edge: (tile_size + 2)^2 float32, NaN = no
@@ -412,12 +594,12 @@ class TileStore:
                     self._read_into(key.level, r_lo, turn - 1, out[rows, :1])
                 if c0 + size + 2 > grid.width:
                     self._read_into(key.level, r_lo, 1, out[rows, -1:])
-        except _READ_ERRORS as exc:
-            # A level file damaged (truncated, rewritten) after the store was opened.
-            raise StoreError(
-                f"cannot read tile {tuple(key)} from {self.path / self._levels[key.level].file}: "
-                f"{_short(exc)}"
-            ) from None
+        except remote.TileNotReady:
+            raise
+        except StoreError as exc:
+            # A chunk file damaged (truncated, rewritten) after the store was opened, or a
+            # remote one that could not be fetched (the message names its URL and status).
+            raise StoreError(f"cannot read tile {tuple(key)}: {exc}") from None
         # A node on the extent's edge belongs to the tile outside it too, which serves NaN:
         # blank each part of the window whose tile lies outside the extent.
         for dy, rows_ in ((-1, slice(0, 1)), (0, slice(1, size + 1)), (1, slice(size + 1, None))):
@@ -434,37 +616,68 @@ class TileStore:
         return out
 
     def _read_into(self, level: int, row: int, col: int, out: np.ndarray) -> None:
-        """Fill ``out`` with the level raster's nodes from (row, col) on, from whole GDAL
-        blocks kept decoded in `_blocks`: a tile window spans up to 4 blocks, and a view's
-        tiles share them (a 67 x 67 window read cost ~0.11 ms, a copy out of cached blocks
-        ~0.01 ms; each 256 x 256 block is read and inflated once)."""
-        ds = self._dataset(level)
-        bh, bw = ds.block_shapes[0]
+        """Fill ``out`` with the level raster's nodes from (row, col) on, chunk by chunk (a
+        tile's padded window touches up to 4 chunks: its last row/column and its ring may
+        lie in the next ones); a chunk without a file (all NaN) reads as NaN."""
+        grid = self._grids[level]
+        c_n = self._levels[level].chunk_nodes
+        rows_c, cols_c = self._chunk_shape[level]
+        h, w = out.shape
+        for cy in range(min(row // c_n, rows_c - 1), min((row + h - 1) // c_n, rows_c - 1) + 1):
+            cr0 = cy * c_n
+            cr1 = grid.height if cy == rows_c - 1 else cr0 + c_n
+            r_a, r_b = max(row, cr0), min(row + h, cr1)
+            for cx in range(min(col // c_n, cols_c - 1), min((col + w - 1) // c_n, cols_c - 1) + 1):
+                cc0 = cx * c_n
+                cc1 = grid.width if cx == cols_c - 1 else cc0 + c_n
+                c_a, c_b = max(col, cc0), min(col + w, cc1)
+                part = out[r_a - row : r_b - row, c_a - col : c_b - col]
+                index = self._chunk_index[level].get((cy, cx))
+                if index is None:
+                    part[...] = np.nan
+                else:
+                    self._read_chunk(level, index, r_a - cr0, c_a - cc0, part)
+
+    def _read_chunk(self, level: int, index: int, row: int, col: int, out: np.ndarray) -> None:
+        """Fill ``out`` with chunk ``index``'s nodes from (row, col) of the chunk on, from
+        whole GDAL blocks kept decoded in `_blocks`: a tile window spans up to 4 blocks, and
+        a view's tiles share them (a 67 x 67 window read cost ~0.11 ms, a copy out of cached
+        blocks ~0.01 ms; each 256 x 256 block is read and inflated once). The chunk's file
+        is opened only when a block is not cached."""
+        shape = self._block_shapes.get((level, index))
+        if shape is None:
+            shape = self._chunk_dataset(level, index).block_shapes[0]
+        bh, bw = shape
         h, w = out.shape
         for bi in range(row // bh, (row + h - 1) // bh + 1):
             for bj in range(col // bw, (col + w - 1) // bw + 1):
-                block = self._block(ds, level, bi, bj, bh, bw)
+                block = self._block(level, index, bi, bj, bh, bw)
                 r_a, r_b = max(row, bi * bh), min(row + h, (bi + 1) * bh)
                 c_a, c_b = max(col, bj * bw), min(col + w, (bj + 1) * bw)
                 out[r_a - row : r_b - row, c_a - col : c_b - col] = block[
                     r_a - bi * bh : r_b - bi * bh, c_a - bj * bw : c_b - bj * bw
                 ]
 
-    def _block(
-        self, ds: rasterio.DatasetReader, level: int, bi: int, bj: int, bh: int, bw: int
-    ) -> np.ndarray:
-        """GDAL block (bi, bj) of a level raster, decoded (an LRU of BLOCK_CACHE blocks)."""
-        key = (level, bi, bj)
+    def _block(self, level: int, index: int, bi: int, bj: int, bh: int, bw: int) -> np.ndarray:
+        """GDAL block (bi, bj) of a chunk file, decoded (an LRU of BLOCK_CACHE blocks)."""
+        key = (level, index, bi, bj)
         with self._lock:
             hit = self._blocks.get(key)
             if hit is not None:
                 self._blocks.move_to_end(key)
                 return hit
+        ds = self._chunk_dataset(level, index)
         r0, c0 = bi * bh, bj * bw
-        grid = self._grids[level]
-        block = ds.read(
-            1, window=Window(c0, r0, min(bw, grid.width - c0), min(bh, grid.height - r0))
-        )
+        window = Window(c0, r0, min(bw, ds.width - c0), min(bh, ds.height - r0))
+        remote.take_error()
+        try:
+            block = ds.read(1, window=window)
+        except _READ_ERRORS as exc:
+            self._drop_chunk_dataset(level, index)
+            err = remote.take_error()
+            if err is not None:
+                raise err from None
+            raise StoreError(f"{self._chunk_where(level, index)}: {_short(exc)}") from None
         with self._lock:
             self._blocks[key] = block
             while len(self._blocks) > BLOCK_CACHE:
@@ -481,7 +694,14 @@ class TileStore:
             if hit is not None:
                 self._cache.move_to_end(key)
                 return hit
-        tile = self._read_padded(key)
+        try:
+            tile = self._read_padded(key)
+        except remote.TileNotReady:
+            # On a thread that must not wait (`forbid_network_on`): load it in the
+            # background; the caller shows it as loading and asks again.
+            if not self._closed:
+                self.prefetch([key])
+            raise
         tile.flags.writeable = False
         with self._lock:
             self._cache[key] = tile
@@ -574,7 +794,7 @@ class TileStore:
             self._pool = None
         with self._lock:
             for ds in self._all_handles:
-                ds.close()
+                remote.close_dataset(ds)  # (a remote one in its opening thread's context)
             self._all_handles.clear()
             self._cache.clear()
             self._blocks.clear()

@@ -14,12 +14,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rasterio
 
 from globeview.bench.http_server import StaticServer
 from globeview.errors import StoreError
 from globeview.terrain import remote
 from globeview.terrain.http_cache import DiskCache
-from globeview.terrain.remote import RemoteError, RemoteOptions, fetch, is_url
+from globeview.terrain.quadtree import TileKey
+from globeview.terrain.remote import RemoteError, RemoteOptions, TileNotReady, fetch, is_url
+from globeview.terrain.store import TileStore
 
 # ---------------------------------------------------------------------------------------------
 # Fixtures: a folder of files with known bytes, served
@@ -356,3 +359,286 @@ def test_the_server_log_and_in_flight_are_honest(files: Path) -> None:
         assert [r.status for r in srv.requests("/small.bin")] == [200] * 3
         assert all(r.range is None for r in srv.log)
     assert os.path.isdir(files)
+
+
+# ---------------------------------------------------------------------------------------------
+# Tile stores opened by URL
+
+N44 = Path(__file__).resolve().parents[2] / "data" / "N44W072.hgt"
+
+
+def _n44() -> Path:
+    return N44 if N44.exists() else Path("/work/shared/data/N44W072.hgt")
+
+
+@pytest.fixture(scope="module")
+def store_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder holding ``n44/``, the store of the SRTM3 White Mountains tile (levels 0-12,
+    four chunk files at level 12), and ``not-a-store/`` (a folder with a foreign
+    manifest.json)."""
+    from globeview.terrain.ingest import ingest
+
+    root = tmp_path_factory.mktemp("remote")
+    ingest([_n44()], root / "n44")
+    (root / "not-a-store").mkdir()
+    (root / "not-a-store" / "manifest.json").write_text('{"name": "a web app"}')
+    return root
+
+
+@pytest.fixture
+def served(store_root: Path):
+    with StaticServer(store_root) as srv:
+        yield srv
+
+
+def _keys(st: TileStore) -> list[TileKey]:
+    """Every tile of every level's extent and the ring of tiles just outside it."""
+    keys = []
+    for lv in range(st.max_level + 1):
+        g = st.level_grid(lv)
+        keys += [
+            TileKey(lv, (g.x0 + ix) % g.ncols, g.y0 + iy)
+            for iy in range(-1, g.ny + 1)
+            for ix in range(-1, g.nx + 1)
+            if 0 <= g.y0 + iy < g.nrows
+        ]
+    return keys
+
+
+def _level12_by_chunk(st: TileStore) -> dict[tuple[int, int], list[TileKey]]:
+    """Level 12's tiles by the chunk file their nodes come from (interior rows/columns)."""
+    g = st.level_grid(12)
+    c = st.manifest.levels[12].chunk_nodes // g.tile_nodes  # tiles per chunk side
+    out: dict[tuple[int, int], list[TileKey]] = {}
+    for iy in range(g.ny):
+        for ix in range(g.nx):
+            out.setdefault((iy // c, ix // c), []).append(TileKey(12, g.x0 + ix, g.y0 + iy))
+    return out
+
+
+def test_remote_heights_equal_local_heights(store_root: Path, served, tmp_path: Path) -> None:
+    local = TileStore.open(store_root / "n44")
+    with TileStore.open(f"{served.url}/n44", remote_options=_opts(tmp_path)) as st:
+        assert st.url == f"{served.url}/n44" and st.location == st.url and st.path.name == "n44"
+        assert st.max_level == local.max_level == 12 and st.bounds == local.bounds
+        keys = _keys(st)
+        assert len(keys) > 1000
+        for k in keys:
+            assert np.array_equal(st.heights_padded(k), local.heights_padded(k), equal_nan=True)
+        # ... and the local store reads what the level's VRT (GDAL's mosaic) holds.
+        g = local.level_grid(12)
+        with rasterio.open(store_root / "n44" / "level_12.vrt") as vrt:
+            whole = vrt.read(1)
+        n = g.tile_nodes
+        for k in keys[-400:]:
+            iy, ix = k.y - g.y0, (k.x - g.x0) % g.ncols
+            if k.level == 12 and 0 <= iy < g.ny and ix < g.nx:
+                want = whole[iy * n : iy * n + n + 1, ix * n : ix * n + n + 1]
+                assert np.array_equal(st.heights(k), want, equal_nan=True)
+        xs, ys = np.meshgrid(np.arange(g.x0 - 1, g.x0 + g.nx + 1), np.arange(g.y0, g.y0 + g.ny))
+        assert np.array_equal(st.has_data(12, xs, ys), local.has_data(12, xs, ys))
+        assert np.array_equal(
+            st.tile_stride_error(12, xs, ys), local.tile_stride_error(12, xs, ys), equal_nan=True
+        )
+        st.verify()
+    local.close()
+
+
+def test_a_cold_cache_uses_range_requests_and_a_warm_one_none(
+    store_root: Path, tmp_path: Path
+) -> None:
+    opts = _opts(tmp_path)
+    srv = StaticServer(store_root).start()
+    try:
+        with TileStore.open(f"{srv.url}/n44", remote_options=opts) as st:
+            keys = _keys(st)
+            cold = [st.heights(k) for k in keys]
+        chunks = srv.requests("/n44/level_*.tif")
+        assert chunks and all(r.range and r.status == 206 for r in chunks)
+        assert not srv.requests("*.vrt")  # the chunk files are read directly
+        warm = TileStore.open(f"{srv.url}/n44", remote_options=opts)
+    finally:
+        srv.stop()
+    n_before = len(srv.log)
+    with warm:  # the server is gone: every byte from the disk cache
+        for k, h in zip(keys, cold, strict=True):
+            assert np.array_equal(warm.heights(k), h, equal_nan=True)
+    assert len(srv.log) == n_before
+    on_disk = sum(f.stat().st_size for f in opts.folder.rglob("*") if f.is_file())
+    assert on_disk <= opts.cache_mb * (1 << 20)
+
+
+@pytest.mark.parametrize("status", [500, 404])
+def test_one_failing_chunk_fails_only_its_tiles(
+    store_root: Path, served, tmp_path: Path, status: int
+) -> None:
+    opts = _opts(tmp_path, retries=1)
+    served.fault("/n44/level_12_r0000_c0001.tif", status=status)
+    with TileStore.open(f"{served.url}/n44", remote_options=opts) as st:
+        by_chunk = _level12_by_chunk(st)
+        assert len(by_chunk) == 4
+        failed, loaded = set(), set()
+        for keys in by_chunk.values():
+            for k in keys:
+                try:
+                    st.heights(k)
+                    loaded.add(k)
+                except StoreError as exc:
+                    msg = str(exc)
+                    assert "\n" not in msg and f"HTTP {status}" in msg
+                    assert f"{served.url}/n44/level_12_r0000_c0001.tif" in msg
+                    failed.add(k)
+        # The failing chunk's tiles fail; tiles of the other chunks load, except those whose
+        # ring or last row/column reaches into the failing chunk.
+        assert set(by_chunk[(0, 1)]) <= failed
+        assert set(by_chunk[(1, 0)]) - failed and set(by_chunk[(0, 0)]) - failed
+        assert len(loaded) > len(failed)
+        # The server recovers: the failed tiles load (no handle or cache kept the failure).
+        served.clear_faults()
+        for k in failed:
+            st.heights(k)
+
+
+def test_dropped_connections_are_retried_for_tiles(
+    store_root: Path, served, tmp_path: Path
+) -> None:
+    served.fault("/n44/level_12_r0001_c0001.tif", flaky=2)
+    local = TileStore.open(store_root / "n44")
+    with TileStore.open(f"{served.url}/n44", remote_options=_opts(tmp_path, retries=3)) as st:
+        for k in _level12_by_chunk(st)[(1, 1)]:
+            assert np.array_equal(st.heights(k), local.heights(k), equal_nan=True)
+    assert [r.status for r in served.requests("/n44/level_12_r0001_c0001.tif")][:3] == [0, 0, 206]
+    local.close()
+
+
+def test_a_slow_server_fails_a_tile_within_the_timeouts(
+    store_root: Path, served, tmp_path: Path
+) -> None:
+    opts = _opts(tmp_path, read_timeout_s=0.3, retries=1)
+    with TileStore.open(f"{served.url}/n44", remote_options=opts) as st:
+        served.fault("*.tif", delay_s=2.0)
+        key = _level12_by_chunk(st)[(0, 0)][0]
+        t = time.monotonic()
+        with pytest.raises(StoreError, match="timed out") as err:
+            st.heights(key)
+        assert time.monotonic() - t <= opts.worst_case_s + 1.0
+        assert "\n" not in str(err.value) and "level_12_r0000_c0000.tif" in str(err.value)
+
+
+def test_a_server_ignoring_range_still_serves_the_store(
+    store_root: Path, served, tmp_path: Path
+) -> None:
+    served.fault("*.tif", ignore_range=True)
+    local = TileStore.open(store_root / "n44")
+    with TileStore.open(f"{served.url}/n44", remote_options=_opts(tmp_path)) as st:
+        for k in _keys(st)[::7]:
+            assert np.array_equal(st.heights(k), local.heights(k), equal_nan=True)
+    assert all(r.status == 200 for r in served.requests("*.tif"))
+    local.close()
+
+
+def test_prefetch_keeps_requests_in_flight_under_the_bound(
+    store_root: Path, served, tmp_path: Path
+) -> None:
+    served.fault("*.tif", delay_s=0.03)
+    opts = _opts(tmp_path, max_requests=2, cache_mb=0)
+    with TileStore.open(f"{served.url}/n44", remote_options=opts) as st:
+        keys = [k for keys in _level12_by_chunk(st).values() for k in keys[:40:5]]
+        for f in st.prefetch(keys):
+            f.result(timeout=60)
+    assert 1 <= served.max_in_flight <= 2
+
+
+def test_a_thread_forbidden_the_network_never_waits(
+    store_root: Path, served, tmp_path: Path
+) -> None:
+    served.fault("*.tif", delay_s=0.5)
+    with TileStore.open(f"{served.url}/n44", remote_options=_opts(tmp_path)) as st:
+        st.forbid_network_on(threading.get_ident())
+        key = _level12_by_chunk(st)[(1, 1)][3]
+        t = time.monotonic()
+        with pytest.raises(TileNotReady):
+            st.heights(key)
+        assert time.monotonic() - t < 0.2  # at once, not after the server's 0.5 s
+        deadline = time.monotonic() + 30
+        while not st.cached(key) and time.monotonic() < deadline:
+            time.sleep(0.05)  # loaded by the store's background pool meanwhile
+        assert st.heights(key).shape == (st.tile_size, st.tile_size)
+
+
+@pytest.mark.parametrize(
+    ("where", "fault", "match"),
+    [
+        ("/nothing-here", None, r"not a globeview tile store \(no manifest\.json: HTTP 404\)"),
+        ("/not-a-store", None, r"not a globeview tile store \(manifest\.json is not ours\)"),
+        ("/n44", {"status": 500}, r"cannot open .*HTTP 500"),
+        ("/n44", {"status": 403}, r"cannot open .*HTTP 403"),
+        ("/n44", {"length": 1 << 30, "drop": True}, r"cannot open .*1073741824 bytes announced"),
+        ("/n44", {"redirect": "ftp://example.org"}, r"not http"),
+    ],
+)
+def test_bad_store_urls_are_one_line(
+    served, tmp_path: Path, where: str, fault: dict | None, match: str
+) -> None:
+    if fault is not None:
+        served.fault("*/manifest.json", **fault)
+    with pytest.raises(StoreError, match=match) as err:
+        TileStore.open(served.url + where, remote_options=_opts(tmp_path, retries=1))
+    assert "\n" not in str(err.value)
+
+
+def test_damaged_or_oversized_manifests_are_one_line(store_root: Path, tmp_path: Path) -> None:
+    www = tmp_path / "www"
+    for name, text in [
+        ("garbage", b"\x00\xff not json"),
+        ("array", b"[1, 2, 3]"),
+        ("old", b'{"format": "globeview-tile-store", "format_version": 2}'),
+        ("broken", b'{"format": "globeview-tile-store", "format_version": 5, "levels": 3}'),
+        ("huge", b" " * (2 << 20) + b"{}"),
+    ]:
+        (www / name).mkdir(parents=True)
+        (www / name / "manifest.json").write_bytes(text)
+    opts = _opts(tmp_path, max_manifest_mb=1.0)
+    with StaticServer(www) as srv:
+        for name, match in [
+            ("garbage", "unreadable manifest"),
+            ("array", "not a JSON object"),
+            ("old", "built before vertical datums"),
+            ("broken", "damaged manifest.json"),
+            ("huge", "bytes announced"),
+        ]:
+            with pytest.raises(StoreError, match=match) as err:
+                TileStore.open(f"{srv.url}/{name}", remote_options=opts)
+            assert "\n" not in str(err.value) and srv.url in str(err.value)
+
+
+def test_an_unreachable_server_is_one_line(tmp_path: Path, files: Path) -> None:
+    with StaticServer(files) as srv:
+        url = srv.url
+    with pytest.raises(StoreError, match="connection refused") as err:
+        TileStore.open(url + "/store", remote_options=_opts(tmp_path, retries=0))
+    assert "\n" not in str(err.value)
+
+
+def test_a_remote_store_renders_as_the_local_one(store_root: Path, served, tmp_path: Path) -> None:
+    """The real pipeline (the harness's headless session, the window's FramePipeline) draws
+    the same image from the store over HTTP as from its folder."""
+    from globeview.bench.harness import Bench
+    from globeview.terrain.stack import TerrainStack
+
+    pose = (-71.3, 44.27, 2.0e4, 0.0, -35.0)  # Mount Washington, oblique
+    images = []
+    for where in (str(store_root / "n44"), f"{served.url}/n44"):
+        st = TileStore.open(where, remote_options=_opts(tmp_path))
+        bench = Bench(TerrainStack.from_stores([st]), (160, 96))
+        try:
+            bench.set_pose(pose, cut=True)
+            for _ in range(3):
+                bench.frame()
+            images.append(bench.target.read_rgb())
+        finally:
+            bench.release()
+            st.close()
+    assert images[0].std() > 5  # a real picture, not a blank frame
+    assert np.array_equal(images[0], images[1])
+    assert served.requests("/n44/level_*.tif")
