@@ -118,6 +118,7 @@ def _child(spec: dict) -> None:
             "cpu": cpu_here + worker_cpu,
             "start": start,
             "worker_rss": max(v[1] for v in after.values()),
+            "client_rss": _worker_usage()[1],  # this process: the client and the scheduler
             "workers": len(after),
         }
     else:
@@ -382,7 +383,8 @@ def bench_size(size: int, args: argparse.Namespace, api: list[str], tmp: Path) -
     if "cluster" in rows:
         notes.append(
             f"cluster: {rows['cluster']['start']:.1f} s to start it (not in its wall time); "
-            "CPU = the client's + both workers' getrusage deltas; RSS = the largest worker"
+            "CPU = the client's + both workers' getrusage deltas; RSS = the largest worker "
+            f"(the client + scheduler process: {rows['cluster']['client_rss']:.0f} MB)"
         )
     print()
     for n in notes:
@@ -500,11 +502,11 @@ def _targets(results: dict[int, dict]) -> None:
             parts.append(
                 f"speedup 1 -> {cores} cores {speedup:.2f}x wall, CPU {cpu_ratio:.2f}x "
                 f"of 1 core's (>= {SCALING_TARGET * cores:.1f}x: "
-                f"{_verdict(speedup >= SCALING_TARGET * cores)})"
+                f"{_verdict(speedup >= SCALING_TARGET * cores)});"
             )
         if today and dask_n:
             parts.append(
-                f"; Dask {cores} cores is {today['wall'] / dask_n['wall']:.1f}x faster than today"
+                f"today's wall / Dask {cores} cores' = {today['wall'] / dask_n['wall']:.2f}"
             )
         print(" ".join(parts))
     worst = [

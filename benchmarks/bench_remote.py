@@ -17,14 +17,18 @@ tiles that failed; the server's log gives the requests and bytes sent. Runs:
 
 - ``local``: the same store opened from its folder (the reference);
 - ``cold``: over HTTP with an empty disk cache;
-- ``warm``: over HTTP again, a new process, the disk cache as the cold run left it.
+- ``warm``: over HTTP again, a new process, the disk cache as the cold run left it;
+- ``cold-slow``: cold again with the server answering every request ``--latency-ms`` late
+  (default 50 ms, a far server's round trip; the loopback has none).
+
+Rounds are interleaved (local, cold, warm, cold-slow, local, ...) and medians printed.
 
 Targets printed: every run reaches a complete frame with no failed tile; the warm run asks the
 server for nothing but the manifest (every chunk byte from the disk cache). A script that
 prints figures, not a timed test; wall times on a shared machine vary with its load (printed).
 
     python benchmarks/bench_remote.py [--dem PATH | --store FOLDER] [--size 1280x720]
-        [--timeout 180]
+        [--rounds 3] [--latency-ms 50] [--timeout 180]
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ import os
 import platform
 import re
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -48,6 +53,12 @@ CACHE = ROOT / "benchmarks" / "cache"
 RUN_CACHE = CACHE / "remote-bench-cache"
 VIEW = "low-altitude oblique (White Mountains, 9 km)"
 RUN_KINDS = ("local", "cold", "warm")
+RUN_LABELS = {
+    "local": "local folder",
+    "cold": "HTTP, cold disk cache",
+    "warm": "HTTP, warm disk cache (new process)",
+    "cold-slow": "HTTP, cold, server {ms:g} ms late a request",
+}
 _RANGE = re.compile(r"^bytes=(\d*)-(\d*)$")
 
 
@@ -202,6 +213,13 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     src.add_argument("--store", help="serve this existing store folder instead")
     ap.add_argument("--size", default="1280x720", help="frame size WxH (16..8192)")
     ap.add_argument("--timeout", type=float, default=180.0, help="seconds a run may take")
+    ap.add_argument("--rounds", type=int, default=3, help="interleaved rounds (medians)")
+    ap.add_argument(
+        "--latency-ms",
+        type=float,
+        default=50.0,
+        help="a cold run more with the server answering this late (a WAN; 0: none)",
+    )
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child is not None:
@@ -215,6 +233,10 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     args.size = (w, h)
     if not (1.0 <= args.timeout <= 3600.0):  # NaN too
         raise BenchError(f"--timeout must be 1..3600 seconds, got {args.timeout}")
+    if not (1 <= args.rounds <= 20):
+        raise BenchError(f"--rounds must be in 1..20, got {args.rounds}")
+    if not (0.0 <= args.latency_ms <= 5000.0):
+        raise BenchError(f"--latency-ms must be 0..5000, got {args.latency_ms}")
     for name in ("dem", "store"):
         p = getattr(args, name)
         if p is not None:
@@ -278,57 +300,89 @@ def main(argv: list[str] | None = None) -> int:
         print("| run | open s | complete frame s | frames | tiles | failed | requests | MB sent |")
         print("|---|---:|---:|---:|---:|---:|---:|---:|")
         verdicts: list[tuple[str, bool]] = []
-        cold_note = ""
+        notes: list[str] = []
         broken = 0  # runs that failed outright (exit status 1: publish.py keeps the old block)
+        kinds = [*RUN_KINDS, *(("cold-slow",) if args.latency_ms > 0 else ())]
+        runs: dict[str, list[dict]] = {k: [] for k in kinds}
         with StaticServer(store.parent).start() as server:
             url = f"{server.url}/{store.name}"
-            for kind in RUN_KINDS:
-                if kind == "cold":
-                    shutil.rmtree(RUN_CACHE / "http", ignore_errors=True)
-                server.reset_log()
-                spec = {
-                    "kind": kind,
-                    "where": str(store) if kind == "local" else url,
-                    "size": list(args.size),
-                    "timeout": args.timeout,
-                }
-                try:
-                    r = _run_child(spec)
-                except RuntimeError as exc:
-                    print(f"| {kind} | failed: {exc} | | | | | | |")
-                    verdicts.append((f"{kind} run completes", False))
-                    broken += 1
-                    continue
-                n_req, n_manifest, sent, by_status = _traffic(server, store.parent)
-                print(
-                    f"| {kind} | {r['open_s']:.2f} | {r['complete_s']:.2f} | {r['frames']} | "
-                    f"{r['tiles']} | {r['failed']} | {n_req} | {sent / 1e6:.2f} |",
-                    flush=True,
+            for _ in range(args.rounds):  # interleaved: the load changes between rounds
+                for kind in kinds:
+                    if kind.startswith("cold"):
+                        shutil.rmtree(RUN_CACHE / "http", ignore_errors=True)
+                    server.clear_faults()
+                    if kind == "cold-slow":
+                        server.fault("*", delay_s=args.latency_ms / 1e3)
+                    server.reset_log()
+                    spec = {
+                        "kind": kind,
+                        "where": str(store) if kind == "local" else url,
+                        "size": list(args.size),
+                        "timeout": args.timeout,
+                    }
+                    try:
+                        r = _run_child(spec)
+                    except RuntimeError as exc:
+                        r = {"error": str(exc)}
+                    n_req, n_manifest, sent, by_status = _traffic(server, store.parent)
+                    r.update(
+                        requests=n_req,
+                        manifest=n_manifest,
+                        sent=sent,
+                        by_status=by_status,
+                        in_flight=server.max_in_flight,
+                    )
+                    runs[kind].append(r)
+            server.clear_faults()
+        for kind in kinds:
+            ok = [r for r in runs[kind] if "error" not in r]
+            label = RUN_LABELS.get(kind, kind).format(ms=args.latency_ms)
+            if len(ok) < len(runs[kind]):
+                first = next(r["error"] for r in runs[kind] if "error" in r)
+                print(f"| {label} | failed: {first} | | | | | | |")
+                verdicts.append((f"{label} completes every round", False))
+                broken += 1
+                continue
+
+            def med(key: str, rs: list[dict] = ok) -> float:
+                return statistics.median(r[key] for r in rs)
+
+            failed = max(r["failed"] for r in ok)
+            print(
+                f"| {label} | {med('open_s'):.2f} | {med('complete_s'):.2f} | "
+                f"{med('frames'):.0f} | {med('tiles'):.0f} | {failed} | {med('requests'):.0f} | "
+                f"{med('sent') / 1e6:.2f} |",
+                flush=True,
+            )
+            if failed:
+                first = next(r["first_failure"] for r in ok if r["failed"])
+                notes.append(f"{label}: first failed tile: {first}")
+            verdicts.append(
+                (
+                    f"{label}: complete frame, no failed tile",
+                    all(r["complete"] for r in ok) and not failed,
                 )
-                if r["failed"]:
-                    print(f"|  first failure: {r['first_failure']} | | | | | | | |")
+            )
+            if kind == "cold":
+                statuses = ", ".join(f"{s}: {n}" for s, n in sorted(ok[-1]["by_status"].items()))
+                notes.append(
+                    f"cold: answers by status {statuses}; at most "
+                    f"{max(r['in_flight'] for r in ok)} requests in flight at once"
+                )
+            if kind == "warm":
                 verdicts.append(
-                    (f"{kind}: complete frame, no failed tile", r["complete"] and not r["failed"])
+                    (
+                        f"warm: only the manifest fetched ({med('requests'):.0f} requests, "
+                        f"{med('manifest'):.0f} of the manifest)",
+                        all(r["requests"] == r["manifest"] for r in ok),
+                    )
                 )
-                if kind == "cold":
-                    statuses = ", ".join(f"{s}: {n}" for s, n in sorted(by_status.items()))
-                    cold_note = (
-                        f"cold run's answers by status: {statuses}; at most "
-                        f"{server.max_in_flight} requests in flight at once"
-                    )
-                if kind == "warm":
-                    verdicts.append(
-                        (
-                            f"warm: only the manifest fetched ({n_req} requests, "
-                            f"{n_manifest} of the manifest)",
-                            n_req == n_manifest,
-                        )
-                    )
         print()
-        if cold_note:
-            print(f"- {cold_note}")
-        for what, ok in verdicts:
-            print(f"- {what}: {'met' if ok else 'NOT MET'}")
+        print(f"Medians of {args.rounds} interleaved round(s).")
+        for n in notes:
+            print(f"- {n}")
+        for what, good in verdicts:
+            print(f"- {what}: {'met' if good else 'NOT MET'}")
         return 1 if broken else 0
     except BenchError as exc:
         print(f"bench_remote: error: {exc}", file=sys.stderr)

@@ -50,6 +50,8 @@ def _module(name: str):
         ("bench_remote.py", ["--dem", "/no/such/dem.tif"], "--dem"),
         ("bench_remote.py", ["--store", "/"], "not a store"),
         ("bench_remote.py", ["--dem", "a", "--store", "b"], "not allowed"),
+        ("bench_remote.py", ["--rounds", "0"], "--rounds"),
+        ("bench_remote.py", ["--latency-ms", "-1"], "--latency-ms"),
         ("scale_planet.py", ["--level", "x"], "--level"),
         ("scale_planet.py", ["--hours", "nan"], "--hours"),
         ("scale_planet.py", ["--land-dem", "/no/such.tif"], "--land-dem"),
