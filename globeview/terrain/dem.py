@@ -1000,6 +1000,25 @@ class Dem:
         )
         return np.where(fill_mask, filled, arr).astype(np.float32)
 
+    # ---- pickling (ingest tasks in other threads, processes, cluster workers) -------------
+
+    def __getstate__(self) -> dict[str, object]:
+        """Everything but the open dataset: the value scan's results and the metadata travel
+        (a few KB), so a copy reopens the file without scanning it again."""
+        self.info  # noqa: B018  computed once here, not in every copy
+        return {k: v for k, v in self.__dict__.items() if k != "_ds"}
+
+    def __setstate__(self, state: dict[str, object]) -> None:
+        """Reopen the file (its own GDAL handle: datasets are not thread-safe)."""
+        self.__dict__.update(state)
+        self._pole_values = dict(self._pole_values)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+                self._ds = rasterio.open(self.path)
+        except rasterio.errors.RasterioIOError as exc:
+            raise DemError(f"cannot read {self.path} as a raster: {_short(exc)}") from None
+
     # ---- context manager ----------------------------------------------------------------
 
     def close(self) -> None:

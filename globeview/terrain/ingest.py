@@ -10,18 +10,24 @@ GDAL's block cache, not by the raster size):
    touch, plus the parents of level L+1's tiles (so levels nest). A global base thus makes
    every level up to its own L_s global, while a regional DEM adds detail levels only over
    its footprint.
-3. Levels are written finest first. A window of level L is the wavelet approximation of level
-   L+1 (read back from the raster just written, with ``kernel_halo`` nodes of halo); where that
-   is NaN (outside level L+1 or no data there) the sources with L_s <= L are read on the level
-   grid with `Dem.read_grid`, the finest source winning where it has data. The finest level is
+3. Levels are written finest first, one chunk (a window of 1024 nodes a side, one chunk file
+   of the store, see `store_schema`) per task of a Dask graph (`ingest_graph`,
+   `ingest_tasks`). A chunk of level L is the wavelet approximation of level L+1 (read back
+   from the chunk files just written, with ``kernel_halo`` nodes of halo); where that is NaN
+   (outside level L+1 or no data there) the sources with L_s <= L are read on the level grid
+   with `Dem.read_grid`, the finest source winning where it has data. The finest level is
    read from the sources only. Pole rows are set to one value (see below). Per-tile hmin,
    hmax and stride errors are computed from each window before it is written.
 4. Tile errors: for every tile, max |tile bilinear surface - finest data| over the tile's
    footprint, evaluated exactly at the finest nodes (see `tile_errors`). The finest data of a
-   place is the finest level that has data there; the pass walks those reference levels
-   block by block and updates the per-tile maxima of every coarser level.
-5. The manifest (a `store_schema.StoreManifest`) is written last, then the temporary directory
-   is renamed into place.
+   place is the finest level that has data there; one task per window of each reference
+   level returns the per-tile maxima of every coarser level, folded with fmax.
+5. The level VRTs and the manifest (a `store_schema.StoreManifest`) are written last, then the
+   temporary directory is renamed into place.
+
+The graph runs on dask's local threaded scheduler (``workers`` threads), a process pool, or
+an existing dask.distributed cluster (``scheduler="tcp://HOST:PORT"``); the store is the same
+bit for bit whatever runs it.
 
 Heights: stores hold ellipsoidal heights h (above WGS84). A source on the EGM96 geoid (its
 vertical datum from its CRS, a per-source default or ``vdatum``, see `Dem`) is converted
@@ -44,7 +50,6 @@ import math
 import os
 import re
 import shutil
-import signal
 import sys
 import tempfile
 import threading
@@ -56,7 +61,6 @@ from typing import IO
 
 import numpy as np
 import rasterio
-from rasterio.windows import Window
 
 try:
     import fcntl
@@ -65,8 +69,17 @@ except ImportError:  # pragma: no cover - not POSIX: no stale-build cleaning
 
 from globeview.errors import DemError, StoreError
 from globeview.terrain.dem import Dem, check_dem_path, open_dem
-from globeview.terrain.level_chunks import write_chunk, write_level_vrt
-from globeview.terrain.levels import LevelGrid, read_level_nodes
+from globeview.terrain.ingest_graph import SchedulerChoice, build_graph, parse_scheduler, run_graph
+from globeview.terrain.ingest_tasks import (
+    FAULT_ENV,
+    GDAL_CACHE_MB,
+    STRIDES,
+    BuildPlan,
+    SourceSpec,
+)
+from globeview.terrain.ingest_tasks import fault_point as _fault_point
+from globeview.terrain.level_chunks import write_level_vrt
+from globeview.terrain.levels import LevelGrid
 from globeview.terrain.quadtree import (
     DEFAULT_TILE_N,
     level_shape,
@@ -97,22 +110,11 @@ from globeview.terrain.store_schema import (
     built_before_vdatums,
     chunk_nodes_for,
 )
-from globeview.terrain.tile_errors import (
-    cell_max,
-    cell_min,
-    reduce_cells,
-    round_sig_down,
-    round_sig_up,
-    upsample_nodes,
-)
-from globeview.terrain.wavelet import (
-    DEFAULT_WAVELET,
-    approximate_window,
-    kernel_halo,
-    lowpass_kernel,
-)
+from globeview.terrain.tile_errors import round_sig_down, round_sig_up
+from globeview.terrain.wavelet import DEFAULT_WAVELET, kernel_halo, lowpass_kernel
 
 __all__ = [
+    "FAULT_ENV",
     "FORMAT_VERSION",
     "MANIFEST_NAME",
     "STRIDES",
@@ -120,16 +122,12 @@ __all__ = [
     "ingest",
 ]
 
-STRIDES = (2, 4, 8, 16, 32, 64)
-
 # A window is about this many nodes a side: big enough that per-window Python overhead is
 # negligible, small enough that a window and its temporaries stay in tens of MB.
 # The windows are the store's chunks (format 5): one file each.
 _WINDOW_NODES = CHUNK_TARGET_NODES
-# GDAL block cache during the build. rasterio's default (5% of RAM) would make the peak RSS
-# depend on the machine; a fixed cache keeps the bound. Enough for a row of 256x256 blocks
-# of a 64k-node-wide level.
-_GDAL_CACHE_MB = 96
+# GDAL block cache during the build (see ingest_tasks.GDAL_CACHE_MB).
+_GDAL_CACHE_MB = GDAL_CACHE_MB
 
 
 @dataclass
@@ -182,15 +180,6 @@ _BUILD_ERRORS: tuple[type[BaseException], ...] = (OSError, *RASTER_ERRORS)
 
 def _no_tick(n: int = 1) -> None:
     """The builder's progress callback before the real one is set."""
-
-
-def _window_undulation(west: float, north: float, d: float, w: int, h: int) -> np.ndarray:
-    """EGM96 N (m, float32) on a window's nodes: lon west + j*d, lat north - i*d (degrees)."""
-    from globeview.terrain.vdatum import egm96
-
-    lons = west + d * np.arange(w)
-    lats = north - d * np.arange(h)
-    return egm96().undulation_grid(lons, lats).astype(np.float32)
 
 
 def _heights_note(datum: str) -> str:
@@ -263,15 +252,6 @@ def _extent_from_mask(mask: np.ndarray) -> tuple[int, int]:
     return int(nxt[k]), int(ncols - gap[k])
 
 
-def _lon_overlaps(a0: float, a1: float, b: tuple[float, float, float, float], wraps: bool) -> bool:
-    """Whether the longitude interval [a0, a1] (a1 >= a0, may exceed 180) meets a footprint."""
-    if wraps:
-        return True
-    w, _, e, _ = b
-    width = (e - w) % 360.0 or (360.0 if e != w else 0.0)
-    return any(a0 <= w + k + width and w + k <= a1 for k in (-360.0, 0.0, 360.0))
-
-
 def _windows(grid: LevelGrid) -> Iterator[tuple[int, int, int, int]]:
     """Tile blocks (by, bx, kty, ktx) covering the extent, row-major."""
     k = max(1, _WINDOW_NODES // grid.tile_nodes)
@@ -339,245 +319,83 @@ class _Builder:
         n += sum(_count_windows(self.grids[lv]) for lv in range(1, self.max_level + 1))  # errors
         return n
 
-    # -- sources ----------------------------------------------------------------------------
+    # -- run --------------------------------------------------------------------------------
 
-    def _fill_from_sources(
-        self, out: np.ndarray, grid: LevelGrid, gr0: int, gc0: int, max_source_level: int
-    ) -> None:
-        """Fill NaN nodes of ``out`` (global node window at gr0, gc0) from the sources with
-        L_s <= max_source_level, finest first (in place)."""
-        h, w = out.shape
-        d = grid.d
-        west = -180.0 + gc0 * d
-        north = 90.0 - gr0 * d
-        south = north - (h - 1) * d
-        west_n = (west + 180.0) % 360.0 - 180.0
-        undulation: np.ndarray | None = None  # N on this window's nodes, when a source needs it
-        for s in self.sources:
-            if s.level > max_source_level:
-                continue
-            if not np.isnan(out).any():
-                return
-            _, bs, _, bn = s.bounds
-            if south > bn + d or north < bs - d:
-                continue
-            if not _lon_overlaps(west - d, west + (w - 1) * d + d, s.bounds, s.wraps):
-                continue
-            vals = s.dem.read_grid(west_n, north, d, d, w, h)
-            if s.datum == "egm96":
-                if undulation is None:
-                    undulation = _window_undulation(west, north, d, w, h)
-                vals = vals + undulation  # NaN (nodata) stays NaN
-            np.copyto(out, vals, where=np.isnan(out))
-
-    def _pole_values(self) -> None:
-        """Mean of the finest level's pole rows (one point each on the globe)."""
-        g = self.grids[self.max_level]
-        for name, grow in (("north", 0), ("south", g.nrows * g.tile_nodes)):
-            if g.raster_rows(np.array([grow]))[0] < 0:
-                continue
-            # One node row across the extent: small (a few MB even for a global level 12).
-            row = np.full((1, g.width), np.nan, dtype=np.float32)
-            self._fill_from_sources(row, g, grow, g.gc0, self.max_level)
-            if np.isfinite(row).any():
-                self.pole[name] = float(np.nanmean(row.astype(np.float64)))
-
-    # -- level windows ----------------------------------------------------------------------
-
-    def _window_values(
-        self,
-        grid: LevelGrid,
-        fine_ds: rasterio.DatasetReader | None,
-        gr0: int,
-        gc0: int,
-        h: int,
-        w: int,
-    ) -> np.ndarray:
-        """Closed window of nodes of a level (global node indices), float32."""
-        if fine_ds is None:
-            out = np.full((h, w), np.nan, dtype=np.float32)
-        else:
-            fine = self.grids[grid.level + 1]
-            hl = self.halo
-            padded = read_level_nodes(
-                fine_ds,
-                fine,
-                2 * gr0 - hl,
-                2 * gc0 - hl,
-                2 * h - 1 + 2 * hl,
-                2 * w - 1 + 2 * hl,
-                mirror=hl,
-            )
-            out = approximate_window(padded, hl, self.wavelet)
-            # Coarse nodes whose own fine node is outside the finer raster carry no data.
-            rows_out = fine.raster_rows(2 * (gr0 + np.arange(h))) < 0
-            cols_out = fine.raster_cols(2 * (gc0 + np.arange(w))) < 0
-            out[rows_out, :] = np.nan
-            out[:, cols_out] = np.nan
-        self._fill_from_sources(out, grid, gr0, gc0, grid.level)
-        # Poles: one value per pole (finite nodes only: a partial pole row stays partial).
-        if self.pole["north"] is not None and gr0 == 0:
-            out[0, np.isfinite(out[0])] = self.pole["north"]
-        south_row = grid.nrows * grid.tile_nodes - gr0
-        if self.pole["south"] is not None and 0 <= south_row < h:
-            out[south_row, np.isfinite(out[south_row])] = self.pole["south"]
-        return out
-
-    def _tile_stats(self, st: _LevelStats, arr: np.ndarray, by: int, bx: int) -> None:
-        """hmin/hmax and stride deltas of the tiles of a closed, tile-aligned window."""
-        s_n = 1 << self.tile_n
-        kty, ktx = (arr.shape[0] - 1) // s_n, (arr.shape[1] - 1) // s_n
-        sl = np.s_[by : by + kty, bx : bx + ktx]
-
-        def per_tile(cells: np.ndarray, step: int, op: np.ufunc) -> np.ndarray:
-            n = s_n // step
-            return op.reduce(op.reduce(cells.reshape(kty, n, ktx, n), axis=3), axis=1)
-
-        st.hmin[sl] = per_tile(cell_min(arr), 1, np.fmin)
-        st.hmax[sl] = per_tile(cell_max(arr), 1, np.fmax)
-        # Stride deltas: delta_s = max |S_s - S_1| over the tile, where S_s is the bilinear
-        # surface on every s-th node and S_1 the tile's own. The max of a difference of
-        # piecewise-bilinear surfaces on nested grids sits at the finer grid's nodes, so one
-        # upsampling of the s-th nodes to every node gives it exactly; then
-        # error(stride s) <= tile error + delta_s (triangle inequality, one term). (Chaining
-        # the deltas of successive strides was cheaper but up to 2-3x too loose, which made the
-        # LOD draw finer strides than needed.)
-        # A running max keeps the bounds monotone: a coarser stride never claims to look
-        # better than a finer one (it can by chance, when its nodes hit the features).
-        rows = np.arange(arr.shape[0])
-        cols = np.arange(arr.shape[1])
-        delta = np.zeros((kty, ktx), dtype=np.float64)
-        for i, s in enumerate(STRIDES):
-            if s <= s_n:
-                up = upsample_nodes(arr[::s, ::s], s, rows, cols, np.float32)
-                np.subtract(up, arr, out=up)
-                np.abs(up, out=up)
-                exact = np.nan_to_num(per_tile(cell_max(up), 1, np.fmax), nan=0.0)
-                delta = np.maximum(delta, exact)
-            st.stride_delta[by : by + kty, bx : bx + ktx, i] = delta
-
-    def _write_level(self, lv: int) -> None:
-        grid = self.grids[lv]
-        s_n = grid.tile_nodes
-        k = max(1, _WINDOW_NODES // s_n)
-        st = _LevelStats(
-            hmin=np.full((grid.ny, grid.nx), np.nan),
-            hmax=np.full((grid.ny, grid.nx), np.nan),
-            error=np.full((grid.ny, grid.nx), np.nan),
-            stride_delta=np.zeros((grid.ny, grid.nx, len(STRIDES))),
+    def plan(self, token: str, gdal_threads: str) -> tuple[BuildPlan, list[SourceSpec]]:
+        """The build as the graph's tasks see it (small and picklable)."""
+        plan = BuildPlan(
+            folder=str(self.out_dir),
+            tile_n=self.tile_n,
+            max_level=self.max_level,
+            wavelet=self.wavelet,
+            halo=self.halo,
+            grids=tuple(self.grids[lv] for lv in range(self.max_level + 1)),
+            k=max(1, _WINDOW_NODES // (1 << self.tile_n)),
+            gdal_threads=gdal_threads,
         )
-        fine_path = self.out_dir / self.grids[lv + 1].file_name if lv < self.max_level else None
-        with contextlib.ExitStack() as stack:
-            fine_ds = stack.enter_context(rasterio.open(fine_path)) if fine_path else None
-            first_col: np.ndarray | None = None
-            for by, bx, kty, ktx in _windows(grid):
-                h, w = kty * s_n + 1, ktx * s_n + 1
-                arr = self._window_values(
-                    grid, fine_ds, grid.gr0 + by * s_n, grid.gc0 + bx * s_n, h, w
-                )
-                if grid.global_lon:
-                    # The east edge (lon 180) is the west edge (lon -180): make it identical.
-                    if bx == 0:
-                        first_col = arr[:, 0].copy()
-                    if bx + ktx == grid.nx and first_col is not None:
-                        arr[:, -1] = first_col
-                self._tile_stats(st, arr, by, bx)
-                # The chunk is the half-open part; the last row/column of chunks also holds
-                # the raster's edge.
-                hh = h if by + kty == grid.ny else h - 1
-                ww = w if bx + ktx == grid.nx else w - 1
-                self.writes += 1
-                _fault_point(self.writes)
-                sha = write_chunk(self.out_dir, grid, k * s_n, by // k, bx // k, arr[:hh, :ww])
-                if sha is not None:
-                    st.chunks.append((by // k, bx // k))
-                    st.chunk_sha256.append(sha)
-                self.tick(1)
-        st.pole = {k: (v if self._pole_row_in(grid, k) else None) for k, v in self.pole.items()}
-        st.sha256 = write_level_vrt(self.out_dir / grid.file_name, grid, k * s_n, st.chunks)
-        self.stats[lv] = st
+        specs = [
+            SourceSpec(
+                token=f"{token}-{i}",
+                dem_state=s.dem.__getstate__(),
+                path=str(s.path),
+                level=s.level,
+                bounds=s.bounds,
+                wraps=s.wraps,
+                datum=s.datum,
+            )
+            for i, s in enumerate(self.sources)
+        ]
+        return plan, specs
+
+    def build(self, where: SchedulerChoice, token: str) -> None:
+        """Run the ingest graph (chunk files and per-tile statistics), then write the level
+        VRTs: everything but the manifest."""
+        # One writer compresses with every core; many writers each with one thread.
+        threads = "ALL_CPUS" if where.kind != "distributed" and where.workers == 1 else "1"
+        plan, specs = self.plan(token, threads)
+        graph = build_graph(plan, specs)
+
+        def done(key: str) -> None:
+            self.tick(1)
+
+        results = run_graph(graph, where, done)
+        self.pole = results["pole"]
+        k = plan.k
+        for lv in range(self.max_level, -1, -1):
+            g = self.grids[lv]
+            self.stats[lv] = _LevelStats(
+                hmin=np.full((g.ny, g.nx), np.nan),
+                hmax=np.full((g.ny, g.nx), np.nan),
+                error=np.full((g.ny, g.nx), np.nan),
+                stride_delta=np.zeros((g.ny, g.nx, len(STRIDES))),
+            )
+        for key in graph.chunk_keys:  # row-major within each level
+            r = results[key]
+            st = self.stats[r.level]
+            sl = np.s_[r.cy * k : r.cy * k + r.hmin.shape[0], r.cx * k : r.cx * k + r.hmin.shape[1]]
+            st.hmin[sl], st.hmax[sl], st.stride_delta[sl] = r.hmin, r.hmax, r.stride_delta
+            if r.sha256 is not None:
+                st.chunks.append((r.cy, r.cx))
+                st.chunk_sha256.append(r.sha256)
+        for lv, st in self.stats.items():
+            g = self.grids[lv]
+            st.pole = {n: (v if self._pole_row_in(g, n) else None) for n, v in self.pole.items()}
+            st.sha256 = write_level_vrt(self.out_dir / g.file_name, g, plan.chunk_nodes, st.chunks)
+        if not any(np.isfinite(st.hmin).any() for st in self.stats.values()):
+            names = ", ".join(str(s.path) for s in self.sources)
+            raise DemError(f"no valid heights in {names}: every sample is nodata")
+        # Exact tile errors: max |bilinear tile - finest data| at the finest nodes, each
+        # error task's per-tile maxima folded with fmax (order-free: the result is exact).
+        for st in self.stats.values():
+            st.error = np.where(np.isfinite(st.hmin), 0.0, np.nan)
+        for key in graph.error_keys:
+            for lv, iy, ix, red in results[key]:
+                err = self.stats[lv].error
+                err[iy, ix] = np.fmax(err[iy, ix], red)
 
     @staticmethod
     def _pole_row_in(grid: LevelGrid, which: str) -> bool:
         return grid.y0 == 0 if which == "north" else grid.y0 + grid.ny == grid.nrows
-
-    # -- geometric errors -------------------------------------------------------------------
-
-    def _has_data(self, lv: int, ty: np.ndarray, tx: np.ndarray) -> np.ndarray:
-        g = self.grids[lv]
-        iy, ix, inside = g.tile_slots(ty, tx)
-        return inside & np.isfinite(self.stats[lv].hmin[iy, ix])
-
-    def _errors(self) -> None:
-        """Exact tile errors: max |bilinear tile - finest data| at the finest nodes."""
-        for st in self.stats.values():
-            st.error = np.where(np.isfinite(st.hmin), 0.0, np.nan)
-        if self.max_level == 0:
-            return
-        dss = {lv: rasterio.open(self.out_dir / g.file_name) for lv, g in self.grids.items()}
-        try:
-            for lf in range(self.max_level, 0, -1):
-                self._errors_against(lf, dss)
-        finally:
-            for ds in dss.values():
-                ds.close()
-
-    def _errors_against(self, lf: int, dss: dict[int, rasterio.DatasetReader]) -> None:
-        gf = self.grids[lf]
-        s_n = gf.tile_nodes
-        for by, bx, kty, ktx in _windows(gf):
-            self.tick(1)
-            h, w = kty * s_n + 1, ktx * s_n + 1
-            gr0, gc0 = gf.gr0 + by * s_n, gf.gc0 + bx * s_n
-            owned = None
-            if lf < self.max_level:
-                # Cells whose level-(lf+1) quadrant has data are judged against that finer
-                # level (in its own pass); here only the rest.
-                half = s_n // 2
-                ty = (gr0 + np.arange(h - 1)) // half
-                tx = (gc0 + np.arange(w - 1)) // half
-                has = self._has_data(lf + 1, ty[:, None], tx[None, :])
-                if has.all():
-                    continue
-                owned = ~has
-            fine = dss[lf].read(1, window=Window(bx * s_n, by * s_n, w, h))
-            if not np.isfinite(fine).any():
-                continue
-            fine64 = fine.astype(np.float64)
-            cell_r = gr0 + np.arange(h - 1)
-            cell_c = gc0 + np.arange(w - 1)
-            for lv in range(lf):
-                g = self.grids[lv]
-                f = 1 << (lf - lv)
-                r0, c0 = gr0 // f, gc0 // f
-                r1, c1 = -(-(gr0 + h - 1) // f), -(-(gc0 + w - 1) // f)
-                coarse = read_level_nodes(dss[lv], g, r0, c0, r1 - r0 + 1, c1 - c0 + 1)
-                up = upsample_nodes(
-                    coarse, f, gr0 - r0 * f + np.arange(h), gc0 - c0 * f + np.arange(w)
-                )
-                np.subtract(up, fine64, out=up)
-                np.abs(up, out=up)
-                cells = cell_max(up)
-                if owned is not None:
-                    cells[~owned] = np.nan
-                tile_span = f * s_n
-                rv, cv, red = reduce_cells(cells, cell_r // tile_span, cell_c // tile_span)
-                iy, ix, inside = g.tile_slots(rv[:, None], cv[None, :])
-                iy, ix, inside = np.broadcast_arrays(iy, ix, inside)
-                iy, ix, red = iy[inside], ix[inside], red[inside]
-                err = self.stats[lv].error
-                err[iy, ix] = np.fmax(err[iy, ix], red)
-
-    # -- run --------------------------------------------------------------------------------
-
-    def build(self) -> None:
-        self._pole_values()
-        for lv in range(self.max_level, -1, -1):
-            self._write_level(lv)
-        if not any(np.isfinite(st.hmin).any() for st in self.stats.values()):
-            names = ", ".join(str(s.path) for s in self.sources)
-            raise DemError(f"no valid heights in {names}: every sample is nodata")
-        self._errors()
 
     def manifest(self, params: IngestParams, sources: Sequence[SourceRecord]) -> StoreManifest:
         """The store's manifest: per-tile errors rounded up (hmin down), so the bounds the
@@ -892,32 +710,6 @@ def _tty_stderr() -> IO[str] | None:
     return os.fdopen(os.dup(_stderr_saved), "w", closefd=True)
 
 
-# Fault injection for tests (works without root): GLOBEVIEW_INGEST_FAULT="KIND@N" makes the
-# N-th window write of a build (or the point named N, see `_fault_point`) fail: ENOSPC,
-# EROFS or any errno name (OSError), INTERRUPT (KeyboardInterrupt) or KILL (SIGKILL to this
-# process, as `kill -9` at a known point).
-FAULT_ENV = "GLOBEVIEW_INGEST_FAULT"
-
-
-def _fault_point(point: int | str) -> None:
-    """Fail here if GLOBEVIEW_INGEST_FAULT names this point (a window-write count, or
-    "manifest" before the manifest is written, "commit" between a commit's two renames)."""
-    spec = os.environ.get(FAULT_ENV)
-    if not spec:
-        return
-    kind, _, at = spec.partition("@")
-    if at != str(point):
-        return
-    kind = kind.upper()
-    if kind.startswith("E") and isinstance(getattr(errno, kind, None), int):
-        code = getattr(errno, kind)
-        raise OSError(code, os.strerror(code))
-    if kind == "INTERRUPT":
-        raise KeyboardInterrupt
-    if kind == "KILL":
-        os.kill(os.getpid(), signal.SIGKILL)
-
-
 def _disk_full(dropped: list[str], where: Path) -> bool:
     """Whether a failed raster write was the disk filling up: libtiff said so, or there is
     not room for one more compressed block."""
@@ -995,6 +787,8 @@ def ingest(
     force: bool = False,
     progress: bool = False,
     on_progress: Callable[[int, int], None] | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
 ) -> IngestResult:
     """Build (or refresh) the tile store ``out`` from DEM rasters.
 
@@ -1013,9 +807,15 @@ def ingest(
             CRS or the source's kind says. Stored heights are always ellipsoidal.
         force: rebuild even if the store is up to date (or of another format version).
         progress: show a tqdm bar with ETA on stderr.
-        on_progress: called as ``on_progress(done, total)`` after each window of work (for a
-            GUI progress bar); an exception it raises aborts the build (cancel) and, like any
-            failure, leaves no store behind.
+        on_progress: called as ``on_progress(done, total)`` after each task of the graph (a
+            chunk or an error window; for a GUI progress bar), in the calling thread; an
+            exception it raises aborts the build (cancel) and, like any failure, leaves no
+            store behind.
+        workers: local workers (None: every core, os.cpu_count()); ignored on a cluster.
+        scheduler: None (dask's local scheduler, threads, see `ingest_graph.DEFAULT_LOCAL`),
+            "threads", "processes", or "tcp://HOST:PORT": an existing dask.distributed
+            scheduler, whose workers must see ``out``'s folder (a shared filesystem). The
+            store is the same, bit for bit, whatever runs it.
 
     Raises:
         DemError: a source cannot be used (unreadable, no CRS, all nodata, ...).
@@ -1032,6 +832,7 @@ def ingest(
     if max_level is not None and not (0 <= max_level <= MAX_LEVEL_LIMIT):
         raise StoreError(f"--max-level must be in 0..{MAX_LEVEL_LIMIT}, got {max_level}")
     lowpass_kernel(wavelet)  # WaveletError (a GlobeviewError) for a bad name
+    where = parse_scheduler(workers, scheduler)  # one line for a bad value, before any work
     out_path = Path(out).absolute()
     parent = out_path.parent
     # First what dead ingests left here: a store that a killed commit had moved aside is put
@@ -1123,7 +924,7 @@ def ingest(
                 total = builder.total_steps()
                 bar.total = total
                 bar.refresh()
-                builder.build()
+                builder.build(where, tok)
             _fault_point("manifest")
             part = tmp / (MANIFEST_NAME + ".part")
             with part.open("w", encoding="utf-8") as f:

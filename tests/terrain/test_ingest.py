@@ -13,7 +13,7 @@ import rasterio
 from affine import Affine
 
 from globeview.errors import DemError, GlobeviewError, StoreError
-from globeview.terrain import ingest as ingest_mod
+from globeview.terrain import ingest_graph
 from globeview.terrain.dem import open_dem
 from globeview.terrain.ingest import ingest
 from globeview.terrain.quadtree import TileKey, tile_bounds
@@ -323,10 +323,10 @@ def test_failure_leaves_old_store_intact(tmp_path: Path, monkeypatch: pytest.Mon
     ingest([src], out)
     snapshot = {p.name: p.read_bytes() for p in out.iterdir()}
 
-    def boom(self: object) -> None:
+    def boom(*args: object) -> None:
         raise RuntimeError("simulated crash in the error pass")
 
-    monkeypatch.setattr(ingest_mod._Builder, "_errors", boom)
+    monkeypatch.setattr(ingest_graph, "error_task", boom)  # a task of the graph crashes
     with pytest.raises(RuntimeError):
         ingest([src], out, force=True)
     assert {p.name: p.read_bytes() for p in out.iterdir()} == snapshot

@@ -1,0 +1,335 @@
+"""The ingest as a Dask task graph, and running it on a local or a distributed scheduler.
+
+The graph (see `ingest_tasks` for what each task does):
+
+- ``pole``: the pole heights (the mean of the finest level's pole rows); only the chunks
+  holding a pole row depend on it.
+- ``chunk-L-CY-CX`` for every chunk of every level: level L's window (cy, cx), computed from
+  the sources (finest level) or from the wavelet approximation of level L+1 (so it depends
+  on the level-(L+1) chunks its window reads, halo included, and on nothing else); on a level
+  that goes all the way round, the last chunk of a row also depends on the row's first chunk
+  (whose first node column is its east edge: lon 180 = lon -180), deterministically.
+- ``error-L-CY-CX`` for every chunk of levels 1..L_max: the exact tile errors of every
+  coarser level against level L's nodes there; it depends on the chunks it reads and on the
+  level-(L+1) chunks that say where finer data takes over.
+
+Every task returns a few KB (per-tile statistics); the bulk goes through the chunk files in
+the building folder, so a task's memory is bounded by one chunk and the same graph runs on a
+cluster whose workers share that folder. The driver (`globeview.terrain.ingest`) folds the
+results, writes the level VRTs and the manifest, and commits.
+
+Schedulers: threads (dask's local threaded scheduler, our own pool so that a failure can
+wait for every task in flight before the building folder is removed), processes (dask's
+multiprocessing scheduler over a spawned process pool), or an existing ``dask.distributed``
+scheduler at tcp://HOST:PORT (futures, `as_completed` for progress).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import time
+from collections.abc import Callable, Hashable, Sequence
+from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from globeview.errors import StoreError
+from globeview.terrain.ingest_tasks import (
+    BuildPlan,
+    SourceSpec,
+    chunk_task,
+    error_task,
+    pole_task,
+)
+
+__all__ = [
+    "CONNECT_TIMEOUT_S",
+    "Graph",
+    "SchedulerChoice",
+    "build_graph",
+    "parse_scheduler",
+    "run_graph",
+]
+
+#: How long to wait for a dask.distributed scheduler to answer before giving up (seconds).
+CONNECT_TIMEOUT_S = 5.0
+#: How long a failed distributed build waits for the tasks still running on the workers to
+#: finish (they cannot be interrupted) before the building folder is removed (seconds).
+DRAIN_TIMEOUT_S = 120.0
+
+_ADDRESS = re.compile(r"^(tcp|tls)://[^\s/]+:\d{1,5}/?$")
+
+
+@dataclass(frozen=True)
+class SchedulerChoice:
+    """Where the graph runs: kind "threads" | "processes" | "distributed" (at ``address``),
+    with ``workers`` local workers (threads or processes; unused on a cluster)."""
+
+    kind: str
+    workers: int
+    address: str | None = None
+
+
+# Local default: threads. Measured on benchmarks/cache/big_dem_8192.tif (8192^2 float32,
+# max level 7, 2 cores shared, load ~2): see the comment at DEFAULT_LOCAL in ingest.py.
+DEFAULT_LOCAL = "threads"
+
+
+def parse_scheduler(workers: object, scheduler: object) -> SchedulerChoice:
+    """Check ``workers`` / ``scheduler`` (StoreError, one line) and say where to run.
+
+    workers: None (every core, os.cpu_count()) or an int >= 1. scheduler: None (dask's local
+    scheduler, `DEFAULT_LOCAL`), "threads", "processes", or "tcp://HOST:PORT" (an existing
+    dask.distributed scheduler; the store folder must be on a filesystem its workers share).
+    """
+    if workers is None:
+        n = os.cpu_count() or 1
+    elif isinstance(workers, bool) or not isinstance(workers, int):
+        raise StoreError(f"--workers must be a whole number >= 1, got {str(workers)[:40]!r}")
+    elif workers < 1:
+        raise StoreError(f"--workers must be >= 1, got {workers}")
+    else:
+        n = workers
+    if scheduler is None:
+        return SchedulerChoice(DEFAULT_LOCAL, n)
+    if not isinstance(scheduler, str):
+        raise StoreError(f"--scheduler must be tcp://HOST:PORT, got {str(scheduler)[:60]!r}")
+    text = scheduler.strip()
+    if text in ("threads", "processes"):
+        return SchedulerChoice(text, n)
+    if _ADDRESS.match(text):
+        port = int(text.rstrip("/").rsplit(":", 1)[1])
+        if not 0 < port < 65536:
+            raise StoreError(f"--scheduler {text[:60]}: port {port} is out of range")
+        return SchedulerChoice("distributed", n, text.rstrip("/"))
+    raise StoreError(
+        f"--scheduler must be tcp://HOST:PORT (a dask.distributed scheduler), got {text[:60]!r}"
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# The graph
+
+
+@dataclass
+class Graph:
+    """A dask graph (a dict of legacy task tuples) and its keys by kind."""
+
+    dsk: dict[Hashable, Any]
+    chunk_keys: list[str]  # in the serial order: levels finest first, chunks row-major
+    error_keys: list[str]
+
+    @property
+    def keys(self) -> list[str]:
+        """Every task whose result the driver needs: the pole, the chunks, the errors."""
+        return ["pole", *self.chunk_keys, *self.error_keys]
+
+
+def _chunk_key(lv: int, cy: int, cx: int) -> str:
+    return f"chunk-{lv}-{cy}-{cx}"
+
+
+def _chunks_of_rows(rr: np.ndarray, c: int, n: int) -> np.ndarray:
+    """Chunk indices (sorted, unique) holding raster rows/columns ``rr`` (-1 = outside)."""
+    rr = rr[rr >= 0]
+    return np.unique(np.minimum(rr // c, n - 1))
+
+
+def _level_chunks(
+    plan: BuildPlan, lv: int, gr: np.ndarray, gc: np.ndarray
+) -> list[tuple[int, int]]:
+    """The chunks of level lv holding any node of rows ``gr`` x columns ``gc`` (global,
+    unwrapped node indices, as `levels.read_level_nodes` reads them)."""
+    g = plan.grids[lv]
+    rows, cols = plan.chunk_shape(lv)
+    cys = _chunks_of_rows(g.raster_rows(gr), plan.chunk_nodes, rows)
+    cxs = _chunks_of_rows(g.raster_cols(gc), plan.chunk_nodes, cols)
+    return [(int(a), int(b)) for a in cys for b in cxs]
+
+
+def build_graph(plan: BuildPlan, sources: Sequence[SourceSpec]) -> Graph:
+    """The ingest graph of a planned build (see the module docstring)."""
+    dsk: dict[Hashable, Any] = {"plan": plan, "sources": tuple(sources)}
+    dsk["pole"] = (pole_task, "plan", "sources")
+    chunk_keys: list[str] = []
+    write_no = 0
+    hl = plan.halo
+    for lv in range(plan.max_level, -1, -1):
+        grid = plan.grids[lv]
+        s_n = grid.tile_nodes
+        rows, cols = plan.chunk_shape(lv)
+        for cy in range(rows):
+            for cx in range(cols):
+                by, bx, kty, ktx = plan.window(lv, cy, cx)
+                h, w = kty * s_n + 1, ktx * s_n + 1
+                gr0, gc0 = grid.gr0 + by * s_n, grid.gc0 + bx * s_n
+                fine: list[str] = []
+                if lv < plan.max_level:
+                    fine = [
+                        _chunk_key(lv + 1, a, b)
+                        for a, b in _level_chunks(
+                            plan,
+                            lv + 1,
+                            2 * gr0 - hl + np.arange(2 * h - 1 + 2 * hl),
+                            2 * gc0 - hl + np.arange(2 * w - 1 + 2 * hl),
+                        )
+                    ]
+                south_row = grid.nrows * s_n - gr0
+                pole = "pole" if gr0 == 0 or 0 <= south_row < h else None
+                first = None
+                if grid.global_lon and cx == cols - 1 and cx > 0:
+                    first = _chunk_key(lv, cy, 0)
+                write_no += 1
+                key = _chunk_key(lv, cy, cx)
+                dsk[key] = (chunk_task, "plan", "sources", lv, cy, cx, write_no, pole, fine, first)
+                chunk_keys.append(key)
+    error_keys: list[str] = []
+    for lf in range(plan.max_level, 0, -1):
+        gf = plan.grids[lf]
+        s_n = gf.tile_nodes
+        rows, cols = plan.chunk_shape(lf)
+        for cy in range(rows):
+            for cx in range(cols):
+                by, bx, kty, ktx = plan.window(lf, cy, cx)
+                h, w = kty * s_n + 1, ktx * s_n + 1
+                gr0, gc0 = gf.gr0 + by * s_n, gf.gc0 + bx * s_n
+                deps = {
+                    _chunk_key(lf, a, b)
+                    for a, b in _level_chunks(plan, lf, gr0 + np.arange(h), gc0 + np.arange(w))
+                }
+                if lf < plan.max_level:
+                    block = s_n // 2
+                    ty = gr0 // block + np.arange((h - 1) // block)
+                    tx = gc0 // block + np.arange((w - 1) // block)
+                    g1 = plan.grids[lf + 1]
+                    iy, ix, inside = g1.tile_slots(ty[:, None], tx[None, :])
+                    iy, ix, inside = np.broadcast_arrays(iy, ix, inside)
+                    pairs = np.unique(
+                        np.stack([iy[inside] // plan.k, ix[inside] // plan.k], axis=1), axis=0
+                    )
+                    deps |= {_chunk_key(lf + 1, int(a), int(b)) for a, b in pairs}
+                for lv in range(lf):
+                    f = 1 << (lf - lv)
+                    r0, c0 = gr0 // f, gc0 // f
+                    r1, c1 = -(-(gr0 + h - 1) // f), -(-(gc0 + w - 1) // f)
+                    deps |= {
+                        _chunk_key(lv, a, b)
+                        for a, b in _level_chunks(
+                            plan, lv, r0 + np.arange(r1 - r0 + 1), c0 + np.arange(c1 - c0 + 1)
+                        )
+                    }
+                key = f"error-{lf}-{cy}-{cx}"
+                dsk[key] = (error_task, "plan", lf, cy, cx, sorted(deps))
+                error_keys.append(key)
+    return Graph(dsk, chunk_keys, error_keys)
+
+
+# ---------------------------------------------------------------------------------------------
+# Running it
+
+
+def run_graph(
+    graph: Graph,
+    where: SchedulerChoice,
+    on_done: Callable[[str], None],
+) -> dict[str, Any]:
+    """Run every chunk and error task; returns their results by key. ``on_done(key)`` is
+    called in this thread after each task (progress; an exception it raises cancels the
+    build). When this returns or raises, no task of the graph is running any more (a
+    failed build may then remove the building folder safely)."""
+    if where.kind == "distributed":
+        return _run_distributed(graph, where, on_done)
+    from dask.callbacks import Callback
+
+    class _Progress(Callback):
+        def _posttask(self, key, result, dsk, state, worker_id) -> None:
+            if isinstance(key, str) and key.startswith(("chunk-", "error-")):
+                on_done(key)
+
+    keys = graph.keys
+    pool: Executor
+    if where.kind == "processes":
+        import multiprocessing
+
+        import dask.multiprocessing
+
+        pool = ProcessPoolExecutor(where.workers, mp_context=multiprocessing.get_context("spawn"))
+        get: Callable[..., Any] = dask.multiprocessing.get
+    else:
+        import dask.threaded
+
+        pool = ThreadPoolExecutor(where.workers, thread_name_prefix="ingest")
+        get = dask.threaded.get
+    try:
+        # Explicit (not the global Callback.active): other dask work in this process unaffected.
+        values = get(graph.dsk, keys, pool=pool, callbacks=(_Progress()._callback,))
+    finally:
+        # Tasks still in flight finish (at most one per worker) and queued ones never start,
+        # before the caller removes the building folder.
+        pool.shutdown(wait=True, cancel_futures=True)
+    return dict(zip(keys, values))
+
+
+def _run_distributed(
+    graph: Graph, where: SchedulerChoice, on_done: Callable[[str], None]
+) -> dict[str, Any]:
+    from distributed import Client, as_completed
+    from distributed.client import FutureCancelledError
+    from distributed.scheduler import KilledWorker
+
+    address = where.address
+    try:
+        client = Client(address, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
+    except (OSError, TimeoutError) as exc:
+        raise StoreError(
+            f"cannot reach the dask scheduler at {address} within {CONNECT_TIMEOUT_S:g} s "
+            f"({type(exc).__name__})"
+        ) from None
+    futures: list[Any] = []
+    try:
+        keys = graph.keys
+        futures = client.get(graph.dsk, keys, sync=False)
+        by_key = {f.key: k for f, k in zip(futures, keys)}
+        results: dict[str, Any] = {}
+        for fut in as_completed(futures, loop=client.loop):
+            if fut.status != "finished":
+                try:
+                    fut.result()
+                except KilledWorker as exc:
+                    raise StoreError(
+                        f"a dask worker died running {by_key.get(fut.key, fut.key)} "
+                        f"(several times): {str(exc).strip().splitlines()[0][:120]}"
+                    ) from None
+                except FutureCancelledError:
+                    raise StoreError(
+                        f"the dask cluster at {address} cancelled the ingest"
+                    ) from None
+            key = by_key[fut.key]
+            results[key] = fut.result()
+            on_done(key)
+        return results
+    finally:
+        if futures:
+            _drain(client, futures)
+        client.close()
+
+
+def _drain(client: Any, futures: list[Any]) -> None:
+    """Cancel what has not run and wait (bounded) until none of our tasks is running on a
+    worker, so no worker writes into a building folder about to be removed."""
+    pending = [f for f in futures if f.status == "pending"]
+    ours = {str(f.key) for f in futures}
+    if pending:
+        client.cancel(pending, force=True)
+    deadline = time.monotonic() + DRAIN_TIMEOUT_S
+    while time.monotonic() < deadline:
+        try:
+            busy = client.processing()
+        except Exception:  # noqa: BLE001  a lost scheduler runs nothing of ours any more
+            return
+        if not any(str(k) in ours for keys in busy.values() for k in keys):
+            return
+        time.sleep(0.1)

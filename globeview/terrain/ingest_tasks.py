@@ -1,0 +1,497 @@
+"""The tasks of the ingest graph: the pole values, one level chunk, one window of tile errors.
+
+Each task is a plain function of small, picklable arguments (a `BuildPlan`, the sources as
+`SourceSpec`s, indices, and the small results of the tasks it depends on), so the same
+tasks run in threads, in processes, or on the workers of a ``dask.distributed`` cluster.
+Bulk data passes through files in the building folder, never through the graph: a chunk
+task reads the finer level's chunk files it needs (wavelet halo included) and writes its own
+chunk file; it returns only per-tile statistics (a few KB). The store folder must therefore
+be on a filesystem every worker shares.
+
+Memory per task is bounded by the chunk size (`store_schema.CHUNK_TARGET_NODES` nodes a side:
+a window, its halo and temporaries, tens of MB) and GDAL's block cache (`GDAL_CACHE_MB`).
+
+The numerics are those of the serial ingest they replace (same reads, same order of
+operations), so the store is bit for bit the same whatever the scheduler: see
+`globeview.terrain.ingest` for the pipeline and `tile_errors` for the error bounds.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+import signal
+import threading
+from collections import OrderedDict
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+
+import numpy as np
+import rasterio
+from rasterio.windows import Window
+
+from globeview.terrain.dem import Dem
+from globeview.terrain.level_chunks import chunk_window, write_chunk
+from globeview.terrain.levels import LevelGrid, read_level_nodes
+from globeview.terrain.store_schema import chunk_file_name, chunk_grid_shape
+from globeview.terrain.tile_errors import (
+    stride_deltas,
+    tile_min_max,
+    transposed_nodes,
+    upsampled_error_tiles,
+)
+from globeview.terrain.wavelet import approximate_window
+
+__all__ = [
+    "FAULT_ENV",
+    "GDAL_CACHE_MB",
+    "STRIDES",
+    "BuildPlan",
+    "ChunkResult",
+    "SourceSpec",
+    "chunk_task",
+    "error_task",
+    "fault_point",
+    "pole_task",
+]
+
+STRIDES = (2, 4, 8, 16, 32, 64)
+# GDAL block cache of a build (per process). rasterio's default (5% of RAM) would make the
+# peak RSS depend on the machine; a fixed cache keeps the bound.
+GDAL_CACHE_MB = 96
+
+# Fault injection for tests (works without root): GLOBEVIEW_INGEST_FAULT="KIND@N" makes the
+# N-th window write of a build (or the point named N, see `fault_point`) fail: ENOSPC,
+# EROFS or any errno name (OSError), INTERRUPT (KeyboardInterrupt) or KILL (SIGKILL to the
+# process running it, as `kill -9` at a known point). Window writes are numbered in the
+# order of the serial build (levels finest first, chunks row-major), whatever the scheduler.
+FAULT_ENV = "GLOBEVIEW_INGEST_FAULT"
+
+
+def fault_point(point: int | str) -> None:
+    """Fail here if GLOBEVIEW_INGEST_FAULT names this point (a window-write number, or
+    "manifest" before the manifest is written, "commit" between a commit's two renames)."""
+    spec = os.environ.get(FAULT_ENV)
+    if not spec:
+        return
+    kind, _, at = spec.partition("@")
+    if at != str(point):
+        return
+    kind = kind.upper()
+    if kind.startswith("E") and isinstance(getattr(errno, kind, None), int):
+        code = getattr(errno, kind)
+        raise OSError(code, os.strerror(code))
+    if kind == "INTERRUPT":
+        raise KeyboardInterrupt
+    if kind == "KILL":
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
+# ---------------------------------------------------------------------------------------------
+# What tasks are given
+
+
+@dataclass(frozen=True)
+class BuildPlan:
+    """Everything a task needs to know about the build (small, picklable).
+
+    folder: the building folder (chunk files are read and written there); grids: level ->
+    raster geometry; k: tiles per chunk side (chunk_nodes = k * 2^tile_n); halo: the
+    wavelet's halo in fine nodes; gdal_threads: GDAL's compression threads per chunk write.
+    """
+
+    folder: str
+    tile_n: int
+    max_level: int
+    wavelet: str
+    halo: int
+    grids: tuple[LevelGrid, ...]
+    k: int
+    gdal_threads: str = "1"
+
+    @property
+    def chunk_nodes(self) -> int:
+        return self.k << self.tile_n
+
+    def window(self, lv: int, cy: int, cx: int) -> tuple[int, int, int, int]:
+        """Tile block (by, bx, kty, ktx) of chunk (cy, cx) of level lv."""
+        g = self.grids[lv]
+        by, bx = cy * self.k, cx * self.k
+        return by, bx, min(self.k, g.ny - by), min(self.k, g.nx - bx)
+
+    def chunk_shape(self, lv: int) -> tuple[int, int]:
+        return chunk_grid_shape(self.grids[lv], self.chunk_nodes)
+
+
+# Per-thread open Dems, by `SourceSpec.token`: GDAL datasets are not thread-safe, so each
+# worker thread reads through its own handle (opened once per build, no value scan).
+_local = threading.local()
+_MAX_OPEN_DEMS = 32
+
+
+@dataclass(frozen=True)
+class SourceSpec:
+    """A source as a task sees it: its `Dem`'s pickled state (reopened per thread without
+    the value scan), its natural level, footprint (degrees) and vertical datum."""
+
+    token: str  # unique per build and source
+    dem_state: dict
+    path: str
+    level: int
+    bounds: tuple[float, float, float, float]
+    wraps: bool
+    datum: str
+
+    def dem(self) -> Dem:
+        """This thread's open `Dem` of the source."""
+        dems: OrderedDict[str, Dem] | None = getattr(_local, "dems", None)
+        if dems is None:
+            dems = _local.dems = OrderedDict()
+        dem = dems.get(self.token)
+        if dem is None:
+            dem = Dem.__new__(Dem)
+            dem.__setstate__(self.dem_state)
+            dems[self.token] = dem
+            while len(dems) > _MAX_OPEN_DEMS:
+                dems.popitem(last=False)[1].close()
+        dems.move_to_end(self.token)
+        return dem
+
+
+@dataclass(frozen=True)
+class ChunkResult:
+    """What a chunk task returns: the per-tile statistics of its tile block (hmin, hmax
+    (kty, ktx) metres, NaN without data; stride_delta (kty, ktx, len(STRIDES)) metres),
+    the chunk file's sha256 (None: all NaN, no file) and, for chunk column 0 of a level
+    that goes all the way round, its closed window's first node column (the east edge of
+    the row's last chunk)."""
+
+    level: int
+    cy: int
+    cx: int
+    hmin: np.ndarray
+    hmax: np.ndarray
+    stride_delta: np.ndarray
+    sha256: str | None
+    first_col: np.ndarray | None = None
+
+
+# ---------------------------------------------------------------------------------------------
+# Reading chunk files
+
+
+class ChunkReader:
+    """A level raster read from its chunk files in the building folder (what
+    `read_level_nodes` needs of a dataset: ``read(1, window=...)``). ``present``: the chunks
+    that have a file (the others are all NaN)."""
+
+    def __init__(self, plan: BuildPlan, lv: int, present: set[tuple[int, int]]) -> None:
+        self.plan = plan
+        self.grid = plan.grids[lv]
+        self.present = present
+        self._open: dict[tuple[int, int], rasterio.DatasetReader] = {}
+
+    def read(self, band: int, window: Window) -> np.ndarray:
+        c = self.plan.chunk_nodes
+        rows, cols = self.plan.chunk_shape(self.grid.level)
+        r_a, c_a = int(window.row_off), int(window.col_off)
+        h, w = int(window.height), int(window.width)
+        out = np.full((h, w), np.nan, dtype=np.float32)
+        for cy in range(min(r_a // c, rows - 1), min((r_a + h - 1) // c, rows - 1) + 1):
+            for cx in range(min(c_a // c, cols - 1), min((c_a + w - 1) // c, cols - 1) + 1):
+                if (cy, cx) not in self.present:
+                    continue
+                r0, c0, ch, cw = chunk_window(self.grid, c, cy, cx)
+                ra, rb = max(r_a, r0), min(r_a + h, r0 + ch)
+                ca, cb = max(c_a, c0), min(c_a + w, c0 + cw)
+                if ra >= rb or ca >= cb:
+                    continue
+                ds = self._dataset(cy, cx)
+                out[ra - r_a : rb - r_a, ca - c_a : cb - c_a] = ds.read(
+                    band, window=Window(ca - c0, ra - r0, cb - ca, rb - ra)
+                )
+        return out
+
+    def _dataset(self, cy: int, cx: int) -> rasterio.DatasetReader:
+        ds = self._open.get((cy, cx))
+        if ds is None:
+            path = Path(self.plan.folder) / chunk_file_name(self.grid.level, cy, cx)
+            ds = self._open[(cy, cx)] = rasterio.open(path)
+        return ds
+
+    def close(self) -> None:
+        for ds in self._open.values():
+            ds.close()
+        self._open.clear()
+
+    def __enter__(self) -> ChunkReader:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+def _present(results: Sequence[ChunkResult], lv: int) -> set[tuple[int, int]]:
+    return {(r.cy, r.cx) for r in results if r.level == lv and r.sha256 is not None}
+
+
+# ---------------------------------------------------------------------------------------------
+# Sources
+
+
+def _window_undulation(west: float, north: float, d: float, w: int, h: int) -> np.ndarray:
+    """EGM96 N (m, float32) on a window's nodes: lon west + j*d, lat north - i*d (degrees)."""
+    from globeview.terrain.vdatum import egm96
+
+    lons = west + d * np.arange(w)
+    lats = north - d * np.arange(h)
+    return egm96().undulation_grid(lons, lats).astype(np.float32)
+
+
+def _lon_overlaps(a0: float, a1: float, b: tuple[float, float, float, float], wraps: bool) -> bool:
+    """Whether the longitude interval [a0, a1] (a1 >= a0, may exceed 180) meets a footprint."""
+    if wraps:
+        return True
+    w, _, e, _ = b
+    width = (e - w) % 360.0 or (360.0 if e != w else 0.0)
+    return any(a0 <= w + k + width and w + k <= a1 for k in (-360.0, 0.0, 360.0))
+
+
+def fill_from_sources(
+    sources: Sequence[SourceSpec],
+    out: np.ndarray,
+    grid: LevelGrid,
+    gr0: int,
+    gc0: int,
+    max_source_level: int,
+) -> None:
+    """Fill NaN nodes of ``out`` (global node window at gr0, gc0) from the sources with
+    L_s <= max_source_level, finest first (``sources`` are sorted so), in place."""
+    h, w = out.shape
+    d = grid.d
+    west = -180.0 + gc0 * d
+    north = 90.0 - gr0 * d
+    south = north - (h - 1) * d
+    west_n = (west + 180.0) % 360.0 - 180.0
+    undulation: np.ndarray | None = None  # N on this window's nodes, when a source needs it
+    for s in sources:
+        if s.level > max_source_level:
+            continue
+        if not np.isnan(out).any():
+            return
+        _, bs, _, bn = s.bounds
+        if south > bn + d or north < bs - d:
+            continue
+        if not _lon_overlaps(west - d, west + (w - 1) * d + d, s.bounds, s.wraps):
+            continue
+        vals = s.dem().read_grid(west_n, north, d, d, w, h)
+        if s.datum == "egm96":
+            if undulation is None:
+                undulation = _window_undulation(west, north, d, w, h)
+            vals = vals + undulation  # NaN (nodata) stays NaN
+        np.copyto(out, vals, where=np.isnan(out))
+
+
+# ---------------------------------------------------------------------------------------------
+# Tasks
+
+
+def pole_task(plan: BuildPlan, sources: Sequence[SourceSpec]) -> dict[str, float | None]:
+    """Mean of the finest level's pole rows (one point each on the globe): {"north": h or
+    None, "south": h or None}, metres."""
+    g = plan.grids[plan.max_level]
+    pole: dict[str, float | None] = {"north": None, "south": None}
+    with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB * 1024 * 1024):
+        for name, grow in (("north", 0), ("south", g.nrows * g.tile_nodes)):
+            if g.raster_rows(np.array([grow]))[0] < 0:
+                continue
+            # One node row across the extent: small (a few MB even for a global level 12).
+            row = np.full((1, g.width), np.nan, dtype=np.float32)
+            fill_from_sources(sources, row, g, grow, g.gc0, plan.max_level)
+            if np.isfinite(row).any():
+                pole[name] = float(np.nanmean(row.astype(np.float64)))
+    return pole
+
+
+def _window_values(
+    plan: BuildPlan,
+    sources: Sequence[SourceSpec],
+    grid: LevelGrid,
+    fine_ds: ChunkReader | None,
+    gr0: int,
+    gc0: int,
+    h: int,
+    w: int,
+    pole: dict[str, float | None],
+) -> np.ndarray:
+    """Closed window of nodes of a level (global node indices), float32."""
+    if fine_ds is None:
+        out = np.full((h, w), np.nan, dtype=np.float32)
+    else:
+        fine = plan.grids[grid.level + 1]
+        hl = plan.halo
+        padded = read_level_nodes(
+            fine_ds,  # a ChunkReader reads like a dataset
+            fine,
+            2 * gr0 - hl,
+            2 * gc0 - hl,
+            2 * h - 1 + 2 * hl,
+            2 * w - 1 + 2 * hl,
+            mirror=hl,
+        )
+        out = approximate_window(padded, hl, plan.wavelet)
+        # Coarse nodes whose own fine node is outside the finer raster carry no data.
+        rows_out = fine.raster_rows(2 * (gr0 + np.arange(h))) < 0
+        cols_out = fine.raster_cols(2 * (gc0 + np.arange(w))) < 0
+        out[rows_out, :] = np.nan
+        out[:, cols_out] = np.nan
+    fill_from_sources(sources, out, grid, gr0, gc0, grid.level)
+    # Poles: one value per pole (finite nodes only: a partial pole row stays partial).
+    if pole.get("north") is not None and gr0 == 0:
+        out[0, np.isfinite(out[0])] = pole["north"]
+    south_row = grid.nrows * grid.tile_nodes - gr0
+    if pole.get("south") is not None and 0 <= south_row < h:
+        out[south_row, np.isfinite(out[south_row])] = pole["south"]
+    return out
+
+
+def chunk_task(
+    plan: BuildPlan,
+    sources: Sequence[SourceSpec],
+    lv: int,
+    cy: int,
+    cx: int,
+    write_no: int,
+    pole: dict[str, float | None] | None,
+    fine: Sequence[ChunkResult],
+    first: ChunkResult | None,
+) -> ChunkResult:
+    """Compute, write and summarise chunk (cy, cx) of level lv.
+
+    ``pole``: the pole task's result where the window holds a pole row (else None);
+    ``fine``: the results of the level-(lv+1) chunks the window's wavelet reads (their
+    files are in the building folder); ``first``: for the last chunk of a row of a level
+    that goes all the way round, chunk (cy, 0)'s result (its first column becomes this
+    chunk's east edge: lon 180 is lon -180). ``write_no``: the window's number in the serial
+    order (fault injection).
+    """
+    grid = plan.grids[lv]
+    s_n = grid.tile_nodes
+    by, bx, kty, ktx = plan.window(lv, cy, cx)
+    h, w = kty * s_n + 1, ktx * s_n + 1
+    with contextlib.ExitStack() as stack:
+        stack.enter_context(rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB * 1024 * 1024))
+        fine_ds = None
+        if lv < plan.max_level:
+            fine_ds = stack.enter_context(ChunkReader(plan, lv + 1, _present(fine, lv + 1)))
+        arr = _window_values(
+            plan, sources, grid, fine_ds, grid.gr0 + by * s_n, grid.gc0 + bx * s_n, h, w, pole or {}
+        )
+    first_col = None
+    if grid.global_lon:
+        # The east edge (lon 180) is the west edge (lon -180): make it identical.
+        if bx == 0:
+            first_col = arr[:, 0].copy()
+        if bx + ktx == grid.nx:
+            edge = first_col if bx == 0 else (first.first_col if first is not None else None)
+            if edge is None:
+                raise RuntimeError(f"chunk {lv}/{cy}/{cx}: the row's first column is missing")
+            arr[:, -1] = edge
+    hmin, hmax = tile_min_max(arr, s_n)
+    # Stride deltas: delta_s = max |S_s - S_1| over the tile, where S_s is the bilinear
+    # surface on every s-th node and S_1 the tile's own (exact at the nodes; a running max
+    # over the strides keeps the bounds monotone): see tile_errors.stride_deltas.
+    delta = stride_deltas(arr, s_n, STRIDES)
+    # The chunk is the window's half-open part; the last row/column of chunks also holds the
+    # raster's edge.
+    hh = h if by + kty == grid.ny else h - 1
+    ww = w if bx + ktx == grid.nx else w - 1
+    fault_point(write_no)
+    with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB * 1024 * 1024):
+        sha = write_chunk(
+            Path(plan.folder), grid, plan.chunk_nodes, cy, cx, arr[:hh, :ww], plan.gdal_threads
+        )
+    keep_first = first_col if grid.global_lon and bx == 0 and bx + ktx < grid.nx else None
+    return ChunkResult(lv, cy, cx, hmin, hmax, delta, sha, keep_first)
+
+
+def _tile_table(results: Sequence[ChunkResult], plan: BuildPlan, lv: int) -> dict:
+    """hmin blocks of a level's chunk results by chunk (cy, cx)."""
+    return {(r.cy, r.cx): r.hmin for r in results if r.level == lv}
+
+
+def error_task(
+    plan: BuildPlan, lf: int, cy: int, cx: int, deps: Sequence[ChunkResult]
+) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
+    """Exact tile errors of every level coarser than lf against level lf's nodes in window
+    (cy, cx) of level lf (where lf is the finest data there): a list of (level, iy, ix, err)
+    (tile slots of the level's extent and their maxima, metres) for the driver to fold with
+    fmax. ``deps``: the results of the chunks read (level lf's window and its right/lower
+    neighbours, the level-(lf+1) chunks that say where finer data exists, and the coarser
+    levels' chunks under the window).
+    """
+    gf = plan.grids[lf]
+    s_n = gf.tile_nodes
+    by, bx, kty, ktx = plan.window(lf, cy, cx)
+    h, w = kty * s_n + 1, ktx * s_n + 1
+    gr0, gc0 = gf.gr0 + by * s_n, gf.gc0 + bx * s_n
+    owned = None
+    block = s_n
+    if lf < plan.max_level:
+        # Blocks (quadrants of level-lf tiles) whose level-(lf+1) tile has data are judged
+        # against that finer level (in its own pass); here only the rest.
+        block = s_n // 2
+        ty = gr0 // block + np.arange((h - 1) // block)
+        tx = gc0 // block + np.arange((w - 1) // block)
+        has = _has_data(plan, lf + 1, ty[:, None], tx[None, :], deps)
+        if has.all():
+            return []
+        owned = ~has
+    out: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
+    with contextlib.ExitStack() as stack:
+        stack.enter_context(rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB * 1024 * 1024))
+        reader = stack.enter_context(ChunkReader(plan, lf, _present(deps, lf)))
+        fine = reader.read(1, window=Window(bx * s_n, by * s_n, w, h))
+        if not np.isfinite(fine).any():
+            return []
+        fine_t = transposed_nodes(fine)
+        for lv in range(lf):
+            g = plan.grids[lv]
+            f = 1 << (lf - lv)
+            r0, c0 = gr0 // f, gc0 // f
+            r1, c1 = -(-(gr0 + h - 1) // f), -(-(gc0 + w - 1) // f)
+            with ChunkReader(plan, lv, _present(deps, lv)) as ds:
+                coarse = read_level_nodes(ds, g, r0, c0, r1 - r0 + 1, c1 - c0 + 1)
+            rv, cv, red = upsampled_error_tiles(
+                coarse, fine_t, f, gr0 - r0 * f, gc0 - c0 * f, gr0, gc0, f * s_n, block, owned
+            )
+            iy, ix, inside = g.tile_slots(rv[:, None], cv[None, :])
+            iy, ix, inside = np.broadcast_arrays(iy, ix, inside)
+            out.append((lv, iy[inside], ix[inside], red[inside]))
+    return out
+
+
+def _has_data(
+    plan: BuildPlan, lv: int, ty: np.ndarray, tx: np.ndarray, deps: Sequence[ChunkResult]
+) -> np.ndarray:
+    """Whether tiles (ty, tx) of level lv are in its extent and hold data, from the hmin
+    blocks of the chunk results among ``deps`` (every chunk holding one of these tiles)."""
+    g = plan.grids[lv]
+    iy, ix, inside = g.tile_slots(ty, tx)
+    iy, ix, inside = np.broadcast_arrays(iy, ix, inside)
+    table = _tile_table(deps, plan, lv)
+    out = np.zeros(iy.shape, dtype=bool)
+    k = plan.k
+    for (ccy, ccx), hmin in table.items():
+        sel = inside & (iy // k == ccy) & (ix // k == ccx)
+        if sel.any():
+            out[sel] = np.isfinite(hmin[iy[sel] - ccy * k, ix[sel] - ccx * k])
+    return out
