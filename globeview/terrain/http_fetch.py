@@ -19,6 +19,7 @@ server (`globeview.bench.http_server`). Units: bytes, seconds.
 
 from __future__ import annotations
 
+import base64
 import http.client
 import re
 import socket
@@ -42,6 +43,7 @@ __all__ = [
     "RemoteOptions",
     "fetch",
     "is_url",
+    "looks_like_url",
 ]
 
 #: Redirects followed per request (301/302/303/307/308, to http or https only).
@@ -56,16 +58,28 @@ _READ_PIECE = 256 << 10
 MAX_BACKOFF_S = 4.0
 
 
+def looks_like_url(text: object) -> bool:
+    """Whether ``text`` is meant as a URL of a remote store: it starts with ``http://`` or
+    ``https://`` (any case). `is_url` then says whether it is a usable one."""
+    return isinstance(text, str) and text.strip()[:8].lower().startswith(("http://", "https://"))
+
+
 def is_url(text: object) -> bool:
-    """Whether ``text`` names a remote store: an ``http://`` or ``https://`` URL with a host
-    (case-insensitive scheme). Anything else (a path, ``file:``, ``ftp:``) is not."""
-    if not isinstance(text, str):
+    """Whether ``text`` names a remote store: an ``http://`` or ``https://`` URL (any case)
+    with a host, a valid port and no whitespace or control characters. Anything else (a path,
+    ``file:``, ``ftp:``, ``http://`` alone) is not."""
+    if not looks_like_url(text):
         return False
+    assert isinstance(text, str)
+    url = text.strip()
+    if any(ord(c) <= 32 or ord(c) == 127 for c in url):
+        return False  # urlsplit would silently drop a newline or a tab
     try:
-        parts = urllib.parse.urlsplit(text.strip())
+        parts = urllib.parse.urlsplit(url)
+        parts.port  # noqa: B018 - raises ValueError for a bad port
     except ValueError:
         return False
-    return parts.scheme.lower() in ("http", "https") and bool(parts.hostname)
+    return bool(parts.hostname)
 
 
 class RemoteError(StoreError):
@@ -223,6 +237,11 @@ class _Retry(Exception):
 
 
 def _short_url(url: str) -> str:
+    """A URL for messages: a password in it masked, at most 200 characters."""
+    parts = urllib.parse.urlsplit(url)
+    if parts.password is not None:
+        host = parts.netloc.rsplit("@", 1)[-1]
+        url = urllib.parse.urlunsplit(parts._replace(netloc=f"{parts.username}:***@{host}"))
     return url if len(url) <= 200 else url[:197] + "..."
 
 
@@ -287,6 +306,11 @@ def _request(
         raise RemoteError(f"GET {_short_url(url)}: bad port", url) from None
     target = urllib.parse.urlunsplit(("", "", parts.path or "/", parts.query, ""))
     headers = {"User-Agent": "globeview", "Accept-Encoding": "identity"}
+    if parts.username is not None:  # http://user:password@host/...: HTTP basic auth
+        cred = (
+            f"{urllib.parse.unquote(parts.username)}:{urllib.parse.unquote(parts.password or '')}"
+        )
+        headers["Authorization"] = "Basic " + base64.b64encode(cred.encode()).decode("ascii")
     if byte_range is not None:
         headers["Range"] = f"bytes={byte_range[0]}-{byte_range[1] - 1}"
     GATE.acquire(opts.max_requests)

@@ -66,6 +66,7 @@ from globeview.terrain.http_fetch import (
     _short_url,
     fetch,
     is_url,
+    looks_like_url,
 )
 
 __all__ = [
@@ -79,6 +80,7 @@ __all__ = [
     "close_dataset",
     "fetch",
     "is_url",
+    "looks_like_url",
     "take_error",
 ]
 
@@ -360,7 +362,7 @@ class RemoteSource:
 
     def __post_init__(self) -> None:
         if not is_url(self.base_url):
-            raise StoreError(f"{self.base_url[:200]!r} is not an http(s) URL")
+            raise StoreError(f"not a valid store URL: {self.base_url[:200]!r}")
         self.base_url = self.base_url.strip().rstrip("/")
         self._files: dict[str, _RemoteBytes] = {}
         self._lock = threading.Lock()
@@ -372,13 +374,18 @@ class RemoteSource:
         in neither memory nor the disk cache raise `TileNotReady` at once."""
         self._no_network.add(int(thread_ident))
 
+    @property
+    def label(self) -> str:
+        """The store's URL for people: a password in it masked, at most 200 characters."""
+        return _short_url(self.base_url)
+
     def url(self, name: str) -> str:
         """The URL of a file of the store."""
         return f"{self.base_url}/{urllib.parse.quote(name)}"
 
     def describe(self, name: str) -> str:
-        """A file's URL, for messages."""
-        return self.url(name)
+        """A file's URL, for messages (a password masked)."""
+        return _short_url(self.url(name))
 
     def sha256(self, name: str) -> str:
         """The sha256 of a whole store file fetched afresh (for `TileStore.verify`; at most
@@ -395,9 +402,9 @@ class RemoteSource:
         except RemoteError as exc:
             if exc.status in (404, 410):
                 raise StoreError(
-                    f"{self.base_url} is not a globeview tile store (no {name}: HTTP {exc.status})"
+                    f"{self.label} is not a globeview tile store (no {name}: HTTP {exc.status})"
                 ) from None
-            raise StoreError(f"cannot open {self.base_url}: {exc}") from None
+            raise StoreError(f"cannot open {self.label}: {exc}") from None
 
     def open_raster(self, name: str, sha256: str | None) -> rasterio.DatasetReader:
         """Open a store raster (a chunk file) with GDAL over HTTP; ``sha256`` (from the

@@ -297,7 +297,7 @@ class TileStore:
     ) -> None:
         self.path = path
         self.url: str | None = files.base_url if files is not None else None
-        self.location = self.url if self.url is not None else str(path)
+        self.location = files.label if files is not None else str(path)
         self._files: _Files = files if files is not None else _LocalFiles(path)
         self.manifest = manifest
         self.tile_n = manifest.tile_n
@@ -353,7 +353,7 @@ class TileStore:
                 format_version, or a missing level file; for a URL: unreachable, HTTP 404
                 (not a store) or another HTTP error, a manifest over its size bound.
         """
-        if isinstance(path, str) and remote.is_url(path):
+        if isinstance(path, str) and remote.looks_like_url(path):
             return cls._open_url(path, cache_tiles, remote_options or remote.RemoteOptions())
         p = Path(path)
         mpath = p / MANIFEST_NAME
@@ -376,16 +376,18 @@ class TileStore:
     def _open_url(cls, url: str, cache_tiles: int, options: remote.RemoteOptions) -> TileStore:
         """`open` for a store URL: its manifest fetched (bounded) and checked as a local one."""
         files = remote.RemoteSource(url, options)
-        where = files.base_url
+        where = files.label
         data = files.read_manifest(MANIFEST_NAME)
         try:
             raw = json.loads(data.decode("utf-8"))
         except (UnicodeDecodeError, ValueError, RecursionError) as exc:
             raise StoreError(
-                f"{files.url(MANIFEST_NAME)}: unreadable manifest ({type(exc).__name__})"
+                f"{files.describe(MANIFEST_NAME)}: unreadable manifest ({type(exc).__name__})"
             ) from None
         if not isinstance(raw, dict):
-            raise StoreError(f"{files.url(MANIFEST_NAME)}: unreadable manifest (not a JSON object)")
+            raise StoreError(
+                f"{files.describe(MANIFEST_NAME)}: unreadable manifest (not a JSON object)"
+            )
         if StoreHeader.peek(raw).format != STORE_FORMAT:
             raise StoreError(f"{where} is not a globeview tile store ({MANIFEST_NAME} is not ours)")
         manifest = _checked_manifest(where, raw)

@@ -71,6 +71,7 @@ def _bytes(server: StaticServer, files: Path, opts: RemoteOptions, name: str = "
 
 def test_is_url() -> None:
     assert is_url("http://127.0.0.1:8000/store") and is_url("HTTPS://example.org/a/b/")
+    assert is_url(" http://user:pw@host/s ")
     for text in (
         "",
         "/tmp/store",
@@ -79,12 +80,35 @@ def test_is_url() -> None:
         "ftp://host/store",
         "http://",
         "http:///path",
+        "http://[::1",
+        "http://host:99999/s",
+        "http://host/a\nb",
+        "http://host/a b",
+        "http://host/\x7f",
         "s3://bucket/store",
         "javascript:alert(1)",
         None,
         3,
     ):
         assert not is_url(text), text
+
+
+@pytest.mark.parametrize(
+    ("url", "match"),
+    [
+        ("http://127.0.0.1:1/x\nfoo", "not a valid store URL"),
+        ("https://", "not a valid store URL"),
+        ("http://[::1", "not a valid store URL"),
+        ("HTTP://127.0.0.1:99999/x", "not a valid store URL"),
+        ("http://user:secret@127.0.0.1:1/s", r"user:\*\*\*@127\.0\.0\.1:1/s.*connection refused"),
+        ("http://127.0.0.1:1/" + "a" * 5000, "connection refused"),
+    ],
+)
+def test_odd_urls_are_one_line(tmp_path: Path, url: str, match: str) -> None:
+    with pytest.raises(StoreError, match=match) as err:
+        TileStore.open(url, remote_options=_opts(tmp_path, retries=0))
+    msg = str(err.value)
+    assert "\n" not in msg and "secret" not in msg and len(msg) < 600
 
 
 @pytest.mark.parametrize(
