@@ -77,6 +77,7 @@ __all__ = [
     "RemoteOptions",
     "RemoteSource",
     "TileNotReady",
+    "clear_memory",
     "close_dataset",
     "fetch",
     "is_url",
@@ -93,14 +94,27 @@ class TileNotReady(StoreError):
     again later."""
 
 
+#: Pages kept in memory, process-wide (64 KB pages: 8 MB), least recently used dropped: they
+#: serve GDAL's small header reads; decoded blocks are the store's own cache.
+MEMORY_PAGES = 128
+_memory: OrderedDict[tuple[str, str | None, int, int], bytes] = OrderedDict()
+_memory_lock = threading.Lock()
+
+
+def clear_memory() -> None:
+    """Forget the pages kept in memory (the disk cache stays): what a new process would see;
+    for tests and benchmarks."""
+    with _memory_lock:
+        _memory.clear()
+
+
 class _RemoteBytes:
-    """One remote file's bytes by pages: memory (a few pages), disk cache, then HTTP.
+    """One remote file's bytes by pages: memory (`MEMORY_PAGES` shared), disk cache, then
+    HTTP.
 
     ``sha256`` (the manifest's digest of the file) keys the disk cache; None turns it off for
     this file. Thread-safe; shared by every `_RemoteFile` of the URL.
     """
-
-    _MEMORY_PAGES = 8
 
     def __init__(
         self,
@@ -115,8 +129,6 @@ class _RemoteBytes:
         self.page = opts.page_bytes
         self.key = sha256 if sha256 is not None and _SHA256.match(sha256) else None
         self.cache = opts.cache()
-        self._mem: OrderedDict[int, bytes] = OrderedDict()
-        self._lock = threading.Lock()
         self._size: int | None = None
 
     def _ckey(self, index: int) -> str:
@@ -135,12 +147,16 @@ class _RemoteBytes:
         assert self._size is not None
         return self._size
 
+    def _mkey(self, index: int) -> tuple[str, str | None, int, int]:
+        return (self.url, self.key, self.page, index)
+
     def _remember(self, index: int, data: bytes) -> None:
-        with self._lock:
-            self._mem[index] = data
-            self._mem.move_to_end(index)
-            while len(self._mem) > self._MEMORY_PAGES:
-                self._mem.popitem(last=False)
+        key = self._mkey(index)
+        with _memory_lock:
+            _memory[key] = data
+            _memory.move_to_end(key)
+            while len(_memory) > MEMORY_PAGES:
+                _memory.popitem(last=False)
 
     def _store(self, index: int, data: bytes) -> None:
         self._remember(index, data)
@@ -176,10 +192,11 @@ class _RemoteBytes:
         return got
 
     def _page(self, index: int) -> bytes | None:
-        with self._lock:
-            hit = self._mem.get(index)
+        key = self._mkey(index)
+        with _memory_lock:
+            hit = _memory.get(key)
             if hit is not None:
-                self._mem.move_to_end(index)
+                _memory.move_to_end(key)
                 return hit
         if self.key is not None:
             hit = self.cache.get(self._ckey(index))

@@ -154,6 +154,7 @@ def test_range_reads_equal_the_file_and_a_warm_cache_needs_no_server(
         )
         assert len(log) <= len(blob) // opts.page_bytes + 1  # each page fetched once
     # The server is gone: a fresh reader of the same chunk (same sha256) is served from disk.
+    remote.clear_memory()
     again = remote._RemoteBytes(f"{srv.url}/blob.bin", _sha(files / "blob.bin"), opts)
     for a, n in spans:
         assert again.read(a, n) == blob[a : a + n]
@@ -193,10 +194,12 @@ def test_a_damaged_cache_entry_is_fetched_again(tmp_path: Path, files: Path, ser
     raw = bytearray(entries[0].read_bytes())
     raw[-1] ^= 0xFF  # one flipped bit on disk
     entries[0].write_bytes(bytes(raw))
+    remote.clear_memory()
     server.reset_log()
     assert _bytes(server, files, opts).read(0, 100) == blob[:100]
     assert len(server.requests("/blob.bin")) == 1
     entries[0].write_bytes(b"GVPG")  # truncated
+    remote.clear_memory()
     server.reset_log()
     assert _bytes(server, files, opts).read(10, 100) == blob[10:110]
     assert len(server.requests("/blob.bin")) == 1
@@ -484,6 +487,7 @@ def test_a_cold_cache_uses_range_requests_and_a_warm_one_none(
     finally:
         srv.stop()
     n_before = len(srv.log)
+    remote.clear_memory()
     with warm:  # the server is gone: every byte from the disk cache
         for k, h in zip(keys, cold, strict=True):
             assert np.array_equal(warm.heights(k), h, equal_nan=True)
