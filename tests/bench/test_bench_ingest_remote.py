@@ -85,7 +85,9 @@ def test_tiny_ingest_run_prints_every_row_and_each_target(tmp_path: Path) -> Non
     assert re.search(r"per-tile errors and height ranges equal to \w+'s: [a-zA-Z0-9]", out)
     assert "DIFFER" not in out
     assert re.search(r"pyramid: levels 0\.\.\d+, tiles of 65\^2 nodes", out)
-    assert re.search(r"peak RSS per worker: at most \d+ MB .*: (met|NOT MET)\)", out)
+    assert re.search(
+        r"peak RSS per worker \(a process of 1 thread\): at most \d+ MB .*: (met|NOT MET)\)", out
+    )
     # Its temporary stores are gone; the shared benchmark store was not touched.
     assert {p.name for p in (BENCH / "cache").glob("bench-ingest-*")} == before
 
