@@ -108,6 +108,18 @@ def clear_memory() -> None:
         _memory.clear()
 
 
+class _Flight:
+    """A page being fetched: set when done, with the failure if it failed."""
+
+    def __init__(self) -> None:
+        self.event = threading.Event()
+        self.error: StoreError | None = None
+
+    def done(self, error: StoreError | None) -> None:
+        self.error = error
+        self.event.set()
+
+
 class _RemoteBytes:
     """One remote file's bytes by pages: memory (`MEMORY_PAGES` shared), disk cache, then
     HTTP.
@@ -130,6 +142,10 @@ class _RemoteBytes:
         self.key = sha256 if sha256 is not None and _SHA256.match(sha256) else None
         self.cache = opts.cache()
         self._size: int | None = None
+        self._size_lock = threading.Lock()
+        # Pages being fetched by some thread: others wait for them instead of asking again.
+        self._inflight: dict[int, _Flight] = {}
+        self._inflight_lock = threading.Lock()
 
     def _ckey(self, index: int) -> str:
         return f"{self.key}_{self.opts.page_kb}k_{index}"
@@ -143,7 +159,11 @@ class _RemoteBytes:
                 if raw is not None and raw.isdigit():
                     self._size = int(raw)
                     return self._size
-            self._fetch(0, 0)  # sets _size
+            if threading.get_ident() in self.no_network:
+                raise TileNotReady(f"{_short_url(self.url)}: not loaded yet")
+            with self._size_lock:  # threads opening the file at once: one request
+                if self._size is None:
+                    self._fetch(0, 0)  # sets _size
         assert self._size is not None
         return self._size
 
@@ -205,25 +225,11 @@ class _RemoteBytes:
                 return hit
         return None
 
-    def read(self, pos: int, n: int) -> bytes:
-        """Bytes [pos, pos + n) clipped to the file."""
-        size = self.size
-        end = min(size, pos + max(0, n))
-        if pos >= end:
-            return b""
-        p = self.page
-        first, last = pos // p, (end - 1) // p
-        pages: dict[int, bytes] = {}
-        missing: list[int] = []
-        for i in range(first, last + 1):
-            hit = self._page(i)
-            if hit is None:
-                missing.append(i)
-            else:
-                pages[i] = hit
-        # Contiguous runs of missing pages, one request each (at most 64 pages a request).
+    def _fetch_runs(self, indices: list[int], pages: dict[int, bytes]) -> None:
+        """Fetch pages ``indices`` (ascending) into ``pages``: contiguous runs, one request
+        each (at most 64 pages a request)."""
         run: list[int] = []
-        for i in [*missing, -1]:  # -1 ends the last run
+        for i in [*indices, -1]:  # -1 ends the last run
             if run and (i < 0 or i != run[-1] + 1 or len(run) >= 64):
                 got = self._fetch(run[0], run[-1])
                 for j in run:
@@ -236,6 +242,54 @@ class _RemoteBytes:
                 run = []
             if i >= 0:
                 run.append(i)
+
+    def read(self, pos: int, n: int) -> bytes:
+        """Bytes [pos, pos + n) clipped to the file."""
+        size = self.size
+        end = min(size, pos + max(0, n))
+        if pos >= end:
+            return b""
+        p = self.page
+        first, last = pos // p, (end - 1) // p
+        pages: dict[int, bytes] = {}
+        while True:
+            missing = []
+            for i in range(first, last + 1):
+                if i not in pages:
+                    hit = self._page(i)
+                    if hit is None:
+                        missing.append(i)
+                    else:
+                        pages[i] = hit
+            if not missing:
+                break
+            # Claim the pages nobody is fetching; wait for the others (then look again).
+            claimed: list[int] = []
+            waits: list[_Flight] = []
+            with self._inflight_lock:
+                for i in missing:
+                    flight = self._inflight.get(i)
+                    if flight is None:
+                        self._inflight[i] = _Flight()
+                        claimed.append(i)
+                    else:
+                        waits.append(flight)
+            error: StoreError | None = None
+            try:
+                self._fetch_runs(claimed, pages)
+            except StoreError as exc:
+                error = exc
+                raise
+            finally:
+                with self._inflight_lock:
+                    for i in claimed:
+                        self._inflight.pop(i).done(error)
+            for flight in waits:
+                if threading.get_ident() in self.no_network:
+                    raise TileNotReady(f"{_short_url(self.url)}: not loaded yet")
+                flight.event.wait(self.opts.worst_case_s)
+                if flight.error is not None:
+                    raise flight.error  # the same failure: not a second round of retries
         out = b"".join(pages[i] for i in range(first, last + 1))
         off = pos - first * p
         return out[off : off + (end - pos)]

@@ -258,6 +258,42 @@ def test_requests_in_flight_never_exceed_the_bound(tmp_path: Path, files: Path, 
     assert remote.GATE.in_flight == 0
 
 
+def _together(n: int, fn) -> list[object]:
+    """Run ``fn()`` in ``n`` threads at once; their results or exceptions."""
+    out: list[object] = [None] * n
+    barrier = threading.Barrier(n)
+
+    def run(i: int) -> None:
+        barrier.wait()
+        try:
+            out[i] = fn()
+        except Exception as exc:  # noqa: BLE001 - returned to the test
+            out[i] = exc
+
+    threads = [threading.Thread(target=run, args=(i,)) for i in range(n)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    return out
+
+
+def test_threads_wanting_the_same_page_share_one_request(
+    tmp_path: Path, files: Path, server
+) -> None:
+    blob = (files / "blob.bin").read_bytes()
+    server.fault("/blob.bin", delay_s=0.2)
+    data = _bytes(server, files, _opts(tmp_path, cache_mb=0))
+    assert _together(6, lambda: data.read(40_000, 100)) == [blob[40_000:40_100]] * 6
+    assert len(server.requests("/blob.bin")) == 2  # the size (page 0), then page 2
+    server.clear_faults()
+    server.fault("/blob.bin", status=500, delay_s=0.2)
+    server.reset_log()
+    results = _together(4, lambda: data.read(100_000, 100))
+    assert all(isinstance(r, RemoteError) and "HTTP 500" in str(r) for r in results)
+    assert len(server.requests("/blob.bin")) == 3  # one round of retries, shared
+
+
 def test_a_slow_server_fails_within_the_timeouts(tmp_path: Path, files: Path, server) -> None:
     opts = _opts(tmp_path, read_timeout_s=0.3, retries=1)
     server.fault("/blob.bin", delay_s=3.0)
