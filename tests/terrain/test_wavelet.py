@@ -207,3 +207,59 @@ def test_window_path_is_the_padded_whole_window(wavelet: str, extra: int) -> Non
 def test_window_with_even_sides_is_refused() -> None:
     with pytest.raises(WaveletError, match="odd sides"):
         approximate_window(np.zeros((22, 21), dtype=np.float32), 2)
+
+
+def _whole_array_nan_filter(fine: np.ndarray, taps: np.ndarray, step: int) -> np.ndarray:
+    """The NaN-aware filter as whole-array passes (the former filter_decimate_grid body)."""
+    from globeview.terrain.wavelet import _filter_decimate
+
+    def sep(a: np.ndarray, k: np.ndarray) -> np.ndarray:
+        return _filter_decimate(_filter_decimate(a, k, 1, step), k, 0, step)
+
+    h = taps.size // 2
+    padded = np.pad(fine, h, mode="reflect", reflect_type="odd")
+    invalid = np.isnan(padded)
+    values = np.where(invalid, np.float32(0.0), padded)
+    exact = sep(values, taps)
+    touched = sep(invalid.astype(np.float32), np.ones_like(taps)) > 0.5
+    positive = np.clip(taps, 0.0, None)
+    num = sep(values, positive)
+    den = sep((~invalid).astype(np.float32), positive)
+    convex = np.divide(num, den, out=np.full_like(num, np.nan), where=den > 0)
+    out = np.where(touched, convex, exact)
+    out[np.isnan(fine[::step, ::step])] = np.nan
+    return out.astype(np.float32)
+
+
+@pytest.mark.parametrize("wavelet", ["bior2.2", "bior4.4"])
+@pytest.mark.parametrize("step", [2, 3])
+@pytest.mark.parametrize("block", [(32, 256), (3, 5), (1, 1)])
+def test_nan_blocks_are_the_whole_array_nan_filter(
+    wavelet: str, step: int, block: tuple[int, int], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The convex values computed per block of touched nodes equal the whole-array formula
+    bit for bit: NaN borders, blobs, scattered NaN, an all-NaN raster, -0."""
+    from globeview.terrain import wavelet as wv
+    from globeview.terrain.wavelet import filter_decimate_grid
+
+    monkeypatch.setattr(wv, "_NAN_BLOCK", block)
+    taps = lowpass_kernel(wavelet)
+    rng = np.random.default_rng(step * 7 + block[0])
+    n = 40 * step + 1
+    for case in ("border", "blob", "scattered", "all"):
+        x = (rng.normal(size=(n + 3 * step, 3 * n)) * 250.0).astype(np.float32)[:n, : 3 * n - 2]
+        x = x[: (x.shape[0] - 1) // step * step + 1, : (x.shape[1] - 1) // step * step + 1]
+        x[rng.random(x.shape) < 0.05] = -0.0
+        if case == "border":
+            x[:, :7] = np.nan
+            x[-4:, :] = np.nan
+        elif case == "blob":
+            x[10:30, 40:90] = np.nan
+        elif case == "scattered":
+            x[rng.random(x.shape) < 0.03] = np.nan
+        else:
+            x[:] = np.nan
+        want = _whole_array_nan_filter(x, taps, step)
+        got = filter_decimate_grid(x, taps, step)
+        assert got.shape == want.shape and got.dtype == np.float32
+        np.testing.assert_array_equal(got.view(np.int32), want.view(np.int32))
