@@ -20,6 +20,7 @@ server (`globeview.bench.http_server`). Units: bytes, seconds.
 from __future__ import annotations
 
 import base64
+import contextlib
 import http.client
 import re
 import socket
@@ -39,6 +40,7 @@ __all__ = [
     "MAX_BACKOFF_S",
     "MAX_REDIRECTS",
     "WHOLE_FILE_LIMIT",
+    "Cancel",
     "RemoteError",
     "RemoteOptions",
     "fetch",
@@ -245,15 +247,54 @@ def _short_url(url: str) -> str:
     return url if len(url) <= 200 else url[:197] + "..."
 
 
+class Cancel:
+    """Cancels the fetches that carry it: after `cancel`, they raise `RemoteError` at once,
+    and requests under way end within milliseconds (their sockets are shut down, so a read
+    blocked on a slow server returns). A closed store cancels its reads this way instead of
+    waiting out the timeouts."""
+
+    def __init__(self) -> None:
+        self._event = threading.Event()
+        self._lock = threading.Lock()
+        self._conns: set[_Conn] = set()
+
+    @property
+    def cancelled(self) -> bool:
+        return self._event.is_set()
+
+    def cancel(self) -> None:
+        self._event.set()
+        with self._lock:
+            conns = list(self._conns)
+        for conn in conns:
+            sock = conn.sock
+            if sock is not None:
+                with contextlib.suppress(OSError):
+                    sock.shutdown(socket.SHUT_RDWR)
+
+    def sleep(self, seconds: float) -> None:
+        """Sleep, waking early when cancelled."""
+        self._event.wait(seconds)
+
+    def watch(self, conn: _Conn, on: bool) -> None:
+        with self._lock:
+            if on:
+                self._conns.add(conn)
+            else:
+                self._conns.discard(conn)
+
+
 def fetch(
     url: str,
     opts: RemoteOptions,
     byte_range: tuple[int, int] | None = None,
     limit: int | None = None,
+    cancel: Cancel | None = None,
 ) -> _Answer:
     """GET ``url`` (bytes [start, end) when ``byte_range`` is given), with redirects,
     retries and timeouts; the body is at most ``limit`` bytes (a range request: its length,
-    or `WHOLE_FILE_LIMIT` when the server answers 200 with the whole file).
+    or `WHOLE_FILE_LIMIT` when the server answers 200 with the whole file). ``cancel``: see
+    `Cancel`.
 
     Returns the 200/206 answer; raises `RemoteError` (one line, URL and status) otherwise.
     """
@@ -264,9 +305,14 @@ def fetch(
             wait = min(opts.backoff_s * 2 ** (attempt - 1), MAX_BACKOFF_S)
             if last is not None and last.after is not None:
                 wait = min(max(wait, last.after), MAX_BACKOFF_S)
-            time.sleep(wait)
+            if cancel is not None:
+                cancel.sleep(wait)
+            else:
+                time.sleep(wait)
+        if cancel is not None and cancel.cancelled:
+            raise RemoteError(f"GET {_short_url(url)}: cancelled (the store was closed)", url)
         try:
-            return _follow(url, opts, byte_range, limit)
+            return _follow(url, opts, byte_range, limit, cancel)
         except _Retry as exc:
             last = exc
     assert last is not None
@@ -275,11 +321,15 @@ def fetch(
 
 
 def _follow(
-    url: str, opts: RemoteOptions, byte_range: tuple[int, int] | None, limit: int | None
+    url: str,
+    opts: RemoteOptions,
+    byte_range: tuple[int, int] | None,
+    limit: int | None,
+    cancel: Cancel | None,
 ) -> _Answer:
     """One attempt, following redirects."""
     for _ in range(MAX_REDIRECTS + 1):
-        answer, location = _request(url, opts, byte_range, limit)
+        answer, location = _request(url, opts, byte_range, limit, cancel)
         if location is None:
             assert answer is not None
             return answer
@@ -293,7 +343,11 @@ def _follow(
 
 
 def _request(
-    url: str, opts: RemoteOptions, byte_range: tuple[int, int] | None, limit: int | None
+    url: str,
+    opts: RemoteOptions,
+    byte_range: tuple[int, int] | None,
+    limit: int | None,
+    cancel: Cancel | None = None,
 ) -> tuple[_Answer | None, str | None]:
     """One HTTP exchange: (answer, None) or (None, redirect location). Raises `_Retry` for
     what deserves another attempt and `RemoteError` for what does not."""
@@ -317,36 +371,74 @@ def _request(
     try:
         for fresh_try in range(2):
             conn, reused = _take_conn(scheme, host, port, opts)
+            if cancel is not None:
+                cancel.watch(conn, True)
             try:
-                if conn.sock is None:
-                    conn.timeout = opts.connect_timeout_s
-                    conn.connect()
-                assert conn.sock is not None
-                conn.sock.settimeout(opts.read_timeout_s)
-                deadline = time.monotonic() + opts.read_timeout_s
-                conn.request("GET", target, headers=headers)
-                resp = conn.getresponse()
-            except (http.client.RemoteDisconnected, BrokenPipeError, ConnectionResetError) as e:
-                conn.close()
-                if reused and not fresh_try:
-                    continue  # the server closed an idle keep-alive connection: a new one
-                raise _Retry(_why(e)) from None
-            except (OSError, http.client.HTTPException) as exc:
-                conn.close()
-                raise _Retry(_why(exc)) from None
-            try:
-                answer, location, keep = _answer(url, resp, byte_range, limit, deadline)
-            except BaseException:
-                conn.close()
-                raise
-            if keep and not resp.will_close:
-                _give_conn(scheme, host, port, conn)
-            else:
-                conn.close()
-            return answer, location
+                return _exchange(
+                    url,
+                    conn,
+                    reused and not fresh_try,
+                    target,
+                    headers,
+                    opts,
+                    byte_range,
+                    limit,
+                    (scheme, host, port),
+                )
+            except _Stale:
+                continue  # the server closed an idle keep-alive connection: a new one
+            finally:
+                if cancel is not None:
+                    cancel.watch(conn, False)
         raise AssertionError("unreachable")
     finally:
         GATE.release()
+
+
+class _Stale(Exception):
+    """A reused keep-alive connection the server had closed (try a fresh one at once)."""
+
+
+def _exchange(
+    url: str,
+    conn: _Conn,
+    reused: bool,
+    target: str,
+    headers: dict[str, str],
+    opts: RemoteOptions,
+    byte_range: tuple[int, int] | None,
+    limit: int | None,
+    where: tuple[str, str, int],
+) -> tuple[_Answer | None, str | None]:
+    """One request on ``conn`` and its judged answer (the connection pooled or closed).
+    Raises `_Stale` when a reused connection turns out closed by the server."""
+    try:
+        if conn.sock is None:
+            conn.timeout = opts.connect_timeout_s
+            conn.connect()
+        assert conn.sock is not None
+        conn.sock.settimeout(opts.read_timeout_s)
+        deadline = time.monotonic() + opts.read_timeout_s
+        conn.request("GET", target, headers=headers)
+        resp = conn.getresponse()
+    except (http.client.RemoteDisconnected, BrokenPipeError, ConnectionResetError) as exc:
+        conn.close()
+        if reused:
+            raise _Stale() from None
+        raise _Retry(_why(exc)) from None
+    except (OSError, http.client.HTTPException) as exc:
+        conn.close()
+        raise _Retry(_why(exc)) from None
+    try:
+        answer, location, keep = _answer(url, resp, byte_range, limit, deadline)
+    except BaseException:
+        conn.close()
+        raise
+    if keep and not resp.will_close:
+        _give_conn(*where, conn)
+    else:
+        conn.close()
+    return answer, location
 
 
 def _why(exc: BaseException) -> str:

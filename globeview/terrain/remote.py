@@ -61,6 +61,7 @@ from globeview.terrain.http_fetch import (
     GATE,
     MAX_REDIRECTS,
     WHOLE_FILE_LIMIT,
+    Cancel,
     RemoteError,
     RemoteOptions,
     _short_url,
@@ -134,8 +135,10 @@ class _RemoteBytes:
         sha256: str | None,
         opts: RemoteOptions,
         no_network: frozenset[int] | set[int] = frozenset(),
+        cancel: Cancel | None = None,
     ) -> None:
         self.url = url
+        self.cancel = cancel
         self.opts = opts
         self.no_network = no_network  # thread idents that must not wait on the network
         self.page = opts.page_bytes
@@ -191,7 +194,7 @@ class _RemoteBytes:
             raise TileNotReady(f"{_short_url(self.url)}: not loaded yet")
         p = self.page
         end = (last + 1) * p if self._size is None else min((last + 1) * p, self._size)
-        ans = fetch(self.url, self.opts, (first * p, end))
+        ans = fetch(self.url, self.opts, (first * p, end), cancel=self.cancel)
         if self._size is None:
             if ans.total is None:
                 raise RemoteError(f"GET {_short_url(self.url)}: no file size given", self.url)
@@ -439,6 +442,12 @@ class RemoteSource:
         self._lock = threading.Lock()
         self._opener = _Opener(self._files)
         self._no_network: set[int] = set()
+        self._cancel = Cancel()
+
+    def close(self) -> None:
+        """Cancel every read under way and to come (`Cancel`): threads fetching for a closed
+        store return within milliseconds instead of waiting out the timeouts."""
+        self._cancel.cancel()
 
     def forbid_network_on(self, thread_ident: int) -> None:
         """Reads on this thread (e.g. a window's UI thread) never wait on the network: bytes
@@ -461,7 +470,8 @@ class RemoteSource:
     def sha256(self, name: str) -> str:
         """The sha256 of a whole store file fetched afresh (for `TileStore.verify`; at most
         `WHOLE_FILE_LIMIT` bytes)."""
-        return hashlib.sha256(fetch(self.url(name), self.options, None).body).hexdigest()
+        body = fetch(self.url(name), self.options, None, cancel=self._cancel).body
+        return hashlib.sha256(body).hexdigest()
 
     def read_manifest(self, name: str) -> bytes:
         """The manifest's bytes (at most `RemoteOptions.max_manifest_mb`); StoreError one
@@ -469,7 +479,7 @@ class RemoteSource:
         url = self.url(name)
         limit = int(self.options.max_manifest_mb * (1 << 20))
         try:
-            return fetch(url, self.options, None, limit).body
+            return fetch(url, self.options, None, limit, self._cancel).body
         except RemoteError as exc:
             if exc.status in (404, 410):
                 raise StoreError(
@@ -485,7 +495,7 @@ class RemoteSource:
         with self._lock:
             data = self._files.get(url)
             if data is None or data.key != sha256:
-                data = _RemoteBytes(url, sha256, self.options, self._no_network)
+                data = _RemoteBytes(url, sha256, self.options, self._no_network, self._cancel)
                 self._files[url] = data
         take_error()
         try:

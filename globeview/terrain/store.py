@@ -789,8 +789,11 @@ class TileStore:
     # -- lifetime --------------------------------------------------------------------------------
 
     def close(self) -> None:
-        """Stop the prefetch threads and close every dataset handle."""
+        """Stop the prefetch threads and close every dataset handle (a remote store first
+        cancels its HTTP reads, so a slow server does not hold the close)."""
         self._closed = True
+        if isinstance(self._files, remote.RemoteSource):
+            self._files.close()
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None

@@ -630,6 +630,26 @@ def test_a_thread_forbidden_the_network_never_waits(
         assert st.heights(key).shape == (st.tile_size, st.tile_size)
 
 
+def test_closing_a_store_cancels_its_reads_at_once(
+    store_root: Path, served, tmp_path: Path
+) -> None:
+    """A slow server does not hold `close` (the window's) for the timeouts: reads under way
+    end within milliseconds, as one-line errors."""
+    opts = _opts(tmp_path, read_timeout_s=30.0, retries=3)
+    st = TileStore.open(f"{served.url}/n44", remote_options=opts)
+    served.fault("*.tif", stall_s=20.0)  # half the body, then silence
+    futures = st.prefetch(_level12_by_chunk(st)[(0, 0)][:8])
+    deadline = time.monotonic() + 10
+    while not served.requests("*.tif") and time.monotonic() < deadline:
+        time.sleep(0.02)
+    time.sleep(0.2)  # the reads are blocked in the body now
+    t = time.monotonic()
+    st.close()
+    assert time.monotonic() - t < 3.0  # not 4 x 30 s
+    for f in futures:
+        assert f.cancelled() or isinstance(f.exception(timeout=5), StoreError)
+
+
 @pytest.mark.parametrize(
     ("where", "fault", "match"),
     [
