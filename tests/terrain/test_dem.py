@@ -302,3 +302,67 @@ def test_real_minus_9999_is_data_not_fill(tmp_path: Path) -> None:
     with open_dem(p) as dem:
         assert dem.info.fill_value is None
         assert dem.info.vmin == pytest.approx(-10_000)
+
+
+def _reference_window(dem, window, f):  # type: ignore[no-untyped-def]
+    """_read_window's float64 route (the only one before the float32 fast path)."""
+    import math
+
+    from rasterio.enums import Resampling
+
+    from globeview.terrain.dem import MAX_HEIGHT_M, MIN_HEIGHT_M
+
+    shape = (max(1, math.ceil(window.height / f)), max(1, math.ceil(window.width / f)))
+    clean = not dem.fill_values and not dem.masked_samples
+    rs = Resampling.average if (f > 1 and clean) else Resampling.nearest
+    a = dem._ds.read(1, window=window, out_shape=shape, resampling=rs, masked=True)
+    raw = a.astype(np.float64).filled(np.nan)
+    if dem.fill_values:
+        raw[np.isin(raw, dem.fill_values)] = np.nan
+    h = dem._to_metres(raw)
+    h[~((h >= MIN_HEIGHT_M) & (h <= MAX_HEIGHT_M))] = np.nan
+    return h.astype(np.float32)
+
+
+@pytest.mark.parametrize("nodata", [None, -9999.0, float("nan")])
+def test_float32_window_fast_path_is_the_float64_route(tmp_path: Path, nodata) -> None:  # type: ignore[no-untyped-def]
+    """Float32 metres skip the float64 round trip: same array bit for bit, with NaN, +-inf,
+    -0, the limits themselves and values just past them, declared nodata, decimation."""
+    from rasterio.windows import Window
+
+    from globeview.terrain.dem import MAX_HEIGHT_M, MIN_HEIGHT_M
+
+    rng = np.random.default_rng(4)
+    arr = (rng.normal(size=(120, 90)) * 3000.0).astype(np.float32)
+    specials = np.array(
+        [np.nan, np.inf, -np.inf, -0.0, 0.0, MIN_HEIGHT_M, MAX_HEIGHT_M,
+         np.nextafter(np.float32(MAX_HEIGHT_M), np.float32(1e9)),
+         np.nextafter(np.float32(MIN_HEIGHT_M), np.float32(-1e9)), 1e30, -9999.0],
+        dtype=np.float32,
+    )  # fmt: skip
+    pick = rng.random(arr.shape) < 0.15
+    arr[pick] = rng.choice(specials, size=int(pick.sum()))
+    profile: dict[str, object] = {
+        "crs": "EPSG:4326",
+        "transform": Affine(0.01, 0.0, -71.0, 0.0, -0.01, 45.0),
+    }
+    if nodata is not None:
+        profile["nodata"] = nodata
+    path = _write(tmp_path / "f32.tif", arr, **profile)
+    with open_dem(path) as dem:
+        for win, f in [
+            (Window(0, 0, 90, 120), 1),
+            (Window(7, 11, 50, 61), 1),
+            (Window(0, 0, 90, 120), 3),
+        ]:
+            got = dem._read_window(win, f)
+            want = _reference_window(dem, win, f)
+            assert got.dtype == np.float32 and got.shape == want.shape
+            np.testing.assert_array_equal(got.view(np.int32), want.view(np.int32))
+    for name in ("etopo20.tif", "topobathy_vancouver.tif"):
+        with open_dem(DATA / name) as dem:
+            win = Window(0, 0, dem._ds.width, dem._ds.height)
+            np.testing.assert_array_equal(
+                dem._read_window(win, 1).view(np.int32),
+                _reference_window(dem, win, 1).view(np.int32),
+            )
