@@ -120,12 +120,17 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(f'finest level {level}: node spacing {d_arcsec:.3f}" (SRTM 1" = 1")')
     tiles_land = chunks_land = tiles_all = chunks_all = manifest_tiles = 0
+    chunk_tasks = error_tasks = 0
     for lv in range(level + 1):
         t, tx, ty = _touching(cells, lv, 1)
-        c, _, _ = _touching(cells, lv, chunk_tiles)
+        c, cx, cy = _touching(cells, lv, chunk_tiles)
         tiles_all += t
         chunks_all += c
         manifest_tiles += tx * ty
+        # The ingest graph (ingest_graph.build_graph) has a chunk task for every chunk of the
+        # level's bounding extent, sea included, and an error task for each above level 0.
+        chunk_tasks += cx * cy
+        error_tasks += cx * cy if lv > 0 else 0
         if lv == level:
             tiles_land, chunks_land = t, c
             fine_extent = tx * ty
@@ -145,6 +150,10 @@ def main(argv: list[str] | None = None) -> int:
         f"manifest (bounding extents, sea included): {manifest_tiles:,} tiles "
         f"({fine_extent:,} at the finest); ingest.MAX_TILES = {MAX_TILES:,}: "
         f"{'fits' if manifest_tiles <= MAX_TILES else f'{manifest_tiles / MAX_TILES:.0f}x over'}"
+    )
+    print(
+        f"Dask graph: {chunk_tasks:,} chunk tasks + {error_tasks:,} error tasks + 1 pole task "
+        "(every chunk of the bounding extents)"
     )
     if args.manifest_bytes_per_tile:
         print(
