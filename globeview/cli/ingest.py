@@ -14,6 +14,9 @@ import sys
 #: memory (each task holds a window of the raster), and a typo of 10^6 must not start them.
 MAX_WORKERS = 4096
 
+#: Dask's local schedulers `--scheduler` also names (threads: the default).
+LOCAL_SCHEDULERS = ("threads", "processes")
+
 #: ``tcp://HOST:PORT``: a host name, an IPv4 address or a bracketed IPv6 address, and a port.
 _SCHEDULER = re.compile(r"^tcp://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9][A-Za-z0-9.-]{0,252}):(\d{1,5})$")
 
@@ -50,7 +53,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="tcp://HOST:PORT",
         default=None,
         help="run the ingest graph on this existing dask.distributed scheduler (the --out "
-        "folder must be on a filesystem its workers share)",
+        "folder must be on a filesystem its workers share); 'threads' (the default) or "
+        "'processes' for a local pool of --workers",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--force", action="store_true", help="rebuild even if up to date")
@@ -72,17 +76,20 @@ def parse_workers(text: str | None) -> int | None:
 
 
 def parse_scheduler(text: str | None) -> str | None:
-    """``--scheduler tcp://HOST:PORT`` (port 1..65535), returned as given (None: not given).
-    Only the form is checked here; whether a scheduler answers there is the ingest's (a
-    one-line error after a timeout)."""
+    """``--scheduler tcp://HOST:PORT`` (port 1..65535), or ``threads``/``processes`` (dask's
+    local schedulers), returned stripped (None: not given). Only the form is checked here;
+    whether a scheduler answers there is the ingest's (a one-line error after a timeout)."""
     from globeview.errors import GlobeviewError
 
     if text is None:
         return None
+    if str(text).strip() in LOCAL_SCHEDULERS:
+        return str(text).strip()
     m = _SCHEDULER.match(str(text).strip())
     if m is None or not 1 <= int(m.group(2)) <= 65535:
         raise GlobeviewError(
-            f"--scheduler must be a dask.distributed address tcp://HOST:PORT, not {text!r:.80}"
+            "--scheduler must be a dask.distributed address tcp://HOST:PORT (or threads, "
+            f"processes), not {text!r:.80}"
         )
     return str(text).strip()
 
@@ -95,7 +102,7 @@ def parallel_kwargs(args: argparse.Namespace, ingest_fn) -> dict:
 
     workers = parse_workers(args.workers)
     scheduler = parse_scheduler(args.scheduler)
-    if workers is not None and scheduler is not None:
+    if workers is not None and scheduler is not None and scheduler not in LOCAL_SCHEDULERS:
         raise GlobeviewError(
             "--workers is for the local scheduler; a --scheduler cluster has its own workers"
         )
