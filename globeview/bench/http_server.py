@@ -29,9 +29,11 @@ window's tests and benchmarks/bench_remote.py.
 
 from __future__ import annotations
 
+import contextlib
 import fnmatch
 import os
 import re
+import socket
 import sys
 import threading
 import time
@@ -77,6 +79,14 @@ class Request:
 class _Handler(BaseHTTPRequestHandler):
     protocol_version = "HTTP/1.1"
     server: _Server
+
+    def setup(self) -> None:
+        super().setup()
+        self.server.owner._connection(self.connection, True)
+
+    def finish(self) -> None:
+        self.server.owner._connection(self.connection, False)
+        super().finish()
 
     def log_message(self, format: str, *args: object) -> None:
         pass  # quiet: the log is `StaticServer.log`
@@ -213,6 +223,7 @@ class StaticServer:
         self._rules: list[tuple[str, Fault]] = []
         self._lock = threading.Lock()
         self._httpd: _Server | None = None
+        self._conns: set[socket.socket] = set()
         self._thread: threading.Thread | None = None
 
     # -- lifetime ------------------------------------------------------------------------------
@@ -230,12 +241,17 @@ class StaticServer:
         return self
 
     def stop(self) -> None:
-        """Stop serving and close the listening socket (open connections die with their
-        daemon threads)."""
+        """Stop serving: close the listening socket and every open (keep-alive) connection,
+        as a server that went away would."""
         if self._httpd is not None:
             self._httpd.shutdown()
             self._httpd.server_close()
             self._httpd = None
+        with self._lock:
+            conns = list(self._conns)
+        for sock in conns:
+            with contextlib.suppress(OSError):
+                sock.shutdown(socket.SHUT_RDWR)
         if self._thread is not None:
             self._thread.join(timeout=5)
             self._thread = None
@@ -304,6 +320,13 @@ class StaticServer:
         if file != self.root and self.root not in file.parents:
             return None
         return file if file.is_file() and os.access(file, os.R_OK) else None
+
+    def _connection(self, sock: socket.socket, on: bool) -> None:
+        with self._lock:
+            if on:
+                self._conns.add(sock)
+            else:
+                self._conns.discard(sock)
 
     def _enter(self) -> None:
         with self._lock:

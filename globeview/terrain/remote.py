@@ -443,6 +443,8 @@ class RemoteSource:
         self._opener = _Opener(self._files)
         self._no_network: set[int] = set()
         self._cancel = Cancel()
+        #: True when the manifest came from the disk cache (the server unreachable).
+        self.from_cache = False
 
     def close(self) -> None:
         """Cancel every read under way and to come (`Cancel`): threads fetching for a closed
@@ -475,17 +477,32 @@ class RemoteSource:
 
     def read_manifest(self, name: str) -> bytes:
         """The manifest's bytes (at most `RemoteOptions.max_manifest_mb`); StoreError one
-        line: absent (404/410: not a store), unreachable, too large, or another HTTP error."""
+        line: absent (404/410: not a store), unreachable, too large, or another HTTP error.
+
+        Each manifest fetched is kept in the disk cache (by its URL); a server that cannot be
+        reached (refused, timed out, no such host: no HTTP answer at all) is then served from
+        there, so a store viewed before opens offline and reads the chunks cached under that
+        manifest's digests (`from_cache` says so). An HTTP answer (404, 500, ...) is never
+        overridden by the cache."""
         url = self.url(name)
         limit = int(self.options.max_manifest_mb * (1 << 20))
+        key = "manifest-" + hashlib.sha256(url.encode("utf-8", "surrogatepass")).hexdigest()
+        cache = self.options.cache()
         try:
-            return fetch(url, self.options, None, limit, self._cancel).body
+            body = fetch(url, self.options, None, limit, self._cancel).body
         except RemoteError as exc:
+            if exc.status is None and not self._cancel.cancelled:
+                kept = cache.get(key)
+                if kept is not None:
+                    self.from_cache = True
+                    return kept
             if exc.status in (404, 410):
                 raise StoreError(
                     f"{self.label} is not a globeview tile store (no {name}: HTTP {exc.status})"
                 ) from None
             raise StoreError(f"cannot open {self.label}: {exc}") from None
+        cache.put(key, body)
+        return body
 
     def open_raster(self, name: str, sha256: str | None) -> rasterio.DatasetReader:
         """Open a store raster (a chunk file) with GDAL over HTTP; ``sha256`` (from the

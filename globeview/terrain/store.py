@@ -394,6 +394,12 @@ class TileStore:
         path = Path(urllib.parse.unquote(urllib.parse.urlsplit(where).path) or "/")
         return cls(path, manifest, cache_tiles, files)
 
+    @property
+    def offline(self) -> bool:
+        """A remote store opened from its cached manifest (the server could not be reached):
+        only tiles whose chunk bytes are in the disk cache load."""
+        return isinstance(self._files, remote.RemoteSource) and self._files.from_cache
+
     def forbid_network_on(self, thread_ident: int) -> None:
         """Reads on this thread (a window's UI thread) never wait on the network: a tile of a
         remote store whose bytes are not cached raises `remote.TileNotReady` at once and is

@@ -525,8 +525,15 @@ def test_a_cold_cache_uses_range_requests_and_a_warm_one_none(
     n_before = len(srv.log)
     remote.clear_memory()
     with warm:  # the server is gone: every byte from the disk cache
+        assert not warm.offline
         for k, h in zip(keys, cold, strict=True):
             assert np.array_equal(warm.heights(k), h, equal_nan=True)
+    # A store viewed before opens with the server gone (its manifest kept in the cache too).
+    remote.clear_memory()
+    with TileStore.open(f"{srv.url}/n44", remote_options=_opts(tmp_path, retries=0)) as off:
+        assert off.offline
+        for k, h in zip(keys, cold, strict=True):
+            assert np.array_equal(off.heights(k), h, equal_nan=True)
     assert len(srv.log) == n_before
     on_disk = sum(f.stat().st_size for f in opts.folder.rglob("*") if f.is_file())
     assert on_disk <= opts.cache_mb * (1 << 20)
