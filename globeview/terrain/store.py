@@ -396,6 +396,11 @@ class TileStore:
         return cls(path, manifest, cache_tiles, files)
 
     @property
+    def is_remote(self) -> bool:
+        """Whether the store is read over HTTP (its tiles may not be here yet)."""
+        return isinstance(self._files, remote.RemoteSource)
+
+    @property
     def offline(self) -> bool:
         """A remote store opened from its cached manifest (the server could not be reached):
         only tiles whose chunk bytes are in the disk cache load."""
