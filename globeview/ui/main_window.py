@@ -826,15 +826,20 @@ class MainWindow(QMainWindow):
             self.errors.error(exc, f"cannot add {source_name(path, stem=False)}")
             return
         self.add_recent(path)
+        if bool(getattr(store, "offline", False)):
+            # The server could not be reached; its manifest came from the disk cache.
+            self.errors.notify(
+                f"{source_name(path, stem=False)}: the server cannot be reached; offline, "
+                "showing the tiles cached before"
+            )
         self.zoom_to_bounds(tuple(store.bounds))
 
     def add_store(self, store: TileStore, name: str) -> str:
         """Add a store as the top layer under a unique name; returns the name."""
-        if bool(getattr(store, "is_remote", False)):
-            # Read over HTTP: the UI thread (frames, picking, tools) only ever uses what is
-            # already fetched; a read that would wait raises TileNotReady at once and the
-            # store fetches the tile in the background (globeview.terrain.remote).
-            store.forbid_network_on(threading.get_ident())
+        # A store read over HTTP: the UI thread (frames, picking, tools) only ever uses what
+        # is already fetched; a read that would wait raises TileNotReady at once and the store
+        # fetches the tile in the background (globeview.terrain.remote). No-op when local.
+        store.forbid_network_on(threading.get_ident())
         taken = {ly.name for ly in self.terrain.layers}
         unique, n = name, 2
         while unique in taken:
