@@ -32,6 +32,7 @@ from globeview.plugins.host_checks import (
 )
 from globeview.plugins.registry import PluginRegistry
 from globeview.render.renderer import DisplacementHook, GlobeRenderer
+from globeview.terrain.remote import TileNotReady
 
 __all__ = ["ToolFrame", "ToolHost"]
 
@@ -243,6 +244,10 @@ class ToolHost:
         if ground is None:
             try:
                 ground = float(terrain.height_at(lon, lat)) * exag
+            except TileNotReady:
+                # A remote tile not fetched yet on the UI thread (which never waits for the
+                # network; it is fetched in the background): lifted by a later frame.
+                return prim
             except GlobeviewError:  # no data there: keep it on the ellipsoid
                 ground = 0.0
             if len(self._marker_heights) > 256:
