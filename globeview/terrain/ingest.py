@@ -76,8 +76,10 @@ from globeview.terrain.ingest_tasks import (
     STRIDES,
     BuildPlan,
     SourceSpec,
+    pole_task,
 )
 from globeview.terrain.ingest_tasks import fault_point as _fault_point
+from globeview.terrain.ingest_update import Update, plan_update, write_facts
 from globeview.terrain.level_chunks import write_level_vrt
 from globeview.terrain.levels import LevelGrid
 from globeview.terrain.quadtree import (
@@ -143,6 +145,10 @@ class IngestResult:
     #: (-9999 plateaus...), summed over the sources (from each source's value scan).
     masked_samples: int = 0
     fill_samples: int = 0
+    #: Chunks (level windows) computed by this build, of how many: fewer than all when an
+    #: incremental update kept the chunks that the changed sources do not touch.
+    chunks_rebuilt: int = 0
+    chunks_total: int = 0
 
 
 @dataclass
@@ -252,19 +258,6 @@ def _extent_from_mask(mask: np.ndarray) -> tuple[int, int]:
     return int(nxt[k]), int(ncols - gap[k])
 
 
-def _windows(grid: LevelGrid) -> Iterator[tuple[int, int, int, int]]:
-    """Tile blocks (by, bx, kty, ktx) covering the extent, row-major."""
-    k = max(1, _WINDOW_NODES // grid.tile_nodes)
-    for by in range(0, grid.ny, k):
-        for bx in range(0, grid.nx, k):
-            yield by, bx, min(k, grid.ny - by), min(k, grid.nx - bx)
-
-
-def _count_windows(grid: LevelGrid) -> int:
-    k = max(1, _WINDOW_NODES // grid.tile_nodes)
-    return -(-grid.ny // k) * -(-grid.nx // k)
-
-
 # ---------------------------------------------------------------------------------------------
 # The builder
 
@@ -289,6 +282,9 @@ class _Builder:
         self.grids = self._plan_extents()
         self.stats: dict[int, _LevelStats] = {}
         self.pole: dict[str, float | None] = {"north": None, "south": None}
+        # input_order[i]: index in `sources` (finest first) of the i-th source as given.
+        self.input_order: list[int] = list(range(len(sources)))
+        self.update: Update | None = None
         self.writes = 0  # window writes so far (the fault-injection points)
 
     # -- planning ---------------------------------------------------------------------------
@@ -313,11 +309,6 @@ class _Builder:
             x0, nx = _extent_from_mask(mask)
             finer = grids[lv] = LevelGrid(lv, self.tile_n, x0, y_lo, nx, y_hi - y_lo + 1)
         return grids
-
-    def total_steps(self) -> int:
-        n = sum(_count_windows(g) for g in self.grids.values())  # level writes
-        n += sum(_count_windows(self.grids[lv]) for lv in range(1, self.max_level + 1))  # errors
-        return n
 
     # -- run --------------------------------------------------------------------------------
 
@@ -347,18 +338,43 @@ class _Builder:
         ]
         return plan, specs
 
-    def build(self, where: SchedulerChoice, token: str) -> None:
-        """Run the ingest graph (chunk files and per-tile statistics), then write the level
-        VRTs: everything but the manifest."""
+    def prepare(self, where: SchedulerChoice, token: str, previous: _Previous | None) -> int:
+        """Plan the graph (and, with ``previous``, what an incremental update keeps, linked
+        into the building folder); returns the number of tasks to run."""
         # One writer compresses with every core; many writers each with one thread.
         threads = "ALL_CPUS" if where.kind != "distributed" and where.workers == 1 else "1"
         plan, specs = self.plan(token, threads)
         graph = build_graph(plan, specs)
+        self.graph, self.plan_, self.where = graph, plan, where
+        self.update = None
+        if previous is not None:
+            pole = pole_task(plan, specs)
+            self.update = plan_update(
+                previous.path,
+                previous.manifest,
+                plan,
+                specs,
+                self.input_order,
+                previous.changed,
+                graph,
+                pole,
+            )
+            if self.update is None:
+                _clear_folder(self.out_dir)  # what a refused update linked: build it all
+            else:
+                graph.keep(self.update.known)
+        return graph.tasks
+
+    def build(self) -> None:
+        """Run the ingest graph (chunk files and per-tile statistics), then write the level
+        VRTs and the chunks' sidecars: everything but the manifest."""
+        graph, plan = self.graph, self.plan_
 
         def done(key: str) -> None:
             self.tick(1)
 
-        results = run_graph(graph, where, done)
+        ran = run_graph(graph, self.where, done)
+        results = {**graph.known, **ran}
         self.pole = results["pole"]
         k = plan.k
         for lv in range(self.max_level, -1, -1):
@@ -392,6 +408,12 @@ class _Builder:
             for lv, iy, ix, red in results[key]:
                 err = self.stats[lv].error
                 err[iy, ix] = np.fmax(err[iy, ix], red)
+        # Build facts of the chunks (or error windows) computed now; the others were linked.
+        levels = [self.sources[j].level for j in self.input_order]
+        for key in graph.chunk_keys:
+            error_key = key.replace("chunk-", "error-", 1)
+            if key in ran or error_key in ran:
+                write_facts(self.out_dir, results[key], results.get(error_key, []), levels)
 
     @staticmethod
     def _pole_row_in(grid: LevelGrid, which: str) -> bool:
@@ -855,10 +877,13 @@ def ingest(
     params = IngestParams(
         tile_n=tile_n, max_level=max_level, wavelet=wavelet, crs=crs, vdatum=vdatum
     )
+    previous: _Previous | None = None
     if ident.is_current and not force:
         existing = _usable(out_path)
         if existing is not None and _same_inputs(existing, contents, params):
             return IngestResult(out_path, True, existing.max_level, 0.0)
+        if existing is not None:
+            previous = _changed_sources(out_path, existing, src_paths, contents, params)
 
     with contextlib.ExitStack() as stack:
         # A fixed GDAL block cache for everything below, the sources' value scan included.
@@ -903,6 +928,7 @@ def ingest(
         by_input = list(srcs)
         srcs.sort(key=lambda s: s.res)  # finest first: it wins where it has data
         builder = _Builder(srcs, tile_n, l_max, wavelet, parent, _no_tick)
+        builder.input_order = [next(j for j, t in enumerate(srcs) if t is s) for s in by_input]
         _check_size(builder.grids, srcs, chosen=max_level is not None)
 
         try:
@@ -921,10 +947,10 @@ def ingest(
                         on_progress(done[0], total)
 
                 builder.out_dir, builder.tick = tmp, step
-                total = builder.total_steps()
+                total = builder.prepare(where, tok, previous)
                 bar.total = total
                 bar.refresh()
-                builder.build(where, tok)
+                builder.build()
             _fault_point("manifest")
             part = tmp / (MANIFEST_NAME + ".part")
             with part.open("w", encoding="utf-8") as f:
@@ -941,7 +967,44 @@ def ingest(
         time.perf_counter() - t_start,
         masked_samples=sum(int(s.dem.info.masked_samples) for s in srcs),
         fill_samples=sum(int(s.dem.info.fill_samples) for s in srcs),
+        chunks_rebuilt=(
+            builder.update.rebuilt if builder.update else len(builder.graph.chunk_keys)
+        ),
+        chunks_total=len(builder.graph.chunk_keys),
     )
+
+
+@dataclass(frozen=True)
+class _Previous:
+    """The committed store an incremental update starts from, and which sources changed
+    (indices as given)."""
+
+    path: Path
+    manifest: StoreManifest
+    changed: list[int]
+
+
+def _changed_sources(
+    out: Path,
+    manifest: StoreManifest,
+    paths: Sequence[Path],
+    contents: Sequence[tuple[int, str]],
+    params: IngestParams,
+) -> _Previous | None:
+    """The store at ``out`` as the start of an incremental update: the same parameters and
+    source paths (in order), some sources' content changed; None otherwise."""
+    old = manifest.sources
+    if manifest.params != params or [s.path for s in old] != [str(p) for p in paths]:
+        return None
+    changed = [i for i, (s, c) in enumerate(zip(old, contents)) if (s.size, s.sha256) != c]
+    return _Previous(out, manifest, changed) if changed else None
+
+
+def _clear_folder(folder: Path) -> None:
+    """Remove the store files in a building folder (links of a refused update)."""
+    for e in folder.iterdir():
+        if is_store_file(e.name):
+            e.unlink(missing_ok=True)
 
 
 def _write_error(

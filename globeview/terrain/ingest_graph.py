@@ -31,7 +31,7 @@ import re
 import time
 from collections.abc import Callable, Hashable, Sequence
 from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -116,16 +116,39 @@ def parse_scheduler(workers: object, scheduler: object) -> SchedulerChoice:
 
 @dataclass
 class Graph:
-    """A dask graph (a dict of legacy task tuples) and its keys by kind."""
+    """A dask graph (a dict of legacy task tuples) and its keys by kind.
+
+    deps: the chunk keys each chunk or error task depends on (and "pole"); known: results
+    supplied instead of computed (an incremental update's unaffected chunks and error
+    windows), see `keep`.
+    """
 
     dsk: dict[Hashable, Any]
     chunk_keys: list[str]  # in the serial order: levels finest first, chunks row-major
     error_keys: list[str]
+    deps: dict[str, list[str]] = field(default_factory=dict)
+    known: dict[str, Any] = field(default_factory=dict)
 
     @property
     def keys(self) -> list[str]:
-        """Every task whose result the driver needs: the pole, the chunks, the errors."""
-        return ["pole", *self.chunk_keys, *self.error_keys]
+        """Every task to run: the pole, the chunks, the errors (less the `known` ones)."""
+        return [k for k in ("pole", *self.chunk_keys, *self.error_keys) if k not in self.known]
+
+    @property
+    def tasks(self) -> int:
+        """Chunk and error tasks to run (what progress counts)."""
+        return len(self.keys) - ("pole" not in self.known)
+
+    def keep(self, known: dict[str, Any]) -> None:
+        """Use these results instead of running their tasks (chunk results stay in the graph
+        as data for the tasks that depend on them; error windows simply drop out)."""
+        self.known.update(known)
+        for key, value in known.items():
+            if key in self.dsk:
+                if key.startswith("error-"):
+                    del self.dsk[key]
+                else:
+                    self.dsk[key] = value
 
 
 def _chunk_key(lv: int, cy: int, cx: int) -> str:
@@ -155,6 +178,7 @@ def build_graph(plan: BuildPlan, sources: Sequence[SourceSpec]) -> Graph:
     dsk: dict[Hashable, Any] = {"plan": plan, "sources": tuple(sources)}
     dsk["pole"] = (pole_task, "plan", "sources")
     chunk_keys: list[str] = []
+    deps_of: dict[str, list[str]] = {}
     write_no = 0
     hl = plan.halo
     for lv in range(plan.max_level, -1, -1):
@@ -186,6 +210,7 @@ def build_graph(plan: BuildPlan, sources: Sequence[SourceSpec]) -> Graph:
                 key = _chunk_key(lv, cy, cx)
                 dsk[key] = (chunk_task, "plan", "sources", lv, cy, cx, write_no, pole, fine, first)
                 chunk_keys.append(key)
+                deps_of[key] = [*fine, *([first] if first else []), *([pole] if pole else [])]
     error_keys: list[str] = []
     for lf in range(plan.max_level, 0, -1):
         gf = plan.grids[lf]
@@ -224,7 +249,8 @@ def build_graph(plan: BuildPlan, sources: Sequence[SourceSpec]) -> Graph:
                 key = f"error-{lf}-{cy}-{cx}"
                 dsk[key] = (error_task, "plan", lf, cy, cx, sorted(deps))
                 error_keys.append(key)
-    return Graph(dsk, chunk_keys, error_keys)
+                deps_of[key] = sorted(deps)
+    return Graph(dsk, chunk_keys, error_keys, deps_of)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -55,6 +55,7 @@ __all__ = [
     "chunk_task",
     "error_task",
     "fault_point",
+    "fill_reads_source",
     "pole_task",
 ]
 
@@ -265,6 +266,27 @@ def _lon_overlaps(a0: float, a1: float, b: tuple[float, float, float, float], wr
     return any(a0 <= w + k + width and w + k <= a1 for k in (-360.0, 0.0, 360.0))
 
 
+def fill_reads_source(
+    grid: LevelGrid,
+    gr0: int,
+    gc0: int,
+    h: int,
+    w: int,
+    bounds: tuple[float, float, float, float],
+    wraps: bool,
+) -> bool:
+    """Whether a window of a level (global node indices, h x w nodes) reads a source of
+    this footprint (degrees): it comes within one node spacing of the window."""
+    d = grid.d
+    west = -180.0 + gc0 * d
+    north = 90.0 - gr0 * d
+    south = north - (h - 1) * d
+    _, bs, _, bn = bounds
+    if south > bn + d or north < bs - d:
+        return False
+    return _lon_overlaps(west - d, west + (w - 1) * d + d, bounds, wraps)
+
+
 def fill_from_sources(
     sources: Sequence[SourceSpec],
     out: np.ndarray,
@@ -279,7 +301,6 @@ def fill_from_sources(
     d = grid.d
     west = -180.0 + gc0 * d
     north = 90.0 - gr0 * d
-    south = north - (h - 1) * d
     west_n = (west + 180.0) % 360.0 - 180.0
     undulation: np.ndarray | None = None  # N on this window's nodes, when a source needs it
     for s in sources:
@@ -287,10 +308,7 @@ def fill_from_sources(
             continue
         if not np.isnan(out).any():
             return
-        _, bs, _, bn = s.bounds
-        if south > bn + d or north < bs - d:
-            continue
-        if not _lon_overlaps(west - d, west + (w - 1) * d + d, s.bounds, s.wraps):
+        if not fill_reads_source(grid, gr0, gc0, h, w, s.bounds, s.wraps):
             continue
         vals = s.dem().read_grid(west_n, north, d, d, w, h)
         if s.datum == "egm96":

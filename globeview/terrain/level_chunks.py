@@ -91,6 +91,9 @@ def write_chunk(
     if np.isnan(values).all():
         return None
     path = folder / chunk_file_name(grid.level, cy, cx)
+    # A new inode, never a rewrite in place: an incremental update hard-links the chunks it
+    # keeps from the old store, whose files must not change.
+    path.unlink(missing_ok=True)
     transform = grid.transform @ Affine.translation(c0, r0)
     with rasterio.open(path, "w", **_profile(w, h, transform, threads)) as dst:
         dst.update_tags(AREA_OR_POINT="Point")
