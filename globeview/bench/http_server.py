@@ -22,7 +22,8 @@ Faults are set per path with `StaticServer.fault` (an `fnmatch` pattern on the U
 - ``length``: announce this Content-Length (e.g. a huge one) whatever the body is.
 
 Every request is logged (`log`: `Request` records with path, Range header, status) and
-`max_in_flight` is the most requests the server was answering at once. `stop()` shuts it
+`max_in_flight` is the most requests the server was answering at once. With ``certfile``
+and ``keyfile`` (PEM) it serves HTTPS instead. `stop()` shuts it
 down (also the context manager's exit). Used by tests/terrain/test_remote_store.py, the
 window's tests and benchmarks/bench_remote.py.
 """
@@ -34,6 +35,7 @@ import fnmatch
 import os
 import re
 import socket
+import ssl
 import sys
 import threading
 import time
@@ -214,8 +216,14 @@ class StaticServer:
         max_in_flight: the most requests answered at once since the last `reset_log`.
     """
 
-    def __init__(self, root: str | Path) -> None:
+    def __init__(
+        self,
+        root: str | Path,
+        certfile: str | Path | None = None,
+        keyfile: str | Path | None = None,
+    ) -> None:
         self.root = Path(root).resolve()
+        self._tls = (certfile, keyfile) if certfile is not None else None
         self.url = ""
         self.log: list[Request] = []
         self.max_in_flight = 0
@@ -232,8 +240,14 @@ class StaticServer:
         """Bind 127.0.0.1 on an ephemeral port and serve in a daemon thread; returns self."""
         httpd = _Server(("127.0.0.1", 0), _Handler)
         httpd.owner = self
+        scheme = "http"
+        if self._tls is not None:
+            ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+            ctx.load_cert_chain(*self._tls)
+            httpd.socket = ctx.wrap_socket(httpd.socket, server_side=True)
+            scheme = "https"
         self._httpd = httpd
-        self.url = f"http://127.0.0.1:{httpd.server_address[1]}"
+        self.url = f"{scheme}://127.0.0.1:{httpd.server_address[1]}"
         self._thread = threading.Thread(
             target=httpd.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True
         )

@@ -426,6 +426,9 @@ def _exchange(
         if reused:
             raise _Stale() from None
         raise _Retry(_why(exc)) from None
+    except ssl.SSLCertVerificationError as exc:
+        conn.close()  # no retry: the certificate will not change in a second
+        raise RemoteError(f"GET {_short_url(url)}: {_why(exc)}", url) from None
     except (OSError, http.client.HTTPException) as exc:
         conn.close()
         raise _Retry(_why(exc)) from None

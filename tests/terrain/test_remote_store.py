@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import hashlib
 import os
+import shutil
+import subprocess
 import threading
 import time
 from pathlib import Path
@@ -733,3 +735,34 @@ def test_a_remote_store_renders_as_the_local_one(store_root: Path, served, tmp_p
     assert images[0].std() > 5  # a real picture, not a blank frame
     assert np.array_equal(images[0], images[1])
     assert served.requests("/n44/level_*.tif")
+
+
+def _self_signed(tmp_path: Path) -> tuple[Path, Path]:
+    cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
+    subprocess.run(
+        ["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "2",
+         "-subj", "/CN=127.0.0.1", "-addext", "subjectAltName=IP:127.0.0.1",
+         "-keyout", str(key), "-out", str(cert)],
+        check=True, capture_output=True,
+    )  # fmt: skip
+    return cert, key
+
+
+@pytest.mark.skipif(shutil.which("openssl") is None, reason="needs the openssl command")
+def test_https_stores(store_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Over HTTPS: an untrusted certificate is one line at once (no retries); trusted (here
+    through SSL_CERT_FILE, as for any OpenSSL client), the store reads as the local one."""
+    cert, key = _self_signed(tmp_path)
+    local = TileStore.open(store_root / "n44")
+    with StaticServer(store_root, certfile=cert, keyfile=key) as srv:
+        assert srv.url.startswith("https://")
+        t = time.monotonic()
+        with pytest.raises(StoreError, match=r"(?i)certificate") as err:
+            TileStore.open(f"{srv.url}/n44", remote_options=_opts(tmp_path, retries=3))
+        assert "\n" not in str(err.value) and time.monotonic() - t < 2.0
+        monkeypatch.setenv("SSL_CERT_FILE", str(cert))
+        with TileStore.open(f"{srv.url}/n44", remote_options=_opts(tmp_path)) as st:
+            for k in _level12_by_chunk(st)[(1, 0)][::9]:
+                assert np.array_equal(st.heights(k), local.heights(k), equal_nan=True)
+        assert all(r.status == 206 for r in srv.requests("*.tif"))
+    local.close()
