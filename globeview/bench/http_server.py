@@ -19,7 +19,8 @@ Faults are set per path with `StaticServer.fault` (an `fnmatch` pattern on the U
 - ``short``: announce the full Content-Length but send only half the body, then close;
 - ``ignore_range``: answer 200 with the whole file even to a Range request;
 - ``redirect``: answer 302 to ``redirect + path`` (another server's base URL);
-- ``length``: announce this Content-Length (e.g. a huge one) whatever the body is.
+- ``length``: announce this Content-Length (e.g. a huge one) whatever the body is;
+- ``headers``: extra response headers (e.g. ``{"Content-Encoding": "gzip"}``).
 
 Every request is logged (`log`: `Request` records with path, Range header, status) and
 `max_in_flight` is the most requests the server was answering at once. With ``certfile``
@@ -63,6 +64,7 @@ class Fault:
     ignore_range: bool = False
     redirect: str | None = None
     length: int | None = None
+    headers: dict[str, str] | None = None
     # Requests this rule has failed so far (for ``flaky``).
     failed: int = field(default=0, compare=False)
 
@@ -166,6 +168,8 @@ class _Handler(BaseHTTPRequestHandler):
             self.send_header("Content-Range", f"bytes {start}-{end - 1}/{size}")
         length = fault.length if fault is not None and fault.length is not None else len(part)
         self.send_header("Content-Length", str(length))
+        for name, value in (fault.headers or {}).items() if fault is not None else ():
+            self.send_header(name, value)
         self.end_headers()
         if not body:
             return

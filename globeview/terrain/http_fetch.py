@@ -484,6 +484,14 @@ def _answer(
         raise _Retry(f"HTTP {status} {reason}".rstrip(), status, wait)
     if status not in (200, 206):
         raise RemoteError(f"GET {_short_url(url)}: HTTP {status} {reason}".rstrip(), url, status)
+    encoding = (resp.getheader("Content-Encoding") or "identity").strip().lower()
+    if encoding != "identity":  # asked for identity: compressed bytes are not the file's
+        raise RemoteError(
+            f"GET {_short_url(url)}: the server sent a {encoding[:20]}-encoded answer (a range"
+            " of the file's own bytes is needed)",
+            url,
+            status,
+        )
     length_h = resp.getheader("Content-Length")
     try:
         length = int(length_h) if length_h is not None else None

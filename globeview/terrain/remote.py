@@ -201,6 +201,14 @@ class _RemoteBytes:
             self._size = ans.total
             if self.key is not None:
                 self.cache.put(f"{self.key}_size", str(ans.total).encode())
+        elif ans.total is not None and ans.total != self._size:
+            # The file was replaced on the server (the store rebuilt under the manifest this
+            # store read): its bytes must not be mixed with, or cached as, the old file's.
+            raise RemoteError(
+                f"GET {_short_url(self.url)}: the file changed on the server ({ans.total} bytes,"
+                f" was {self._size}); reopen the store",
+                self.url,
+            )
         body, base = ans.body, ans.start
         if ans.status == 200:
             # The whole file: keep every page (a server ignoring Range is served from here).

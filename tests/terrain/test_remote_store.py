@@ -380,6 +380,13 @@ def test_a_short_body_is_retried_then_fails(tmp_path: Path, files: Path, server)
     assert len(server.requests("/blob.bin")) == 2
 
 
+def test_an_encoded_answer_is_refused(tmp_path: Path, files: Path, server) -> None:
+    server.fault("/blob.bin", headers={"Content-Encoding": "gzip"})
+    with pytest.raises(RemoteError, match="gzip-encoded") as err:
+        _bytes(server, files, _opts(tmp_path)).read(0, 10)
+    assert "\n" not in str(err.value) and len(server.requests("/blob.bin")) == 1
+
+
 def test_redirects_are_followed_and_bounded(tmp_path: Path, files: Path, server) -> None:
     opts = _opts(tmp_path)
     blob = (files / "blob.bin").read_bytes()
@@ -766,3 +773,23 @@ def test_https_stores(store_root: Path, tmp_path: Path, monkeypatch: pytest.Monk
                 assert np.array_equal(st.heights(k), local.heights(k), equal_nan=True)
         assert all(r.status == 206 for r in srv.requests("*.tif"))
     local.close()
+
+
+def test_a_chunk_replaced_on_the_server_is_one_line_not_mixed_bytes(
+    store_root: Path, tmp_path: Path
+) -> None:
+    """A store rebuilt on the server while it is open: pages of the new file are neither
+    decoded with the old one's nor cached under the old digest."""
+    www = tmp_path / "www"
+    shutil.copytree(store_root / "n44", www / "n44")
+    opts = _opts(tmp_path, retries=0)
+    with StaticServer(www) as srv, TileStore.open(f"{srv.url}/n44", remote_options=opts) as st:
+        keys = _level12_by_chunk(st)[(1, 1)]
+        st.heights(keys[0])  # the chunk's header and first blocks are read
+        chunk = www / "n44" / "level_12_r0001_c0001.tif"
+        chunk.write_bytes(chunk.read_bytes() + b"\0" * 70_000)  # rebuilt: another size
+        remote.clear_memory()
+        with pytest.raises(StoreError, match="changed on the server") as err:  # noqa: PT012
+            for k in keys:
+                st.heights(k)
+        assert "\n" not in str(err.value)
