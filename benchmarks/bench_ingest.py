@@ -50,7 +50,7 @@ ROOT = Path(__file__).resolve().parents[1]
 CACHE = ROOT / "benchmarks" / "cache"
 BASE_COMMIT = "a46750e"
 BASELINE = CACHE / f"baseline-{BASE_COMMIT}"
-RUNS = ("today", "dask1", "daskN", "cluster", "gdal")
+RUNS = ("today", "dask1", "daskN", "daskP", "cluster", "gdal")
 SIZE_RANGE = (256, 32768)
 #: Targets of issue #18 item 4.
 RATIO_TARGET = 3.0  # Dask all cores / GDAL overview wall time
@@ -323,8 +323,8 @@ def bench_size(size: int, args: argparse.Namespace, api: list[str], tmp: Path) -
     cores = os.cpu_count() or 1
     has_dask = "workers" in api and "scheduler" in api
     print(f"\n### {size}x{size} float32, {mb:.0f} MB (SRTM3 N44W072 + SYNTHETIC fractal detail)\n")
-    print("| run | wall s | CPU s | MB/s | peak RSS MB a worker process | store MB |")
-    print("|---|---:|---:|---:|---:|---:|")
+    print("| run | wall s | CPU s | cores busy | MB/s | peak RSS MB a worker process | store MB |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
     rows: dict[str, dict] = {}
     stores: dict[str, Path] = {}
     notes: list[str] = []
@@ -349,8 +349,8 @@ def bench_size(size: int, args: argparse.Namespace, api: list[str], tmp: Path) -
         # Threads of one process share its RSS: the figure is the process's, for all of them.
         shared = f" ({threads} threads)" if threads > 1 else ""
         print(
-            f"| {label} | {r['wall']:.1f} | {r['cpu']:.1f} | {mb / r['wall']:.1f} | "
-            f"{rss:.0f}{shared} | {store_mb:.0f} |",
+            f"| {label} | {r['wall']:.1f} | {r['cpu']:.1f} | {r['cpu'] / r['wall']:.2f} | "
+            f"{mb / r['wall']:.1f} | {rss:.0f}{shared} | {store_mb:.0f} |",
             flush=True,
         )
 
@@ -365,9 +365,15 @@ def bench_size(size: int, args: argparse.Namespace, api: list[str], tmp: Path) -
         row("dask1", "Dask, 1 worker", {"kind": "ingest", "kwargs": {"workers": 1}})
         row(
             "daskN",
-            f"Dask, {cores} workers",
+            f"Dask, {cores} workers (threads)",
             {"kind": "ingest", "kwargs": {"workers": cores}},
             threads=cores,
+        )
+        # Dask's local process pool: the same graph without the GIL shared between workers.
+        row(
+            "daskP",
+            f"Dask, {cores} workers (processes)",
+            {"kind": "ingest", "kwargs": {"workers": cores, "scheduler": "processes"}},
         )
         row("cluster", "LocalCluster 2 processes x 1 thread", {"kind": "cluster"})
     else:
@@ -382,7 +388,7 @@ def bench_size(size: int, args: argparse.Namespace, api: list[str], tmp: Path) -
             rows["gdal"] = {**r, "rss_worker": r["rss"], "store_mb": float("nan")}
             print(
                 f"| GDAL overviews (build_overviews average) | {r['wall']:.2f} | {r['cpu']:.2f} | "
-                f"{mb / r['wall']:.0f} | {r['rss']:.0f} | - |"
+                f"{r['cpu'] / r['wall']:.2f} | {mb / r['wall']:.0f} | {r['rss']:.0f} | - |"
             )
         except RuntimeError as exc:
             notes.append(f"gdal: {exc}")
@@ -433,7 +439,7 @@ def bench_size(size: int, args: argparse.Namespace, api: list[str], tmp: Path) -
             f"{r['cpu'] / facts['tiles'] * 1e3:.2f} ms"
             + (f" / {r['cpu'] / f5['chunks']:.2f} s" if f5["chunks"] else "")
             for k, r in rows.items()
-            if k in ("today", "dask1", "daskN", "cluster")
+            if k in ("today", "dask1", "daskN", "daskP", "cluster")
         ]
         what = "finest-level node / tile" + (" / chunk file" if f5["chunks"] else "")
         print(f"- CPU a {what} (every level's work counted): {'; '.join(costs)}")
@@ -512,6 +518,12 @@ def _targets(results: dict[int, dict]) -> None:
                 f"speedup 1 -> {cores} cores {speedup:.2f}x wall, CPU {cpu_ratio:.2f}x "
                 f"of 1 core's (>= {SCALING_TARGET * cores:.1f}x: "
                 f"{_verdict(speedup >= SCALING_TARGET * cores)});"
+            )
+        dask_p = rows.get("daskP")
+        if dask_1 and dask_p:
+            parts.append(
+                f"with processes: speedup {dask_1['wall'] / dask_p['wall']:.2f}x, "
+                f"/ GDAL = {dask_p['wall'] / gdal['wall'] if gdal else float('nan'):.1f}x;"
             )
         if today and dask_n:
             parts.append(

@@ -78,8 +78,8 @@ def test_tiny_ingest_run_prints_every_row_and_each_target(tmp_path: Path) -> Non
     if (ROOT / ".git").exists():
         assert any(lb.startswith("today (commit a46750e") for lb in labels)
     assert any(lb.startswith(("Dask, 1 worker", "this checkout")) for lb in labels)
-    for r in rows:  # wall, CPU, MB/s, RSS: positive numbers
-        cells = [c.strip() for c in r.split("|")[2:6]]
+    for r in rows:  # wall, CPU, cores busy, MB/s, RSS (the threads' shared process): > 0
+        cells = [c.strip().split(" (")[0] for c in r.split("|")[2:7]]
         assert all(float(c) > 0 for c in cells), r
     # The stores of every ingest row hold the same errors (today's vs the checkout's).
     assert re.search(r"per-tile errors and height ranges equal to \w+'s: [a-zA-Z0-9]", out)
@@ -134,3 +134,38 @@ def test_remote_traffic_counts_requests_and_body_bytes(tmp_path: Path) -> None:
     assert (n, manifest) == (5, 1)
     assert sent == 2 + 100 + 100 + 10
     assert by_status == {200: 1, 206: 3, 404: 1}
+
+
+def test_tiny_remote_run_reaches_complete_frames_and_a_warm_cache() -> None:
+    """The real SRTM3 tile's store over 127.0.0.1: each run draws a complete frame, the cold
+    one fetches chunk bytes, the warm one (a new process) only the manifest."""
+    proc = _script(
+        "bench_remote.py",
+        "--dem",
+        str(ROOT / "data" / "N44W072.hgt"),
+        "--rounds",
+        "1",
+        "--latency-ms",
+        "0",
+        "--size",
+        "320x180",
+    )
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout
+    assert re.search(r"Remote store benchmark, \d{4}-\d{2}-\d{2} .* cores, load ", out)
+    rows = {
+        r.split("|")[1].strip(): [c.strip() for c in r.split("|")[2:-1]]
+        for r in out.splitlines()
+        if r.startswith("| ") and "---" not in r and not r.startswith("| run")
+    }
+    local, cold, warm = (rows[k] for k in RUN_ROWS)
+    # open s, complete s, frames, tiles, failed, requests, MB sent
+    assert local[5] == "0" and float(local[6]) == 0
+    assert int(cold[5]) > 1 and float(cold[6]) > 0
+    assert warm[5] == "1"  # the manifest alone
+    assert local[3] == cold[3] == warm[3] and int(local[3]) > 0  # the same tiles drawn
+    assert all(r[4] == "0" for r in (local, cold, warm))
+    assert "NOT MET" not in out and out.count(": met") == 4
+
+
+RUN_ROWS = ("local folder", "HTTP, cold disk cache", "HTTP, warm disk cache (new process)")
