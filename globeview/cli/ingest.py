@@ -136,7 +136,12 @@ def run(args: argparse.Namespace) -> int:
     if result.up_to_date:
         print(f"{result.path}: store is up to date")
     elif not args.quiet:
-        print(f"{result.path}: levels 0..{result.max_level} written in {result.seconds:.1f} s")
+        rebuilt, total = result.chunks_rebuilt, result.chunks_total
+        # An incremental update (a source changed): say how little was rebuilt.
+        part = f", rebuilt {rebuilt} of {total} chunks" if rebuilt < total else ""
+        print(
+            f"{result.path}: levels 0..{result.max_level} written in {result.seconds:.1f} s{part}"
+        )
     if not result.up_to_date and (result.masked_samples or result.fill_samples):
         # Said even with --quiet: the store holds less than the source, and why.
         from globeview.terrain.dem import MAX_HEIGHT_M, MIN_HEIGHT_M

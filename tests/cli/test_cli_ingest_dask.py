@@ -89,3 +89,34 @@ def test_workers_1_and_2_write_the_same_store(tmp_path: Path) -> None:
         "ingest", str(SMALL_DEM), "--out", str(stores[0]), "--workers", "2", cache=tmp_path / "c"
     )
     assert res.returncode == 0 and "up to date" in res.stdout, res.stdout + res.stderr
+
+
+def test_an_incremental_update_says_how_many_chunks_it_rebuilt(tmp_path: Path) -> None:
+    import numpy as np
+    import rasterio
+    from affine import Affine
+
+    def tile(path: Path, west: float, bump: float = 0.0) -> Path:
+        n = 2048  # 1/2048 degree pixels: two chunk columns of the finest level per source
+        y, x = np.mgrid[0:n, 0:n].astype(np.float32) / n
+        z = 800.0 + 300.0 * np.sin(6.0 * x + west) * np.cos(5.0 * y)
+        z += bump * np.exp(-(((x - 0.8) ** 2 + (y - 0.7) ** 2) / 0.01))
+        transform = Affine(1 / n, 0, west, 0, -1 / n, 46.0)
+        profile = {"driver": "GTiff", "width": n, "height": n, "count": 1, "dtype": "float32"}
+        with rasterio.open(path, "w", crs="EPSG:4326", transform=transform, **profile) as ds:
+            ds.write(z.astype(np.float32), 1)
+        return path
+
+    a, b = tile(tmp_path / "a.tif", 10.0), tile(tmp_path / "b.tif", 11.0)
+    out = tmp_path / "store"
+    args = ("ingest", str(a), str(b), "--out", str(out), "--workers", "2")
+    first = globeview(*args, cache=tmp_path / "c")
+    assert first.returncode == 0 and "rebuilt" not in first.stdout, first.stdout + first.stderr
+    tile(b, 11.0, bump=250.0)  # one source changes
+    res = globeview(*args, cache=tmp_path / "c")
+    assert res.returncode == 0, res.stderr
+    import re
+
+    m = re.search(r"rebuilt (\d+) of (\d+) chunks", res.stdout)
+    assert m is not None, res.stdout
+    assert 0 < int(m.group(1)) < int(m.group(2))
