@@ -90,7 +90,14 @@ def upsample_nodes(
 #   block, so max over its cells of (max over each cell's corners) is the max over those nodes
 #   (a set identity; fmax is exact and order-free on the |differences|, which hold no -0, and
 #   a block is NaN iff all its nodes are; heights may hold -0: see ``tile_min_max``);
-# - the error pass runs in strips of block rows that stay in the CPU cache.
+# - the error pass works on the window transposed (each fine column is then two coarse
+#   columns times scalar weights, numpy's fast vector-by-scalar loop) in strips that stay in
+#   the CPU cache; long coarse intervals use single-product ``np.einsum`` outer products. Only
+#   single products: a sum of two products inside one einsum may be fused into an FMA (one
+#   rounding instead of two), which would change last bits.
+#
+# Measured per 1025^2 window of the 8192^2 benchmark DEM (benchmarks/bench_ingest_kernels.py):
+# errors against 14 coarser levels 180 -> 46 ms CPU, hmin/hmax + stride deltas 41 -> 13 ms.
 
 
 def _phase_weights(f: int, dtype: type) -> tuple[np.ndarray, np.ndarray]:
