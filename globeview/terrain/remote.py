@@ -48,7 +48,6 @@ import io
 import re
 import threading
 import urllib.parse
-import weakref
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Any
@@ -83,6 +82,7 @@ __all__ = [
     "fetch",
     "is_url",
     "looks_like_url",
+    "open_datasets",
     "take_error",
 ]
 
@@ -408,21 +408,32 @@ class _Opener(FileContainer):
 
 # Remote datasets still open, with the context they were opened in. rasterio keeps its
 # opener's file objects in ContextVars, so a dataset must be closed in its opening thread's
-# context (a close from another thread, as `TileStore.close` does, raised KeyError inside
-# rasterio); and they are closed before the interpreter exits (GDAL calling into a Python
-# file object during teardown crashes).
-_open_datasets: weakref.WeakKeyDictionary[Any, contextvars.Context] = weakref.WeakKeyDictionary()
+# context: closed from another thread (as `TileStore.close` does) rasterio raised KeyError,
+# and a dataset left to the garbage collector - a thread's handles dropped when the thread
+# ends, a store never closed - crashed the process (the collector closes it on whatever
+# thread it runs, with the error set inside GDAL's callback). So this table holds a strong
+# reference to every remote dataset until `close_dataset` closes it in its own context (or
+# the interpreter's exit does): none is ever closed by the garbage collector.
+_open_datasets: dict[Any, contextvars.Context] = {}
 _open_lock = threading.Lock()
 
 
 def close_dataset(ds: rasterio.DatasetReader) -> None:
-    """Close a dataset from any thread: a remote one in the context it was opened in."""
+    """Close a dataset from any thread: a remote one in the context it was opened in (best
+    effort: a failing close is not the caller's problem)."""
     with _open_lock:
         ctx = _open_datasets.pop(ds, None)
     if ctx is None:
         ds.close()
-    else:
+        return
+    with contextlib.suppress(Exception):
         ctx.run(ds.close)
+
+
+def open_datasets() -> int:
+    """Remote datasets open now (for tests: a closed store leaves none)."""
+    with _open_lock:
+        return len(_open_datasets)
 
 
 @atexit.register

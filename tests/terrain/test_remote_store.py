@@ -10,6 +10,7 @@ import hashlib
 import os
 import shutil
 import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -793,3 +794,41 @@ def test_a_chunk_replaced_on_the_server_is_one_line_not_mixed_bytes(
             for k in keys:
                 st.heights(k)
         assert "\n" not in str(err.value)
+
+
+def test_remote_datasets_never_crash_the_garbage_collector(
+    store_root: Path, tmp_path: Path
+) -> None:
+    """Datasets opened by threads that end, a store dropped without close, the collector run
+    on the main thread, then the interpreter's exit: no crash (rasterio's opener keeps file
+    objects per context; a foreign close used to segfault). In a child process, to see it."""
+    script = f"""
+import gc, threading
+from pathlib import Path
+from globeview.bench.http_server import StaticServer
+from globeview.terrain import remote
+from globeview.terrain.remote import RemoteOptions
+from globeview.terrain.store import TileStore
+srv = StaticServer({str(store_root)!r}).start()
+opts = RemoteOptions(cache_dir=Path({str(tmp_path / "c")!r}))
+st = TileStore.open(srv.url + "/n44", remote_options=opts)
+g = st.level_grid(12)
+def work(i):
+    for k in range(6):
+        st.heights((12, g.x0 + (i * 7 + k) % g.nx, g.y0 + (i * 3 + k) % g.ny))
+ts = [threading.Thread(target=work, args=(i,)) for i in range(4)]
+[t.start() for t in ts]; [t.join() for t in ts]
+for f in st.prefetch([(12, g.x0 + i, g.y0 + 5) for i in range(8)]):
+    f.result()
+del st, ts
+gc.collect()
+st2 = TileStore.open(srv.url + "/n44", remote_options=opts)
+st2.heights((12, g.x0, g.y0))
+st2.close()
+assert remote.open_datasets() > 0  # the first store's, closed at exit
+gc.collect()
+srv.stop()
+print("OK")
+"""
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and r.stdout.strip().endswith("OK"), r.stderr[-2000:]
