@@ -12,9 +12,6 @@ extent crosses the antimeridian; reads fold it back modulo one turn).
 
 from __future__ import annotations
 
-import os
-import threading
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,14 +21,7 @@ from rasterio.windows import Window
 
 from globeview.terrain.quadtree import level_shape, node_spacing, tile_size_deg
 
-__all__ = ["ChunkCache", "LevelGrid", "chunk_cache", "read_level_nodes"]
-
-# Decoded chunk files kept per process by the ingest's readers (see `ChunkCache`): a level
-# chunk is read by the coarser level's wavelet windows, by its own error window, by its
-# neighbours' halos and by every finer level's error windows. 128 MB holds 32 1024^2 float32
-# chunks; on the 8192^2 benchmark (2 threads) it cut the chunk reads from 2.1 to 1.1 s CPU
-# for +27 MB of peak RSS (a 160 MB cache: 1.0 s, +76 MB).
-CHUNK_CACHE_MB = 128
+__all__ = ["LevelGrid", "read_level_nodes"]
 
 
 @dataclass(frozen=True)
@@ -192,69 +182,3 @@ def _mirror_axis(out: np.ndarray, idx: np.ndarray, size: int, k: int, axis: int)
         m = min(k, a.shape[0] - 1 - last, last - first)
         if m > 0:
             a[last + 1 : last + m + 1] = 2.0 * a[last] - a[last - m : last][::-1]
-
-
-class ChunkCache:
-    """Byte-bounded LRU of whole decoded single-band raster files (float32 arrays), shared by
-    the threads of a process.
-
-    For files written once and then only read (a build's level chunks): a read decodes the
-    whole file once (deflate is most of a read's cost) and later windows of it are slices.
-    The key is (path, mtime, size), so a file rewritten in place is decoded again. Arrays are
-    read-only; two threads that miss the same file at once may both decode it (same result).
-    """
-
-    def __init__(self, max_bytes: int) -> None:
-        self.max_bytes = max_bytes
-        self._lock = threading.Lock()
-        self._arrays: OrderedDict[tuple[str, int, int], np.ndarray] = OrderedDict()
-        self._bytes = 0
-        self.hits = 0
-        self.misses = 0
-
-    def array(self, path: str | os.PathLike[str]) -> np.ndarray:
-        """Band 1 of the raster at ``path`` (read-only)."""
-        st = os.stat(path)
-        key = (str(path), st.st_mtime_ns, st.st_size)
-        with self._lock:
-            arr = self._arrays.get(key)
-            if arr is not None:
-                self._arrays.move_to_end(key)
-                self.hits += 1
-                return arr
-            self.misses += 1
-        with rasterio.open(path) as ds:
-            arr = ds.read(1)
-        arr.setflags(write=False)
-        with self._lock:
-            if key not in self._arrays:
-                self._arrays[key] = arr
-                self._bytes += arr.nbytes
-            # Evict the least recently used, never the array just read.
-            while self._bytes > self.max_bytes and len(self._arrays) > 1:
-                _, old = self._arrays.popitem(last=False)
-                self._bytes -= old.nbytes
-        return arr
-
-    def window(self, path: str | os.PathLike[str], window: Window) -> np.ndarray:
-        """``rasterio``'s ``read(1, window=window)`` of the file (a window inside it), from the
-        cached decoded array (read-only view)."""
-        r, c = int(window.row_off), int(window.col_off)
-        return self.array(path)[r : r + int(window.height), c : c + int(window.width)]
-
-    def clear(self) -> None:
-        with self._lock:
-            self._arrays.clear()
-            self._bytes = 0
-
-    @property
-    def nbytes(self) -> int:
-        return self._bytes
-
-
-_CHUNKS = ChunkCache(CHUNK_CACHE_MB * 1024 * 1024)
-
-
-def chunk_cache() -> ChunkCache:
-    """The process's cache of decoded level chunk files (`CHUNK_CACHE_MB`)."""
-    return _CHUNKS
