@@ -109,6 +109,9 @@ class RemoteOptions:
             server's Retry-After within that is honoured).
         page_kb: the unit of range requests and of the disk cache, KB.
         max_manifest_mb: the largest manifest read, MB (a bigger answer is refused).
+        fail_fast_s: after a chunk file's read failed (its retries spent), further reads of
+            it fail at once for this long, seconds (the other tiles of a chunk a server
+            answers 500 for show as failed in seconds, not one retry round each).
 
     A tile read that cannot succeed fails within `worst_case_s`.
     """
@@ -122,6 +125,7 @@ class RemoteOptions:
     backoff_s: float = 0.25
     page_kb: int = 64
     max_manifest_mb: float = 64.0
+    fail_fast_s: float = 10.0
 
     def __post_init__(self) -> None:
         def bad(name: str, why: str) -> StoreError:
@@ -137,6 +141,7 @@ class RemoteOptions:
         number("read_timeout_s", 0.01, 3600)
         number("backoff_s", 0, 60)
         number("max_manifest_mb", 0.001, 1024)
+        number("fail_fast_s", 0, 3600)
         for name, lo, hi in (("max_requests", 1, 256), ("retries", 0, 20), ("page_kb", 4, 4096)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:

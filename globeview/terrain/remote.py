@@ -47,6 +47,7 @@ import hashlib
 import io
 import re
 import threading
+import time
 import urllib.parse
 from collections import OrderedDict
 from dataclasses import dataclass, field
@@ -63,6 +64,7 @@ from globeview.terrain.http_fetch import (
     Cancel,
     RemoteError,
     RemoteOptions,
+    _Answer,
     _short_url,
     fetch,
     is_url,
@@ -146,6 +148,8 @@ class _RemoteBytes:
         self.cache = opts.cache()
         self._size: int | None = None
         self._size_lock = threading.Lock()
+        # The last failure (after its retries) and when: reads fail fast for fail_fast_s.
+        self._failed: tuple[RemoteError, float] | None = None
         # Pages being fetched by some thread: others wait for them instead of asking again.
         self._inflight: dict[int, _Flight] = {}
         self._inflight_lock = threading.Lock()
@@ -194,7 +198,38 @@ class _RemoteBytes:
             raise TileNotReady(f"{_short_url(self.url)}: not loaded yet")
         p = self.page
         end = (last + 1) * p if self._size is None else min((last + 1) * p, self._size)
-        ans = fetch(self.url, self.opts, (first * p, end), cancel=self.cancel)
+        failed = self._failed
+        if failed is not None:
+            age = time.monotonic() - failed[1]
+            if age < self.opts.fail_fast_s:
+                err = failed[0]
+                raise RemoteError(
+                    f"{err} - {age:.0f} s ago; asked again after {self.opts.fail_fast_s:g} s",
+                    err.url,
+                    err.status,
+                )
+        try:
+            ans = self._checked(fetch(self.url, self.opts, (first * p, end), cancel=self.cancel))
+        except RemoteError as exc:
+            if self.cancel is None or not self.cancel.cancelled:
+                self._failed = (exc, time.monotonic())
+            raise
+        self._failed = None
+        body, base = ans.body, ans.start
+        if ans.status == 200:
+            # The whole file: keep every page (a server ignoring Range is served from here).
+            first, last = 0, max(0, (len(body) - 1) // p)
+            base = 0
+        got: dict[int, bytes] = {}
+        for i in range(first, last + 1):
+            data = body[i * p - base : (i + 1) * p - base]
+            if data or i == 0:
+                self._store(i, data)
+                got[i] = data
+        return got
+
+    def _checked(self, ans: _Answer) -> _Answer:
+        """``ans``, after learning the file's size from it (or checking it did not change)."""
         if self._size is None:
             if ans.total is None:
                 raise RemoteError(f"GET {_short_url(self.url)}: no file size given", self.url)
@@ -209,18 +244,7 @@ class _RemoteBytes:
                 f" was {self._size}); reopen the store",
                 self.url,
             )
-        body, base = ans.body, ans.start
-        if ans.status == 200:
-            # The whole file: keep every page (a server ignoring Range is served from here).
-            first, last = 0, max(0, (len(body) - 1) // p)
-            base = 0
-        got: dict[int, bytes] = {}
-        for i in range(first, last + 1):
-            data = body[i * p - base : (i + 1) * p - base]
-            if data or i == 0:
-                self._store(i, data)
-                got[i] = data
-        return got
+        return ans
 
     def _page(self, index: int) -> bytes | None:
         key = self._mkey(index)
@@ -310,9 +334,10 @@ class _RemoteBytes:
 _errors = threading.local()
 
 
-def take_error() -> StoreError | None:
-    """The `RemoteError` (or `TileNotReady`) of this thread's last failed remote read since
-    the last call (and forget it); None if there was none."""
+def take_error() -> BaseException | None:
+    """The `RemoteError` (or `TileNotReady`, or a KeyboardInterrupt that arrived during the
+    read) of this thread's last failed remote read since the last call (and forget it); None
+    if there was none."""
     err = getattr(_errors, "error", None)
     _errors.error = None
     return err
@@ -367,6 +392,8 @@ class _RemoteFile(io.RawIOBase):
             _errors.error = exc
         except Exception as exc:  # noqa: BLE001 - never into GDAL; reported by the store
             _errors.error = RemoteError(f"reading over HTTP: {type(exc).__name__}: {exc}", "")
+        except (KeyboardInterrupt, SystemExit) as exc:  # Ctrl-C: raised once GDAL is out
+            _errors.error = exc
         return failed
 
 

@@ -191,6 +191,14 @@ def _check_level_file(path: Path, ds: rasterio.DatasetReader, grid: LevelGrid) -
         )
 
 
+def _raise_interrupt() -> None:
+    """Raise a Ctrl-C that arrived inside a remote read GDAL completed anyway (the file
+    object keeps it from GDAL's callbacks, `remote.take_error`)."""
+    err = remote.take_error()
+    if isinstance(err, KeyboardInterrupt | SystemExit):
+        raise err
+
+
 def _checked_manifest(where: str, raw: dict[str, object]) -> StoreManifest:
     """The manifest of the store at ``where`` (a folder or URL) from its parsed JSON, checked:
     the format version this globeview reads, then the whole schema (StoreError one line)."""
@@ -520,6 +528,7 @@ class TileStore:
                 raise err from None
             raise StoreError(f"{where} is damaged: {_short(exc)}") from None
         try:
+            _raise_interrupt()
             _check_chunk(where, ds, grid, chunk_window(grid, lv.chunk_nodes, cy, cx))
         except BaseException:
             ds.close()
@@ -692,6 +701,7 @@ class TileStore:
             if err is not None:
                 raise err from None
             raise StoreError(f"{self._chunk_where(level, index)}: {_short(exc)}") from None
+        _raise_interrupt()
         with self._lock:
             self._blocks[key] = block
             while len(self._blocks) > BLOCK_CACHE:

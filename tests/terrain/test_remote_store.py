@@ -9,6 +9,7 @@ from __future__ import annotations
 import hashlib
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import threading
@@ -553,7 +554,7 @@ def test_a_cold_cache_uses_range_requests_and_a_warm_one_none(
 def test_one_failing_chunk_fails_only_its_tiles(
     store_root: Path, served, tmp_path: Path, status: int
 ) -> None:
-    opts = _opts(tmp_path, retries=1)
+    opts = _opts(tmp_path, retries=1, fail_fast_s=0.5)
     served.fault("/n44/level_12_r0000_c0001.tif", status=status)
     with TileStore.open(f"{served.url}/n44", remote_options=opts) as st:
         by_chunk = _level12_by_chunk(st)
@@ -574,10 +575,50 @@ def test_one_failing_chunk_fails_only_its_tiles(
         assert set(by_chunk[(0, 1)]) <= failed
         assert set(by_chunk[(1, 0)]) - failed and set(by_chunk[(0, 0)]) - failed
         assert len(loaded) > len(failed)
-        # The server recovers: the failed tiles load (no handle or cache kept the failure).
+        # The server recovers: the failed tiles load (no handle or cache kept the failure
+        # past fail_fast_s).
         served.clear_faults()
+        time.sleep(0.5)
         for k in failed:
             st.heights(k)
+
+
+def test_a_failed_chunk_fails_fast_for_a_while(store_root: Path, served, tmp_path: Path) -> None:
+    """After a chunk's read failed (retries spent), its other tiles fail at once for
+    fail_fast_s (the window shows them failed in seconds), then the server is asked again."""
+    opts = _opts(tmp_path, retries=2, backoff_s=0.2, fail_fast_s=2.0)
+    served.fault("/n44/level_12_r0001_c0000.tif", status=503)
+    with TileStore.open(f"{served.url}/n44", remote_options=opts) as st:
+        keys = _level12_by_chunk(st)[(1, 0)]
+        with pytest.raises(StoreError, match="HTTP 503"):
+            st.heights(keys[0])
+        asked = len(served.requests("*/level_12_r0001_c0000.tif"))
+        assert asked == 3
+        t = time.monotonic()
+        for k in keys[1:20]:
+            with pytest.raises(StoreError, match=r"HTTP 503.* s ago") as err:
+                st.heights(k)
+            assert "\n" not in str(err.value)
+        assert time.monotonic() - t < 1.0  # 19 tiles, not 19 rounds of retries (0.6 s each)
+        assert len(served.requests("*/level_12_r0001_c0000.tif")) == asked
+        served.clear_faults()
+        time.sleep(2.0)
+        assert st.heights(keys[1]).shape == (st.tile_size, st.tile_size)
+
+
+def test_ctrl_c_during_a_remote_read_is_a_keyboard_interrupt(
+    store_root: Path, served, tmp_path: Path
+) -> None:
+    """SIGINT while GDAL waits inside a read of a slow server: KeyboardInterrupt reaches the
+    caller (not a crash, not a StoreError), and the store reads on afterwards."""
+    served.fault("*.tif", delay_s=1.5)
+    with TileStore.open(f"{served.url}/n44", remote_options=_opts(tmp_path)) as st:
+        key = _level12_by_chunk(st)[(0, 0)][5]
+        threading.Timer(0.4, os.kill, (os.getpid(), signal.SIGINT)).start()
+        with pytest.raises(KeyboardInterrupt):
+            st.heights(key)
+        served.clear_faults()
+        assert st.heights(key).shape == (st.tile_size, st.tile_size)
 
 
 def test_dropped_connections_are_retried_for_tiles(
