@@ -24,11 +24,24 @@ pages): everything the issue asks of the transport is then ours and testable in 
   (at most `MAX_REDIRECTS`, http/https only).
 
 The price: each GDAL read of a block calls into Python (the GIL), and the per-call overhead
-is microseconds beside a network round trip; decoded blocks are kept by the store anyway.
+is microseconds beside a network round trip (warm N44W072 tiles: 0.14 ms CPU a tile, local
+0.10 ms); decoded blocks are kept by the store anyway. And two rasterio facts this module
+works around: its opener keeps file objects in ContextVars, so a dataset is closed in the
+context of the thread that opened it (`close_dataset`) and held until then (a dataset the
+garbage collector closed on another thread crashed the process); and an exception must never
+escape into GDAL's callbacks (a KeyboardInterrupt there aborted the process), so they return
+"no bytes" and record the error.
+
+Behaviour: threads wanting a page another thread is fetching wait for it (one request); a
+chunk whose read failed after its retries fails at once for `RemoteOptions.fail_fast_s`; a
+chunk whose size changes on the server while open is refused ("reopen the store");
+`RemoteSource.close` cancels reads under way (sockets shut down); a manifest fetched is kept
+in the disk cache and used when the server cannot be reached at all (`from_cache`:
+offline); a thread in `forbid_network_on` never waits (`TileNotReady`).
 
 Failure contract: every error here is a `StoreError` (or its subclass `RemoteError`) with a
 one-line message. GDAL swallows an exception raised inside a file object's read and reports
-a generic I/O error, so the file object also records the error (`take_error`) and the store
+a generic I/O error, so the file object records the error (`take_error`) and the store
 raises that instead.
 
 The transport (`fetch`, `RemoteOptions`, `RemoteError`, `is_url`) is
