@@ -18,6 +18,7 @@ from globeview.lod.view_state import ViewState
 from globeview.model.globe import DEFAULT_LOD, Globe
 from globeview.plugins.api import PluginKind
 from globeview.plugins.registry import PluginRegistry
+from globeview.terrain.remote import TileNotReady
 from globeview.terrain.stack import TerrainStack
 
 __all__ = ["LodHost"]
@@ -91,7 +92,14 @@ class LodHost:
         provider fails); after a failure the `DEFAULT_LOD` provider's, else an empty set."""
         provider = self.registry.find(PluginKind.LOD, self.globe.lod)
         if provider is not None:
-            rs = self.registry.select(provider, view, terrain, check=check)
+            try:
+                rs = self.registry.select(provider, view, terrain, check=check)
+            except TileNotReady:
+                # The provider read a remote tile that is not here yet (the UI thread never
+                # waits for the network; the store fetches it in the background): late data,
+                # not the provider's fault. This frame is the default provider's selection,
+                # the user's provider stays chosen and selects again next frame.
+                return self._select_default(provider, view, terrain, check)
             if rs is not None:
                 return rs
         # The registry already reported the failure in one line; this is detail.
@@ -104,3 +112,17 @@ class LodHost:
                 if rs is not None:
                     return rs
         return RenderSet.empty()
+
+    def _select_default(
+        self, tried: object, view: ViewState, terrain: TerrainStack, check
+    ) -> RenderSet:
+        """The `DEFAULT_LOD` provider's render set for one frame (``tried``, the provider that
+        could not select, is not asked again), else an empty set."""
+        fallback = self.registry.find(PluginKind.LOD, DEFAULT_LOD)
+        if fallback is None or fallback is tried:
+            return RenderSet.empty()
+        try:
+            rs = self.registry.select(fallback, view, terrain, check=check)
+        except TileNotReady:
+            rs = None
+        return rs if rs is not None else RenderSet.empty()

@@ -155,6 +155,14 @@ def install_sigint_marker() -> bool:
         return True
 
 
+def _not_ready(exc: BaseException) -> bool:
+    """Whether ``exc`` is a remote tile not fetched yet (`TileNotReady`), imported only then
+    (the registry serves `globeview plugins` too, which reads no terrain)."""
+    from globeview.terrain.remote import TileNotReady
+
+    return isinstance(exc, TileNotReady)
+
+
 def sigint_count() -> int:
     """How many SIGINTs the counting handler has delivered in this process."""
     return _sigint_count
@@ -713,6 +721,7 @@ class PluginRegistry:
         user_errors: bool = False,
         budgeted: bool = False,
         contribution: str | None = None,
+        pass_not_ready: bool = False,
         **kwargs: Any,
     ) -> T | Any:
         """Run ``fn(*args, **kwargs)`` — plugin code — isolated.
@@ -725,7 +734,9 @@ class PluginRegistry:
         ``user_errors``, a `GlobeviewError` (bad input the user gave, e.g. a broken file to a
         layer type's ``open``) propagates to the caller instead: the plugin is not at fault.
         With ``budgeted`` (frame-path calls) the call is timed against `budget` (see
-        `Budget`).
+        `Budget`). With ``pass_not_ready``, `TileNotReady` (a remote tile not fetched yet,
+        read on a thread that never waits for the network) propagates: the data is late, the
+        plugin is not at fault (`LodHost.select` draws that frame without it).
         """
         if contribution is not None:
             if not self.contribution_active(plugin_name, contribution):
@@ -737,7 +748,7 @@ class PluginRegistry:
         try:
             result = fn(*args, **kwargs)
         except GlobeviewError as exc:
-            if user_errors:
+            if user_errors or (pass_not_ready and _not_ready(exc)):
                 raise
             self.report_failure(plugin_name, exc, contribution=contribution)
             return default
@@ -801,6 +812,7 @@ class PluginRegistry:
         default: Any = None,
         user_errors: bool = False,
         budgeted: bool | None = None,
+        pass_not_ready: bool = False,
         **kwargs: Any,
     ) -> Any:
         """``call`` a method of a loaded contribution, e.g.
@@ -840,6 +852,7 @@ class PluginRegistry:
             user_errors=user_errors,
             budgeted=budgeted,
             contribution=name,
+            pass_not_ready=pass_not_ready,
             **kwargs,
         )
 
@@ -869,7 +882,9 @@ class PluginRegistry:
         from globeview.lod.render_set import RenderSet
 
         failed = object()
-        result = self.invoke(provider, "select", view, terrain, default=failed, budgeted=True)
+        result = self.invoke(
+            provider, "select", view, terrain, default=failed, budgeted=True, pass_not_ready=True
+        )
         if result is failed:
             return None
         if not isinstance(result, RenderSet):
