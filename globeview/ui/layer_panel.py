@@ -162,8 +162,11 @@ class LayerPanel(QWidget):
                     Qt.CheckState.Checked if layer.visible else Qt.CheckState.Unchecked
                 )
                 w, s, e, n = layer.store.bounds
+                where = getattr(layer.store, "location", layer.store.path)  # folder or URL
+                if getattr(layer.store, "offline", False):
+                    where = f"{where} (offline: the tiles cached before)"
                 item.setToolTip(
-                    f"{layer.store.path}\n{w:.3f}..{e:.3f}°E, {s:.3f}..{n:.3f}°N, "
+                    f"{where}\n{w:.3f}..{e:.3f}°E, {s:.3f}..{n:.3f}°N, "
                     f"levels 0..{layer.store.max_level}\n{datum_text(layer.store)}"
                 )
                 self.list.addItem(item)
