@@ -285,6 +285,14 @@ def main(argv: list[str] | None = None) -> int:
             )
         except GlobeviewError as exc:
             raise BenchError(str(exc).splitlines()[0]) from None
+        from globeview.terrain.store import FORMAT_VERSION, identify
+
+        ident = identify(store)
+        if not ident.is_current:  # checked before serving: one line, not three failed runs
+            raise BenchError(
+                f"--store {store}: a store of format {ident.version}, this globeview reads "
+                f"{FORMAT_VERSION} (rebuild it with globeview ingest --force)"
+            )
         files = [p for p in store.iterdir() if p.is_file()]
         mb = sum(p.stat().st_size for p in files) / 1e6
         RUN_CACHE.mkdir(parents=True, exist_ok=True)

@@ -169,3 +169,14 @@ def test_tiny_remote_run_reaches_complete_frames_and_a_warm_cache() -> None:
 
 
 RUN_ROWS = ("local folder", "HTTP, cold disk cache", "HTTP, warm disk cache (new process)")
+
+
+def test_remote_refuses_a_store_of_another_format_before_serving(tmp_path: Path) -> None:
+    old = tmp_path / "old"
+    old.mkdir()
+    (old / "manifest.json").write_text('{"format": "globeview-tile-store", "format_version": 4}')
+    proc = _script("bench_remote.py", "--store", str(old), timeout=60)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "format 4" in lines[0], proc.stderr
+    assert "| run |" not in proc.stdout  # nothing was served or run
