@@ -182,7 +182,11 @@ def _build_store(dem: Path) -> Path:
 
     out = CACHE / f"remote_store_{dem.stem}"
     t = time.perf_counter()
-    res = ingest([dem], out, progress=False)
+    from globeview.terrain.store import identify
+
+    # This script's own store: one of an older format is rebuilt (ingest asks for --force).
+    stale = identify(out).is_globeview and not identify(out).is_current
+    res = ingest([dem], out, progress=False, force=stale)
     if not res.up_to_date:
         print(f"(built {out.relative_to(ROOT)} in {time.perf_counter() - t:.0f} s, not timed)")
     return out
