@@ -156,3 +156,35 @@ def test_a_server_failing_tiles_is_one_line_and_writes_nothing(served, tmp_path:
         assert not out.exists()
     finally:
         server.clear_faults()
+
+
+def test_ctrl_c_during_a_remote_render_is_one_line_and_quick(served, tmp_path: Path) -> None:
+    import signal
+    import time
+
+    server, _ = served
+    server.clear_faults()
+    server.reset_log()  # the requests of this render only
+    server.fault("*/store/level_*", delay_s=3.0)  # every chunk read waits
+    try:
+        out = tmp_path / "x.png"
+        env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(tmp_path / "c")}
+        env.pop("GLOBEVIEW_DEBUG", None)
+        proc = subprocess.Popen(
+            [str(GLOBEVIEW), "render", f"{server.url}/store", "-o", str(out)],
+            stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
+        )  # fmt: skip
+        deadline = time.monotonic() + 60
+        while not server.requests("*/store/level_*") and time.monotonic() < deadline:
+            time.sleep(0.05)  # the render is waiting on a chunk now
+        assert server.requests("*/store/level_*")
+        proc.send_signal(signal.SIGINT)
+        t0 = time.monotonic()
+        _, err = proc.communicate(timeout=60)
+        waited = time.monotonic() - t0
+        assert proc.returncode == 130, err
+        assert err.strip().splitlines() == ["globeview: interrupted"], err
+        assert waited < 15, f"took {waited:.1f} s to stop after Ctrl-C"
+        assert not out.exists()
+    finally:
+        server.clear_faults()
