@@ -508,7 +508,8 @@ def run(args: argparse.Namespace) -> int:
             if points and scene.tool() is not None:
                 place_points(scene, tool, points, size)
     # The first frame uploads tiles; the second one is the steady-state frame we report.
-    first = scene.render(target.fbo, size)
+    remote = any(bool(getattr(st, "is_remote", False)) for st in stores)
+    first = stream_tiles(scene, target.fbo, size) if remote else scene.render(target.fbo, size)
     if scene.overlay_errors:  # a layer the GPU side refused (its limits): the user's, one line
         from globeview.errors import GlobeviewError
 
@@ -520,6 +521,9 @@ def run(args: argparse.Namespace) -> int:
 
     st = result.stats
     failures = plugin_failures(scene, args.lod, tool_name)
+    tiles_failed = int(st.extra.get("tiles_failed", 0))
+    if tiles_failed:
+        failures["tiles"] = f"{tiles_failed} tiles could not be read (drawn from coarser ones)"
     status = tool_status(scene) if tool_name is not None else ""
     stats = stats_json(
         st, args.lod, (tool_name, points, status), assignments, failures, result.overlay_drawn
@@ -546,6 +550,27 @@ def run(args: argparse.Namespace) -> int:
     if status:  # what the tool would say in the window's status bar (e.g. a distance)
         print(status if status.startswith(f"{tool_name}:") else f"{tool_name}: {status}")
     return 0
+
+
+def stream_tiles(scene, fbo, size: tuple[int, int]):
+    """Draw frames until every tile of the view has arrived or failed, as the window does:
+    for stores read over HTTP the tile loader's worker fetches the tiles while coarser ones
+    stand in, and a tile that cannot be fetched (a server's 500, a timeout) stays stood in
+    and is counted (``tiles_failed`` in the stats, and in the 'wrote' line) instead of
+    failing the render. Each wait is bounded by the remote reader's timeouts and retries;
+    Ctrl-C ends it. Returns the last frame, with every upload counted."""
+    import time
+
+    scene.renderer.async_loading = True
+    uploaded = 0
+    while True:
+        result = scene.render(fbo, size)
+        uploaded += result.stats.tiles_uploaded
+        if result.stats.tiles_loading == 0:
+            break
+        time.sleep(0.02)  # the loader's worker holds the network wait, not this thread
+    result.stats.tiles_uploaded = uploaded
+    return result
 
 
 def stats_json(
@@ -611,6 +636,8 @@ def failure_texts(lod: str, tool: str | None, failures: dict[str, str]) -> list[
         said.append(f"fell back from {lod}: {failures['provider']}")
     if "tool" in failures:
         said.append(f"tool {tool} failed: {failures['tool']}")
+    if "tiles" in failures:
+        said.append(failures["tiles"])
     return said
 
 

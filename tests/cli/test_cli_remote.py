@@ -143,17 +143,32 @@ def test_unreadable_stores_are_one_line(served, tmp_path: Path, command, where, 
     assert not out.exists()
 
 
-def test_a_server_failing_tiles_is_one_line_and_writes_nothing(served, tmp_path: Path) -> None:
+def test_tiles_a_server_fails_are_stood_in_and_counted(served, tmp_path: Path) -> None:
+    """500s for the finest level's chunks: the picture is drawn from coarser tiles, the
+    'wrote' line and the stats count the failed tiles; with --strict nothing is written."""
+    import json
+
     server, _ = served
     server.clear_faults()
-    server.fault("*/store/level_0[4-7]_*", status=500)
+    server.fault("*/store/level_07_*", status=500)
+    view = ["--size", "320x240", "--camera", "-123.2,49.2,60000,20,-50"]
     try:
-        out = tmp_path / "x.png"
-        res = globeview("render", f"{server.url}/store", "-o", str(out), "--size", "320x240",
-                        cache=tmp_path / "c", timeout=180)  # fmt: skip
-        line = one_error_line(res)
-        assert "500" in line, line
-        assert not out.exists()
+        out, stats = tmp_path / "x.png", tmp_path / "x.json"
+        res = globeview("render", f"{server.url}/store", "-o", str(out), "--stats", str(stats),
+                        *view, cache=tmp_path / "c", timeout=180)  # fmt: skip
+        assert res.returncode == 0, res.stderr
+        assert "tiles could not be read (drawn from coarser ones)" in res.stdout
+        figures = json.loads(stats.read_text())
+        assert figures["tiles_failed"] > 0 and figures["tiles_standin"] > 0
+        assert figures["tiles_drawn"] > 0 and figures["triangles"] > 0
+        assert out.exists()
+        strict = tmp_path / "strict.png"
+        res = globeview("render", f"{server.url}/store", "-o", str(strict), "--strict",
+                        *view, cache=tmp_path / "c", timeout=180)  # fmt: skip
+        assert res.returncode == 3, res.stderr
+        assert "tiles could not be read" in res.stderr and "nothing written" in res.stderr
+        assert len(res.stderr.strip().splitlines()) == 1
+        assert not strict.exists()
     finally:
         server.clear_faults()
 
