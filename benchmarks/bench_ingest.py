@@ -8,7 +8,7 @@ over 1 x 1 degree, cached in benchmarks/cache/) it runs, each in a fresh child p
   into benchmarks/cache/baseline-a46750e and run with PYTHONPATH pointing there (skipped, with
   a note, outside a git checkout);
 - ``dask 1`` / ``dask N``: `globeview.terrain.ingest.ingest(..., workers=1 | os.cpu_count())`,
-  Dask's local scheduler;
+  Dask's local scheduler (threads), and ``dask N processes`` (``scheduler="processes"``);
 - ``cluster 2x1``: a `distributed.LocalCluster(n_workers=2, processes=True,
   threads_per_worker=1)`, the ingest given ``scheduler=cluster.scheduler_address``;
 - ``gdal ovr``: GDAL's own overview build of a copy of the raster (rasterio
@@ -30,6 +30,8 @@ that prints figures, not a timed test; wall times on a shared machine vary with 
 (printed).
 
     python benchmarks/bench_ingest.py [--sizes 4096,8192] [--rounds 1] [--skip today,cluster]
+
+Rounds are interleaved (every row once, then again), medians printed.
 """
 
 from __future__ import annotations
@@ -306,9 +308,8 @@ def _header() -> str:
     )
 
 
-def _median_run(rounds: int, spec: dict, env: dict[str, str] | None = None) -> dict:
-    """Medians over ``rounds`` children of one row (peak RSS: the largest)."""
-    runs = [_wait_child(spec, env) for _ in range(rounds)]
+def _medians(runs: list[dict]) -> dict:
+    """Medians over the runs of one row (peak RSS: the largest)."""
     out = {k: statistics.median(r[k] for r in runs) for k in runs[0] if k != "rss"}
     out["rss"] = max(r["rss"] for r in runs)
     if "worker_rss" in runs[0]:
@@ -329,30 +330,13 @@ def bench_size(size: int, args: argparse.Namespace, api: list[str], tmp: Path) -
     stores: dict[str, Path] = {}
     notes: list[str] = []
 
+    plan: list[tuple[str, str, dict, dict[str, str] | None, int]] = []
+
     def row(
         name: str, label: str, spec: dict, env: dict[str, str] | None = None, threads: int = 1
     ) -> None:
-        if name in args.skip:
-            return
-        out = tmp / f"store_{name}_{size}"
-        spec = {**spec, "src": str(src), "out": str(out)}
-        try:
-            r = _median_run(args.rounds, spec, env)
-        except RuntimeError as exc:
-            notes.append(f"{label}: {exc}")
-            return
-        rss = r.get("worker_rss", r["rss"])
-        store_mb = _du_mb(out) if out.exists() else float("nan")
-        rows[name] = {**r, "rss_worker": rss, "store_mb": store_mb}
-        if out.exists():
-            stores[name] = out
-        # Threads of one process share its RSS: the figure is the process's, for all of them.
-        shared = f" ({threads} threads)" if threads > 1 else ""
-        print(
-            f"| {label} | {r['wall']:.1f} | {r['cpu']:.1f} | {r['cpu'] / r['wall']:.2f} | "
-            f"{mb / r['wall']:.1f} | {rss:.0f}{shared} | {store_mb:.0f} |",
-            flush=True,
-        )
+        if name not in args.skip:
+            plan.append((name, label, spec, env, threads))
 
     if "today" not in args.skip:
         base = _baseline_tree()
@@ -380,21 +364,50 @@ def bench_size(size: int, args: argparse.Namespace, api: list[str], tmp: Path) -
         # Until the Dask API lands: the checkout's own ingest, once, so the script still runs.
         row("dask1", "this checkout (no workers= yet)", {"kind": "ingest"})
         notes.append("ingest() takes no workers=/scheduler= yet: Dask and cluster rows skipped")
-    if "gdal" not in args.skip:
-        copy = tmp / f"ovr_copy_{size}.tif"
-        shutil.copy(src, copy)
-        try:
-            r = _median_run(args.rounds, {"kind": "gdal", "src": str(copy), "out": ""})
-            rows["gdal"] = {**r, "rss_worker": r["rss"], "store_mb": float("nan")}
-            print(
-                f"| GDAL overviews (build_overviews average) | {r['wall']:.2f} | {r['cpu']:.2f} | "
-                f"{r['cpu'] / r['wall']:.2f} | {mb / r['wall']:.0f} | {r['rss']:.0f} | - |"
-            )
-        except RuntimeError as exc:
-            notes.append(f"gdal: {exc}")
-        finally:
-            copy.unlink(missing_ok=True)
-            Path(str(copy) + ".ovr").unlink(missing_ok=True)
+    copy = tmp / f"ovr_copy_{size}.tif"
+    row("gdal", "GDAL overviews (build_overviews average)", {"kind": "gdal"})
+
+    # Rounds interleaved (every row once, then again): the machine's load drifts in minutes.
+    runs: dict[str, list[dict]] = {name: [] for name, *_ in plan}
+    failed: dict[str, str] = {}
+    for _ in range(args.rounds):
+        for name, label, spec, env, _threads in plan:
+            if name in failed:
+                continue
+            out = tmp / f"store_{name}_{size}"
+            if name == "gdal":  # a fresh copy each time: the build writes into the file
+                shutil.copy(src, copy)
+                spec = {**spec, "src": str(copy), "out": ""}
+            else:
+                shutil.rmtree(out, ignore_errors=True)
+                spec = {**spec, "src": str(src), "out": str(out)}
+            try:
+                runs[name].append(_wait_child(spec, env))
+            except RuntimeError as exc:
+                failed[name] = f"{label}: {exc}"
+            finally:
+                copy.unlink(missing_ok=True)
+                Path(str(copy) + ".ovr").unlink(missing_ok=True)
+    notes.extend(failed.values())
+    for name, label, _spec, _env, threads in plan:
+        if name in failed or not runs[name]:
+            continue
+        r = _medians(runs[name])
+        rss = r.get("worker_rss", r["rss"])
+        out = tmp / f"store_{name}_{size}"
+        store_mb = _du_mb(out) if name != "gdal" and out.exists() else float("nan")
+        rows[name] = {**r, "rss_worker": rss, "store_mb": store_mb}
+        if name != "gdal" and out.exists():
+            stores[name] = out
+        # Threads of one process share its RSS: the figure is the process's, for all of them.
+        shared = f" ({threads} threads)" if threads > 1 else ""
+        digits = 2 if name == "gdal" else 1
+        print(
+            f"| {label} | {r['wall']:.{digits}f} | {r['cpu']:.{digits}f} | "
+            f"{r['cpu'] / r['wall']:.2f} | {mb / r['wall']:.1f} | {rss:.0f}{shared} | "
+            + ("- |" if name == "gdal" else f"{store_mb:.0f} |"),
+            flush=True,
+        )
     if "cluster" in rows:
         notes.append(
             f"cluster: {rows['cluster']['start']:.1f} s to start it (not in its wall time); "
@@ -521,9 +534,12 @@ def _targets(results: dict[int, dict]) -> None:
             )
         dask_p = rows.get("daskP")
         if dask_1 and dask_p:
+            sp = dask_1["wall"] / dask_p["wall"]
+            ratio_p = dask_p["wall"] / gdal["wall"] if gdal else float("nan")
             parts.append(
-                f"with processes: speedup {dask_1['wall'] / dask_p['wall']:.2f}x, "
-                f"/ GDAL = {dask_p['wall'] / gdal['wall'] if gdal else float('nan'):.1f}x;"
+                f"with processes: speedup {sp:.2f}x "
+                f"({_verdict(sp >= SCALING_TARGET * cores)}), / GDAL = {ratio_p:.1f}x "
+                f"({_verdict(ratio_p <= RATIO_TARGET) if gdal else 'not measured'});"
             )
         if today and dask_n:
             parts.append(
