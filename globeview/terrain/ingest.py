@@ -69,7 +69,13 @@ except ImportError:  # pragma: no cover - not POSIX: no stale-build cleaning
 
 from globeview.errors import DemError, StoreError
 from globeview.terrain.dem import Dem, check_dem_path, open_dem
-from globeview.terrain.ingest_graph import SchedulerChoice, build_graph, parse_scheduler, run_graph
+from globeview.terrain.ingest_graph import (
+    SchedulerChoice,
+    build_graph,
+    parse_scheduler,
+    probe_scheduler,
+    run_graph,
+)
 from globeview.terrain.ingest_tasks import (
     FAULT_ENV,
     GDAL_CACHE_MB,
@@ -312,7 +318,9 @@ class _Builder:
 
     # -- run --------------------------------------------------------------------------------
 
-    def plan(self, token: str, gdal_threads: str) -> tuple[BuildPlan, list[SourceSpec]]:
+    def plan(
+        self, token: str, gdal_threads: str, keep_open: bool = True
+    ) -> tuple[BuildPlan, list[SourceSpec]]:
         """The build as the graph's tasks see it (small and picklable)."""
         plan = BuildPlan(
             folder=str(self.out_dir),
@@ -323,6 +331,7 @@ class _Builder:
             grids=tuple(self.grids[lv] for lv in range(self.max_level + 1)),
             k=max(1, _WINDOW_NODES // (1 << self.tile_n)),
             gdal_threads=gdal_threads,
+            keep_open=keep_open,
         )
         specs = [
             SourceSpec(
@@ -343,7 +352,7 @@ class _Builder:
         into the building folder); returns the number of tasks to run."""
         # One writer compresses with every core; many writers each with one thread.
         threads = "ALL_CPUS" if where.kind != "distributed" and where.workers == 1 else "1"
-        plan, specs = self.plan(token, threads)
+        plan, specs = self.plan(token, threads, keep_open=where.kind != "distributed")
         graph = build_graph(plan, specs)
         self.graph, self.plan_, self.where = graph, plan, where
         self.update = None
@@ -855,6 +864,8 @@ def ingest(
         raise StoreError(f"--max-level must be in 0..{MAX_LEVEL_LIMIT}, got {max_level}")
     lowpass_kernel(wavelet)  # WaveletError (a GlobeviewError) for a bad name
     where = parse_scheduler(workers, scheduler)  # one line for a bad value, before any work
+    if where.address is not None:
+        probe_scheduler(where.address)  # one line within seconds if no scheduler answers
     out_path = Path(out).absolute()
     parent = out_path.parent
     # First what dead ingests left here: a store that a killed commit had moved aside is put

@@ -112,6 +112,9 @@ class BuildPlan:
     grids: tuple[LevelGrid, ...]
     k: int
     gdal_threads: str = "1"
+    #: Keep chunk files open per worker thread (local schedulers only: on a cluster's shared
+    #: filesystem an open file of a removed folder can keep the folder from going away).
+    keep_open: bool = True
 
     @property
     def chunk_nodes(self) -> int:
@@ -184,16 +187,36 @@ class ChunkResult:
 # Reading chunk files
 
 
+# Per-thread open chunk files by sha256: a chunk is read by several tasks (the coarser chunk
+# over it, the error windows of every finer level under it, its neighbours' halos), and a
+# dataset kept open keeps its decoded blocks in GDAL's cache (bounded, GDAL_CACHE_MB) instead
+# of inflating them again per task. Keyed by content, so a handle can never serve another
+# build's file of the same name.
+_MAX_OPEN_CHUNKS = 48
+
+
+def _open_chunk(path: Path, sha256: str) -> rasterio.DatasetReader:
+    handles: OrderedDict[str, rasterio.DatasetReader] | None = getattr(_local, "chunks", None)
+    if handles is None:
+        handles = _local.chunks = OrderedDict()
+    ds = handles.get(sha256)
+    if ds is None or ds.closed:
+        ds = handles[sha256] = rasterio.open(path)
+        while len(handles) > _MAX_OPEN_CHUNKS:
+            handles.popitem(last=False)[1].close()
+    handles.move_to_end(sha256)
+    return ds
+
+
 class ChunkReader:
     """A level raster read from its chunk files in the building folder (what
     `read_level_nodes` needs of a dataset: ``read(1, window=...)``). ``present``: the chunks
-    that have a file (the others are all NaN)."""
+    that have a file, with their sha256 (the others are all NaN)."""
 
-    def __init__(self, plan: BuildPlan, lv: int, present: set[tuple[int, int]]) -> None:
+    def __init__(self, plan: BuildPlan, lv: int, present: dict[tuple[int, int], str]) -> None:
         self.plan = plan
         self.grid = plan.grids[lv]
         self.present = present
-        self._open: dict[tuple[int, int], rasterio.DatasetReader] = {}
 
     def read(self, band: int, window: Window) -> np.ndarray:
         c = self.plan.chunk_nodes
@@ -203,30 +226,23 @@ class ChunkReader:
         out = np.full((h, w), np.nan, dtype=np.float32)
         for cy in range(min(r_a // c, rows - 1), min((r_a + h - 1) // c, rows - 1) + 1):
             for cx in range(min(c_a // c, cols - 1), min((c_a + w - 1) // c, cols - 1) + 1):
-                if (cy, cx) not in self.present:
+                sha = self.present.get((cy, cx))
+                if sha is None:
                     continue
                 r0, c0, ch, cw = chunk_window(self.grid, c, cy, cx)
                 ra, rb = max(r_a, r0), min(r_a + h, r0 + ch)
                 ca, cb = max(c_a, c0), min(c_a + w, c0 + cw)
                 if ra >= rb or ca >= cb:
                     continue
-                ds = self._dataset(cy, cx)
-                out[ra - r_a : rb - r_a, ca - c_a : cb - c_a] = ds.read(
-                    band, window=Window(ca - c0, ra - r0, cb - ca, rb - ra)
-                )
+                path = Path(self.plan.folder) / chunk_file_name(self.grid.level, cy, cx)
+                win = Window(ca - c0, ra - r0, cb - ca, rb - ra)
+                dst = out[ra - r_a : rb - r_a, ca - c_a : cb - c_a]
+                if self.plan.keep_open:
+                    dst[...] = _open_chunk(path, sha).read(band, window=win)
+                else:
+                    with rasterio.open(path) as ds:
+                        dst[...] = ds.read(band, window=win)
         return out
-
-    def _dataset(self, cy: int, cx: int) -> rasterio.DatasetReader:
-        ds = self._open.get((cy, cx))
-        if ds is None:
-            path = Path(self.plan.folder) / chunk_file_name(self.grid.level, cy, cx)
-            ds = self._open[(cy, cx)] = rasterio.open(path)
-        return ds
-
-    def close(self) -> None:
-        for ds in self._open.values():
-            ds.close()
-        self._open.clear()
 
     def __enter__(self) -> ChunkReader:
         return self
@@ -237,11 +253,11 @@ class ChunkReader:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        self.close()
+        pass
 
 
-def _present(results: Sequence[ChunkResult], lv: int) -> set[tuple[int, int]]:
-    return {(r.cy, r.cx) for r in results if r.level == lv and r.sha256 is not None}
+def _present(results: Sequence[ChunkResult], lv: int) -> dict[tuple[int, int], str]:
+    return {(r.cy, r.cx): r.sha256 for r in results if r.level == lv and r.sha256 is not None}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -304,12 +320,15 @@ def fill_from_sources(
     west_n = (west + 180.0) % 360.0 - 180.0
     undulation: np.ndarray | None = None  # N on this window's nodes, when a source needs it
     for s in sources:
-        if s.level > max_source_level:
+        # The cheap footprint test first: with thousands of sources (SRTM tiles) a window
+        # meets a handful, and the NaN scan of the window (~0.2 ms) is then paid only for
+        # those, not for every source (C's measurement: 257 vs 0.5 core-hours for a planet).
+        if s.level > max_source_level or not fill_reads_source(
+            grid, gr0, gc0, h, w, s.bounds, s.wraps
+        ):
             continue
         if not np.isnan(out).any():
             return
-        if not fill_reads_source(grid, gr0, gc0, h, w, s.bounds, s.wraps):
-            continue
         vals = s.dem().read_grid(west_n, north, d, d, w, h)
         if s.datum == "egm96":
             if undulation is None:

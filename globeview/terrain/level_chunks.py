@@ -64,7 +64,10 @@ def _profile(width: int, height: int, transform: Affine, threads: str) -> dict:
         "blockysize": BLOCK,
         "compress": "deflate",
         "predictor": 3,
-        "zlevel": 6,
+        # Level 1, not GDAL's 6: on a 1024^2 chunk of terrain 32 vs 73 ms to write (the
+        # ingest's largest cost after reprojection), 2.47 vs 2.40 MB (+3%), reads as fast.
+        # (zstd was faster still, 18 ms, but not every GDAL/QGIS or browser reader has it.)
+        "zlevel": 1,
         "num_threads": threads,
         "bigtiff": "IF_SAFER",
     }

@@ -166,6 +166,29 @@ def test_a_scheduler_that_does_not_answer_is_one_line_within_seconds(tmp_path: P
     assert _files(out) == before and _leftovers(tmp_path) == []
 
 
+def test_a_port_that_accepts_but_never_answers_is_one_line_within_seconds(
+    tmp_path: Path,
+) -> None:
+    """distributed.Client alone would wait forever here (the kernel accepts the connection
+    into the listen backlog; nobody ever speaks)."""
+    with socket.socket() as srv:
+        srv.bind(("127.0.0.1", 0))
+        srv.listen(8)
+        port = srv.getsockname()[1]
+        t0 = time.monotonic()
+        with pytest.raises(StoreError) as exc:
+            ingest([ETOPO], tmp_path / "s", scheduler=f"tcp://127.0.0.1:{port}")
+        assert time.monotonic() - t0 < 30
+    assert "cannot reach the dask scheduler" in str(exc.value) and "\n" not in str(exc.value)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_worker_address_is_not_a_scheduler(tmp_path: Path, cluster) -> None:
+    worker = next(iter(cluster.workers.values())).worker_address
+    with pytest.raises(StoreError, match="is not a dask scheduler"):
+        ingest([ETOPO], tmp_path / "s", scheduler=worker)
+
+
 def test_a_failing_task_on_the_cluster_is_one_line_and_leaves_the_old_store(
     tmp_path: Path, cluster
 ) -> None:
