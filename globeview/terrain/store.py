@@ -27,6 +27,7 @@ tile, so a damaged store is one `StoreError` line, never a traceback.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import re
@@ -341,6 +342,8 @@ class TileStore:
         self._closed = False
         #: Decoded blocks by (level, chunk index, block row, block column).
         self._blocks: OrderedDict[tuple[int, int, int, int], np.ndarray] = OrderedDict()
+        #: Tiles loading in the background for a thread that must not wait.
+        self._loading: set[TileKey] = set()
         #: `_data_table`s by (level, grow); small, built on first use (races only rebuild).
         self._tables: dict[tuple[int, int], np.ndarray] = {}
 
@@ -722,9 +725,14 @@ class TileStore:
             tile = self._read_padded(key)
         except remote.TileNotReady:
             # On a thread that must not wait (`forbid_network_on`): load it in the
-            # background; the caller shows it as loading and asks again.
-            if not self._closed:
-                self.prefetch([key])
+            # background (once, however often it is asked meanwhile: a cursor moving over
+            # it asks every frame); the caller shows it as loading and asks again.
+            with self._lock:
+                fresh = key not in self._loading and not self._closed
+                self._loading.add(key)
+            if fresh:
+                (future,) = self.prefetch([key])
+                future.add_done_callback(functools.partial(self._loaded, key))
             raise
         tile.flags.writeable = False
         with self._lock:
@@ -733,6 +741,10 @@ class TileStore:
             while len(self._cache) > self._cache_tiles:
                 self._cache.popitem(last=False)
         return tile
+
+    def _loaded(self, key: TileKey, _future: Future) -> None:
+        with self._lock:
+            self._loading.discard(key)
 
     def heights(self, key: TileKey | tuple[int, int, int]) -> np.ndarray:
         """Heights (metres) of a tile's (tile_size x tile_size) nodes, float32, NaN = no data.

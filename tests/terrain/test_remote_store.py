@@ -682,10 +682,18 @@ def test_a_thread_forbidden_the_network_never_waits(
         with pytest.raises(TileNotReady):
             st.heights(key)
         assert time.monotonic() - t < 0.2  # at once, not after the server's 0.5 s
+        for _ in range(50):  # asked again and again (a cursor over it): loaded once
+            with pytest.raises(TileNotReady):
+                st.heights(key)
+        assert len(st._loading) == 1
         deadline = time.monotonic() + 30
         while not st.cached(key) and time.monotonic() < deadline:
             time.sleep(0.05)  # loaded by the store's background pool meanwhile
         assert st.heights(key).shape == (st.tile_size, st.tile_size)
+        time.sleep(0.1)
+        assert not st._loading
+    # One load of the tile's pages, not one per ask.
+    assert len(served.requests("*/level_12_r0001_c0001.tif")) <= 4
 
 
 def test_closing_a_store_cancels_its_reads_at_once(
