@@ -9,8 +9,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "files",
         nargs="*",
-        metavar="DEM|STORE",
-        help="DEM files or tile stores to open on top of the embedded data",
+        metavar="DEM|STORE|URL",
+        help="DEM files, tile store folders or store URLs (https://HOST/path/store) to open "
+        "on top of the embedded data",
     )
 
 
