@@ -73,6 +73,9 @@ LOADING_FRAME_MS = 500
 #: depth buffer's (unrefined) point while the store fetches the tile in the background; the
 #: second pick reads the tile from the cache and refines the height the status bar shows.
 REPICK_MS = 400
+#: Picks again at most this many times while the cursor rests (a slow server's tile may take
+#: a few intervals); each is one depth read and a refine on cached tiles.
+REPICK_TRIES = 5
 
 #: Qt keys -> `KeyEvent.key` names (printable keys use their lower-case text).
 _KEY_NAMES = {
@@ -221,6 +224,7 @@ class GlobeWidget(QOpenGLWidget):
         self._repick.setInterval(REPICK_MS)
         self._repick.timeout.connect(self._pick_again)
         self._cursor_px: tuple[float, float] | None = None
+        self._repicks_left = 0
         # Every model change schedules a frame: nothing calls request_frame by hand for it.
         #: The model subscriptions, the window's (cleared when it closes), or its own.
         self.subscriptions = Subscriptions() if subscriptions is None else subscriptions
@@ -480,14 +484,19 @@ class GlobeWidget(QOpenGLWidget):
 
     def has_remote_layers(self) -> bool:
         """Whether a visible layer is a store read over HTTP (its tiles may not be here yet)."""
-        return any(bool(getattr(ly.store, "is_remote", False)) for ly in self.terrain.layers)
+        return any(
+            bool(getattr(ly.store, "is_remote", False)) for ly in self.terrain.visible_layers
+        )
 
     def _pick_again(self) -> None:
         """The cursor rested (`REPICK_MS`): pick it again, now that the finest tile under it
-        may have arrived in the background."""
+        may have arrived in the background (up to `REPICK_TRIES` times while it rests)."""
         if self._cursor_px is None or (self.navigator is not None and self.navigator.dragging):
             return
         self.cursorPicked.emit(self.pick(*self._cursor_px))
+        self._repicks_left -= 1
+        if self._repicks_left > 0:
+            self._repick.start()
 
     # -- camera ------------------------------------------------------------------------------
     def _camera_moved(self) -> None:
@@ -534,6 +543,7 @@ class GlobeWidget(QOpenGLWidget):
             self.cursorPicked.emit(hit)
             self._cursor_px = (x, y)
             if self.has_remote_layers():
+                self._repicks_left = REPICK_TRIES
                 self._repick.start()
             if self.active_tool() is not None:
                 mods = modifier_names(event.modifiers())
