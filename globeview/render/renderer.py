@@ -370,6 +370,12 @@ class GlobeRenderer:
         else:
             missing_keys = missing
         loader.request(missing_keys, priority)
+        warm = getattr(self.terrain, "prefetch_bytes", None)  # (a TerrainStack's)
+        if warm is not None and len(missing_keys):
+            # Remote layers: the missing tiles' bytes, several requests at once (the loader
+            # builds one tile at a time), nearest first.
+            order = np.argsort(priority, kind="stable") if priority is not None else slice(None)
+            warm(missing_keys[order])
         n_failed = len(bad)
         if extra is not None:
             extra["tiles_missing"] = len(missing)

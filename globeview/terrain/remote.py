@@ -563,6 +563,13 @@ class RemoteSource:
         cache.put(key, body)
         return body
 
+    def warm(self, name: str, offset: int, size: int) -> None:
+        """Fetch bytes [offset, offset + size) of a file opened before (`open_raster`) into
+        the caches, without decoding anything (`TileStore.prefetch_bytes`)."""
+        data = self._files.get(self.url(name))
+        if data is not None:
+            data.read(offset, size)
+
     def open_raster(self, name: str, sha256: str | None) -> rasterio.DatasetReader:
         """Open a store raster (a chunk file) with GDAL over HTTP; ``sha256`` (from the
         manifest) keys its pages in the disk cache. Raises `RemoteError` (the HTTP error) or

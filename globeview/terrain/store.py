@@ -48,7 +48,7 @@ from rasterio.windows import Window
 
 from globeview.errors import StoreError
 from globeview.terrain import remote
-from globeview.terrain.level_chunks import chunk_window
+from globeview.terrain.level_chunks import BLOCK, chunk_window
 from globeview.terrain.levels import LevelGrid
 from globeview.terrain.quadtree import TileKey
 from globeview.terrain.store_schema import (
@@ -90,6 +90,9 @@ except ImportError:  # pragma: no cover - rasterio's private module moved
 RASTER_ERRORS: tuple[type[BaseException], ...] = (RasterioError, _CPLE)
 # Reading a window of a level file damaged after the store was opened.
 _READ_ERRORS: tuple[type[BaseException], ...] = (*RASTER_ERRORS, ValueError)
+
+# What warming a block may meet (the loader's own read reports it).
+_WARM_ERRORS: tuple[type[BaseException], ...] = (StoreError, *_READ_ERRORS)
 
 # Files globeview writes in a store (GDAL may add a .aux.xml next to a level).
 # (Format 5: level_LL.vrt mosaics chunk files level_LL_rRRRR_cCCCC.tif; .npz sidecars hold
@@ -339,6 +342,10 @@ class TileStore:
         #: GDAL block shape of each chunk file opened so far, by (level, chunk index).
         self._block_shapes: dict[tuple[int, int], tuple[int, int]] = {}
         self._pool: ThreadPoolExecutor | None = None
+        #: `prefetch_bytes`: its threads, the tiles and the blocks it was asked for.
+        self._bytes_pool: ThreadPoolExecutor | None = None
+        self._keys_asked: set[tuple[int, int, int]] = set()
+        self._bytes_asked: set[tuple[int, int, int, int]] = set()
         self._closed = False
         #: Decoded blocks by (level, chunk index, block row, block column).
         self._blocks: OrderedDict[tuple[int, int, int, int], np.ndarray] = OrderedDict()
@@ -810,6 +817,90 @@ class TileStore:
         with self._lock:
             return TileKey(*key) in self._cache
 
+    def prefetch_bytes(self, keys: Iterable[TileKey | tuple[int, int, int]]) -> list[Future]:
+        """A remote store: fetch the compressed bytes of the blocks these tiles need, several
+        requests at once (`RemoteOptions.max_requests` threads), into the caches, decoding
+        nothing: the tile loader, which builds one tile at a time, then finds them there
+        instead of paying a round trip per page in turn. Returns the futures of the blocks
+        queued (none for a local store, or when every block was asked for before).
+
+        Cheap on the calling thread (the renderer's, each frame while tiles are missing):
+        tile-to-block geometry only, keys seen before skipped; chunk headers are opened in
+        the background threads. Failures are left to the loader's reads (one line each)."""
+        files = self._files
+        if not isinstance(files, remote.RemoteSource) or self._closed:
+            return []
+        todo: list[tuple[int, int, int, int]] = []
+        with self._lock:
+            if len(self._bytes_asked) > 200_000:  # a long session: forget, re-ask is cheap
+                self._bytes_asked.clear()
+                self._keys_asked.clear()
+            for k in keys:
+                key = (int(k[0]), int(k[1]), int(k[2]))
+                if key in self._keys_asked:
+                    continue
+                self._keys_asked.add(key)
+                for block in self._tile_blocks(key):
+                    if block not in self._bytes_asked and block not in self._blocks:
+                        self._bytes_asked.add(block)
+                        todo.append(block)
+            if not todo:
+                return []
+            if self._bytes_pool is None:
+                self._bytes_pool = ThreadPoolExecutor(
+                    max_workers=files.options.max_requests, thread_name_prefix="tilebytes"
+                )
+            pool = self._bytes_pool
+        return [pool.submit(self._warm_block, *block) for block in todo]
+
+    def _tile_blocks(self, key: tuple[int, int, int]) -> list[tuple[int, int, int, int]]:
+        """(level, chunk index, block row, block column) of the chunk blocks a tile's padded
+        window touches (the antimeridian wrap of a global level aside: its ring column is
+        read by the loader itself)."""
+        level, x, y = key
+        if not (0 <= level <= self.max_level):
+            return []
+        grid = self._grids[level]
+        n = grid.tile_nodes
+        iy, ix = y - grid.y0, (x - grid.x0) % self._ncols[level]
+        if not (0 <= iy < grid.ny and 0 <= ix < grid.nx):
+            return []
+        c_n = self._levels[level].chunk_nodes
+        rows_c, cols_c = self._chunk_shape[level]
+        r_lo, r_hi = max(iy * n - 1, 0), min(iy * n + n + 2, grid.height)
+        c_lo, c_hi = max(ix * n - 1, 0), min(ix * n + n + 2, grid.width)
+        out = []
+        for cy in range(min(r_lo // c_n, rows_c - 1), min((r_hi - 1) // c_n, rows_c - 1) + 1):
+            for cx in range(min(c_lo // c_n, cols_c - 1), min((c_hi - 1) // c_n, cols_c - 1) + 1):
+                index = self._chunk_index[level].get((cy, cx))
+                if index is None:
+                    continue
+                bh, bw = self._block_shapes.get((level, index), (BLOCK, BLOCK))
+                ra, rb = max(r_lo - cy * c_n, 0), r_hi - cy * c_n
+                ca, cb = max(c_lo - cx * c_n, 0), c_hi - cx * c_n
+                out += [
+                    (level, index, bi, bj)
+                    for bi in range(ra // bh, (rb - 1) // bh + 1)
+                    for bj in range(ca // bw, (cb - 1) // bw + 1)
+                ]
+        return out
+
+    def _warm_block(self, level: int, index: int, bi: int, bj: int) -> None:
+        """Fetch one block's compressed bytes into the remote caches (a background thread)."""
+        files = self._files
+        if self._closed or not isinstance(files, remote.RemoteSource):
+            return
+        try:
+            ds = self._chunk_dataset(level, index)  # the chunk's header: its block offsets
+            off = ds.get_tag_item(f"BLOCK_OFFSET_{bj}_{bi}", "TIFF", bidx=1)
+            size = ds.get_tag_item(f"BLOCK_SIZE_{bj}_{bi}", "TIFF", bidx=1)
+            if off and size:
+                cy, cx = (int(v) for v in self._levels[level].chunks[index])
+                files.warm(chunk_file_name(level, cy, cx), int(off), int(size))
+        except _WARM_ERRORS:
+            pass  # the loader's own read reports it (one line), or finds the bytes later
+        remote.take_error()
+
     def prefetch(self, keys: Iterable[TileKey | tuple[int, int, int]]) -> list[Future]:
         """Load tiles into the cache in background threads; returns their futures."""
         if self._closed:
@@ -831,6 +922,9 @@ class TileStore:
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
+        if self._bytes_pool is not None:
+            self._bytes_pool.shutdown(wait=True, cancel_futures=True)
+            self._bytes_pool = None
         with self._lock:
             for ds in self._all_handles:
                 remote.close_dataset(ds)  # (a remote one in its opening thread's context)

@@ -696,6 +696,30 @@ def test_a_thread_forbidden_the_network_never_waits(
     assert len(served.requests("*/level_12_r0001_c0001.tif")) <= 4
 
 
+def test_prefetch_bytes_fetches_a_frames_blocks_concurrently(
+    store_root: Path, served, tmp_path: Path
+) -> None:
+    """The renderer hands a frame's missing tiles to `prefetch_bytes`: their blocks' bytes
+    arrive several requests at once, and the reads that follow need no request at all."""
+    served.fault("*.tif", delay_s=0.05)
+    opts = _opts(tmp_path, max_requests=4)
+    local = TileStore.open(store_root / "n44")
+    assert local.prefetch_bytes([(12, 2460, 1030)]) == []
+    with TileStore.open(f"{served.url}/n44", remote_options=opts) as st:
+        keys = [k for ks in _level12_by_chunk(st).values() for k in ks[::3]]
+        futures = st.prefetch_bytes(keys)
+        assert futures and st.prefetch_bytes(keys) == []  # each tile's blocks asked once
+        for f in futures:
+            f.result(timeout=60)
+        assert 2 <= served.max_in_flight <= 4
+        served.reset_log()
+        remote.clear_memory()
+        for k in keys:
+            assert np.array_equal(st.heights(k), local.heights(k), equal_nan=True)
+        assert served.requests("*.tif") == []  # every byte already here
+    local.close()
+
+
 def test_closing_a_store_cancels_its_reads_at_once(
     store_root: Path, served, tmp_path: Path
 ) -> None:
