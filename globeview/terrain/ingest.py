@@ -82,6 +82,7 @@ from globeview.terrain.ingest_tasks import (
     STRIDES,
     BuildPlan,
     SourceSpec,
+    close_thread_sources,
     pole_task,
 )
 from globeview.terrain.ingest_tasks import fault_point as _fault_point
@@ -357,7 +358,10 @@ class _Builder:
         self.graph, self.plan_, self.where = graph, plan, where
         self.update = None
         if previous is not None:
-            pole = pole_task(plan, specs)
+            try:
+                pole = pole_task(plan, specs)
+            finally:
+                close_thread_sources()
             self.update = plan_update(
                 previous.path,
                 previous.manifest,

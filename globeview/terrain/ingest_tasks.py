@@ -53,6 +53,7 @@ __all__ = [
     "ChunkResult",
     "SourceSpec",
     "chunk_task",
+    "close_thread_sources",
     "error_task",
     "fault_point",
     "fill_reads_source",
@@ -163,6 +164,14 @@ class SourceSpec:
                 dems.popitem(last=False)[1].close()
         dems.move_to_end(self.token)
         return dem
+
+
+def close_thread_sources() -> None:
+    """Close the source handles this thread opened (a driver thread that ran a task itself:
+    worker threads end with their pool)."""
+    dems = getattr(_local, "dems", None)
+    while dems:
+        dems.popitem()[1].close()
 
 
 @dataclass(frozen=True)
