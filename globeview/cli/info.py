@@ -57,12 +57,14 @@ def run(args: argparse.Namespace) -> int:
 
 
 def is_store(text: str) -> bool:
-    """A store URL (any ``scheme://``: `check_store_url` says which are read) or a folder."""
+    """A store URL (any ``scheme://``: `check_store_url` says which are read) or a folder
+    holding a manifest (any other folder is refused as a DEM is: "is a directory")."""
     from pathlib import Path
 
     from globeview.plugins.store_sources import is_store_url
+    from globeview.terrain.store import MANIFEST_NAME
 
-    return is_store_url(text) or Path(text).is_dir()
+    return is_store_url(text) or (Path(text) / MANIFEST_NAME).is_file()
 
 
 class StoreInfo:
