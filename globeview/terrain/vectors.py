@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from pyproj import Geod
 
-from globeview.errors import GlobeviewError
+from globeview.errors import GlobeviewError, StoreError
 from globeview.terrain.quadtree import key_for_lonlat, tile_bounds_arrays
 
 GEOD = Geod(ellps="WGS84")
@@ -323,7 +323,15 @@ def drape_heights(
         sel = tile == t
         t_level, t_x, t_y = (int(v) for v in keys[t])
         s = max(int(strides[t]), 1)
-        grid = heights((t_level, t_x, t_y))[::s, ::s].astype(np.float64)
+        try:
+            grid = heights((t_level, t_x, t_y))[::s, ::s].astype(np.float64)
+        except StoreError:
+            # A remote tile that cannot be read now (not fetched yet on the window's UI
+            # thread, which never waits for the network, or failed): its points are left
+            # undrawn this time rather than failing the frame.
+            drawn[sel] = False
+            tile[sel] = -1
+            continue
         w, so, e, no = (float(v) for v in tile_bounds_arrays(t_level, t_x, t_y))
         m = grid.shape[0] - 1
         cc = np.clip((wrapped[sel] - w) / (e - w) * m, 0.0, m)

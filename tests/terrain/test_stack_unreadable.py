@@ -98,3 +98,22 @@ def test_unreadable_ancestors_of_virtual_tiles_keep_the_ancestor_bound(vancouver
     top.failing.clear()  # readable again: measured (nothing unmeasured was kept)
     stack._cache.clear()
     np.testing.assert_array_equal(stack.metadata(level, xs, ys).stride_error, ref)
+
+
+def test_drape_leaves_points_on_unreadable_tiles_undrawn() -> None:
+    """Vector and point overlays drape on the drawn tiles' heights on the UI thread: a tile
+    that cannot be read now leaves its points undrawn instead of failing the frame."""
+    from globeview.terrain.vectors import drape_heights
+
+    keys = np.array([[1, 0, 0], [1, 1, 0]])  # two level-1 tiles: west of -90 and -90..0, north
+
+    def heights(key):
+        if tuple(key) == (1, 1, 0):
+            raise StoreError("tile (1, 1, 0): not loaded yet (injected)")
+        return np.full((65, 65), 100.0, np.float32)
+
+    lon = np.array([-135.0, -45.0])
+    lat = np.array([45.0, 45.0])
+    h, drawn, tile = drape_heights(heights, keys, np.array([1, 1]), lon, lat)
+    assert drawn.tolist() == [True, False] and tile.tolist() == [0, -1]
+    assert h[0] == pytest.approx(100.0)
