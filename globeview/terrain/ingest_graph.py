@@ -18,10 +18,14 @@ the building folder, so a task's memory is bounded by one chunk and the same gra
 cluster whose workers share that folder. The driver (`globeview.terrain.ingest`) folds the
 results, writes the level VRTs and the manifest, and commits.
 
+An incremental update (`ingest_update`) runs the same graph with the results of the tasks
+that the changed sources do not reach supplied as data (`Graph.keep`).
+
 Schedulers: threads (dask's local threaded scheduler, our own pool so that a failure can
 wait for every task in flight before the building folder is removed), processes (dask's
 multiprocessing scheduler over a spawned process pool), or an existing ``dask.distributed``
-scheduler at tcp://HOST:PORT (futures, `as_completed` for progress).
+scheduler at tcp://HOST:PORT (futures, `as_completed` for progress), asked for its
+identity first with a hard deadline (`probe_scheduler`).
 """
 
 from __future__ import annotations
