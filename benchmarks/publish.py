@@ -89,7 +89,11 @@ JOBS: dict[str, Job] = {
         ),
         Job("soak", ("-m", "globeview", "bench", "soak", "--frames", "200")),
         # Issue #18: ingest (today's, Dask 1/all cores, LocalCluster, GDAL) and remote stores.
-        Job("ingest", ("benchmarks/bench_ingest.py", "--sizes", "4096,8192"), (DOCS, README)),
+        Job(
+            "ingest",
+            ("benchmarks/bench_ingest.py", "--sizes", "4096,8192", "--rounds", "3"),
+            (DOCS, README),
+        ),
         Job("remote", ("benchmarks/bench_remote.py", "--rounds", "3")),
     )
 }
