@@ -41,6 +41,7 @@ import json
 import os
 import platform
 import shutil
+import signal
 import statistics
 import subprocess
 import sys
@@ -167,7 +168,12 @@ def _wait_child(spec: dict, env: dict[str, str] | None = None) -> dict:
     ]
     for r in readers:
         r.start()
-    _, status, usage = os.wait4(proc.pid, 0)
+    try:
+        _, status, usage = os.wait4(proc.pid, 0)
+    except BaseException:  # Ctrl-C, or SIGTERM made SystemExit by main(): no orphan child
+        proc.terminate()
+        proc.wait(timeout=30)
+        raise
     proc.returncode = os.waitstatus_to_exitcode(status)
     for r in readers:
         r.join()
@@ -474,6 +480,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.api:
             _api_child()
             return 0
+        # SIGTERM as an exception, so the child under way is ended too (_wait_child).
+        signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
         if not (ROOT / "globeview").is_dir():
             raise BenchError("run from a source checkout (benchmarks/ beside globeview/)")
         print(_header())
