@@ -79,12 +79,15 @@ class SchedulerChoice:
 
 
 # Local default: threads, not processes. Measured on benchmarks/cache/big_dem_8192.tif
-# (8192^2 float32, 15 levels, 61 chunk + 60 error tasks) on this 2-core machine, 3
-# interleaved rounds (load 4-6.6: six sessions shared it), medians: 2 threads 23.4 s wall,
-# 12.9 s CPU, 363 MB; 2 spawned processes 32.6 s wall, 14.6 s CPU (+1.7 s: interpreter
-# start, imports, pickled arguments), 327 MB each; 1 thread 20.5 s, 12.1 s CPU. The tasks
-# spend their time in GDAL (warp, deflate, inflate) and large numpy operations, which
-# release the GIL, so threads share one process's imports and GDAL cache at no loss.
+# (8192^2 float32, 15 levels, 61 chunk + 60 error tasks) on this 2-core machine shared with
+# five other sessions, 3 interleaved rounds each, medians (22:43 UTC, load 2.9-3.7): 1 thread
+# 12.0 s wall / 12.0 s CPU; 2 threads 10.5 s / 13.0 s / 368 MB; 2 spawned processes 10.9 s /
+# 13.4 s / 327 MB each (+ interpreter start and imports per process: a small DEM ingests in
+# 0.6 s on threads, 2.8 s on processes). At load 4-6.6 (earlier): 2 threads 23.4 s, 2
+# processes 32.6 s. The tasks spend their time in GDAL (warp, deflate, inflate), which
+# releases the GIL (a thread polling every 1 ms during a 400 ms warp, a chunk write or read
+# waited at most 4-8 ms), and large numpy operations, so threads share one process's imports
+# and GDAL cache at no loss.
 DEFAULT_LOCAL = "threads"
 
 
