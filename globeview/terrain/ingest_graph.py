@@ -59,6 +59,8 @@ __all__ = [
     "run_graph",
 ]
 
+#: Most local workers (the CLI's bound too): each thread may hold a chunk task's arrays.
+MAX_WORKERS = 4096
 #: How long to wait for a dask.distributed scheduler to answer before giving up (seconds).
 CONNECT_TIMEOUT_S = 5.0
 #: How long a failed distributed build waits for the tasks still running on the workers to
@@ -104,6 +106,8 @@ def parse_scheduler(workers: object, scheduler: object) -> SchedulerChoice:
         raise StoreError(f"--workers must be a whole number >= 1, got {str(workers)[:40]!r}")
     elif workers < 1:
         raise StoreError(f"--workers must be >= 1, got {workers}")
+    elif workers > MAX_WORKERS:
+        raise StoreError(f"--workers must be in 1..{MAX_WORKERS}, got {workers}")
     else:
         n = workers
     if scheduler is None:

@@ -133,6 +133,7 @@ def test_a_dem_pickles_without_its_value_scan(monkeypatch: pytest.MonkeyPatch) -
         ({"workers": "x"}, "--workers must be a whole number"),
         ({"workers": 1.5}, "--workers must be a whole number"),
         ({"workers": True}, "--workers must be a whole number"),
+        ({"workers": 10**9}, "--workers must be in 1..4096"),
         ({"scheduler": "x"}, "--scheduler must be tcp://HOST:PORT"),
         ({"scheduler": "http://127.0.0.1:8786"}, "--scheduler must be tcp://HOST:PORT"),
         ({"scheduler": "tcp://"}, "--scheduler must be tcp://HOST:PORT"),
