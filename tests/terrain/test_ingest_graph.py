@@ -208,3 +208,26 @@ def test_a_failing_task_on_the_cluster_is_one_line_and_leaves_the_old_store(
             client.run(lambda: os.environ.pop(FAULT_ENV, None))
     assert str(exc.value).startswith(f"disk full writing {out}") and "\n" not in str(exc.value)
     assert _files(out) == before and _leftovers(tmp_path) == []
+
+
+def test_a_worker_that_dies_is_one_line_and_leaves_nothing(tmp_path: Path) -> None:
+    """kill -9 of the worker running a chunk (every time it is retried): one StoreError line,
+    no store, no building folder (the tasks still running elsewhere finish first)."""
+    import dask
+    from distributed import LocalCluster
+
+    with (
+        dask.config.set({"distributed.scheduler.allowed-failures": 1}),
+        LocalCluster(
+            n_workers=2,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            env={FAULT_ENV: "KILL@3"},  # every worker, restarted ones too
+        ) as c,
+        pytest.raises(StoreError) as exc,
+    ):
+        ingest([ETOPO], tmp_path / "s", scheduler=c.scheduler_address, **ETOPO_KW)
+    msg = str(exc.value)
+    assert msg.startswith("a dask worker died running chunk-") and "\n" not in msg
+    assert list(tmp_path.iterdir()) == []
