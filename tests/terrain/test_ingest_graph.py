@@ -49,7 +49,7 @@ def reference(tmp_path_factory: pytest.TempPathFactory) -> dict[str, bytes]:
 def cluster():
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0"
     ) as c:
         yield c
 
@@ -222,7 +222,7 @@ def test_a_worker_that_dies_is_one_line_and_leaves_nothing(tmp_path: Path) -> No
             n_workers=2,
             threads_per_worker=1,
             processes=True,
-            dashboard_address=None,
+            dashboard_address=":0",
             env={FAULT_ENV: "KILL@3"},  # every worker, restarted ones too
         ) as c,
         pytest.raises(StoreError) as exc,
