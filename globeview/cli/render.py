@@ -522,6 +522,16 @@ def run(args: argparse.Namespace) -> int:
     st = result.stats
     failures = plugin_failures(scene, args.lod, tool_name)
     tiles_failed = int(st.extra.get("tiles_failed", 0))
+    dead = [x for x in stores if getattr(x, "is_remote", False) and x.blocks_read == 0]
+    if tiles_failed and dead:
+        # Not one block of a remote store arrived (its server is down, or refuses every
+        # chunk): a globe without it written with exit 0 would pass for a render of it.
+        from globeview.errors import StoreError
+
+        raise StoreError(
+            f"no tile of {dead[0].location} could be read ({first_tile_failure(scene)}); "
+            "nothing written"
+        )
     if tiles_failed:
         failures["tiles"] = f"{tiles_failed} tiles could not be read (drawn from coarser ones)"
     status = tool_status(scene) if tool_name is not None else ""
@@ -550,6 +560,18 @@ def run(args: argparse.Namespace) -> int:
     if status:  # what the tool would say in the window's status bar (e.g. a distance)
         print(status if status.startswith(f"{tool_name}:") else f"{tool_name}: {status}")
     return 0
+
+
+def first_tile_failure(scene) -> str:
+    """The first failed tile's error, one line (what the tile loader kept), or a generic
+    phrase when there is none to show."""
+    loader = getattr(scene.renderer, "loader", None)
+    failed = dict(loader.failed) if loader is not None else {}
+    for exc in failed.values():
+        text = " ".join(str(exc).split())
+        if text:
+            return text if len(text) <= 300 else text[:297] + "..."
+    return "every tile failed"
 
 
 def stream_tiles(scene, fbo, size: tuple[int, int]):

@@ -349,6 +349,9 @@ class TileStore:
         self._closed = False
         #: Decoded blocks by (level, chunk index, block row, block column).
         self._blocks: OrderedDict[tuple[int, int, int, int], np.ndarray] = OrderedDict()
+        #: Raster blocks read from chunk files so far (each counted once per read, not per
+        #: cache hit): 0 after a render means no byte of terrain arrived from this store.
+        self.blocks_read = 0
         #: Tiles loading in the background for a thread that must not wait.
         self._loading: set[TileKey] = set()
         #: `_data_table`s by (level, grow); small, built on first use (races only rebuild).
@@ -713,6 +716,7 @@ class TileStore:
             raise StoreError(f"{self._chunk_where(level, index)}: {_short(exc)}") from None
         _raise_interrupt()
         with self._lock:
+            self.blocks_read += 1
             self._blocks[key] = block
             while len(self._blocks) > BLOCK_CACHE:
                 self._blocks.popitem(last=False)

@@ -173,6 +173,23 @@ def test_tiles_a_server_fails_are_stood_in_and_counted(served, tmp_path: Path) -
         server.clear_faults()
 
 
+def test_a_server_failing_every_chunk_is_one_line_and_writes_nothing(served, tmp_path):
+    """Every chunk answers 503 (the manifest still arrives): not one tile can be drawn, so
+    the render is an error naming the first failure, not an empty globe with exit 0."""
+    server, _ = served
+    server.clear_faults()
+    server.fault("*/store/level_*", status=503)
+    try:
+        out = tmp_path / "x.png"
+        res = globeview("render", f"{server.url}/store", "-o", str(out), "--size", "64x48",
+                        cache=tmp_path / "c", timeout=180)  # fmt: skip
+        line = one_error_line(res)
+        assert "no tile of http" in line and "could be read" in line and "503" in line and "nothing written" in line
+        assert not out.exists()
+    finally:
+        server.clear_faults()
+
+
 def test_ctrl_c_during_a_remote_render_is_one_line_and_quick(served, tmp_path: Path) -> None:
     import signal
     import time
