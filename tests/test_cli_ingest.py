@@ -68,11 +68,12 @@ def _cli(*argv: str) -> subprocess.CompletedProcess:
 
 
 def test_directory_and_missing_source_wording(tmp_path: Path) -> None:
-    # One wording with `globeview info` (open_dem): "is a directory, not a DEM file".
+    # A folder is a folder of DEM tiles (issue #18); one with none in it is one line.
     out = tmp_path / "s"
     r = _cli(str(tmp_path), "--out", str(out))
     assert r.returncode == 2
-    assert r.stderr.splitlines() == [f"globeview: error: {tmp_path} is a directory, not a DEM file"]
+    assert len(r.stderr.splitlines()) == 1
+    assert r.stderr.startswith(f"globeview: error: {tmp_path} is a folder with no DEM files")
     r = _cli(str(tmp_path / "nope.tif"), "--out", str(out))
     assert r.returncode == 2
     assert r.stderr.splitlines() == [

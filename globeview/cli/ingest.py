@@ -23,7 +23,13 @@ _SCHEDULER = re.compile(r"^tcp://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9][A-Za-z0-9.-]{0,
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Register the ingest options on a subcommand parser."""
-    parser.add_argument("sources", nargs="+", metavar="SRC", help="DEM rasters (any GDAL format)")
+    parser.add_argument(
+        "sources",
+        nargs="+",
+        metavar="SRC",
+        help="DEM rasters (any GDAL format), or folders of DEM tiles (the .tif/.hgt/... files "
+        "directly in them; subfolders are not searched)",
+    )
     parser.add_argument("--out", required=True, metavar="STORE", help="store directory to write")
     parser.add_argument(
         "--tile-n", type=int, default=6, help="tiles have 2^N+1 samples a side (default 6: 65)"

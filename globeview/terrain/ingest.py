@@ -55,6 +55,7 @@ import tempfile
 import threading
 import uuid
 from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
@@ -76,6 +77,7 @@ from globeview.terrain.ingest_graph import (
     probe_scheduler,
     run_graph,
 )
+from globeview.terrain.ingest_sources import expand_sources
 from globeview.terrain.ingest_tasks import (
     FAULT_ENV,
     GDAL_CACHE_MB,
@@ -804,6 +806,38 @@ def _check_size(grids: dict[int, LevelGrid], sources: Sequence[_Source], chosen:
 # Public entry point
 
 
+def _open_sources(
+    paths: Sequence[Path],
+    crs: str | None,
+    vdatum: str | None,
+    threads: int,
+    stack: contextlib.ExitStack,
+) -> list[Dem]:
+    """`open_dem` of every path (each scans its values once), on ``threads`` threads (GDAL
+    reads release the GIL), in input order; every Dem opened is closed by ``stack``, and the
+    first failure in input order is raised once all have ended."""
+
+    def one(p: Path) -> Dem:
+        with rasterio.Env(GDAL_CACHEMAX=_GDAL_CACHE_MB * 1024 * 1024):  # per thread
+            return open_dem(p, crs, vdatum)
+
+    if threads <= 1 or len(paths) <= 1:
+        return [stack.enter_context(open_dem(p, crs, vdatum)) for p in paths]
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        futures = [pool.submit(one, p) for p in paths]
+    dems: list[Dem] = []
+    first: BaseException | None = None
+    for f in futures:
+        exc = f.exception()
+        if exc is None:
+            dems.append(stack.enter_context(f.result()))
+        elif first is None:
+            first = exc
+    if first is not None:
+        raise first
+    return dems
+
+
 def _check_sources(paths: Sequence[Path]) -> None:
     """Every source is a readable file, in `open_dem`'s words (before any hashing)."""
     for p in paths:
@@ -881,10 +915,15 @@ def ingest(
             raise StoreError(f"{parent} is not a folder; choose another --out")
         raise StoreError(f"the folder for the store does not exist: {parent}")
 
-    src_paths = [Path(p).absolute() for p in sources]
+    # A folder stands for the DEM files in it (a folder of tiles: `ingest_sources`).
+    src_paths = expand_sources([Path(p).absolute() for p in sources])
     _check_sources(src_paths)
     # Content identity (size, sha256) of each source: the same content elsewhere is the same.
-    contents = [(p.stat().st_size, _sha256(p)) for p in src_paths]
+    # Hashed on a few threads (hashlib releases the GIL): a folder of thousands of tiles is
+    # read at disk speed rather than one file at a time.
+    pool_size = min(len(src_paths), where.workers or os.cpu_count() or 1, 16)
+    with ThreadPoolExecutor(max_workers=max(1, pool_size)) as pool:
+        contents = list(pool.map(lambda p: (p.stat().st_size, _sha256(p)), src_paths))
     if vdatum is not None:
         from globeview.terrain.vdatum import parse_vdatum
 
@@ -904,8 +943,9 @@ def ingest(
         # A fixed GDAL block cache for everything below, the sources' value scan included.
         stack.enter_context(rasterio.Env(GDAL_CACHEMAX=_GDAL_CACHE_MB * 1024 * 1024))
         srcs = []
-        for p, (size, sha256) in zip(src_paths, contents):
-            dem = stack.enter_context(open_dem(p, crs, vdatum))
+        for p, (size, sha256), dem in zip(
+            src_paths, contents, _open_sources(src_paths, crs, vdatum, pool_size, stack)
+        ):
             info = dem.info
             res = float(min(info.res_deg))
             if not (res > 0 and math.isfinite(res)):
@@ -943,7 +983,8 @@ def ingest(
         by_input = list(srcs)
         srcs.sort(key=lambda s: s.res)  # finest first: it wins where it has data
         builder = _Builder(srcs, tile_n, l_max, wavelet, parent, _no_tick)
-        builder.input_order = [next(j for j, t in enumerate(srcs) if t is s) for s in by_input]
+        sorted_at = {id(t): j for j, t in enumerate(srcs)}  # not a search per source: 10^4 tiles
+        builder.input_order = [sorted_at[id(s)] for s in by_input]
         _check_size(builder.grids, srcs, chosen=max_level is not None)
 
         try:

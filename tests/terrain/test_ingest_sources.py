@@ -1,0 +1,127 @@
+"""A folder of DEM tiles as an ingest source (issue #18: "point globeview ingest at a folder
+of DEM tiles"): the folder is its DEM files, sorted; sidecars, hidden files, VRTs and
+subfolders are not read; an empty folder or a store folder is one line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rasterio
+from rasterio.windows import Window
+
+from globeview.errors import DemError
+from globeview.terrain.ingest import ingest
+from globeview.terrain.ingest_sources import expand_sources
+
+SRTM = Path(__file__).resolve().parents[2] / "data" / "N44W072.hgt"
+GLOBEVIEW = Path(sys.executable).with_name("globeview")
+
+
+def split_into_tiles(src: Path, folder: Path) -> list[Path]:
+    """Cut a DEM into 4 GeoTIFF quarters (sharing no pixels), georeferenced as the source."""
+    folder.mkdir()
+    out = []
+    with rasterio.open(src) as ds:
+        h, w = ds.height, ds.width
+        for i, (r0, c0) in enumerate([(0, 0), (0, w // 2), (h // 2, 0), (h // 2, w // 2)]):
+            ww = w // 2 if c0 == 0 else w - w // 2
+            hh = h // 2 if r0 == 0 else h - h // 2
+            win = Window(c0, r0, ww, hh)
+            prof = ds.profile | {
+                "driver": "GTiff",
+                "width": int(win.width),
+                "height": int(win.height),
+                "transform": ds.window_transform(win),
+            }
+            p = folder / f"tile_{i}.tif"
+            with rasterio.open(p, "w", **prof) as dst:
+                dst.write(ds.read(1, window=win), 1)
+                dst.update_tags(**ds.tags())
+            out.append(p)
+    return out
+
+
+def manifest_arrays(store: Path) -> dict:
+    m = json.loads((store / "manifest.json").read_text())
+    return {
+        lv["level"]: (lv["error"], lv["hmin"], lv["hmax"], lv["stride_error"], lv["chunk_sha256"])
+        for lv in m["levels"]
+    }
+
+
+def test_a_folder_of_tiles_ingests_as_its_files(tmp_path: Path) -> None:
+    tiles = split_into_tiles(SRTM, tmp_path / "tiles")
+    # What a download holds beside the tiles: none of it is a DEM to read.
+    (tmp_path / "tiles" / "README.txt").write_text("SRTM tiles")
+    (tmp_path / "tiles" / "tile_0.tif.aux.xml").write_text("<PAMDataset/>")
+    (tmp_path / "tiles" / ".hidden.tif").write_bytes(b"not a tiff")
+    (tmp_path / "tiles" / "sub").mkdir()
+    (tmp_path / "tiles" / "sub" / "other.tif").write_bytes(b"not read either")
+    assert expand_sources([tmp_path / "tiles"]) == tiles
+    a = ingest([tmp_path / "tiles"], tmp_path / "from_folder", vdatum="egm96")
+    b = ingest(tiles, tmp_path / "from_files", vdatum="egm96")
+    assert not a.up_to_date and not b.up_to_date
+    assert manifest_arrays(tmp_path / "from_folder") == manifest_arrays(tmp_path / "from_files")
+    recorded = json.loads((tmp_path / "from_folder" / "manifest.json").read_text())["sources"]
+    assert [Path(s["path"]) for s in recorded] == tiles  # the files, not the folder
+    # The tiles together are the whole DEM: the same heights as the one file.
+    c = ingest([SRTM], tmp_path / "from_one", vdatum="egm96")
+    assert c.max_level == a.max_level
+    with (
+        rasterio.open(tmp_path / "from_one" / f"level_{a.max_level:02d}.vrt") as one,
+        rasterio.open(tmp_path / "from_folder" / f"level_{a.max_level:02d}.vrt") as four,
+    ):
+        x, y = one.read(1), four.read(1)
+    assert x.shape == y.shape and np.isfinite(x).mean() > 0.2
+    both = np.isfinite(x) & np.isfinite(y)
+    same = (x == y) & both
+    print("finest-level nodes identical to the one-file store:", same.sum() / both.sum())  # noqa: T201
+    # The quarters meet at pixel edges: a node between two quarters' last pixel centres is
+    # resampled from one quarter only, so only seam nodes may differ.
+    assert same.sum() / both.sum() > 0.99
+    # A file named twice, through its folder and directly, is read once.
+    assert expand_sources([tmp_path / "tiles", tiles[0]]) == tiles
+
+
+def test_a_tile_changed_in_place_updates_the_store_as_a_full_build_would(tmp_path: Path):
+    tiles = split_into_tiles(SRTM, tmp_path / "tiles")
+    ingest([tmp_path / "tiles"], tmp_path / "s", vdatum="egm96")
+    assert ingest([tmp_path / "tiles"], tmp_path / "s", vdatum="egm96").up_to_date
+    with rasterio.open(tiles[3], "r+") as ds:
+        a = ds.read(1)
+        a[10:20, 10:20] += 50
+        ds.write(a, 1)
+    again = ingest([tmp_path / "tiles"], tmp_path / "s", vdatum="egm96")
+    assert not again.up_to_date and 0 < again.chunks_rebuilt <= again.chunks_total
+    fresh = ingest([tmp_path / "tiles"], tmp_path / "fresh", vdatum="egm96")
+    assert fresh.chunks_rebuilt == fresh.chunks_total
+    assert manifest_arrays(tmp_path / "s") == manifest_arrays(tmp_path / "fresh")
+
+
+def test_an_empty_folder_or_a_store_folder_is_one_line(tmp_path: Path) -> None:
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "empty" / "notes.txt").write_text("no DEM here")
+    with pytest.raises(DemError, match="is a folder with no DEM files in it"):
+        ingest([tmp_path / "empty"], tmp_path / "s")
+    ingest([SRTM], tmp_path / "store", vdatum="egm96")
+    with pytest.raises(DemError, match="is a globeview tile store, not a folder of DEM files"):
+        ingest([tmp_path / "store"], tmp_path / "s2")
+    assert not (tmp_path / "s").exists() and not (tmp_path / "s2").exists()
+    res = subprocess.run(
+        [str(GLOBEVIEW), "ingest", str(tmp_path / "empty"), "--out", str(tmp_path / "s3")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert res.returncode == 2
+    assert res.stderr.splitlines() == [
+        f"globeview: error: {tmp_path / 'empty'} is a folder with no DEM files in it (looked"
+        " for .asc .bil .bt .dem .dt0 .dt1 .dt2 .flt .grd .hgt .img .nc .tif .tiff; subfolders"
+        " are not searched)"
+    ]
+    assert not (tmp_path / "s3").exists()
