@@ -129,14 +129,15 @@ def _child(spec: dict) -> None:
 
 def _run_child(spec: dict) -> dict:
     env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(RUN_CACHE)}
-    env.setdefault("GLOBEVIEW_CONFIG_DIR", tempfile.mkdtemp(prefix="gv-bench-remote-cfg-"))
-    proc = subprocess.run(
-        [sys.executable, str(Path(__file__).resolve()), "--child", json.dumps(spec)],
-        capture_output=True,
-        text=True,
-        env=env,
-        cwd=ROOT,
-    )
+    with tempfile.TemporaryDirectory(prefix="gv-bench-remote-cfg-") as cfg:
+        env.setdefault("GLOBEVIEW_CONFIG_DIR", cfg)  # removed after the run, not left in /tmp
+        proc = subprocess.run(
+            [sys.executable, str(Path(__file__).resolve()), "--child", json.dumps(spec)],
+            capture_output=True,
+            text=True,
+            env=env,
+            cwd=ROOT,
+        )
     line = next((ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")), None)
     if proc.returncode or line is None:
         last = (proc.stderr.strip().splitlines() or ["no message"])[-1]
