@@ -5,34 +5,17 @@ stores do not depend on the number of workers (bit for bit)."""
 from __future__ import annotations
 
 import inspect
-import os
 import socket
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 
+from .run_cli import globeview, one_error_line
+
 DATA = Path(__file__).resolve().parents[2] / "data"
-GLOBEVIEW = Path(sys.executable).with_name("globeview")
+
 SMALL_DEM = DATA / "topobathy_vancouver.tif"
-
-
-def globeview(*args: str, cache: Path, timeout: float = 300) -> subprocess.CompletedProcess:
-    env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(cache)}
-    env.pop("GLOBEVIEW_DEBUG", None)
-    return subprocess.run(
-        [str(GLOBEVIEW), *args], capture_output=True, text=True, timeout=timeout, env=env
-    )
-
-
-def one_error_line(res: subprocess.CompletedProcess) -> str:
-    lines = res.stderr.strip().splitlines()
-    assert res.returncode == 2, (res.returncode, res.stderr)
-    assert len(lines) == 1, res.stderr
-    assert lines[0].startswith("globeview: error: "), lines[0]
-    return lines[0]
 
 
 def closed_port() -> int:

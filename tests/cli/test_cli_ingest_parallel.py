@@ -3,33 +3,15 @@ checked before any source is read (one line, exit 2, nothing written)."""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
+from .run_cli import globeview, one_error_line
+
 DATA = Path(__file__).resolve().parents[2] / "data"
-GLOBEVIEW = Path(sys.executable).with_name("globeview")
+
 SMALL_DEM = DATA / "topobathy_vancouver.tif"
-
-
-def globeview(*args: str, cache: Path, timeout: float = 300) -> subprocess.CompletedProcess:
-    env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(cache)}
-    env.pop("GLOBEVIEW_DEBUG", None)
-    return subprocess.run(
-        [str(GLOBEVIEW), *args], capture_output=True, text=True, timeout=timeout, env=env
-    )
-
-
-def one_error_line(res: subprocess.CompletedProcess) -> str:
-    lines = res.stderr.strip().splitlines()
-    assert res.returncode == 2, (res.returncode, res.stderr)
-    assert len(lines) == 1, res.stderr
-    assert lines[0].startswith("globeview: error: "), lines[0]
-    assert "Traceback" not in res.stderr
-    return lines[0]
 
 
 @pytest.mark.parametrize(

@@ -8,29 +8,11 @@ from __future__ import annotations
 import os
 import socket
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-GLOBEVIEW = Path(sys.executable).with_name("globeview")
-
-
-def globeview(*args: str, cache: Path, timeout: float = 300) -> subprocess.CompletedProcess:
-    env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(cache)}
-    env.pop("GLOBEVIEW_DEBUG", None)
-    return subprocess.run(
-        [str(GLOBEVIEW), *args], capture_output=True, text=True, timeout=timeout, env=env
-    )
-
-
-def one_error_line(res: subprocess.CompletedProcess) -> str:
-    lines = res.stderr.strip().splitlines()
-    assert res.returncode == 2, (res.returncode, res.stderr)
-    assert len(lines) == 1, res.stderr
-    assert lines[0].startswith("globeview: error: "), lines[0]
-    assert "Traceback" not in res.stderr
-    return lines[0]
+from .run_cli import GLOBEVIEW, globeview, one_error_line
 
 
 def closed_port() -> int:
