@@ -5,7 +5,10 @@ of the ellipsoid normal to the equatorial plane), height in metres above the ell
 that normal. ECEF: Earth-centred, Earth-fixed Cartesian metres, z along the polar axis, x
 through (lon 0, lat 0), y through (lon 90, lat 0).
 
-All functions are vectorised and broadcast their inputs; results are float64.
+All functions are vectorised and broadcast their inputs; results are float64. A point that is
+not one (a latitude outside [-90, 90], a NaN or infinite coordinate) gives NaN in every output
+instead of an exception, as the geoid's and the rays' functions do: one bad element of a batch
+does not fail the others.
 """
 
 from __future__ import annotations
@@ -18,6 +21,16 @@ from globeview.geodesy.ellipsoid import WGS84, Ellipsoid
 __all__ = ["ecef_to_geodetic", "ecef_to_lonlat", "geodetic_to_ecef", "lonlat_to_ecef"]
 
 FloatArray = NDArray[np.float64]
+
+#: Beyond this distance from the centre (largest ECEF coordinate, metres) the normal through a
+#: point passes through the centre to double precision (the angle between them is about
+#: e² a / r < 1e-25 rad), so the far-field form is exact there; the closed form's powers of
+#: (r / a) overflow from ~1e58 m on.
+FAR_FIELD_M = 1e30
+#: `ecef_foot_points` subtracts h times the normal from points nearer than this (metres);
+#: farther ones take the round trip, since the subtraction keeps only the point's own
+#: rounding (2 µm at 1e10 m, 16 km at 1e20 m).
+FOOT_DIRECT_MAX_M = 1e10
 
 
 def geodetic_to_ecef(
@@ -35,10 +48,13 @@ def geodetic_to_ecef(
         ellipsoid: the reference ellipsoid.
 
     Returns:
-        ``(x, y, z)`` ECEF coordinates in metres, each of the broadcast input shape.
+        ``(x, y, z)`` ECEF coordinates in metres, each of the broadcast input shape. NaN where
+        the latitude is outside [-90, 90] or not finite (91 degrees is not folded over the
+        pole onto 89 on the far meridian).
     """
     lon = np.radians(np.asarray(lon_deg, dtype=np.float64))
-    lat = np.radians(np.asarray(lat_deg, dtype=np.float64))
+    lat_deg = np.asarray(lat_deg, dtype=np.float64)
+    lat = np.radians(np.where(np.abs(lat_deg) <= 90.0, lat_deg, np.nan))
     h = np.asarray(h_m, dtype=np.float64)
     sin_lat = np.sin(lat)
     cos_lat = np.cos(lat)
@@ -69,7 +85,9 @@ def ecef_to_geodetic(
     Uses Vermeille's analytical method (H. Vermeille, "An analytical method to transform
     geocentric into geodetic coordinates", J. Geodesy 85:105-117, 2011), which is valid
     everywhere: on the polar axis, on the equator, deep inside the Earth (inside the evolute
-    of the meridian ellipse, including the centre) and far out in space.
+    of the meridian ellipse, including the centre) and far out in space. Beyond
+    `FAR_FIELD_M` the far-field form (geocentric latitude, distance less the foot's radius)
+    is taken, which is exact there and does not overflow.
 
     Degenerate points get a definite answer: on the polar axis the longitude is 0; at the
     centre of the Earth the result is the north pole at height ``-b``; on the equatorial plane
@@ -81,13 +99,46 @@ def ecef_to_geodetic(
 
     Returns:
         ``(lon_deg, lat_deg, h_m)``: longitude in degrees in (-180, 180], geodetic latitude in
-        degrees, ellipsoidal height in metres.
+        degrees, ellipsoidal height in metres. NaN, all three, where a coordinate is NaN or
+        infinite (PROJ gives no height there either); h is +inf where the distance from the
+        centre overflows float64 (~1.8e308 m) although the coordinates do not.
     """
     x, y, z = np.broadcast_arrays(
         np.asarray(x, dtype=np.float64),
         np.asarray(y, dtype=np.float64),
         np.asarray(z, dtype=np.float64),
     )
+    finite = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
+    extent = np.maximum(np.maximum(np.abs(x), np.abs(y)), np.abs(z))
+    far = finite & (extent > FAR_FIELD_M)
+    near = finite & ~far
+    if near.all():
+        lat, h = _closed_form(x, y, z, ellipsoid)
+    else:
+        # The closed form gets a stand-in (a point on the equator) for the points it does not
+        # answer, so that none of its powers overflows; those are filled in below.
+        lat, h = _closed_form(
+            np.where(near, x, ellipsoid.a),
+            np.where(near, y, 0.0),
+            np.where(near, z, 0.0),
+            ellipsoid,
+        )
+        lat = np.where(finite, lat, np.nan)
+        h = np.where(finite, h, np.nan)
+        if far.any():
+            lat[far], h[far] = _far_field(x[far], y[far], z[far], extent[far], ellipsoid)
+    with np.errstate(invalid="ignore"):  # atan2 of NaN is NaN, as wanted
+        lon = _wrap_lon_deg(np.degrees(np.arctan2(y, x)))
+    lon = np.where(finite, lon, np.nan)
+    # [()] turns 0-d results (scalar input) into numpy scalars, leaving arrays alone.
+    return lon[()], np.degrees(lat)[()], h[()]
+
+
+def _closed_form(
+    x: FloatArray, y: FloatArray, z: FloatArray, ellipsoid: Ellipsoid
+) -> tuple[FloatArray, FloatArray]:
+    """Vermeille's geodetic latitude (radians) and height (metres) of finite ECEF points
+    (metres) nearer than `FAR_FIELD_M`."""
     a = ellipsoid.a
     e2 = ellipsoid.e2
     e4 = e2 * e2
@@ -128,11 +179,23 @@ def ecef_to_geodetic(
         sin_eq = np.sin(lat_eq)
         h_eq = -a * (1.0 - e2) / np.sqrt(1.0 - e2 * sin_eq * sin_eq)  # -N (1 - e2)
 
-    lat = np.where(general, lat_gen, lat_eq)
-    h = np.where(general, h_gen, h_eq)
-    lon = _wrap_lon_deg(np.degrees(np.arctan2(y, x)))
-    # [()] turns 0-d results (scalar input) into numpy scalars, leaving arrays alone.
-    return lon[()], np.degrees(lat)[()], h[()]
+    return np.where(general, lat_gen, lat_eq), np.where(general, h_gen, h_eq)
+
+
+def _far_field(
+    x: FloatArray, y: FloatArray, z: FloatArray, extent: FloatArray, ellipsoid: Ellipsoid
+) -> tuple[FloatArray, FloatArray]:
+    """Geodetic latitude (radians) and height (metres) of ECEF points (metres) beyond
+    `FAR_FIELD_M`, whose normal runs through the centre: the geocentric latitude, and the
+    distance less the foot's n.foot = a sqrt(1 - e2 sin^2 lat). Computed on the coordinates
+    divided by their largest (``extent``), so only a distance past float64 overflows (inf)."""
+    xs, ys, zs = x / extent, y / extent, z / extent
+    rho = np.hypot(xs, ys)
+    lat = np.arctan2(zs, rho)
+    with np.errstate(over="ignore"):
+        dist = extent * np.hypot(rho, zs)
+    sin_lat = np.sin(lat)
+    return lat, dist - ellipsoid.a * np.sqrt(1.0 - ellipsoid.e2 * sin_lat * sin_lat)
 
 
 def _cardano_root(
@@ -170,16 +233,21 @@ def ecef_foot_points(
     (N,) m of ECEF points (N, 3) m: what `ecef_to_geodetic` then `lonlat_to_ecef` at h = 0
     give, without angles or the round trip (the same closed form; about a third of the
     numpy calls, which is what costs on small batches). Points inside the evolute (within
-    ~43 km of the Earth's centre) take that round trip."""
+    ~43 km of the Earth's centre), beyond `FOOT_DIRECT_MAX_M` or not finite take that round
+    trip (NaN feet and heights for NaN or infinite points)."""
     pts = np.asarray(points_ecef, dtype=np.float64).reshape(-1, 3)
     x, y, z = pts[:, 0], pts[:, 1], pts[:, 2]
     a, e2 = ellipsoid.a, ellipsoid.e2
     rho = np.hypot(x, y)
-    p = (rho / a) ** 2
-    q = (1.0 - e2) * (z / a) ** 2
-    r = (p + q - e2 * e2) / 6.0
-    border = 8.0 * r**3 + e2 * e2 * p * q
-    if not (border > 0.0).all():
+    # Huge or infinite points overflow here; they are sent to the round trip just below.
+    with np.errstate(over="ignore", invalid="ignore"):
+        p = (rho / a) ** 2
+        q = (1.0 - e2) * (z / a) ** 2
+        r = (p + q - e2 * e2) / 6.0
+        border = 8.0 * r**3 + e2 * e2 * p * q
+    # r is about (distance / a)^2 / 6; NaN for a NaN point, which fails the test below too.
+    r_direct_max = (FOOT_DIRECT_MAX_M / a) ** 2 / 6.0
+    if not ((border > 0.0) & (r < r_direct_max)).all():
         lon, lat, h = ecef_to_geodetic(x, y, z, ellipsoid)
         foot = np.stack(geodetic_to_ecef(lon, lat, 0.0, ellipsoid), axis=-1).reshape(-1, 3)
         return foot, np.asarray(h, dtype=np.float64).reshape(-1)
@@ -208,7 +276,8 @@ def lonlat_to_ecef(
         ellipsoid: the reference ellipsoid.
 
     Returns:
-        ECEF positions in metres, shape ``(..., 3)`` for inputs broadcasting to ``(...)``.
+        ECEF positions in metres, shape ``(..., 3)`` for inputs broadcasting to ``(...)``;
+        NaN (all three) where the latitude is outside [-90, 90] or not finite.
     """
     return np.stack(geodetic_to_ecef(lon, lat, h, ellipsoid), axis=-1)
 
@@ -219,7 +288,8 @@ def ecef_to_lonlat(
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Convert stacked ECEF points ``(..., 3)`` in metres to ``(lon_deg, lat_deg, h_m)``.
 
-    Each output has shape ``(...)``; see `ecef_to_geodetic` for conventions.
+    Each output has shape ``(...)``; see `ecef_to_geodetic` for conventions (NaN for NaN or
+    infinite points).
     """
     xyz = np.asarray(xyz, dtype=np.float64)
     if xyz.shape[-1:] != (3,):

@@ -11,6 +11,7 @@ from globeview.geodesy import (
     SPHERE,
     WGS84,
     Ellipsoid,
+    ecef_foot_points,
     ecef_to_geodetic,
     ecef_to_lonlat,
     geodetic_to_ecef,
@@ -157,3 +158,82 @@ def test_property_round_trip(lon: float, lat: float, h: float) -> None:
         assert np.hypot(x, y) < 1e-3 or _lon_diff(lon2, lon) <= 1e-9
     back = np.array(geodetic_to_ecef(lon2, lat2, h2))
     assert np.linalg.norm(back - np.array([x, y, z])) <= 1e-6
+
+
+#: ECEF points (metres) no position on Earth has: infinite, NaN.
+NON_FINITE_ECEF = [
+    (np.inf, 0.0, 0.0),
+    (-np.inf, 0.0, 0.0),
+    (0.0, 0.0, np.inf),
+    (0.0, 0.0, -np.inf),
+    (np.inf, np.inf, np.inf),
+    (np.inf, -np.inf, 1.0),
+    (np.nan, 0.0, 0.0),
+    (1e7, np.nan, 0.0),
+    (0.0, 0.0, np.nan),
+]
+
+
+def test_non_finite_ecef_gives_nan_where_proj_gives_no_point() -> None:
+    pts = np.array(NON_FINITE_ECEF)
+    inv = Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True)
+    _, _, rh = inv.transform(pts[:, 0], pts[:, 1], pts[:, 2])
+    assert not np.isfinite(rh).any()  # PROJ: no height (inf or NaN)
+    lon, lat, h = ecef_to_lonlat(pts)
+    # Not a point 6 335 km below the equator (what the closed form made of x = inf).
+    assert np.isnan(lon).all() and np.isnan(lat).all() and np.isnan(h).all()
+    assert np.isnan(ecef_to_geodetic(np.inf, 0.0, 0.0)[2])
+
+
+def test_foot_points_of_non_finite_ecef_are_nan() -> None:
+    foot, h = ecef_foot_points(np.array(NON_FINITE_ECEF))
+    assert np.isnan(foot).all() and np.isnan(h).all()
+    # Mixed with good points, the good ones keep their feet.
+    good = lonlat_to_ecef(10.0, 45.0, 1000.0)
+    foot, h = ecef_foot_points(np.stack([good, [np.inf, 0.0, 0.0]]))
+    np.testing.assert_allclose(foot[0], lonlat_to_ecef(10.0, 45.0, 0.0), atol=1e-6)
+    assert h[0] == pytest.approx(1000.0, abs=1e-6) and np.isnan(h[1]) and np.isnan(foot[1]).all()
+
+
+@pytest.mark.parametrize("r", [1e20, 1e30, 1e59, 1e100, 1e154, 1e200, 1e300])
+def test_huge_ecef_is_the_far_field_point_not_an_overflow(r: float) -> None:
+    # Far out the normal through the point passes (to double precision) through the centre:
+    # the geodetic latitude is the geocentric one and h is the distance less the foot's
+    # radius. The closed form's powers overflowed from ~1e58 m on (NaN, or inf - inf).
+    d = np.array([[1.0, 0.0, 1.0], [-3.0, 4.0, -12.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    pts = d * r
+    lon, lat, h = ecef_to_lonlat(pts)
+    want_lat = np.degrees(np.arctan2(d[:, 2], np.hypot(d[:, 0], d[:, 1])))
+    np.testing.assert_allclose(lat, want_lat, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(lon, np.degrees(np.arctan2(d[:, 1], d[:, 0])), atol=1e-12)
+    np.testing.assert_allclose(h, r, rtol=1e-12)
+    # Where PROJ answers, ours agrees with it.
+    inv = Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True)
+    _, rlat, rh = inv.transform(pts[:, 0], pts[:, 1], pts[:, 2])
+    ok = np.isfinite(rh)
+    np.testing.assert_allclose(lat[ok], rlat[ok], atol=1e-12)
+    np.testing.assert_allclose(h[ok], rh[ok], rtol=1e-12)
+    # The feet are on the ellipsoid, under the point (not the point less h times a normal,
+    # which loses everything below the point's own rounding: 16 km at 1e20 m).
+    foot, hf = ecef_foot_points(pts)
+    np.testing.assert_allclose(foot, lonlat_to_ecef(lon, lat, 0.0), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(hf, h, rtol=1e-12)
+
+
+def test_ecef_beyond_the_float_range_of_h_gives_inf_height() -> None:
+    # |P| overflows float64 although each coordinate is finite: h is inf, the angles exact.
+    lon, lat, h = ecef_to_geodetic(1.5e308, 1.5e308, 1.5e308)
+    assert lon == pytest.approx(45.0) and lat == pytest.approx(np.degrees(np.arctan(0.5**0.5)))
+    assert h == np.inf
+
+
+@pytest.mark.parametrize("lat", [90.0000001, 91.0, 180.0, -90.5, -270.0, np.inf, -np.inf, np.nan])
+def test_latitudes_beyond_the_poles_give_nan(lat: float) -> None:
+    # 91 degrees is no latitude: not the point at 89 degrees on the far meridian.
+    xyz = lonlat_to_ecef(np.array([0.0, 10.0]), np.array([lat, 45.0]), 100.0)
+    assert np.isnan(xyz[0]).all()
+    np.testing.assert_allclose(xyz[1], lonlat_to_ecef(10.0, 45.0, 100.0), atol=0)
+    assert np.isnan(geodetic_to_ecef(0.0, lat, 0.0)).all()
+    # The poles themselves are latitudes.
+    assert np.isfinite(lonlat_to_ecef(0.0, [90.0, -90.0])).all()
