@@ -6,7 +6,10 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["check_finite", "check_number"]
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ["check_finite", "check_number", "check_numbers"]
 
 
 def check_number(name: str, value: float, lo: float, hi: float, unit: str = "") -> float:
@@ -26,3 +29,18 @@ def check_number(name: str, value: float, lo: float, hi: float, unit: str = "") 
 def check_finite(name: str, value: float) -> float:
     """``value`` as a float if it is finite, else ValueError naming ``name``."""
     return check_number(name, value, -math.inf, math.inf)
+
+
+def check_numbers(
+    name: str, values: ArrayLike, lo: float = -math.inf, hi: float = math.inf, unit: str = ""
+) -> NDArray[np.float64]:
+    """`check_number` for an array: ``values`` as float64 if every element is finite and within
+    ``lo..hi``, else `check_number`'s ValueError for the first that is not."""
+    try:
+        arr = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be numbers, not {values!r:.80}") from None
+    bad = ~(np.isfinite(arr) & (arr >= lo) & (arr <= hi))
+    if bad.any():
+        check_number(name, float(arr[bad].flat[0]), lo, hi, unit)
+    return arr

@@ -1,6 +1,10 @@
 """Geodesics on the ellipsoid (shortest paths), via pyproj.Geod (Karney's algorithms).
 
 Angles are degrees, azimuths clockwise from north, distances metres along the ellipsoid.
+Unlike the conversions in `globeview.geodesy.transforms` (NaN for a bad element), these
+refuse bad input with a ValueError naming the value (`globeview.validate`): a latitude
+outside [-90, 90] or a NaN/infinite number. PROJ would answer NaN without a word, and a path
+or a distance between places that do not exist is a caller's bug, not data.
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ from numpy.typing import ArrayLike, NDArray
 from pyproj import Geod
 
 from globeview.geodesy.ellipsoid import WGS84, Ellipsoid
+from globeview.validate import check_number, check_numbers
 
 __all__ = ["geodesic_direct", "geodesic_inverse", "geodesic_points"]
 
@@ -29,6 +34,15 @@ def _float_arrays(*values: ArrayLike) -> list[FloatArray]:
     # pyproj wants equal shapes and writable float64 buffers: broadcast, then copy.
     arrays = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in values))
     return [np.array(a, dtype=np.float64, copy=True) for a in arrays]
+
+
+def _checked_point(which: str, lon: ArrayLike, lat: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """Finite longitudes and latitudes in [-90, 90] (degrees) of ``which``, as float64;
+    ValueError naming the first bad value otherwise."""
+    return (
+        check_numbers(f"longitude of {which}", lon, unit=" deg"),
+        check_numbers(f"latitude of {which}", lat, -90.0, 90.0, " deg"),
+    )
 
 
 def geodesic_inverse(
@@ -48,8 +62,13 @@ def geodesic_inverse(
         ``(azimuth12_deg, azimuth21_deg, distance_m)``: the azimuth at point 1 toward
         point 2, the azimuth at point 2 toward point 1 (the back azimuth), both in
         (-180, 180], and the geodesic distance in metres.
+
+    Raises:
+        ValueError: a longitude not finite, a latitude outside [-90, 90] or not finite.
     """
-    a1, b1, a2, b2 = _float_arrays(lon1, lat1, lon2, lat2)
+    a1, b1, a2, b2 = _float_arrays(
+        *_checked_point("point 1", lon1, lat1), *_checked_point("point 2", lon2, lat2)
+    )
     az12, az21, dist = _geod(ellipsoid).inv(a1, b1, a2, b2, return_back_azimuth=True)
     return (
         np.asarray(az12, dtype=np.float64)[()],
@@ -76,8 +95,16 @@ def geodesic_direct(
     Returns:
         ``(lon2, lat2, back_azimuth_deg)``: end point in degrees (longitude in [-180, 180])
         and the azimuth at the end point pointing back toward the start.
+
+    Raises:
+        ValueError: a longitude, azimuth or distance not finite, a latitude outside
+            [-90, 90] or not finite.
     """
-    a, b, az, dist = _float_arrays(lon, lat, azimuth_deg, distance_m)
+    a, b, az, dist = _float_arrays(
+        *_checked_point("the start point", lon, lat),
+        check_numbers("azimuth", azimuth_deg, unit=" deg"),
+        check_numbers("distance", distance_m, unit=" m"),
+    )
     lon2, lat2, back = _geod(ellipsoid).fwd(a, b, az, dist, return_back_azimuth=True)
     return (
         np.asarray(lon2, dtype=np.float64)[()],
@@ -104,9 +131,17 @@ def geodesic_points(
     Returns:
         ``(lons, lats)`` in degrees, 1-D arrays of equal length >= 2, starting at point 1 and
         ending at point 2, consecutive points equally spaced by at most ``spacing_m``.
+
+    Raises:
+        ValueError: a bad spacing, a longitude not finite, a latitude outside [-90, 90] or
+            not finite.
     """
     if not (spacing_m > 0 and math.isfinite(spacing_m)):
         raise ValueError(f"spacing must be a positive finite length in metres, got {spacing_m}")
+    lon1 = check_number("longitude of point 1", lon1, -math.inf, math.inf, " deg")
+    lat1 = check_number("latitude of point 1", lat1, -90.0, 90.0, " deg")
+    lon2 = check_number("longitude of point 2", lon2, -math.inf, math.inf, " deg")
+    lat2 = check_number("latitude of point 2", lat2, -90.0, 90.0, " deg")
     geod = _geod(ellipsoid)
     _, _, dist = geod.inv(lon1, lat1, lon2, lat2, return_back_azimuth=True)
     npts = max(math.ceil(dist / spacing_m) + 1, 2)

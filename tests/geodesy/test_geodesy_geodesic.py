@@ -96,3 +96,23 @@ def test_points_degenerate_and_invalid() -> None:
         geodesic_points(0.0, 0.0, 1.0, 1.0, 0.0)
     with pytest.raises(ValueError, match="spacing"):
         geodesic_points(0.0, 0.0, 1.0, 1.0, float("nan"))
+
+
+@pytest.mark.parametrize(
+    ("call", "words"),
+    [
+        (lambda: geodesic_inverse(0.0, 91.0, 0.0, 0.0), "latitude of point 1 .* -90..90"),
+        (lambda: geodesic_inverse(0.0, 0.0, 0.0, -90.0000001), "latitude of point 2"),
+        (lambda: geodesic_inverse([0.0, 1.0], [0.0, np.nan], 0.0, 0.0), "not nan"),
+        (lambda: geodesic_inverse(np.inf, 0.0, 0.0, 0.0), "longitude of point 1 .* not inf"),
+        (lambda: geodesic_direct(0.0, 95.0, 0.0, 1.0), "latitude .* not 95"),
+        (lambda: geodesic_direct(0.0, 0.0, np.nan, 1.0), "azimuth"),
+        (lambda: geodesic_direct(0.0, 0.0, 0.0, np.inf), "distance"),
+        (lambda: geodesic_points(0.0, 0.0, 0.0, 100.0, 1e3), "latitude of point 2"),
+        (lambda: geodesic_points(np.nan, 0.0, 0.0, 1.0, 1e3), "longitude of point 1"),
+    ],
+)
+def test_bad_latitudes_and_non_finite_inputs_raise(call, words: str) -> None:
+    # PROJ's answer to these is NaN without a word; the caller learns which value was bad.
+    with pytest.raises(ValueError, match=words):
+        call()
