@@ -45,6 +45,13 @@ def _checked_point(which: str, lon: ArrayLike, lat: ArrayLike) -> tuple[FloatArr
     )
 
 
+def _azimuth(az: ArrayLike) -> FloatArray:
+    """Azimuths (degrees) from PROJ's [-180, 180] into (-180, 180]: due south is 180, and
+    -0 is 0 (adding 0.0 turns -0.0 into 0.0)."""
+    a = np.asarray(az, dtype=np.float64)
+    return np.where(a <= -180.0, a + 360.0, a) + 0.0
+
+
 def geodesic_inverse(
     lon1: ArrayLike,
     lat1: ArrayLike,
@@ -71,8 +78,8 @@ def geodesic_inverse(
     )
     az12, az21, dist = _geod(ellipsoid).inv(a1, b1, a2, b2, return_back_azimuth=True)
     return (
-        np.asarray(az12, dtype=np.float64)[()],
-        np.asarray(az21, dtype=np.float64)[()],
+        _azimuth(az12)[()],
+        _azimuth(az21)[()],
         np.asarray(dist, dtype=np.float64)[()],
     )
 
@@ -94,7 +101,7 @@ def geodesic_direct(
 
     Returns:
         ``(lon2, lat2, back_azimuth_deg)``: end point in degrees (longitude in [-180, 180])
-        and the azimuth at the end point pointing back toward the start.
+        and the azimuth at the end point pointing back toward the start, in (-180, 180].
 
     Raises:
         ValueError: a longitude, azimuth or distance not finite, a latitude outside
@@ -109,7 +116,7 @@ def geodesic_direct(
     return (
         np.asarray(lon2, dtype=np.float64)[()],
         np.asarray(lat2, dtype=np.float64)[()],
-        np.asarray(back, dtype=np.float64)[()],
+        _azimuth(back)[()],
     )
 
 

@@ -99,6 +99,23 @@ def test_points_degenerate_and_invalid() -> None:
 
 
 @pytest.mark.parametrize(
+    "pair",
+    [(0.0, -45.0, -180.0, -45.0), (10.0, -45.0, -170.0, -45.0), (0.0, -90.0, -180.0, 0.0)],
+)
+def test_azimuths_are_in_the_documented_range(pair: tuple) -> None:
+    # Due south is 180, not -180: the docstring's range is (-180, 180].
+    az12, az21, _ = geodesic_inverse(*pair)
+    assert az12 == 180.0 and az21 == 180.0
+    lon1, lat1, lon2, lat2 = _random_pairs(2000, seed=9)
+    lon2[:500] = lon1[:500] + 180.0  # meridional pairs: azimuths of exactly +-180
+    lat1[:250], lat2[250:500] = -45.0, -45.0
+    for az in geodesic_inverse(lon1, lat1, lon2, lat2)[:2]:
+        assert np.all((az > -180.0) & (az <= 180.0))
+    _, _, back = geodesic_direct(lon1, lat1, 0.0, 1000.0)
+    assert np.all((back > -180.0) & (back <= 180.0))
+
+
+@pytest.mark.parametrize(
     ("call", "words"),
     [
         (lambda: geodesic_inverse(0.0, 91.0, 0.0, 0.0), "latitude of point 1 .* -90..90"),
