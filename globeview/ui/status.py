@@ -30,9 +30,14 @@ HEIGHT_UNITS = {ORTHOMETRIC: "m a.s.l.", ELLIPSOIDAL: "m ell."}
 
 def format_lonlat(lon: float, lat: float) -> str:
     """``49.28000°N 123.12000°W`` (degrees, five decimals ≈ 1 m)."""
-    ns = "N" if lat >= 0 else "S"
-    ew = "E" if lon >= 0 else "W"
-    return f"{abs(lat):.5f}°{ns} {abs(lon):.5f}°{ew}"
+    return f"{_hemisphere(lat, 'N', 'S')} {_hemisphere(lon, 'E', 'W')}"
+
+
+def _hemisphere(deg: float, positive: str, negative: str) -> str:
+    """``|deg|`` to five decimals and its hemisphere letter. What shows as zero (a negative
+    zero, -4e-6) is on the equator or the prime meridian: N or E, never 0.00000°S."""
+    shown = f"{abs(deg):.5f}"
+    return f"{shown}°{negative if deg < 0 and float(shown) != 0.0 else positive}"
 
 
 def format_distance(m: float) -> str:
