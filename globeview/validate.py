@@ -5,11 +5,34 @@ shows it as is)."""
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["check_finite", "check_number", "check_numbers"]
+__all__ = ["check_finite", "check_number", "check_numbers", "format_number", "parse_float"]
+
+#: A number as people write one: ASCII digits with an optional fraction and exponent, or
+#: nan/inf (refused later as not finite, with the reason). Python's float() also reads "1_0"
+#: as 10 (a typo for 1.0 or 1,0 becomes a place 9 degrees away) and other scripts' digits.
+_NUMBER = re.compile(
+    r"[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:e[+-]?\d+)?|nan|inf|infinity)", re.ASCII | re.IGNORECASE
+)
+
+
+def parse_float(text: str) -> float:
+    """``text`` (surrounding spaces allowed) as a float if it is a number as people write one
+    (`_NUMBER`), else ValueError, as float() raises for what it does not read."""
+    if not _NUMBER.fullmatch(text.strip()):
+        raise ValueError(f"could not convert string to float: {text!r}")
+    return float(text)
+
+
+def format_number(value: float) -> str:
+    """``value`` for a message: short (``%g``) when that is exactly the value, else every digit
+    (``repr``), so a latitude of 90.0000001 does not read as 90 in "outside -90..90"."""
+    short = f"{value:g}"
+    return short if float(short) == value or not math.isfinite(value) else repr(float(value))
 
 
 def check_number(name: str, value: float, lo: float, hi: float, unit: str = "") -> float:
@@ -22,7 +45,7 @@ def check_number(name: str, value: float, lo: float, hi: float, unit: str = "") 
         raise ValueError(f"{name} must be a number, not {value!r}") from None
     if not (math.isfinite(v) and lo <= v <= hi):
         span = f" in {lo:g}..{hi:g}{unit}" if math.isfinite(lo) or math.isfinite(hi) else ""
-        raise ValueError(f"{name} must be a finite number{span}, not {v:g}")
+        raise ValueError(f"{name} must be a finite number{span}, not {format_number(v)}")
     return v
 
 

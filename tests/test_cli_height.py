@@ -89,6 +89,12 @@ def test_table_and_points_off_the_data(env: dict[str, str]) -> None:
         (["nan,44", "data/N44W072.hgt"], "finite"),
         (["-nan,44", "data/N44W072.hgt"], "finite"),
         (["-71.3,91", "data/N44W072.hgt"], "latitude"),
+        # Not "latitude 90 is outside -90..90": the value as given, every digit.
+        (["0,90.0000001", "data/N44W072.hgt"], "latitude 90.0000001 is outside"),
+        (["0,-90.00000000001", "data/N44W072.hgt"], "latitude -90.00000000001 is outside"),
+        # Python's float() reads "1_0" as 10; a coordinate is not Python.
+        (["1_0,2", "data/N44W072.hgt"], "LON,LAT"),
+        (["-71.3,4_4", "data/N44W072.hgt"], "LON,LAT"),
         (["-71.3,abc", "data/N44W072.hgt"], "LON,LAT"),
         (["1,2,3", "data/N44W072.hgt"], "LON,LAT"),
         (["data/N44W072.hgt"], "no point"),

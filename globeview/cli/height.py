@@ -58,20 +58,22 @@ def _flags_first(args: list[str]) -> list[str]:
 
 def parse_point(text: str) -> tuple[float, float]:
     """``"LON,LAT"`` -> (lon, lat) degrees; a `GlobeviewError` for anything else (not two
-    numbers, NaN/inf, latitude beyond ±90)."""
+    numbers as people write them, NaN/inf, latitude beyond ±90)."""
     from globeview.errors import GlobeviewError
+    from globeview.validate import format_number, parse_float
 
     parts = text.split(",")
     try:
         if len(parts) != 2:
             raise ValueError
-        lon, lat = float(parts[0]), float(parts[1])
+        lon, lat = parse_float(parts[0]), parse_float(parts[1])
     except ValueError:
         raise GlobeviewError(f"point {text!r}: expected LON,LAT in degrees") from None
     if not (math.isfinite(lon) and math.isfinite(lat)):
         raise GlobeviewError(f"point {text!r}: longitude and latitude must be finite numbers")
     if abs(lat) > 90.0:
-        raise GlobeviewError(f"point {text!r}: latitude {lat:g} is outside -90..90")
+        # Every digit where %g would round it into the range ("latitude 90 is outside").
+        raise GlobeviewError(f"point {text!r}: latitude {format_number(lat)} is outside -90..90")
     return lon, lat
 
 

@@ -118,10 +118,13 @@ def parse_size(text: str) -> tuple[int, int]:
 
 
 def parse_floats(text: str, name: str, lengths: tuple[int, ...]) -> list[float]:
+    """Comma-separated numbers as people write them (`validate.parse_float`: not Python's
+    "1_0" for 10); a one-line `GlobeviewError` naming ``name`` otherwise."""
     from globeview.errors import GlobeviewError
+    from globeview.validate import parse_float
 
     try:
-        vals = [float(v) for v in text.split(",")]
+        vals = [parse_float(v) for v in text.split(",")]
     except ValueError:
         raise GlobeviewError(f"{name} must be comma-separated numbers, not {text!r}") from None
     if len(vals) not in lengths:
