@@ -71,16 +71,29 @@ def test_done_when_ellipsoidal_is_srtm_plus_undulation(env: dict[str, str]) -> N
         assert row["layer"] == "N44W072.hgt"
 
 
-def test_table_and_points_off_the_data(env: dict[str, str]) -> None:
+def _undulation(lon: float, lat: float) -> float:
+    from globeview.terrain.vdatum import egm96
+
+    return float(np.asarray(egm96().undulation(np.array([lon]), np.array([lat]))).reshape(-1)[0])
+
+
+def test_off_every_layer_there_is_no_elevation(env: dict[str, str]) -> None:
     r = _run(env, "height", "-71.3033,44.2705", "10,0", "data/N44W072.hgt")
     assert r.returncode == 0, r.stderr
     lines = r.stdout.strip().splitlines()
     assert "m a.s.l." in lines[0] and "m ell." in lines[0]
     assert lines[1].endswith("N44W072.hgt")
-    assert lines[2].endswith("none (ellipsoid)")
-    # Off every layer the surface is the ellipsoid: h = 0, H = -N.
-    h, n, big_h = (float(v) for v in lines[2].split()[2:5])
-    assert h == 0.0 and big_h == pytest.approx(-n, abs=0.011)
+    # Off every layer there is no terrain: the row says so, and shows no height (it showed
+    # H = -N, 17.16 "m a.s.l." here, as if the ellipsoid were ground), only the geoid's N.
+    cells = lines[2].split()
+    assert "no terrain" in lines[2]
+    assert cells[2] == cells[4] == "-", lines[2]
+    assert float(cells[3]) == pytest.approx(_undulation(10.0, 0.0), abs=0.006)
+    r = _run(env, "height", "-71.3033,44.2705", "10,0", "data/N44W072.hgt", "--json")
+    on, off = json.loads(r.stdout)
+    assert isinstance(on["ellipsoidal_m"], float) and isinstance(on["orthometric_m"], float)
+    assert off["ellipsoidal_m"] is None and off["orthometric_m"] is None
+    assert off["geoid_undulation_m"] == pytest.approx(_undulation(10.0, 0.0), abs=1e-6)
 
 
 @pytest.mark.parametrize(

@@ -3,7 +3,8 @@ terrain at points (issue #16).
 
 For each point: the ellipsoidal height h (metres above WGS84, what the globe draws), the EGM96
 geoid undulation N, the orthometric height H = h - N ("above sea level") and the layer that
-answered. With no sources the embedded data is queried, as `render` draws it; DEMs are
+answered; off every layer there is no terrain, and h and H are "-" (null in JSON), not the
+ellipsoid's. With no sources the embedded data is queried, as `render` draws it; DEMs are
 ingested into the cache as `render` does. ``--json`` prints a JSON list of objects.
 
 A point is one argument ``LON,LAT`` in degrees; a negative longitude may be written as is
@@ -111,17 +112,23 @@ def _layer_names(sources: list[str], stores: list) -> list[str]:
     return [p.name for p in embedded_dem_paths()]
 
 
+#: The layer column of a point no layer covers (its h and H columns show "-").
+NO_TERRAIN = "no terrain here"
+
+
 def format_table(answers: list) -> str:
+    """The answers as aligned columns: lon, lat, h, N, H (metres, two decimals) and the layer;
+    where no layer answered, h and H are "-" and the layer column says there is no terrain."""
     rows = [("lon", "lat", "h (m ell.)", "N (m)", "H (m a.s.l.)", "layer")]
     for a in answers:
         rows.append(
             (
                 f"{a.lon:.6f}",
                 f"{a.lat:.6f}",
-                f"{a.ellipsoidal:.2f}",
+                "-" if a.ellipsoidal is None else f"{a.ellipsoidal:.2f}",
                 f"{a.undulation:.2f}",
-                f"{a.orthometric:.2f}",
-                a.layer,
+                "-" if a.orthometric is None else f"{a.orthometric:.2f}",
+                a.layer if a.has_terrain else NO_TERRAIN,
             )
         )
     widths = [max(len(r[i]) for r in rows) for i in range(5)]

@@ -9,8 +9,10 @@ undulation N (EGM96, metres) gives the orthometric height H = h - N.
 
 Which layer "answered" a point is the topmost visible layer whose own finest tile has data at
 all four nodes around the point; none means the surface there is the bare ellipsoid (h = 0)
-or a layer's ragged nodata edge. In a layer's border band, where it feathers into the layer
-below, the answer names both and the weight of the upper one.
+or a layer's ragged nodata edge: there is no terrain, and the answer has no heights (None),
+only the undulation N (-N would read as an elevation "a.s.l." of the ellipsoid). In a layer's
+border band, where it feathers into the layer below, the answer names both and the weight of
+the upper one.
 """
 
 from __future__ import annotations
@@ -31,20 +33,26 @@ NO_LAYER = "none (ellipsoid)"
 class HeightAnswer:
     """One point's heights. lon/lat degrees (WGS84); heights metres.
 
-    ellipsoidal: h above the WGS84 ellipsoid (what the mesh holds);
+    ellipsoidal: h above the WGS84 ellipsoid (what the mesh holds); None where no layer has
+        terrain (`NO_LAYER`);
     undulation: N, the EGM96 geoid above the ellipsoid there;
-    orthometric: H = h - N (above the geoid, "a.s.l.");
+    orthometric: H = h - N (above the geoid, "a.s.l."); None where no layer has terrain;
     layer: the name of the layer that answered, or `NO_LAYER`;
     level: the quadtree level whose tile nodes were interpolated.
     """
 
     lon: float
     lat: float
-    ellipsoidal: float
+    ellipsoidal: float | None
     undulation: float
-    orthometric: float
+    orthometric: float | None
     layer: str
     level: int
+
+    @property
+    def has_terrain(self) -> bool:
+        """Whether a layer answered (else there are no heights, only N)."""
+        return self.layer != NO_LAYER
 
     def to_dict(self) -> dict:
         return {
@@ -178,21 +186,25 @@ def geoid_undulation(lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
 
 
 def query_heights(stack: TerrainStack, lon, lat) -> list[HeightAnswer]:
-    """h, N, H = h - N and the answering layer at each point (see the module docstring)."""
+    """h, N, H = h - N and the answering layer at each point (see the module docstring); no
+    h and H (None) where no layer answered."""
     lon, lat = check_lonlat(lon, lat)
     level = stack.max_level
     h = composed_heights(stack, lon, lat, level)
     n = geoid_undulation(lon, lat)
     names = answering_layers(stack, lon, lat)
-    return [
-        HeightAnswer(
-            float(lon[i]),
-            float(lat[i]),
-            float(h[i]),
-            float(n[i]),
-            float(h[i] - n[i]),
-            str(names[i]),
-            level,
+    answers = []
+    for i in range(lon.size):
+        terrain = names[i] != NO_LAYER
+        answers.append(
+            HeightAnswer(
+                float(lon[i]),
+                float(lat[i]),
+                float(h[i]) if terrain else None,
+                float(n[i]),
+                float(h[i] - n[i]) if terrain else None,
+                str(names[i]),
+                level,
+            )
         )
-        for i in range(lon.size)
-    ]
+    return answers
