@@ -129,3 +129,75 @@ def test_json_flag_may_stand_between_points_and_sources(env: dict[str, str]) -> 
     assert r.returncode == 0, r.stderr
     rows = json.loads(r.stdout)
     assert [row["layer"] for row in rows] == ["N44W072.hgt", "none (ellipsoid)"]
+
+
+def _no_crs_tif(path: Path, height_m: float) -> Path:
+    """A 20 x 20 float32 GeoTIFF of one height, 0.01 degree pixels from (5, 45) down-right,
+    with no CRS: only a --crs places it."""
+    from affine import Affine
+
+    with rasterio.open(
+        path,
+        "w",
+        driver="GTiff",
+        width=20,
+        height=20,
+        count=1,
+        dtype="float32",
+        transform=Affine(0.01, 0, 5.0, 0, -0.01, 45.0),
+    ) as ds:
+        ds.write(np.full((1, 20, 20), height_m, np.float32))
+    return path
+
+
+def test_crs_and_vdatum_as_render_has_them(env: dict[str, str], tmp_path: Path) -> None:
+    dem = str(_no_crs_tif(tmp_path / "nocrs.tif", 500.0))
+    r = _run(env, "height", "5.1,44.9", dem)
+    assert r.returncode == 2 and "--crs" in r.stderr, r.stderr
+    n = _undulation(5.1, 44.9)
+    # The option may stand between the points and the sources, as --json may.
+    r = _run(env, "height", "5.1,44.9", "--crs", "EPSG:4326", dem, "--json")
+    assert r.returncode == 0, r.stderr
+    row = json.loads(r.stdout)[0]
+    # The default datum of a plain GeoTIFF is EGM96: 500 m above the geoid.
+    assert row["ellipsoidal_m"] == pytest.approx(500.0 + n, abs=0.01)
+    assert row["orthometric_m"] == pytest.approx(500.0, abs=0.01)
+    r = _run(env, "height", "--vdatum", "ellipsoid", "5.1,44.9", dem, "--crs=EPSG:4326", "--json")
+    assert r.returncode == 0, r.stderr
+    row = json.loads(r.stdout)[0]
+    assert row["ellipsoidal_m"] == pytest.approx(500.0, abs=0.01)
+    assert row["orthometric_m"] == pytest.approx(500.0 - n, abs=0.01)
+
+
+@pytest.mark.parametrize(
+    ("args", "words"),
+    [
+        (["--vdatum", "egm2008"], "not available"),
+        (["--vdatum", "navd88x"], "unknown vertical datum"),
+        (["--crs", "EPSG:999999"], "unknown CRS 'EPSG:999999'"),
+    ],
+)
+def test_bad_crs_or_vdatum_is_one_line(
+    env: dict[str, str], tmp_path: Path, args: list[str], words: str
+) -> None:
+    dem = str(_no_crs_tif(tmp_path / "nocrs.tif", 500.0))
+    r = _run(env, "height", "5.1,44.9", dem, *args)
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("globeview: error:"), r.stderr
+    assert words in lines[0] and "ERROR 1" not in r.stderr
+    assert r.stdout == ""
+
+
+def test_crs_and_vdatum_read_the_same_in_every_command() -> None:
+    # One meaning, one help text, in every command that reads DEM files.
+    from globeview.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command")
+    helps: dict[str, set[str | None]] = {"--crs": set(), "--vdatum": set()}
+    for name in ("info", "ingest", "render", "height"):
+        opts = {o: a for a in sub.choices[name]._actions for o in a.option_strings}
+        for option, seen in helps.items():
+            assert option in opts, (name, option)
+            seen.add(opts[option].help)
+    assert len(helps["--crs"]) == 1 and len(helps["--vdatum"]) == 1, helps

@@ -8,7 +8,8 @@ ellipsoid's. With no sources the embedded data is queried, as `render` draws it;
 ingested into the cache as `render` does. ``--json`` prints a JSON list of objects.
 
 A point is one argument ``LON,LAT`` in degrees; a negative longitude may be written as is
-(``globeview height -71.3033,44.2705 data/N44W072.hgt``); ``--json`` may stand anywhere.
+(``globeview height -71.3033,44.2705 data/N44W072.hgt``); the options (``--json``, ``--crs``
+and ``--vdatum`` of the DEM files, as `render` has them) may stand anywhere.
 """
 
 from __future__ import annotations
@@ -16,6 +17,8 @@ from __future__ import annotations
 import argparse
 import math
 import re
+
+from globeview.cli.dem_options import add_dem_options
 
 #: argparse takes an argument starting with '-' for an option unless it looks like a negative
 #: number; here anything shaped like a point (``-71.3,44.2``, ``-nan,1``) is such a number,
@@ -34,27 +37,45 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "(none: the embedded data)",
     )
     p.add_argument("--json", action="store_true", help="print a JSON list instead of a table")
+    add_dem_options(p)
     # A point like -71.3,44.2 is a positional argument, not an unknown option (see above);
     # argparse has no public hook for that.
     p._negative_number_matcher = _NEGATIVE_ARG
     # argparse takes positionals in one run: `height PT --json DEM` left DEM "unrecognized".
-    # The flag is moved in front of the positionals, so it may stand anywhere.
+    # The options are moved in front of the positionals, so they may stand anywhere.
     cls_parse = type(p).parse_known_args
 
     def parse_known_args(args=None, namespace=None):
         if args is not None:
-            args = _flags_first(list(args))
+            args = _options_first(list(args))
         return cls_parse(p, args, namespace)
 
     p.parse_known_args = parse_known_args
 
 
-def _flags_first(args: list[str]) -> list[str]:
-    """``--json`` (the only flag) moved before the positionals (not past a ``--``)."""
+#: `height`'s options: the flag, and those taking a value (``--crs X`` or ``--crs=X``).
+_FLAGS = ("--json",)
+_VALUED = ("--crs", "--vdatum")
+
+
+def _options_first(args: list[str]) -> list[str]:
+    """The options (with their values) moved before the positionals, keeping their order (not
+    past a ``--``)."""
     end = args.index("--") if "--" in args else len(args)
-    flags = [a for a in args[:end] if a == "--json"]
-    rest = [a for a in args[:end] if a != "--json"]
-    return flags + rest + args[end:]
+    front: list[str] = []
+    rest: list[str] = []
+    i = 0
+    while i < end:
+        a = args[i]
+        if a in _FLAGS or ("=" in a and a.split("=", 1)[0] in _VALUED):
+            front.append(a)
+        elif a in _VALUED and i + 1 < end:
+            front += [a, args[i + 1]]
+            i += 1
+        else:
+            rest.append(a)
+        i += 1
+    return front + rest + args[end:]
 
 
 def parse_point(text: str) -> tuple[float, float]:
@@ -142,6 +163,7 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
+    from globeview.cli.dem_options import check_dem_options
     from globeview.cli.render import check_cache_writable, open_sources_in_cache
     from globeview.errors import GlobeviewError
     from globeview.terrain.dem import check_dem_path
@@ -149,11 +171,12 @@ def run(args: argparse.Namespace) -> int:
     from globeview.terrain.stack import TerrainStack
 
     points, sources = split_items(args.items)
+    check_dem_options(args)
     for src in sources:  # every argument checked before the first (slow) ingest
         if not Path(src).is_dir():
             check_dem_path(Path(src))
-    check_cache_writable(sources)
-    stores = open_sources_in_cache(sources, None)
+    check_cache_writable(sources, args.crs, args.vdatum)
+    stores = open_sources_in_cache(sources, args.crs, args.vdatum)
     if not stores:
         raise GlobeviewError("no terrain to query")
     stack = TerrainStack.from_stores(stores, _layer_names(sources, stores))

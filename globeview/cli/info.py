@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import argparse
 
+from globeview.cli.dem_options import add_dem_options
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Register `info`'s arguments on its subparser."""
@@ -16,17 +18,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="raster files GDAL can read, tile store folders or store URLs "
         "(https://HOST/path/store) (default: the embedded DEMs)",
     )
-    parser.add_argument(
-        "--crs",
-        metavar="CRS",
-        help="CRS of the rasters when they lack one or declare a wrong one, e.g. EPSG:32610",
-    )
-    parser.add_argument(
-        "--vdatum",
-        metavar="DATUM",
-        help="declare the rasters' vertical datum: ellipsoid or egm96 (default: from the CRS,"
-        " else EGM96)",
-    )
+    add_dem_options(parser)
     parser.add_argument("--json", action="store_true", help="print a JSON list instead of text")
     parser.add_argument(
         "--embedded", action="store_true", help="describe the DEMs shipped in data/"

@@ -10,6 +10,8 @@ import argparse
 import re
 import sys
 
+from globeview.cli.dem_options import add_dem_options
+
 #: Most local workers `--workers` takes: more threads than any machine has cores only adds
 #: memory (each task holds a window of the raster), and a typo of 10^6 must not start them.
 MAX_WORKERS = 4096
@@ -38,15 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--max-level", type=int, default=None, help="finest level (default: from the resolution)"
     )
     parser.add_argument("--wavelet", default="bior2.2", help="low-pass wavelet for coarser levels")
-    parser.add_argument("--crs", default=None, help="CRS of the sources, e.g. EPSG:4326")
-    parser.add_argument(
-        "--vdatum",
-        default=None,
-        metavar="DATUM",
-        help="vertical datum of the sources: ellipsoid or egm96 (default: from the CRS, SRTM"
-        " .hgt and mean-sea-level DEMs EGM96, else assumed EGM96); stores hold ellipsoidal"
-        " heights",
-    )
+    add_dem_options(parser)
     parser.add_argument(
         "--workers",
         metavar="N",

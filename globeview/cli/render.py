@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from globeview.cli.dem_options import add_dem_options, check_dem_options
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
@@ -31,13 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-fog", action="store_true", help="no haze toward the horizon")
     parser.add_argument("--background", help="R,G,B background colour in 0..1")
     parser.add_argument("--stats", help="write the frame's figures as JSON to this file")
-    parser.add_argument("--crs", help="CRS for DEM sources that lack one (e.g. EPSG:32610)")
-    parser.add_argument(
-        "--vdatum",
-        metavar="DATUM",
-        help="vertical datum of the DEM sources: ellipsoid or egm96 (default: from the CRS,"
-        " else EGM96)",
-    )
+    add_dem_options(parser)
     parser.add_argument(
         "--lod", default="chunked-sse", help="LOD provider plugin (see `globeview plugins list`)"
     )
@@ -468,10 +464,7 @@ def run(args: argparse.Namespace) -> int:
     csv_path = check_tool_csv(args, tool_name, [out, stats_path])
     check_inputs(args)
     check_cache_writable(args.sources, args.crs, args.vdatum)
-    if args.vdatum is not None:
-        from globeview.terrain.vdatum import parse_vdatum
-
-        parse_vdatum(args.vdatum)  # "egm2008" or a typo: one line before any work
+    check_dem_options(args)  # "egm2008" or a typo: one line before any work
     registry = PluginRegistry().discover()
     assignments = resolve_plugin_args(registry, tool_name, sets)
     warn_unused_settings(registry, assignments, args.lod, tool_name)
