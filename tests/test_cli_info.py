@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 import rasterio
 from affine import Affine
 
@@ -140,6 +141,31 @@ def test_cli_polar_stereographic_resolution_in_km(tmp_path: Path) -> None:
     assert r.returncode == 0, r.stderr
     line = next(x for x in r.stdout.splitlines() if x.strip().startswith("resolution"))
     assert line.split()[1:5] == ["1", "km", "x", "1"] and "deg" not in line and "e+" not in line
+
+
+@pytest.mark.parametrize("crs", ["EPSG:3413", "EPSG:3031"])
+def test_cli_polar_stereographic_json_resolution_in_degrees(tmp_path: Path, crs: str) -> None:
+    # 300 x 300 cells of 1 km centred on the pole: res_deg said ~1e9 (a degree of longitude
+    # there is ~1e-6 m). A cell's ground size in degrees of arc (~111 km each) is what a
+    # geographic grid of that detail has: ~0.009 deg.
+    p = _geo_tif(
+        tmp_path / "polar.tif",
+        np.full((300, 300), 100, np.float32),
+        crs=crs,
+        transform=Affine(1000, 0, -150_000, 0, -1000, 150_000),
+    )
+    r = _run("info", "--json", str(p))
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)[0]
+    assert d["res_crs_m"] == [1000.0, 1000.0]
+    # The grid's true-scale latitude is 70 degrees: at the pole a 1 km cell is ~1.03 km.
+    assert all(1000.0 < m < 1040.0 for m in d["res_m"]), d["res_m"]
+    from pyproj import Geod
+
+    pole = 90.0 if crs == "EPSG:3413" else -90.0
+    _, _, m_per_deg = Geod(ellps="WGS84").inv(0.0, pole, 0.0, pole - np.sign(pole))
+    for deg, m in zip(d["res_deg"], d["res_m"], strict=True):
+        assert deg == pytest.approx(m / m_per_deg, rel=2e-3), d["res_deg"]
 
 
 def test_cli_cf_netcdf_assumed_wgs84(tmp_path: Path) -> None:

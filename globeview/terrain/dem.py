@@ -179,7 +179,10 @@ class DemInfo:
     dtype: str
     crs: str
     bounds_lonlat: tuple[float, float, float, float]
-    res_deg: tuple[float, float]  # (dlon, dlat) approximate, degrees
+    # (dlon, dlat) degrees, approximate for a grid not north-up in lon/lat; for a projected
+    # grid the ground cell size (res_m) in degrees of arc of the meridian at the centre (~111
+    # km each), which stays finite at a pole where degrees of longitude do not.
+    res_deg: tuple[float, float]
     res_m: tuple[float, float]  # (east-west, north-south) at the footprint centre, metres
     nodata: float | None
     fill_value: float | None
@@ -727,7 +730,11 @@ class Dem:
             lat_c = math.radians(lats[0])
             # metres per degree of latitude / longitude on WGS84 (series to O(e^2))
             m_lat = 111_132.954 - 559.822 * math.cos(2 * lat_c)
-            m_lon = max(111_412.84 * math.cos(lat_c), 1e-6)
+            # A rotated or south-up lon/lat grid keeps degrees of longitude. A projected cell
+            # has a ground size, not a longitude span: degrees of longitude per metre grow
+            # without bound toward a pole (a cell there read as 1e9 degrees), so both sides
+            # are in degrees of arc of the meridian instead.
+            m_lon = max(111_412.84 * math.cos(lat_c), 1e-6) if self.crs.is_geographic else m_lat
             dx, dy = res_m[0] / m_lon, res_m[1] / m_lat
             res_deg = (dx, dy)
         reaches_pole = north >= 90.0 - dy * 1.0001 or south <= -90.0 + dy * 1.0001
