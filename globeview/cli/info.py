@@ -1,6 +1,6 @@
 """`globeview info`: describe DEM rasters (bounds, resolution, nodata, value range) and tile
-stores, local folders or URLs of stores served over HTTP (levels, chunks, sources; only the
-manifest is read)."""
+stores, local folders or URLs of stores served over HTTP (levels, chunks, sources; of a URL
+only the manifest is read, a folder's files are checked against it first)."""
 
 from __future__ import annotations
 
@@ -124,7 +124,9 @@ class StoreInfo:
 
 
 def store_info(text: str) -> StoreInfo:
-    """Open a store (a folder or a URL: the manifest only) and describe it."""
+    """Open a store and describe it: a URL from its manifest only; a folder after checking
+    every level file against its sha256 in the manifest (`TileStore.verify`, a StoreError
+    line naming the first damaged one)."""
     from globeview.plugins.store_sources import check_store_url, is_store_url, open_store_url
     from globeview.terrain.store import TileStore
 
@@ -134,6 +136,11 @@ def store_info(text: str) -> StoreInfo:
     else:
         where, store = text, TileStore.open(text)
     try:
+        if not store.is_remote:
+            # Opening checks the level VRTs and that each chunk file exists; a chunk truncated
+            # or swapped with another level's opens fine and fails only when a tile is read,
+            # so a folder is read whole (seconds a GB) before it is described as usable.
+            store.verify()
         return StoreInfo(where, store)
     finally:
         store.close()

@@ -443,7 +443,10 @@ class TileStore:
         for lv in self._levels:
             for name, want in ((lv.file, lv.sha256), *zip(lv.chunk_files(), lv.chunk_sha256)):
                 if self._files.sha256(name) != want:
-                    raise StoreError(f"{self._files.describe(name)} is damaged (checksum mismatch)")
+                    raise StoreError(
+                        f"{self._files.describe(name)} is damaged (checksum mismatch); re-run "
+                        "globeview ingest --force"
+                    )
 
     # -- metadata (vectorised) ---------------------------------------------------------------
 
