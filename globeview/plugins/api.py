@@ -442,8 +442,9 @@ class LodProvider(_Contribution):
     ``select`` runs once per frame on the UI thread; keep it vectorised (numpy over arrays of
     tiles) and within a few milliseconds. It must not draw or touch GL. The host checks every
     result (`RenderSet.validate`) and times every call against the frame budget
-    (``plugins/budget_ms``, 250 ms): a malformed render set, or too many overruns in a row
-    in the window, disables the provider's plugin and the frame falls back to chunked-sse.
+    (``plugins/budget_ms``, default 1000 ms a call): a malformed render set, or 5 overruns in
+    a row in the window, disables the provider's plugin and the frame falls back to
+    chunked-sse.
     """
 
     def select(self, view: ViewState, terrain: Any) -> RenderSet:
