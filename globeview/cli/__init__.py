@@ -8,6 +8,9 @@ Whatever goes wrong, a command ends with at most one line on stderr (issue #13):
 
 - bad input (arguments, files, outputs): ``globeview: error: ...``, exit 2 — a
   `GlobeviewError` raised where the cause is known, or argparse's own complaint;
+- a plugin failure nothing stands in for (`PluginFailed`, e.g. a layer type crashing on a
+  ``--layer`` file), or any plugin failure under ``render --strict``: ``globeview: error:
+  ...`` naming the plugin and its error, exit 3, nothing written;
 - out of memory: ``globeview: error: out of memory while running COMMAND ...``, exit 2;
 - a bug: ``globeview: internal error: Type: message (details in LOG)``, exit 1, with the
   traceback and the recent log records written to LOG; ``GLOBEVIEW_DEBUG=1`` re-raises
@@ -231,7 +234,8 @@ def main(argv: list[str] | None = None) -> int:
         return int(args._run(args) or 0)
     except GlobeviewError as exc:
         print(f"globeview: error: {_one_line(str(exc))}", file=sys.stderr)
-        return 2
+        # 2: the user's input; a subclass may say otherwise (PluginFailed: 3).
+        return int(getattr(exc, "exit_status", 2))
     except KeyboardInterrupt:
         print("globeview: interrupted", file=sys.stderr)
         return 130

@@ -93,8 +93,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--strict",
         action="store_true",
         help="exit 3 and write nothing when a plugin fails (the LOD provider falls back, the "
-        "tool fails); without it the picture is drawn by the fallback and the 'wrote' line "
-        "says so (exit 0)",
+        "tool or a layer type fails); without it the picture is drawn by the fallback and the "
+        "'wrote' line says so (exit 0), except where nothing stands in for the plugin (a "
+        "layer type that cannot open a --layer file, the --tool-csv tool): exit 3 either way",
     )
     parser.add_argument(
         "--collapse",
@@ -283,11 +284,14 @@ def check_tool_csv(args: argparse.Namespace, tool: str | None, others: list):
     return path
 
 
-def tool_plot_csv(scene, tool_name: str) -> str:
+def tool_plot_csv(scene, tool_name: str, strict: bool = False) -> str:
     """The CSV text of the plot the active tool publishes (`Plot`, see
-    globeview.plugins.tool_output); one-line `GlobeviewError` when it publishes none (its
-    plugin failed, it has no ``plot()``, or its points gave none). Garbage fails the tool."""
-    from globeview.errors import GlobeviewError
+    globeview.plugins.tool_output). A tool that failed (before or in ``plot()``; garbage
+    returned fails it too) is a one-line `PluginFailed` naming it and its error (exit 3:
+    nothing stands in for it); one that works but publishes none (no ``plot()``, or its
+    points gave none) is the user's one-line `GlobeviewError` (exit 2)."""
+    from globeview.errors import GlobeviewError, PluginFailed
+    from globeview.plugins.api import PluginKind
     from globeview.plugins.tool_output import Plot
 
     tool = scene.tool()
@@ -299,9 +303,13 @@ def tool_plot_csv(scene, tool_name: str) -> str:
             plot = None
     # Plot's own csv_text, isolated: a plugin's Plot subclass may override what it calls.
     text = None if plot is None else scene.registry.call_for(tool, Plot.csv_text, plot)
-    if not isinstance(text, str):
-        raise GlobeviewError(f"--tool-csv: the tool {tool_name} published no plot; nothing written")
-    return text
+    if isinstance(text, str):
+        return text
+    why = scene.registry.failure_of(tool_name, PluginKind.TOOL)
+    if why is not None:  # the plugin's fault, not a tool without a plot: say so (exit 3)
+        suffix = " (--strict)" if strict else ""
+        raise PluginFailed(f"--tool-csv: tool {tool_name} failed: {why}; nothing written{suffix}")
+    raise GlobeviewError(f"--tool-csv: the tool {tool_name} published no plot; nothing written")
 
 
 def check_inputs(args: argparse.Namespace) -> None:
@@ -424,23 +432,26 @@ def resolve_plugin_args(registry, tool: str | None, sets: list[tuple[str, str]])
     return [resolve_assignment(registry, text, option) for text, option in sets]
 
 
-def warn_unused_settings(registry, assignments: list, lod: str, tool: str | None) -> None:
-    """One warning line per --set of an LOD provider or tool this render does not use (the
-    user likely meant it to change the picture); layer types are not judged (which ones
-    open a --layer file is decided by the files)."""
+#: How the warning of `warn_unused_settings` says to use a contribution, by kind.
+_USE_HINT = {"lod": "--lod {}", "tool": "--tool {}", "layer": "--layer {}:FILE"}
+
+
+def warn_unused_settings(registry, assignments: list, used: dict[str, set]) -> None:
+    """One warning line per --set of a contribution this render does not use (the user
+    likely meant it to change the picture), for the kinds in ``used`` (kind -> the names
+    used): LOD providers and tools are known before any work, layer types once the --layer
+    files (and the embedded overlays) are open, since the files decide which types open
+    them."""
     import logging
 
-    used = {"lod": {lod}, "tool": {tool}}
     for target, _ in assignments:
         kind = target.kind(registry)
         if kind in used and target.contribution not in used[kind]:
-            option = "--lod" if kind == "lod" else "--tool"
             logging.getLogger("globeview.cli").warning(
-                "--set %s: %s is not used by this render (%s %s)",
+                "--set %s: %s is not used by this render (%s)",
                 target.label,
                 target.contribution,
-                option,
-                target.contribution,
+                _USE_HINT[kind].format(target.contribution),
             )
 
 
@@ -471,7 +482,7 @@ def run(args: argparse.Namespace) -> int:
         parse_vdatum(args.vdatum)  # "egm2008" or a typo: one line before any work
     registry = PluginRegistry().discover()
     assignments = resolve_plugin_args(registry, tool_name, sets)
-    warn_unused_settings(registry, assignments, args.lod, tool_name)
+    warn_unused_settings(registry, assignments, {"lod": {args.lod}, "tool": {tool_name}})
     apply_overrides(registry, assignments)  # this render only: nothing is stored
     stores = open_sources_in_cache(args.sources, args.crs, args.vdatum)
     terrain = TerrainStack.from_stores(stores)
@@ -499,8 +510,8 @@ def run(args: argparse.Namespace) -> int:
             scene.remove_overlay(scene.overlay_layers[-1])  # keep the imagery only
         else:
             scene.add_embedded_overlays(imagery=args.imagery)
-    for path in args.layer:
-        scene.add_overlay(path)
+    open_layers(scene, args.layer, args.strict)
+    warn_unused_settings(registry, assignments, {"layer": scene.overlay_host.types_used})
     if tool_name is not None:
         tool = scene.find_tool(tool_name)  # imports that tool's plugin only
         if tool is not None:
@@ -521,6 +532,8 @@ def run(args: argparse.Namespace) -> int:
 
     st = result.stats
     failures = plugin_failures(scene, args.lod, tool_name)
+    # The plot is asked for before --strict judges: a tool failing in plot() is a failure.
+    extra = {csv_path: tool_plot_csv(scene, tool_name, args.strict)} if csv_path else {}
     tiles_failed = int(st.extra.get("tiles_failed", 0))
     dead = [x for x in stores if getattr(x, "is_remote", False) and x.blocks_read == 0]
     if tiles_failed and dead:
@@ -545,7 +558,6 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return STRICT_EXIT
-    extra = {csv_path: tool_plot_csv(scene, tool_name)} if csv_path is not None else {}
     write_outputs(Image.fromarray(target.read_rgb()), stats, out, stats_path, extra)
     drew = st.lod_provider
     if not drew or not registry.offers(PluginKind.LOD, drew):
@@ -633,14 +645,16 @@ def tool_status(scene) -> str:
     return text if len(text) <= 300 else text[:297] + "..."
 
 
-#: Exit status of `render --strict` when a plugin failed (2 is bad input, 1 a bug).
+#: Exit status of `render --strict` when a plugin failed (2 is bad input, 1 a bug); the
+#: status of every `PluginFailed`.
 STRICT_EXIT = 3
 
 
 def plugin_failures(scene, lod: str, tool: str | None) -> dict[str, str]:
     """What failed during the render: ``{"provider": reason}`` when the requested LOD
     provider did not draw the frame (the session fell back), ``{"tool": reason}`` when the
-    tool's plugin failed (its overlay and displacement were dropped)."""
+    tool's plugin failed (its overlay and displacement were dropped), ``{"layers": text}``
+    when layer types failed (a ``sniff`` that crashed while another type took the file)."""
     out: dict[str, str] = {}
     drew = scene.last.stats.lod_provider if scene.last is not None else ""
     failure_of = scene.registry.failure_of
@@ -648,7 +662,42 @@ def plugin_failures(scene, lod: str, tool: str | None) -> dict[str, str]:
         out["provider"] = failure_of(lod) or "it did not draw"
     if tool is not None and scene.tool() is None:
         out["tool"] = failure_of(tool) or "it was not active"
+    layers = layer_type_failures(scene.registry)
+    if layers:
+        out["layers"] = "; ".join(f"layer type {n} failed: {why}" for n, why in layers.items())
     return out
+
+
+def layer_type_failures(registry) -> dict[str, str]:
+    """Layer type name -> ``"ExcType: message"`` of each layer type that failed in this
+    process (failures are per session: a render's are its own)."""
+    from globeview.plugins.api import PluginKind
+
+    return {
+        name: failure.error
+        for rec in registry
+        for name, failure in rec.failures.items()
+        if failure.kind == PluginKind.LAYER
+    }
+
+
+def open_layers(scene, layers: list[str], strict: bool) -> None:
+    """Open each ``--layer`` file (`GlobeSession.add_overlay`). A layer type that fails on
+    one is a `PluginFailed` line (exit 3, nothing written); under ``strict`` so is the user's
+    error met after a layer type failed on the way (a ``sniff`` that crashed), since a
+    plugin failed."""
+    from globeview.errors import GlobeviewError, PluginFailed
+
+    suffix = "; nothing written" + (" (--strict)" if strict else "")
+    for path in layers:
+        try:
+            scene.add_overlay(path)
+        except PluginFailed as exc:
+            raise PluginFailed(f"{exc}{suffix}") from None
+        except GlobeviewError as exc:
+            if strict and layer_type_failures(scene.registry):
+                raise PluginFailed(f"{exc}{suffix}") from None
+            raise
 
 
 def failure_texts(lod: str, tool: str | None, failures: dict[str, str]) -> list[str]:
@@ -658,6 +707,8 @@ def failure_texts(lod: str, tool: str | None, failures: dict[str, str]) -> list[
         said.append(f"fell back from {lod}: {failures['provider']}")
     if "tool" in failures:
         said.append(f"tool {tool} failed: {failures['tool']}")
+    if "layers" in failures:
+        said.append(failures["layers"])
     if "tiles" in failures:
         said.append(failures["tiles"])
     return said
