@@ -5,6 +5,14 @@ from __future__ import annotations
 import argparse
 import sys
 
+from globeview.cli.view_options import (
+    add_view_options,
+    check_plugin_options,
+    checked,
+    parse_camera,
+    parse_floats,
+)
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
@@ -17,12 +25,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--out", "-o", required=True, help="PNG file to write")
     parser.add_argument("--size", default="1280x720", help="WIDTHxHEIGHT in pixels")
-    parser.add_argument(
-        "--camera",
-        help="LON,LAT,HEIGHT[,HEADING,PITCH[,ROLL]] in degrees and metres "
-        "(heading 0 = north, pitch -90 = straight down); default: the whole globe, or the "
-        "last source's footprint",
-    )
+    # --camera, --lod, --tool, --set: shared with `globeview gui` (cli/view_options.py).
+    add_view_options(parser)
     parser.add_argument("--fov", type=float, default=45.0, help="vertical field of view, deg")
     parser.add_argument("--tau", type=float, default=2.0, help="screen-space error, pixels")
     parser.add_argument("--exaggeration", type=float, default=1.0, help="vertical exaggeration")
@@ -39,9 +43,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         " else EGM96)",
     )
     parser.add_argument(
-        "--lod", default="chunked-sse", help="LOD provider plugin (see `globeview plugins list`)"
-    )
-    parser.add_argument(
         "--layer",
         action="append",
         default=[],
@@ -54,12 +55,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--no-borders", action="store_true", help="hide the embedded country borders"
-    )
-    parser.add_argument(
-        "--tool",
-        metavar="NAME",
-        help="activate the tool NAME (built-in or installed, see `globeview plugins list`) "
-        "and give it --points; its overlay is drawn",
     )
     parser.add_argument(
         "--points",
@@ -78,16 +73,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="FILE",
         help="write the plot the --tool publishes (e.g. the measure tool's terrain profile) "
         "as CSV to FILE, with the PNG, all or nothing",
-    )
-    parser.add_argument(
-        "--set",
-        dest="set_values",
-        action="append",
-        default=[],
-        metavar="NAME.KEY=VALUE",
-        help="a setting of a contribution (LOD provider, tool, layer type) for this render "
-        "only, checked against its type and range (e.g. collapse.ratio=0.3); repeatable; "
-        "`globeview plugins set` stores one",
     )
     parser.add_argument(
         "--strict",
@@ -116,42 +101,6 @@ def parse_size(text: str) -> tuple[int, int]:
     if not (16 <= w <= 16384 and 16 <= h <= 16384):
         raise GlobeviewError(f"--size {text} is out of range (16..16384 pixels a side)")
     return w, h
-
-
-def parse_floats(text: str, name: str, lengths: tuple[int, ...]) -> list[float]:
-    from globeview.errors import GlobeviewError
-
-    try:
-        vals = [float(v) for v in text.split(",")]
-    except ValueError:
-        raise GlobeviewError(f"{name} must be comma-separated numbers, not {text!r}") from None
-    if len(vals) not in lengths:
-        raise GlobeviewError(f"{name} takes {' or '.join(map(str, lengths))} numbers")
-    return vals
-
-
-def checked(option: str, check, *values):
-    """``check(*values)``, its ValueError turned into a one-line error naming ``option``
-    (the model's checks say what is wrong and the valid range; the CLI adds the option)."""
-    from globeview.errors import GlobeviewError
-
-    try:
-        return check(*values)
-    except ValueError as exc:
-        msg = str(exc)
-        bare = option.lstrip("-")
-        if msg.startswith(bare + " "):  # "tau must be ..." -> "--tau must be ..."
-            raise GlobeviewError(option + msg[len(bare) :]) from None
-        raise GlobeviewError(f"{option}: {msg}") from None
-
-
-def parse_camera(text: str) -> tuple[float, ...]:
-    """--camera LON,LAT,HEIGHT[,HEADING,PITCH[,ROLL]], validated like `Camera.from_lonlat`."""
-    from globeview.model.camera import check_lonlat_hpr
-
-    vals = parse_floats(text, "--camera", (3, 5, 6))
-    vals += [0.0, -90.0, 0.0][len(vals) - 3 :]
-    return checked("--camera", check_lonlat_hpr, *vals)
 
 
 def parse_background(text: str) -> tuple[float, float, float]:
@@ -201,7 +150,7 @@ def parse_tool_args(args: argparse.Namespace) -> tuple[str | None, list, list[tu
     """(tool name or None, its points, the ``--set`` texts with the option each came from),
     with ``--collapse A,B[,R]`` read as ``--tool collapse --points A;B --set
     collapse.ratio=R``. Only the syntax is checked here; names and values are checked against
-    the plugins in `resolve_plugin_args`."""
+    the plugins in `check_plugin_options`."""
     from globeview.errors import GlobeviewError
 
     points: list[tuple[float, float]] = []
@@ -409,29 +358,6 @@ def open_sources(sources: list[str], crs: str | None, vdatum: str | None = None)
     return stores
 
 
-def resolve_plugin_args(registry, tool: str | None, sets: list[tuple[str, str]]) -> list:
-    """Check ``--tool`` and ``--set`` against the plugins (importing only the plugins that
-    declare the names) before any terrain is read: one-line `GlobeviewError` for an unknown
-    or failed contribution, an unknown setting or a bad value. Returns the checked
-    (`SettingTarget`, value) pairs."""
-    from globeview.errors import GlobeviewError
-    from globeview.plugins.api import PluginKind
-    from globeview.plugins.settings import find_contribution, resolve_assignment
-
-    if tool is not None and not registry.offers(PluginKind.TOOL, tool):
-        if any(  # declared, but by a disabled or failed plugin: say which and why
-            rec.manifest is not None
-            and any(
-                c.kind == PluginKind.TOOL and c.name == tool for c in rec.manifest.contributions
-            )
-            for rec in registry
-        ):
-            find_contribution(registry, tool)  # raises, naming the plugin's state
-        known = ", ".join(sorted(registry.declared(PluginKind.TOOL))) or "none"
-        raise GlobeviewError(f"--tool: no enabled tool named {tool!r:.80} (tools: {known})")
-    return [resolve_assignment(registry, text, option) for text, option in sets]
-
-
 #: How the warning of `warn_unused_settings` says to use a contribution, by kind.
 _USE_HINT = {"lod": "--lod {}", "tool": "--tool {}", "layer": "--layer {}:FILE"}
 
@@ -481,7 +407,7 @@ def run(args: argparse.Namespace) -> int:
 
         parse_vdatum(args.vdatum)  # "egm2008" or a typo: one line before any work
     registry = PluginRegistry().discover()
-    assignments = resolve_plugin_args(registry, tool_name, sets)
+    assignments = check_plugin_options(registry, args.lod, tool_name, sets)
     warn_unused_settings(registry, assignments, {"lod": {args.lod}, "tool": {tool_name}})
     apply_overrides(registry, assignments)  # this render only: nothing is stored
     stores = open_sources_in_cache(args.sources, args.crs, args.vdatum)
