@@ -16,3 +16,12 @@ class DemError(GlobeviewError):
 
 class StoreError(GlobeviewError):
     """A tile store cannot be built, opened or read."""
+
+
+class PluginFailed(GlobeviewError):
+    """A plugin failed where nothing can stand in for it (a layer type that cannot open the
+    user's file, a tool whose plot was asked for), or any plugin under ``render --strict``:
+    one line naming the plugin and its error. Not the user's input, so the command line
+    exits with `exit_status` 3 instead of 2 (and writes nothing)."""
+
+    exit_status = 3

@@ -8,6 +8,9 @@ Whatever goes wrong, a command ends with at most one line on stderr (issue #13):
 
 - bad input (arguments, files, outputs): ``globeview: error: ...``, exit 2 — a
   `GlobeviewError` raised where the cause is known, or argparse's own complaint;
+- a plugin failure nothing stands in for (`PluginFailed`, e.g. a layer type crashing on a
+  ``--layer`` file), or any plugin failure under ``render --strict``: ``globeview: error:
+  ...`` naming the plugin and its error, exit 3, nothing written;
 - out of memory: ``globeview: error: out of memory while running COMMAND ...``, exit 2;
 - a bug: ``globeview: internal error: Type: message (details in LOG)``, exit 1, with the
   traceback and the recent log records written to LOG; ``GLOBEVIEW_DEBUG=1`` re-raises
@@ -39,7 +42,11 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "height": ("height", "heights of the terrain at points: ellipsoidal, geoid, orthometric"),
     "plugins": ("plugins", "list, validate, enable and disable plugins"),
     "bench": ("bench", "benchmarks: camera flights, the papers' experiments, budgets, soak"),
-    "gui": ("gui", "open the desktop window (the default with no subcommand)"),
+    "gui": (
+        "gui",
+        "open the desktop window on DEMs, stores and overlay files, optionally on a --camera "
+        "view with a --lod, a --tool and --set settings (the default with no subcommand)",
+    ),
 }
 
 #: Options whose value is a comma-separated list of numbers, which may start with '-'
@@ -122,13 +129,21 @@ def join_negative_values(argv: list[str]) -> list[str]:
     return out
 
 
+#: The window's options (`globeview gui`, cli/view_options.py): a command line starting with
+#: one of them, ``globeview --camera ...``, opens the window as ``globeview gui --camera ...``.
+GUI_OPTIONS = ("--camera", "--lod", "--tool", "--set")
+
+
 def route_bare_files(argv: list[str]) -> list[str]:
     """``globeview FILE...`` (what ``./run FILE`` does) means ``globeview gui FILE...``: a
     first argument that is not a subcommand nor an option, and exists as a path or looks like
-    a file name (has a suffix or a slash), opens the window with it."""
+    a file name (has a suffix or a slash), opens the window with it; so does a first
+    argument that is one of the window's options (`GUI_OPTIONS`)."""
     if not argv:
         return argv
     first = argv[0]
+    if first.split("=", 1)[0] in GUI_OPTIONS:
+        return ["gui", *argv]
     if first in SUBCOMMANDS or first.startswith("-"):
         return argv
     if os.path.exists(first) or Path(first).suffix or os.sep in first:
@@ -231,7 +246,8 @@ def main(argv: list[str] | None = None) -> int:
         return int(args._run(args) or 0)
     except GlobeviewError as exc:
         print(f"globeview: error: {_one_line(str(exc))}", file=sys.stderr)
-        return 2
+        # 2: the user's input; a subclass may say otherwise (PluginFailed: 3).
+        return int(getattr(exc, "exit_status", 2))
     except KeyboardInterrupt:
         print("globeview: interrupted", file=sys.stderr)
         return 130

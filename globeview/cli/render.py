@@ -6,6 +6,13 @@ import argparse
 import sys
 
 from globeview.cli.dem_options import add_dem_options, check_dem_options
+from globeview.cli.view_options import (
+    add_view_options,
+    check_plugin_options,
+    checked,
+    parse_camera,
+    parse_floats,
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -19,12 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--out", "-o", required=True, help="PNG file to write")
     parser.add_argument("--size", default="1280x720", help="WIDTHxHEIGHT in pixels")
-    parser.add_argument(
-        "--camera",
-        help="LON,LAT,HEIGHT[,HEADING,PITCH[,ROLL]] in degrees and metres "
-        "(heading 0 = north, pitch -90 = straight down); default: the whole globe, or the "
-        "last source's footprint",
-    )
+    # --camera, --lod, --tool, --set: shared with `globeview gui` (cli/view_options.py).
+    add_view_options(parser)
     parser.add_argument("--fov", type=float, default=45.0, help="vertical field of view, deg")
     parser.add_argument("--tau", type=float, default=2.0, help="screen-space error, pixels")
     parser.add_argument("--exaggeration", type=float, default=1.0, help="vertical exaggeration")
@@ -34,9 +37,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--background", help="R,G,B background colour in 0..1")
     parser.add_argument("--stats", help="write the frame's figures as JSON to this file")
     add_dem_options(parser)
-    parser.add_argument(
-        "--lod", default="chunked-sse", help="LOD provider plugin (see `globeview plugins list`)"
-    )
     parser.add_argument(
         "--layer",
         action="append",
@@ -50,12 +50,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--no-borders", action="store_true", help="hide the embedded country borders"
-    )
-    parser.add_argument(
-        "--tool",
-        metavar="NAME",
-        help="activate the tool NAME (built-in or installed, see `globeview plugins list`) "
-        "and give it --points; its overlay is drawn",
     )
     parser.add_argument(
         "--points",
@@ -76,21 +70,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "as CSV to FILE, with the PNG, all or nothing",
     )
     parser.add_argument(
-        "--set",
-        dest="set_values",
-        action="append",
-        default=[],
-        metavar="NAME.KEY=VALUE",
-        help="a setting of a contribution (LOD provider, tool, layer type) for this render "
-        "only, checked against its type and range (e.g. collapse.ratio=0.3); repeatable; "
-        "`globeview plugins set` stores one",
-    )
-    parser.add_argument(
         "--strict",
         action="store_true",
         help="exit 3 and write nothing when a plugin fails (the LOD provider falls back, the "
-        "tool fails); without it the picture is drawn by the fallback and the 'wrote' line "
-        "says so (exit 0)",
+        "tool or a layer type fails); without it the picture is drawn by the fallback and the "
+        "'wrote' line says so (exit 0), except where nothing stands in for the plugin (a "
+        "layer type that cannot open a --layer file, the --tool-csv tool): exit 3 either way",
     )
     parser.add_argument(
         "--collapse",
@@ -111,45 +96,6 @@ def parse_size(text: str) -> tuple[int, int]:
     if not (16 <= w <= 16384 and 16 <= h <= 16384):
         raise GlobeviewError(f"--size {text} is out of range (16..16384 pixels a side)")
     return w, h
-
-
-def parse_floats(text: str, name: str, lengths: tuple[int, ...]) -> list[float]:
-    """Comma-separated numbers as people write them (`validate.parse_float`: not Python's
-    "1_0" for 10); a one-line `GlobeviewError` naming ``name`` otherwise."""
-    from globeview.errors import GlobeviewError
-    from globeview.validate import parse_float
-
-    try:
-        vals = [parse_float(v) for v in text.split(",")]
-    except ValueError:
-        raise GlobeviewError(f"{name} must be comma-separated numbers, not {text!r}") from None
-    if len(vals) not in lengths:
-        raise GlobeviewError(f"{name} takes {' or '.join(map(str, lengths))} numbers")
-    return vals
-
-
-def checked(option: str, check, *values):
-    """``check(*values)``, its ValueError turned into a one-line error naming ``option``
-    (the model's checks say what is wrong and the valid range; the CLI adds the option)."""
-    from globeview.errors import GlobeviewError
-
-    try:
-        return check(*values)
-    except ValueError as exc:
-        msg = str(exc)
-        bare = option.lstrip("-")
-        if msg.startswith(bare + " "):  # "tau must be ..." -> "--tau must be ..."
-            raise GlobeviewError(option + msg[len(bare) :]) from None
-        raise GlobeviewError(f"{option}: {msg}") from None
-
-
-def parse_camera(text: str) -> tuple[float, ...]:
-    """--camera LON,LAT,HEIGHT[,HEADING,PITCH[,ROLL]], validated like `Camera.from_lonlat`."""
-    from globeview.model.camera import check_lonlat_hpr
-
-    vals = parse_floats(text, "--camera", (3, 5, 6))
-    vals += [0.0, -90.0, 0.0][len(vals) - 3 :]
-    return checked("--camera", check_lonlat_hpr, *vals)
 
 
 def parse_background(text: str) -> tuple[float, float, float]:
@@ -199,7 +145,7 @@ def parse_tool_args(args: argparse.Namespace) -> tuple[str | None, list, list[tu
     """(tool name or None, its points, the ``--set`` texts with the option each came from),
     with ``--collapse A,B[,R]`` read as ``--tool collapse --points A;B --set
     collapse.ratio=R``. Only the syntax is checked here; names and values are checked against
-    the plugins in `resolve_plugin_args`."""
+    the plugins in `check_plugin_options`."""
     from globeview.errors import GlobeviewError
 
     points: list[tuple[float, float]] = []
@@ -282,11 +228,14 @@ def check_tool_csv(args: argparse.Namespace, tool: str | None, others: list):
     return path
 
 
-def tool_plot_csv(scene, tool_name: str) -> str:
+def tool_plot_csv(scene, tool_name: str, strict: bool = False) -> str:
     """The CSV text of the plot the active tool publishes (`Plot`, see
-    globeview.plugins.tool_output); one-line `GlobeviewError` when it publishes none (its
-    plugin failed, it has no ``plot()``, or its points gave none). Garbage fails the tool."""
-    from globeview.errors import GlobeviewError
+    globeview.plugins.tool_output). A tool that failed (before or in ``plot()``; garbage
+    returned fails it too) is a one-line `PluginFailed` naming it and its error (exit 3:
+    nothing stands in for it); one that works but publishes none (no ``plot()``, or its
+    points gave none) is the user's one-line `GlobeviewError` (exit 2)."""
+    from globeview.errors import GlobeviewError, PluginFailed
+    from globeview.plugins.api import PluginKind
     from globeview.plugins.tool_output import Plot
 
     tool = scene.tool()
@@ -298,9 +247,13 @@ def tool_plot_csv(scene, tool_name: str) -> str:
             plot = None
     # Plot's own csv_text, isolated: a plugin's Plot subclass may override what it calls.
     text = None if plot is None else scene.registry.call_for(tool, Plot.csv_text, plot)
-    if not isinstance(text, str):
-        raise GlobeviewError(f"--tool-csv: the tool {tool_name} published no plot; nothing written")
-    return text
+    if isinstance(text, str):
+        return text
+    why = scene.registry.failure_of(tool_name, PluginKind.TOOL)
+    if why is not None:  # the plugin's fault, not a tool without a plot: say so (exit 3)
+        suffix = " (--strict)" if strict else ""
+        raise PluginFailed(f"--tool-csv: tool {tool_name} failed: {why}; nothing written{suffix}")
+    raise GlobeviewError(f"--tool-csv: the tool {tool_name} published no plot; nothing written")
 
 
 def check_inputs(args: argparse.Namespace) -> None:
@@ -400,46 +353,26 @@ def open_sources(sources: list[str], crs: str | None, vdatum: str | None = None)
     return stores
 
 
-def resolve_plugin_args(registry, tool: str | None, sets: list[tuple[str, str]]) -> list:
-    """Check ``--tool`` and ``--set`` against the plugins (importing only the plugins that
-    declare the names) before any terrain is read: one-line `GlobeviewError` for an unknown
-    or failed contribution, an unknown setting or a bad value. Returns the checked
-    (`SettingTarget`, value) pairs."""
-    from globeview.errors import GlobeviewError
-    from globeview.plugins.api import PluginKind
-    from globeview.plugins.settings import find_contribution, resolve_assignment
-
-    if tool is not None and not registry.offers(PluginKind.TOOL, tool):
-        if any(  # declared, but by a disabled or failed plugin: say which and why
-            rec.manifest is not None
-            and any(
-                c.kind == PluginKind.TOOL and c.name == tool for c in rec.manifest.contributions
-            )
-            for rec in registry
-        ):
-            find_contribution(registry, tool)  # raises, naming the plugin's state
-        known = ", ".join(sorted(registry.declared(PluginKind.TOOL))) or "none"
-        raise GlobeviewError(f"--tool: no enabled tool named {tool!r:.80} (tools: {known})")
-    return [resolve_assignment(registry, text, option) for text, option in sets]
+#: How the warning of `warn_unused_settings` says to use a contribution, by kind.
+_USE_HINT = {"lod": "--lod {}", "tool": "--tool {}", "layer": "--layer {}:FILE"}
 
 
-def warn_unused_settings(registry, assignments: list, lod: str, tool: str | None) -> None:
-    """One warning line per --set of an LOD provider or tool this render does not use (the
-    user likely meant it to change the picture); layer types are not judged (which ones
-    open a --layer file is decided by the files)."""
+def warn_unused_settings(registry, assignments: list, used: dict[str, set]) -> None:
+    """One warning line per --set of a contribution this render does not use (the user
+    likely meant it to change the picture), for the kinds in ``used`` (kind -> the names
+    used): LOD providers and tools are known before any work, layer types once the --layer
+    files (and the embedded overlays) are open, since the files decide which types open
+    them."""
     import logging
 
-    used = {"lod": {lod}, "tool": {tool}}
     for target, _ in assignments:
         kind = target.kind(registry)
         if kind in used and target.contribution not in used[kind]:
-            option = "--lod" if kind == "lod" else "--tool"
             logging.getLogger("globeview.cli").warning(
-                "--set %s: %s is not used by this render (%s %s)",
+                "--set %s: %s is not used by this render (%s)",
                 target.label,
                 target.contribution,
-                option,
-                target.contribution,
+                _USE_HINT[kind].format(target.contribution),
             )
 
 
@@ -466,8 +399,8 @@ def run(args: argparse.Namespace) -> int:
     check_cache_writable(args.sources, args.crs, args.vdatum)
     check_dem_options(args)  # "egm2008" or a typo: one line before any work
     registry = PluginRegistry().discover()
-    assignments = resolve_plugin_args(registry, tool_name, sets)
-    warn_unused_settings(registry, assignments, args.lod, tool_name)
+    assignments = check_plugin_options(registry, args.lod, tool_name, sets)
+    warn_unused_settings(registry, assignments, {"lod": {args.lod}, "tool": {tool_name}})
     apply_overrides(registry, assignments)  # this render only: nothing is stored
     stores = open_sources_in_cache(args.sources, args.crs, args.vdatum)
     terrain = TerrainStack.from_stores(stores)
@@ -495,8 +428,8 @@ def run(args: argparse.Namespace) -> int:
             scene.remove_overlay(scene.overlay_layers[-1])  # keep the imagery only
         else:
             scene.add_embedded_overlays(imagery=args.imagery)
-    for path in args.layer:
-        scene.add_overlay(path)
+    open_layers(scene, args.layer, args.strict)
+    warn_unused_settings(registry, assignments, {"layer": scene.overlay_host.types_used})
     if tool_name is not None:
         tool = scene.find_tool(tool_name)  # imports that tool's plugin only
         if tool is not None:
@@ -517,6 +450,8 @@ def run(args: argparse.Namespace) -> int:
 
     st = result.stats
     failures = plugin_failures(scene, args.lod, tool_name)
+    # The plot is asked for before --strict judges: a tool failing in plot() is a failure.
+    extra = {csv_path: tool_plot_csv(scene, tool_name, args.strict)} if csv_path else {}
     tiles_failed = int(st.extra.get("tiles_failed", 0))
     dead = [x for x in stores if getattr(x, "is_remote", False) and x.blocks_read == 0]
     if tiles_failed and dead:
@@ -541,7 +476,6 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return STRICT_EXIT
-    extra = {csv_path: tool_plot_csv(scene, tool_name)} if csv_path is not None else {}
     write_outputs(Image.fromarray(target.read_rgb()), stats, out, stats_path, extra)
     drew = st.lod_provider
     if not drew or not registry.offers(PluginKind.LOD, drew):
@@ -629,14 +563,16 @@ def tool_status(scene) -> str:
     return text if len(text) <= 300 else text[:297] + "..."
 
 
-#: Exit status of `render --strict` when a plugin failed (2 is bad input, 1 a bug).
+#: Exit status of `render --strict` when a plugin failed (2 is bad input, 1 a bug); the
+#: status of every `PluginFailed`.
 STRICT_EXIT = 3
 
 
 def plugin_failures(scene, lod: str, tool: str | None) -> dict[str, str]:
     """What failed during the render: ``{"provider": reason}`` when the requested LOD
     provider did not draw the frame (the session fell back), ``{"tool": reason}`` when the
-    tool's plugin failed (its overlay and displacement were dropped)."""
+    tool's plugin failed (its overlay and displacement were dropped), ``{"layers": text}``
+    when layer types failed (a ``sniff`` that crashed while another type took the file)."""
     out: dict[str, str] = {}
     drew = scene.last.stats.lod_provider if scene.last is not None else ""
     failure_of = scene.registry.failure_of
@@ -644,7 +580,42 @@ def plugin_failures(scene, lod: str, tool: str | None) -> dict[str, str]:
         out["provider"] = failure_of(lod) or "it did not draw"
     if tool is not None and scene.tool() is None:
         out["tool"] = failure_of(tool) or "it was not active"
+    layers = layer_type_failures(scene.registry)
+    if layers:
+        out["layers"] = "; ".join(f"layer type {n} failed: {why}" for n, why in layers.items())
     return out
+
+
+def layer_type_failures(registry) -> dict[str, str]:
+    """Layer type name -> ``"ExcType: message"`` of each layer type that failed in this
+    process (failures are per session: a render's are its own)."""
+    from globeview.plugins.api import PluginKind
+
+    return {
+        name: failure.error
+        for rec in registry
+        for name, failure in rec.failures.items()
+        if failure.kind == PluginKind.LAYER
+    }
+
+
+def open_layers(scene, layers: list[str], strict: bool) -> None:
+    """Open each ``--layer`` file (`GlobeSession.add_overlay`). A layer type that fails on
+    one is a `PluginFailed` line (exit 3, nothing written); under ``strict`` so is the user's
+    error met after a layer type failed on the way (a ``sniff`` that crashed), since a
+    plugin failed."""
+    from globeview.errors import GlobeviewError, PluginFailed
+
+    suffix = "; nothing written" + (" (--strict)" if strict else "")
+    for path in layers:
+        try:
+            scene.add_overlay(path)
+        except PluginFailed as exc:
+            raise PluginFailed(f"{exc}{suffix}") from None
+        except GlobeviewError as exc:
+            if strict and layer_type_failures(scene.registry):
+                raise PluginFailed(f"{exc}{suffix}") from None
+            raise
 
 
 def failure_texts(lod: str, tool: str | None, failures: dict[str, str]) -> list[str]:
@@ -654,6 +625,8 @@ def failure_texts(lod: str, tool: str | None, failures: dict[str, str]) -> list[
         said.append(f"fell back from {lod}: {failures['provider']}")
     if "tool" in failures:
         said.append(f"tool {tool} failed: {failures['tool']}")
+    if "layers" in failures:
+        said.append(failures["layers"])
     if "tiles" in failures:
         said.append(failures["tiles"])
     return said

@@ -16,7 +16,7 @@ from typing import cast
 
 import numpy as np
 
-from globeview.lod.tile_indices import IndexVariant
+from globeview.lod.tile_indices import IndexVariant, index_count
 
 #: Deepest quadtree level a key may have: the tile pool packs keys into int64 codes with
 #: x, y < 2^29 (tile_pool.key_codes), and level 28 has 2^29 columns.
@@ -96,6 +96,26 @@ class RenderSet:
     @classmethod
     def empty(cls) -> RenderSet:
         return cls(np.empty((0, 3), np.int64), np.empty(0, np.int64), [])
+
+    def index_counts(self, tile_size: int) -> np.ndarray:
+        """(N,) int64 indices each tile is drawn with (3 per triangle): its variant's over a
+        tile of ``tile_size`` nodes per side, or its ``custom_indices`` list. The renderer
+        draws exactly these (`GlobeRenderer.draw_terrain`), so the frame's ``triangles``
+        stat is ``index_counts(size).sum() // 3``. The set must be valid (`validate`)."""
+        per_variant = np.array(
+            [index_count(int(tile_size), v) for v in self.variants], dtype=np.int64
+        )
+        counts = per_variant[self.variant_ids] if len(self) else np.empty(0, np.int64)
+        if self.custom_indices:
+            counts = counts.copy()
+            for row, idx in self.custom_indices.items():
+                counts[int(row)] = len(idx)
+        return counts
+
+    def triangles(self, tile_size: int) -> int:
+        """Triangles the renderer draws for this set over tiles of ``tile_size`` nodes per
+        side (skirts included, as the frame stats count them)."""
+        return int(self.index_counts(tile_size).sum() // 3)
 
     def validate(self, tile_size: int, verts_per_tile: int | None = None) -> None:
         """Raise `InvalidRenderSet` unless the renderer can draw this set safely.

@@ -8,6 +8,7 @@ the renderer draws all tiles in one multi-draw call with per-draw base vertices.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Literal
 
@@ -34,6 +35,14 @@ class IndexVariant:
     skirts: bool = True
     pole: Pole = None
     edge_strides: tuple[int, int, int, int] | None = None
+
+
+@functools.lru_cache(maxsize=4096)
+def index_count(size: int, variant: IndexVariant) -> int:
+    """How many indices (3 per triangle) ``variant`` has over a tile of ``size`` nodes per
+    side: what the renderer draws for a tile of that variant (cached: a frame uses a few
+    dozen variants at most)."""
+    return len(grid_indices(size, variant))
 
 
 def grid_indices(size: int, variant: IndexVariant) -> np.ndarray:

@@ -32,7 +32,8 @@ defined here it re-exports, under the same names, what a provider, tool or layer
 - culling and error helpers the built-in providers use (`tile_bounding_points`,
   `frustum_visible`, `horizon_visible`, `bounding_distance`, `cull_level`, `chord_sag`, ...);
 - the shared quadtree traversal an LOD provider steers with a policy (`traverse`,
-  `LodPolicy`, `ScreenSpaceErrorPolicy`, `TileCandidates`, `render_set_from_tiles`, ...);
+  `LodPolicy`, `ScreenSpaceErrorPolicy`, `TileCandidates`, `render_set_from_tiles`, ...),
+  and `triangle_count` (the triangles a render set or selection would draw);
 - geodesy on WGS84 (`WGS84`, `lonlat_to_ecef`, `ecef_to_lonlat`, `ecef_foot_points`,
   `enu_basis`, geodesics);
 - errors: `GlobeviewError`, the base of every one-line user error.
@@ -74,7 +75,7 @@ from globeview.plugins.geo import (
     lonlat_to_ecef,
     sample_terrain,
 )
-from globeview.plugins.tool_output import Plot, read_csv_columns
+from globeview.plugins.tool_output import Plot, PlotSeries, read_csv_columns
 
 if TYPE_CHECKING:  # the lazy re-exports (`_REEXPORTS`), spelled out for type checkers
     from globeview.geodesy import WGS84, ecef_foot_points, enu_basis
@@ -103,6 +104,7 @@ if TYPE_CHECKING:  # the lazy re-exports (`_REEXPORTS`), spelled out for type ch
         displacement_key,
         traverse,
     )
+    from globeview.lod.triangle_count import triangle_count
     from globeview.lod.view_state import ViewState
     from globeview.render.tile_mesh import node_lonlat
     from globeview.terrain.quadtree import TileKey, level_shape, tile_bounds_arrays
@@ -128,6 +130,7 @@ __all__ = [
     "Marker",
     "Overlay",
     "Plot",
+    "PlotSeries",
     "PluginContext",
     "PluginKind",
     "PointerEvent",
@@ -178,6 +181,7 @@ __all__ = [
     "tile_bounding_points",
     "tile_bounds_arrays",
     "traverse",
+    "triangle_count",
 ]
 
 #: Public name -> the host module defining it. These names are the supported surface (the
@@ -214,6 +218,7 @@ _REEXPORTS: dict[str, str] = {
     "TileCandidates": "globeview.lod.traversal",
     "traverse": "globeview.lod.traversal",
     "displacement_key": "globeview.lod.traversal",
+    "triangle_count": "globeview.lod.triangle_count",
     "node_lonlat": "globeview.render.tile_mesh",
     "ViewState": "globeview.lod.view_state",
     "TileKey": "globeview.terrain.quadtree",
@@ -239,8 +244,10 @@ def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_REEXPORTS))
 
 
-#: The plugin API version this host implements ("MAJOR.MINOR").
-API_VERSION = "1.1"
+#: The plugin API version this host implements ("MAJOR.MINOR"). 1.2 added, all optional:
+#: `PlotSeries` (plots of several curves), per-point sizes and colours of `Points`,
+#: `triangle_count`, and the ``sniff`` contract written down (docs/plugins.md).
+API_VERSION = "1.2"
 
 
 class PluginKind(StrEnum):
@@ -442,8 +449,9 @@ class LodProvider(_Contribution):
     ``select`` runs once per frame on the UI thread; keep it vectorised (numpy over arrays of
     tiles) and within a few milliseconds. It must not draw or touch GL. The host checks every
     result (`RenderSet.validate`) and times every call against the frame budget
-    (``plugins/budget_ms``, 250 ms): a malformed render set, or too many overruns in a row
-    in the window, disables the provider's plugin and the frame falls back to chunked-sse.
+    (``plugins/budget_ms``, default 1000 ms a call): a malformed render set, or 5 overruns in
+    a row in the window, disables the provider's plugin and the frame falls back to
+    chunked-sse.
     """
 
     def select(self, view: ViewState, terrain: Any) -> RenderSet:

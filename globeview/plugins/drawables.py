@@ -99,8 +99,15 @@ class Points:
         labels: N strings drawn beside the points (empty: no labels).
         kind: ``"placemark"`` (a screen-facing dot of ``size_px``), ``"box"`` or ``"cone"``
             (3-D objects ``scale_m`` metres tall).
-        color: RGBA 0..1; label_color: the labels' RGBA.
+        size_px, scale_m: one number for every point, or (API 1.2) an (N,) array, one per
+            point; each in (0, 500] pixels / (0, 1e7] metres.
+        color: RGBA 0..1 for every point, or (API 1.2) an (N, 3 or 4) array, one per point;
+            label_color: the labels' RGBA.
         name: shown in the overlay panel (default: the file name).
+
+    Per-point arrays of the wrong length or with NaN fail the layer type that returned them
+    (one line). The overlay panel shows the first point's size and colour; setting one
+    there gives every point that value.
     """
 
     lon: Any

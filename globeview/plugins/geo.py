@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from globeview.errors import GlobeviewError
 from globeview.geodesy import ecef_to_lonlat, lonlat_to_ecef
 from globeview.geodesy.geodesic import geodesic_direct, geodesic_inverse
 
@@ -67,14 +68,24 @@ def sample_terrain(terrain: Any, lon: ArrayLike, lat: ArrayLike) -> TerrainSampl
     ellipsoid) at the points (degrees), from the finest level any visible layer has,
     interpolated as the mesh spans its nodes: the numbers ``globeview height`` prints.
 
-    Raises a one-line `GlobeviewError` for a bad point (NaN, |lat| > 90) or unreadable
-    terrain."""
+    The heights have the points' shape: a scalar ``lon, lat`` gives 0-d arrays (``float()``
+    of them works), arrays of shape S give arrays of shape S. Raises a one-line
+    `GlobeviewError` for a bad point (NaN, |lat| > 90), for ``lon`` and ``lat`` of different
+    shapes, or for unreadable terrain."""
     from globeview.terrain.height_query import check_lonlat, composed_heights, geoid_undulation
 
-    lon_a, lat_a = check_lonlat(lon, lat)
+    shape = np.shape(lon)
+    if np.shape(lat) != shape:
+        raise GlobeviewError(
+            f"{np.size(lon)} longitudes (shape {shape}) but {np.size(lat)} latitudes "
+            f"(shape {np.shape(lat)})"
+        )
+    # The height queries work on flat point lists; the caller's shape is put back at the end
+    # (a scalar came back as shape (1,), and float() of that raises under numpy 2).
+    lon_a, lat_a = check_lonlat(np.ravel(lon), np.ravel(lat))
     if terrain is None or not terrain.visible_layers:
         h = np.zeros(lon_a.shape, dtype=np.float64)
     else:
         h = composed_heights(terrain, lon_a, lat_a)
     n = geoid_undulation(lon_a, lat_a)
-    return TerrainSample(h, n, h - n)
+    return TerrainSample(h.reshape(shape), n.reshape(shape), (h - n).reshape(shape))

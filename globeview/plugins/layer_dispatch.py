@@ -14,9 +14,10 @@ Priority (documented in docs/plugins.md, "Drawing from a plugin"):
 3. **Content sniffing**: when no candidate by extension took the file (an unknown or missing
    extension), every other enabled layer type with ``sniff`` is asked, in the same order.
 
-No taker: a one-line `GlobeviewError` naming the installed layer types and their extensions.
-If a candidate's ``sniff`` raised a `GlobeviewError` (its format, but broken: invalid GeoJSON,
-say) and nobody took the file, that more precise line is raised instead.
+No taker: a one-line `GlobeviewError` naming the installed layer types and their extensions,
+and the types disabled on the way with why (a ``sniff`` that crashed, a type that did not
+load). If a candidate's ``sniff`` raised a `GlobeviewError` (its format, but broken: invalid
+GeoJSON, say) and nobody took the file, that more precise line is raised instead.
 
 Sniffing runs plugin code under the registry's isolation: a ``sniff`` that crashes fails its
 contribution (reported once) and counts as False.
@@ -116,6 +117,10 @@ def _describe(infos: list[LayerTypeInfo]) -> str:
     return ", ".join(parts)
 
 
+#: Longest reason of a disabled type quoted in the no-taker line (the log has the rest).
+_WHY_CHARS = 120
+
+
 def _sniff(registry: Any, obj: Any, path: Path, errors: list[GlobeviewError]) -> bool | None:
     """True/False from the type's ``sniff``; None when it has none."""
     if not callable(getattr(obj, "sniff", None)):
@@ -126,6 +131,24 @@ def _sniff(registry: Any, obj: Any, path: Path, errors: list[GlobeviewError]) ->
         errors.append(exc)
         return False
     return got is True
+
+
+def _no_taker(registry: Any, p: Path, infos: list[LayerTypeInfo], sniffed: set[str]) -> str:
+    """The one line when no layer type opens ``p``: the types still enabled, then those
+    disabled on the way (``sniffed``: the names whose ``sniff`` was called) and why. A type
+    that failed must not be listed as installed: the user would think it had refused the
+    file."""
+    alive, dead = [], []
+    for info in infos:
+        why = registry.failure_of(info.name, PluginKind.LAYER)
+        if why is None:
+            alive.append(info)
+            continue
+        why = why if len(why) <= _WHY_CHARS else why[: _WHY_CHARS - 3] + "..."
+        what = "its sniff failed" if info.name in sniffed else "failed"
+        dead.append(f"{info.name} ({what}: {why})")
+    disabled = f"; disabled: {', '.join(dead)}" if dead else ""
+    return f"{p.name}: no layer type opens this file (installed: {_describe(alive)}{disabled})"
 
 
 def choose_layer_type(registry: Any, path: str | Path, explicit: str | None = None) -> str:
@@ -152,11 +175,13 @@ def choose_layer_type(registry: Any, path: str | Path, explicit: str | None = No
     by_ext = [(i, _suffix_match(p, i.extensions)) for i in infos]
     by_ext = sorted([t for t in by_ext if t[1]], key=lambda t: -t[1])  # stable: order kept
     tried: set[str] = set()
+    sniffed: set[str] = set()
     for info, _ in by_ext:
         tried.add(info.name)
         obj = registry.find(PluginKind.LAYER, info.name)
         if obj is None:
             continue
+        sniffed.add(info.name)
         verdict = _sniff(registry, obj, p, errors)
         if verdict is None or verdict:
             return info.name
@@ -164,11 +189,14 @@ def choose_layer_type(registry: Any, path: str | Path, explicit: str | None = No
         if info.name in tried:
             continue
         obj = registry.find(PluginKind.LAYER, info.name)
-        if obj is not None and _sniff(registry, obj, p, errors):
+        if obj is None:
+            continue
+        sniffed.add(info.name)
+        if _sniff(registry, obj, p, errors):
             return info.name
     if errors:
         raise errors[0]
-    raise GlobeviewError(f"{p.name}: no layer type opens this file (installed: {_describe(infos)})")
+    raise GlobeviewError(_no_taker(registry, p, infos, sniffed))
 
 
 def overlay_file_filter(registry: Any) -> str:

@@ -21,9 +21,52 @@ from globeview.plugins.registry import PluginRegistry
 from globeview.terrain.remote import TileNotReady
 from globeview.terrain.stack import TerrainStack
 
-__all__ = ["LodHost"]
+__all__ = ["LodHost", "check_lod_name"]
 
 log = logging.getLogger("globeview.session")
+
+
+def _declared_by_failed(registry: PluginRegistry, name: str) -> bool:
+    """Whether LOD provider ``name`` is declared by a plugin whose contribution failed (it
+    did not load): the host falls back instead of refusing the name."""
+    return any(
+        rec.manifest is not None
+        and any(
+            c.kind == PluginKind.LOD
+            and c.name == name
+            and rec.contribution_status(name) == "failed"
+            for c in rec.manifest.contributions
+        )
+        for rec in registry
+    )
+
+
+def _unavailable(registry: PluginRegistry, name: str) -> GlobeviewError:
+    """The one line for a name no enabled plugin provides: unknown, disabled, or declared by a
+    plugin that failed as a whole (an invalid manifest), with the names available."""
+    known = ", ".join(sorted(registry.declared(PluginKind.LOD))) or "none"
+    rec = registry.records.get(name)
+    if rec is not None and rec.status == "failed":  # e.g. its manifest is invalid
+        return GlobeviewError(
+            f"no enabled LOD provider named {name!r}: plugin {name} failed: {rec.error} "
+            f"(available: {known})"
+        )
+    if rec is not None and not rec.enabled:
+        return GlobeviewError(
+            f"LOD provider {name!r} is disabled; `globeview plugins enable {name}` "
+            f"(available: {known})"
+        )
+    return GlobeviewError(f"no enabled LOD provider named {name!r:.80} (available: {known})")
+
+
+def check_lod_name(registry: PluginRegistry, name: str) -> None:
+    """Raise the one-line `GlobeviewError` `LodHost.choose` would for ``name`` (no enabled
+    plugin declares it), from the manifests alone: nothing is imported, so a command line
+    is checked before any work. A provider that is declared but fails when it loads passes
+    here (the host falls back to `DEFAULT_LOD` then, saying why)."""
+    if registry.offers(PluginKind.LOD, name) or _declared_by_failed(registry, name):
+        return
+    raise _unavailable(registry, name)
 
 
 class LodHost:
@@ -48,33 +91,11 @@ class LodHost:
         if registry.find(PluginKind.LOD, name) is not None:
             self.globe.lod = name
             return
-        declared_by_failed = any(
-            rec.manifest is not None
-            and any(
-                c.kind == PluginKind.LOD
-                and c.name == name
-                and rec.contribution_status(name) == "failed"
-                for c in rec.manifest.contributions
-            )
-            for rec in registry
-        )
-        if declared_by_failed and name != DEFAULT_LOD:
+        if _declared_by_failed(registry, name) and name != DEFAULT_LOD:
             log.info("LOD provider %s failed to load; using %s", name, DEFAULT_LOD)
             self.choose(DEFAULT_LOD)
             return
-        known = ", ".join(sorted(registry.declared(PluginKind.LOD))) or "none"
-        rec = registry.records.get(name)
-        if rec is not None and rec.status == "failed":  # e.g. its manifest is invalid
-            raise GlobeviewError(
-                f"no enabled LOD provider named {name!r}: plugin {name} failed: {rec.error} "
-                f"(available: {known})"
-            )
-        if rec is not None and not rec.enabled:
-            raise GlobeviewError(
-                f"LOD provider {name!r} is disabled; `globeview plugins enable {name}` "
-                f"(available: {known})"
-            )
-        raise GlobeviewError(f"no enabled LOD provider named {name!r:.80} (available: {known})")
+        raise _unavailable(registry, name)
 
     def reset(self) -> None:
         """Make the active provider forget its per-view cache (before a measured frame)."""

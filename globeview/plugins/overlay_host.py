@@ -20,7 +20,7 @@ from typing import Any
 
 from psygnal import Signal
 
-from globeview.errors import GlobeviewError
+from globeview.errors import GlobeviewError, PluginFailed
 from globeview.model.globe import Globe
 from globeview.plugins.api import PluginKind
 from globeview.plugins.host_checks import has_method
@@ -50,6 +50,9 @@ class OverlayHost:
         #: One line per overlay dropped at a frame because the GPU side refused it.
         self.errors: list[str] = []
         self._detach: list[_PluginLayer] = []  # removed API 1.0 layers, detached next frame
+        #: The layer types that opened a file this session (`open`), e.g. to tell the user a
+        #: setting of another type changed nothing.
+        self.types_used: set[str] = set()
 
     # -- layer types ---------------------------------------------------------------------------
     def layer_types(self) -> list:
@@ -83,7 +86,7 @@ class OverlayHost:
         ``attach``/``detach`` (attached at the next frame: its methods take the GL
         renderer). Bad files raise a one-line `GlobeviewError` and leave the plugin
         enabled; garbage returned, or a crash, fails that layer type (reported) and raises
-        a one-line `GlobeviewError`."""
+        a one-line `PluginFailed` (a `GlobeviewError`: exit 3 on the command line)."""
         from globeview.plugins.layer_dispatch import parse_layer_spec
         from globeview.plugins.overlay_layers import as_drawables, host_layer
 
@@ -127,10 +130,12 @@ class OverlayHost:
             # (`prepare_gpu`), where a GL refusal drops the layer with a one-line message.
             _check_drape_size(layer, renderer.overlays.imagery.tex_size, Path(path).name)
         if layer is failed:
-            raise GlobeviewError(
+            # The plugin's fault, not the file's: no other type stands in for it.
+            raise PluginFailed(
                 f"layer type {name} could not open {Path(path).name}: {self._why(obj)}"
             )
         self.globe.add_overlay(layer)
+        self.types_used.add(name)
         return layer
 
     def open_embedded(self, renderer: GlobeRenderer, imagery: bool = False) -> list:

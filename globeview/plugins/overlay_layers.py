@@ -38,6 +38,7 @@ from globeview.plugins.drawables import (
     RasterDrape,
     RasterFile,
 )
+from globeview.plugins.host_checks import point_colors_problem, point_sizes_problem
 from globeview.terrain.imagery import (
     DEFAULT_TEX_SIZE,
     ImageryLayer,
@@ -148,17 +149,21 @@ class _StyledLayer(_ModelLayer):
     #: The attributes `set_style` changes (the rest is the layer's data).
     style_fields: tuple[str, ...] = ()
 
-    def set_style(self, **style: Any) -> bool:
-        """Change style attributes (colour, width_px, size_px, ...); next frame. An unknown
-        name or a bad value (`style_problem`) is refused (ValueError, one line) and nothing
-        changes: no frame trips over a NaN width or a colour that is not 3-4 numbers.
-        True (and one ``changed``, one GPU rebuild) if a value differs from the current."""
+    def check_style(self, style: dict[str, Any]) -> None:
+        """ValueError (one line) for a style name this layer lacks or a bad value."""
         for k, v in style.items():
             if k not in self.style_fields:
                 raise ValueError(f"{type(self).__name__} has no style {k!r}")
             problem = style_problem(k, v)
             if problem is not None:
                 raise ValueError(f"{type(self).__name__} style {problem}")
+
+    def set_style(self, **style: Any) -> bool:
+        """Change style attributes (colour, width_px, size_px, ...); next frame. An unknown
+        name or a bad value (`style_problem`) is refused (ValueError, one line) and nothing
+        changes: no frame trips over a NaN width or a colour that is not 3-4 numbers.
+        True (and one ``changed``, one GPU rebuild) if a value differs from the current."""
+        self.check_style(style)
         new = {}
         for k, v in style.items():
             if k in ("color", "label_color"):
@@ -194,10 +199,18 @@ class VectorLayer(_StyledLayer):
     style_fields = ("color", "width_px", "dash_px")
 
 
+#: A `PointsLayer` style value -> the per-point array it replaces when set.
+_PER_POINT = {"size_px": "point_sizes_px", "scale_m": "point_scales_m", "color": "point_colors"}
+
+
 @dataclass(eq=False)
 class PointsLayer(_StyledLayer):
     """Point objects: placemarks with labels, or boxes/cones (kind in overlay_points.KINDS);
-    size in pixels for placemarks, scale in metres for objects."""
+    size in pixels for placemarks, scale in metres for objects.
+
+    ``point_sizes_px``, ``point_scales_m`` (N,) and ``point_colors`` (N, 4) RGBA are a size
+    or colour per point (API 1.2), drawn instead of the one value; a `set_style` of that
+    value (the overlay panel's) gives every point the new one (the array is dropped)."""
 
     name: str
     lon: np.ndarray
@@ -212,8 +225,25 @@ class PointsLayer(_StyledLayer):
     kind: str = "points"
     visible: bool = True
     style_version: int = field(default=0, repr=False)
+    point_sizes_px: np.ndarray | None = field(default=None, repr=False)
+    point_scales_m: np.ndarray | None = field(default=None, repr=False)
+    point_colors: np.ndarray | None = field(default=None, repr=False)
     gpu_kind = "points"
     style_fields = ("object_kind", "size_px", "scale_m", "color", "labels", "label_color")
+
+    def set_style(self, **style: Any) -> bool:
+        """`_StyledLayer.set_style`; setting ``size_px``, ``scale_m`` or ``color`` also
+        drops that per-point array (every point gets the value, even one equal to the
+        first point's, which alone would be no change)."""
+        self.check_style(style)
+        dropped = [a for k, a in _PER_POINT.items() if k in style and getattr(self, a) is not None]
+        for attr in dropped:
+            setattr(self, attr, None)
+        changed = super().set_style(**style)
+        if dropped and not changed:  # the arrays went: the GPU twin must be rebuilt
+            self.style_version += 1
+            self.changed.emit()
+        return changed or bool(dropped)
 
 
 class DrawnLayer(_ModelLayer):
@@ -406,11 +436,12 @@ def drawable_problem(d: Any) -> str | None:
             return f"Points with {len(set(labels))} distinct labels (at most {MAX_DISTINCT_LABELS})"
         if d.kind not in POINT_KINDS:
             return f"Points kind {d.kind!r:.40} (one of {POINT_KINDS})"
+        n = len(lon)
         return (
-            _rgba_problem(d.color, "Points color")
+            point_colors_problem(d.color, n, "Points color")
             or _rgba_problem(d.label_color, "Points label_color")
-            or _positive(d.size_px, "Points size_px", 500.0)
-            or _positive(d.scale_m, "Points scale_m", 1e7)
+            or point_sizes_problem(d.size_px, n, "Points size_px", 500.0)
+            or point_sizes_problem(d.scale_m, n, "Points scale_m", 1e7)
         )
     if isinstance(d, RasterDrape):
         a = d.rgba
@@ -519,20 +550,49 @@ def _cut(label: str) -> str:
     return label if len(label) <= MAX_LABEL_CHARS else label[: MAX_LABEL_CHARS - 3] + "..."
 
 
+# A per-point size or colour (API 1.2) becomes the layer's one value (the first point's: what
+# the overlay panel shows and edits) plus the per-point array the renderer draws.
+def _sizes(values: Any) -> tuple[float, np.ndarray | None]:
+    """A checked size (a number, or one per point) as (one value, per-point array or None)."""
+    arr = np.asarray(values, np.float64)
+    if arr.ndim == 0:
+        return float(arr), None
+    arr = arr.reshape(-1).copy()
+    arr.setflags(write=False)
+    return float(arr[0]), arr
+
+
+def _colours(values: Any) -> tuple[tuple[float, ...], np.ndarray | None]:
+    """A checked colour (3-4 numbers, or (N, 3-4) one per point) as (one RGBA, per-point
+    (N, 4) RGBA or None); alpha 1 where only RGB is given."""
+    arr = np.asarray(values, np.float64)
+    if arr.ndim == 1:
+        return tuple(float(v) for v in [*arr, 1.0][:4]), None
+    rgba = np.concatenate([arr, np.ones((len(arr), 4 - arr.shape[1]))], axis=1)
+    rgba.setflags(write=False)
+    return tuple(float(v) for v in rgba[0]), rgba
+
+
 def points_layer(d: Points, name: str) -> PointsLayer:
     # Longer labels are cut (with an ellipsis), not refused: a name field may be long.
     labels = [_cut(str(s)) for s in d.labels] if d.labels else []
+    size_px, sizes_px = _sizes(d.size_px)
+    scale_m, scales_m = _sizes(d.scale_m)
+    color, colors = _colours(d.color)
     return PointsLayer(
         d.name or name,
         np.asarray(d.lon, np.float64).reshape(-1),
         np.asarray(d.lat, np.float64).reshape(-1),
         labels,
         object_kind=d.kind,
-        size_px=float(d.size_px),
-        scale_m=float(d.scale_m),
-        color=tuple(float(v) for v in [*d.color, 1.0][:4]),  # type: ignore[arg-type]
+        size_px=size_px,
+        scale_m=scale_m,
+        color=color,  # type: ignore[arg-type]
         labels=bool(labels),
         label_color=tuple(float(v) for v in [*d.label_color, 1.0][:4]),  # type: ignore[arg-type]
+        point_sizes_px=sizes_px,
+        point_scales_m=scales_m,
+        point_colors=colors,
     )
 
 

@@ -37,6 +37,7 @@ __all__ = [
     "parse_assignment",
     "parse_setting_value",
     "resolve_assignment",
+    "resolve_plugin_args",
     "setting_problem",
     "settings_problems",
     "stored_values",
@@ -487,3 +488,26 @@ def apply_overrides(registry: Any, assignments: list[tuple[SettingTarget, Any]])
         entry[1][target.setting.name] = value
     for target, values in merged.values():
         registry.invoke(target.instance, "configure", values)
+
+
+def resolve_plugin_args(registry: Any, tool: str | None, sets: list[tuple[str, str]]) -> list:
+    """Check a command line's ``--tool`` and ``--set`` (texts with the option each came from)
+    against the plugins, importing only the plugins that declare the names: one-line
+    `GlobeviewError` for an unknown or failed contribution, an unknown setting or a bad
+    value. Returns the checked (`SettingTarget`, value) pairs for `apply_overrides`. `render`
+    and `gui` check theirs with it before any work; the window applies them with it."""
+    from globeview.errors import GlobeviewError
+    from globeview.plugins.api import PluginKind
+
+    if tool is not None and not registry.offers(PluginKind.TOOL, tool):
+        if any(  # declared, but by a disabled or failed plugin: say which and why
+            rec.manifest is not None
+            and any(
+                c.kind == PluginKind.TOOL and c.name == tool for c in rec.manifest.contributions
+            )
+            for rec in registry
+        ):
+            find_contribution(registry, tool)  # raises, naming the plugin's state
+        known = ", ".join(sorted(registry.declared(PluginKind.TOOL))) or "none"
+        raise GlobeviewError(f"--tool: no enabled tool named {tool!r:.80} (tools: {known})")
+    return [resolve_assignment(registry, text, option) for text, option in sets]

@@ -92,12 +92,21 @@ def globeview_config_dir(tmp_path_factory: pytest.TempPathFactory, monkeypatch) 
 
 
 @pytest.fixture
-def globeview_registry(globeview_config_dir: Path) -> PluginRegistry:
-    """A plugin registry persisting to the test's config dir, with discovery done."""
+def globeview_registry(
+    globeview_config_dir: Path, request: pytest.FixtureRequest
+) -> PluginRegistry:
+    """A plugin registry persisting to the test's config dir, with discovery done. When the
+    test also uses ``globeview_terrain``, the contributions it creates get that terrain in
+    their context (``context.terrain``), as the window's and ``render``'s do; otherwise
+    None (the embedded terrain is ingested only for the tests that ask for it)."""
     from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.settings import JsonFileSettings
 
-    return PluginRegistry(JsonFileSettings(globeview_config_dir / "settings.json")).discover()
+    registry = PluginRegistry(JsonFileSettings(globeview_config_dir / "settings.json"))
+    registry.discover()
+    if "globeview_terrain" in request.fixturenames:
+        registry.attach(terrain=request.getfixturevalue("globeview_terrain"))
+    return registry
 
 
 @pytest.fixture
@@ -274,8 +283,11 @@ class RenderedFrame:
         render_set: the `RenderSet` that was drawn.
         failures: contribution name -> ``"ExcType: message"`` of the provider or tool of this
             frame that failed (empty when both worked).
-        session: the `GlobeSession` (its registry, camera, picking) for further checks;
-            None once `rendered` has drawn the next frame (it released this one's GL).
+        session: the `GlobeSession` (its registry, camera, terrain) for further checks;
+            ``session.pick(x, y)`` gives the terrain point under a pixel of this frame
+            (pixels from the top-left; a `Pick` with ``lon``, ``lat`` degrees, ``height`` m
+            above WGS84, ``ecef``, ``on_terrain``). None once `rendered` has drawn the next
+            frame (it released this one's GL objects); `release` does that by hand.
     """
 
     image: np.ndarray
@@ -285,11 +297,24 @@ class RenderedFrame:
     render_set: RenderSet
     failures: dict[str, str] = field(default_factory=dict)
     session: Any = field(default=None, repr=False)
+    #: The framebuffer the frame was drawn into: picking reads its depth, so it lives as
+    #: long as the session (it was released at once, and ``session.pick`` raised).
+    target: Any = field(default=None, repr=False)
 
     @property
     def fell_back(self) -> bool:
         """True when the requested provider did not draw the frame."""
         return self.provider != self.requested
+
+    def release(self) -> None:
+        """Release the frame's GL objects (the session's tile pool, the target); the image
+        and stats stay. Idempotent; `rendered` calls it for the previous frame."""
+        if self.session is not None:
+            self.session.release_gl()
+            self.session = None
+        if self.target is not None:
+            self.target.release()
+            self.target = None
 
 
 def render_frame(
@@ -321,7 +346,8 @@ def render_frame(
             above WGS84 (pitch -90: straight down); default: the whole globe from 20,000 km.
         size: (width, height) pixels.
 
-    The caller releases nothing: the session's GL objects live as long as its context.
+    The frame keeps its session and target for picking (``frame.session.pick``); release
+    them with `RenderedFrame.release` (the `rendered` fixture does) when frames are many.
     """
     from globeview.model.camera import Camera
     from globeview.plugins.session import GlobeSession
@@ -353,8 +379,10 @@ def render_frame(
         session.reset_lod()
         result = session.render(target.fbo, size)  # the tool's overlay included
         image = target.read_rgb()
-    finally:
+    except BaseException:
         target.release()
+        session.release_gl()
+        raise
     stats = dict(result.stats.as_dict())
     failures = {
         name: why
@@ -369,6 +397,7 @@ def render_frame(
         render_set=result.render_set,
         failures=failures,
         session=session,
+        target=target,  # the session's last frame's depth: what `session.pick` reads
     )
 
 
@@ -416,10 +445,7 @@ def rendered(
 
     def release_previous() -> None:
         while frames:
-            old = frames.pop()
-            if old.session is not None:
-                old.session.release_gl()
-                old.session = None
+            frames.pop().release()
 
     def render(lod: str = "chunked-sse", **kwargs: Any) -> RenderedFrame:
         release_previous()

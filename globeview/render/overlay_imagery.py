@@ -226,4 +226,13 @@ def _make_twin(ctx: moderngl.Context, layer: Any) -> Any:
         labels=layer.labels,
         label_color=layer.label_color,
     )
-    return PointOverlay(ctx, layer.lon, layer.lat, layer.names, style, name=layer.name)
+    # Per-point sizes (plugin API 1.2) as scale factors of the style's size for the kind:
+    # pixels for placemarks, metres for 3-D objects.
+    placemark = layer.object_kind == "placemark"
+    sizes = getattr(layer, "point_sizes_px" if placemark else "point_scales_m", None)
+    base = layer.size_px if placemark else layer.scale_m
+    scale = None if sizes is None else np.asarray(sizes, np.float64) / float(base)
+    colors = getattr(layer, "point_colors", None)
+    return PointOverlay(
+        ctx, layer.lon, layer.lat, layer.names, style, scale=scale, colors=colors, name=layer.name
+    )

@@ -243,10 +243,16 @@ class PointOverlay:
     Args:
         ctx: moderngl context; lon, lat: (N,) degrees; names: N labels (or None);
         style: PointStyle; heading_deg, scale: optional (N,) per-object heading and scale
-        factor (times style.scale_m for 3-D kinds, style.size_px for placemarks).
+        factor (times style.scale_m for 3-D kinds, style.size_px for placemarks); colors:
+        optional (N, 4) RGBA 0..1 per object (default: style.color for all).
     """
 
-    FLOATS = 9  # hi (3), lo (3), scale, heading (rad), label index
+    FLOATS = 13  # hi (3), lo (3), scale, heading (rad), label index, RGBA (4)
+    #: The instance rows' layout, and the attributes the programs read from it.
+    ROW_FORMAT = "3f 3f 1f 1f 1f 4f"
+    ROW_ATTRS = ("in_hi", "in_lo", "in_scale", "in_heading", "in_label", "in_color")
+    #: A box sprite's row: hi, lo, the three axes (ECEF m), RGBA.
+    SPRITE_FLOATS = 19
 
     def __init__(
         self,
@@ -258,6 +264,7 @@ class PointOverlay:
         heading_deg: np.ndarray | None = None,
         scale: np.ndarray | None = None,
         name: str = "points",
+        colors: np.ndarray | None = None,
     ) -> None:
         self.ctx = ctx
         self.name = name
@@ -270,9 +277,16 @@ class PointOverlay:
         n = len(self.lon)
         self.heading = np.radians(np.zeros(n) if heading_deg is None else heading_deg)
         self.scale = np.ones(n) if scale is None else np.asarray(scale, np.float64)
+        # One RGBA per object, read per instance (the shaders' in_color): a colour each
+        # costs no more than one for all, and style edits rebuild the overlay anyway.
+        self.colors = (
+            np.tile(np.asarray(self.style.color, np.float64), (n, 1))
+            if colors is None
+            else np.asarray(colors, np.float64).reshape(n, 4)
+        )
         self.names = list(names) if names is not None else []
-        fmt = "3f 3f 1f 1f 1f/i"
-        attrs = ("in_hi", "in_lo", "in_scale", "in_heading", "in_label")
+        fmt = self.ROW_FORMAT + "/i"
+        attrs = self.ROW_ATTRS
         self.instances = gpu_objects(ctx).buffer(reserve=max(n, 1) * self.FLOATS * 4, dynamic=True)
         if self.style.kind == "placemark":
             self.program = gpu_objects(ctx).program(
@@ -310,10 +324,18 @@ class PointOverlay:
                 )
                 nbytes = max(n, 1) * self.FLOATS * 4
                 self.meshes = gpu_objects(ctx).buffer(reserve=nbytes, dynamic=True)
-                self.sprites = gpu_objects(ctx).buffer(reserve=max(n, 1) * 15 * 4, dynamic=True)
+                self.sprites = gpu_objects(ctx).buffer(
+                    reserve=max(n, 1) * self.SPRITE_FLOATS * 4, dynamic=True
+                )
                 self.sprite_vao = gpu_objects(ctx).vertex_array(
                     self.sprite_prog,
-                    [(self.sprites, "3f 3f 3f 3f 3f", "in_hi", "in_lo", "in_ax", "in_ay", "in_az")],
+                    [
+                        (
+                            self.sprites,
+                            "3f 3f 3f 3f 3f 4f",
+                            *("in_hi", "in_lo", "in_ax", "in_ay", "in_az", "in_color"),
+                        )
+                    ],
                 )
             self.mesh = gpu_objects(ctx).buffer(mesh.tobytes())
             self.n_mesh = len(mesh)
@@ -334,7 +356,7 @@ class PointOverlay:
         # ECEF metres), bounding centre (ECEF, float64) and radius (m), and the last frame's
         # split (sprite/mesh masks' bytes).
         self._rows = np.zeros((0, self.FLOATS), np.float32)
-        self._sprite_rows = np.zeros((0, 15), np.float32)
+        self._sprite_rows = np.zeros((0, self.SPRITE_FLOATS), np.float32)
         self._centres = np.zeros((0, 3))
         self._radii = np.zeros(0)
         self._split: tuple[bytes, bytes] | None = None
@@ -387,6 +409,7 @@ class PointOverlay:
                 (self.scale[idx] * base)[:, None],
                 self.heading[idx, None],
                 self.label_of[idx, None],
+                self.colors[idx],
             ],
             axis=1,
         ).astype(np.float32)
@@ -403,9 +426,9 @@ class PointOverlay:
             size = (self.scale[idx] * base).astype(np.float64)
             axes = box_axes(pts, self.heading[idx], size)
             self._rows, self._centres = data, pts + 0.5 * axes[:, 2]
-            self._sprite_rows = np.concatenate([hi, lo, axes.reshape(-1, 9)], axis=1).astype(
-                np.float32
-            )
+            self._sprite_rows = np.concatenate(
+                [hi, lo, axes.reshape(-1, 9), self.colors[idx]], axis=1
+            ).astype(np.float32)
             self._radii = BOX_RADIUS * size
         elif self.style.kind == "placemark":
             self._rows = self._sprite_rows = data
@@ -443,8 +466,7 @@ class PointOverlay:
             return 0
         uni = view_uniforms(view)
         uni.update(
-            u_color=tuple(float(c) for c in self.style.color),
-            u_inv_axes2=INV_AXES2,
+            u_inv_axes2=INV_AXES2,  # the objects' colours come per instance (in_color)
             u_light=tuple(float(v) for v in view.rotation[2]),
         )
         ctx = self.ctx

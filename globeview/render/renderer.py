@@ -452,7 +452,8 @@ class GlobeRenderer:
         table = np.array(
             [self.indices.get(v) for v in render_set.variants], dtype=np.int64
         ).reshape(-1, 2)
-        counts = table[render_set.variant_ids, 1] if n else np.empty(0, np.int64)
+        # What each tile draws, counted as the plugin API's `triangle_count` counts it.
+        counts = render_set.index_counts(self.size)
         firsts = table[render_set.variant_ids, 0] if n else np.empty(0, np.int64)
         custom = np.zeros(n, dtype=bool)
         custom_cmds = None
@@ -460,11 +461,8 @@ class GlobeRenderer:
             rows = np.array(sorted(render_set.custom_indices), dtype=np.int64)
             custom[rows] = True
             chunks = [np.asarray(render_set.custom_indices[int(r)], np.uint32) for r in rows]
-            lengths = np.array([len(c) for c in chunks], dtype=np.int64)
-            starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+            starts = np.concatenate([[0], np.cumsum(counts[rows])[:-1]])
             self._write_custom_indices(np.concatenate(chunks))
-            counts = counts.copy()
-            counts[rows] = lengths
             custom_cmds = (rows, starts)
 
         verts = self.pool.verts_per_tile

@@ -17,6 +17,7 @@ from globeview.terrain.stack import TerrainStack
 from globeview.ui.errors import install_excepthook
 from globeview.ui.globe_widget import surface_format
 from globeview.ui.main_window import MainWindow
+from globeview.ui.start import WindowStart, apply_start
 
 ORGANIZATION = "globeview"
 APPLICATION = "globeview"
@@ -104,16 +105,28 @@ def plugin_registry(qsettings: QSettings):
     return PluginRegistry(backend, budget_policy="disable")
 
 
-def run(files: Sequence[str] = (), settings: QSettings | None = None) -> int:
-    """Open the window with the embedded data plus ``files``; returns the exit code."""
+def run(
+    files: Sequence[str] = (),
+    settings: QSettings | None = None,
+    start: WindowStart | None = None,
+) -> int:
+    """Open the window with the embedded data plus ``files`` (DEMs, stores, store URLs,
+    overlay files), on ``start``'s view, LOD provider, tool and settings (`apply_start`);
+    returns the exit code."""
     logging.basicConfig(level=logging.WARNING, format="globeview: %(levelname)s: %(message)s")
     app = create_application()
     qsettings = settings or QSettings(ORGANIZATION, APPLICATION)
+    start = start or WindowStart()
     window = MainWindow(
-        embedded_terrain(), qsettings, plugin_registry(qsettings), embedded_overlays=True
+        embedded_terrain(),
+        qsettings,
+        plugin_registry(qsettings),
+        camera=start.camera_object(),
+        embedded_overlays=True,
     )
     previous = install_excepthook(window.errors)
     try:
+        apply_start(window, start)
         window.show()
         window.open_paths(list(files))
         return int(app.exec())

@@ -8,10 +8,11 @@ new `Plot` object is drawn and the dock shown; the same object again changes not
 (or no active tool) clears and hides the dock. Something that is not a `Plot` fails the
 tool's plugin with one line, as any bad value a plugin returns does.
 
-Drawing is plain QPainter (no plotting library in the app): axes with "nice" ticks, the curve
-broken at NaN (gaps), the title and axis labels. "Export CSV..." writes the plot's table
-atomically (`Plot.write_csv`, `globeview.fileio`); a failure is one line in a dialog and no
-file is written or changed.
+Drawing is plain QPainter (no plotting library in the app): axes with "nice" ticks, each
+curve (the plot's own and its `PlotSeries`, API 1.2) in its colour of `CURVE_COLOURS` broken
+at NaN (gaps), a legend when there is more than one, the title and axis labels. "Export
+CSV..." writes the plot's table, every series included, atomically (`Plot.write_csv`,
+`globeview.fileio`); a failure is one line in a dialog and no file is written or changed.
 """
 
 from __future__ import annotations
@@ -42,6 +43,16 @@ log = logging.getLogger("globeview.ui")
 
 #: The curve's colour (also what the window test looks for).
 CURVE_RGB = (30, 144, 255)
+#: The curves' colours in order: the plot's own, then its series (cycled past the last):
+#: distinct hues that stay apart for the common colour-vision deficiencies.
+CURVE_COLOURS: tuple[tuple[int, int, int], ...] = (
+    CURVE_RGB,
+    (230, 97, 1),
+    (26, 152, 80),
+    (152, 78, 163),
+    (200, 30, 60),
+    (120, 120, 120),
+)
 #: Plot margins in pixels: left (tick labels), right, top, bottom (tick labels + axis title).
 MARGINS = (64, 14, 10, 42)
 
@@ -100,7 +111,7 @@ def _decimate(xs: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 class PlotView(QWidget):
-    """Draws one `Plot` (or a hint when there is none)."""
+    """Draws one `Plot`, every curve of it (or a hint when there is none)."""
 
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -119,12 +130,23 @@ class PlotView(QWidget):
             left, top, max(self.width() - left - right, 1), max(self.height() - top - bottom, 1)
         )
 
+    def legend(self) -> list[str]:
+        """The legend's entries (the curves' labels), [] for a single curve: its y axis
+        title names it."""
+        p = self.plot
+        if p is None or not p.series:
+            return []
+        return [label for label, _, _ in p.curves()]
+
     def ranges(self) -> tuple[tuple[float, float], tuple[float, float]] | None:
-        """((x0, x1), (y0, y1)) the axes span, or None without a plot or finite y."""
+        """((x0, x1), (y0, y1)) the axes span (every curve), or None without a plot or
+        finite y."""
         p = self.plot
         if p is None:
             return None
-        xr, yr = data_range(p.x), data_range(p.y)
+        curves = p.curves()
+        xr = data_range(np.concatenate([x for _, x, _ in curves]))
+        yr = data_range(np.concatenate([y for _, _, y in curves]))
         if xr is None or yr is None:
             return None
         pad = 0.05 * (yr[1] - yr[0])  # the curve's peaks clear the frame
@@ -153,7 +175,10 @@ class PlotView(QWidget):
                 painter.drawText(self.rect(), Qt.AlignmentFlag.AlignCenter, text)
                 return
             self._draw_axes(painter, *r)
-            self._draw_curve(painter)
+            assert self.plot is not None
+            for i, (_, x, y) in enumerate(self.plot.curves()):
+                self._draw_curve(painter, x, y, CURVE_COLOURS[i % len(CURVE_COLOURS)])
+            self._draw_legend(painter)
         finally:
             painter.end()
 
@@ -201,16 +226,39 @@ class PlotView(QWidget):
                          Qt.AlignmentFlag.AlignHCenter, p.y_label)  # fmt: skip
         painter.restore()
 
-    def _draw_curve(self, painter: QPainter) -> None:
-        """The curve as runs of finite values (NaN breaks it); a run that draws no length
+    def _draw_legend(self, painter: QPainter) -> None:
+        """A box in the frame's top-right corner: a swatch of each curve's colour and its
+        label (only with several curves)."""
+        labels = self.legend()
+        if not labels:
+            return
+        painter.setClipping(False)
+        fm = painter.fontMetrics()
+        f = self.frame_rect()
+        width = max(fm.horizontalAdvance(t) for t in labels) + 30
+        row = fm.height() + 2
+        box = QRectF(f.right() - width - 6, f.top() + 6, width, row * len(labels) + 6)
+        painter.setPen(QPen(QColor(160, 160, 160)))
+        painter.setBrush(QColor(255, 255, 255, 230))
+        painter.drawRect(box)
+        for i, text in enumerate(labels):
+            y = box.top() + 3 + i * row + row / 2
+            colour = QColor(*CURVE_COLOURS[i % len(CURVE_COLOURS)])
+            painter.setPen(QPen(colour, 3.0))
+            painter.drawLine(QPointF(box.left() + 5, y), QPointF(box.left() + 21, y))
+            painter.setPen(QColor(40, 40, 40))
+            painter.drawText(QPointF(box.left() + 26, y + fm.ascent() / 2 - 1), text)
+
+    def _draw_curve(
+        self, painter: QPainter, x: np.ndarray, y: np.ndarray, rgb: tuple[int, int, int]
+    ) -> None:
+        """One curve as runs of finite values (NaN breaks it); a run that draws no length
         (one point, or all its points on one pixel) is a dot, so no value goes unseen."""
-        p = self.plot
-        assert p is not None
-        px, py = self.data_to_px(p.x, p.y)
+        px, py = self.data_to_px(x, y)
         ok = np.isfinite(py)
         painter.setClipRect(self.frame_rect().adjusted(-4, -4, 4, 4))
-        painter.setPen(QPen(QColor(*CURVE_RGB), 2.0))
-        painter.setBrush(QColor(*CURVE_RGB))
+        painter.setPen(QPen(QColor(*rgb), 2.0))
+        painter.setBrush(QColor(*rgb))
         # Runs of consecutive finite values: [start, stop) index pairs.
         edges = np.diff(np.concatenate([[0], ok.astype(np.int8), [0]]))
         for start, stop in zip(
@@ -226,7 +274,7 @@ class PlotView(QWidget):
                 path.lineTo(x, y)
             painter.setBrush(Qt.BrushStyle.NoBrush)
             painter.drawPath(path)
-            painter.setBrush(QColor(*CURVE_RGB))
+            painter.setBrush(QColor(*rgb))
 
 
 class PlotDock(QDockWidget):

@@ -4,7 +4,9 @@
 - ``bool``: a check box;
 - ``choice``: a combo box of the choices;
 - ``int`` / ``float`` with both bounds: a slider and a spin box kept in step (the slider for
-  a quick drag, the box for an exact value);
+  a quick drag, the box for an exact value); an int whose span is at most
+  ``MAX_INT_SLIDER_SPAN`` has a slider position per value, a wider one (and a float)
+  ``SLIDER_STEPS`` positions across the range, rounded to a whole value;
 - ``int`` / ``float`` without both bounds: a spin box alone;
 - any other type: a disabled label showing the value (nothing to edit, nothing raises).
 
@@ -31,9 +33,9 @@ from PyQt6.QtWidgets import (
 
 from globeview.plugins.api import Setting
 
-#: Slider positions across a bounded float setting's range.
+#: Slider positions across a bounded float setting's range (and a wide int one's).
 SLIDER_STEPS = 1000
-#: Widest int range still given a slider (one position per value).
+#: Widest int range given one slider position per value; a wider one gets `SLIDER_STEPS`.
 MAX_INT_SLIDER_SPAN = 100_000
 
 
@@ -94,13 +96,13 @@ class SettingEditor(QWidget):
             spin.setSingleStep(_step(lo, hi))
         self.spin = spin
         if lo is not None and hi is not None and hi > lo:
-            span_ok = spec.type != "int" or hi - lo <= MAX_INT_SLIDER_SPAN
-            if span_ok:
-                self.slider = QSlider(Qt.Orientation.Horizontal)
-                self.slider.setRange(0, int(hi - lo) if spec.type == "int" else SLIDER_STEPS)
-                self.slider.setMinimumWidth(90)
-                self.slider.valueChanged.connect(self._slider_moved)
-                lay.addWidget(self.slider, 1)
+            # Every bounded number gets a slider (docs/plugins.md's table); a wide int range
+            # steps through it in proportion, as a float's does (the box stays exact).
+            self.slider = QSlider(Qt.Orientation.Horizontal)
+            self.slider.setRange(0, int(hi - lo) if self._int_per_value() else SLIDER_STEPS)
+            self.slider.setMinimumWidth(90)
+            self.slider.valueChanged.connect(self._slider_moved)
+            lay.addWidget(self.slider, 1)
         spin.valueChanged.connect(self._user_edit)
         lay.addWidget(spin)
 
@@ -156,15 +158,25 @@ class SettingEditor(QWidget):
             return min(max(0, self.spin.minimum()), self.spin.maximum())
         return False if self.spec.type == "bool" else value
 
+    def _int_per_value(self) -> bool:
+        """Whether the slider has one position per value (a bounded int of a narrow span)."""
+        lo, hi = _finite(self.spec.min), _finite(self.spec.max)
+        return (
+            self.spec.type == "int"
+            and lo is not None
+            and hi is not None
+            and hi - lo <= MAX_INT_SLIDER_SPAN
+        )
+
     def _to_slider(self, v: float) -> int:
         lo, hi = float(self.spec.min), float(self.spec.max)  # type: ignore[arg-type]
-        if self.spec.type == "int":
+        if self._int_per_value():
             return round(v - lo)
         return round((v - lo) / (hi - lo) * SLIDER_STEPS)
 
     def _from_slider(self, pos: int) -> float:
         lo, hi = float(self.spec.min), float(self.spec.max)  # type: ignore[arg-type]
-        if self.spec.type == "int":
+        if self._int_per_value():
             return lo + pos
         return lo + (hi - lo) * pos / SLIDER_STEPS
 
@@ -178,8 +190,13 @@ class SettingEditor(QWidget):
     def _slider_moved(self, pos: int) -> None:
         if self.spin is None:
             return
-        # The spin box rounds to its decimals; its valueChanged then reports the edit.
-        self.spin.setValue(self._from_slider(pos))
+        # The spin box rounds to its decimals (an int box takes whole values only); its
+        # valueChanged then reports the edit.
+        v = self._from_slider(pos)
+        if isinstance(self.spin, QSpinBox):
+            self.spin.setValue(round(v))
+        else:
+            self.spin.setValue(v)
 
     def _user_edit(self, *_args: Any) -> None:
         if self.slider is not None and not self.slider.isSliderDown():

@@ -209,6 +209,25 @@ def test_a_crashing_sniff_fails_only_that_type(plugin_site, tmp_path) -> None:
     assert choose_layer_type(reg, plain) == "vector"  # asked once, then left out
 
 
+def test_a_type_disabled_by_its_sniff_is_named_as_such_with_why(plugin_site, tmp_path) -> None:
+    """Nobody takes the file after a sniff crashed (issue #29 item 9): the line no longer
+    lists the crashed type as installed; it says the type was disabled and why."""
+    plugin_site.add(
+        "gvt_greedy",
+        GREEDY_MANIFEST,
+        {"impl": GREEDY_IMPL.replace('return "greedy" in', "raise ZeroDivisionError('zz') #")},
+    )
+    f = tmp_path / "notes.xyz"
+    f.write_bytes(b"\x00\x01 nothing anyone reads")
+    with pytest.raises(GlobeviewError) as info:
+        choose_layer_type(_registry(), f)
+    msg = str(info.value)
+    assert "\n" not in msg and msg.startswith("notes.xyz: no layer type opens this file")
+    installed = msg.split("(installed: ", 1)[1].split(";", 1)[0]
+    assert "greedy" not in installed and "vector (.geojson .json)" in installed
+    assert msg.endswith("; disabled: greedy (its sniff failed: ZeroDivisionError: zz))")
+
+
 def test_open_overlay_filter_lists_every_type(zebra_site) -> None:
     flt = overlay_file_filter(_registry())
     entries = flt.split(";;")

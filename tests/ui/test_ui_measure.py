@@ -28,7 +28,7 @@ B = (-71.22, 44.31)
 def to_widget(win, lon: float, lat: float) -> QPoint:
     """Widget (logical) position of the terrain at (lon, lat) in the last frame."""
     g = win.globe
-    h = float(sample_terrain(win.terrain, lon, lat).ellipsoidal[0])
+    h = float(sample_terrain(win.terrain, lon, lat).ellipsoidal)
     p = np.asarray(lonlat_to_ecef(lon, lat, h), np.float64).reshape(1, 3)
     x, y, _ = g.scene.last.view.project(p)[0]
     r = g.devicePixelRatio()

@@ -35,6 +35,31 @@ def test_bounded_float_slider_and_box_stay_in_step(qtbot) -> None:
     assert w.slider.value() == round((0.5 - 0.01) / 0.99 * w.slider.maximum())
 
 
+def test_wide_int_range_gets_a_slider_too(qtbot) -> None:
+    """docs/plugins.md's table: an int with both bounds is a slider and a spin box, whatever
+    its span (issue #29 item 10: a span over 100 000 got a spin box alone). The slider then
+    steps through the range in proportion; the box stays exact and whole."""
+    w, seen = _editor(qtbot, Setting("max_tiles", "int", 20000, min=1, max=1_000_000), 20000)
+    assert w.slider is not None and w.spin is not None
+    w.slider.setValue(w.slider.maximum())
+    assert seen[-1] == 1_000_000 and isinstance(seen[-1], int)
+    w.slider.setValue(w.slider.minimum())
+    assert seen[-1] == 1 and w.value() == 1
+    w.spin.setValue(500_001)
+    assert seen[-1] == 500_001  # the box is exact; the slider shows about where it is
+    assert abs(w.slider.value() / w.slider.maximum() - 0.5) < 0.01
+    w.slider.setValue(w.slider.maximum() // 4)
+    assert isinstance(seen[-1], int) and abs(seen[-1] - 250_000) < 1_000
+
+
+def test_dragging_an_int_slider_sets_a_whole_value(qtbot) -> None:
+    """A narrow int range (a position per value): moving its slider handed the int spin box a
+    float, which PyQt6 refuses with a TypeError in a slot (the process aborted)."""
+    w, seen = _editor(qtbot, Setting("n", "int", 5, min=1, max=9), 5)
+    w.slider.setValue(2)
+    assert seen == [3] and w.value() == 3 and isinstance(seen[0], int)
+
+
 @pytest.mark.parametrize(
     ("spec", "value", "shown"),
     [

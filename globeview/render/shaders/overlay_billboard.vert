@@ -14,8 +14,10 @@ in vec3 in_lo;
 in float in_scale;      // pixels
 in float in_heading;
 in float in_label;
+in vec4 in_color;       // RGBA 0..1, one per placemark
 
 out vec2 v_corner;
+flat out vec4 v_color;
 
 void main() {
     vec3 cam = u_rot * gv_rel_to_eye(in_hi, in_lo);
@@ -23,6 +25,7 @@ void main() {
     float w = max(-cam.z, 1e-6);
     vec2 corner = vec2((gl_VertexID & 1) == 0 ? -1.0 : 1.0, gl_VertexID < 2 ? -1.0 : 1.0);
     v_corner = corner;
+    v_color = in_color;
     // The point is the bottom-centre tip of the marker.
     vec2 off = (corner + vec2(0.0, 1.0)) * 0.5 * in_scale * 2.0 / u_viewport;
     gl_Position = vec4(c.xy + off * c.w, 0.0, c.w);

@@ -4,12 +4,12 @@
 // the entry face's normal lit by the light, the log depth of the hit written per fragment.
 #include "log_depth.glsl"
 
-uniform vec4 u_color;
 uniform vec2 u_viewport;   // pixels
 
 flat in mat3 v_ray;
 flat in vec3 v_origin;
 flat in vec3 v_light;
+flat in vec4 v_color;      // the box's own colour
 out vec4 f_color;
 
 void main() {
@@ -29,6 +29,6 @@ void main() {
     vec3 n = t0 == tn.x ? vec3(-sign(dl.x), 0.0, 0.0)
            : (t0 == tn.y ? vec3(0.0, -sign(dl.y), 0.0) : vec3(0.0, 0.0, -sign(dl.z)));
     float lit = max(dot(n, v_light), 0.0);
-    f_color = vec4(u_color.rgb * (0.45 + 0.55 * lit), u_color.a);
+    f_color = vec4(v_color.rgb * (0.45 + 0.55 * lit), v_color.a);
     gl_FragDepth = log2(1.0 + t0) * u_log_far;   // window depth of the hit (view depth t0)
 }

@@ -22,12 +22,14 @@ in vec3 in_lo;
 in vec3 in_ax;
 in vec3 in_ay;
 in vec3 in_az;
+in vec4 in_color;           // RGBA 0..1, one per box
 
 // The pixel's ray in box units is v_ray * (ndc.x, ndc.y, 1), its parameter t the view depth
 // (m); v_origin is the eye and v_light the light direction in box axes.
 flat out mat3 v_ray;
 flat out vec3 v_origin;
 flat out vec3 v_light;
+flat out vec4 v_color;
 
 void main() {
     vec3 base = gv_rel_to_eye(in_hi, in_lo);
@@ -36,6 +38,7 @@ void main() {
     v_origin = -(to_box * base);
     v_ray = to_box * u_ndc_to_ecef;
     v_light = normalize(transpose(mat3(in_ax, in_ay, in_az)) * u_light);
+    v_color = in_color;
     vec3 cam = u_rot * (base + 0.5 * in_az);
     gl_Position = u_proj * vec4(cam, 1.0);
     float w = max(-cam.z, 1e-6);

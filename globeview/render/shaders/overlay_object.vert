@@ -14,8 +14,10 @@ in vec3 in_lo;
 in float in_scale;
 in float in_heading;
 in float in_label;
+in vec4 in_color;       // RGBA 0..1, one per object
 
 out vec3 v_nrm;
+flat out vec4 v_color;
 
 void main() {
     vec3 up = gv_ellipsoid_up(in_hi);
@@ -32,4 +34,5 @@ void main() {
     float w = max(-cam.z, 1e-6);
     gl_Position.z = gv_log_depth(w) * gl_Position.w;
     v_nrm = frame * in_vnrm;
+    v_color = in_color;
 }

@@ -17,8 +17,12 @@ in vec3 in_lo;
 in float in_scale;      // pixels
 in float in_heading;
 in float in_label;
+in vec4 in_color;       // RGBA 0..1, one per placemark
+
+flat out vec4 v_color;
 
 void main() {
+    v_color = in_color;
     vec3 cam = u_rot * gv_rel_to_eye(in_hi, in_lo);
     vec4 c = u_proj * vec4(cam, 1.0);
     float w = max(-cam.z, 1e-6);
