@@ -38,6 +38,7 @@ from globeview.render.overlay_imagery import OverlaySet  # overlays:
 from globeview.render.shader_source import build_shader, explain_sources
 from globeview.render.tile_loader import TileLoader, substitute_missing, tile_priority
 from globeview.render.tile_mesh import FLOATS_PER_VERTEX, TileMesh, build_tile_mesh
+from globeview.render.tile_normals import DataLevelNormals
 from globeview.render.tile_pool import IndexPool, TilePool, key_codes
 from globeview.terrain.quadtree import tile_bounds, tile_bounds_arrays
 from globeview.terrain.stack import TerrainStack
@@ -75,6 +76,7 @@ class GlobeRenderer:
         self.indices = IndexPool(ctx, self.size)
         self.indices.on_realloc = self._build_vao
         self._terrain_version = terrain.version
+        self._data_normals = DataLevelNormals(terrain)
         self._hook: DisplacementHook | None = None
         # imagery, hillshade, fog, tilt, wireframe (TERRAIN_FEATURES)
         self._features = (False, False, True, False, False)
@@ -254,13 +256,17 @@ class GlobeRenderer:
         return float(depths[int(row[0])])
 
     def _build_one(self, key: tuple[int, int, int], skirt: float) -> TileMesh:
-        # The apron (one node of the same-level neighbours around the tile) makes edge
-        # normals equal on both sides of a tile edge: no shading seams (issue #16).
+        # A tile finer than its data shades with its data level's normals, interpolated
+        # (tile_normals.py: its own would draw the bilinear surface's creases, a lattice).
+        # Otherwise the apron (one node of the same-level neighbours around the tile) makes
+        # edge normals equal on both sides of a tile edge: no shading seams (issue #16).
+        normals = self._data_normals.normals(key)
         return build_tile_mesh(
             tile_bounds_tuple(key),
             self.terrain.heights(key),
             skirt,
-            apron=self.terrain.heights_apron(key),
+            apron=None if normals is not None else self.terrain.heights_apron(key),
+            normals=normals,
         )
 
     def skirt_depths(self, keys: np.ndarray) -> np.ndarray:

@@ -91,6 +91,7 @@ def build_tile_mesh(
     heights: np.ndarray,
     skirt_depth: float,
     apron: np.ndarray | None = None,
+    normals: np.ndarray | None = None,
 ) -> TileMesh:
     """Build a tile's vertices and normals.
 
@@ -100,6 +101,8 @@ def build_tile_mesh(
         skirt_depth: how far (m) the skirts hang below the edge nodes.
         apron: optional (size + 2, size + 2) heights including one node beyond each edge, so
             edge normals average the neighbour's triangles too (no shading seams).
+        normals: optional (size, size, 3) unit ECEF normals to use as they are (a tile finer
+            than its data shades with its data's, `tile_normals`); ``apron`` is then unused.
     """
     size = heights.shape[0]
     lon, lat = node_lonlat(bounds, size)
@@ -109,7 +112,9 @@ def build_tile_mesh(
     mid_lat = 0.5 * (bounds[1] + bounds[3])
     center = np.asarray(lonlat_to_ecef(mid_lon, mid_lat, 0.0), dtype=np.float64).reshape(3)
 
-    if apron is not None:
+    if normals is not None:
+        normals = np.asarray(normals, dtype=np.float32)
+    elif apron is not None:
         normals = _vertex_normals_apron(bounds, apron)
     else:
         normals = _normals_of(*axes.ecef(heights.astype(np.float64)))
@@ -261,10 +266,18 @@ def _vertex_normals_apron(
 ) -> np.ndarray:
     """(size, size, 3) float32 normals of the tile inside ``apron`` ((size + 2)^2 heights,
     one node beyond each edge), so edge nodes see the neighbours' triangles too."""
+    return apron_normals(bounds, apron)[1:-1, 1:-1]
+
+
+def apron_normals(bounds: tuple[float, float, float, float], apron: np.ndarray) -> np.ndarray:
+    """(size + 2, size + 2, 3) float32 unit ECEF normals at every node of ``apron`` (heights in
+    metres, one node beyond each edge of the tile of ``bounds``, degrees): the tile's nodes as
+    `build_tile_mesh` computes them, and the ring's from the triangles the apron has (one
+    side: what `tile_normals` needs of them, a cubic's outer support)."""
     size = apron.shape[0] - 2
     west, south, east, north = bounds
     step_lon = (east - west) / (size - 1)
     step_lat = (north - south) / (size - 1)
     lon = west + step_lon * np.arange(-1, size + 1)
     lat = np.clip(north - step_lat * np.arange(-1, size + 1), -90.0, 90.0)
-    return _normals_of(*_Axes(lon, lat).ecef(apron.astype(np.float64)))[1:-1, 1:-1]
+    return _normals_of(*_Axes(lon, lat).ecef(apron.astype(np.float64)))

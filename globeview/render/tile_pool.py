@@ -91,7 +91,8 @@ class TilePool:
         )
         self.albedo_tex = gpu_objects(ctx).texture_array((size, size, capacity), 4, dtype="f1")
         # Normals as 8-bit unsigned (n * 0.5 + 0.5): llvmpipe samples RGBA8 on its fast path,
-        # half floats noticeably slower; 1/255 steps are ~0.5 degree, finer than shading needs.
+        # half floats noticeably slower; 1/255 steps are ~0.5 degree, finer than shading needs
+        # (issue #29: half floats left the lattice measure of tile_normals.py as it was).
         self.normal_tex = gpu_objects(ctx).texture_array((size, size, capacity), 4, dtype="f1")
         for tex in (self.albedo_tex, self.normal_tex):
             tex.filter = (moderngl.LINEAR, moderngl.LINEAR)

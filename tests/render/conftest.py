@@ -61,6 +61,20 @@ def scene(_shared_scene) -> Iterator:
     sc.tau_px = tau
 
 
+@pytest.fixture
+def chunked_scene(scene):
+    """The session's scene choosing its tiles as the default provider (chunked-sse) does: the
+    fewest triangles within tau, which draws tiles up to `BEYOND_DATA_LEVELS` past the finest
+    data (the shared scene's own policy stops at the data)."""
+    from globeview.lod.policy import ScreenSpaceErrorPolicy
+    from globeview.lod.traversal import traverse
+
+    lod = scene.lod
+    scene.lod = lambda v, t: traverse(v, t, ScreenSpaceErrorPolicy(min_triangles=True))
+    yield scene
+    scene.lod = lod
+
+
 @pytest.fixture(scope="session")
 def targets(gl_ctx):
     """Offscreen targets by size, created once each."""
