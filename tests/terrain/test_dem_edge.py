@@ -12,6 +12,7 @@ samples + the EGM96 undulation, as ingest converts them), and names the DEM.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +23,7 @@ from rasterio.warp import transform as warp_transform
 
 from globeview.terrain.dem import open_dem
 from globeview.terrain.dem_edge import DataCells, continue_surface
-from globeview.terrain.height_query import answering_layers, composed_heights
+from globeview.terrain.height_query import NO_LAYER, answering_layers, composed_heights
 from globeview.terrain.ingest import ingest
 from globeview.terrain.quadtree import key_for_lonlat, node_spacing, tile_bounds_arrays
 from globeview.terrain.stack import TerrainStack
@@ -169,6 +170,42 @@ def test_a_plane_is_followed_up_to_its_last_samples_on_every_side(tmp_path: Path
     got = composed_heights(stack, lon, lat)
     np.testing.assert_allclose(got, want, atol=PLANE_TOLERANCE_M)
     assert set(answering_layers(stack, lon, lat)) == {"plane.tif"}
+
+
+def test_past_the_data_the_surface_goes_down_to_the_ellipsoid_and_says_so(
+    tmp_path: Path,
+) -> None:
+    # Walking north out of the plane's data along a column: the DEM answers up to its last
+    # samples (and a little past them, where the cells that meet its data end), then one grid
+    # cell where its edge ramps down to the ellipsoid, named as the DEM's edge with the weight
+    # its nodes have there, then the ellipsoid (h = 0) named as such.
+    transform = Affine(0.001, 0.0, 10.0, 0.0, -0.001, 46.0)
+    src = _write(tmp_path / "plane.tif", _ragged_plane((90, 120)), transform, "EPSG:4326")
+    stack = _alone(tmp_path, src)
+    node = node_spacing(stack.max_level)
+    # Between columns 60 and 61, whose first data rows are 6 and 8 (``_ragged_plane``): the
+    # DEM's four samples around a point are data from row 8's centre southwards.
+    last = 46.0 - 8.5 * 0.001
+    lat = np.linspace(last - 2 * node, last + 3 * node, 200)
+    lon = np.full(lat.shape, 10.0 + 61.3 * 0.001)
+    names = answering_layers(stack, lon, lat)
+    h = composed_heights(stack, lon, lat)
+    want = _dem_bilinear(src, lon, lat)
+    in_data = np.isfinite(want)
+    assert in_data[0] and not in_data[-1]
+    kind = np.array([0 if n == "plane.tif" else 2 if n == NO_LAYER else 1 for n in names])
+    assert (kind[in_data] == 0).all()
+    np.testing.assert_allclose(h[in_data], want[in_data], atol=PLANE_TOLERANCE_M)
+    assert kind[-1] == 2 and (np.diff(kind) >= 0).all(), names
+    edge = np.flatnonzero(kind == 1)
+    assert edge.size > 0
+    for i in edge:
+        m = re.fullmatch(r"plane\.tif over none \(ellipsoid\) \(edge (\d\.\d\d)\)", names[i])
+        assert m and 0.0 < float(m.group(1)) <= 1.0, names[i]
+    # On the edge cell a share of the DEM's surface (continued a node past its data), then
+    # the ellipsoid.
+    assert (h[edge] > 0.0).all() and (h[edge] < h[kind == 0].max() + 10.0).all()
+    assert (h[kind == 2] == 0.0).all()
 
 
 def test_a_tiles_data_wins_over_its_neighbours_continued_edge(tmp_path: Path) -> None:
