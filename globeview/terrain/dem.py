@@ -17,7 +17,11 @@ Quirks of real data handled here (see data/README.md):
 - complex samples, latitudes beyond +-90 and unusable paths are refused in one line;
 - global grids wrap across the antimeridian and grids reaching a pole are extended to it;
 - interior voids (nodata surrounded by data) are filled; nodata touching the edge of what was
-  read is left as NaN (outside the footprint).
+  read is left as NaN (outside the footprint);
+- at the data's edge (nodata or the raster's end), the nodes just past it that the grid cells
+  meeting the data need as corners get the surface continued linearly (`read_grid_parts`,
+  `globeview.terrain.dem_edge`), so bilinear interpolation between the nodes follows the DEM
+  up to its last samples.
 """
 
 from __future__ import annotations
@@ -48,6 +52,12 @@ from rasterio.enums import Resampling
 from rasterio.windows import Window
 
 from globeview.errors import DemError
+from globeview.terrain.dem_edge import (
+    DataCells,
+    continuation_rings,
+    continue_surface,
+    edge_candidates,
+)
 
 
 # globeview/terrain/dem.py -> repository root /data
@@ -433,6 +443,71 @@ def _datum_from_crs(pc: pyproj.CRS) -> tuple[str, str] | None:
     return None
 
 
+@dataclass(frozen=True)
+class GridParts:
+    """Heights on a grid of nodes (float32 (rows, cols) metres, row 0 north), in two parts
+    (`Dem.read_grid_parts`).
+
+    data: the source's heights at the nodes inside its data, NaN elsewhere;
+    edge: at the nodes outside the data that are corners of a grid cell meeting it, the
+        source's surface continued linearly past its data edge; NaN elsewhere.
+    """
+
+    data: np.ndarray
+    edge: np.ndarray
+
+
+@dataclass(frozen=True)
+class _SourceWindow:
+    """Source cells to warp: arr (float32, NaN = no data) and its affine transform in the
+    source CRS; node_cells, the grid's node spacing in cells of arr (the larger axis);
+    raster_ends, (top, bottom, left, right): whether the raster ends at that side of arr
+    (no data beyond it)."""
+
+    arr: np.ndarray
+    transform: Affine
+    node_cells: float
+    raster_ends: tuple[bool, bool, bool, bool]
+
+    def has_edge(self) -> bool:
+        """Whether the data ends inside or at the side of the window."""
+        return any(self.raster_ends) or bool(np.isnan(self.arr).any())
+
+    def continued_at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """The window's surface continued past its data edge (`continue_surface`), bilinear
+        at fractional positions in its pixel coordinates (samples at pixel centres): float64,
+        NaN where the continuation does not reach. Past the raster's ends the window grows
+        by as many NaN cells as the continuation fills."""
+        out = np.full(rows.shape, np.nan)
+        # Block by block: a data edge is a line through the window, and a continued cell
+        # depends only on the cells within 2 * rings of it, so only a band along the edge is
+        # continued instead of the whole window.
+        block = 128
+        keys = (np.floor(rows / block) * (1 << 20) + np.floor(cols / block)).astype(np.int64)
+        for key in np.unique(keys):
+            at = np.flatnonzero(keys == key)
+            out[at] = self._continued_near(rows[at], cols[at])
+        return out
+
+    def _continued_near(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """`continued_at` from the cells around the positions only."""
+        from globeview.terrain.stack import bilinear  # (stack -> store -> vdatum -> dem)
+
+        rings = continuation_rings(self.node_cells)
+        top, bottom, left, right = (rings if end else 0 for end in self.raster_ends)
+        h, w = self.arr.shape
+        m = 2 * rings + 3  # the cells a continued cell depends on, and the bilinear's
+        r0 = max(-top, math.floor(float(rows.min())) - m)
+        r1 = min(h + bottom, math.ceil(float(rows.max())) + m + 1)
+        c0 = max(-left, math.floor(float(cols.min())) - m)
+        c1 = min(w + right, math.ceil(float(cols.max())) + m + 1)
+        crop = np.full((r1 - r0, c1 - c0), np.nan, dtype=np.float32)
+        ar0, ar1, ac0, ac1 = max(r0, 0), min(r1, h), max(c0, 0), min(c1, w)
+        crop[ar0 - r0 : ar1 - r0, ac0 - c0 : ac1 - c0] = self.arr[ar0:ar1, ac0:ac1]
+        cont = continue_surface(crop, rings)
+        return bilinear(cont, rows - 0.5 - r0, cols - 0.5 - c0)
+
+
 class Dem:
     """An open DEM raster (band 1 is elevation). Use `open_dem` to create one.
 
@@ -789,8 +864,36 @@ class Dem:
     ) -> np.ndarray:
         """Heights at the nodes lon = west + i*dlon, lat = north - j*dlat (WGS84 degrees).
 
-        Returns float32 (height, width), row j / column i; NaN where the source has no data.
-        Only the source window the grid needs is read.
+        Returns float32 (height, width), row j / column i: the source's heights where it has
+        data and, at the other corners of the grid cells that meet its data, its surface
+        continued past the data edge (`read_grid_parts`); NaN elsewhere. Only the source window
+        the grid needs is read.
+        """
+        parts = self.read_grid_parts(west, north, dlon, dlat, width, height, resampling)
+        return np.where(np.isnan(parts.data), parts.edge, parts.data)
+
+    def read_grid_parts(
+        self,
+        west: float,
+        north: float,
+        dlon: float,
+        dlat: float,
+        width: int,
+        height: int,
+        resampling: str = "bilinear",
+    ) -> GridParts:
+        """`read_grid` in two parts: the nodes inside the source's data, and the nodes just
+        beyond it that bilinear interpolation between the nodes needs.
+
+        A node is inside the data where GDAL's warp gives it a value (the source cell holding
+        it has data); ``data`` is that warp, NaN elsewhere. ``edge`` holds the other corners
+        of every grid cell that meets the source's data (a source cell whose four samples are
+        data, overlapped with positive area): there, the source's surface continued linearly
+        past its data edge (`globeview.terrain.dem_edge`). With them, bilinear interpolation
+        between the nodes follows the source up to its last samples instead of ramping to
+        whatever lies beyond over the last node spacing (issue #29). The parts are separate
+        so that a caller combining sources (ingest) lets one source's data win over another's
+        edge.
         """
         if width < 1 or height < 1 or not (dlon > 0 and dlat > 0):
             raise ValueError("read_grid needs width, height >= 1 and dlon, dlat > 0")
@@ -798,29 +901,84 @@ class Dem:
             rs = Resampling[resampling]
         except KeyError:
             raise DemError(f"unknown resampling {resampling!r}") from None
-        out = np.full((height, width), np.nan, dtype=np.float32)
+        shape = (height, width)
+        data = np.full(shape, np.nan, dtype=np.float32)
+        edge = np.full(shape, np.nan, dtype=np.float32)
         # Destination cells centred on the nodes.
         dst_t = Affine(dlon, 0.0, west - dlon / 2.0, 0.0, -dlat, north + dlat / 2.0)
+        windows = self._source_windows(west, north, dlon, dlat, width, height)
+        for src, k in windows:
+            piece = self._warp(src.arr, src.transform, dst_t, shape, rs, k)
+            np.copyto(data, piece, where=np.isnan(data))
+        for src, k in windows:
+            if src.has_edge():
+                self._continue_edge(src, k, data, edge, (west, north, dlon, dlat))
+        if self._geo_fast and self.wraps_longitude:
+            self._set_pole_rows(data, north, dlat)
+        return GridParts(data, edge)
+
+    def _source_windows(
+        self, west: float, north: float, dlon: float, dlat: float, width: int, height: int
+    ) -> list[tuple[_SourceWindow, float]]:
+        """The source windows the nodes need, each with its longitude shift (degrees)."""
         lon0, lon1 = west, west + (width - 1) * dlon
         lat1, lat0 = north, north - (height - 1) * dlat
-        if self._geo_fast:
-            # A regional source may use 0..360 longitudes or cross the antimeridian.
-            shifts = [0.0] if self.wraps_longitude else [-360.0, 0.0, 360.0]
-            for k in shifts:
-                src = self._geo_source(lon0 + k, lon1 + k, lat0, lat1, dlon, dlat)
-                if src is None:
-                    continue
-                arr, src_t = src
-                piece = self._warp(arr, src_t, dst_t, out.shape, rs, k)
-                np.copyto(out, piece, where=np.isnan(out))
-            if self.wraps_longitude:
-                self._set_pole_rows(out, north, dlat)
-        else:
+        if not self._geo_fast:
             src = self._projected_source(lon0, lon1, lat0, lat1, dlon, dlat)
+            return [] if src is None else [(src, 0.0)]
+        windows = []
+        # A regional source may use 0..360 longitudes or cross the antimeridian.
+        for k in [0.0] if self.wraps_longitude else [-360.0, 0.0, 360.0]:
+            src = self._geo_source(lon0 + k, lon1 + k, lat0, lat1, dlon, dlat)
             if src is not None:
-                arr, src_t = src
-                out = self._warp(arr, src_t, dst_t, out.shape, rs, 0.0)
-        return out
+                windows.append((src, k))
+        return windows
+
+    def _continue_edge(
+        self,
+        src: _SourceWindow,
+        lon_shift: float,
+        data: np.ndarray,
+        edge: np.ndarray,
+        grid: tuple[float, float, float, float],
+    ) -> None:
+        """Fill in place the nodes of ``edge`` (NaN in ``data`` and ``edge``) that are a corner
+        of a grid cell meeting the data of this source window (with positive area) with its
+        surface continued past its data edge, bilinear at the node. ``grid``: (west, north,
+        dlon, dlat) of the nodes, degrees; ``lon_shift`` moves them into the source's frame."""
+        west, north, dlon, dlat = grid
+        rows, cols = edge_candidates(data)
+        free = np.isnan(edge[rows, cols])  # not filled by another window already
+        rows, cols = rows[free], cols[free]
+        if rows.size == 0:
+            return
+        # Each candidate and its 8 neighbours, (n, 3, 3): the corners of its 4 cells.
+        dr, dc = np.mgrid[-1:2, -1:2]
+        lon = west + lon_shift + (cols[:, None, None] + dc) * dlon
+        lat = north - (rows[:, None, None] + dr) * dlat
+        px, py = self._pixel_positions(src, lon, lat)
+        cells = DataCells(src.arr)
+        needed = np.zeros(rows.size, dtype=bool)
+        for i, j in ((0, 0), (0, 1), (1, 0), (1, 1)):
+            needed |= cells.meet(px[:, i : i + 2, j : j + 2], py[:, i : i + 2, j : j + 2])
+        if not needed.any():
+            return
+        values = src.continued_at(py[needed, 1, 1], px[needed, 1, 1])
+        edge[rows[needed], cols[needed]] = values.astype(np.float32)
+
+    def _pixel_positions(
+        self, src: _SourceWindow, lon: np.ndarray, lat: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Fractional (column, row) pixel coordinates in ``src`` of points (degrees; in the
+        source's longitude frame for a geographic source)."""
+        x, y = lon, lat
+        if not self._geo_fast:
+            with np.errstate(all="ignore"):
+                xs, ys = rasterio.warp.transform(WGS84, self.crs, lon.ravel(), lat.ravel())
+            x = np.asarray(xs, dtype=np.float64).reshape(lon.shape)
+            y = np.asarray(ys, dtype=np.float64).reshape(lat.shape)
+        col, row = ~src.transform @ (x, y)
+        return np.asarray(col, dtype=np.float64), np.asarray(row, dtype=np.float64)
 
     def _set_pole_rows(self, out: np.ndarray, north: float, dlat: float) -> None:
         """Give the nodes at lat +-90 one value each: a pole is a single point.
@@ -885,7 +1043,7 @@ class Dem:
 
     def _geo_source(
         self, lon0: float, lon1: float, lat0: float, lat1: float, dlon: float, dlat: float
-    ) -> tuple[np.ndarray, Affine] | None:
+    ) -> _SourceWindow | None:
         """Source window (with wrap and pole padding) covering the nodes, in source lon/lat."""
         t = self.transform
         ds = self._ds
@@ -895,9 +1053,8 @@ class Dem:
         c1 = math.ceil((lon1 - t.c) / dx - 0.5) + pad + 1
         r0 = math.floor((t.f - lat1) / dy - 0.5) - pad
         r1 = math.ceil((t.f - lat0) / dy - 0.5) + pad + 1
-        if not self.wraps_longitude:
-            c0, c1 = max(c0, 0), min(c1, ds.width)
-        if c1 <= c0:
+        cc0, cc1 = (c0, c1) if self.wraps_longitude else (max(c0, 0), min(c1, ds.width))
+        if cc1 <= cc0:
             return None
         # Rows: read what exists, then extend the edge rows if the source reaches a pole.
         rr0, rr1 = max(r0, 0), min(r1, ds.height)
@@ -907,16 +1064,16 @@ class Dem:
         f = self._decimation(dlon, dlat, dx, dy)
         # Column segments (wrap: modulo width), read separately and concatenated.
         pieces = []
-        c = c0
-        while c < c1:
+        c = cc0
+        while c < cc1:
             seg0 = c % ds.width
-            n = min(c1 - c, ds.width - seg0)
+            n = min(cc1 - c, ds.width - seg0)
             pieces.append(self._read_window(Window(seg0, rr0, n, rr1 - rr0), f))
             c += n
         arr = np.concatenate(pieces, axis=1) if len(pieces) > 1 else pieces[0]
         arr = self._clean(arr)
         # Decimation may round sizes: compute the effective cell size of what was read.
-        sx = (c1 - c0) * dx / arr.shape[1]
+        sx = (cc1 - cc0) * dx / arr.shape[1]
         sy = (rr1 - rr0) * dy / arr.shape[0]
         top = t.f - rr0 * dy
         n_top = math.ceil((rr0 - r0) * dy / sy) if (north_pole and r0 < rr0) else 0
@@ -925,11 +1082,14 @@ class Dem:
             # Extend the edge rows past the pole so the pole nodes get values (not NaN).
             arr = np.pad(arr, ((n_top, n_bot), (0, 0)), mode="edge")
             top += n_top * sy
-        return arr, Affine(sx, 0.0, t.c + c0 * dx, 0.0, -sy, top)
+        # Where the window was cut short by the raster's end (not past a pole), the data ends.
+        ends = (r0 < rr0 and not n_top, r1 > rr1 and not n_bot, c0 < cc0, c1 > cc1)
+        win_t = Affine(sx, 0.0, t.c + cc0 * dx, 0.0, -sy, top)
+        return _SourceWindow(arr, win_t, max(dlon / sx, dlat / sy), ends)
 
     def _projected_source(
         self, lon0: float, lon1: float, lat0: float, lat1: float, dlon: float, dlat: float
-    ) -> tuple[np.ndarray, Affine] | None:
+    ) -> _SourceWindow | None:
         """Source window covering the nodes for a non-geographic (or rotated) source."""
         ds = self._ds
         n = 21
@@ -948,20 +1108,22 @@ class Dem:
         # The sampled nodes bound the window only approximately: pad by a tenth of its span.
         span_c = float(cols.max() - cols.min()) / 10.0
         span_r = float(rows.max() - rows.min()) / 10.0
-        c0 = max(0, math.floor(cols.min() - span_c) - pad)
-        c1 = min(ds.width, math.ceil(cols.max() + span_c) + pad + 1)
-        r0 = max(0, math.floor(rows.min() - span_r) - pad)
-        r1 = min(ds.height, math.ceil(rows.max() + span_r) + pad + 1)
-        if c1 <= c0 or r1 <= r0:
+        c0 = math.floor(cols.min() - span_c) - pad
+        c1 = math.ceil(cols.max() + span_c) + pad + 1
+        r0 = math.floor(rows.min() - span_r) - pad
+        r1 = math.ceil(rows.max() + span_r) + pad + 1
+        cc0, cc1, rr0, rr1 = max(0, c0), min(ds.width, c1), max(0, r0), min(ds.height, r1)
+        if cc1 <= cc0 or rr1 <= rr0:
             return None
         # Source cells per destination cell, from the node spacing mapped into the source.
         cells_x = (cols.max() - cols.min()) / max(1, (lon1 - lon0) / dlon + 2)
         cells_y = (rows.max() - rows.min()) / max(1, (lat1 - lat0) / dlat + 2)
         f = max(1, int(min(cells_x, cells_y) / 2.0))
-        arr = self._clean(self._read_window(Window(c0, r0, c1 - c0, r1 - r0), f))
-        sx, sy = (c1 - c0) / arr.shape[1], (r1 - r0) / arr.shape[0]
-        win_t = self.transform @ Affine.translation(c0, r0) @ Affine.scale(sx, sy)
-        return arr, win_t
+        arr = self._clean(self._read_window(Window(cc0, rr0, cc1 - cc0, rr1 - rr0), f))
+        sx, sy = (cc1 - cc0) / arr.shape[1], (rr1 - rr0) / arr.shape[0]
+        win_t = self.transform @ Affine.translation(cc0, rr0) @ Affine.scale(sx, sy)
+        ends = (r0 < rr0, r1 > rr1, c0 < cc0, c1 > cc1)
+        return _SourceWindow(arr, win_t, float(max(cells_x / sx, cells_y / sy)), ends)
 
     def _read_window(self, window: Window, f: int) -> np.ndarray:
         """Band 1 of a window as float32 metres, decimated by f; nodata, undeclared fills,

@@ -8,11 +8,13 @@ span them. Heights stored in the tiles are ellipsoidal (h, metres above WGS84); 
 undulation N (EGM96, metres) gives the orthometric height H = h - N.
 
 Which layer "answered" a point is the topmost visible layer whose own finest tile has data at
-all four nodes around the point; none means the surface there is the bare ellipsoid (h = 0)
-or a layer's ragged nodata edge: there is no terrain, and the answer has no heights (None),
-only the undulation N (-N would read as an elevation "a.s.l." of the ellipsoid). In a layer's
+all four nodes around the point. Where no layer has all four nodes but one has some (the grid
+cells just past its data's edge, where its surface ramps down to the ellipsoid), the answer
+names that layer's edge and the weight its nodes have in the height there. In a layer's
 border band, where it feathers into the layer below, the answer names both and the weight of
-the upper one.
+the upper one. None means no layer has a node around the point: the surface there is the
+bare ellipsoid (h = 0), there is no terrain, and the answer has no heights (None), only the
+undulation N (-N would read as an elevation "a.s.l." of the ellipsoid).
 """
 
 from __future__ import annotations
@@ -124,11 +126,14 @@ def answering_layers(stack: TerrainStack, lon: np.ndarray, lat: np.ndarray) -> l
     """Per point, the name of the topmost visible layer whose finest tile has data at the four
     nodes around the point (`NO_LAYER` where none does). Inside that layer's border band, where
     it feathers into a layer below (`globeview.terrain.blend`), the answer names both and the
-    upper layer's weight: ``"top over base (blend 0.42)"``."""
+    upper layer's weight: ``"top over base (blend 0.42)"``. Where no layer has the four nodes
+    but one has some, the surface is its data edge ramping down to the ellipsoid: the answer
+    names it and the weight of its nodes there, ``"top over none (ellipsoid) (edge 0.37)"``."""
     lon, lat = check_lonlat(lon, lat)
     layers = stack.visible_layers
     index = _answering_index(layers, lon, lat)
     names = np.array([NO_LAYER if i < 0 else layers[i].name for i in index], dtype=object)
+    _name_edges(names, layers, lon, lat, np.flatnonzero(index < 0))
     for i in np.unique(index[index > 0]):
         at = np.flatnonzero(index == i)
         w = stack.blend_weight(int(i), lon[at], lat[at])
@@ -163,6 +168,39 @@ def _answering_index(layers: list, lon: np.ndarray, lat: np.ndarray) -> np.ndarr
             index[hit] = i
             open_[hit] = False
     return index
+
+
+def _name_edges(
+    names: np.ndarray, layers: list, lon: np.ndarray, lat: np.ndarray, points: np.ndarray
+) -> None:
+    """Name, in place, the ``points`` (indices) where the topmost layer with data at some of the
+    four nodes of its finest tile around them has not all four: ``"X over none (ellipsoid)
+    (edge w)"``, w the sum of the bilinear weights of its nodes with data (the share of its
+    heights in the composed height when nothing lies below)."""
+    open_ = points
+    for layer in reversed(layers):
+        if open_.size == 0:
+            break
+        weight = _data_weight(layer.store, lon[open_], lat[open_])
+        hit = weight > 0.0
+        for p, w in zip(open_[hit], weight[hit], strict=True):
+            names[p] = f"{layer.name} over {NO_LAYER} (edge {w:.2f})"
+        open_ = open_[~hit]
+
+
+def _data_weight(st, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
+    """Per point, the sum of the bilinear weights of the nodes with data among the four around
+    it in the store's finest tile (0 where the tile has no data)."""
+    lm = st.max_level
+    kx, ky = key_for_lonlat(lm, lon, lat)
+    rows, cols = _node_positions(lm, kx, ky, lon, lat, st.tile_size)
+    out = np.zeros(lon.shape, dtype=np.float64)
+    has = st.has_data(lm, kx, ky)
+    for x, y, sub in _by_tile(kx[has], ky[has]):
+        at = np.flatnonzero(has)[sub]
+        ok = np.isfinite(st.heights((lm, x, y))).astype(np.float64)
+        out[at] = bilinear(ok, rows[at], cols[at])
+    return out
 
 
 def _all_corners_valid(grid: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:

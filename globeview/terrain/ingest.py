@@ -15,9 +15,12 @@ GDAL's block cache, not by the raster size):
    `ingest_tasks`). A chunk of level L is the wavelet approximation of level L+1 (read back
    from the chunk files just written, with ``kernel_halo`` nodes of halo); where that is NaN
    (outside level L+1 or no data there) the sources with L_s <= L are read on the level grid
-   with `Dem.read_grid`, the finest source winning where it has data. The finest level is
-   read from the sources only. Pole rows are set to one value (see below). Per-tile hmin,
-   hmax and stride errors are computed from each window before it is written.
+   with `Dem.read_grid_parts`, the finest source winning where it has data. The nodes just
+   past a source's data edge that the grid cells meeting its data need as corners get its
+   surface continued (`dem_edge`; issue #29), unless a source of its level has data there.
+   The finest level is read from the sources only. Pole rows are set to one value (see
+   below). Per-tile hmin, hmax and stride errors are computed from each window before it is
+   written.
 4. Tile errors: for every tile, max |tile bilinear surface - finest data| over the tile's
    footprint, evaluated exactly at the finest nodes (see `tile_errors`). The finest data of a
    place is the finest level that has data there; one task per window of each reference
@@ -345,6 +348,7 @@ class _Builder:
                 bounds=s.bounds,
                 wraps=s.wraps,
                 datum=s.datum,
+                res=float(max(s.record.res_deg)),
             )
             for i, s in enumerate(self.sources)
         ]

@@ -140,7 +140,8 @@ _MAX_OPEN_DEMS = 32
 @dataclass(frozen=True)
 class SourceSpec:
     """A source as a task sees it: its `Dem`'s pickled state (reopened per thread without
-    the value scan), its natural level, footprint (degrees) and vertical datum."""
+    the value scan), its natural level, footprint (degrees), vertical datum and pixel size
+    (degrees, the larger axis)."""
 
     token: str  # unique per build and source
     dem_state: dict
@@ -149,6 +150,7 @@ class SourceSpec:
     bounds: tuple[float, float, float, float]
     wraps: bool
     datum: str
+    res: float
 
     def dem(self) -> Dem:
         """This thread's open `Dem` of the source."""
@@ -299,17 +301,22 @@ def fill_reads_source(
     w: int,
     bounds: tuple[float, float, float, float],
     wraps: bool,
+    res: float,
 ) -> bool:
     """Whether a window of a level (global node indices, h x w nodes) reads a source of
-    this footprint (degrees): it comes within one node spacing of the window."""
+    this footprint (degrees) and pixel size ``res`` (degrees, the larger axis): it comes
+    within a node spacing and a pixel of the window. A source's nodes reach past its
+    footprint's bounds by half a pixel (GDAL's footprint of a pixel-is-point grid) and one
+    node (the ring its data edge is continued over, `Dem.read_grid_parts`)."""
     d = grid.d
+    reach = d + res
     west = -180.0 + gc0 * d
     north = 90.0 - gr0 * d
     south = north - (h - 1) * d
     _, bs, _, bn = bounds
-    if south > bn + d or north < bs - d:
+    if south > bn + reach or north < bs - reach:
         return False
-    return _lon_overlaps(west - d, west + (w - 1) * d + d, bounds, wraps)
+    return _lon_overlaps(west - reach, west + (w - 1) * d + reach, bounds, wraps)
 
 
 def fill_from_sources(
@@ -321,29 +328,49 @@ def fill_from_sources(
     max_source_level: int,
 ) -> None:
     """Fill NaN nodes of ``out`` (global node window at gr0, gc0) from the sources with
-    L_s <= max_source_level, finest first (``sources`` are sorted so), in place."""
+    L_s <= max_source_level, finest first (``sources`` are sorted so), in place.
+
+    The sources of one level fill with their data first, then with the rings their data
+    edges are continued over (`Dem.read_grid_parts`), then the next coarser level's: so a
+    source's data wins over another's ring (tiles of a mosaic), and a finer source's ring
+    over a coarser one's data (the finer surface keeps all four corners of every cell that
+    meets its data)."""
     h, w = out.shape
     d = grid.d
     west = -180.0 + gc0 * d
     north = 90.0 - gr0 * d
     west_n = (west + 180.0) % 360.0 - 180.0
     undulation: np.ndarray | None = None  # N on this window's nodes, when a source needs it
+    rings: list[np.ndarray] = []  # the edge rings of the level being filled
+    level = None
     for s in sources:
         # The cheap footprint test first: with thousands of sources (SRTM tiles) a window
         # meets a handful, and the NaN scan of the window (~0.2 ms) is then paid only for
         # those, not for every source (C's measurement: 257 vs 0.5 core-hours for a planet).
         if s.level > max_source_level or not fill_reads_source(
-            grid, gr0, gc0, h, w, s.bounds, s.wraps
+            grid, gr0, gc0, h, w, s.bounds, s.wraps, s.res
         ):
             continue
+        if s.level != level:
+            _fill_nan(out, rings)
+            rings, level = [], s.level
         if not np.isnan(out).any():
             return
-        vals = s.dem().read_grid(west_n, north, d, d, w, h)
+        parts = s.dem().read_grid_parts(west_n, north, d, d, w, h)
+        data, edge = parts.data, parts.edge
         if s.datum == "egm96":
             if undulation is None:
                 undulation = _window_undulation(west, north, d, w, h)
-            vals = vals + undulation  # NaN (nodata) stays NaN
-        np.copyto(out, vals, where=np.isnan(out))
+            data, edge = data + undulation, edge + undulation  # NaN (nodata) stays NaN
+        np.copyto(out, data, where=np.isnan(out))
+        rings.append(edge)
+    _fill_nan(out, rings)
+
+
+def _fill_nan(out: np.ndarray, values: Sequence[np.ndarray]) -> None:
+    """Fill the NaN nodes of ``out`` in place from ``values``, the first with a value winning."""
+    for v in values:
+        np.copyto(out, v, where=np.isnan(out))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -5,8 +5,9 @@ content changed (size or sha256), only these tasks of the ingest graph run again
 
 - a chunk whose window reads a changed source, with its old or its new footprint and level
   (the same test `ingest_tasks.fill_from_sources` uses to decide whether to read a source:
-  footprint within one node spacing of the window; the bilinear reprojection reads no
-  further), or whose pole row takes a pole height that changed;
+  footprint within a node spacing and a pixel of the window; the bilinear reprojection and
+  the ring a data edge is continued over reach no further), or whose pole row takes a pole
+  height that changed;
 - every task that depends on a rebuilt chunk (the coarser chunks whose wavelet halo reads it,
   the last chunk of its row on a level that goes all the way round, the error windows that
   read it): the graph's own dependencies, followed transitively up the pyramid.
@@ -127,6 +128,7 @@ class _Footprint:
     level: int
     bounds: tuple[float, float, float, float]
     wraps: bool
+    res: float  # pixel size, degrees (the larger axis)
 
 
 def _sha256(path: Path) -> str:
@@ -195,8 +197,9 @@ def plan_update(
         spec = specs[input_order[i]]
         west, south, east, north = (float(v) for v in manifest.sources[i].bounds)
         old_wraps = spec.wraps or (east - west) >= 360.0 - 1e-9
-        feet.append(_Footprint(int(old_levels[i]), (west, south, east, north), old_wraps))
-        feet.append(_Footprint(spec.level, spec.bounds, spec.wraps))
+        old_res = float(max(manifest.sources[i].res_deg))
+        feet.append(_Footprint(int(old_levels[i]), (west, south, east, north), old_wraps, old_res))
+        feet.append(_Footprint(spec.level, spec.bounds, spec.wraps, spec.res))
     old_pole = manifest.pole_heights.as_dict() if manifest.pole_heights else {}
     pole_changed = any(old_pole.get(k) != pole.get(k) for k in ("north", "south"))
 
@@ -258,5 +261,6 @@ def _reads_a_changed_source(
     h, w = kty * s_n + 1, ktx * s_n + 1
     gr0, gc0 = grid.gr0 + by * s_n, grid.gc0 + bx * s_n
     return any(
-        f.level <= lv and fill_reads_source(grid, gr0, gc0, h, w, f.bounds, f.wraps) for f in feet
+        f.level <= lv and fill_reads_source(grid, gr0, gc0, h, w, f.bounds, f.wraps, f.res)
+        for f in feet
     )

@@ -2,7 +2,7 @@
 
 A store is a directory with ``manifest.json`` and, per level, one grid-registered raster
 (EPSG:4326, float32, NaN = no data) split into chunk files ``level_LL_rRRRR_cCCCC.tif``
-mosaicked by ``level_LL.vrt`` (format 5, `globeview.terrain.level_chunks`). Tile (L, x, y) is
+mosaicked by ``level_LL.vrt`` (since format 5, `globeview.terrain.level_chunks`). Tile (L, x, y) is
 the (2^n+1) x (2^n+1) window of level L's raster starting at row (y - y0)*2^n and column
 ((x - x0) mod 2^(L+1))*2^n, where (x0, y0, nx, ny) is the level's tile extent.
 

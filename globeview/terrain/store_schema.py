@@ -16,9 +16,12 @@ format 4), angles are degrees (EPSG:4326 lon/lat), tile extents are quadtree til
 of their level (see `globeview.terrain.levels`). Per-tile arrays are (ny, nx) over the
 level's extent, NaN (JSON ``null``) where a tile has no data.
 
-Versions: 5 splits each level into chunk files (``level_LL_rRRRR_cCCCC.tif``, one per ingest
-window, so many writers can fill a level and HTTP serves it in pieces) mosaicked by a GDAL VRT
-``level_LL.vrt``; 4 heights are ellipsoidal (each source's vertical datum recorded); 3 added the
+Versions: 6 holds, at the nodes just past a source's data edge that a grid cell meeting its
+data needs as corners, the source's surface continued (issue #29: 5's levels ramped toward
+the ellipsoid over the data's last node spacing; the files are laid out as 5's); 5 splits each
+level into chunk files (``level_LL_rRRRR_cCCCC.tif``, one per ingest window, so many writers
+can fill a level and HTTP serves it in pieces) mosaicked by a GDAL VRT ``level_LL.vrt``; 4
+heights are ellipsoidal (each source's vertical datum recorded); 3 added the
 ``format`` marker (heights were the sources' own); 2 had no marker. Only `FORMAT_VERSION` is
 read; older stores are rebuilt (`built_before_vdatums` says which must be), newer ones are
 refused.
@@ -66,7 +69,7 @@ __all__ = [
 ]
 
 STORE_FORMAT = "globeview-tile-store"
-FORMAT_VERSION = 5
+FORMAT_VERSION = 6
 # The first version whose heights are ellipsoidal: older stores must never be mixed with newer.
 VDATUM_FORMAT_VERSION = 4
 MAX_LEVEL_LIMIT = 22  # 180/2^22/64 degrees ~ 7 mm at the equator: far past any DEM

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 
+from globeview.terrain.store_schema import FORMAT_VERSION
+
 from .run_cli import GLOBEVIEW, globeview, one_error_line
 
 
@@ -91,7 +93,7 @@ def test_info_url_describes_the_store(served, tmp_path: Path) -> None:
     server.clear_faults()
     res = globeview("info", f"{server.url}/store", cache=tmp_path / "c")
     assert res.returncode == 0, res.stderr
-    assert "tile store, format 5" in res.stdout and "levels 0..7" in res.stdout
+    assert f"tile store, format {FORMAT_VERSION}" in res.stdout and "levels 0..7" in res.stdout
     res = globeview("info", "--json", f"{server.url}/store", str(root / "store"), cache=tmp_path)
     remote, local = json.loads(res.stdout)
     assert remote["store"] == f"{server.url}/store"

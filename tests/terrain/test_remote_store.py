@@ -27,6 +27,7 @@ from globeview.terrain.http_cache import DiskCache
 from globeview.terrain.quadtree import TileKey
 from globeview.terrain.remote import RemoteError, RemoteOptions, TileNotReady, fetch, is_url
 from globeview.terrain.store import TileStore
+from globeview.terrain.store_schema import FORMAT_VERSION
 
 # ---------------------------------------------------------------------------------------------
 # Fixtures: a folder of files with known bytes, served
@@ -767,7 +768,11 @@ def test_damaged_or_oversized_manifests_are_one_line(store_root: Path, tmp_path:
         ("garbage", b"\x00\xff not json"),
         ("array", b"[1, 2, 3]"),
         ("old", b'{"format": "globeview-tile-store", "format_version": 2}'),
-        ("broken", b'{"format": "globeview-tile-store", "format_version": 5, "levels": 3}'),
+        (
+            "broken",
+            b'{"format": "globeview-tile-store", "format_version": %d, "levels": 3}'
+            % FORMAT_VERSION,
+        ),
         ("huge", b" " * (2 << 20) + b"{}"),
     ]:
         (www / name).mkdir(parents=True)

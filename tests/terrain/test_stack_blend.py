@@ -280,5 +280,8 @@ def test_a_layer_across_the_antimeridian_feathers_on_both_sides(tmp_path):
     n = np.array([stack.height_at(lon, -17.0, level) for lon in lons])  # the base: 0 m + N
     stack.set_visible("top", True)
     np.testing.assert_allclose(h[[0, 3]], n[[0, 3]])  # outside the layer: the base
-    assert np.all(np.abs(h[1:3] - n[1:3]) < 10.0), h  # 0.001 deg inside either edge: w < 0.01
+    # 0.001 deg inside either edge: w < 0.025 (w is 0 on the edge of the layer's nodes, which
+    # since issue #29 reach one of its 0.011 deg nodes past its data: the corners its last
+    # cells need; before, w < 0.01 there).
+    assert np.all(np.abs(h[1:3] - n[1:3]) < 25.0), h
     np.testing.assert_allclose(h[4:], n[4:] + 1000.0, atol=0.5)
