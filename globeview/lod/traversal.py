@@ -36,9 +36,7 @@ tiles across a fold refine and no gap opens between them. Both are cached per di
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
-from functools import cached_property
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -48,22 +46,19 @@ from globeview.lod.cached_culling import (
     frustum_prefilter,
     horizon_visible_cached,
 )
+from globeview.lod.candidates import MAX_LEVEL, Selection, TileCandidates, bend_fractions
 from globeview.lod.culling import (
-    LATTICE,
     bounding_distance,
     frustum_visible,
     horizon_cap,
     norm3,
 )
+from globeview.lod.policy import LodPolicy
 from globeview.lod.render_set import MAX_TILES, RenderSet
 from globeview.lod.tile_cache import (
-    COL_EAST,
     COL_MARGIN,
-    COL_NORTH,
     COL_RADIUS,
-    COL_SOUTH,
     COL_SPHERE,
-    COL_WEST,
     LevelTiles,
     TileCache,
     tile_cache_for,
@@ -71,13 +66,7 @@ from globeview.lod.tile_cache import (
 from globeview.lod.view_state import ViewState
 from globeview.terrain.stack import N_STRIDES, TerrainStack
 
-if TYPE_CHECKING:
-    from globeview.lod.policy import LodPolicy
-
 _BOOL, _F64, _I64 = np.dtype(bool), np.dtype(np.float64), np.dtype(np.int64)
-
-#: Deepest level the walk goes to even where the data stops (curvature alone).
-MAX_LEVEL = 22
 
 
 def _probe_points(n: int = 64) -> np.ndarray:
@@ -105,125 +94,6 @@ def displacement_key(view: ViewState) -> tuple | None:
     return (view.displacement_key, moved, view.displacement_bend is not None)
 
 
-# -- what a policy sees of one level ----------------------------------------------------------
-def bend_fractions(size: int) -> np.ndarray:
-    """(N_STRIDES,) the share of a displacement's bend over a tile (measured across LATTICE-1
-    spans of its bounding lattice) that an edge of each stride 1, 2, 4.. spans (at most 1)."""
-    return np.minimum(1.0, 2.0 ** np.arange(N_STRIDES) * (LATTICE - 1) / (size - 1))
-
-
-@dataclass
-class TileCandidates:
-    """One level's tiles that passed the frustum and horizon tests, as a policy sees them.
-
-    Arrays are per tile (N,) unless noted; they are the traversal's own (do not write them).
-
-    Attributes:
-        view, terrain: the frame's view and terrain.
-        level: the quadtree level; ``size`` the tiles' nodes per side.
-        dist_m: a lower bound (m, >= 1) of the eye-tile distance (bounding sphere).
-        px_per_m: pixels one metre of error covers at that distance (``view.sse_factor /
-            dist_m``).
-        err_m: (N, N_STRIDES) geometric error (m) of drawing each tile at strides 1, 2, 4..:
-            height error x exaggeration + chord sag (+ ``bend_m_strides``); inf where a
-            stride exceeds the grid.
-        scratch: a dict the policy may use to hand values from `LodPolicy.cull` /
-            `LodPolicy.refine` to `LodPolicy.stride` within the level. Arrays in it are per
-            tile (first axis N): when `LodPolicy.cull` drops tiles, every array whose first
-            axis has length N is cut to the kept rows (anything else is kept as it is).
-
-    Computed on first access and then kept for the level (`functools.cached_property`):
-    ``x``, ``y``, ``keys`` (N, 3), ``west``, ``south``, ``east``, ``north`` (degrees),
-    ``height_err_m`` (N, N_STRIDES, the store's, not exaggerated), ``has_finer``, ``margin``
-    (m), ``bend_m``, ``bend_m_strides``, ``points`` (N, K, 3) the bounding lattice as drawn
-    (displaced when displaced), ``points_true`` (never displaced).
-    """
-
-    view: ViewState
-    terrain: TerrainStack
-    level: int
-    size: int
-    _slots: np.ndarray = field(repr=False)
-    _cols: np.ndarray = field(repr=False)
-    dist_m: np.ndarray
-    px_per_m: np.ndarray
-    err_m: np.ndarray
-    _bend: np.ndarray | None = field(repr=False)
-    _bend_strides: np.ndarray | None = field(repr=False)
-    _lv: LevelTiles = field(repr=False)
-    _dpts: np.ndarray | None = field(default=None, repr=False)
-    scratch: dict[str, Any] = field(default_factory=dict)
-
-    def __len__(self) -> int:
-        return len(self._slots)
-
-    @cached_property
-    def bend_m(self) -> np.ndarray:
-        """(N,) the displacement's bend (m) over each tile's bounding lattice
-        (`culling.displacement_bend_m`; zeros without a displacement)."""
-        return np.zeros(len(self._slots)) if self._bend is None else self._bend
-
-    @cached_property
-    def bend_m_strides(self) -> np.ndarray:
-        """(N, N_STRIDES) the bend (m) across an edge of each stride (`bend_fractions`), the
-        part of ``err_m`` a displacement adds (zeros without one)."""
-        if self._bend_strides is None:
-            return np.zeros((len(self._slots), N_STRIDES))
-        return self._bend_strides
-
-    @cached_property
-    def x(self) -> np.ndarray:
-        return self._lv.xy[:, 0].take(self._slots)
-
-    @cached_property
-    def y(self) -> np.ndarray:
-        return self._lv.xy[:, 1].take(self._slots)
-
-    @cached_property
-    def keys(self) -> np.ndarray:
-        """(N, 3) int64 rows (level, x, y)."""
-        out = np.empty((len(self._slots), 3), dtype=np.int64)
-        out[:, 0] = self.level
-        out[:, 1:] = self._lv.xy.take(self._slots, axis=0)
-        return out
-
-    @property
-    def west(self) -> np.ndarray:
-        return self._cols[COL_WEST]
-
-    @property
-    def east(self) -> np.ndarray:
-        return self._cols[COL_EAST]
-
-    @property
-    def south(self) -> np.ndarray:
-        return self._cols[COL_SOUTH]
-
-    @property
-    def north(self) -> np.ndarray:
-        return self._cols[COL_NORTH]
-
-    @property
-    def margin(self) -> np.ndarray:
-        return self._cols[COL_MARGIN]
-
-    @cached_property
-    def height_err_m(self) -> np.ndarray:
-        return self._lv.herr.take(self._slots, axis=0)
-
-    @cached_property
-    def has_finer(self) -> np.ndarray:
-        return self._lv.finer.take(self._slots)
-
-    @cached_property
-    def points_true(self) -> np.ndarray:
-        return self._lv.pts.take(self._slots, axis=0)
-
-    @property
-    def points(self) -> np.ndarray:
-        return self._dpts if self._dpts is not None else self.points_true
-
-
 def budget_refinement(
     refine: np.ndarray, priority: np.ndarray, room: int, fanout: int = 4
 ) -> np.ndarray:
@@ -239,19 +109,6 @@ def budget_refinement(
     out = np.zeros_like(refine)
     out[idx] = True
     return out
-
-
-@dataclass
-class Selection:
-    """What a traversal drew: ``keys`` (N, 3) (level, x, y), each tile's ``stride_idx``
-    (stride = 2**stride_idx) and ``error_px`` (the policy's projected error at that stride),
-    and the cull counts."""
-
-    keys: np.ndarray
-    stride_idx: np.ndarray
-    error_px: np.ndarray
-    culled_frustum: int = 0
-    culled_horizon: int = 0
 
 
 # -- the walk -----------------------------------------------------------------------------------

@@ -9,9 +9,9 @@ fans included.
 
 from __future__ import annotations
 
+from globeview.lod.candidates import Selection
 from globeview.lod.render_set import RenderSet
 from globeview.lod.stitching import render_set_by_stride
-from globeview.lod.traversal import Selection
 
 __all__ = ["DEFAULT_TILE_SIZE", "triangle_count"]
 

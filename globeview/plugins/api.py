@@ -79,6 +79,7 @@ from globeview.plugins.tool_output import Plot, PlotSeries, read_csv_columns
 
 if TYPE_CHECKING:  # the lazy re-exports (`_REEXPORTS`), spelled out for type checkers
     from globeview.geodesy import WGS84, ecef_foot_points, enu_basis
+    from globeview.lod.candidates import MAX_LEVEL, Selection, TileCandidates
     from globeview.lod.culling import (
         LATTICE,
         bounding_distance,
@@ -93,17 +94,12 @@ if TYPE_CHECKING:  # the lazy re-exports (`_REEXPORTS`), spelled out for type ch
         horizon_visible,
         tile_bounding_points,
     )
-    from globeview.lod.policy import LodPolicy, ScreenSpaceErrorPolicy, coarsest_stride_within
+    from globeview.lod.policy import LodPolicy, coarsest_stride_within
     from globeview.lod.render_set import MAX_KEY_LEVEL, MAX_TILES, InvalidRenderSet, RenderSet
+    from globeview.lod.sse_policy import ScreenSpaceErrorPolicy
     from globeview.lod.stitching import neighbour_edge_strides, render_set_from_tiles
     from globeview.lod.tile_indices import IndexVariant
-    from globeview.lod.traversal import (
-        MAX_LEVEL,
-        Selection,
-        TileCandidates,
-        displacement_key,
-        traverse,
-    )
+    from globeview.lod.traversal import displacement_key, traverse
     from globeview.lod.triangle_count import triangle_count
     from globeview.lod.view_state import ViewState
     from globeview.render.tile_mesh import node_lonlat
@@ -209,13 +205,13 @@ _REEXPORTS: dict[str, str] = {
     "RenderSet": "globeview.lod.render_set",
     "IndexVariant": "globeview.lod.tile_indices",
     "LodPolicy": "globeview.lod.policy",
-    "ScreenSpaceErrorPolicy": "globeview.lod.policy",
+    "ScreenSpaceErrorPolicy": "globeview.lod.sse_policy",
     "coarsest_stride_within": "globeview.lod.policy",
     "neighbour_edge_strides": "globeview.lod.stitching",
     "render_set_from_tiles": "globeview.lod.stitching",
-    "MAX_LEVEL": "globeview.lod.traversal",
-    "Selection": "globeview.lod.traversal",
-    "TileCandidates": "globeview.lod.traversal",
+    "MAX_LEVEL": "globeview.lod.candidates",
+    "Selection": "globeview.lod.candidates",
+    "TileCandidates": "globeview.lod.candidates",
     "traverse": "globeview.lod.traversal",
     "displacement_key": "globeview.lod.traversal",
     "triangle_count": "globeview.lod.triangle_count",

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from globeview.lod.cheapest_cut import VisitedLevel, cheapest_cut
-from globeview.lod.policy import ScreenSpaceErrorPolicy, variant_triangles
 from globeview.lod.render_set import RenderSet
+from globeview.lod.sse_policy import ScreenSpaceErrorPolicy, variant_triangles
 from globeview.lod.traversal import traverse
 from globeview.plugins.builtin.chunked.provider import ChunkedSseProvider
 from globeview.plugins.testing import make_view

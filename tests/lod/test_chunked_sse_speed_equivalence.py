@@ -18,11 +18,12 @@ import pytest
 
 from globeview.geodesy import WGS84, lonlat_to_ecef
 from globeview.lod import cached_culling, tile_cache
+from globeview.lod.candidates import MAX_LEVEL
 from globeview.lod.culling import LATTICE, chord_sag, displacement_chord_error_m, horizon_cap
-from globeview.lod.policy import ScreenSpaceErrorPolicy
 from globeview.lod.render_set import RenderSet
+from globeview.lod.sse_policy import ScreenSpaceErrorPolicy
 from globeview.lod.tile_indices import IndexVariant
-from globeview.lod.traversal import MAX_LEVEL, traverse
+from globeview.lod.traversal import traverse
 from globeview.lod.view_state import ViewState
 from globeview.model.camera import Camera
 from globeview.terrain.quadtree import tile_bounds_arrays

@@ -175,7 +175,7 @@ def test_a_policy_returning_garbage_fails_its_provider_only(
 def test_tile_caches_are_per_terrain(globeview_terrain, headless_view) -> None:
     """Two terrains never share tile facts, and a terrain's cache goes with it."""
     from globeview.lod import tile_cache
-    from globeview.lod.policy import ScreenSpaceErrorPolicy
+    from globeview.lod.sse_policy import ScreenSpaceErrorPolicy
     from globeview.lod.traversal import traverse
     from globeview.terrain.stack import TerrainStack
 

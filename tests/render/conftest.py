@@ -36,7 +36,7 @@ def terrain():
 def _shared_scene(gl_ctx, terrain):
     # The renderer under test with the built-in chunked screen-space-error selection, called
     # directly (no plugin registry): these tests are about drawing, not plugin management.
-    from globeview.lod.policy import ScreenSpaceErrorPolicy
+    from globeview.lod.sse_policy import ScreenSpaceErrorPolicy
     from globeview.lod.traversal import traverse
     from globeview.render.scene import GlobeScene
 
@@ -66,7 +66,7 @@ def chunked_scene(scene):
     """The session's scene choosing its tiles as the default provider (chunked-sse) does: the
     fewest triangles within tau, which draws tiles up to `BEYOND_DATA_LEVELS` past the finest
     data (the shared scene's own policy stops at the data)."""
-    from globeview.lod.policy import ScreenSpaceErrorPolicy
+    from globeview.lod.sse_policy import ScreenSpaceErrorPolicy
     from globeview.lod.traversal import traverse
 
     lod = scene.lod

@@ -49,7 +49,7 @@ class RecordingTool:
 @pytest.fixture
 def recording_scene(gl_ctx, terrain):
     """A bare scene (chunked selection) whose host calls are logged in ``scene.log``."""
-    from globeview.lod.policy import ScreenSpaceErrorPolicy
+    from globeview.lod.sse_policy import ScreenSpaceErrorPolicy
     from globeview.lod.traversal import traverse
     from globeview.render.offscreen import OffscreenTarget
     from globeview.render.scene import GlobeScene

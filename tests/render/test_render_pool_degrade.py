@@ -102,7 +102,7 @@ def test_parents_at_the_poles_get_pole_fans() -> None:
 
 @pytest.mark.gl
 def test_renderer_with_a_small_pool_draws_a_degraded_frame(gl_ctx, terrain, targets) -> None:
-    from globeview.lod.policy import ScreenSpaceErrorPolicy
+    from globeview.lod.sse_policy import ScreenSpaceErrorPolicy
     from globeview.lod.traversal import traverse
     from globeview.lod.view_state import ViewState
     from globeview.model.camera import Camera

@@ -1,7 +1,7 @@
 """`chunked-sse`: the default LOD provider, chunked screen-space-error selection (TREND §4.2 /
 Cesium style), a policy on the shared quadtree traversal.
 
-The algorithm is `ScreenSpaceErrorPolicy` (globeview.lod.policy, public through the plugin
+The algorithm is `ScreenSpaceErrorPolicy` (globeview.lod.sse_policy, public through the plugin
 API because `quadtree-clod` chooses its tiles the same way):
 
 1. the shared traversal (`traverse`) culls candidates against the frustum and the ellipsoid
