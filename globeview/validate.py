@@ -10,7 +10,17 @@ import re
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["check_finite", "check_number", "check_numbers", "format_number", "parse_float"]
+__all__ = [
+    "EXAGGERATION_RANGE",
+    "TAU_RANGE_PX",
+    "check_exaggeration",
+    "check_finite",
+    "check_number",
+    "check_numbers",
+    "check_tau",
+    "format_number",
+    "parse_float",
+]
 
 #: A number as people write one: ASCII digits with an optional fraction and exponent, or
 #: nan/inf (refused later as not finite, with the reason). Python's float() also reads "1_0"
@@ -67,3 +77,20 @@ def check_numbers(
     if bad.any():
         check_number(name, float(arr[bad].flat[0]), lo, hi, unit)
     return arr
+
+
+#: Screen-space error thresholds (pixels) a view accepts: 0 would ask for infinitely fine
+#: terrain, and beyond 1000 px every tile is already coarser than the screen.
+TAU_RANGE_PX = (0.05, 1000.0)
+#: Vertical exaggerations a view accepts (0 = flat; 100 already lifts Everest to 885 km).
+EXAGGERATION_RANGE = (0.0, 100.0)
+
+
+def check_tau(tau_px: float) -> float:
+    """``tau_px`` as a float, or ValueError (one line, with the valid range)."""
+    return check_number("tau", tau_px, *TAU_RANGE_PX, " px")
+
+
+def check_exaggeration(exaggeration: float) -> float:
+    """``exaggeration`` as a float, or ValueError (one line, with the valid range)."""
+    return check_number("exaggeration", exaggeration, *EXAGGERATION_RANGE)

@@ -32,7 +32,7 @@ def positive_float(text: str) -> float:
 
 def tau(text: str) -> float:
     """argparse type: a screen-space error threshold, checked like the view checks it."""
-    from globeview.lod.view_state import check_tau
+    from globeview.validate import check_tau
 
     try:
         return check_tau(float(text))

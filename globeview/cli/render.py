@@ -181,9 +181,8 @@ def check_view_args(args: argparse.Namespace) -> dict:
     """Every view argument validated before anything is loaded or drawn: a bad one is a
     one-line `GlobeviewError` stating the valid range (not a traceback from deep in the
     LOD selection). Returns the parsed values."""
-    from globeview.lod.view_state import check_exaggeration, check_tau
     from globeview.model.camera import FOV_RANGE_DEG
-    from globeview.validate import check_number
+    from globeview.validate import check_exaggeration, check_number, check_tau
 
     return {
         "size": parse_size(args.size),

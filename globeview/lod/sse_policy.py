@@ -21,8 +21,9 @@ from globeview.lod.render_set import MAX_TILES, RenderSet
 from globeview.lod.stitching import render_set_by_stride
 from globeview.lod.tile_indices import IndexVariant, Pole, grid_indices
 from globeview.lod.traversal import traverse
-from globeview.lod.view_state import TAU_RANGE_PX, ViewState
+from globeview.lod.view_state import ViewState
 from globeview.terrain.stack import N_STRIDES, TerrainStack
+from globeview.validate import TAU_RANGE_PX
 
 __all__ = [
     "BEYOND_DATA_LEVELS",

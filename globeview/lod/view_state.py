@@ -15,27 +15,11 @@ from typing import Protocol
 import numpy as np
 
 from globeview.geodesy import WGS84
-from globeview.validate import check_number
+from globeview.validate import check_exaggeration, check_tau
 
 #: (1/a², 1/a², 1/b²) of WGS84: shaders scale an ECEF position by it to get the direction of
 #: the geodetic normal there (the gradient of the ellipsoid equation).
 INV_AXES2 = (1.0 / WGS84.a**2, 1.0 / WGS84.a**2, 1.0 / WGS84.b**2)
-
-#: Screen-space error thresholds (pixels) a view accepts: 0 would ask for infinitely fine
-#: terrain, and beyond 1000 px every tile is already coarser than the screen.
-TAU_RANGE_PX = (0.05, 1000.0)
-#: Vertical exaggerations a view accepts (0 = flat; 100 already lifts Everest to 885 km).
-EXAGGERATION_RANGE = (0.0, 100.0)
-
-
-def check_tau(tau_px: float) -> float:
-    """``tau_px`` as a float, or ValueError (one line, with the valid range)."""
-    return check_number("tau", tau_px, *TAU_RANGE_PX, " px")
-
-
-def check_exaggeration(exaggeration: float) -> float:
-    """``exaggeration`` as a float, or ValueError (one line, with the valid range)."""
-    return check_number("exaggeration", exaggeration, *EXAGGERATION_RANGE)
 
 
 class CameraLike(Protocol):
@@ -112,9 +96,9 @@ class ViewState:
         displace: Callable[[np.ndarray], np.ndarray] | None = None,
     ) -> ViewState:
         """The view of ``camera`` in a ``viewport`` (pixels). ValueError (one line) for a
-        tau or exaggeration outside `TAU_RANGE_PX` / `EXAGGERATION_RANGE` or non-finite, and
-        for an empty viewport: whatever set them (window, plugin, CLI) gets told, instead of
-        the LOD selection dividing by zero or walking to NaN."""
+        tau or exaggeration outside `validate.TAU_RANGE_PX` / `validate.EXAGGERATION_RANGE`
+        or non-finite, and for an empty viewport: whatever set them (window, plugin, CLI)
+        gets told, instead of the LOD selection dividing by zero or walking to NaN."""
         tau_px = check_tau(tau_px)
         exaggeration = check_exaggeration(exaggeration)
         w, h = int(viewport[0]), int(viewport[1])

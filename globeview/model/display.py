@@ -8,7 +8,7 @@ from typing import Any
 
 from psygnal import evented
 
-from globeview.lod.view_state import check_exaggeration
+from globeview.validate import check_exaggeration
 
 #: The colour of space behind the globe (linear RGB, 0..1).
 SPACE_RGB = (0.02, 0.02, 0.05)
@@ -20,7 +20,7 @@ class DisplaySettings:
     """Live display settings; all take effect on the next frame.
 
     exaggeration: vertical exaggeration factor (1 = true heights); refused where it is set
-    (`globeview.lod.view_state.check_exaggeration`: ValueError, one line with the range,
+    (`globeview.validate.check_exaggeration`: ValueError, one line with the range,
     nothing changes, no event), so no frame trips over a NaN; background and wire_color: RGB,
     each 0..1. ``settings.events.<field>.connect(callback)`` subscribes to one field,
     ``settings.events.connect(callback)`` to all (psygnal).

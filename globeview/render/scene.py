@@ -10,12 +10,13 @@ import moderngl
 
 from globeview.errors import StoreError
 from globeview.lod.render_set import RenderSet
-from globeview.lod.view_state import ViewState, check_tau
+from globeview.lod.view_state import ViewState
 from globeview.model.camera import Camera
 from globeview.render.frame_pipeline import FramePipeline, FrameResult, FrameTool
 from globeview.render.picking import Pick, pick
 from globeview.render.renderer import GlobeRenderer
 from globeview.terrain.stack import TerrainStack
+from globeview.validate import check_tau
 
 LodFunction = Callable[[ViewState, TerrainStack], RenderSet]
 
