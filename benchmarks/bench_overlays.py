@@ -31,8 +31,8 @@ import numpy as np
 from globeview.bench.harness import ROOT, Bench, machine, parse_size
 from globeview.bench.views import VIEWS
 from globeview.errors import GlobeviewError
-from globeview.plugins.drawables import Lines, Points
-from globeview.plugins.overlay_layers import host_layer
+from globeview.model.drawables import Lines, Points
+from globeview.model.overlay_layers import host_layer
 from globeview.terrain.embedded import embedded_stores
 from globeview.terrain.stack import TerrainStack
 

@@ -58,7 +58,7 @@ from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
 import numpy as np
 
 from globeview.errors import GlobeviewError
-from globeview.plugins.drawables import (
+from globeview.model.drawables import (
     Lines,
     Points,
     RasterDrape,

@@ -1,7 +1,8 @@
-"""Checks of what plugin code hands the host (a tool's uniforms and overlay primitives, the
-per-point sizes and colours of a layer's `Points`, any plugin object's methods): each returns
-what is wrong in one line, or None, so the caller fails the plugin that returned garbage
-(`PluginRegistry.fail`) instead of the frame."""
+"""Checks of what plugin code hands the host (a tool's uniforms and overlay primitives, any
+plugin object's methods): each returns what is wrong in one line, or None, so the caller
+fails the plugin that returned garbage (`PluginRegistry.fail`) instead of the frame. The
+checks of a layer type's drawables are with the models they become
+(`globeview.model.overlay_layers.drawable_problem`)."""
 
 from __future__ import annotations
 
@@ -19,8 +20,6 @@ __all__ = [
     "has_method",
     "hashable",
     "overlay_problem",
-    "point_colors_problem",
-    "point_sizes_problem",
     "uniforms_problem",
 ]
 
@@ -90,52 +89,4 @@ def overlay_problem(prims: list | tuple) -> str | None:
                 return f"a Polyline depth_test of {type(p.depth_test).__name__}, not a bool"
         else:
             return f"a {type(p).__name__}, not a Marker or Polyline"
-    return None
-
-
-def _floats(values: object) -> np.ndarray | None:
-    """``values`` as a float64 array, or None when it is not numbers (plugin data may be
-    anything, and may raise when read)."""
-    try:
-        return np.asarray(values, dtype=np.float64)
-    except Exception:  # noqa: BLE001  plugin data may raise anything: a failed check
-        return None
-
-
-def point_sizes_problem(values: object, n: int, what: str, limit: float) -> str | None:
-    """What is wrong with a `Points` size (``size_px`` or ``scale_m``: one number, or one
-    per point, API 1.2) for ``n`` points, each in (0, ``limit``], or None."""
-    arr = _floats(values)
-    if arr is None:
-        return f"{what} {values!r:.40} is not a number or {n} numbers"
-    if arr.ndim == 0:
-        v = float(arr)
-        return (
-            None
-            if math.isfinite(v) and 0 < v <= limit
-            else f"{what} {v!r} is not in (0, {limit:g}]"
-        )
-    if arr.ndim != 1 or len(arr) != n:
-        return f"{what} of {arr.size} values for {n} points"
-    if not (np.isfinite(arr) & (arr > 0) & (arr <= limit)).all():
-        return f"{what} values not in (0, {limit:g}]"
-    return None
-
-
-def point_colors_problem(values: object, n: int, what: str) -> str | None:
-    """What is wrong with a `Points` colour (one RGBA of 3 or 4 numbers, or one per point as
-    (n, 3 or 4), API 1.2; components 0..1 by convention, finite checked), or None."""
-    arr = _floats(values)
-    if arr is None or arr.ndim == 0:
-        return f"{what} {values!r:.40} is not 3 or 4 numbers"
-    if arr.ndim == 1:
-        if len(arr) not in (3, 4) or not np.isfinite(arr).all():
-            return f"{what} {values!r:.40} is not 3 or 4 finite numbers"
-        return None
-    if arr.ndim != 2 or arr.shape[1] not in (3, 4):
-        return f"{what} of shape {arr.shape}, not 3 or 4 numbers or ({n}, 3 or 4)"
-    if len(arr) != n:
-        return f"{what} of {len(arr)} rows for {n} points"
-    if not np.isfinite(arr).all():
-        return f"{what} with NaN or infinite components"
     return None

@@ -2,7 +2,7 @@
 
 The host side of a layer type's ``open()``: dispatch picks the type (an explicit one, the
 declared extensions, then content sniffing), its result is checked (drawables become the
-host's GL-free layer models, `globeview.plugins.overlay_layers`; an API 1.0 object with
+host's GL-free layer models, `globeview.model.overlay_layers`; an API 1.0 object with
 ``attach``/``detach`` is wrapped so each call into it is isolated), and the layer is added to
 the `Globe` (an event). Garbage or a crash fails that layer type (one line, reported by the
 registry); a bad file is the user's error (one line, the plugin stays enabled).
@@ -22,14 +22,14 @@ from psygnal import Signal
 
 from globeview.errors import GlobeviewError, PluginFailed
 from globeview.model.globe import Globe
-from globeview.plugins.api import PluginKind
-from globeview.plugins.host_checks import has_method
-from globeview.plugins.overlay_layers import (
+from globeview.model.overlay_layers import (
     DrawnLayer,
     ImageryOverlayLayer,
     PointsLayer,
     VectorLayer,
 )
+from globeview.plugins.api import PluginKind
+from globeview.plugins.host_checks import has_method
 from globeview.plugins.registry import PluginRegistry
 from globeview.render.renderer import GlobeRenderer
 
@@ -81,14 +81,14 @@ class OverlayHost:
         """Open a file as an overlay layer with the layer type dispatch picks (``path`` may
         be ``"TYPE:FILE"``) and show it on top of the globe's overlays.
 
-        The type's ``open()`` may return drawables (`globeview.plugins.drawables`), which
+        The type's ``open()`` may return drawables (`globeview.model.drawables`), which
         the host checks and turns into layer models, or an API 1.0 object with
         ``attach``/``detach`` (attached at the next frame: its methods take the GL
         renderer). Bad files raise a one-line `GlobeviewError` and leave the plugin
         enabled; garbage returned, or a crash, fails that layer type (reported) and raises
         a one-line `PluginFailed` (a `GlobeviewError`: exit 3 on the command line)."""
+        from globeview.model.overlay_layers import as_drawables, host_layer
         from globeview.plugins.layer_dispatch import parse_layer_spec
-        from globeview.plugins.overlay_layers import as_drawables, host_layer
 
         path = str(path)
         if layer_type is None:

@@ -102,7 +102,7 @@ class OverlaySet:
         frame time with the context current: the imagery stack takes the drapes' layers,
         and vector and point layers get GPU twins, made when first drawn, rebuilt when
         their ``style_version`` changes, released when the layer is gone. Layers are
-        duck-typed models (`globeview.plugins.overlay_layers`): ``gpu_kind`` 'imagery',
+        duck-typed models (`globeview.model.overlay_layers`): ``gpu_kind`` 'imagery',
         'vectors' or 'points', their data, style and ``visible``; ``parts`` for a group.
         Returns (layer part, one-line reason) for each part the GL refused (its twin is
         not kept); the caller drops those layers from the model."""

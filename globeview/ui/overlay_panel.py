@@ -5,7 +5,7 @@ Each row has a visibility checkbox; rows reorder by drag and drop or the ↑/↓
 model's overlays are reordered, and the next frame composes the imagery drapes in the listed
 order); "Remove" drops a layer. Below the list, the selected layer's style:
 opacity for imagery/thematic drapes, colour and width (vectors) or size (points). Every edit
-goes to the layer's setters (`globeview.plugins.overlay_layers`), which announce a real
+goes to the layer's setters (`globeview.model.overlay_layers`), which announce a real
 change (the layer's ``changed``, re-emitted by the Globe as ``globe.events.overlays``); the
 panel shows what that event says, whoever changed the overlays (the window, code, a plugin),
 and the view redraws on it. Nothing here draws.

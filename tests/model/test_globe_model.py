@@ -163,7 +163,7 @@ def test_names_that_are_not_text_are_refused(globe: Globe, bad) -> None:
 def _points(name: str = "cities"):
     import numpy as np
 
-    from globeview.plugins.overlay_layers import PointsLayer
+    from globeview.model.overlay_layers import PointsLayer
 
     return PointsLayer(name, np.array([10.0, 11.0]), np.array([46.0, 47.0]), ["a", "b"])
 
@@ -171,7 +171,7 @@ def _points(name: str = "cities"):
 def test_a_layer_setter_emits_one_overlays_event_per_real_change(globe: Globe) -> None:
     # The setters announce themselves, so a plugin or script editing a layer reaches the
     # window without anyone calling overlays_changed().
-    from globeview.plugins.overlay_layers import DrawnLayer
+    from globeview.model.overlay_layers import DrawnLayer
 
     layer = _points()
     globe.add_overlay(layer)
@@ -215,8 +215,8 @@ def test_a_layer_does_not_keep_a_dropped_globe_alive() -> None:
 def test_a_drape_opacity_change_is_one_event_and_nan_is_refused(globe: Globe) -> None:
     import numpy as np
 
-    from globeview.plugins.drawables import RasterDrape
-    from globeview.plugins.overlay_layers import drape_layer
+    from globeview.model.drawables import RasterDrape
+    from globeview.model.overlay_layers import drape_layer
 
     drape = drape_layer(RasterDrape(np.zeros((4, 8, 4), np.uint8), (0, 0, 10, 5)), "d")
     globe.add_overlay(drape)

@@ -9,13 +9,13 @@ import rasterio
 from affine import Affine
 
 from globeview.errors import GlobeviewError
+from globeview.model.overlay_layers import host_layer
 from globeview.plugins.builtin.layers.types import (
     ImageryLayerType,
     PointsLayerType,
     VectorLayerType,
     detect_layer_type,
 )
-from globeview.plugins.overlay_layers import host_layer
 from globeview.terrain.dem import EMBEDDED_DATA_DIR
 from globeview.terrain.imagery import ImageryError, RasterImagery, texel_grid
 from globeview.terrain.vectors import GEOD, VectorError, densify, read_geojson_lines

@@ -108,7 +108,7 @@ def write_raster(path, data: np.ndarray, res: float, colormap=None) -> None:
 
 def opened(result):
     """The host's overlay layer for a layer type's open() result (drawables)."""
-    from globeview.plugins.overlay_layers import host_layer
+    from globeview.model.overlay_layers import host_layer
 
     layer, problem = host_layer(result, "test")
     assert problem is None, problem
@@ -182,7 +182,7 @@ def test_uniform_imagery_shows_no_seams(clean, tmp_path, cam) -> None:
 def test_hillshade_drape_from_the_dem(clean) -> None:
     """The hillshade layer computed from the DEM shades Crater Lake's caldera (30 m DEM) in
     grey: lit north-west slopes bright, south-east slopes dark."""
-    from globeview.plugins.overlay_layers import hillshade_layer
+    from globeview.model.overlay_layers import hillshade_layer
 
     cam = Camera.from_lonlat(-122.108, 42.94, 3.0e4)
     plain, _ = draw(clean, cam)

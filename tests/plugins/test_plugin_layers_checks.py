@@ -8,8 +8,8 @@ import re
 import numpy as np
 import pytest
 
-from globeview.plugins.drawables import Lines, Points, RasterDrape, RasterFile
-from globeview.plugins.overlay_layers import (
+from globeview.model.drawables import Lines, Points, RasterDrape, RasterFile
+from globeview.model.overlay_layers import (
     MAX_LINE_VERTICES,
     ArrayImagery,
     drawables_problem,
@@ -117,7 +117,7 @@ def test_array_drape_samples_where_its_pixels_lie() -> None:
     ],
 )
 def test_bad_live_style_is_refused_and_changes_nothing(style, reason) -> None:
-    from globeview.plugins.overlay_layers import vector_layer
+    from globeview.model.overlay_layers import vector_layer
 
     layer = vector_layer(Lines([[(0.0, 0.0), (10.0, 10.0)]], color=(1, 1, 0)), "lines")
     before = (layer.color, layer.width_px, layer.dash_px, layer.style_version)
@@ -128,7 +128,7 @@ def test_bad_live_style_is_refused_and_changes_nothing(style, reason) -> None:
 
 
 def test_good_live_style_is_normalised_and_counted() -> None:
-    from globeview.plugins.overlay_layers import build_layer
+    from globeview.model.overlay_layers import build_layer
 
     drawing = build_layer(
         [Lines([[(0.0, 0.0), (10.0, 10.0)]]), Points([1.0], [2.0], labels=["a"])], "both"

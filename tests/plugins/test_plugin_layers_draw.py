@@ -241,7 +241,7 @@ def test_bad_user_file_keeps_the_plugin(session, tmp_path) -> None:
 
 def test_builtins_go_the_same_path(session) -> None:
     """The embedded borders come through the built-in vector type's drawables."""
-    from globeview.plugins.overlay_layers import VectorLayer
+    from globeview.model.overlay_layers import VectorLayer
 
     layers = session.add_embedded_overlays(imagery=False)
     assert [type(ly) for ly in layers] == [VectorLayer]

@@ -116,7 +116,7 @@ def test_hiding_a_layer_from_code_is_one_event_and_the_next_frame_shows_it(sessi
 
 
 def test_a_layer_the_gpu_side_refuses_is_dropped_with_one_line(session) -> None:
-    from globeview.plugins.overlay_layers import PointsLayer
+    from globeview.model.overlay_layers import PointsLayer
 
     good = session.add_overlay("data/ne_cities.geojson", layer_type="points")
     bad = PointsLayer("spheres", np.array([10.0]), np.array([46.0]), [], object_kind="sphere")

@@ -2,7 +2,7 @@
 
 Written against the public plugin API only, as a third-party layer plugin would be: each
 type's ``open(path)`` reads and checks the file on the CPU and returns *drawables*
-(`RasterFile`, `Lines`, `Points`); the host draws them (globeview/plugins/overlay_layers.py).
+(`RasterFile`, `Lines`, `Points`); the host draws them (globeview/model/overlay_layers.py).
 ``sniff(path)`` says by content whether a file is the type's (the host's file dispatch asks
 it when several types claim an extension: ``.tif`` may be imagery or thematic, ``.geojson``
 lines or points). Bad input raises a `GlobeviewError` subclass with a one-line message.

@@ -1,6 +1,6 @@
-"""The host side of overlay layers: what a layer type's ``open()`` result becomes on the globe.
+"""The overlay layer models: what a layer type's ``open()`` result becomes on the globe.
 
-A layer type returns drawables (`globeview.plugins.drawables`: `Lines`, `Points`,
+A layer type returns drawables (`globeview.model.drawables`: `Lines`, `Points`,
 `RasterDrape`, `RasterFile`, a list of them, or an object with ``drawables()``), or, as in API
 1.0, its own object with ``attach(renderer)``/``detach(renderer)``. `host_layer` checks the
 drawables (`drawable_problem`: garbage is the plugin's fault, one line) and builds the overlay
@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 from psygnal import Signal
 
-from globeview.plugins.drawables import (
+from globeview.model.drawables import (
     INTERPOLATIONS,
     POINT_KINDS,
     Lines,
@@ -38,7 +38,6 @@ from globeview.plugins.drawables import (
     RasterDrape,
     RasterFile,
 )
-from globeview.plugins.host_checks import point_colors_problem, point_sizes_problem
 from globeview.terrain.imagery import (
     DEFAULT_TEX_SIZE,
     ImageryLayer,
@@ -119,7 +118,7 @@ class ImageryOverlayLayer(_ModelLayer):
     def name(self) -> str:
         return self.layer.name
 
-    @property  # type: ignore[override]
+    @property
     def visible(self) -> bool:
         return bool(self.layer.visible)
 
@@ -389,6 +388,54 @@ def _positive(value: Any, what: str, limit: float) -> str | None:
     return None
 
 
+def _floats(values: object) -> np.ndarray | None:
+    """``values`` as a float64 array, or None when it is not numbers (plugin data may be
+    anything, and may raise when read)."""
+    try:
+        return np.asarray(values, dtype=np.float64)
+    except Exception:  # noqa: BLE001  plugin data may raise anything: a failed check
+        return None
+
+
+def point_sizes_problem(values: object, n: int, what: str, limit: float) -> str | None:
+    """What is wrong with a `Points` size (``size_px`` or ``scale_m``: one number, or one
+    per point, API 1.2) for ``n`` points, each in (0, ``limit``], or None."""
+    arr = _floats(values)
+    if arr is None:
+        return f"{what} {values!r:.40} is not a number or {n} numbers"
+    if arr.ndim == 0:
+        v = float(arr)
+        return (
+            None
+            if math.isfinite(v) and 0 < v <= limit
+            else f"{what} {v!r} is not in (0, {limit:g}]"
+        )
+    if arr.ndim != 1 or len(arr) != n:
+        return f"{what} of {arr.size} values for {n} points"
+    if not (np.isfinite(arr) & (arr > 0) & (arr <= limit)).all():
+        return f"{what} values not in (0, {limit:g}]"
+    return None
+
+
+def point_colors_problem(values: object, n: int, what: str) -> str | None:
+    """What is wrong with a `Points` colour (one RGBA of 3 or 4 numbers, or one per point as
+    (n, 3 or 4), API 1.2; components 0..1 by convention, finite checked), or None."""
+    arr = _floats(values)
+    if arr is None or arr.ndim == 0:
+        return f"{what} {values!r:.40} is not 3 or 4 numbers"
+    if arr.ndim == 1:
+        if len(arr) not in (3, 4) or not np.isfinite(arr).all():
+            return f"{what} {values!r:.40} is not 3 or 4 finite numbers"
+        return None
+    if arr.ndim != 2 or arr.shape[1] not in (3, 4):
+        return f"{what} of shape {arr.shape}, not 3 or 4 numbers or ({n}, 3 or 4)"
+    if len(arr) != n:
+        return f"{what} of {len(arr)} rows for {n} points"
+    if not np.isfinite(arr).all():
+        return f"{what} with NaN or infinite components"
+    return None
+
+
 def drawable_problem(d: Any) -> str | None:
     """What is wrong with one drawable (one line), or None."""
     if isinstance(d, Lines):
@@ -436,12 +483,12 @@ def drawable_problem(d: Any) -> str | None:
             return f"Points with {len(set(labels))} distinct labels (at most {MAX_DISTINCT_LABELS})"
         if d.kind not in POINT_KINDS:
             return f"Points kind {d.kind!r:.40} (one of {POINT_KINDS})"
-        n = len(lon)
+        count = len(lon)
         return (
-            point_colors_problem(d.color, n, "Points color")
+            point_colors_problem(d.color, count, "Points color")
             or _rgba_problem(d.label_color, "Points label_color")
-            or point_sizes_problem(d.size_px, n, "Points size_px", 500.0)
-            or point_sizes_problem(d.scale_m, n, "Points scale_m", 1e7)
+            or point_sizes_problem(d.size_px, count, "Points size_px", 500.0)
+            or point_sizes_problem(d.scale_m, count, "Points scale_m", 1e7)
         )
     if isinstance(d, RasterDrape):
         a = d.rgba
@@ -600,15 +647,15 @@ def drape_layer(d: RasterDrape | RasterFile, name: str) -> ImageryOverlayLayer:
     """A drape; a `RasterFile` is opened here (`ImageryError`, one line, for a bad file)."""
     opacity = float(np.clip(float(d.opacity), 0.0, 1.0))
     if isinstance(d, RasterFile):
-        src = RasterImagery(d.path, ramp=d.ramp)
+        raster = RasterImagery(d.path, ramp=d.ramp)
         label = d.name or name or Path(d.path).name
         kind = "thematic" if d.ramp is not None else "imagery"
-        return ImageryOverlayLayer(ImageryLayer(src, label, opacity), kind)
+        return ImageryOverlayLayer(ImageryLayer(raster, label, opacity), kind)
     rgba = d.rgba
     if rgba.shape[2] == 3:
         rgba = np.concatenate([rgba, np.full((*rgba.shape[:2], 1), 255, np.uint8)], axis=2)
-    src = ArrayImagery(rgba, d.bounds, d.name or name)
-    return ImageryOverlayLayer(ImageryLayer(src, d.name or name, opacity), "imagery")
+    image = ArrayImagery(rgba, d.bounds, d.name or name)
+    return ImageryOverlayLayer(ImageryLayer(image, d.name or name, opacity), "imagery")
 
 
 def build_layer(items: list, name: str) -> Any:

@@ -12,7 +12,9 @@ renderer. The built-in layer types (imagery, thematic, vector, points) return th
 
 Frames and units: WGS84 longitude/latitude in degrees, heights from the terrain actually
 drawn (lines and points are draped on the LOD mesh), colours RGBA in 0..1, sizes in screen
-pixels. Everything here is plain data (numpy arrays, tuples): no GL, no Qt.
+pixels. Everything here is plain data (numpy arrays, tuples): no GL, no Qt. It lives in
+`globeview.model` beside the layer models it becomes (`globeview.model.overlay_layers`);
+plugins get it from the facade, `globeview.plugins.api`.
 """
 
 from __future__ import annotations
