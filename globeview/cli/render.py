@@ -229,13 +229,13 @@ def check_tool_csv(args: argparse.Namespace, tool: str | None, others: list):
 
 def tool_plot_csv(scene, tool_name: str, strict: bool = False) -> str:
     """The CSV text of the plot the active tool publishes (`Plot`, see
-    globeview.plugins.tool_output). A tool that failed (before or in ``plot()``; garbage
+    globeview.model.plot). A tool that failed (before or in ``plot()``; garbage
     returned fails it too) is a one-line `PluginFailed` naming it and its error (exit 3:
     nothing stands in for it); one that works but publishes none (no ``plot()``, or its
     points gave none) is the user's one-line `GlobeviewError` (exit 2)."""
     from globeview.errors import GlobeviewError, PluginFailed
+    from globeview.model.plot import Plot
     from globeview.plugins.api import PluginKind
-    from globeview.plugins.tool_output import Plot
 
     tool = scene.tool()
     plot = None

@@ -66,6 +66,7 @@ from globeview.model.drawables import (
     RasterInfo,
     raster_info,
 )
+from globeview.model.plot import Plot, PlotSeries, read_csv_columns
 from globeview.plugins.geo import (
     TerrainSample,
     ecef_to_lonlat,
@@ -75,7 +76,6 @@ from globeview.plugins.geo import (
     lonlat_to_ecef,
     sample_terrain,
 )
-from globeview.plugins.tool_output import Plot, PlotSeries, read_csv_columns
 
 if TYPE_CHECKING:  # the lazy re-exports (`_REEXPORTS`), spelled out for type checkers
     from globeview.geodesy import WGS84, ecef_foot_points, enu_basis

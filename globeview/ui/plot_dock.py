@@ -2,7 +2,7 @@
 exports its table as CSV.
 
 Generic: any tool, built-in or installed, publishes a plot by defining ``plot()`` (see
-`globeview.plugins.tool_output`); the window knows no tool. After every frame `PlotDock.poll`
+`globeview.model.plot`); the window knows no tool. After every frame `PlotDock.poll`
 asks the active tool for its plot (isolated through the registry, like every plugin call): a
 new `Plot` object is drawn and the dock shown; the same object again changes nothing; None
 (or no active tool) clears and hides the dock. Something that is not a `Plot` fails the
