@@ -1,4 +1,6 @@
-"""Index buffers over a tile's vertex layout (see tile_mesh.py), and the shared pool of them.
+"""Index buffers over a tile's vertex layout (see render/tile_mesh.py), the shared pool of
+them, and where the layout's nodes are (`node_lonlat`: rows north to south, columns west to
+east).
 
 Every tile has the same vertex layout, so an index *variant* — a triangulation of the grid at
 some stride, with or without skirts, with a pole fan, with edges stitched to coarser
@@ -15,6 +17,14 @@ from typing import Literal
 import numpy as np
 
 Pole = Literal["north", "south", "both"] | None
+
+
+def node_lonlat(
+    bounds: tuple[float, float, float, float], size: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Longitudes (size,) west->east and latitudes (size,) north->south of a tile's nodes."""
+    west, south, east, north = bounds
+    return np.linspace(west, east, size), np.linspace(north, south, size)
 
 
 @dataclass(frozen=True)

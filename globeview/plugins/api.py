@@ -98,11 +98,10 @@ if TYPE_CHECKING:  # the lazy re-exports (`_REEXPORTS`), spelled out for type ch
     from globeview.lod.render_set import MAX_KEY_LEVEL, MAX_TILES, InvalidRenderSet, RenderSet
     from globeview.lod.sse_policy import ScreenSpaceErrorPolicy
     from globeview.lod.stitching import neighbour_edge_strides, render_set_from_tiles
-    from globeview.lod.tile_indices import IndexVariant
+    from globeview.lod.tile_indices import IndexVariant, node_lonlat
     from globeview.lod.traversal import displacement_key, traverse
     from globeview.lod.triangle_count import triangle_count
     from globeview.lod.view_state import ViewState
-    from globeview.render.tile_mesh import node_lonlat
     from globeview.terrain.quadtree import TileKey, level_shape, tile_bounds_arrays
     from globeview.terrain.stack import N_STRIDES, TerrainStack
 
@@ -215,7 +214,7 @@ _REEXPORTS: dict[str, str] = {
     "traverse": "globeview.lod.traversal",
     "displacement_key": "globeview.lod.traversal",
     "triangle_count": "globeview.lod.triangle_count",
-    "node_lonlat": "globeview.render.tile_mesh",
+    "node_lonlat": "globeview.lod.tile_indices",
     "ViewState": "globeview.lod.view_state",
     "TileKey": "globeview.terrain.quadtree",
     "level_shape": "globeview.terrain.quadtree",

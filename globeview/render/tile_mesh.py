@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from globeview.geodesy import WGS84, lonlat_to_ecef
+from globeview.lod.tile_indices import node_lonlat
 
 FLOATS_PER_VERTEX = 6
 
@@ -42,14 +43,6 @@ class TileMesh:
     normals: np.ndarray  # (size, size, 3) float32, ECEF unit vectors
     heights: np.ndarray  # (size, size) float32, metres
     skirt_depth: float
-
-
-def node_lonlat(
-    bounds: tuple[float, float, float, float], size: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Longitudes (size,) west->east and latitudes (size,) north->south of a tile's nodes."""
-    west, south, east, north = bounds
-    return np.linspace(west, east, size), np.linspace(north, south, size)
 
 
 class _Axes:
