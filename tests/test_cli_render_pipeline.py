@@ -22,8 +22,8 @@ POINTS = [(-122.9, 45.6), (-121.7, 46.8)]
 def test_cli_tool_overlay_is_the_frames_own(
     tmp_path, monkeypatch, globeview_gl, globeview_terrain, globeview_registry
 ) -> None:
+    from globeview.app.testing import render_frame
     from globeview.cli import main
-    from globeview.plugins.testing import render_frame
 
     monkeypatch.setenv("GLOBEVIEW_CONFIG_DIR", str(tmp_path / "config"))
     monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(tmp_path / "cache"))

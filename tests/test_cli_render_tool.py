@@ -5,7 +5,7 @@ says which provider drew, and --strict exits 3 writing nothing.
 
 Real subprocesses of `.venv/bin/globeview`; the "installed" plugins are real distributions
 (package + .dist-info with an entry point) on PYTHONPATH, found by importlib.metadata as a
-pip install is (`globeview.plugins.testing.PluginSite`).
+pip install is (`globeview.app.testing.PluginSite`).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from globeview.plugins.testing import PluginSite, make_view, plugin_manifest
+from globeview.app.testing import PluginSite, make_view, plugin_manifest
 
 pytestmark = pytest.mark.gl
 

@@ -89,8 +89,8 @@ class Bench:
     """
 
     def __init__(self, terrain, size: tuple[int, int], lod: str = "chunked-sse", ctx=None) -> None:
+        from globeview.app.session import GlobeSession
         from globeview.plugins.registry import PluginRegistry
-        from globeview.plugins.session import GlobeSession
         from globeview.plugins.settings import MemorySettings
         from globeview.render.offscreen import OffscreenTarget, create_headless_context
 

@@ -91,8 +91,8 @@ def open_close_cycle(
     is really released)."""
     import weakref
 
+    from globeview.app.session import GlobeSession
     from globeview.plugins.registry import PluginRegistry
-    from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import MemorySettings
     from globeview.render.gpu_objects import gpu_objects
     from globeview.render.offscreen import (

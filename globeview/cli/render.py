@@ -268,7 +268,7 @@ def check_inputs(args: argparse.Namespace) -> None:
             check_store_url(src)  # the URL's form; the server is asked when it is opened
         elif not Path(src).is_dir():  # a folder is a store, checked when it is opened
             check_dem_path(Path(src))
-    from globeview.plugins.layer_dispatch import parse_layer_spec
+    from globeview.app.layer_dispatch import parse_layer_spec
 
     for layer in args.layer:
         p = Path(parse_layer_spec(layer)[1])  # TYPE:FILE names FILE
@@ -378,11 +378,11 @@ def warn_unused_settings(registry, assignments: list, used: dict[str, set]) -> N
 def run(args: argparse.Namespace) -> int:
     from PIL import Image
 
+    from globeview.app.headless import place_points
+    from globeview.app.session import GlobeSession
     from globeview.model.camera import Camera, camera_for_bounds
     from globeview.plugins.api import PluginKind
-    from globeview.plugins.headless import place_points
     from globeview.plugins.registry import PluginRegistry
-    from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import apply_overrides
     from globeview.render.offscreen import OffscreenTarget, create_headless_context
     from globeview.terrain.stack import TerrainStack

@@ -96,7 +96,7 @@ def check_plugin_options(
     against the discovered plugins, importing only those that declare the tool and the
     settings: one line for an LOD provider or tool no enabled plugin offers, an unknown
     setting or a bad value. Returns the checked (`SettingTarget`, value) pairs."""
-    from globeview.plugins.lod_host import check_lod_name
+    from globeview.app.lod_host import check_lod_name
     from globeview.plugins.settings import resolve_plugin_args
 
     if lod is not None:

@@ -835,7 +835,7 @@ class LayerType(_Contribution):
         extensions: lower-case file suffixes it opens, with the dot (e.g. ``(".gpx",)``).
 
     Optional ``sniff(path) -> bool``: whether a file is this type's, by content. File dispatch
-    (`globeview.plugins.layer_dispatch`) asks it when several types claim a file's extension,
+    (`globeview.app.layer_dispatch`) asks it when several types claim a file's extension,
     and asks every type that has one when none claims it; a type without ``sniff`` takes every
     file with its extensions. Raise `GlobeviewError` for a file of your format that is broken.
     """

@@ -42,7 +42,7 @@ class GlobeScene:
         if lod is None:
             raise TypeError(
                 "GlobeScene needs an LOD function (view, terrain) -> RenderSet; for the "
-                "plugin-driven scene use globeview.plugins.session.GlobeSession(ctx, terrain, "
+                "plugin-driven scene use globeview.app.session.GlobeSession(ctx, terrain, "
                 "camera, lod='chunked-sse')"
             )
         self.ctx = ctx

@@ -40,6 +40,7 @@ from PyQt6.QtGui import (
 from PyQt6.QtOpenGLWidgets import QOpenGLWidget
 from PyQt6.QtWidgets import QWidget
 
+from globeview.app.session import DEFAULT_LOD, GlobeSession
 from globeview.lod.render_set import FrameStats
 from globeview.lod.view_state import ViewState
 from globeview.model.camera import Camera
@@ -47,7 +48,6 @@ from globeview.model.display import DisplaySettings
 from globeview.model.globe import Globe
 from globeview.plugins.api import KeyEvent, PointerEvent
 from globeview.plugins.registry import PluginRegistry
-from globeview.plugins.session import DEFAULT_LOD, GlobeSession
 from globeview.render.picking import Pick
 from globeview.ui.navigation import HOME_POSE, CameraFlight, Navigator
 from globeview.ui.subscriptions import Subscriptions

@@ -746,7 +746,7 @@ class MainWindow(QMainWindow):
     def open_overlay_dialog(self) -> None:
         """File > Open Overlay…: any file an enabled layer type opens (built-in or installed);
         the filter lists every layer type's patterns (`layer_dispatch.overlay_file_filter`)."""
-        from globeview.plugins.layer_dispatch import overlay_file_filter
+        from globeview.app.layer_dispatch import overlay_file_filter
 
         start = str(Path(self.recent_files()[0]).parent) if self.recent_files() else ""
         name_filter = overlay_file_filter(self.plugins.registry)
@@ -945,7 +945,7 @@ def classify_path(path: str | Path, registry: Any = None) -> str:
     extension and content over ``registry``'s layer types, built-in or installed; default:
     the installed plugins) is an overlay. Raises `GlobeviewError` (one line) for anything
     else, naming the installed layer types."""
-    from globeview.plugins.layer_dispatch import choose_layer_type
+    from globeview.app.layer_dispatch import choose_layer_type
 
     p = Path(path)
     if p.is_dir():

@@ -23,12 +23,12 @@ from typing import Any
 
 from PyQt6.QtCore import QObject, QSettings, pyqtSignal
 
+from globeview.app.lod_host import LodHost
+from globeview.app.session import DEFAULT_LOD, GlobeSession
 from globeview.errors import GlobeviewError
 from globeview.model.globe import Globe
 from globeview.plugins.api import PluginKind
-from globeview.plugins.lod_host import LodHost
 from globeview.plugins.registry import PluginRecord, PluginRegistry
-from globeview.plugins.session import DEFAULT_LOD, GlobeSession
 from globeview.ui.subscriptions import Subscriptions
 
 log = logging.getLogger("globeview.ui")

@@ -33,8 +33,8 @@ def store_paths():
 def test_release_gl_releases_every_gl_object_of_the_session(store_paths):
     """In a context that outlives the session (a window, a script rendering many globes),
     anything release_gl misses stays in GPU memory: the tile pool alone is ~100 MB."""
+    from globeview.app.session import GlobeSession
     from globeview.plugins.registry import PluginRegistry
-    from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import MemorySettings
     from globeview.render.gpu_objects import gpu_objects
     from globeview.render.offscreen import OffscreenTarget, create_headless_context
@@ -97,9 +97,9 @@ def test_a_handed_back_headless_context_is_reused_and_draws_the_same(store_paths
     context for the next globe instead, reset so that the next render is pixel-identical."""
     import numpy as np
 
+    from globeview.app.session import GlobeSession
     from globeview.model.camera import Camera
     from globeview.plugins.registry import PluginRegistry
-    from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import MemorySettings
     from globeview.render.offscreen import (
         OffscreenTarget,

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from globeview.plugins.testing import PluginSite
+from globeview.app.testing import PluginSite
 
 pytestmark = pytest.mark.gl
 

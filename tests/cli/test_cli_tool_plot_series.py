@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from globeview.app.testing import PluginSite, plugin_manifest
 from globeview.plugins.api import read_csv_columns
-from globeview.plugins.testing import PluginSite, plugin_manifest
 
 pytestmark = pytest.mark.gl
 

@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from globeview.app.session import GlobeSession
 from globeview.model.camera import Camera
 from globeview.plugins.api import Polyline
 from globeview.plugins.registry import PluginRegistry
-from globeview.plugins.session import GlobeSession
 from globeview.plugins.settings import MemorySettings
 from globeview.render.offscreen import OffscreenTarget, create_headless_context
 from globeview.terrain.embedded import embedded_stores

@@ -23,8 +23,8 @@ FOLD_RGB = np.array([255, 230, 26])  # the fold lines' colour (1.0, 0.9, 0.1)
 
 @pytest.fixture(scope="module")
 def session():
+    from globeview.app.session import GlobeSession
     from globeview.plugins.registry import PluginRegistry
-    from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import MemorySettings
     from globeview.render.offscreen import OffscreenTarget, RenderError, create_headless_context
     from globeview.terrain.embedded import embedded_stores

@@ -34,8 +34,8 @@ def gl():
 
 @pytest.fixture(scope="module")
 def session(gl):
+    from globeview.app.session import GlobeSession
     from globeview.plugins.registry import PluginRegistry
-    from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import MemorySettings
     from globeview.terrain.embedded import embedded_stores
     from globeview.terrain.stack import TerrainStack

@@ -15,12 +15,12 @@ import itertools
 import numpy as np
 import pytest
 
+from globeview.app.testing import make_view
 from globeview.lod.cheapest_cut import VisitedLevel, cheapest_cut
 from globeview.lod.render_set import RenderSet
 from globeview.lod.sse_policy import ScreenSpaceErrorPolicy, variant_triangles
 from globeview.lod.traversal import traverse
 from globeview.plugins.builtin.chunked.provider import ChunkedSseProvider
-from globeview.plugins.testing import make_view
 
 LADDER = (0.5, 1.0, 2.0, 4.0, 8.0)
 N_VIEWS = 200

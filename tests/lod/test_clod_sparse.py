@@ -173,7 +173,7 @@ def test_packed_cache_returns_the_data_it_was_given() -> None:
 
 def test_frame_from_the_packed_cache_is_deterministic_in_slot_order() -> None:
     """The same tiles in other slots (another fill order) give the same frame."""
-    from globeview.plugins.testing import make_view
+    from globeview.app.testing import make_view
 
     keys = np.array([[9, 2 * 512 - 1 - x, 150] for x in range(3)] + [[9, 1022, 151]])
     view = make_view(-179.5, 37.3, 30_000.0, 0.0, -60.0, viewport=(640, 360))

@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 
+from globeview.app.testing import make_view
 from globeview.lod.stitching import neighbour_edge_strides
 from globeview.lod.tile_indices import IndexVariant, grid_indices
 from globeview.lod.traversal import traverse
@@ -23,7 +24,6 @@ from globeview.plugins.builtin.regions.provider import (
     rishe_pitch_roll,
     speed_factor,
 )
-from globeview.plugins.testing import make_view
 
 SIZE = 65
 MAGENTA = (1.0, 0.0, 1.0)
@@ -209,9 +209,9 @@ VIEWS = {
 
 @pytest.fixture(scope="module")
 def gl_session(terrain, tmp_path_factory):
+    from globeview.app.session import GlobeSession
     from globeview.model.camera import Camera
     from globeview.plugins.registry import PluginRegistry
-    from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import JsonFileSettings
     from globeview.render.offscreen import OffscreenTarget, RenderError, create_headless_context
 

@@ -18,7 +18,7 @@ import weakref
 import numpy as np
 import pytest
 
-from globeview.plugins.testing import PluginSite
+from globeview.app.testing import PluginSite
 
 MANIFEST = """
     name = "depth"

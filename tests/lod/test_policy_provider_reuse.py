@@ -15,10 +15,10 @@ import weakref
 import numpy as np
 import pytest
 
+from globeview.app.testing import make_view
 from globeview.plugins.builtin.chunked.provider import ChunkedSseProvider
 from globeview.plugins.builtin.regions.provider import DistanceRegionsProvider
 from globeview.plugins.builtin.wavelet.provider import WaveletProvider
-from globeview.plugins.testing import make_view
 from globeview.terrain.stack import TerrainStack
 
 

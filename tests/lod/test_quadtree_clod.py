@@ -9,8 +9,8 @@ import itertools
 import numpy as np
 import pytest
 
+from globeview.app.testing import make_view
 from globeview.plugins.builtin.clod.provider import QuadtreeClodProvider
-from globeview.plugins.testing import make_view
 
 MAGENTA = (1.0, 0.0, 1.0)
 VIEWS = {
@@ -211,8 +211,8 @@ def test_registry_loads_and_runs_it(globeview_registry) -> None:
 # -- crack-free renders through the plugin session ------------------------------------------
 @pytest.fixture(scope="module")
 def session(terrain, tmp_path_factory):
+    from globeview.app.session import GlobeSession
     from globeview.plugins.registry import PluginRegistry
-    from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import JsonFileSettings
     from globeview.render.offscreen import RenderError, create_headless_context
 

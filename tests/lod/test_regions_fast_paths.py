@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from globeview.app.testing import make_view
 from globeview.geodesy import lonlat_to_ecef
 from globeview.plugins.builtin.regions.provider import (
     RegionOverlap,
@@ -14,7 +15,6 @@ from globeview.plugins.builtin.regions.provider import (
     ground_region,
     polygons_overlap,
 )
-from globeview.plugins.testing import make_view
 
 
 @pytest.mark.parametrize("seed", range(6))

@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from globeview.app.testing import make_view
 from globeview.lod.tile_indices import grid_indices
 from globeview.lod.traversal import traverse
 from globeview.plugins.builtin.wavelet.provider import ZhangWaveletPolicy, stop_levels
-from globeview.plugins.testing import make_view
 
 MAGENTA = (1.0, 0.0, 1.0)
 
@@ -86,9 +86,9 @@ def test_flat_tile_is_coarser_than_a_rough_one(terrain) -> None:
 
 @pytest.fixture(scope="module")
 def gl_session(terrain, tmp_path_factory):
+    from globeview.app.session import GlobeSession
     from globeview.model.camera import Camera
     from globeview.plugins.registry import PluginRegistry
-    from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import JsonFileSettings
     from globeview.render.offscreen import OffscreenTarget, RenderError, create_headless_context
 

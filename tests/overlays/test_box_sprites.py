@@ -17,7 +17,7 @@ SIZE = (320, 240)
 
 @pytest.fixture(scope="module")
 def session(globeview_gl, globeview_terrain):
-    from globeview.plugins.session import GlobeSession
+    from globeview.app.session import GlobeSession
     from globeview.render.offscreen import OffscreenTarget
 
     s = GlobeSession(globeview_gl, globeview_terrain, Camera.from_lonlat(10.0, 46.0, 4.0e6))

@@ -27,7 +27,7 @@ OUT.mkdir(parents=True, exist_ok=True)
 def session(globeview_gl, globeview_terrain):
     # The plugin-author fixtures: one GL context (each test is checked for GL leaks) and
     # the embedded terrain in a temporary cache.
-    from globeview.plugins.session import GlobeSession
+    from globeview.app.session import GlobeSession
     from globeview.render.offscreen import OffscreenTarget
 
     s = GlobeSession(globeview_gl, globeview_terrain, Camera.from_lonlat(0.0, 20.0, 2.0e7))

@@ -36,9 +36,9 @@ def remote_wm(tmp_path):
 
 
 def test_a_provider_reading_late_tiles_is_not_failed(remote_wm, monkeypatch, tmp_path):
+    from globeview.app.session import GlobeSession
     from globeview.model.camera import Camera
     from globeview.plugins.registry import PluginRegistry
-    from globeview.plugins.session import GlobeSession
     from globeview.render.offscreen import OffscreenTarget, create_headless_context
     from globeview.terrain.embedded import embedded_stores
     from globeview.terrain.stack import TerrainStack

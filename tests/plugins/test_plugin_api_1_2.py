@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from globeview.plugins.testing import PluginSite, plugin_manifest
+from globeview.app.testing import PluginSite, plugin_manifest
 
 
 # -- the version ---------------------------------------------------------------------------

@@ -16,10 +16,10 @@ VIEWS = [(0.0, 20.0, 2.0e7, 0.0, -90.0), (-71.3, 44.15, 9000.0, 0.0, -30.0)]
 
 
 def test_chunked_sse_plugin_renders_pixel_identical_to_the_direct_selection() -> None:
+    from globeview.app.session import GlobeSession
     from globeview.lod.sse_policy import ScreenSpaceErrorPolicy
     from globeview.lod.traversal import traverse
     from globeview.plugins.registry import PluginRegistry
-    from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import MemorySettings
     from globeview.render.offscreen import OffscreenTarget, create_headless_context
     from globeview.render.scene import GlobeScene

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from globeview.plugins.testing import PluginSite, plugin_manifest
+from globeview.app.testing import PluginSite, plugin_manifest
 
 GLOBEVIEW = Path(sys.executable).with_name("globeview")
 

@@ -19,10 +19,10 @@ from pathlib import Path
 
 import pytest
 
+from globeview.app.testing import PluginSite
 from globeview.plugins.api import PointerEvent
 from globeview.plugins.registry import PluginRegistry
 from globeview.plugins.settings import MemorySettings
-from globeview.plugins.testing import PluginSite
 
 GLOBEVIEW = Path(sys.executable).with_name("globeview")
 
@@ -293,8 +293,8 @@ def gl():
 def test_session_falls_back_from_the_broken_provider_and_keeps_the_tool(
     plugin_site: PluginSite, gl
 ) -> None:
+    from globeview.app.session import GlobeSession
     from globeview.model.camera import Camera
-    from globeview.plugins.session import GlobeSession
     from globeview.render.offscreen import OffscreenTarget
 
     garbage_tool = """

@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import pytest
 
+from globeview.app.testing import PluginSite
 from globeview.errors import GlobeviewError
 from globeview.plugins.registry import PluginRegistry
 from globeview.plugins.settings import MemorySettings
-from globeview.plugins.testing import PluginSite
 
 MANIFEST = """
     name = "widths"

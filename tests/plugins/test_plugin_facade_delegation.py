@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from globeview.app.testing import plugin_manifest
 from globeview.plugins.api import PluginContext, ProviderUnavailable, RenderSet
 from globeview.plugins.registry import PluginRegistry
-from globeview.plugins.testing import plugin_manifest
 
 WRAPPER = """
 from globeview.plugins.api import LodProvider, RenderSet

@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from globeview.app.testing import PluginSite
 from globeview.errors import GlobeviewError
-from globeview.plugins.testing import PluginSite
 
 MANIFEST = """
     name = "probe"

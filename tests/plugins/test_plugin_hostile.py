@@ -22,6 +22,7 @@ from pathlib import Path
 
 import pytest
 
+from globeview.app.testing import PluginSite, plugin_manifest
 from globeview.errors import GlobeviewError
 from globeview.plugins.registry import (
     BUDGET_MS_KEY,
@@ -32,7 +33,6 @@ from globeview.plugins.registry import (
     install_sigint_marker,
 )
 from globeview.plugins.settings import MemorySettings
-from globeview.plugins.testing import PluginSite, plugin_manifest
 
 SIZE = (96, 64)
 
@@ -157,8 +157,8 @@ def _release_sessions() -> Iterator[None]:
 
 
 def session(gl, reg: PluginRegistry, lod: str):
+    from globeview.app.session import GlobeSession
     from globeview.model.camera import Camera
-    from globeview.plugins.session import GlobeSession
 
     ctx, _, terrain = gl
     s = GlobeSession(ctx, terrain, Camera.from_lonlat(0.0, 20.0, 2.0e7), reg, lod=lod)

@@ -19,7 +19,7 @@ import pytest
 from PIL import Image
 from test_plugin_hostile import add_lod, manifest
 
-from globeview.plugins.testing import PluginSite
+from globeview.app.testing import PluginSite
 
 GLOBEVIEW = Path(sys.executable).with_name("globeview")
 SIZE = "64x48"

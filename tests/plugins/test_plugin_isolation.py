@@ -8,11 +8,11 @@ import logging
 
 import pytest
 
+from globeview.app.testing import PluginSite, plugin_manifest
 from globeview.lod.render_set import RenderSet
 from globeview.plugins.api import KeyEvent, PointerEvent
 from globeview.plugins.registry import PluginRegistry
 from globeview.plugins.settings import MemorySettings
-from globeview.plugins.testing import PluginSite, plugin_manifest
 
 
 def _manifest(name: str, package: str, kind: str = "lod", attr: str = "Provider") -> str:

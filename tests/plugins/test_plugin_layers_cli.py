@@ -14,7 +14,7 @@ import pytest
 from PIL import Image
 from test_plugin_layers_draw import STRIPES_IMPL, STRIPES_MANIFEST
 
-from globeview.plugins.testing import PluginSite
+from globeview.app.testing import PluginSite
 
 pytestmark = pytest.mark.gl
 GLOBEVIEW = Path(sys.executable).parent / "globeview"

@@ -10,16 +10,16 @@ from pathlib import Path
 
 import pytest
 
-from globeview.errors import GlobeviewError
-from globeview.plugins.layer_dispatch import (
+from globeview.app.layer_dispatch import (
     choose_layer_type,
     layer_type_infos,
     overlay_file_filter,
     parse_layer_spec,
 )
+from globeview.app.testing import PluginSite
+from globeview.errors import GlobeviewError
 from globeview.plugins.registry import PluginRegistry
 from globeview.plugins.settings import MemorySettings
-from globeview.plugins.testing import PluginSite
 
 ZEBRA_MANIFEST = """
     name = "zebra"

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from pyproj import Geod
 
+from globeview.app.testing import PluginSite
 from globeview.errors import GlobeviewError
 from globeview.geodesy import lonlat_to_ecef
 from globeview.model.camera import Camera
 from globeview.plugins.registry import PluginRegistry
 from globeview.plugins.settings import MemorySettings
-from globeview.plugins.testing import PluginSite
 
 pytestmark = pytest.mark.gl
 SIZE = (480, 360)
@@ -131,7 +131,7 @@ def gl(globeview_gl, globeview_terrain):
 
 @pytest.fixture
 def session(gl, plugin_site: PluginSite):
-    from globeview.plugins.session import GlobeSession
+    from globeview.app.session import GlobeSession
 
     plugin_site.add("gvt_stripes", STRIPES_MANIFEST, {"impl": STRIPES_IMPL})
     ctx, terrain, target = gl

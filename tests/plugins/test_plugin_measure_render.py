@@ -21,7 +21,7 @@ CAMERA = (-71.335, 44.27, 4.0e4)
 LINE_RGB = np.array([26, 204, 255])  # measure.LINE_RGBA (0.1, 0.8, 1.0)
 
 
-# The fixtures a plugin author gets (globeview.plugins.testing): the session's GL context and
+# The fixtures a plugin author gets (globeview.app.testing): the session's GL context and
 # the embedded terrain, not a context and stack of this module's own.
 @pytest.fixture(scope="module")
 def gl(globeview_gl):
@@ -34,8 +34,8 @@ def gl(globeview_gl):
 
 @pytest.fixture(scope="module")
 def session(gl, globeview_terrain):
+    from globeview.app.session import GlobeSession
     from globeview.plugins.registry import PluginRegistry
-    from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import MemorySettings
 
     reg = PluginRegistry(MemorySettings()).discover()

@@ -12,12 +12,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from globeview.app.testing import PluginSite
 from globeview.errors import GlobeviewError
 from globeview.geodesy import lonlat_to_ecef
 from globeview.model.camera import Camera
 from globeview.plugins.registry import PluginRegistry
 from globeview.plugins.settings import MemorySettings
-from globeview.plugins.testing import PluginSite
 
 pytestmark = pytest.mark.gl
 SIZE = (480, 360)
@@ -75,7 +75,7 @@ def gl(globeview_gl, globeview_terrain):
 
 @pytest.fixture
 def session(gl, plugin_site: PluginSite):
-    from globeview.plugins.session import GlobeSession
+    from globeview.app.session import GlobeSession
 
     plugin_site.add("gvt_dots", MANIFEST, {"impl": IMPL})
     ctx, terrain, target = gl

@@ -12,7 +12,7 @@ pytestmark = pytest.mark.gl
 
 @pytest.fixture
 def session(globeview_gl, globeview_terrain, globeview_registry):
-    from globeview.plugins.session import GlobeSession
+    from globeview.app.session import GlobeSession
 
     s = GlobeSession(globeview_gl, globeview_terrain, registry=globeview_registry)
     yield s
@@ -36,7 +36,7 @@ def test_session_state_is_the_globe(session) -> None:
 
 
 def test_session_takes_a_globe_made_before_gl(globeview_gl, globeview_terrain, globeview_registry):
-    from globeview.plugins.session import GlobeSession
+    from globeview.app.session import GlobeSession
 
     globe = Globe(globeview_terrain, lod="quadtree-clod", tau_px=5.0)
     globe.display.exaggeration = 2.0
@@ -63,8 +63,8 @@ def test_unknown_lod_changes_nothing(session) -> None:
 def test_a_refused_lod_name_at_construction_leaves_no_gl_objects(
     globeview_gl, globeview_terrain, globeview_registry
 ) -> None:
+    from globeview.app.session import GlobeSession
     from globeview.errors import GlobeviewError
-    from globeview.plugins.session import GlobeSession
     from globeview.render.gpu_objects import gpu_objects
 
     tracker = gpu_objects(globeview_gl)
@@ -79,7 +79,7 @@ def test_release_gl_disconnects_the_session_from_the_globe(
 ) -> None:
     # A window's model outlives the sessions shown on it: a released session's tool host
     # must not go on following (and holding) the globe's tool events.
-    from globeview.plugins.session import GlobeSession
+    from globeview.app.session import GlobeSession
 
     globe = Globe(globeview_terrain)
     before = len(globe.events.tool)

@@ -17,7 +17,7 @@ SIZE = (160, 120)
 
 @pytest.fixture
 def session(globeview_gl, globeview_terrain, globeview_registry):
-    from globeview.plugins.session import GlobeSession
+    from globeview.app.session import GlobeSession
     from globeview.render.offscreen import OffscreenTarget
 
     s = GlobeSession(
@@ -183,8 +183,8 @@ class OldType:
 def test_api_1_0_layer_objects_are_called_at_frame_time(
     globeview_gl, globeview_terrain, plugin_site, tmp_path
 ) -> None:
+    from globeview.app.session import GlobeSession
     from globeview.plugins.registry import PluginRegistry
-    from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import MemorySettings
     from globeview.render.offscreen import OffscreenTarget
 

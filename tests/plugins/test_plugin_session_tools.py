@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import pytest
 
+from globeview.app.testing import PluginSite, plugin_manifest
 from globeview.plugins.registry import PluginRegistry
 from globeview.plugins.settings import MemorySettings
-from globeview.plugins.testing import PluginSite, plugin_manifest
 from globeview.render.gpu_objects import gpu_objects
 
 pytestmark = pytest.mark.gl
@@ -49,8 +49,8 @@ def target(globeview_gl):
 
 
 def _session(ctx, terrain, reg):
+    from globeview.app.session import GlobeSession
     from globeview.model.camera import Camera
-    from globeview.plugins.session import GlobeSession
 
     return GlobeSession(ctx, terrain, Camera.from_lonlat(-71.3, 44.27, 4e4), reg)
 

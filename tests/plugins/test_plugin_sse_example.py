@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from globeview.plugins.testing import PluginSite
+from globeview.app.testing import PluginSite
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "plugins.md"
 MARK = "<!-- tested: tests/plugins/test_plugin_sse_example.py"

@@ -20,7 +20,7 @@ MAGENTA = (1.0, 0.0, 1.0)
 @pytest.fixture(scope="session")
 def gl_ctx(globeview_gl):
     """The plugin-author fixture's context: its leak check fails a test that drops GL
-    objects unreleased (`globeview.plugins.testing`)."""
+    objects unreleased (`globeview.app.testing`)."""
     return globeview_gl
 
 

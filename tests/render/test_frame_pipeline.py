@@ -165,8 +165,8 @@ def test_camera_motion_rules() -> None:
 def test_session_frame_with_a_tool_builds_one_view(globeview_gl, terrain) -> None:
     """The real collapse plugin through the registry: the provider's view is the frame's,
     it carries the collapse's displacement, and the frame drew the fold lines itself."""
+    from globeview.app.session import GlobeSession
     from globeview.plugins.registry import PluginRegistry
-    from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import MemorySettings
     from globeview.render.offscreen import OffscreenTarget
 
@@ -220,10 +220,10 @@ class Hostile(Tool):
 def test_a_hostile_tool_fails_alone_and_the_frame_is_drawn(
     plugin_site, globeview_gl, terrain, broken
 ) -> None:
+    from globeview.app.session import GlobeSession
+    from globeview.app.testing import plugin_manifest
     from globeview.plugins.registry import PluginRegistry
-    from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import MemorySettings
-    from globeview.plugins.testing import plugin_manifest
     from globeview.render.offscreen import OffscreenTarget
 
     src = HOSTILE_TOOL

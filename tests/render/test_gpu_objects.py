@@ -48,8 +48,8 @@ def test_leaked_since_finds_only_dropped_unreleased_objects(globeview_gl) -> Non
 def test_a_session_releases_every_gl_object_it_made(
     globeview_gl, globeview_terrain, globeview_registry
 ) -> None:
+    from globeview.app.session import GlobeSession
     from globeview.model.camera import Camera
-    from globeview.plugins.session import GlobeSession
     from globeview.render.offscreen import OffscreenTarget
 
     tracker = gpu_objects(globeview_gl)

@@ -29,8 +29,8 @@ TOLERANCE_M = 0.05
 def session(gl_ctx, terrain):
     """A plugin session on the render suite's one GL context (a second context made current
     in this process breaks the other render tests) and the embedded terrain."""
+    from globeview.app.session import GlobeSession
     from globeview.plugins.registry import PluginRegistry
-    from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import MemorySettings
     from globeview.render.offscreen import OffscreenTarget
 

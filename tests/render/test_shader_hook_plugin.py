@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from globeview.plugins.testing import PluginSite, plugin_manifest
+from globeview.app.testing import PluginSite, plugin_manifest
 
 IDENTITY = "vec3 gv_displace(vec3 rel, vec3 up, float h, vec3 c) {\n    return rel;\n}\n"
 

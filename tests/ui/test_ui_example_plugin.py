@@ -18,7 +18,7 @@ def magenta_pixels(rgb: np.ndarray) -> int:
 
 
 def test_graticule_file_in_the_filter_and_drawn(make_window, frame_rgb, wait_frame, tmp_path):
-    from globeview.plugins.layer_dispatch import overlay_file_filter
+    from globeview.app.layer_dispatch import overlay_file_filter
 
     win = make_window()
     assert "*.graticule" in overlay_file_filter(win.plugins.registry)

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import pytest
 
+from globeview.app.testing import PluginSite, plugin_manifest
 from globeview.plugins.registry import PluginRegistry
 from globeview.plugins.settings import MemorySettings
-from globeview.plugins.testing import PluginSite, plugin_manifest
 
 pytestmark = pytest.mark.gui
 

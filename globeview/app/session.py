@@ -17,6 +17,9 @@ import logging
 
 import moderngl
 
+from globeview.app.lod_host import LodHost
+from globeview.app.overlay_host import OverlayHost
+from globeview.app.tool_host import ToolFrame, ToolHost
 from globeview.geodesy import ecef_to_lonlat
 from globeview.lod.render_set import RenderSet
 from globeview.lod.view_state import ViewState
@@ -24,10 +27,7 @@ from globeview.model.camera import Camera
 from globeview.model.display import DisplaySettings
 from globeview.model.globe import DEFAULT_LOD, Globe
 from globeview.plugins.api import NullRendererHooks
-from globeview.plugins.lod_host import LodHost
-from globeview.plugins.overlay_host import OverlayHost
 from globeview.plugins.registry import PluginRegistry
-from globeview.plugins.tool_host import ToolFrame, ToolHost
 from globeview.render.frame_pipeline import FramePipeline
 from globeview.render.picking import Pick
 from globeview.render.renderer import GlobeRenderer
@@ -157,7 +157,7 @@ class GlobeSession(GlobeScene):
         """The overlay layers, bottom first (`Globe.overlays`)."""
         return self.globe.overlays
 
-    # -- LOD providers (plugins/lod_host.py) ---------------------------------------------------
+    # -- LOD providers (app/lod_host.py) ---------------------------------------------------
     def lod_providers(self) -> dict:
         """Name -> provider of every enabled LOD plugin contribution (imports them all)."""
         return self.lod_host.providers()
@@ -194,7 +194,7 @@ class GlobeSession(GlobeScene):
         """Make ``name`` the active tool (None: no tool). Changes the model only
         (`Globe.tool`): the tool's displacement hook is compiled at the next frame
         (`prepare_gpu`); if it does not compile the tool fails (reported) and the globe's
-        tool becomes None. See `globeview.plugins.tool_host`."""
+        tool becomes None. See `globeview.app.tool_host`."""
         self.tool_host.activate(name)
 
     def tool(self):
@@ -242,7 +242,7 @@ class GlobeSession(GlobeScene):
         lon, lat, h = ecef_to_lonlat(ecef)
         return Pick(ecef, float(lon), float(lat), float(h), p.on_terrain)
 
-    # -- overlay layers (any layer type, built-in or installed: plugins/overlay_host.py) ------
+    # -- overlay layers (any layer type, built-in or installed: app/overlay_host.py) ------
     def layer_types(self) -> list:
         """The enabled layer types in dispatch order (`OverlayHost.layer_types`)."""
         return self.overlay_host.layer_types()

@@ -19,17 +19,17 @@ from typing import Any
 
 import numpy as np
 
-from globeview.errors import GlobeviewError
-from globeview.geodesy import ecef_to_lonlat, lonlat_to_ecef
-from globeview.lod.view_state import ViewState
-from globeview.model.globe import Globe
-from globeview.plugins.api import PluginKind, Tool
-from globeview.plugins.host_checks import (
+from globeview.app.host_checks import (
     has_method,
     hashable,
     overlay_problem,
     uniforms_problem,
 )
+from globeview.errors import GlobeviewError
+from globeview.geodesy import ecef_to_lonlat, lonlat_to_ecef
+from globeview.lod.view_state import ViewState
+from globeview.model.globe import Globe
+from globeview.plugins.api import PluginKind, Tool
 from globeview.plugins.registry import PluginRegistry
 from globeview.render.renderer import DisplacementHook, GlobeRenderer
 from globeview.terrain.remote import TileNotReady

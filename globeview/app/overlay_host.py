@@ -20,6 +20,7 @@ from typing import Any
 
 from psygnal import Signal
 
+from globeview.app.host_checks import has_method
 from globeview.errors import GlobeviewError, PluginFailed
 from globeview.model.globe import Globe
 from globeview.model.overlay_layers import (
@@ -29,7 +30,6 @@ from globeview.model.overlay_layers import (
     VectorLayer,
 )
 from globeview.plugins.api import PluginKind
-from globeview.plugins.host_checks import has_method
 from globeview.plugins.registry import PluginRegistry
 from globeview.render.renderer import GlobeRenderer
 
@@ -58,13 +58,13 @@ class OverlayHost:
     def layer_types(self) -> list:
         """The enabled layer types in dispatch order (`layer_dispatch.LayerTypeInfo`: name,
         plugin, label, extensions), for menus and the Open Overlay filter."""
-        from globeview.plugins.layer_dispatch import layer_type_infos
+        from globeview.app.layer_dispatch import layer_type_infos
 
         return layer_type_infos(self.registry)
 
     def file_filter(self) -> str:
         """The Open Overlay dialog's filter: every enabled layer type's patterns."""
-        from globeview.plugins.layer_dispatch import overlay_file_filter
+        from globeview.app.layer_dispatch import overlay_file_filter
 
         return overlay_file_filter(self.registry)
 
@@ -72,7 +72,7 @@ class OverlayHost:
         """The name of the layer type that opens ``path`` (`layer_dispatch.choose_layer_type`:
         an explicit ``layer_type``, then declared extensions, then content sniffing).
         Raises a one-line `GlobeviewError` naming the installed types when none does."""
-        from globeview.plugins.layer_dispatch import choose_layer_type
+        from globeview.app.layer_dispatch import choose_layer_type
 
         return choose_layer_type(self.registry, path, layer_type)
 
@@ -87,8 +87,8 @@ class OverlayHost:
         renderer). Bad files raise a one-line `GlobeviewError` and leave the plugin
         enabled; garbage returned, or a crash, fails that layer type (reported) and raises
         a one-line `PluginFailed` (a `GlobeviewError`: exit 3 on the command line)."""
+        from globeview.app.layer_dispatch import parse_layer_spec
         from globeview.model.overlay_layers import as_drawables, host_layer
-        from globeview.plugins.layer_dispatch import parse_layer_spec
 
         path = str(path)
         if layer_type is None:
