@@ -7,9 +7,10 @@ host's GL-free layer models, `globeview.model.overlay_layers`; an API 1.0 object
 the `Globe` (an event). Garbage or a crash fails that layer type (one line, reported by the
 registry); a bad file is the user's error (one line, the plugin stays enabled).
 
-No GL happens when a host layer is opened, shown, restyled or removed: `prepare_gpu` (each
-frame, the context current) brings the renderer's GPU twins in line with the globe's
-overlays and drops a layer the GPU side refuses, with one line in `errors`.
+Opening needs no renderer and no GL: a window opens overlays before its GL context exists,
+and opening, showing, restyling or removing one never makes a context current.
+`prepare_gpu` (each frame, the context current) brings the renderer's GPU twins in line with
+the globe's overlays and drops a layer the GPU side refuses, with one line in `errors`.
 """
 
 from __future__ import annotations
@@ -77,7 +78,7 @@ class OverlayHost:
         return choose_layer_type(self.registry, path, layer_type)
 
     # -- opening and removing --------------------------------------------------------------------
-    def open(self, path: str, layer_type: str | None, renderer: GlobeRenderer, **style: Any) -> Any:
+    def open(self, path: str, layer_type: str | None = None, **style: Any) -> Any:
         """Open a file as an overlay layer with the layer type dispatch picks (``path`` may
         be ``"TYPE:FILE"``) and show it on top of the globe's overlays.
 
@@ -128,7 +129,7 @@ class OverlayHost:
         elif layer is not failed:
             # A host layer is a model: no GL here. Its GPU twin is made at the next frame
             # (`prepare_gpu`), where a GL refusal drops the layer with a one-line message.
-            _check_drape_size(layer, renderer.overlays.imagery.tex_size, Path(path).name)
+            _check_drape_size(layer, Path(path).name)
         if layer is failed:
             # The plugin's fault, not the file's: no other type stands in for it.
             raise PluginFailed(
@@ -138,7 +139,7 @@ class OverlayHost:
         self.types_used.add(name)
         return layer
 
-    def open_embedded(self, renderer: GlobeRenderer, imagery: bool = False) -> list:
+    def open_embedded(self, imagery: bool = False) -> list:
         """The embedded default overlays: Natural Earth borders and coastlines (and the Blue
         Marble imagery with ``imagery``), opened through the enabled built-in layer types
         like any file (none when those types are disabled)."""
@@ -158,10 +159,10 @@ class OverlayHost:
         for kind, path, style in wanted:
             # offers(): from the manifests, so no other layer plugin is imported for this.
             if self.registry.offers(PluginKind.LAYER, kind):
-                layers.append(self.open(str(path), kind, renderer, **style))
+                layers.append(self.open(str(path), kind, **style))
         return layers
 
-    def remove(self, layer: Any, renderer: GlobeRenderer | None = None) -> None:
+    def remove(self, layer: Any) -> None:
         """Take ``layer`` off the globe; no GL: a host layer's GPU twin is released and an
         API 1.0 layer object detached at the next frame."""
         self.globe.remove_overlay(layer)
@@ -286,9 +287,12 @@ def _contains(layer: object, part: object) -> bool:
     return layer is part or any(p is part for p in getattr(layer, "parts", ()) or ())
 
 
-def _check_drape_size(layer: object, tex_size: int, name: str) -> None:
+def _check_drape_size(layer: object, name: str) -> None:
     """Refuse (one line) a drape whose texture size the renderer's imagery stack cannot
-    compose with (all drapes of a globe share one texture array)."""
+    compose with (all drapes of a globe share one texture array, of the imagery's
+    `DEFAULT_TEX_SIZE`: the renderer's `OverlaySet.sync` refuses another size at the frame
+    too, this says so when the file is opened)."""
+    from globeview.terrain.imagery import DEFAULT_TEX_SIZE as tex_size
     from globeview.terrain.imagery import ImageryError
 
     for part in getattr(layer, "parts", None) or [layer]:

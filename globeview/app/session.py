@@ -47,6 +47,9 @@ class GlobeSession(GlobeScene):
             `DEFAULT_LOD`).
         globe: the `Globe` model to show (default: a new one of ``terrain`` and ``camera``);
             its ``terrain`` must be ``terrain``.
+        overlay_host: the `OverlayHost` that opens overlays onto ``globe`` (default: a new
+            one); a window makes it with its model, before any GL exists, and opens overlays
+            with it from the start.
     """
 
     def __init__(
@@ -58,6 +61,7 @@ class GlobeSession(GlobeScene):
         lod: str | None = None,
         *,
         globe: Globe | None = None,
+        overlay_host: OverlayHost | None = None,
     ) -> None:
         # The state (camera, tau, LOD and tool names, overlays, display settings) lives in
         # the Globe model, which emits the change events; the session's properties below
@@ -69,6 +73,11 @@ class GlobeSession(GlobeScene):
             raise ValueError("GlobeSession: terrain is not the globe's terrain")
         elif camera is not None:
             globe.camera = camera
+        if overlay_host is not None:
+            if registry is None:
+                registry = overlay_host.registry
+            if overlay_host.globe is not globe or overlay_host.registry is not registry:
+                raise ValueError("GlobeSession: overlay_host is not for this globe and registry")
         self.globe = globe
         self.ctx = ctx
         # The frame pipeline draws every frame (window, CLI, bench); this session is its
@@ -82,7 +91,7 @@ class GlobeSession(GlobeScene):
         self.registry = registry
         self.lod_host = LodHost(globe, registry)
         self.tool_host = ToolHost(globe, registry)
-        self.overlay_host = OverlayHost(globe, registry)
+        self.overlay_host = overlay_host or OverlayHost(globe, registry)
         # Plugins get redraw/status hooks, not the GL renderer: headless they are recorded,
         # and the window attaches its own (redraw = widget.update, status = status bar).
         self.hooks = NullRendererHooks()
@@ -258,15 +267,15 @@ class GlobeSession(GlobeScene):
     def add_overlay(self, path: str, layer_type: str | None = None, **style):
         """Open a file as an overlay layer and show it on top (`OverlayHost.open`): one-line
         `GlobeviewError` for a bad file or a failing layer type; no GL."""
-        return self.overlay_host.open(path, layer_type, self.renderer, **style)
+        return self.overlay_host.open(path, layer_type, **style)
 
     def add_embedded_overlays(self, imagery: bool = False) -> list:
         """The embedded default overlays (`OverlayHost.open_embedded`)."""
-        return self.overlay_host.open_embedded(self.renderer, imagery)
+        return self.overlay_host.open_embedded(imagery)
 
     def remove_overlay(self, layer) -> None:
         """Take ``layer`` off the globe (its GPU twin is released at the next frame)."""
-        self.overlay_host.remove(layer, self.renderer)
+        self.overlay_host.remove(layer)
 
     def release_gl(self) -> None:
         """Release the GL objects the session owns (with its context current), and stop

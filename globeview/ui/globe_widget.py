@@ -40,6 +40,7 @@ from PyQt6.QtGui import (
 from PyQt6.QtOpenGLWidgets import QOpenGLWidget
 from PyQt6.QtWidgets import QWidget
 
+from globeview.app.overlay_host import OverlayHost
 from globeview.app.session import DEFAULT_LOD, GlobeSession
 from globeview.lod.render_set import FrameStats
 from globeview.lod.view_state import ViewState
@@ -155,6 +156,9 @@ class GlobeWidget(QOpenGLWidget):
             display settings); the session is built on it once GL is up, and every change of
             it (its events) schedules a frame.
         registry: the plugin registry the `GlobeSession` takes its LOD providers from.
+        subscriptions: the window's model subscriptions (default: the widget's own).
+        overlays: the `OverlayHost` that opens overlays onto ``model`` without GL (default: a
+            new one); the session draws what it opened.
 
     Signals:
         sceneReady(object): the `GlobeSession`, once the GL context exists.
@@ -180,6 +184,7 @@ class GlobeWidget(QOpenGLWidget):
         registry: PluginRegistry,
         parent: QWidget | None = None,
         subscriptions: Subscriptions | None = None,
+        overlays: OverlayHost | None = None,
     ) -> None:
         super().__init__(parent)
         self.setFormat(surface_format())
@@ -191,6 +196,8 @@ class GlobeWidget(QOpenGLWidget):
         self.model = model
         self.terrain = model.terrain
         self.registry = registry
+        #: Opens overlays onto the model, GL or not (the window's); the session uses it.
+        self.overlays = OverlayHost(model, registry) if overlays is None else overlays
         self.ctx: moderngl.Context | None = None
         self.scene: GlobeSession | None = None
         self.frames = 0
@@ -291,7 +298,13 @@ class GlobeWidget(QOpenGLWidget):
             available = self.registry.lod_providers()
         # The session draws the model (its camera, tau, LOD, tool, overlays and display
         # settings are the Globe's: one copy of the state).
-        scene = GlobeSession(self.ctx, self.terrain, registry=self.registry, globe=self.model)
+        scene = GlobeSession(
+            self.ctx,
+            self.terrain,
+            registry=self.registry,
+            globe=self.model,
+            overlay_host=self.overlays,
+        )
         # Tiles load on worker threads; frames draw ancestors until they arrive.
         scene.renderer.async_loading = True
         # A worker thread emits; Qt queues the call to this (the UI) thread.

@@ -13,10 +13,11 @@ through the registry like provider settings), and its manifest commands
 (``[[contributions.commands]]``) become actions — Tools menu entries, buttons in that bar and
 keyboard shortcuts — that activate the tool and call the declared method (`tool_options`).
 
-Overlays (imagery, thematic rasters, vectors, points) live in the session
-(``GlobeSession.overlay_layers``) and are listed in the layer panel's "Overlays" group. File >
-Open Overlay… opens any raster or GeoJSON as an overlay (a single-band raster becomes a
-thematic drape); File > Open DEM… opens terrain; File > Open URL… opens a tile store served over
+Overlays (imagery, thematic rasters, vectors, points) live in the model (``Globe.overlays``),
+opened by the window's `OverlayHost` with or without GL (the session draws them), and are
+listed in the layer panel's "Overlays" group. File > Open Overlay… opens any raster or
+GeoJSON as an overlay (a single-band raster becomes a thematic drape); File > Open DEM… opens
+terrain; File > Open URL… opens a tile store served over
 HTTP (remembered in Open Recent like files; its tiles stream in, those that fail stay stood in
 by coarser ones and are counted in the status bar); drag and drop, recent files and the command
 line decide by content (`classify_path`): GeoJSON and RGB(A)/paletted rasters are overlays,
@@ -57,6 +58,7 @@ from PyQt6.QtWidgets import (
     QWidget,
 )
 
+from globeview.app.overlay_host import OverlayHost
 from globeview.errors import GlobeviewError
 from globeview.model.camera import Camera, camera_for_bounds
 from globeview.model.globe import Globe
@@ -129,13 +131,10 @@ class MainWindow(QMainWindow):
         embedded_overlays: bool = False,
     ) -> None:
         super().__init__()
-        self._embedded_overlays = embedded_overlays
         #: The tool asked for by `set_tool` until a frame is drawn with it (its activation
         #: can fail until then).
         self._activating: str | None = None
         self._showing_display = False
-        #: Overlay files asked for before the globe's GL (and session) existed.
-        self._pending_overlays: list[str] = []
         self.setWindowTitle("globeview")
         self.setAcceptDrops(True)
         self.qsettings = settings or QSettings("globeview", "globeview")
@@ -178,11 +177,17 @@ class MainWindow(QMainWindow):
         else:
             self.plugins.refresh()
 
-        self.globe = GlobeWidget(self.model, registry, self, self.subscriptions)
+        #: Opens overlay files onto the model through the layer types, with or without GL
+        #: (the session draws what it opened).
+        self.overlay_host = OverlayHost(self.model, registry)
+        self.globe = GlobeWidget(
+            self.model, registry, self, self.subscriptions, overlays=self.overlay_host
+        )
         self.setCentralWidget(self.globe)
 
         # Docks
         self.layer_panel = LayerPanel(self.model, subscriptions=self.subscriptions)
+        self.layer_panel.overlays.bind(self.overlay_host)
         self.layer_dock = self._dock("Layers", "layers", self.layer_panel)
         self.plugin_panel = PluginPanel(self.plugins, subscriptions=self.subscriptions)
         # Scrollable: the panel's full height (plugin list, provider settings) must not set
@@ -200,6 +205,8 @@ class MainWindow(QMainWindow):
         self._connect()
         self._restore()
         self.plot_dock = install_plot_dock(self)  # shows the active tool's plot, if any
+        if embedded_overlays:
+            self._open_embedded_overlays()
         self.globe.setFocus()
 
     # -- construction ----------------------------------------------------------------------
@@ -538,7 +545,6 @@ class MainWindow(QMainWindow):
     def _connect(self) -> None:
         g = self.globe
         g.sceneReady.connect(self.plugins.bind)
-        g.sceneReady.connect(self._scene_ready)
         g.frameRendered.connect(self.status.show_frame)
         g.frameRendered.connect(self._show_fallback_reason)  # after show_frame: on top of it
         g.frameRendered.connect(self._frame_drawn)
@@ -746,10 +752,8 @@ class MainWindow(QMainWindow):
     def open_overlay_dialog(self) -> None:
         """File > Open Overlay…: any file an enabled layer type opens (built-in or installed);
         the filter lists every layer type's patterns (`layer_dispatch.overlay_file_filter`)."""
-        from globeview.app.layer_dispatch import overlay_file_filter
-
         start = str(Path(self.recent_files()[0]).parent) if self.recent_files() else ""
-        name_filter = overlay_file_filter(self.plugins.registry)
+        name_filter = self.overlay_host.file_filter()
         paths, _ = QFileDialog.getOpenFileNames(self, "Open Overlay", start, name_filter)
         self.open_overlays(paths)
 
@@ -761,15 +765,10 @@ class MainWindow(QMainWindow):
     def open_overlay(self, path: str) -> Any:
         """Add a raster or GeoJSON file as an overlay layer (its type decided by content) on
         top of the overlays; a bad file reports its one-line error and changes nothing.
-        Returns the layer (None on error, or while the globe is not up yet: then it is added
-        once it is)."""
-        scene = self.globe.scene
-        if scene is None:
-            self._pending_overlays.append(str(path))
-            return None
+        Returns the layer (None on error). No GL: it works before the globe's GL is up."""
         try:
             # No GL here: the layer's GPU side is made at the next frame.
-            layer = scene.add_overlay(str(path))  # listed by the model's event
+            layer = self.overlay_host.open(str(path))  # listed by the model's event
         except Exception as exc:  # noqa: BLE001  any failure is one line in a dialog, the window keeps working
             self.errors.error(exc, "" if isinstance(exc, GlobeviewError) else "opening overlay")
             return None
@@ -783,23 +782,16 @@ class MainWindow(QMainWindow):
         """The model's overlay layers, bottom first."""
         return list(self.model.overlays)
 
-    def _scene_ready(self, scene: Any) -> None:
-        """The session exists (GL is current): bind the overlay panel, add the embedded
-        overlays (Blue Marble hidden) and any overlays asked for before."""
-        panel = self.layer_panel.overlays
-        panel.bind(scene)
-        if self._embedded_overlays:
-            self._embedded_overlays = False
-            try:  # the built-in layer types' layers: models, no GL here
-                layers = scene.add_embedded_overlays(imagery=True)
-                for layer in layers:
-                    if layer.kind in ("imagery", "thematic"):
-                        layer.set_visible(False)  # announced: listed and drawn hidden
-            except Exception as exc:  # noqa: BLE001  any failure is one line in a dialog, the window keeps working
-                self.errors.error(exc, "adding the embedded overlays")
-        pending, self._pending_overlays = self._pending_overlays, []
-        for path in pending:
-            self.open_overlay(path)
+    def _open_embedded_overlays(self) -> None:
+        """The embedded overlays: the borders shown, the Blue Marble listed but hidden
+        (models through the built-in layer types: no GL)."""
+        try:
+            layers = self.overlay_host.open_embedded(imagery=True)
+            for layer in layers:
+                if layer.kind in ("imagery", "thematic"):
+                    layer.set_visible(False)  # announced: listed and drawn hidden
+        except Exception as exc:  # noqa: BLE001  any failure is one line in a dialog, the window keeps working
+            self.errors.error(exc, "adding the embedded overlays")
 
     def _load_started(self, path: str) -> None:
         self.load_label.setText(f"Opening {source_name(path, stem=False)}…")

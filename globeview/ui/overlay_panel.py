@@ -73,7 +73,7 @@ def layer_opacity(layer: Any) -> float:
 
 class OverlayPanel(QWidget):
     """Lists the model's overlay layers and edits visibility, order, opacity, style and
-    membership. Before a session is bound (no GL yet) the list is disabled."""
+    membership. Until an overlay host is bound (`bind`) the list is disabled."""
 
     def __init__(
         self,
@@ -83,7 +83,8 @@ class OverlayPanel(QWidget):
     ) -> None:
         super().__init__(parent)
         self.model = model
-        self.session: Any = None
+        #: Where layers are removed (`OverlayHost.remove`); None: the list is disabled.
+        self.host: Any = None
         self._updating = False
         self._by_id: dict[int, Any] = {}
 
@@ -154,11 +155,12 @@ class OverlayPanel(QWidget):
         self.refresh()
 
     # -- model ----------------------------------------------------------------------------
-    def bind(self, session: Any) -> None:
-        """Edit the overlays through ``session`` (None: none, the list is disabled). No edit
-        needs GL: the session makes, updates and frees the layers' GPU side (an API 1.0
-        plugin layer's own attach/detach/set_visible too) at the next frame."""
-        self.session = session
+    def bind(self, host: Any) -> None:
+        """Edit the overlays through ``host`` (the window's `OverlayHost`; None: none, the
+        list is disabled). No edit needs GL: the session makes, updates and frees the
+        layers' GPU side (an API 1.0 plugin layer's own attach/detach/set_visible too) at
+        the next frame."""
+        self.host = host
         self.refresh()
 
     def layers(self) -> list:
@@ -184,7 +186,7 @@ class OverlayPanel(QWidget):
         """Show the model's overlays (its ``overlays`` event): the same layers in the same
         order are updated in place (an edit here is not rebuilt under itself); otherwise the
         rows are rebuilt, keeping the selection."""
-        self.list.setEnabled(self.session is not None)
+        self.list.setEnabled(self.host is not None)
         listed = [self.list.item(r).data(ID_ROLE) for r in range(self.list.count())]
         if listed and listed == [id(ly) for ly in reversed(self.layers())]:
             self._updating = True
@@ -268,7 +270,7 @@ class OverlayPanel(QWidget):
                 )
 
     def _item_changed(self, item: QListWidgetItem) -> None:
-        if self._updating or self.session is None:
+        if self._updating or self.host is None:
             return
         layer = self._by_id[item.data(ID_ROLE)]
         # The layer announces the change (globe.events.overlays): the view redraws.
@@ -276,7 +278,7 @@ class OverlayPanel(QWidget):
 
     def set_opacity(self, layer: Any, opacity: float) -> None:
         """Set a drape's opacity (0..1); the slider follows when it is selected."""
-        if layer.kind not in DRAPE_KINDS or self.session is None:
+        if layer.kind not in DRAPE_KINDS or self.host is None:
             return
         layer.set_opacity(opacity)  # announced by the layer; the slider follows
 
@@ -319,7 +321,7 @@ class OverlayPanel(QWidget):
         self.set_width(layer, px)
 
     def _sync_order(self) -> None:
-        """Make the session's order follow the list's (after a drag)."""
+        """Make the model's order follow the list's (after a drag)."""
         order = [self.layer_at(r) for r in reversed(range(self.list.count()))]
         self._reorder(order)
 
@@ -337,7 +339,7 @@ class OverlayPanel(QWidget):
     def _reorder(self, order: list) -> None:
         """Put the model's overlays in ``order`` (bottom first): one event, which lists them
         here and redraws (the renderer composes drapes and lines in the model's order)."""
-        if self.session is None or order == self.layers():
+        if self.host is None or order == self.layers():
             self.refresh()
             return
         self.model.set_overlay_order(order)
@@ -349,9 +351,9 @@ class OverlayPanel(QWidget):
 
     def remove(self, layer: Any) -> None:
         """Take an overlay off the globe and out of the model (its event updates the list)."""
-        if self.session is None:
+        if self.host is None:
             return
-        self.session.remove_overlay(layer)
+        self.host.remove(layer)
 
 
 def _size_of(layer: Any) -> float:

@@ -218,3 +218,32 @@ def test_api_1_0_layer_objects_are_called_at_frame_time(
     finally:
         s.release_gl()
         target.release()
+
+
+def test_overlays_open_before_any_session_and_are_drawn_by_it(
+    globeview_gl, globeview_terrain, globeview_registry
+) -> None:
+    """An `OverlayHost` opens files onto a globe that has no session, hence no renderer and
+    no GL (a window opens them before its context exists); a session built on that globe
+    with that host draws them at its first frame."""
+    from globeview.app.overlay_host import OverlayHost
+    from globeview.app.session import GlobeSession
+    from globeview.model.globe import Globe
+    from globeview.render.offscreen import OffscreenTarget
+
+    globe = Globe(globeview_terrain, Camera.from_lonlat(10.0, 46.0, 3.0e6))
+    host = OverlayHost(globe, globeview_registry)
+    cities = host.open("data/ne_cities.geojson", "points")
+    assert globe.overlays == [cities]
+    other = Globe(globeview_terrain)
+    with pytest.raises(ValueError, match="overlay_host"):
+        GlobeSession(globeview_gl, globeview_terrain, globe=other, overlay_host=host)
+    s = GlobeSession(globeview_gl, globeview_terrain, globe=globe, overlay_host=host)
+    target = OffscreenTarget(globeview_gl, SIZE)
+    try:
+        assert s.overlay_host is host and s.overlay_layers == [cities]
+        result = s.render(target.fbo, SIZE)
+        assert result.stats.extra.get("objects", 0) > 0  # the cities are drawn
+    finally:
+        s.release_gl()
+        target.release()

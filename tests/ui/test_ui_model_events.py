@@ -145,6 +145,40 @@ def test_changing_the_model_from_the_window_makes_no_context_current(
     assert win.globe.last_stats.triangles > 0
 
 
+def test_overlays_open_before_the_window_has_gl(qtbot, tmp_path, embedded, monkeypatch) -> None:
+    """A window not shown yet has no GL context and no session: overlays open anyway (the
+    window's `OverlayHost` makes models, nothing waits for GL), are listed at once and are
+    drawn by the first frame."""
+    from PyQt6.QtCore import QSettings
+
+    from globeview.plugins.registry import PluginRegistry
+    from globeview.plugins.settings import MemorySettings
+    from globeview.ui.app import embedded_stack
+    from globeview.ui.main_window import MainWindow
+
+    monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(tmp_path / "cache"))
+    settings = QSettings(str(tmp_path / "globeview.ini"), QSettings.Format.IniFormat)
+    registry = PluginRegistry(MemorySettings()).discover()
+    shown: list = []
+    win = MainWindow(embedded_stack(embedded), settings, registry, show_error=shown.append)
+    qtbot.addWidget(win)
+    try:
+        assert win.globe.scene is None and win.globe.context() is None
+        (cities,) = win.open_overlays([str(DATA / "ne_cities.geojson")])
+        assert win.overlay_layers() == [cities] and win.layer_panel.overlays.names() == [
+            cities.name
+        ]
+        assert win.globe.scene is None and not shown
+        win.resize(800, 600)
+        win.show()
+        qtbot.waitExposed(win)
+        qtbot.waitUntil(lambda: win.globe.frames > 0, timeout=20000)
+        assert win.globe.scene.overlay_layers == [cities]
+        qtbot.waitUntil(lambda: len(win.globe.scene.renderer.overlays.points) == 1)
+    finally:
+        win.loader.shutdown()
+
+
 def test_terrain_changed_on_the_model_is_listed(make_window, wait_frame) -> None:
     win = make_window()
     panel = win.layer_panel
