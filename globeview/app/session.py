@@ -210,6 +210,14 @@ class GlobeSession(GlobeScene):
         """The active tool object, or None (also None once its plugin has failed)."""
         return self.tool_host.tool()
 
+    def tool_plot(self):
+        """The plot the active tool publishes now, checked (`ToolHost.plot`), or None."""
+        return self.tool_host.plot()
+
+    def tool_plot_csv(self) -> str | None:
+        """The CSV text of that plot (`ToolHost.plot_csv`), or None."""
+        return self.tool_host.plot_csv()
+
     @property
     def displacing(self) -> bool:
         """Whether the active tool moves the terrain (`ToolHost.displaces`)."""

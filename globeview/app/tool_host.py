@@ -29,6 +29,7 @@ from globeview.errors import GlobeviewError
 from globeview.geodesy import ecef_to_lonlat, lonlat_to_ecef
 from globeview.lod.view_state import ViewState
 from globeview.model.globe import Globe
+from globeview.model.plot import Plot
 from globeview.plugins.api import PluginKind, Tool
 from globeview.plugins.registry import PluginRegistry
 from globeview.render.renderer import DisplacementHook, GlobeRenderer
@@ -221,6 +222,32 @@ class ToolHost:
             else:
                 return arr
         return displacement_chord_error_m(self.displace, points, displaced)
+
+    # -- what the tool publishes ----------------------------------------------------------------
+    def plot(self) -> Plot | None:
+        """The plot the active tool publishes now (`Tool.plot`, isolated), or None: no tool,
+        a tool without one, or one that failed. Anything but a `Plot` or None fails the tool
+        (one line; its plugin's other contributions stay). The window's Plot dock and
+        ``render --tool-csv`` both take the plot from here."""
+        tool = self.tool()
+        if tool is None or not has_method(tool, "plot"):
+            return None
+        plot = self.registry.invoke(tool, "plot", default=None)
+        if plot is not None and not isinstance(plot, Plot):
+            self.fail(tool, f"plot() returned {type(plot).__name__}, not a Plot")
+            return None
+        return plot
+
+    def plot_csv(self) -> str | None:
+        """The CSV text of the plot the active tool publishes (`Plot.csv_text`), or None
+        when it publishes none or fails: the text is made in isolation, as the tool's code
+        (a plugin's `Plot` subclass may override what it calls)."""
+        tool = self.tool()
+        plot = self.plot()
+        if tool is None or plot is None:
+            return None
+        text = self.registry.call_for(tool, Plot.csv_text, plot)
+        return text if isinstance(text, str) else None
 
     # -- the tool in a frame -------------------------------------------------------------------
     def frame_tool(self, renderer: GlobeRenderer) -> ToolFrame | None:

@@ -228,25 +228,16 @@ def check_tool_csv(args: argparse.Namespace, tool: str | None, others: list):
 
 
 def tool_plot_csv(scene, tool_name: str, strict: bool = False) -> str:
-    """The CSV text of the plot the active tool publishes (`Plot`, see
-    globeview.model.plot). A tool that failed (before or in ``plot()``; garbage
+    """The CSV text of the plot the active tool publishes, as the session's tool host gives
+    it (`GlobeSession.tool_plot_csv`). A tool that failed (before or in ``plot()``; garbage
     returned fails it too) is a one-line `PluginFailed` naming it and its error (exit 3:
     nothing stands in for it); one that works but publishes none (no ``plot()``, or its
     points gave none) is the user's one-line `GlobeviewError` (exit 2)."""
     from globeview.errors import GlobeviewError, PluginFailed
-    from globeview.model.plot import Plot
     from globeview.plugins.api import PluginKind
 
-    tool = scene.tool()
-    plot = None
-    if tool is not None and callable(getattr(tool, "plot", None)):
-        plot = scene.registry.invoke(tool, "plot", default=None)
-        if plot is not None and not isinstance(plot, Plot):
-            scene.registry.fail(tool, TypeError(f"plot() returned {type(plot).__name__}"))
-            plot = None
-    # Plot's own csv_text, isolated: a plugin's Plot subclass may override what it calls.
-    text = None if plot is None else scene.registry.call_for(tool, Plot.csv_text, plot)
-    if isinstance(text, str):
+    text = scene.tool_plot_csv()
+    if text is not None:
         return text
     why = scene.registry.failure_of(tool_name, PluginKind.TOOL)
     if why is not None:  # the plugin's fault, not a tool without a plot: say so (exit 3)

@@ -1,9 +1,10 @@
-"""Tool output: data a tool publishes for the host to show beside the globe (a plot).
+"""A tool's plot: data a tool publishes for the host to show beside the globe.
 
-A tool publishes a plot by defining a method ``plot(self) -> Plot | None`` (optional; the
-base `Tool` has none). The window asks the active tool for it after every frame and shows
-the plot in its Plot dock (`globeview.ui.plot_dock`), with an "Export CSV..." button; a
-headless caller reads ``tool.plot()`` itself. Returning the *same* `Plot` object again means
+A tool publishes a plot from ``Tool.plot(self) -> Plot | None`` (the base returns None).
+The tool host asks the active tool for it (`globeview.app.tool_host.ToolHost.plot`, checked
+and isolated) after every frame; the window shows it in its Plot dock
+(`globeview.ui.plot_dock`), with an "Export CSV..." button, ``render --tool-csv`` writes its
+table, a script reads ``session.tool_plot()``. Returning the *same* `Plot` object again means
 "unchanged" (the dock redraws only for a new object); None hides the dock's content.
 
 A `Plot` is data only: a curve (``x``, ``y``, 1-D float arrays of equal length; NaN in

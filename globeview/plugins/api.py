@@ -50,7 +50,7 @@ import importlib
 import logging
 import math
 import weakref
-from collections.abc import MutableMapping, Sequence
+from collections.abc import Callable, MutableMapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
@@ -112,6 +112,9 @@ __all__ = [
     "MAX_LEVEL",
     "MAX_TILES",
     "N_STRIDES",
+    "TAU_OVERRIDE",
+    "TEXEL_SIZE",
+    "TILE_BUDGET",
     "WGS84",
     "DelegateProvider",
     "GlobeviewError",
@@ -146,6 +149,7 @@ __all__ = [
     "TileCandidates",
     "TileKey",
     "Tool",
+    "TwoPointPick",
     "ViewState",
     "bounding_distance",
     "box_angular_distance_pre",
@@ -241,8 +245,11 @@ def __dir__() -> list[str]:
 
 #: The plugin API version this host implements ("MAJOR.MINOR"). 1.2 added, all optional:
 #: `PlotSeries` (plots of several curves), per-point sizes and colours of `Points`,
-#: `triangle_count`, and the ``sniff`` contract written down (docs/plugins.md).
-API_VERSION = "1.2"
+#: `triangle_count`, and the ``sniff`` contract written down (docs/plugins.md). 1.3 added:
+#: `Tool.animate` and `Tool.plot` declared on `Tool` (the host called them before), the
+#: two-point picking helper `TwoPointPick`, and shared setting declarations (`TILE_BUDGET`,
+#: `TEXEL_SIZE`, `TAU_OVERRIDE`).
+API_VERSION = "1.3"
 
 
 class PluginKind(StrEnum):
@@ -329,6 +336,44 @@ def resolve_settings(settings: Sequence[Setting], values: dict[str, Any]) -> dic
             with contextlib.suppress(TypeError, ValueError, OverflowError):
                 out[s.name] = s.coerce(values[s.name])
     return out
+
+
+# Declarations several contributions share (API 1.3): use them as they are, or with another
+# default or range through ``dataclasses.replace(TILE_BUDGET, default=1500, max=MAX_TILES)``;
+# the name stays, so the stored values, ``--set NAME.max_tiles=...`` and the window's
+# controls are the same for every provider that declares one.
+
+#: An LOD provider's tile budget: at most this many tiles drawn in a frame (a count).
+TILE_BUDGET = Setting(
+    "max_tiles",
+    "int",
+    600,
+    min=16,
+    max=2000,
+    label="tile budget",
+    help="most tiles drawn in a frame (count); past it the tiles with the largest error refine "
+    "first",
+)
+#: Refine tiles while one texel of their textures covers more than this many pixels.
+TEXEL_SIZE = Setting(
+    "texel_px",
+    "float",
+    1.5,
+    min=0.5,
+    max=8.0,
+    label="texel size (pixels)",
+    help="refine tiles while a texel of the tile textures covers more pixels than this",
+)
+#: A provider's own screen-space error threshold in pixels; 0 uses the view's tau.
+TAU_OVERRIDE = Setting(
+    "tau_px",
+    "float",
+    0.0,
+    min=0.0,
+    max=64.0,
+    label="tau override (pixels)",
+    help="screen-space error threshold in pixels for this provider; 0 uses the view's tau",
+)
 
 
 # -- context ---------------------------------------------------------------------------------
@@ -713,11 +758,94 @@ class Polyline:
 Overlay = Marker | Polyline
 
 
+PickStep = Literal["a", "b"]
+
+
+class TwoPointPick:
+    """Picking two points A and B, as a "from A to B" tool does (API 1.3): a left press on
+    the terrain sets A, the next one sets B, a third starts a new pair (A again, B dropped);
+    Escape clears both. A tool keeps one and forwards its events to it (the built-in measure
+    and collapse tools do)::
+
+        class Ruler(Tool):
+            def __init__(self, context=None):
+                super().__init__(context)
+                self.pick = TwoPointPick()
+
+            def on_mouse(self, event):
+                step = self.pick.on_mouse(event)  # "a", "b" or None (not consumed)
+                if step == "b":
+                    km = geodesic_inverse(*self.pick.a, *self.pick.b)[2] / 1000.0
+                    self.set_status(f"{km:.1f} km")
+                if step is not None:
+                    self.request_redraw()
+                return step is not None
+
+            def on_key(self, event):
+                return self.pick.on_key(event)  # Escape clears A and B
+
+    Attributes:
+        a, b: the points picked, (lon, lat) in degrees (the events' ``lonlat``: true
+            coordinates, any displacement inverted), or None; a tool may set them itself
+            (headless input, `Tool.place_points`).
+    """
+
+    def __init__(self) -> None:
+        self.a: tuple[float, float] | None = None
+        self.b: tuple[float, float] | None = None
+
+    @property
+    def state(self) -> Literal["idle", "a_set", "complete"]:
+        """'idle' (no point), 'a_set' (A picked, B not yet) or 'complete' (A and B)."""
+        if self.a is None:
+            return "idle"
+        return "a_set" if self.b is None else "complete"
+
+    def clear(self) -> None:
+        """Forget both points."""
+        self.a = self.b = None
+
+    def on_mouse(
+        self,
+        event: PointerEvent,
+        check: Callable[[tuple[float, float], tuple[float, float]], object] | None = None,
+    ) -> PickStep | None:
+        """Take a pointer event: a left press with a terrain point (``event.lonlat``) sets A
+        when no point or both are set (a new pair: B is dropped) and returns ``"a"``, or sets
+        B when only A is and returns ``"b"``. Anything else (a move, a release, another
+        button, a press on the sky) changes nothing and returns None: the event is not the
+        pick's (return False from ``on_mouse``, navigation gets it).
+
+        ``check(a, b)``, optional, vets a pair before B is set: a ValueError it raises
+        propagates, A kept and B unset (the collapse tool refuses near-antipodal points so
+        and shows the message)."""
+        if event.kind != "press" or event.button != "left" or event.lonlat is None:
+            return None
+        point = (float(event.lonlat[0]), float(event.lonlat[1]))
+        if self.a is None or self.b is not None:
+            self.a, self.b = point, None
+            return "a"
+        if check is not None:
+            check(self.a, point)
+        self.b = point
+        return "b"
+
+    def on_key(self, event: KeyEvent) -> bool:
+        """Escape (pressed) clears the points; True when it did, False when there were none
+        or it is another key (then the host's Escape leaves the tool)."""
+        if event.kind == "press" and event.key == "Escape" and self.a is not None:
+            self.clear()
+            return True
+        return False
+
+
 class Tool(_Contribution):
     """An interactive tool: the active tool sees pointer and key events before navigation.
 
     Event handlers return True when they consumed the event (navigation then ignores it).
-    ``overlay`` is asked for its primitives each frame.
+    ``overlay`` is asked for its primitives each frame, ``animate`` for its animation step
+    before it, and ``plot`` for the data it publishes after it. A tool picking two points
+    keeps a `TwoPointPick`.
 
     Displacement hook: a tool may move the terrain's vertices on the GPU. It returns GLSL
     source from ``displacement_glsl`` defining exactly this function::
@@ -815,6 +943,34 @@ class Tool(_Contribution):
         ``displacement_numpy(points_ecef)`` when the provider already has it. The host uses
         it only if a tool overrides this method; returning None falls back to the exact
         measure."""
+        return None
+
+    def animate(self, now_s: float) -> bool:
+        """Advance the tool's animation to time ``now_s`` (API 1.3 declares it; the host
+        called it before). Returns True while it moves (another frame is wanted), False
+        (the default) when nothing does.
+
+        Called by the host once per frame drawn while the tool is active, before the frame's
+        view is built, so the frame's displacement, uniforms and overlay all see the state
+        at ``now_s``: seconds on a steady clock, of which only differences mean anything
+        (the first call after an animation starts may fix its origin). In the window, True
+        keeps frames coming about every 16 ms; the host draws a frame only when asked, so
+        call `request_redraw` when an animation starts. A headless frame (``render``) has no
+        time: `place_points` should set the final state at once. Raising, or returning
+        something that is not a truth value, fails the tool (one line)."""
+        return False
+
+    def plot(self) -> Plot | None:
+        """The `Plot` this tool publishes now (curves, and the table its CSV export
+        writes), or None (the default): nothing to show (API 1.3 declares it; a tool could
+        define it since 1.1).
+
+        The host asks the active tool after every frame and when the tool changes
+        (`globeview.app.tool_host.ToolHost.plot`): the window shows it in its Plot dock with
+        Export CSV..., ``render --tool-csv FILE`` writes its table, a script reads
+        ``session.tool_plot()``. Return the *same* object while nothing changed (the dock
+        redraws only for a new one) and None to clear the dock. Units are the tool's, named
+        in the axis labels. Anything but a `Plot` or None fails the tool (one line)."""
         return None
 
     def deactivate(self) -> None:

@@ -1,12 +1,13 @@
 """The Plot dock: shows the plot the active tool publishes (`globeview.plugins.api.Plot`) and
 exports its table as CSV.
 
-Generic: any tool, built-in or installed, publishes a plot by defining ``plot()`` (see
-`globeview.model.plot`); the window knows no tool. After every frame `PlotDock.poll`
-asks the active tool for its plot (isolated through the registry, like every plugin call): a
-new `Plot` object is drawn and the dock shown; the same object again changes nothing; None
-(or no active tool) clears and hides the dock. Something that is not a `Plot` fails the
-tool's plugin with one line, as any bad value a plugin returns does.
+Generic: any tool, built-in or installed, publishes a plot by defining ``plot()``
+(`Tool.plot`, data in `globeview.model.plot`); the window knows no tool. After every frame
+and tool change the dock shows what the session's tool host publishes
+(`GlobeSession.tool_plot`: the active tool asked in isolation, something that is not a
+`Plot` failing the tool with one line, as any bad value a plugin returns does): a new `Plot`
+object is drawn and the dock shown; the same object again changes nothing; None (or no
+active tool) clears and hides the dock.
 
 Drawing is plain QPainter (no plotting library in the app): axes with "nice" ticks, each
 curve (the plot's own and its `PlotSeries`, API 1.2) in its colour of `CURVE_COLOURS` broken
@@ -328,18 +329,11 @@ class PlotDock(QDockWidget):
         self.title.setText(plot.title if plot is not None else "")
         self.export_button.setEnabled(plot is not None)
 
-    # -- the host side: ask the active tool --------------------------------------------------
-    def poll(self, registry: Any, tool: Any) -> None:
-        """Show the plot ``tool`` (the active tool, or None) publishes now, through
-        ``registry.invoke`` (isolated: a tool raising is disabled by the registry). A new
-        plot shows the dock; none clears and hides it."""
-        plot = None
-        if tool is not None and callable(getattr(tool, "plot", None)):
-            plot = registry.invoke(tool, "plot", default=None)
-            if plot is not None and not isinstance(plot, Plot):
-                # Garbage fails this contribution alone (its package's others keep working).
-                registry.fail(tool, TypeError(f"plot() returned {type(plot).__name__}, not a Plot"))
-                plot = None
+    # -- the host side: the plot the active tool publishes ------------------------------------
+    def show_published(self, plot: Plot | None) -> None:
+        """Show ``plot``, what the session's tool host publishes now
+        (`GlobeSession.tool_plot`, already checked). A new plot shows the dock; the same one
+        changes nothing; None clears and hides it."""
         if plot is self.plot:
             return
         self.set_plot(plot)
@@ -381,10 +375,10 @@ class PlotDock(QDockWidget):
 
 
 def install_plot_dock(window: Any) -> PlotDock:
-    """Add a (hidden) Plot dock to the main window and poll the active tool after every
-    frame and tool change. ``window`` has ``globe`` (the `GlobeWidget`), ``model`` (the
-    `Globe`), ``subscriptions`` (its model subscriptions), ``plugins`` (the `PluginHost`),
-    ``errors`` (`ErrorReporter`) and ``status`` (`StatusBar`)."""
+    """Add a (hidden) Plot dock to the main window showing the plot the session publishes
+    after every frame and tool change. ``window`` has ``globe`` (the `GlobeWidget`),
+    ``model`` (the `Globe`), ``subscriptions`` (its model subscriptions), ``errors``
+    (`ErrorReporter`) and ``status`` (`StatusBar`)."""
     dock = PlotDock(window, window.errors.error, window.status.notice)
     window.addDockWidget(Qt.DockWidgetArea.RightDockWidgetArea, dock)
     dock.hide()
@@ -393,7 +387,8 @@ def install_plot_dock(window: Any) -> PlotDock:
 
     def poll() -> None:
         pending[0] = False
-        dock.poll(window.plugins.registry, globe.active_tool())
+        scene = globe.scene
+        dock.show_published(None if scene is None else scene.tool_plot())
 
     def after_frame(*_: Any) -> None:
         # frameRendered is emitted inside paintGL: showing the dock there would resize the

@@ -28,7 +28,7 @@ MANIFEST = """
     version = "0.1.0"
     description = "the docs' LOD provider examples"
     kinds = ["lod"]
-    api_version = "1.2"
+    api_version = "1.3"
 
     [[contributions]]
     name = "my-sse"

@@ -33,7 +33,13 @@ selection while the view is unchanged.
 
 from __future__ import annotations
 
-from globeview.plugins.api import PolicyProvider, ScreenSpaceErrorPolicy, Setting
+from globeview.plugins.api import (
+    TEXEL_SIZE,
+    TILE_BUDGET,
+    PolicyProvider,
+    ScreenSpaceErrorPolicy,
+    Setting,
+)
 
 
 class ChunkedSseProvider(PolicyProvider):
@@ -44,16 +50,8 @@ class ChunkedSseProvider(PolicyProvider):
     # tau comes with the view (ViewState.tau_px): one threshold for every provider.
     policy = ScreenSpaceErrorPolicy
     settings = (
-        Setting(
-            "texel_px",
-            "float",
-            1.5,
-            min=0.5,
-            max=8.0,
-            label="texel size (pixels)",
-            help="refine while a texel of the tile textures covers more pixels",
-        ),
-        Setting("max_tiles", "int", 600, min=16, max=2000, label="tile budget"),
+        TEXEL_SIZE,
+        TILE_BUDGET,
         Setting(
             "min_triangles",
             "bool",

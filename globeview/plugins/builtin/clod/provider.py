@@ -39,10 +39,14 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
 from globeview.plugins.api import (
+    TAU_OVERRIDE,
+    TEXEL_SIZE,
+    TILE_BUDGET,
     LodProvider,
     RenderSet,
     ScreenSpaceErrorPolicy,
@@ -73,25 +77,12 @@ class QuadtreeClodProvider(LodProvider):
     name = "quadtree-clod"
     label = "Quadtree CLOD (Lindstrom/Ulrich)"
     settings = (
-        Setting(
-            "tau_px",
-            "float",
-            0.0,
-            min=0.0,
-            max=64.0,
-            label="error threshold (pixels)",
+        replace(
+            TAU_OVERRIDE,
             help="vertex / box test threshold in pixels; tau' = tau / K. 0 = the view's tau",
         ),
-        Setting(
-            "texel_px",
-            "float",
-            1.5,
-            min=0.5,
-            max=8.0,
-            label="texel size (pixels)",
-            help="tile selection: refine tiles while a texel covers more pixels",
-        ),
-        Setting("max_tiles", "int", 600, min=16, max=2000, label="tile budget"),
+        TEXEL_SIZE,  # the tile selection's, as chunked-sse's
+        TILE_BUDGET,
         Setting(
             "cull_blocks",
             "bool",

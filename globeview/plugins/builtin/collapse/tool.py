@@ -6,8 +6,9 @@ so two distant patches come side by side. The displacement runs in the terrain v
 (collapse.glsl, package data read by `collapse_glsl`); `CollapseFrame` (geometry.py) is its
 float64 CPU twin, used for LOD bounds, overlays, and (inverted) for picking. See docs/collapse.md.
 
-State machine: ``idle`` -> (press) ``a_set`` -> (press) collapsing animation -> collapsed.
-'e' expands (animated), 'c' collapses again, Escape cancels (points cleared at once).
+State machine: ``idle`` -> (press) ``a_set`` -> (press) collapsing animation -> collapsed; a
+third press starts a new pair (the picking is the API's `TwoPointPick`). 'e' expands
+(animated), 'c' collapses again, Escape cancels (points cleared at once).
 The animation is host-driven: the host calls ``animate(now_s)`` each frame with a monotonic
 time in seconds and redraws while it returns True; nothing here needs Qt or a timer.
 """
@@ -31,6 +32,7 @@ from globeview.plugins.api import (
     Polyline,
     Setting,
     Tool,
+    TwoPointPick,
     lonlat_to_ecef,
 )
 from globeview.plugins.builtin.collapse.geometry import CollapseFrame, ellipsoid_point_along
@@ -75,8 +77,8 @@ class CollapseTool(Tool):
 
     def __init__(self, context: Any = None) -> None:
         super().__init__(context)
-        self.a: tuple[float, float] | None = None  # (lon, lat) degrees
-        self.b: tuple[float, float] | None = None
+        #: A and B, (lon, lat) degrees: picked by clicks or set by `set_points`.
+        self.pick = TwoPointPick()
         self.ratio: float = float(self.values["ratio"])
         self.progress: float = 0.0  # 0 = expanded, 1 = fully collapsed
         self._target: float = 0.0
@@ -90,6 +92,16 @@ class CollapseTool(Tool):
         self._extreme: tuple | None = None
 
     # -- state -----------------------------------------------------------------------------
+    @property
+    def a(self) -> tuple[float, float] | None:
+        """Point A, (lon, lat) degrees, or None."""
+        return self.pick.a
+
+    @property
+    def b(self) -> tuple[float, float] | None:
+        """Point B, (lon, lat) degrees, or None."""
+        return self.pick.b
+
     def configure(self, values: dict[str, Any]) -> None:
         super().configure(values)
         self.ratio = float(self.values["ratio"])
@@ -145,7 +157,7 @@ class CollapseTool(Tool):
         r = self.ratio if ratio is None else float(ratio)
         CollapseFrame.from_lonlat(lon_a, lat_a, lon_b, lat_b, r)  # validate
         self.ratio = r
-        self.a, self.b = (float(lon_a), float(lat_a)), (float(lon_b), float(lat_b))
+        self.pick.a, self.pick.b = (float(lon_a), float(lat_a)), (float(lon_b), float(lat_b))
         self._frame = None
         if animate:
             self.progress = 0.0
@@ -179,10 +191,18 @@ class CollapseTool(Tool):
 
     def cancel(self) -> None:
         """Drop A and B: the terrain is drawn true at once."""
-        self.a = self.b = None
+        self.pick.clear()
+        self._uncollapse()
+
+    def _uncollapse(self) -> None:
+        """Draw the terrain true at once (no animation; the points are kept)."""
         self.progress, self._target, self._anim_start = 0.0, 0.0, None
         self._frame = None
         self.request_redraw()
+
+    def _check_pair(self, a: tuple[float, float], b: tuple[float, float]) -> None:
+        """ValueError for a pair the collapse cannot fold (near-antipodal)."""
+        CollapseFrame.from_lonlat(*a, *b, self.ratio)
 
     def _start(self, target: float) -> None:
         self._target = target
@@ -214,21 +234,20 @@ class CollapseTool(Tool):
     # -- events ------------------------------------------------------------------------------
     def on_mouse(self, event: PointerEvent) -> bool:
         """Left press on terrain: first sets A, second sets B and collapses; a press after
-        that starts a new pair."""
-        if event.kind != "press" or event.button != "left" or event.lonlat is None:
-            return False
-        lon, lat = float(event.lonlat[0]), float(event.lonlat[1])
-        if self.a is None or self.b is not None:
-            self.cancel()
-            self.a = (lon, lat)
-            self.set_status(f"collapse: A at {lon:.4f}, {lat:.4f}; pick B")
-            return True
+        that starts a new pair (`TwoPointPick`); a B the collapse cannot fold is refused
+        with a status line."""
         try:
-            CollapseFrame.from_lonlat(*self.a, lon, lat, self.ratio)
+            step = self.pick.on_mouse(event, check=self._check_pair)
         except ValueError as exc:
             self.set_status(f"collapse: {exc}")
             return True
-        self.b = (lon, lat)
+        if step is None:
+            return False
+        if step == "a":
+            lon, lat = self.pick.a  # the point just picked
+            self._uncollapse()
+            self.set_status(f"collapse: A at {lon:.4f}, {lat:.4f}; pick B")
+            return True
         self.progress = 0.0
         self._start(1.0)
         f = self.frame()
@@ -240,8 +259,8 @@ class CollapseTool(Tool):
         """Escape cancels, 'e' expands, 'c' collapses again."""
         if event.kind != "press":
             return False
-        if event.key == "Escape" and self.a is not None:
-            self.cancel()
+        if self.pick.on_key(event):  # Escape: A and B cleared
+            self._uncollapse()
             return True
         if event.key.lower() == "e" and self.b is not None:
             self.expand()

@@ -3,7 +3,8 @@
 Written only against the public plugin API (`globeview.plugins.api`), as a third-party tool
 would be: it is the example of a tool that publishes a plot.
 
-Pick A, then B (left clicks on the terrain; a third click starts a new pair, Escape clears):
+Pick A, then B (left clicks on the terrain; a third click starts a new pair, Escape clears:
+the API's `TwoPointPick`):
 
 - the geodesic distance A-B on the WGS84 ellipsoid (Karney's algorithm, via pyproj), the
   forward azimuth at A (toward B) and the back azimuth at B (toward A), degrees clockwise
@@ -37,6 +38,7 @@ from globeview.plugins.api import (
     Polyline,
     Setting,
     Tool,
+    TwoPointPick,
     geodesic_inverse,
     geodesic_samples,
     lonlat_to_ecef,
@@ -120,8 +122,8 @@ class MeasureTool(Tool):
 
     def __init__(self, context: Any = None) -> None:
         super().__init__(context)
-        self.a: tuple[float, float] | None = None  # (lon, lat) degrees
-        self.b: tuple[float, float] | None = None
+        #: A and B, (lon, lat) degrees: picked by clicks or set by `set_points`.
+        self.pick = TwoPointPick()
         self.measurement: Measurement | None = None
         self._plot: Plot | None = None
         self._measured_on: tuple[int, Any] | None = None  # `_terrain_key` of the heights
@@ -144,6 +146,16 @@ class MeasureTool(Tool):
         return str(self.values.get("units", "km"))
 
     @property
+    def a(self) -> tuple[float, float] | None:
+        """Point A, (lon, lat) degrees, or None."""
+        return self.pick.a
+
+    @property
+    def b(self) -> tuple[float, float] | None:
+        """Point B, (lon, lat) degrees, or None."""
+        return self.pick.b
+
+    @property
     def state(self) -> str:
         """'idle' (no point), 'a_set' (A picked), 'measured' (A and B)."""
         if self.a is None:
@@ -152,9 +164,13 @@ class MeasureTool(Tool):
 
     def clear(self) -> None:
         """Drop both points and the measurement."""
-        self.a = self.b = None
-        self.measurement, self._plot, self._line = None, None, None
+        self.pick.clear()
+        self._forget()
         self.request_redraw()
+
+    def _forget(self) -> None:
+        """Drop the measurement (not the points)."""
+        self.measurement, self._plot, self._line = None, None, None
 
     def set_points(self, points: Sequence[Sequence[float]]) -> Measurement | None:
         """Headless input: one (lon, lat) sets A, two set A and B and measure (degrees).
@@ -165,9 +181,9 @@ class MeasureTool(Tool):
             raise ValueError(f"measure takes 1 or 2 points (LON,LAT), got {len(pts)}")
         checked = [self._checked(p[0], p[1]) for p in pts]
         self.clear()
-        self.a = checked[0]
+        self.pick.a = checked[0]
         if len(checked) == 2:
-            self.b = checked[1]
+            self.pick.b = checked[1]
             return self._measure()
         return None
 
@@ -280,26 +296,24 @@ class MeasureTool(Tool):
     # -- events ------------------------------------------------------------------------------
     def on_mouse(self, event: PointerEvent) -> bool:
         """Left press on terrain: first sets A, second sets B and measures; a press after
-        that starts a new pair."""
-        if event.kind != "press" or event.button != "left" or event.lonlat is None:
-            return False
-        lon, lat = float(event.lonlat[0]), float(event.lonlat[1])
-        if self.a is None or self.b is not None:
-            self.clear()
-            self.a = (lon, lat)
+        that starts a new pair (`TwoPointPick`)."""
+        step = self.pick.on_mouse(event)
+        if step == "a":
+            lon, lat = self.pick.a  # the point just picked
+            self._forget()
             self.set_status(f"measure: A at {lon:.5f}, {lat:.5f}; pick B")
             self.request_redraw()
-            return True
-        self.b = (lon, lat)
-        self._measure()
-        return True
+        elif step == "b":
+            self._measure()
+        return step is not None
 
     def on_key(self, event: KeyEvent) -> bool:
         """Escape clears the points (the host also leaves the tool on Escape)."""
-        if event.kind == "press" and event.key == "Escape" and self.a is not None:
-            self.clear()
-            return True
-        return False
+        if not self.pick.on_key(event):
+            return False
+        self._forget()
+        self.request_redraw()
+        return True
 
     def deactivate(self) -> None:
         """Leaving the tool forgets the measurement."""

@@ -47,6 +47,7 @@ a `PolicyProvider` naming the policy.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -55,6 +56,7 @@ from globeview.plugins.api import (
     MAX_LEVEL,
     MAX_TILES,
     N_STRIDES,
+    TILE_BUDGET,
     WGS84,
     LodPolicy,
     PolicyProvider,
@@ -430,5 +432,5 @@ class DistanceRegionsProvider(PolicyProvider):
                 help="outer edge of ring 3 (the cut-off) in units of R."),
         Setting("cutoff", "bool", True, label="cut off beyond ring 3",
                 help="drop tiles farther than ring 3 (Rishe's artificial horizon)."),
-        Setting("max_tiles", "int", 1500, min=16, max=MAX_TILES, label="tile budget"),
+        replace(TILE_BUDGET, default=1500, max=MAX_TILES),
     )  # fmt: skip

@@ -54,6 +54,7 @@ fewer triangles). Here:
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -62,6 +63,8 @@ from globeview.plugins.api import (
     MAX_LEVEL,
     MAX_TILES,
     N_STRIDES,
+    TAU_OVERRIDE,
+    TILE_BUDGET,
     LodPolicy,
     PolicyProvider,
     Setting,
@@ -180,7 +183,6 @@ class WaveletProvider(PolicyProvider):
         Setting("static_m", "float", 2.0, min=0.0, max=1000.0, label="static error (m)",
                 help="roughness floor in metres: tiles whose approximation error is below it "
                 "count as flat and are not refined for detail."),
-        Setting("tau_px", "float", 0.0, min=0.0, max=64.0, label="tau override (px)",
-                help="screen-space error threshold in pixels; 0 uses the view's."),
-        Setting("max_tiles", "int", 1500, min=16, max=MAX_TILES, label="tile budget"),
+        TAU_OVERRIDE,
+        replace(TILE_BUDGET, default=1500, max=MAX_TILES),
     )  # fmt: skip
