@@ -22,6 +22,12 @@ from typing import Any
 from psygnal import Signal
 
 from globeview.app.host_checks import has_method
+from globeview.app.layer_dispatch import (
+    choose_layer_type,
+    layer_type_infos,
+    overlay_file_filter,
+    parse_layer_spec,
+)
 from globeview.errors import GlobeviewError, PluginFailed
 from globeview.model.globe import Globe
 from globeview.model.overlay_layers import (
@@ -29,10 +35,14 @@ from globeview.model.overlay_layers import (
     ImageryOverlayLayer,
     PointsLayer,
     VectorLayer,
+    as_drawables,
+    host_layer,
 )
 from globeview.plugins.api import PluginKind
 from globeview.plugins.registry import PluginRegistry
 from globeview.render.renderer import GlobeRenderer
+from globeview.terrain.dem import EMBEDDED_DATA_DIR
+from globeview.terrain.imagery import DEFAULT_TEX_SIZE, ImageryError
 
 __all__ = ["OverlayHost"]
 
@@ -59,22 +69,16 @@ class OverlayHost:
     def layer_types(self) -> list:
         """The enabled layer types in dispatch order (`layer_dispatch.LayerTypeInfo`: name,
         plugin, label, extensions), for menus and the Open Overlay filter."""
-        from globeview.app.layer_dispatch import layer_type_infos
-
         return layer_type_infos(self.registry)
 
     def file_filter(self) -> str:
         """The Open Overlay dialog's filter: every enabled layer type's patterns."""
-        from globeview.app.layer_dispatch import overlay_file_filter
-
         return overlay_file_filter(self.registry)
 
     def layer_type_for(self, path: str, layer_type: str | None = None) -> str:
         """The name of the layer type that opens ``path`` (`layer_dispatch.choose_layer_type`:
         an explicit ``layer_type``, then declared extensions, then content sniffing).
         Raises a one-line `GlobeviewError` naming the installed types when none does."""
-        from globeview.app.layer_dispatch import choose_layer_type
-
         return choose_layer_type(self.registry, path, layer_type)
 
     # -- opening and removing --------------------------------------------------------------------
@@ -88,9 +92,6 @@ class OverlayHost:
         renderer). Bad files raise a one-line `GlobeviewError` and leave the plugin
         enabled; garbage returned, or a crash, fails that layer type (reported) and raises
         a one-line `PluginFailed` (a `GlobeviewError`: exit 3 on the command line)."""
-        from globeview.app.layer_dispatch import parse_layer_spec
-        from globeview.model.overlay_layers import as_drawables, host_layer
-
         path = str(path)
         if layer_type is None:
             layer_type, path = parse_layer_spec(path)
@@ -143,8 +144,6 @@ class OverlayHost:
         """The embedded default overlays: Natural Earth borders and coastlines (and the Blue
         Marble imagery with ``imagery``), opened through the enabled built-in layer types
         like any file (none when those types are disabled)."""
-        from globeview.terrain.dem import EMBEDDED_DATA_DIR
-
         wanted: list[tuple[str, Path, dict]] = []
         if imagery:
             wanted.append(("imagery", EMBEDDED_DATA_DIR / "bluemarble_2048x1024.tif", {}))
@@ -292,12 +291,9 @@ def _check_drape_size(layer: object, name: str) -> None:
     compose with (all drapes of a globe share one texture array, of the imagery's
     `DEFAULT_TEX_SIZE`: the renderer's `OverlaySet.sync` refuses another size at the frame
     too, this says so when the file is opened)."""
-    from globeview.terrain.imagery import DEFAULT_TEX_SIZE as tex_size
-    from globeview.terrain.imagery import ImageryError
-
     for part in getattr(layer, "parts", None) or [layer]:
         if getattr(part, "gpu_kind", None) != "imagery":
             continue
-        size = getattr(part.layer.source, "tex_size", tex_size)
-        if size != tex_size:
-            raise ImageryError(f"{name}: texture size {size} != {tex_size}")
+        size = getattr(part.layer.source, "tex_size", DEFAULT_TEX_SIZE)
+        if size != DEFAULT_TEX_SIZE:
+            raise ImageryError(f"{name}: texture size {size} != {DEFAULT_TEX_SIZE}")

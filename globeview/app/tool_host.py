@@ -27,6 +27,7 @@ from globeview.app.host_checks import (
 )
 from globeview.errors import GlobeviewError
 from globeview.geodesy import ecef_to_lonlat, lonlat_to_ecef
+from globeview.lod.culling import displacement_chord_error_m
 from globeview.lod.view_state import ViewState
 from globeview.model.globe import Globe
 from globeview.model.plot import Plot
@@ -202,8 +203,6 @@ class ToolHost:
     def bend(self, points: np.ndarray, displaced: np.ndarray | None = None) -> np.ndarray:
         """The active tool's bend bound per point (m, `Tool.displacement_bend_m`); the exact
         chord measure when it returns None or its plugin has failed."""
-        from globeview.lod.culling import displacement_chord_error_m
-
         tool = self.tool()
         bend = None
         if tool is not None:

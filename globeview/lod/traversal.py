@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from globeview.geodesy import lonlat_to_ecef
 from globeview.lod.cached_culling import (
     HORIZON_TOL,
     FrustumFrame,
@@ -71,8 +72,6 @@ _BOOL, _F64, _I64 = np.dtype(bool), np.dtype(np.float64), np.dtype(np.int64)
 
 def _probe_points(n: int = 64) -> np.ndarray:
     """(n, 3) ECEF points spread over the globe (a Fibonacci lattice, 0 and 5 km high)."""
-    from globeview.geodesy import lonlat_to_ecef
-
     k = np.arange(n) + 0.5
     lat = np.degrees(np.arcsin(1.0 - 2.0 * k / n))
     lon = (np.degrees(np.pi * (1.0 + 5.0**0.5) * k) + 180.0) % 360.0 - 180.0

@@ -14,7 +14,7 @@ from typing import Protocol
 
 import numpy as np
 
-from globeview.geodesy import WGS84
+from globeview.geodesy import WGS84, ecef_to_lonlat
 from globeview.validate import check_exaggeration, check_tau
 
 #: (1/a², 1/a², 1/b²) of WGS84: shaders scale an ECEF position by it to get the direction of
@@ -136,8 +136,6 @@ class ViewState:
     @cached_property
     def eye_lonlat_h(self) -> tuple[float, float, float]:
         """The eye's geodetic longitude, latitude (degrees) and height (m)."""
-        from globeview.geodesy import ecef_to_lonlat
-
         lon, lat, h = ecef_to_lonlat(self.eye)
         return float(lon), float(lat), float(h)
 

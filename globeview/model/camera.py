@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from globeview.geodesy import WGS84, ecef_to_lonlat, enu_basis, lonlat_to_ecef
+from globeview.geodesy import WGS84, ecef_to_lonlat, enu_basis, geodesic_inverse, lonlat_to_ecef
 from globeview.validate import check_finite, check_number
 
 #: Lowest height above the ellipsoid the navigation operations allow (m).
@@ -308,8 +308,6 @@ def camera_for_bounds(
     west: float, south: float, east: float, north: float, fovy_deg: float = 45.0
 ) -> Camera:
     """A camera looking straight down on a lon/lat box (degrees), high enough to see all of it."""
-    from globeview.geodesy import geodesic_inverse
-
     if east < west:  # crosses the antimeridian
         east += 360.0
     lon = (west + east) / 2.0

@@ -26,6 +26,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+from globeview.errors import GlobeviewError
+
 __all__ = [
     "Drawable",
     "Lines",
@@ -83,6 +85,8 @@ class Lines:
         """LineString / MultiLineString / Polygon / MultiPolygon outlines of a GeoJSON file
         (WGS84), polygon rings closed as stored; ``style`` as the fields above. Raises
         `GlobeviewError` (one line) for a file without usable line geometry."""
+        # Deferred: the plugin API imports this module when a manifest is read, which must
+        # not load the terrain package (nor rasterio, below).
         from globeview.terrain.vectors import read_geojson_lines
 
         pl = read_geojson_lines(path)
@@ -126,7 +130,7 @@ class Points:
     def from_geojson(cls, path: str | Path, **style: Any) -> Points:
         """Point / MultiPoint features of a GeoJSON file, labelled by their ``name``
         property. Raises `GlobeviewError` (one line) for a file without points."""
-        from globeview.terrain.vectors import read_geojson_points
+        from globeview.terrain.vectors import read_geojson_points  # deferred, as above
 
         lon, lat, names = read_geojson_points(path)
         style.setdefault("name", Path(path).name)
@@ -191,9 +195,7 @@ def raster_info(path: str | Path, stats: bool = False) -> RasterInfo:
     """Read a raster file's header (GDAL): band count, colour table, and with ``stats``
     band 1's approximate range. Raises `GlobeviewError` (one line) when GDAL cannot read
     it, so a layer type can sniff and describe rasters without importing GDAL itself."""
-    import rasterio
-
-    from globeview.errors import GlobeviewError
+    import rasterio  # deferred (heavy: GDAL), as the terrain in `Lines.from_geojson`
 
     p = Path(path)
     try:

@@ -40,6 +40,7 @@ from globeview.model.drawables import (
 )
 from globeview.terrain.imagery import (
     DEFAULT_TEX_SIZE,
+    HillshadeImagery,
     ImageryLayer,
     RasterImagery,
     texel_grid,
@@ -698,7 +699,5 @@ def host_layer(result: Any, name: str) -> tuple[Any, str | None]:
 def hillshade_layer(terrain, opacity: float = 0.5, azimuth_deg: float = 315.0):
     """A thematic drape computed from the DEM itself: its hillshade (sun from ``azimuth_deg``,
     45 degrees up), multiplied in at ``opacity``."""
-    from globeview.terrain.imagery import HillshadeImagery
-
     src = HillshadeImagery(terrain, azimuth_deg=azimuth_deg)
     return ImageryOverlayLayer(ImageryLayer(src, "hillshade", opacity), "thematic")

@@ -542,6 +542,8 @@ class PolicyProvider(LodProvider):
         self._reuse_key = self._reuse = self._reuse_terrain = None
 
     def select(self, view: ViewState, terrain: Any) -> RenderSet:
+        # Deferred (heavy): reading a manifest imports this module, and must not load the
+        # LOD engine and the terrain (tests/plugins/test_plugin_facade.py).
         from globeview.lod.traversal import traverse
 
         if terrain is None or view.displace is not None:
@@ -638,6 +640,7 @@ class DelegateProvider:
 def _check_frame_args(view: Any, terrain: Any) -> None:
     """TypeError unless ``view`` is a `ViewState` and ``terrain`` a `TerrainStack` or None
     (what the host passes a provider's ``select``)."""
+    # Deferred (heavy): the terrain is not loaded by reading a manifest (see `select`).
     from globeview.lod.view_state import ViewState
     from globeview.terrain.stack import TerrainStack
 
@@ -657,7 +660,7 @@ def _frozen(a: Any) -> Any:
 
 def _read_only(rs: RenderSet) -> RenderSet:
     """A plain `RenderSet` sharing ``rs``'s data through read-only views (microseconds)."""
-    from globeview.lod.render_set import RenderSet
+    from globeview.lod.render_set import RenderSet  # deferred (heavy), as in `select`
 
     return RenderSet(
         keys=_frozen(rs.keys),

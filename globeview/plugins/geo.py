@@ -72,6 +72,8 @@ def sample_terrain(terrain: Any, lon: ArrayLike, lat: ArrayLike) -> TerrainSampl
     of them works), arrays of shape S give arrays of shape S. Raises a one-line
     `GlobeviewError` for a bad point (NaN, |lat| > 90), for ``lon`` and ``lat`` of different
     shapes, or for unreadable terrain."""
+    # Deferred (heavy): the API imports this module when a manifest is read, which must not
+    # load the terrain.
     from globeview.terrain.height_query import check_lonlat, composed_heights, geoid_undulation
 
     shape = np.shape(lon)

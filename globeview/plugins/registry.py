@@ -45,8 +45,16 @@ from pathlib import Path
 from typing import Any, Literal, TypeVar
 
 from globeview.errors import GlobeviewError
+from globeview.lod.render_set import RenderSet
 from globeview.paths import log_path
-from globeview.plugins.api import LodProvider, PluginContext, PluginKind, RendererHooks, Tool
+from globeview.plugins.api import (
+    LodProvider,
+    NullRendererHooks,
+    PluginContext,
+    PluginKind,
+    RendererHooks,
+    Tool,
+)
 from globeview.plugins.manifest import Manifest, ManifestError, locate_manifest, read_manifest
 from globeview.plugins.settings import (
     ENABLED_KEY,
@@ -518,8 +526,6 @@ class PluginRegistry:
         """The `PluginContext` of plugin ``name`` (created on first use)."""
         rec = self.get(name)
         if rec.context is None:
-            from globeview.plugins.api import NullRendererHooks
-
             rec.context = PluginContext(
                 name=name,
                 scene=self._host["scene"],
@@ -879,8 +885,6 @@ class PluginRegistry:
         renderer's limits), a valid one: ``check`` raising fails the provider's plugin.
 
         Returns None when the provider failed (the host then falls back to another)."""
-        from globeview.lod.render_set import RenderSet
-
         failed = object()
         result = self.invoke(
             provider, "select", view, terrain, default=failed, budgeted=True, pass_not_ready=True

@@ -19,6 +19,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
+from globeview.errors import GlobeviewError
+from globeview.fileio import OutputError, atomic_write_text, describe_os_error
+from globeview.plugins.api import PluginKind, Setting
+
 __all__ = [
     "ENABLED_KEY",
     "JsonFileSettings",
@@ -122,8 +126,6 @@ class JsonFileSettings:
         return self._load().get(key, default)
 
     def set(self, key: str, value: Any) -> None:
-        from globeview.fileio import OutputError, atomic_write_text, describe_os_error
-
         json.dumps(value)  # TypeError for a non-JSON value, before anything is touched
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -158,7 +160,7 @@ class JsonFileSettings:
         Where there is no flock (Windows) or the lock file cannot be made (a read-only
         folder: the write itself then fails with its one-line reason), no lock."""
         try:
-            import fcntl
+            import fcntl  # here: POSIX only, the ImportError is the Windows case
         except ImportError:
             yield
             return
@@ -196,8 +198,6 @@ class TolerantSettings:
         return self.backend.get(key, default)
 
     def set(self, key: str, value: Any) -> None:
-        from globeview.errors import GlobeviewError
-
         try:
             self.backend.set(key, value)
         except GlobeviewError as exc:
@@ -262,8 +262,6 @@ def parse_assignment(text: str, option: str = "--set") -> tuple[str, str, str]:
     """``"NAME.KEY=VALUE"`` -> (NAME, KEY, VALUE text). NAME is a contribution's name (it may
     hold dots and dashes: the key is after the last dot before '='). One-line
     `GlobeviewError` naming ``option`` for anything else."""
-    from globeview.errors import GlobeviewError
-
     left, eq, value = text.partition("=")
     name, dot, key = left.rpartition(".")
     if not eq or not dot or not name.strip() or not key.strip():
@@ -327,8 +325,6 @@ class SettingTarget:
 def contribution_settings(registry: Any, instance: Any) -> tuple:
     """The `Setting`s a loaded contribution declares (reading them is plugin code: isolated;
     anything that is not a Setting is ignored)."""
-    from globeview.plugins.api import Setting
-
     owner = registry.owner_of(instance)
     declared = registry.call(
         owner, lambda: tuple(getattr(instance, "settings", ()) or ()), default=()
@@ -341,8 +337,6 @@ def settings_problems(declared: Any) -> list[str]:
     --import`): entries that are not `Setting`s, duplicate or non-identifier names, unknown
     types, min > max, a choice setting without choices, a default its own setting refuses.
     One short phrase per problem; [] when all is well."""
-    from globeview.plugins.api import Setting
-
     problems: list[str] = []
     seen: set[str] = set()
     for s in tuple(declared or ()):
@@ -376,8 +370,6 @@ def find_contribution(registry: Any, name: str) -> list[tuple[str, Any]]:
     """(plugin, loaded contribution) of every enabled contribution called ``name`` (any
     kind), importing only the plugins that declare it. One-line `GlobeviewError` when none
     is usable, naming the known contributions or the failure."""
-    from globeview.errors import GlobeviewError
-
     declaring = [
         rec
         for rec in registry
@@ -412,8 +404,6 @@ def find_contribution(registry: Any, name: str) -> list[tuple[str, Any]]:
 def find_setting(registry: Any, name: str, key: str) -> SettingTarget:
     """Setting ``key`` of contribution ``name`` (see `find_contribution`); a one-line
     `GlobeviewError` naming the contribution's settings when it has no such key."""
-    from globeview.errors import GlobeviewError
-
     offered: list[str] = []
     for plugin, instance in find_contribution(registry, name):
         settings = contribution_settings(registry, instance)
@@ -431,8 +421,6 @@ def resolve_assignment(
 ) -> tuple[SettingTarget, Any]:
     """``"NAME.KEY=VALUE"`` -> (the setting, its checked value); one-line `GlobeviewError`
     naming ``option`` for a bad name, key or value."""
-    from globeview.errors import GlobeviewError
-
     name, key, value = parse_assignment(text, option)
     target = find_setting(registry, name, key)
     try:
@@ -496,9 +484,6 @@ def resolve_plugin_args(registry: Any, tool: str | None, sets: list[tuple[str, s
     `GlobeviewError` for an unknown or failed contribution, an unknown setting or a bad
     value. Returns the checked (`SettingTarget`, value) pairs for `apply_overrides`. `render`
     and `gui` check theirs with it before any work; the window applies them with it."""
-    from globeview.errors import GlobeviewError
-    from globeview.plugins.api import PluginKind
-
     if tool is not None and not registry.offers(PluginKind.TOOL, tool):
         if any(  # declared, but by a disabled or failed plugin: say which and why
             rec.manifest is not None
