@@ -126,9 +126,9 @@ def one_round(app, timeout_s: float, workers: int | None, trace: bool = False) -
         flight_end: list[float] = []
         g.flight.finished.connect(lambda: flight_end.append(time.perf_counter()))
         text = ", ".join(f"{v:g}" for v in POSE)
-        win.goto_edit.setText(text)
+        win.view_bar.goto_edit.setText(text)
         t0, c0 = time.perf_counter(), _cpu_s()
-        QTest.keyClick(win.goto_edit, Qt.Key.Key_Return)
+        QTest.keyClick(win.view_bar.goto_edit, Qt.Key.Key_Return)
         if not g.flight.active and not flight_end:
             # An older window's Go to takes lon, lat, height only (pitch -90): fly the same
             # pose the way its go_to would.

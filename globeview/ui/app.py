@@ -128,7 +128,7 @@ def run(
     try:
         apply_start(window, start)
         window.show()
-        window.open_paths(list(files))
+        window.files.open_paths(list(files))
         return int(app.exec())
     finally:
         sys.excepthook = previous

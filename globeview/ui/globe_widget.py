@@ -44,7 +44,7 @@ from globeview.app.overlay_host import OverlayHost
 from globeview.app.session import DEFAULT_LOD, GlobeSession
 from globeview.lod.render_set import FrameStats
 from globeview.lod.view_state import ViewState
-from globeview.model.camera import Camera
+from globeview.model.camera import Camera, camera_for_bounds
 from globeview.model.display import DisplaySettings
 from globeview.model.globe import Globe
 from globeview.plugins.api import KeyEvent, PointerEvent
@@ -519,6 +519,10 @@ class GlobeWidget(QOpenGLWidget):
 
     def fly_to_camera(self, target: Camera, duration_s: float = 1.0) -> None:
         self.flight.fly_to_camera(target, duration_s)
+
+    def fly_to_bounds(self, bounds: tuple[float, float, float, float]) -> None:
+        """Fly over a lon/lat box (west, south, east, north degrees)."""
+        self.fly_to_camera(camera_for_bounds(*bounds, fovy_deg=self.camera.fovy_deg))
 
     def go_home(self, duration_s: float = 1.0) -> None:
         self.flight.fly_to(HOME_POSE, duration_s)

@@ -70,12 +70,12 @@ def _start_tool(window: Any, name: str) -> None:
     """Activate tool ``name`` now if the globe's session exists, else once it does (the GL
     context comes with the first show)."""
     if window.globe.scene is not None:
-        window.set_tool(name)
+        window.tools.set_tool(name)
         return
 
     def ready(_scene: object) -> None:
         window.globe.sceneReady.disconnect(ready)
-        window.set_tool(name)
+        window.tools.set_tool(name)
 
     # After the window's own sceneReady handlers (plugins bound, tools listed).
     window.globe.sceneReady.connect(ready)

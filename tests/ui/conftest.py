@@ -75,7 +75,7 @@ def make_window(qtbot, tmp_path, embedded, errors_shown, monkeypatch):
 
     yield make
     for win in windows:
-        win.loader.shutdown()
+        win.files.loader.shutdown()
 
 
 def _frame_rgb(window) -> np.ndarray:

@@ -59,7 +59,7 @@ def test_a_failed_provider_leaves_its_packages_tool_in_the_window(
     make_window, pair_registry, wait_frame
 ) -> None:
     win = make_window(registry=pair_registry)
-    assert "pair-tool" in win.tool_actions
+    assert "pair-tool" in win.tools.actions
     panel = win.plugin_panel
     panel.lod_combo.setCurrentIndex(panel.lod_combo.findData("pair-lod"))  # as the user would
     wait_frame(win)  # select() raises: the frame falls back
@@ -77,9 +77,9 @@ def test_a_failed_provider_leaves_its_packages_tool_in_the_window(
     assert "pair-lod" in row.toolTip(3)
     assert panel.lod_combo.findData("pair-lod") < 0
     # The tool of the same package is still offered and activates.
-    win.refresh_tools()
-    assert "pair-tool" in win.tool_actions
-    win.tool_actions["pair-tool"].trigger()
+    win.tools.refresh()
+    assert "pair-tool" in win.tools.actions
+    win.tools.actions["pair-tool"].trigger()
     wait_frame(win)
-    assert win.active_tool_name() == "pair-tool"
+    assert win.tools.active_tool_name() == "pair-tool"
     assert pair_registry.get("pair").status == "partial"

@@ -26,7 +26,7 @@ def test_graticule_file_in_the_filter_and_drawn(make_window, frame_rgb, wait_fra
     before = magenta_pixels(frame_rgb(win))
     grid = tmp_path / "grid.graticule"
     grid.write_text("step_deg = 10\ncolor = 1 0 1 1\nwidth_px = 3\n", encoding="utf-8")
-    added = win.open_overlays([str(grid)])  # the dialog's path
+    added = win.files.open_overlays([str(grid)])  # the dialog's path
     assert len(added) == 1 and "grid.graticule" in win.layer_panel.overlays.names()
     wait_frame(win)
     assert before == 0 and magenta_pixels(frame_rgb(win)) > 2000
@@ -34,9 +34,9 @@ def test_graticule_file_in_the_filter_and_drawn(make_window, frame_rgb, wait_fra
 
 def test_marker_settings_are_window_controls(make_window) -> None:
     win = make_window()
-    win.tool_actions["marker"].trigger()
+    win.tools.actions["marker"].trigger()
     tool = win.globe.active_tool()
-    bar = win.tool_options
+    bar = win.tools.options
     assert bar.tool_name == "marker" and list(bar.editors) == ["size_px", "color", "numbered"]
     bar.editors["color"].combo.setCurrentText("cyan")
     bar.editors["numbered"].check.setChecked(False)

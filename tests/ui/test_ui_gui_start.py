@@ -63,7 +63,7 @@ def started_window(qtbot, tmp_path, embedded, errors_shown, monkeypatch):
 
     yield make
     for win in windows:
-        win.loader.shutdown()
+        win.files.loader.shutdown()
 
 
 def test_camera_lod_tool_and_settings_are_applied(
@@ -82,10 +82,10 @@ def test_camera_lod_tool_and_settings_are_applied(
     assert win.model.lod == "distance-regions"
     assert win.globe.last_stats.lod_provider == "distance-regions"
     assert win.plugins.provider().values["c"] == 250.0
-    assert win.active_tool_name() == "measure"
+    assert win.tools.active_tool_name() == "measure"
     tool = win.globe.active_tool()
     assert tool.values["samples"] == 64
-    assert win.tool_options.editors["samples"].value() == 64
+    assert win.tools.options.editors["samples"].value() == 64
     # For this session only: nothing was stored.
     stored = win.plugins.registry.settings.get("plugins/measure/contributions/measure")
     assert not stored or "samples" not in stored
@@ -96,4 +96,4 @@ def test_no_options_leave_the_window_as_it_was(started_window, monkeypatch, tmp_
 
     start = _start(monkeypatch, tmp_path)
     win = started_window(start)
-    assert win.model.lod == DEFAULT_LOD and win.active_tool_name() is None
+    assert win.model.lod == DEFAULT_LOD and win.tools.active_tool_name() is None

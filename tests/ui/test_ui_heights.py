@@ -69,7 +69,7 @@ def test_layer_panel_opens_a_dem_with_the_chosen_vertical_datum(make_window, sma
     win = make_window()
     combo = win.layer_panel.vdatum_combo
     combo.setCurrentIndex([v for _, v in VDATUM_CHOICES].index("ellipsoid"))
-    win.open_paths([str(small_dem)])
+    win.files.open_paths([str(small_dem)])
     qtbot.waitUntil(lambda: "hill" in [ly.name for ly in win.terrain.layers], timeout=60000)
     layer = next(ly for ly in win.terrain.layers if ly.name == "hill")
     assert layer.store.path != store_path_for(small_dem)

@@ -1,7 +1,7 @@
 """Hostile input through the window's open path (issue #13), under a real display.
 
 Every bad file opened the way File > Open, drag and drop and the command line open files
-(`MainWindow.open_paths`) must give exactly one one-line message (no "Unexpected error", no
+(`FileOpening.open_paths`) must give exactly one one-line message (no "Unexpected error", no
 traceback on stderr), leave nothing half-written in the cache, never touch a user's folder,
 and the globe must keep drawing afterwards. Inputs are made here with rasterio and numpy.
 """
@@ -145,7 +145,7 @@ def _cache_leftovers(cache: Path) -> list[str]:
 
 def _wait_refused(qtbot, win, n_before: int) -> None:
     qtbot.waitUntil(
-        lambda: len(win.errors.history) > n_before and not win.loader.busy,
+        lambda: len(win.errors.history) > n_before and not win.files.loader.busy,
         timeout=REFUSE_TIMEOUT_MS,
     )
 
@@ -163,7 +163,7 @@ def test_bad_input_gives_one_line_and_the_globe_keeps_drawing(
     n_msgs, n_frames = len(win.errors.history), win.globe.frames
     layers = [ly.name for ly in win.terrain.layers]
 
-    win.open_paths([str(path)])
+    win.files.open_paths([str(path)])
     _wait_refused(qtbot, win, n_msgs)
 
     new = win.errors.history[n_msgs:]
@@ -190,12 +190,12 @@ def test_bad_input_gives_one_line_and_the_globe_keeps_drawing(
 def test_unicode_path_dem_opens(make_window, qtbot, tmp_path, errors_shown):
     path = _write_tif(tmp_path / "Zürich_高度_💥.tif", _hill())
     win = make_window()
-    win.open_paths([str(path)])
+    win.files.open_paths([str(path)])
     qtbot.waitUntil(
         lambda: path.stem in [ly.name for ly in win.terrain.layers], timeout=REFUSE_TIMEOUT_MS
     )
     assert errors_shown == []
-    assert win.recent_files()[0] == str(path)
+    assert win.files.recent_files()[0] == str(path)
 
 
 def test_cancelled_ingest_leaves_no_store_and_no_partial_folder(make_window, qtbot, tmp_path):
@@ -207,27 +207,27 @@ def test_cancelled_ingest_leaves_no_store_and_no_partial_folder(make_window, qtb
     path = _write_tif(tmp_path / "bigger.tif", np.tile(_hill(256), (8, 8)))
     win = make_window()
     cancelled: list[str] = []
-    win.loader.cancelled.connect(cancelled.append)
+    win.files.loader.cancelled.connect(cancelled.append)
     loaded: list[str] = []
-    win.loader.loaded.connect(lambda p, _s: loaded.append(p))
+    win.files.loader.loaded.connect(lambda p, _s: loaded.append(p))
     progress: list[tuple[int, int]] = []
 
     def on_progress(done: int, total: int) -> None:
         progress.append((done, total))
-        if done >= 1 and win.cancel_button.isVisible():
-            win.cancel_button.click()  # as the user would
+        if done >= 1 and win.files.cancel_button.isVisible():
+            win.files.cancel_button.click()  # as the user would
 
-    win.loader.progress.connect(on_progress)
-    win.open_paths([str(path)])
+    win.files.loader.progress.connect(on_progress)
+    win.files.open_paths([str(path)])
     qtbot.waitUntil(lambda: bool(cancelled or loaded), timeout=REFUSE_TIMEOUT_MS)
-    qtbot.waitUntil(lambda: not win.loader.busy, timeout=REFUSE_TIMEOUT_MS)
+    qtbot.waitUntil(lambda: not win.files.loader.busy, timeout=REFUSE_TIMEOUT_MS)
     assert cancelled == [str(path)] and loaded == []
     assert any(t > 1 and d < t for d, t in progress), progress  # it was cancelled midway
     cache = Path(os.environ["GLOBEVIEW_CACHE_DIR"])
     assert _cache_leftovers(cache) == []
     assert not store_path_for(path).exists()
     assert "bigger" not in [ly.name for ly in win.terrain.layers]
-    assert win.load_bar.isHidden() and win.cancel_button.isHidden()
+    assert win.files.load_bar.isHidden() and win.files.cancel_button.isHidden()
 
 
 def test_unusable_cache_folder_is_one_line_not_an_internal_error(
@@ -240,7 +240,7 @@ def test_unusable_cache_folder_is_one_line_not_an_internal_error(
     (tmp_path / "a_file").write_text("x")
     monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(tmp_path / "a_file" / "cache"))
     n = len(win.errors.history)
-    win.open_paths([str(path)])
+    win.files.open_paths([str(path)])
     _wait_refused(qtbot, win, n)
     new = win.errors.history[n:]
     assert len(new) == 1 and errors_shown == new
@@ -299,7 +299,7 @@ def test_bad_overlay_gives_one_line_and_the_globe_keeps_drawing(
     win = make_window()
     capfd.readouterr()
     n_msgs, overlays = len(win.errors.history), list(win.overlay_layers())
-    assert win.open_overlays([str(path)]) == []
+    assert win.files.open_overlays([str(path)]) == []
     new = win.errors.history[n_msgs:]
     assert len(new) == 1, [m.text for m in new]
     assert "\n" not in new[0].text and "Unexpected error" not in new[0].text, new[0].text
@@ -351,7 +351,7 @@ def test_huge_overlay_in_the_window_keeps_drawing(make_window, errors_shown, wai
     path = _vrt(tmp_path / "huge_overlay.vrt", 2_000_000, 1_000_000, None)
     win = make_window()
     n = len(win.errors.history)
-    layers = win.open_overlays([str(path)])
+    layers = win.files.open_overlays([str(path)])
     assert len(layers) == 1
     wait_frame(win)
     wait_frame(win)
@@ -367,21 +367,23 @@ def test_a_drop_of_bad_and_good_files_reports_the_bad_and_opens_the_good(
     empty = tmp_path / "empty.tif"
     empty.write_bytes(b"")
     win = make_window()
-    win.open_paths([str(empty), str(bad), str(good)])
+    win.files.open_paths([str(empty), str(bad), str(good)])
     qtbot.waitUntil(lambda: "good" in [ly.name for ly in win.terrain.layers], timeout=60000)
-    qtbot.waitUntil(lambda: not win.loader.busy, timeout=60000)
+    qtbot.waitUntil(lambda: not win.files.loader.busy, timeout=60000)
     assert len(errors_shown) == 2
     assert "empty.tif" in errors_shown[0].text and "nocrs.tif" in errors_shown[1].text
-    assert win.recent_files()[0] == str(good)
+    assert win.files.recent_files()[0] == str(good)
 
 
 def test_a_recent_file_deleted_since_is_one_line(make_window, errors_shown, qtbot, tmp_path):
     good = _write_tif(tmp_path / "gone_later.tif", _hill())
     win = make_window()
-    win.open_paths([str(good)])
-    qtbot.waitUntil(lambda: not win.loader.busy and bool(win.recent_files()), timeout=60000)
+    win.files.open_paths([str(good)])
+    qtbot.waitUntil(
+        lambda: not win.files.loader.busy and bool(win.files.recent_files()), timeout=60000
+    )
     good.unlink()
-    action = next(a for a in win.recent_menu.actions() if a.text() == str(good))
+    action = next(a for a in win.files.recent_menu.actions() if a.text() == str(good))
     action.trigger()  # File > Open Recent > the file
     qtbot.waitUntil(lambda: bool(errors_shown), timeout=10000)
     assert len(errors_shown) == 1

@@ -50,7 +50,7 @@ def measured_window(make_window, qtbot, wait_frame):
     win = make_window(camera=Camera.from_lonlat(*VIEW))
     g = win.globe
     assert not win.plot_dock.isVisible() and win.plot_dock.plot is None
-    win.tool_actions["measure"].trigger()
+    win.tools.actions["measure"].trigger()
     assert g.scene.active_tool == "measure"
     for lon, lat in (A, B):
         qtbot.mouseClick(g, Qt.MouseButton.LeftButton, pos=to_widget(win, lon, lat))
@@ -91,7 +91,7 @@ def test_two_clicks_show_the_profile_and_export_it(
     # A frame with nothing new keeps the same plot; leaving the tool hides the dock.
     wait_frame(win)
     assert win.plot_dock.plot is plot
-    win.set_tool(None)
+    win.tools.set_tool(None)
     wait_frame(win)
     assert not win.plot_dock.isVisible() and win.plot_dock.plot is None
 
@@ -128,7 +128,7 @@ def test_settings_in_the_tool_options_bar_redraw_the_plot(make_window, qtbot, wa
     """The measure tool's Settings become controls (the window's generic path); editing
     them changes the published plot, which the dock then shows."""
     win = measured_window(make_window, qtbot, wait_frame)
-    editors = win.tool_options.editors
+    editors = win.tools.options.editors
     assert set(editors) == {"samples", "units", "show_chord"}
     first = win.plot_dock.plot
     editors["units"].setValue("mi")

@@ -81,7 +81,7 @@ def test_an_installed_tools_plot_is_shown_and_exported(
 ) -> None:
     win = make_window(registry=registry)
     g = win.globe
-    win.tool_actions["clicklog"].trigger()
+    win.tools.actions["clicklog"].trigger()
     assert not win.plot_dock.isVisible()
     for dx in (0, 30):  # the centre now: the dock takes room once the first plot shows
         centre = QPoint(g.width() // 2, g.height() // 2)
@@ -99,11 +99,11 @@ def test_an_installed_tools_plot_is_shown_and_exported(
 
 def test_a_plot_that_raises_fails_only_its_tool(make_window, registry, wait_frame) -> None:
     win = make_window(registry=registry)
-    win.tool_actions["badplot"].trigger()
+    win.tools.actions["badplot"].trigger()
     wait_frame(win)
     wait_frame(win)
     rec = registry.get("clicklog")
     assert set(rec.failures) == {"badplot"} and "the plot's bug" in rec.failures["badplot"].error
     assert rec.status == "partial" and not win.plot_dock.isVisible()
-    win.refresh_tools()
-    assert "clicklog" in win.tool_actions  # the same package's other tool stays
+    win.tools.refresh()
+    assert "clicklog" in win.tools.actions  # the same package's other tool stays

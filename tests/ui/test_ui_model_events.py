@@ -47,25 +47,25 @@ def test_tau_set_on_the_model_moves_the_slider(make_window, wait_frame) -> None:
 
 def test_tool_set_on_the_model_checks_its_action(make_window, wait_frame) -> None:
     win = make_window()
-    act = win.tool_actions["measure"]
-    assert not act.isChecked() and win.tool_options.tool_name is None
+    act = win.tools.actions["measure"]
+    assert not act.isChecked() and win.tools.options.tool_name is None
     win.model.tool = "measure"  # the window subscribes to model.events.tool
-    assert act.isChecked() and win.tool_options.tool_name == "measure"
+    assert act.isChecked() and win.tools.options.tool_name == "measure"
     wait_frame(win)
-    assert win.model.tool == "measure" and win.active_tool_name() == "measure"
+    assert win.model.tool == "measure" and win.tools.active_tool_name() == "measure"
     # The session's own switch (no window call) shows too.
     win.globe.scene.activate_tool("collapse")
-    assert win.tool_actions["collapse"].isChecked() and not act.isChecked()
-    assert win.tool_options.tool_name == "collapse"
+    assert win.tools.actions["collapse"].isChecked() and not act.isChecked()
+    assert win.tools.options.tool_name == "collapse"
     win.model.tool = None
-    assert not any(a.isChecked() for a in win.tool_actions.values())
-    assert win.tool_options.tool_name is None
+    assert not any(a.isChecked() for a in win.tools.actions.values())
+    assert win.tools.options.tool_name is None
     wait_frame(win)
     assert win.globe.scene.renderer.displacement_hook is None
     # A tool no plugin provides, set from code: no action is checked, the globe keeps drawing.
     win.model.tool = "no-such-tool"
     wait_frame(win)
-    assert not any(a.isChecked() for a in win.tool_actions.values())
+    assert not any(a.isChecked() for a in win.tools.actions.values())
     assert win.globe.last_stats.triangles > 0
 
 
@@ -123,9 +123,13 @@ def test_changing_the_model_from_the_window_makes_no_context_current(
     real = win.globe.makeCurrent
     monkeypatch.setattr(win.globe, "makeCurrent", lambda: (calls.append(1), real())[1])
     panel = win.layer_panel.overlays
-    assert win.set_tool("collapse") and win.set_tool("measure") and win.set_tool(None)
+    assert (
+        win.tools.set_tool("collapse")
+        and win.tools.set_tool("measure")
+        and win.tools.set_tool(None)
+    )
     borders, marble = panel.layer_at(0), panel.layer_at(1)
-    (cities,) = win.open_overlays([str(DATA / "ne_cities.geojson")])
+    (cities,) = win.files.open_overlays([str(DATA / "ne_cities.geojson")])
     panel.set_visible(marble, True)
     panel.set_opacity(marble, 0.5)
     panel.set_width(borders, 4.0)
@@ -135,8 +139,8 @@ def test_changing_the_model_from_the_window_makes_no_context_current(
     panel.remove(borders)
     win.plugin_panel.tau_slider.setValue(40)
     win.plugins.choose("wavelet")
-    win.exag_slider.setValue(25)
-    win.wire_check.setChecked(True)
+    win.view_bar.exag_slider.setValue(25)
+    win.view_bar.wire_check.setChecked(True)
     assert calls == []
     wait_frame(win)
     assert win.globe.last_stats.lod_provider == "wavelet"
@@ -164,7 +168,7 @@ def test_overlays_open_before_the_window_has_gl(qtbot, tmp_path, embedded, monke
     qtbot.addWidget(win)
     try:
         assert win.globe.scene is None and win.globe.context() is None
-        (cities,) = win.open_overlays([str(DATA / "ne_cities.geojson")])
+        (cities,) = win.files.open_overlays([str(DATA / "ne_cities.geojson")])
         assert win.overlay_layers() == [cities] and win.layer_panel.overlays.names() == [
             cities.name
         ]
@@ -176,7 +180,7 @@ def test_overlays_open_before_the_window_has_gl(qtbot, tmp_path, embedded, monke
         assert win.globe.scene.overlay_layers == [cities]
         qtbot.waitUntil(lambda: len(win.globe.scene.renderer.overlays.points) == 1)
     finally:
-        win.loader.shutdown()
+        win.files.loader.shutdown()
 
 
 def test_terrain_changed_on_the_model_is_listed(make_window, wait_frame) -> None:
@@ -234,20 +238,20 @@ def test_display_settings_set_on_the_model_move_the_controls(make_window, wait_f
     win = make_window()
     display = win.model.display
     display.exaggeration = 3.0  # the window subscribes to display.events
-    assert win.exag_slider.value() == 30 and win.exag_label.text() == "3.0×"
+    assert win.view_bar.exag_slider.value() == 30 and win.view_bar.exag_label.text() == "3.0×"
     display.wireframe = True
     display.hillshade = True
-    assert win.wire_check.isChecked() and win.hill_check.isChecked()
+    assert win.view_bar.wire_check.isChecked() and win.view_bar.hill_check.isChecked()
     # Beyond the slider: the label is exact and the model keeps its value.
     display.exaggeration = 80.0
-    assert win.exag_slider.value() == win.exag_slider.maximum()
-    assert win.exag_label.text() == "80.0×" and display.exaggeration == 80.0
+    assert win.view_bar.exag_slider.value() == win.view_bar.exag_slider.maximum()
+    assert win.view_bar.exag_label.text() == "80.0×" and display.exaggeration == 80.0
     # A NaN exaggeration from code is refused where it is set: nothing changes, no event,
     # the controls keep showing the model.
     with pytest.raises(ValueError, match="exaggeration"):
         display.exaggeration = float("nan")
-    assert display.exaggeration == 80.0 and win.exag_label.text() == "80.0×"
-    win.exag_slider.setValue(20)  # the user's slider drives the model again
+    assert display.exaggeration == 80.0 and win.view_bar.exag_label.text() == "80.0×"
+    win.view_bar.exag_slider.setValue(20)  # the user's slider drives the model again
     assert display.exaggeration == pytest.approx(2.0)
     wait_frame(win)
     assert win.globe.last_stats.triangles > 0
@@ -262,7 +266,7 @@ def test_camera_replaced_on_the_model_is_drawn_and_flown(make_window, qtbot, wai
     wait_frame(win)
     assert np.allclose(win.globe.scene.last.view.eye, cam.eye)  # drawn from the new camera
     # A flight moves the model's camera of now, not the one it was built with.
-    assert win.go_to("-121, 46, 200000")
+    assert win.view_bar.go_to("-121, 46, 200000")
     qtbot.waitUntil(lambda: not win.globe.flight.active, timeout=5000)
     assert cam.height == pytest.approx(2.0e5, rel=1e-3)
     assert win.status.altitude.text() == "alt 200.0 km"
@@ -299,7 +303,7 @@ def test_an_overlay_the_gpu_refuses_at_a_frame_is_reported_in_one_line(
     make_window, qtbot, errors_shown, wait_frame
 ) -> None:
     win = make_window()
-    (cities,) = win.open_overlays([str(DATA / "ne_cities.geojson")])
+    (cities,) = win.files.open_overlays([str(DATA / "ne_cities.geojson")])
     wait_frame(win)
     assert errors_shown == []
     # Code writing the model's fields past set_style's check: the GPU side refuses the
@@ -332,7 +336,7 @@ def test_hostile_saved_view_settings_open_with_the_defaults(make_window, tmp_pat
     s.sync()
     win = make_window(settings_path=path)
     assert win.model.tau_px == 2.0 and win.plugin_panel.tau_label.text() == "2.0 px"
-    assert win.model.display.exaggeration == 1.0 and win.exag_label.text() == "1.0×"
+    assert win.model.display.exaggeration == 1.0 and win.view_bar.exag_label.text() == "1.0×"
     assert win.globe.last_stats.triangles > 0
 
 
@@ -344,7 +348,7 @@ def test_the_window_draws_with_the_pipelines_camera_speed(make_window, qtbot) ->
     assert g.scene.last.view.speed_mps == 0.0
     seen = []
     g.frameRendered.connect(lambda *_: seen.append(g.scene.last.view.speed_mps))
-    assert win.go_to("10, 45, 3000000")
+    assert win.view_bar.go_to("10, 45, 3000000")
     qtbot.waitUntil(lambda: any(v > 1000.0 for v in seen), timeout=10000)
     qtbot.waitUntil(lambda: not g.flight.active, timeout=10000)
     # The settle frame after the flight (the camera still) sees no speed.
@@ -387,18 +391,18 @@ def test_a_tool_whose_hook_fails_at_the_next_frame_is_reported(
 
     plugin_site.add("bad_glsl", BAD_GLSL_TOOL, {"tool": BAD_GLSL_MODULE})
     win = make_window(registry=PluginRegistry(MemorySettings()).discover())
-    assert win.set_tool("bad-glsl")  # accepted: nothing compiled yet
-    assert win.tool_actions["bad-glsl"].isChecked()
+    assert win.tools.set_tool("bad-glsl")  # accepted: nothing compiled yet
+    assert win.tools.actions["bad-glsl"].isChecked()
     wait_frame(win)
-    assert win.model.tool is None and win.tool_options.tool_name is None
-    assert "bad-glsl" not in win.tool_actions or not win.tool_actions["bad-glsl"].isChecked()
+    assert win.model.tool is None and win.tools.options.tool_name is None
+    assert "bad-glsl" not in win.tools.actions or not win.tools.actions["bad-glsl"].isChecked()
     texts = [m.text for m in win.errors.history]
     mine = [t for t in texts if "bad-glsl" in t]  # once: not again as a plugin failure
     assert len(mine) == 1 and "\n" not in mine[0], texts
     assert mine[0].startswith("tool bad-glsl could not be activated: "), texts
     wait_frame(win)
     assert win.globe.last_stats.triangles > 0
-    assert win.set_tool("measure")  # other tools still work
+    assert win.tools.set_tool("measure")  # other tools still work
 
 
 UNLOADABLE_LOD_MANIFEST = """

@@ -25,9 +25,9 @@ def test_closing_a_window_releases_its_session_threads_and_datasets(make_window,
 
     before = _workers()
     win = make_window()
-    win.open_paths([str(small_dem)])
+    win.files.open_paths([str(small_dem)])
     qtbot.waitUntil(lambda: "hill" in [ly.name for ly in win.terrain.layers], timeout=60000)
-    qtbot.waitUntil(lambda: not win.loader.busy, timeout=60000)
+    qtbot.waitUntil(lambda: not win.files.loader.busy, timeout=60000)
     hill = next(ly.store for ly in win.terrain.layers if ly.name == "hill")
     session = weakref.ref(win.globe.scene)
     renderer = weakref.ref(win.globe.scene.renderer)

@@ -85,7 +85,7 @@ def test_open_overlay_dialog_lists_and_opens_a_plugin_format(
 
     monkeypatch.setattr(QFileDialog, "getOpenFileNames", staticmethod(fake_dialog))
     assert magenta(frame_rgb(win)) == 0
-    win.open_overlay_dialog()
+    win.files.open_overlay_dialog()
     entries = asked["filter"].split(";;")
     assert "*.stripes" in entries[0] and "*.geojson" in entries[0] and "*.tif" in entries[0]
     assert "Stripes (*.stripes)" in entries and entries[-1] == "All files (*)"
@@ -97,7 +97,7 @@ def test_open_overlay_dialog_lists_and_opens_a_plugin_format(
 
 def test_dropped_plugin_file_opens_as_an_overlay(make_window, stripes, frame_rgb, wait_frame):
     win = make_window()
-    win.open_paths([str(stripes)])  # the drag-and-drop / command-line path
+    win.files.open_paths([str(stripes)])  # the drag-and-drop / command-line path
     assert [ly.name for ly in win.overlay_layers()] == ["bands.stripes"]
     wait_frame(win)
     assert magenta(frame_rgb(win)) > 200
@@ -109,11 +109,11 @@ def test_unknown_file_reports_one_line_naming_the_layer_types(
     win = make_window()
     junk = tmp_path / "notes.xyz"
     junk.write_bytes(b"\x00\x01 nothing anyone reads")
-    assert win.open_overlays([str(junk)]) == []
+    assert win.files.open_overlays([str(junk)]) == []
     text = errors_shown[-1].text
     assert "\n" not in text and "notes.xyz: no layer type opens this file" in text
     assert "stripes (.stripes)" in text and "vector (.geojson .json)" in text
-    win.open_paths([str(junk)])  # dropped: the same line
+    win.files.open_paths([str(junk)])  # dropped: the same line
     assert "no layer type opens this file" in errors_shown[-1].text
     assert win.overlay_layers() == []
 
@@ -123,7 +123,7 @@ def test_a_drawing_of_several_drawables_is_one_row(make_window, stripes, frame_r
     both = stripes.with_name("both.stripes")
     both.write_text("20\npoint 0 0\n")
     win = make_window()
-    (layer,) = win.open_overlays([str(both)])
+    (layer,) = win.files.open_overlays([str(both)])
     panel = win.layer_panel.overlays
     assert layer.kind == "drawing" and panel.names() == ["both.stripes"]
     wait_frame(win)

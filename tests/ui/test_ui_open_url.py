@@ -50,28 +50,28 @@ def test_unreadable_urls_are_one_line_and_open_nothing(make_window, errors_shown
     win = make_window()
     layers = [ly.name for ly in win.terrain.layers]
     n = len(win.errors.history)
-    assert win.open_url(url) is False
+    assert win.files.open_url(url) is False
     new = win.errors.history[n:]
     assert len(new) == 1 and errors_shown == new, [m.text for m in new]
     assert needle in new[0].text and "\n" not in new[0].text
     assert "Unexpected error" not in new[0].text and not new[0].details
-    assert not win.loader.busy
+    assert not win.files.loader.busy
     assert [ly.name for ly in win.terrain.layers] == layers
-    assert not any(f == url for f in win.recent_files())
+    assert not any(f == url for f in win.files.recent_files())
 
 
 def test_menu_asks_for_the_url_with_the_last_one_filled_in(make_window, monkeypatch):
     win = make_window()
     asked: list[str] = []
     opened: list[str] = []
-    win.ask_url = lambda parent, initial: asked.append(initial) or None  # cancelled
-    monkeypatch.setattr(win, "open_url", opened.append)
-    win.open_url_action.trigger()
+    win.files.ask_url = lambda parent, initial: asked.append(initial) or None  # cancelled
+    monkeypatch.setattr(win.files, "open_url", opened.append)
+    win.files.open_url_action.trigger()
     assert asked == [""] and opened == []
-    win.add_recent("https://example.org/a/store")
-    win.add_recent(__file__)  # a file since: the URL is still the one offered
-    win.ask_url = lambda parent, initial: asked.append(initial) or "https://example.org/b"
-    win.open_url_action.trigger()
+    win.files.add_recent("https://example.org/a/store")
+    win.files.add_recent(__file__)  # a file since: the URL is still the one offered
+    win.files.ask_url = lambda parent, initial: asked.append(initial) or "https://example.org/b"
+    win.files.open_url_action.trigger()
     assert asked[-1] == "https://example.org/a/store"
     assert opened == ["https://example.org/b"]
 
@@ -79,17 +79,17 @@ def test_menu_asks_for_the_url_with_the_last_one_filled_in(make_window, monkeypa
 def test_recent_urls_are_kept_as_urls_and_reopen_by_url(make_window, monkeypatch):
     win = make_window()
     url = "https://example.org/globe%20data/store"
-    win.add_recent(url)
-    assert win.recent_files()[0] == url  # not made into a local path
-    action = next(a for a in win.recent_menu.actions() if a.text() == url)
+    win.files.add_recent(url)
+    assert win.files.recent_files()[0] == url  # not made into a local path
+    action = next(a for a in win.files.recent_menu.actions() if a.text() == url)
     opened: list[str] = []
-    monkeypatch.setattr(win, "open_url", opened.append)
+    monkeypatch.setattr(win.files, "open_url", opened.append)
     action.trigger()
     assert opened == [url]
 
 
 def test_source_names():
-    from globeview.ui.main_window import source_name
+    from globeview.ui.file_opening import source_name
 
     assert source_name("https://example.org/data/globe%20store") == "globe store"
     assert source_name("https://example.org/data/store/") == "store"

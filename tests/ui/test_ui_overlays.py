@@ -92,7 +92,7 @@ def test_open_cities_adds_points_layer_with_placemarks(make_window, frame_rgb, r
     win = make_window()
     redraw(win)
     before = placemark_pixels(frame_rgb(win))
-    added = win.open_overlays([str(ROOT / "data" / "ne_cities.geojson")])  # the dialog's path
+    added = win.files.open_overlays([str(ROOT / "data" / "ne_cities.geojson")])  # the dialog's path
     assert [ly.kind for ly in added] == ["points"]
     assert win.layer_panel.overlays.names() == ["ne_cities.geojson"]
     redraw(win)
@@ -113,7 +113,7 @@ def test_broken_geojson_reports_and_changes_nothing(make_window, errors_shown, t
     layers = list(win.overlay_layers())
     bad = tmp_path / "broken.geojson"
     bad.write_text('{"type": "FeatureCollection", "features": [', encoding="utf-8")
-    assert win.open_overlays([str(bad)]) == []
+    assert win.files.open_overlays([str(bad)]) == []
     assert errors_shown, "an error message should be shown"
     text = errors_shown[-1].text
     assert "broken.geojson" in text and "\n" not in text and "Unexpected" not in text
@@ -121,7 +121,7 @@ def test_broken_geojson_reports_and_changes_nothing(make_window, errors_shown, t
     assert win.overlay_layers() == layers
     # Drag and drop takes the same way (decided by content) and reports the same error.
     shown = len(errors_shown)
-    win.open_paths([str(bad)])
+    win.files.open_paths([str(bad)])
     assert len(errors_shown) == shown + 1 and win.overlay_layers() == layers
     assert win.globe.frames > 0 and win.last_error() is not None
 
@@ -157,7 +157,7 @@ def test_vector_style_order_and_remove(make_window, frame_rgb, redraw):
 
 def test_drop_decides_by_content(tmp_path):
     from globeview.errors import GlobeviewError
-    from globeview.ui.main_window import classify_path
+    from globeview.ui.file_opening import classify_path
 
     data = ROOT / "data"
     assert classify_path(data / "bluemarble_2048x1024.tif") == "overlay"  # RGB imagery

@@ -54,8 +54,8 @@ def served(tmp_path_factory, embedded):
 
 def _open(win, qtbot, url: str, name: str = "store") -> None:
     """Open ``url`` as File > Open URL does and wait until its layer is listed."""
-    win.ask_url = lambda parent, initial: url
-    win.open_url_action.trigger()
+    win.files.ask_url = lambda parent, initial: url
+    win.files.open_url_action.trigger()
     qtbot.waitUntil(lambda: name in [ly.name for ly in win.terrain.layers], timeout=60000)
 
 
@@ -71,7 +71,7 @@ def test_open_url_draws_the_remote_store(make_window, served, qtbot, errors_show
     _open(win, qtbot, f"{served.url}/store")
     qtbot.waitUntil(lambda: _settled(win), timeout=60000)
     assert errors_shown == []
-    assert win.recent_files()[0] == f"{served.url}/store"
+    assert win.files.recent_files()[0] == f"{served.url}/store"
     lon, lat, *_ = win.globe.camera.lonlat_hpr()
     assert abs(lon + 124.0) < 0.5 and abs(lat - 49.0) < 0.5  # flew to the store
     st = win.globe.last_stats
@@ -106,7 +106,7 @@ def test_chunks_answered_500_are_counted_and_the_window_keeps_drawing(
         win = make_window()
         _open(win, qtbot, f"{served.url}/wm", "wm")
         qtbot.waitUntil(lambda: not win.globe.flight.active, timeout=20000)
-        assert win.go_to("-71.3, 44.27, 5000, 0, -35")  # Mount Washington: level 12 tiles
+        assert win.view_bar.go_to("-71.3, 44.27, 5000, 0, -35")  # Mount Washington: level 12 tiles
         try:
             qtbot.waitUntil(
                 lambda: _settled(win) and win.globe.last_stats.extra.get("tiles_failed", 0) > 0,
@@ -154,7 +154,9 @@ def test_a_slow_server_never_freezes_the_window(make_window, served, qtbot, erro
         _open(win, qtbot, f"{served.url}/wm", "wm")
         timer.start()  # from the moment the layer is there: frames, selections, picks
         qtbot.waitUntil(lambda: not g.flight.active, timeout=20000)
-        assert win.go_to("-71.3, 44.27, 6000, 0, -35")  # Mount Washington, close: levels 10..12
+        assert win.view_bar.go_to(
+            "-71.3, 44.27, 6000, 0, -35"
+        )  # Mount Washington, close: levels 10..12
         t0 = time.perf_counter()
         k = 0
         while time.perf_counter() - t0 < MEASURE_S:
@@ -219,8 +221,10 @@ def test_unreachable_or_bad_stores_are_one_line(
     win = make_window()
     layers = [ly.name for ly in win.terrain.layers]
     n = len(win.errors.history)
-    assert win.open_url(url)
-    qtbot.waitUntil(lambda: len(win.errors.history) > n and not win.loader.busy, timeout=60000)
+    assert win.files.open_url(url)
+    qtbot.waitUntil(
+        lambda: len(win.errors.history) > n and not win.files.loader.busy, timeout=60000
+    )
     new = win.errors.history[n:]
     assert len(new) == 1 and errors_shown == new, [m.text for m in new]
     assert needle in new[0].text and "\n" not in new[0].text, new[0].text

@@ -125,9 +125,9 @@ def test_external_tool_settings_become_controls_that_configure_and_persist(
 
     store = JsonFileSettings(tmp_path / "settings.json")
     win = make_window(registry=_registry(store))
-    bar = win.tool_options
+    bar = win.tools.options
     assert bar.tool_name is None and not bar.editors  # nothing shown until a tool is active
-    win.tool_actions["pins"].trigger()
+    win.tools.actions["pins"].trigger()
     tool = win.globe.active_tool()
     assert win.globe.scene.active_tool == "pins" and bar.tool_name == "pins"
     assert list(bar.editors) == ["size_px", "max_pins", "labels", "colour", "scale"]
@@ -163,10 +163,10 @@ def test_external_tool_settings_become_controls_that_configure_and_persist(
     win.close()
     # A new window (a new registry on the same settings file) starts from the stored values.
     win2 = make_window(registry=_registry(JsonFileSettings(tmp_path / "settings.json")))
-    win2.tool_actions["pins"].trigger()
+    win2.tools.actions["pins"].trigger()
     tool2 = win2.globe.active_tool()
     assert tool2.values["max_pins"] == 50 and tool2.values["colour"] == "blue"
-    assert win2.tool_options.editors["colour"].value() == "blue"
+    assert win2.tools.options.editors["colour"].value() == "blue"
 
 
 def test_external_command_shortcut_and_button_call_the_tool_method(pins, make_window, qtbot):
@@ -176,13 +176,13 @@ def test_external_command_shortcut_and_button_call_the_tool_method(pins, make_wi
     qtbot.waitUntil(win.isActiveWindow, timeout=5000)
     g.setFocus()
     assert g.scene.active_tool is None
-    clear = win.command_actions["pins.clear"]
-    assert clear.shortcut().toString() == "X" and clear in win.tools_menu.actions()
+    clear = win.tools.command_actions["pins.clear"]
+    assert clear.shortcut().toString() == "X" and clear in win.tools.menu.actions()
     # The shortcut with no tool active activates the tool and calls its method.
     qtbot.keyClick(g, Qt.Key.Key_X)
     tool = g.active_tool()
     assert g.scene.active_tool == "pins" and tool.calls == ["clear"]
-    assert win.tool_actions["pins"].isChecked()
+    assert win.tools.actions["pins"].isChecked()
     # With the tool active, a plain key the tool does not take reaches the command too.
     qtbot.keyClick(g, Qt.Key.Key_X)
     assert tool.calls == ["clear", "clear"]
@@ -192,7 +192,7 @@ def test_external_command_shortcut_and_button_call_the_tool_method(pins, make_wi
     )
     assert tool.calls[-1] == "undo"
     # The button in the Tool options bar.
-    button = win.tool_options.widgetForAction(win.command_actions["pins.undo"])
+    button = win.tools.options.widgetForAction(win.tools.command_actions["pins.undo"])
     qtbot.waitUntil(button.isVisible, timeout=5000)
     qtbot.mouseClick(button, Qt.MouseButton.LeftButton)
     assert tool.calls[-1] == "undo" and tool.calls.count("undo") == 2
@@ -243,11 +243,11 @@ def test_shortcut_clashes_are_one_line_notices_and_the_plugin_keeps_working(
     texts = [m.text for m in win.errors.history]
     # The first plugin (by name) keeps X; the second is told, in one line, and keeps its
     # button.
-    assert win.command_actions["pins.clear"].shortcut().toString() == "X"
+    assert win.tools.command_actions["pins.clear"].shortcut().toString() == "X"
     assert (
         "plugin twin: command twin.poke shortcut X is taken by command pins.clear; left without it"
     ) in texts
-    assert win.command_actions["twin.poke"].shortcut().isEmpty()
+    assert win.tools.command_actions["twin.poke"].shortcut().isEmpty()
     clash = [t for t in texts if "pins.export" in t]
     assert clash == [
         "plugin pins: command pins.export shortcut Ctrl+E is taken by the window's "
@@ -261,13 +261,13 @@ def test_shortcut_clashes_are_one_line_notices_and_the_plugin_keeps_working(
     assert ghost == ["plugin pins: command pins.ghost names no method not_there() of the tool; "
                      "command left out"]  # fmt: skip
     assert all("\n" not in t for t in texts)
-    assert "pins.ghost" not in win.command_actions
+    assert "pins.ghost" not in win.tools.command_actions
     # The window's own shortcut is untouched; the clashing commands still work from their
     # buttons, and W still flies the camera.
     assert win.export_action.shortcut().toString() == "Ctrl+E"
-    assert win.command_actions["pins.export"].shortcut().isEmpty()
+    assert win.tools.command_actions["pins.export"].shortcut().isEmpty()
     assert win.plugins.registry.get("pins").status == "ok"
-    assert win.run_command("pins.export") and win.globe.active_tool().calls == ["export"]
+    assert win.tools.run_command("pins.export") and win.globe.active_tool().calls == ["export"]
     eye = win.globe.camera.eye.copy()
     win.globe.setFocus()
     qtbot.keyClick(win.globe, Qt.Key.Key_W)
@@ -275,25 +275,25 @@ def test_shortcut_clashes_are_one_line_notices_and_the_plugin_keeps_working(
     assert "walk" not in win.globe.active_tool().calls
     # A tool without settings shows its commands alone; a command whose method wants
     # arguments fails that tool with the reason, and nothing else.
-    assert win.run_command("twin.poke") and win.globe.active_tool().poked
-    assert win.tool_options.tool_name == "twin" and not win.tool_options.editors
-    win.run_command("twin.needs-args")
+    assert win.tools.run_command("twin.poke") and win.globe.active_tool().poked
+    assert win.tools.options.tool_name == "twin" and not win.tools.options.editors
+    win.tools.run_command("twin.needs-args")
     assert win.plugins.registry.get("twin").status == "failed"
     assert "needs_args() missing 2 required positional arguments" in (
         win.plugins.registry.get("twin").error
     )
-    assert win.plugins.registry.get("pins").status == "ok" and "pins" in win.tool_actions
+    assert win.plugins.registry.get("pins").status == "ok" and "pins" in win.tools.actions
 
 
 def test_a_command_that_raises_fails_its_tool_with_the_reason_kept(pins, make_window):
     win = make_window(registry=_registry())
-    win.tool_actions["pins"].trigger()
-    assert win.run_command("pins.explode")
+    win.tools.actions["pins"].trigger()
+    assert win.tools.run_command("pins.explode")
     rec = win.plugins.registry.get("pins")
     assert rec.status == "failed" and "pin factory on fire" in rec.error
-    assert win.globe.scene.active_tool is None and "pins" not in win.tool_actions
-    assert win.tool_options.tool_name is None
-    assert "pins.clear" not in win.command_actions  # its shortcut is gone with it
+    assert win.globe.scene.active_tool is None and "pins" not in win.tools.actions
+    assert win.tools.options.tool_name is None
+    assert "pins.clear" not in win.tools.command_actions  # its shortcut is gone with it
     assert any("pin factory on fire" in m.text for m in win.errors.history)
     # The plugin panel row keeps the reason (text and tooltip).
     panel = win.plugin_panel
@@ -309,11 +309,11 @@ def test_a_setting_change_that_makes_configure_raise_fails_the_tool_not_the_wind
     pins, make_window, wait_frame
 ):
     win = make_window(registry=_registry())
-    win.tool_actions["pins"].trigger()
-    win.tool_options.editors["scale"].spin.setValue(13.0)  # from inside the editor's signal
+    win.tools.actions["pins"].trigger()
+    win.tools.options.editors["scale"].spin.setValue(13.0)  # from inside the editor's signal
     rec = win.plugins.registry.get("pins")
     assert rec.status == "failed" and "unlucky scale" in rec.error
-    assert win.globe.scene.active_tool is None and win.tool_options.tool_name is None
+    assert win.globe.scene.active_tool is None and win.tools.options.tool_name is None
     assert any("unlucky scale" in m.text for m in win.errors.history)
     wait_frame(win)  # the window keeps drawing
     assert win.globe.last_stats.triangles > 0
@@ -325,18 +325,18 @@ def test_switching_tools_does_not_pile_up_widgets(pins, make_window, qtbot):
     from PyQt6.QtWidgets import QApplication, QWidgetAction
 
     win = make_window(registry=_registry())
-    bar = win.tool_options
+    bar = win.tools.options
 
     def owned() -> int:
         return len(bar.findChildren(QWidgetAction)) + len(QApplication.allWidgets())
 
-    win.tool_actions["pins"].trigger()
+    win.tools.actions["pins"].trigger()
     win.globe.deactivate_tool()
     qtbot.wait(10)
     QApplication.sendPostedEvents(None, 0)  # run the deleteLater()s
     first = owned()
     for _ in range(30):
-        win.tool_actions["pins"].trigger()
+        win.tools.actions["pins"].trigger()
         assert bar.tool_name == "pins" and len(bar.editors) == 5
         win.globe.deactivate_tool()
     qtbot.wait(10)

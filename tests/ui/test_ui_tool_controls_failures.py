@@ -99,8 +99,8 @@ def test_tool_activation_failure_names_its_own_reason(broken, make_window, wait_
     panel.lod_combo.setCurrentIndex(panel.lod_combo.findData("broken-lod"))
     wait_frame(win)
     assert broken.get("broken-lod").status == "failed"
-    assert not win.set_tool("bad-tool")
+    assert not win.tools.set_tool("bad-tool")
     texts = [m.text for m in win.errors.history]
     assert "tool bad-tool could not be activated: ValueError: no shader for you" in texts
     assert not any("could not be activated" in t and "boom" in t for t in texts)
-    assert win.globe.scene.active_tool is None and win.tool_options.tool_name is None
+    assert win.globe.scene.active_tool is None and win.tools.options.tool_name is None

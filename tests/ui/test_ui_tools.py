@@ -50,15 +50,15 @@ def marker_pixels(rgb: np.ndarray, x: float, y: float, radius: int = 9) -> int:
 def test_toolbar_action_activates_collapse_and_drag_still_navigates(make_window, qtbot, wait_frame):
     win = make_pnw(make_window)
     g = win.globe
-    act = win.tool_actions["collapse"]
+    act = win.tools.actions["collapse"]
     assert act.isCheckable()
     # C is the collapse manifest's command: it activates the tool from anywhere.
-    assert win.command_actions["collapse.collapse"].shortcut().toString() == "C"
+    assert win.tools.command_actions["collapse.collapse"].shortcut().toString() == "C"
     assert "C: Collapse" in act.toolTip()
-    assert act in win.tools_toolbar.actions() and act in win.tools_menu.actions()
-    assert "marker" in win.tool_actions  # the example plugin's tool is listed too
+    assert act in win.tools.toolbar.actions() and act in win.tools.menu.actions()
+    assert "marker" in win.tools.actions  # the example plugin's tool is listed too
     # The toolbar button activates the tool in the session, a second click leaves it.
-    button = win.tools_toolbar.widgetForAction(act)
+    button = win.tools.toolbar.widgetForAction(act)
     qtbot.mouseClick(button, Qt.MouseButton.LeftButton)
     assert act.isChecked() and g.scene.active_tool == "collapse"
     wait_frame(win)  # activation sets the model; the frame compiles the displacement hook
@@ -83,13 +83,13 @@ def test_toolbar_action_activates_collapse_and_drag_still_navigates(make_window,
     assert g.active_tool().state == "idle"
     # Disabling its plugin while active leaves the tool and removes the action.
     win.plugins.set_enabled("collapse", False)
-    assert "collapse" not in win.tool_actions and win.tool_options.tool_name is None
-    assert not any(k.startswith("collapse.") for k in win.command_actions)
+    assert "collapse" not in win.tools.actions and win.tools.options.tool_name is None
+    assert not any(k.startswith("collapse.") for k in win.tools.command_actions)
     assert g.scene.active_tool is None
     wait_frame(win)
     assert g.overlay_drawn == 0 and g.scene.renderer.displacement_hook is None
     win.plugins.set_enabled("collapse", True)
-    assert "collapse" in win.tool_actions
+    assert "collapse" in win.tools.actions
 
 
 def test_clicks_collapse_animate_overlay_and_escape(make_window, qtbot, frame_rgb, wait_frame):
@@ -99,7 +99,7 @@ def test_clicks_collapse_animate_overlay_and_escape(make_window, qtbot, frame_rg
     pa, pb = to_widget(win, np.concatenate([ground(*A), ground(*B)]))
     r = g.devicePixelRatio()
     assert marker_pixels(before, pa.x() * r, pa.y() * r) < 5
-    win.tool_actions["collapse"].trigger()
+    win.tools.actions["collapse"].trigger()
     tool = g.active_tool()
     qtbot.mouseClick(g, Qt.MouseButton.LeftButton, pos=pa)
     assert tool.state == "a_set"
@@ -122,7 +122,7 @@ def test_clicks_collapse_animate_overlay_and_escape(make_window, qtbot, frame_rg
     # Escape cancels the collapse and leaves the tool.
     qtbot.keyClick(g, Qt.Key.Key_Escape)
     assert tool.state == "idle" and g.scene.active_tool is None
-    assert not win.tool_actions["collapse"].isChecked()
+    assert not win.tools.actions["collapse"].isChecked()
     wait_frame(win)
     again = frame_rgb(win)
     assert (np.abs(again.astype(int) - before.astype(int)).sum(axis=2) > 30).mean() < 0.02
@@ -133,9 +133,9 @@ def test_ratio_slider_and_expand_button(make_window, qtbot):
     and its manifest commands (the window holds no collapse code)."""
     win = make_pnw(make_window)
     g = win.globe
-    win.tool_actions["collapse"].trigger()
+    win.tools.actions["collapse"].trigger()
     tool = g.active_tool()
-    bar = win.tool_options
+    bar = win.tools.options
     assert bar.tool_name == "collapse" and set(bar.editors) == {"ratio", "animate"}
     ratio = bar.editors["ratio"]
     ratio.slider.setValue(ratio.slider.maximum() // 2)  # as a drag would
@@ -146,8 +146,8 @@ def test_ratio_slider_and_expand_button(make_window, qtbot):
     assert stored["ratio"] == pytest.approx(0.5)  # persisted as provider settings are
     tool.set_points(*A, *B)  # the tool's documented API
     assert tool.frame().ratio == pytest.approx(0.5)
-    expand = bar.widgetForAction(win.command_actions["collapse.expand"])
-    collapse = bar.widgetForAction(win.command_actions["collapse.collapse"])
+    expand = bar.widgetForAction(win.tools.command_actions["collapse.expand"])
+    collapse = bar.widgetForAction(win.tools.command_actions["collapse.collapse"])
     qtbot.waitUntil(lambda: expand.isVisible() and collapse.isVisible(), timeout=5000)
     qtbot.mouseClick(expand, Qt.MouseButton.LeftButton)
     assert tool.state == "expanding"
@@ -169,7 +169,7 @@ def _status_lonlat(text: str) -> tuple[float, float]:
 def test_status_bar_shows_true_lonlat_with_collapse(make_window, qtbot, wait_frame):
     win = make_pnw(make_window)
     g = win.globe
-    win.tool_actions["collapse"].trigger()
+    win.tools.actions["collapse"].trigger()
     tool = g.active_tool()
     tool.set_points(*A, *B, ratio=0.2)
     wait_frame(win)

@@ -55,15 +55,15 @@ def test_layer_order_buttons_move_layers(make_window):
 
 def test_opening_a_file_adds_a_layer_and_flies_there(make_window, small_dem, qtbot):
     win = make_window()
-    win.open_paths([str(small_dem)])  # the path File > Open and drag-and-drop take
+    win.files.open_paths([str(small_dem)])  # the path File > Open and drag-and-drop take
     qtbot.waitUntil(lambda: "hill" in [ly.name for ly in win.terrain.layers], timeout=60000)
     assert win.layer_panel.names()[0] == "hill"  # new layers go on top
     qtbot.waitUntil(lambda: not win.globe.flight.active, timeout=5000)
     lon, lat, h, *_ = win.globe.camera.lonlat_hpr()
     assert abs(lon - 10.5) < 0.05 and abs(lat - 45.5) < 0.05
     assert h < 1.0e6
-    assert win.recent_files()[0].endswith("hill.tif")
-    qtbot.waitUntil(lambda: win.load_bar.isHidden(), timeout=5000)
+    assert win.files.recent_files()[0].endswith("hill.tif")
+    qtbot.waitUntil(lambda: win.files.load_bar.isHidden(), timeout=5000)
 
 
 def test_left_drag_keeps_the_grabbed_point_under_the_cursor(make_window, qtbot, wait_frame):
@@ -116,9 +116,9 @@ def test_status_bar_shows_lonlat_under_the_cursor(make_window, qtbot, frame_rgb,
 
 def test_go_to_flies_the_camera(make_window, qtbot):
     win = make_window()
-    assert not win.go_to("not a place")
+    assert not win.view_bar.go_to("not a place")
     assert "go to" in win.statusBar().currentMessage()
-    assert win.go_to("-123.1, 49.3, 80000")
+    assert win.view_bar.go_to("-123.1, 49.3, 80000")
     assert win.globe.flight.active
     qtbot.waitUntil(lambda: not win.globe.flight.active, timeout=5000)
     lon, lat, h, *_ = win.globe.camera.lonlat_hpr()
@@ -128,10 +128,10 @@ def test_go_to_flies_the_camera(make_window, qtbot):
 def test_go_to_takes_a_heading_and_pitch_and_refuses_bad_ones(make_window, qtbot):
     win = make_window()
     for bad in ("-71.3, 44.15, 9000, 0", "-71.3, 44.15, 9000, 0, -95", "1, 2, nan", "1, 2, 1e12"):
-        assert not win.go_to(bad), bad
+        assert not win.view_bar.go_to(bad), bad
         assert "go to" in win.statusBar().currentMessage()
         assert not win.globe.flight.active
-    assert win.go_to("-71.3, 44.15, 9000, 370, -30")
+    assert win.view_bar.go_to("-71.3, 44.15, 9000, 370, -30")
     qtbot.waitUntil(lambda: not win.globe.flight.active, timeout=5000)
     lon, lat, h, heading, pitch, _ = win.globe.camera.lonlat_hpr()
     assert abs(lon + 71.3) < 1e-6 and abs(lat - 44.15) < 1e-6 and abs(h - 9000) < 1.0
@@ -147,7 +147,9 @@ def test_a_flight_loads_its_destination_first_until_it_is_cut_short(make_window,
     queued = g.prefetch_pose((-71.3, 44.15, 9000.0, 0.0, -30.0))
     assert queued > 50  # the White Mountains view: hundreds of tiles, none resident yet
     assert g.prefetch_pose((float("nan"), 0.0, 1.0, 0.0, -90.0)) == 0  # not a camera: none
-    assert win.go_to("-121.7, 46.85, 8000, 90, -25")  # another place: replaces the prefetch
+    assert win.view_bar.go_to(
+        "-121.7, 46.85, 8000, 90, -25"
+    )  # another place: replaces the prefetch
     loader = g.scene.renderer.loader
     assert loader.prefetching > 0
     g.flight.stop()
@@ -162,7 +164,7 @@ def test_status_bar_says_loading_n_tiles_while_tiles_load_then_clears(make_windo
     assert win.status.loading.text() == ""  # the start view is complete
     shown: list[str] = []
     win.globe.frameRendered.connect(lambda *_: shown.append(win.status.loading.text()))
-    assert win.go_to("-71.3, 44.15, 9000, 0, -30")
+    assert win.view_bar.go_to("-71.3, 44.15, 9000, 0, -30")
     qtbot.waitUntil(
         lambda: (
             not win.globe.flight.active
@@ -185,7 +187,7 @@ def test_bad_file_shows_an_error_and_the_window_keeps_working(
     bad = tmp_path / "broken.tif"
     bad.write_bytes(b"this is not a GeoTIFF")
     n_layers = len(win.terrain.layers)
-    win.open_paths([str(bad), str(tmp_path / "missing.tif")])
+    win.files.open_paths([str(bad), str(tmp_path / "missing.tif")])
     qtbot.waitUntil(lambda: len(errors_shown) >= 2, timeout=30000)
     assert "broken.tif" in errors_shown[0].text
     assert "Traceback" not in errors_shown[0].text
@@ -198,9 +200,9 @@ def test_bad_file_shows_an_error_and_the_window_keeps_working(
 def test_display_toggles_and_export(make_window, tmp_path, frame_rgb, wait_frame):
     win = make_window()
     before = frame_rgb(win)
-    win.wire_check.setChecked(True)
+    win.view_bar.wire_check.setChecked(True)
     assert win.globe.settings.wireframe
-    win.exag_slider.setValue(50)
+    win.view_bar.exag_slider.setValue(50)
     assert win.globe.settings.exaggeration == pytest.approx(5.0)
     wait_frame(win)
     assert (frame_rgb(win) != before).any()
@@ -217,14 +219,14 @@ def test_settings_persist_between_windows(make_window, tmp_path):
     win = make_window(settings_path=path)
     win.plugin_panel.set_tau(6.5)
     assert win.globe.scene.tau_px == pytest.approx(6.5)
-    win.hill_check.setChecked(True)
-    win.add_recent(str(tmp_path / "a.tif"))
+    win.view_bar.hill_check.setChecked(True)
+    win.files.add_recent(str(tmp_path / "a.tif"))
     win.close()
     win2 = make_window(settings_path=path)
     assert win2.plugin_panel.tau() == pytest.approx(6.5)
     assert win2.globe.settings.hillshade
-    assert win2.recent_files()[0].endswith("a.tif")
-    assert win2.recent_menu.actions()[0].text().endswith("a.tif")
+    assert win2.files.recent_files()[0].endswith("a.tif")
+    assert win2.files.recent_menu.actions()[0].text().endswith("a.tif")
 
 
 def test_tiles_that_cannot_be_built_are_counted_and_do_not_keep_it_loading(make_window, qtbot):
@@ -242,7 +244,7 @@ def test_tiles_that_cannot_be_built_are_counted_and_do_not_keep_it_loading(make_
 
     terrain.heights = heights
     try:
-        assert win.go_to("-71.3, 44.15, 9000, 0, -30")
+        assert win.view_bar.go_to("-71.3, 44.15, 9000, 0, -30")
         qtbot.waitUntil(
             lambda: (
                 not win.globe.flight.active
