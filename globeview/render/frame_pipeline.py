@@ -18,7 +18,7 @@ which reads as the data flow of a frame:
 8. **Stats**: the frame's figures (`FrameStats`), returned in a `FrameResult`.
 
 The pipeline knows the plugin host only through two small protocols, `FrameHost` and
-`FrameTool` (render sits below plugins in the layers): the host checks what plugin code
+`FrameTool` (render sits below app in the layers): the host checks what plugin code
 returns before it reaches the pipeline.
 """
 

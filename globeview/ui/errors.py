@@ -25,14 +25,14 @@ from PyQt6.QtCore import QObject, pyqtSignal
 from PyQt6.QtWidgets import QMessageBox, QWidget
 
 from globeview.errors import GlobeviewError
-from globeview.plugins.registry import LOG_MAX_BYTES, failure_log_path
+from globeview.plugins.isolation import LOG_MAX_BYTES, failure_log_path
 
 log = logging.getLogger("globeview.ui")
 
 
 def default_log_file() -> Path:
     """Where the window writes tracebacks: the log file plugin failures go to too
-    (``globeview.log`` in the cache folder, see `globeview.plugins.registry.failure_log_path`)."""
+    (``globeview.log`` in the cache folder, see `globeview.plugins.isolation.failure_log_path`)."""
     return failure_log_path()
 
 

@@ -28,7 +28,8 @@ from globeview.app.session import DEFAULT_LOD, GlobeSession
 from globeview.errors import GlobeviewError
 from globeview.model.globe import Globe
 from globeview.plugins.api import PluginKind
-from globeview.plugins.registry import PluginRecord, PluginRegistry
+from globeview.plugins.records import PluginRecord
+from globeview.plugins.registry import PluginRegistry
 from globeview.ui.subscriptions import Subscriptions
 
 log = logging.getLogger("globeview.ui")

@@ -10,8 +10,8 @@ import pytest
 
 @pytest.fixture(autouse=True)
 def _failure_log_in_tmp(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    from globeview.plugins import registry
+    from globeview.plugins import isolation
 
     log = tmp_path / "globeview.log"
-    monkeypatch.setattr(registry, "failure_log_path", lambda: log)
+    monkeypatch.setattr(isolation, "failure_log_path", lambda: log)
     return log

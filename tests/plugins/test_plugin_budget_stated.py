@@ -8,7 +8,7 @@ import re
 from pathlib import Path
 
 from globeview.plugins.api import LodProvider
-from globeview.plugins.registry import Budget
+from globeview.plugins.isolation import Budget
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "plugins.md"
 

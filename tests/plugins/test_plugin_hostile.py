@@ -24,14 +24,14 @@ import pytest
 
 from globeview.app.testing import PluginSite, plugin_manifest
 from globeview.errors import GlobeviewError
-from globeview.plugins.registry import (
+from globeview.plugins.isolation import (
     BUDGET_MS_KEY,
     BUDGET_OVERRUNS_KEY,
     BUDGET_POLICY_KEY,
     MAX_MESSAGE_CHARS,
-    PluginRegistry,
     install_sigint_marker,
 )
+from globeview.plugins.registry import PluginRegistry
 from globeview.plugins.settings import MemorySettings
 
 SIZE = (96, 64)
@@ -552,11 +552,11 @@ def test_failure_traceback_goes_to_the_log_file_the_line_names(
 def test_an_unwritable_log_costs_only_the_details_suffix(
     plugin_site: PluginSite, headless_view, monkeypatch, caplog
 ) -> None:
-    from globeview.plugins import registry as registry_module
+    from globeview.plugins import isolation
 
     blocker = plugin_site.root / "not-a-dir"
     blocker.write_text("")
-    monkeypatch.setattr(registry_module, "failure_log_path", lambda: blocker / "globeview.log")
+    monkeypatch.setattr(isolation, "failure_log_path", lambda: blocker / "globeview.log")
     add_lod(plugin_site, "unlogged", "raise ValueError('nope')")
     reg = registry()
     with caplog.at_level(logging.WARNING, logger="globeview.plugins"):

@@ -39,7 +39,8 @@ def compile_pair(ctx: moderngl.Context, vert: str, frag: str) -> None:
 
 def collapse_glsl() -> str:
     """The collapse tool's GLSL as the host gets it: through the plugin's entry point."""
-    from globeview.plugins.registry import PluginKind, PluginRegistry
+    from globeview.plugins.api import PluginKind
+    from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.settings import MemorySettings
 
     reg = PluginRegistry(MemorySettings()).discover()
