@@ -100,8 +100,8 @@ def open_close_cycle(
         create_headless_context,
         release_headless_context,
     )
-    from globeview.terrain.stack import TerrainStack
-    from globeview.terrain.store import TileStore
+    from globeview.terrain.compose.stack import TerrainStack
+    from globeview.terrain.store.tile_store import TileStore
 
     stores = [TileStore.open(p) for p in store_paths]
     own_ctx = ctx is None

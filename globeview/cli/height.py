@@ -166,9 +166,9 @@ def run(args: argparse.Namespace) -> int:
     from globeview.cli.dem_options import check_dem_options
     from globeview.cli.render import check_cache_writable, open_sources_in_cache
     from globeview.errors import GlobeviewError
-    from globeview.terrain.dem import check_dem_path
-    from globeview.terrain.height_query import query_heights
-    from globeview.terrain.stack import TerrainStack
+    from globeview.terrain.compose.height_query import query_heights
+    from globeview.terrain.compose.stack import TerrainStack
+    from globeview.terrain.dem.reader import check_dem_path
 
     points, sources = split_items(args.items)
     check_dem_options(args)

@@ -29,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
     """Print a summary (or JSON) per DEM. DemError propagates to the CLI's one-line handler."""
     import json
 
-    from globeview.terrain.dem import embedded_dem_paths, open_dem
+    from globeview.terrain.dem.reader import embedded_dem_paths, open_dem
 
     paths = [*args.dems]
     if args.embedded or not paths:
@@ -54,7 +54,7 @@ def is_store(text: str) -> bool:
     from pathlib import Path
 
     from globeview.plugins.store_sources import is_store_url
-    from globeview.terrain.store import MANIFEST_NAME
+    from globeview.terrain.store.tile_store import MANIFEST_NAME
 
     return is_store_url(text) or (Path(text) / MANIFEST_NAME).is_file()
 
@@ -128,7 +128,7 @@ def store_info(text: str) -> StoreInfo:
     every level file against its sha256 in the manifest (`TileStore.verify`, a StoreError
     line naming the first damaged one)."""
     from globeview.plugins.store_sources import check_store_url, is_store_url, open_store_url
-    from globeview.terrain.store import TileStore
+    from globeview.terrain.store.tile_store import TileStore
 
     if is_store_url(text):
         where = check_store_url(text)

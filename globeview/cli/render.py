@@ -262,7 +262,7 @@ def check_inputs(args: argparse.Namespace) -> None:
 
     from globeview.errors import GlobeviewError
     from globeview.plugins.store_sources import check_store_url, is_store_url
-    from globeview.terrain.dem import check_dem_path
+    from globeview.terrain.dem.reader import check_dem_path
 
     for src in args.sources:
         if is_store_url(src):
@@ -293,7 +293,7 @@ def check_cache_writable(
     from globeview.paths import cache_dir
     from globeview.plugins.store_sources import is_store_url
     from globeview.terrain.embedded import embedded_stores_ready, store_path_for
-    from globeview.terrain.store import identify
+    from globeview.terrain.store.tile_store import identify
 
     dems = [Path(s) for s in sources if not is_store_url(s) and not Path(s).is_dir()]
     if sources:
@@ -326,7 +326,7 @@ def open_sources(sources: list[str], crs: str | None, vdatum: str | None = None)
     from globeview.errors import GlobeviewError
     from globeview.plugins.store_sources import is_store_url, open_store_url
     from globeview.terrain.embedded import embedded_stores, open_or_ingest
-    from globeview.terrain.store import TileStore
+    from globeview.terrain.store.tile_store import TileStore
 
     if not sources:
         return embedded_stores()
@@ -342,7 +342,7 @@ def open_sources(sources: list[str], crs: str | None, vdatum: str | None = None)
         else:
             if crs or vdatum:
                 from globeview.terrain.embedded import store_path_for
-                from globeview.terrain.ingest import ingest
+                from globeview.terrain.ingest.driver import ingest
 
                 out = store_path_for(p, crs=crs, vdatum=vdatum)
                 out.parent.mkdir(parents=True, exist_ok=True)
@@ -386,7 +386,7 @@ def run(args: argparse.Namespace) -> int:
     from globeview.plugins.session import GlobeSession
     from globeview.plugins.settings import apply_overrides
     from globeview.render.offscreen import OffscreenTarget, create_headless_context
-    from globeview.terrain.stack import TerrainStack
+    from globeview.terrain.compose.stack import TerrainStack
 
     # Everything the user typed is checked before the first tile is read: a bad value or an
     # unwritable output fails at once, in one line, and nothing is written.

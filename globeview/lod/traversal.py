@@ -69,7 +69,7 @@ from globeview.lod.tile_cache import (
     tile_cache_for,
 )
 from globeview.lod.view_state import ViewState
-from globeview.terrain.stack import N_STRIDES, TerrainStack
+from globeview.terrain.compose.stack import N_STRIDES, TerrainStack
 
 if TYPE_CHECKING:
     from globeview.lod.policy import LodPolicy

@@ -17,7 +17,7 @@ from psygnal import Signal, SignalGroup, SignalInstance
 from globeview.lod.view_state import check_tau
 from globeview.model.camera import Camera
 from globeview.model.display import DisplaySettings
-from globeview.terrain.stack import TerrainStack
+from globeview.terrain.compose.stack import TerrainStack
 
 #: Events emitted while an event is delivered wait for it to finish (see `GlobeEvents`).
 _QUEUED: Final = "queued"

@@ -3,7 +3,7 @@ the URL of a store served over HTTP, told apart and checked in one place for the
 (`globeview render/info URL`) and the window (File > Open URL...).
 
 Only ``http://`` and ``https://`` URLs are stores read remotely (`TileStore.open` reads them
-with range requests, `globeview.terrain.remote`); any other ``scheme://`` text (``file://``,
+with range requests, `globeview.terrain.store.http`); any other ``scheme://`` text (``file://``,
 ``ftp://``, ``s3://``...) is refused in one line that says what to type instead, rather than
 being taken for a file name. Spaces in the path are percent-encoded (what a browser sends for
 a folder named ``my store``); whitespace or other characters that cannot be in a host are
@@ -89,6 +89,6 @@ def open_store_url(text: str):
     """The `TileStore` of a store URL (checked with `check_store_url`, then opened over HTTP
     by `TileStore.open`: reads the manifest only). One-line `GlobeviewError` (`StoreError`)
     for a bad URL, an unreachable server or a folder that is not a store."""
-    from globeview.terrain.store import TileStore
+    from globeview.terrain.store.tile_store import TileStore
 
     return TileStore.open(check_store_url(text))

@@ -9,8 +9,8 @@ from pathlib import Path
 
 from globeview.errors import StoreError
 from globeview.paths import cache_dir
-from globeview.terrain.dem import check_dem_path, embedded_dem_paths
-from globeview.terrain.store import TileStore, identify
+from globeview.terrain.dem.reader import check_dem_path, embedded_dem_paths
+from globeview.terrain.store.tile_store import TileStore, identify
 
 
 def store_path_for(source: Path, *, crs: str | None = None, vdatum: str | None = None) -> Path:
@@ -32,7 +32,7 @@ def store_path_for(source: Path, *, crs: str | None = None, vdatum: str | None =
 
 def open_or_ingest(source: Path, progress: bool = False) -> TileStore:
     """Open the cached store of ``source``, ingesting it first if it is missing or stale."""
-    from globeview.terrain.ingest import ingest
+    from globeview.terrain.ingest.driver import ingest
 
     check_dem_path(Path(source))  # a link loop cannot even be resolved to a cache key
     out = store_path_for(source)
@@ -51,7 +51,7 @@ def _drop_stem_keyed_store(source: Path) -> None:
     """Remove the cache's format-2 store of ``source`` (keyed by the file stem alone, before
     stores were keyed by path): globeview owns the cache, and only a store positively
     identified as globeview's, holding store files only, is removed."""
-    from globeview.terrain.ingest import _remove_store_dir
+    from globeview.terrain.ingest.driver import _remove_store_dir
 
     old = cache_dir() / "stores" / Path(source).stem
     if identify(old).kind == "legacy":

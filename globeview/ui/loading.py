@@ -4,7 +4,7 @@
 back through Qt signals, which arrive on the UI thread (queued connections). One file at a
 time; further requests wait in a queue.
 
-Progress and cancellation: `globeview.terrain.ingest.ingest` has no progress callback or
+Progress and cancellation: `globeview.terrain.ingest.driver.ingest` has no progress callback or
 cancellation hook yet, so the progress is indeterminate and "cancel" can only be honoured
 between files: the running ingest finishes (its store lands in the cache, complete, for the
 next time) and its result is discarded. If ``ingest`` grows an ``on_progress(done, total)``
@@ -25,7 +25,7 @@ from pathlib import Path
 from PyQt6.QtCore import QObject, pyqtSignal
 
 from globeview.errors import GlobeviewError
-from globeview.terrain.store import MANIFEST_NAME, TileStore
+from globeview.terrain.store.tile_store import MANIFEST_NAME, TileStore
 
 log = logging.getLogger("globeview.ui")
 
@@ -60,7 +60,7 @@ def open_store(path: str | Path, on_progress=None, vdatum: str | None = None) ->
     """
     from globeview.plugins.store_sources import is_store_url, open_store_url
     from globeview.terrain.embedded import store_path_for
-    from globeview.terrain.ingest import ingest
+    from globeview.terrain.ingest.driver import ingest
 
     if is_store_url(str(path)):
         # A store over HTTP: the manifest is fetched here, on the loader's thread (the
@@ -99,7 +99,7 @@ def warm_remote_store(store: TileStore) -> None:
     not build would fail the LOD selection; later reads (the border band's difference tables,
     tiles finer than the layer's data) are bounded without the tiles until they arrive.
     Raises `StoreError` (one line) when those tiles cannot be read: the layer is not added."""
-    from globeview.terrain.blend import BlendMask
+    from globeview.terrain.compose.blend import BlendMask
 
     BlendMask(store)  # reads the mask level's tiles into the store's and the disk cache
 
@@ -146,7 +146,7 @@ class DemLoader(QObject):
 
     def load(self, path: str | Path, vdatum: str | None = None) -> None:
         """Queue a file (or store folder) for loading; ``vdatum`` overrides a DEM's vertical
-        datum ("egm96", "ellipsoid"; None: from the file, see `globeview.terrain.vdatum`)."""
+        datum ("egm96", "ellipsoid"; None: from the file, see `globeview.terrain.dem.vdatum`)."""
         self._queue.append((str(path), vdatum))
         self._next()
 

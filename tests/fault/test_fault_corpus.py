@@ -110,7 +110,7 @@ def test_ingest(name: str, work, corpus_snapshot) -> None:
         assert (out / "manifest.json").is_file()
         _strict_json((out / "manifest.json").read_text(), "the store's manifest.json")
         assert not leftovers(work.cwd), leftovers(work.cwd)
-        from globeview.terrain.store import TileStore
+        from globeview.terrain.store.tile_store import TileStore
 
         store = TileStore.open(out)
         _w, s, _e, n = store.bounds
@@ -446,7 +446,7 @@ def _wait_for_work_folder(parent: Path, proc: subprocess.Popen, limit_s: float =
 def test_ingest_killed_then_rerun(work, seed: int, when: str) -> None:
     """SIGKILL at a seeded random moment of an ingest, then the same ingest again: exit 0, a
     store that opens, and nothing left of the killed run."""
-    from globeview.terrain.store import TileStore
+    from globeview.terrain.store.tile_store import TileStore
 
     src = DATA / "N44W072.hgt"
     out = work.cwd / "store"
@@ -504,7 +504,7 @@ def test_ingest_interrupted_by_ctrl_c(work, seed: int) -> None:
     assert b"Traceback" not in err
     assert not leftovers(work.cwd), leftovers(work.cwd)
     if out.exists():  # interrupted inside the final rename: then the store is complete
-        from globeview.terrain.store import TileStore
+        from globeview.terrain.store.tile_store import TileStore
 
         TileStore.open(out)
 

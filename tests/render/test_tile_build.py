@@ -23,8 +23,8 @@ from globeview.terrain.quadtree import key_for_lonlat
 
 @pytest.fixture(scope="module")
 def stack():
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
 
     return TerrainStack.from_stores(embedded_stores())
 
@@ -252,8 +252,8 @@ def _apron_matches_around(stack, keys):
 
 @pytest.fixture(scope="module")
 def unblended_stack():
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
 
     st = TerrainStack.from_stores(embedded_stores())
     st.blend = False
@@ -285,10 +285,10 @@ def antimeridian_stack(tmp_path_factory):
     import rasterio
     from rasterio.transform import Affine
 
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.ingest import ingest
-    from globeview.terrain.stack import TerrainStack
-    from globeview.terrain.store import TileStore
+    from globeview.terrain.ingest.driver import ingest
+    from globeview.terrain.store.tile_store import TileStore
 
     tmp = tmp_path_factory.mktemp("am")
     stores = list(embedded_stores())

@@ -7,11 +7,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import globeview.terrain.blend as blend_mod
-import globeview.terrain.stack as stack_mod
-from globeview.terrain.blend import blend_band
+import globeview.terrain.compose.blend as blend_mod
+import globeview.terrain.compose.stack as stack_mod
+from globeview.terrain.compose.blend import blend_band
+from globeview.terrain.compose.stack import TerrainStack
 from globeview.terrain.quadtree import tile_bounds_arrays, tiles_covering
-from globeview.terrain.stack import TerrainStack
 
 
 @pytest.fixture(scope="module")
@@ -251,8 +251,8 @@ def test_a_layer_across_the_antimeridian_feathers_on_both_sides(tmp_path):
     import rasterio
     from rasterio.transform import from_origin
 
-    from globeview.terrain.ingest import ingest
-    from globeview.terrain.store import TileStore
+    from globeview.terrain.ingest.driver import ingest
+    from globeview.terrain.store.tile_store import TileStore
 
     def write(name, arr, west, north, d):
         path = tmp_path / f"{name}.tif"

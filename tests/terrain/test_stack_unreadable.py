@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from globeview.errors import StoreError
-from globeview.terrain import stack as stack_module
-from globeview.terrain.stack import TerrainStack
-from globeview.terrain.store import TileStore
+from globeview.terrain.compose import stack as stack_module
+from globeview.terrain.compose.stack import TerrainStack
+from globeview.terrain.store.tile_store import TileStore
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 
@@ -34,7 +34,7 @@ class FlakyStore(TileStore):
 
 @pytest.fixture(scope="module")
 def vancouver_store(tmp_path_factory) -> Path:
-    from globeview.terrain.ingest import ingest
+    from globeview.terrain.ingest.driver import ingest
 
     out = tmp_path_factory.mktemp("stores") / "vancouver"
     ingest([DATA / "topobathy_vancouver.tif"], out)

@@ -1,5 +1,5 @@
 """Stride errors of tiles finer than a layer's data (issue #17 item 2): measured on each tile's
-own part of its ancestor (`globeview.terrain.drawn_error`), not copied from the ancestor's
+own part of its ancestor (`globeview.terrain.compose.drawn_error`), not copied from the ancestor's
 whole tile, and still upper bounds on the stride-s surface (bilinear between the drawn nodes,
 the convention of every stored error) against the data's surface (the ancestor's bilinear
 surface), brute force."""
@@ -9,9 +9,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from globeview.terrain.drawn_error import N_STRIDES, AncestorErrors
+from globeview.terrain.compose.drawn_error import N_STRIDES, AncestorErrors
+from globeview.terrain.compose.stack import TerrainStack, upsample_subtile
 from globeview.terrain.quadtree import key_for_lonlat
-from globeview.terrain.stack import TerrainStack, upsample_subtile
 
 SIZE = 65
 
@@ -148,7 +148,7 @@ def test_ancestor_tables_are_kept_within_a_byte_budget_least_recently_used_first
     """More ancestors than the budget holds: the cache stays within it (plus the newest
     table) and keeps the most recent ones, instead of starting again from empty (which
     made every later call cold: ~100 ms instead of ~5 ms over 441 ancestors)."""
-    import globeview.terrain.stack as stack_mod
+    import globeview.terrain.compose.stack as stack_mod
     from globeview.terrain.embedded import embedded_stores
 
     st = TerrainStack.from_stores(embedded_stores())

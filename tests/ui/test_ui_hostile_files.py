@@ -67,7 +67,7 @@ def _vrt(path: Path, width: int, height: int, source: str | None) -> Path:
 
 def _damaged_store(tmp: Path) -> Path:
     """A real store whose finest level file was swapped for another valid GeoTIFF."""
-    from globeview.terrain.ingest import ingest
+    from globeview.terrain.ingest.driver import ingest
 
     store = tmp / "hill_store"
     ingest([_write_tif(tmp / "hill_src.tif", _hill(256))], store)

@@ -35,14 +35,14 @@ from typing import Any
 
 import numpy as np
 
-from globeview.terrain.ingest_graph import Graph
-from globeview.terrain.ingest_tasks import (
+from globeview.terrain.ingest.schedule import Graph
+from globeview.terrain.ingest.tasks import (
     BuildPlan,
     ChunkResult,
     SourceSpec,
     fill_reads_source,
 )
-from globeview.terrain.store_schema import StoreManifest, chunk_file_name
+from globeview.terrain.store.schema import StoreManifest, chunk_file_name
 
 __all__ = ["Update", "facts_name", "plan_update", "write_facts"]
 

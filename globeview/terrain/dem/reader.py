@@ -20,7 +20,7 @@ Quirks of real data handled here (see data/README.md):
   read is left as NaN (outside the footprint);
 - at the data's edge (nodata or the raster's end), the nodes just past it that the grid cells
   meeting the data need as corners get the surface continued linearly (`read_grid_parts`,
-  `globeview.terrain.dem_edge`), so bilinear interpolation between the nodes follows the DEM
+  `globeview.terrain.dem.edge`), so bilinear interpolation between the nodes follows the DEM
   up to its last samples.
 """
 
@@ -52,7 +52,7 @@ from rasterio.enums import Resampling
 from rasterio.windows import Window
 
 from globeview.errors import DemError
-from globeview.terrain.dem_edge import (
+from globeview.terrain.dem.edge import (
     DataCells,
     continuation_rings,
     continue_surface,
@@ -60,7 +60,7 @@ from globeview.terrain.dem_edge import (
 )
 
 
-# globeview/terrain/dem.py -> repository root /data
+# globeview/terrain/dem/reader.py -> repository root /data
 def _find_data_dir() -> Path:
     """Where the embedded data lives: ``$GLOBEVIEW_DATA_DIR``; the checkout's ``data/`` (an
     editable install or running from the source tree); else ``<prefix>/share/globeview/data``
@@ -71,7 +71,7 @@ def _find_data_dir() -> Path:
     env = os.environ.get("GLOBEVIEW_DATA_DIR")
     if env:
         return Path(env)
-    checkout = (Path(__file__).resolve().parent.parent.parent / "data").resolve()
+    checkout = (Path(__file__).resolve().parents[3] / "data").resolve()
     if (checkout / "etopo20.tif").exists():
         return checkout
     installed = Path(sys.prefix) / "share" / "globeview" / "data"
@@ -405,7 +405,7 @@ def _vertical_datum(
     """
     if override is not None:
         # vdatum imports this module (for the data folder): imported here, when needed.
-        from globeview.terrain.vdatum import parse_vdatum
+        from globeview.terrain.dem.vdatum import parse_vdatum
 
         return parse_vdatum(override).value, "--vdatum"
     try:
@@ -491,7 +491,7 @@ class _SourceWindow:
 
     def _continued_near(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """`continued_at` from the cells around the positions only."""
-        from globeview.terrain.stack import bilinear  # (stack -> store -> vdatum -> dem)
+        from globeview.terrain.compose.stack import bilinear  # (stack -> store -> vdatum -> dem)
 
         rings = continuation_rings(self.node_cells)
         top, bottom, left, right = (rings if end else 0 for end in self.raster_ends)
@@ -889,7 +889,7 @@ class Dem:
         it has data); ``data`` is that warp, NaN elsewhere. ``edge`` holds the other corners
         of every grid cell that meets the source's data (a source cell whose four samples are
         data, overlapped with positive area): there, the source's surface continued linearly
-        past its data edge (`globeview.terrain.dem_edge`). With them, bilinear interpolation
+        past its data edge (`globeview.terrain.dem.edge`). With them, bilinear interpolation
         between the nodes follows the source up to its last samples instead of ramping to
         whatever lies beyond over the last node spacing (issue #29). The parts are separate
         so that a caller combining sources (ingest) lets one source's data win over another's

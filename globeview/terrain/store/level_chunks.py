@@ -25,7 +25,7 @@ import rasterio
 from affine import Affine
 
 from globeview.terrain.levels import LevelGrid
-from globeview.terrain.store_schema import chunk_file_name, chunk_grid_shape
+from globeview.terrain.store.schema import chunk_file_name, chunk_grid_shape
 
 __all__ = ["chunk_window", "file_sha256", "write_chunk", "write_level_vrt"]
 

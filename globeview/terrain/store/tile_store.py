@@ -1,14 +1,14 @@
-"""Read access to a tile-pyramid store written by `globeview.terrain.ingest`.
+"""Read access to a tile-pyramid store written by `globeview.terrain.ingest.driver`.
 
 A store is a directory with ``manifest.json`` and, per level, one grid-registered raster
 (EPSG:4326, float32, NaN = no data) split into chunk files ``level_LL_rRRRR_cCCCC.tif``
-mosaicked by ``level_LL.vrt`` (since format 5, `globeview.terrain.level_chunks`). Tile (L, x, y) is
-the (2^n+1) x (2^n+1) window of level L's raster starting at row (y - y0)*2^n and column
-((x - x0) mod 2^(L+1))*2^n, where (x0, y0, nx, ny) is the level's tile extent.
+mosaicked by ``level_LL.vrt`` (since format 5, `globeview.terrain.store.level_chunks`). Tile
+(L, x, y) is the (2^n+1) x (2^n+1) window of level L's raster starting at row (y - y0)*2^n
+and column ((x - x0) mod 2^(L+1))*2^n, where (x0, y0, nx, ny) is the level's tile extent.
 
 Heights are metres; tile metadata (``error``, ``hmin``, ``hmax``, stride errors) are metres.
 
-A store may also be a URL (``http(s)://host/path/store``, see `globeview.terrain.remote`):
+A store may also be a URL (``http(s)://host/path/store``, see `globeview.terrain.store.http`):
 the same folder served by any static HTTP server. Tiles are read from the level's chunk files
 (``level_LL_rRRRR_cCCCC.tif``) directly, locally and remotely alike (`_LocalFiles`,
 `remote.RemoteSource`): only the chunks a tile's window touches are opened, and a remote
@@ -16,7 +16,7 @@ chunk's bytes come by HTTP range requests through a disk cache. A tile that cann
 fetched is one `StoreError` line naming the URL and the HTTP status.
 
 The manifest's format is defined once, as typed dataclasses, in
-`globeview.terrain.store_schema` (ingest writes a `StoreManifest`, this module reads one).
+`globeview.terrain.store.schema` (ingest writes a `StoreManifest`, this module reads one).
 
 A store is recognised *positively*: its manifest carries ``"format": "globeview-tile-store"``
 and a ``format_version``, which only globeview writes. Anything else with a ``manifest.json``
@@ -47,11 +47,11 @@ from rasterio.errors import RasterioError
 from rasterio.windows import Window
 
 from globeview.errors import StoreError
-from globeview.terrain import remote
-from globeview.terrain.level_chunks import BLOCK, chunk_window
 from globeview.terrain.levels import LevelGrid
 from globeview.terrain.quadtree import TileKey
-from globeview.terrain.store_schema import (
+from globeview.terrain.store import http as remote
+from globeview.terrain.store.level_chunks import BLOCK, chunk_window
+from globeview.terrain.store.schema import (
     FORMAT_VERSION,
     STORE_FORMAT,
     LevelRecord,

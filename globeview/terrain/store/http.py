@@ -1,9 +1,9 @@
 """Tile stores read over HTTP(S): the manifest, then chunk files by range requests.
 
 A remote store is the URL of a store folder served by any static HTTP server
-(``https://host/path/store``). `globeview.terrain.store.TileStore.open` hands such a URL to a
-`RemoteSource`, which fetches ``manifest.json`` (bounded, checked exactly as a local one) and
-opens each chunk file (``level_LL_rRRRR_cCCCC.tif``) with GDAL through a Python file object
+(``https://host/path/store``). `globeview.terrain.store.tile_store.TileStore.open` hands such a
+URL to a `RemoteSource`, which fetches ``manifest.json`` (bounded, checked exactly as a local
+one) and opens each chunk file (``level_LL_rRRRR_cCCCC.tif``) with GDAL through a Python file object
 whose reads are HTTP range requests, page by page, through a bounded disk cache.
 
 Why rasterio's ``opener=`` over GDAL's ``/vsicurl/`` (both were tried on a level file served
@@ -11,7 +11,7 @@ from 127.0.0.1: same heights, vsicurl 19 requests with its adaptive read-ahead, 
 pages): everything the issue asks of the transport is then ours and testable in Python -
 
 - a *disk* cache bounded in MB with LRU eviction, keyed by the chunk's sha256 from the
-  manifest and the page (`globeview.terrain.http_cache`): vsicurl caches in memory only, per
+  manifest and the page (`globeview.terrain.store.http_cache`): vsicurl caches in memory only, per
   process, keyed by URL, so a store rebuilt on the server could serve stale bytes;
 - a bound on requests in flight for the whole process (`_Gate`): GDAL has none across
   datasets;
@@ -45,7 +45,7 @@ a generic I/O error, so the file object records the error (`take_error`) and the
 raises that instead.
 
 The transport (`fetch`, `RemoteOptions`, `RemoteError`, `is_url`) is
-`globeview.terrain.http_fetch`, the disk cache `globeview.terrain.http_cache`; both are
+`globeview.terrain.store.http_fetch`, the disk cache `globeview.terrain.store.http_cache`; both are
 re-exported here, the one module other layers import.
 
 Units: sizes in bytes unless a name says MB or KB; times in seconds.
@@ -70,7 +70,7 @@ import rasterio
 from rasterio.abc import FileContainer
 
 from globeview.errors import StoreError
-from globeview.terrain.http_fetch import (
+from globeview.terrain.store.http_fetch import (
     GATE,
     MAX_REDIRECTS,
     WHOLE_FILE_LIMIT,

@@ -5,7 +5,7 @@ answers, for any tile key of the ellipsoidal quadtree, what the composed surface
 
 - **heights**: each visible layer's heights pasted in order (later layers win where they have
   data). A layer over others feathers into them across a border band inside its data's edge
-  (``B = L + w (U - L)``, w from `globeview.terrain.blend`), so there is no cliff where 30 m
+  (``B = L + w (U - L)``, w from `globeview.terrain.compose.blend`), so there is no cliff where 30 m
   data meets the 20' base. A layer asked for a tile finer than its finest level answers with
   its finest ancestor tile upsampled bilinearly — exactly the surface it stands for, so that
   part adds no geometric error. Where no layer has data the surface is the ellipsoid (height 0).
@@ -30,10 +30,10 @@ import numpy as np
 from psygnal import Signal
 
 from globeview.errors import StoreError
-from globeview.terrain.blend import BlendMask, interpolation_error, weight_change_bound
-from globeview.terrain.drawn_error import AncestorErrors
+from globeview.terrain.compose.blend import BlendMask, interpolation_error, weight_change_bound
+from globeview.terrain.compose.drawn_error import AncestorErrors
 from globeview.terrain.quadtree import node_spacing, tile_bounds_arrays
-from globeview.terrain.store import TileStore
+from globeview.terrain.store.tile_store import TileStore
 
 #: Number of index strides with recorded errors: 1, 2, 4, ..., 64.
 N_STRIDES = 7
@@ -88,7 +88,8 @@ class TerrainStack:
 
     layers: list[TerrainLayer] = field(default_factory=list)
     cache_tiles: int = 512
-    #: Feather each layer into those below across its border band (`globeview.terrain.blend`);
+    #: Feather each layer into those below across its border band
+    #: (`globeview.terrain.compose.blend`);
     #: False pastes them as they are (a cliff at each border: what benchmarks compare with).
     blend: bool = True
     #: Opaque slot for the LOD layer's per-terrain cache (`globeview.lod.tile_cache` fills it

@@ -1,7 +1,7 @@
 """The tile store's manifest (``manifest.json``) as typed, versioned dataclasses.
 
-ONE definition of the format: `globeview.terrain.ingest` builds a `StoreManifest` and writes
-it with `StoreManifest.write`; `globeview.terrain.store` reads it with
+ONE definition of the format: `globeview.terrain.ingest.driver` builds a `StoreManifest` and writes
+it with `StoreManifest.write`; `globeview.terrain.store.tile_store` reads it with
 `StoreManifest.from_json`. The JSON keys *are* the dataclass field names (nothing spells a
 key a second time), and both directions are driven by the fields and their annotations, so a
 field added here is written and read with no other change.
@@ -41,9 +41,9 @@ from typing import Any, TextIO
 
 import numpy as np
 
+from globeview.terrain.dem.vdatum import VDATUM_CHOICES
 from globeview.terrain.levels import LevelGrid
 from globeview.terrain.quadtree import level_shape
-from globeview.terrain.vdatum import VDATUM_CHOICES
 
 __all__ = [
     "FORMAT_VERSION",

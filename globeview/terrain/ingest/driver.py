@@ -72,16 +72,16 @@ except ImportError:  # pragma: no cover - not POSIX: no stale-build cleaning
     fcntl = None  # type: ignore[assignment]
 
 from globeview.errors import DemError, StoreError
-from globeview.terrain.dem import Dem, check_dem_path, open_dem
-from globeview.terrain.ingest_graph import (
+from globeview.terrain.dem.reader import Dem, check_dem_path, open_dem
+from globeview.terrain.ingest.schedule import (
     SchedulerChoice,
     build_graph,
     parse_scheduler,
     probe_scheduler,
     run_graph,
 )
-from globeview.terrain.ingest_sources import expand_sources
-from globeview.terrain.ingest_tasks import (
+from globeview.terrain.ingest.sources import expand_sources
+from globeview.terrain.ingest.tasks import (
     FAULT_ENV,
     GDAL_CACHE_MB,
     STRIDES,
@@ -90,9 +90,10 @@ from globeview.terrain.ingest_tasks import (
     close_thread_sources,
     pole_task,
 )
-from globeview.terrain.ingest_tasks import fault_point as _fault_point
-from globeview.terrain.ingest_update import Update, plan_update, write_facts
-from globeview.terrain.level_chunks import write_level_vrt
+from globeview.terrain.ingest.tasks import fault_point as _fault_point
+from globeview.terrain.ingest.tile_errors import round_sig_down, round_sig_up
+from globeview.terrain.ingest.update import Update, plan_update, write_facts
+from globeview.terrain.ingest.wavelet import DEFAULT_WAVELET, kernel_halo, lowpass_kernel
 from globeview.terrain.levels import LevelGrid
 from globeview.terrain.quadtree import (
     DEFAULT_TILE_N,
@@ -100,15 +101,8 @@ from globeview.terrain.quadtree import (
     tile_size_deg,
     tiles_covering,
 )
-from globeview.terrain.store import (
-    MANIFEST_NAME,
-    RASTER_ERRORS,
-    StoreIdentity,
-    TileStore,
-    identify,
-    is_store_file,
-)
-from globeview.terrain.store_schema import (
+from globeview.terrain.store.level_chunks import write_level_vrt
+from globeview.terrain.store.schema import (
     CHUNK_TARGET_NODES,
     FORMAT_VERSION,
     MAX_LEVEL_LIMIT,
@@ -124,8 +118,14 @@ from globeview.terrain.store_schema import (
     built_before_vdatums,
     chunk_nodes_for,
 )
-from globeview.terrain.tile_errors import round_sig_down, round_sig_up
-from globeview.terrain.wavelet import DEFAULT_WAVELET, kernel_halo, lowpass_kernel
+from globeview.terrain.store.tile_store import (
+    MANIFEST_NAME,
+    RASTER_ERRORS,
+    StoreIdentity,
+    TileStore,
+    identify,
+    is_store_file,
+)
 
 __all__ = [
     "FAULT_ENV",
@@ -153,7 +153,7 @@ class IngestResult:
     max_level: int = 0
     seconds: float = 0.0
     #: Source samples read as nodata because they were +-inf or impossible heights (outside
-    #: MIN_HEIGHT_M..MAX_HEIGHT_M of `globeview.terrain.dem`), and undeclared fill samples
+    #: MIN_HEIGHT_M..MAX_HEIGHT_M of `globeview.terrain.dem.reader`), and undeclared fill samples
     #: (-9999 plateaus...), summed over the sources (from each source's value scan).
     masked_samples: int = 0
     fill_samples: int = 0
@@ -202,7 +202,7 @@ def _no_tick(n: int = 1) -> None:
 
 def _heights_note(datum: str) -> str:
     """The manifest's account of what ingest did with a source's heights (for people)."""
-    from globeview.terrain.vdatum import GEOID_FILE, egm96_sha256
+    from globeview.terrain.dem.vdatum import GEOID_FILE, egm96_sha256
 
     if datum == "egm96":
         return f"converted to ellipsoidal heights with EGM96 ({GEOID_FILE} sha256 {egm96_sha256()})"
@@ -929,7 +929,7 @@ def ingest(
     with ThreadPoolExecutor(max_workers=max(1, pool_size)) as pool:
         contents = list(pool.map(lambda p: (p.stat().st_size, _sha256(p)), src_paths))
     if vdatum is not None:
-        from globeview.terrain.vdatum import parse_vdatum
+        from globeview.terrain.dem.vdatum import parse_vdatum
 
         vdatum = parse_vdatum(vdatum).value  # one line for "egm2008" or a typo, before any work
     params = IngestParams(

@@ -15,7 +15,7 @@ The graph (see `ingest_tasks` for what each task does):
 
 Every task returns a few KB (per-tile statistics); the bulk goes through the chunk files in
 the building folder, so a task's memory is bounded by one chunk and the same graph runs on a
-cluster whose workers share that folder. The driver (`globeview.terrain.ingest`) folds the
+cluster whose workers share that folder. The driver (`globeview.terrain.ingest.driver`) folds the
 results, writes the level VRTs and the manifest, and commits.
 
 An incremental update (`ingest_update`) runs the same graph with the results of the tasks
@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from globeview.errors import StoreError
-from globeview.terrain.ingest_tasks import (
+from globeview.terrain.ingest.tasks import (
     BuildPlan,
     SourceSpec,
     chunk_task,
