@@ -29,7 +29,8 @@ def run(args: argparse.Namespace) -> int:
     """Print a summary (or JSON) per DEM. DemError propagates to the CLI's one-line handler."""
     import json
 
-    from globeview.terrain.dem.reader import embedded_dem_paths, open_dem
+    from globeview.terrain.dem.data import embedded_dem_paths
+    from globeview.terrain.dem.reader import open_dem
 
     paths = [*args.dems]
     if args.embedded or not paths:

@@ -142,7 +142,7 @@ class OverlayHost:
         """The embedded default overlays: Natural Earth borders and coastlines (and the Blue
         Marble imagery with ``imagery``), opened through the enabled built-in layer types
         like any file (none when those types are disabled)."""
-        from globeview.terrain.dem.reader import EMBEDDED_DATA_DIR
+        from globeview.terrain.dem.data import EMBEDDED_DATA_DIR
 
         wanted: list[tuple[str, Path, dict]] = []
         if imagery:

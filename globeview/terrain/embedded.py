@@ -9,7 +9,8 @@ from pathlib import Path
 
 from globeview.errors import StoreError
 from globeview.paths import cache_dir
-from globeview.terrain.dem.reader import check_dem_path, embedded_dem_paths
+from globeview.terrain.dem.data import embedded_dem_paths
+from globeview.terrain.dem.reader import check_dem_path
 from globeview.terrain.store.tile_store import TileStore, identify
 
 

@@ -47,7 +47,7 @@ def embedded_terrain() -> TerrainStack:
     """The embedded DEMs as a stack (ingested into the cache on first use)."""
     import sys
 
-    from globeview.terrain.dem.reader import embedded_dem_paths
+    from globeview.terrain.dem.data import embedded_dem_paths
     from globeview.terrain.embedded import embedded_stores, embedded_stores_ready, store_path_for
 
     # Check the cache folder first: a bad one is one line, before any "preparing" line.
@@ -70,7 +70,7 @@ def embedded_terrain() -> TerrainStack:
 def embedded_stack(stores: list) -> TerrainStack:
     """The embedded stores (in `embedded_stores` order) as a stack whose layers are named
     after their DEMs (etopo20), not after their cache folders (etopo20-<hash>)."""
-    from globeview.terrain.dem.reader import embedded_dem_paths
+    from globeview.terrain.dem.data import embedded_dem_paths
 
     return TerrainStack.from_stores(stores, [p.stem for p in embedded_dem_paths()])
 

@@ -16,7 +16,7 @@ from globeview.plugins.builtin.layers.types import (
     detect_layer_type,
 )
 from globeview.plugins.overlay_layers import host_layer
-from globeview.terrain.dem.reader import EMBEDDED_DATA_DIR
+from globeview.terrain.dem.data import EMBEDDED_DATA_DIR
 from globeview.terrain.imagery import ImageryError, RasterImagery, texel_grid
 from globeview.terrain.vectors import GEOD, VectorError, densify, read_geojson_lines
 

@@ -11,7 +11,8 @@ from affine import Affine
 from rasterio.warp import transform as warp_transform
 
 from globeview.errors import DemError
-from globeview.terrain.dem.reader import EMBEDDED_DATA_DIR, embedded_dem_paths, open_dem
+from globeview.terrain.dem.data import EMBEDDED_DATA_DIR, embedded_dem_paths
+from globeview.terrain.dem.reader import open_dem
 
 DATA = EMBEDDED_DATA_DIR
 ETOPO5 = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "etopo5.tif"

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from globeview.terrain.compose.drawn_error import N_STRIDES, AncestorErrors
-from globeview.terrain.compose.stack import TerrainStack, upsample_subtile
+from globeview.terrain.compose.stack import TerrainStack
+from globeview.terrain.interpolate import upsample_subtile
 from globeview.terrain.quadtree import key_for_lonlat
 
 SIZE = 65

@@ -24,7 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from globeview.errors import GlobeviewError
-from globeview.terrain.compose.stack import TerrainStack, bilinear
+from globeview.terrain.compose.stack import TerrainStack
+from globeview.terrain.dem.vdatum import egm96
+from globeview.terrain.interpolate import bilinear
 from globeview.terrain.quadtree import key_for_lonlat, tile_bounds_arrays
 
 #: What the `layer` field says where no layer has data.
@@ -218,8 +220,6 @@ def _all_corners_valid(grid: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> 
 def geoid_undulation(lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
     """EGM96 undulation N (m, geoid above the WGS84 ellipsoid) at the points, from the geoid
     grid shipped with the package (`globeview.terrain.dem.vdatum.egm96`)."""
-    from globeview.terrain.dem.vdatum import egm96
-
     return np.asarray(egm96().undulation(lon, lat), dtype=np.float64).reshape(np.shape(lon))
 
 

@@ -58,27 +58,8 @@ from globeview.terrain.dem.edge import (
     continue_surface,
     edge_candidates,
 )
-
-
-# globeview/terrain/dem/reader.py -> repository root /data
-def _find_data_dir() -> Path:
-    """Where the embedded data lives: ``$GLOBEVIEW_DATA_DIR``; the checkout's ``data/`` (an
-    editable install or running from the source tree); else ``<prefix>/share/globeview/data``
-    where a wheel install puts it (pyproject's data-files)."""
-    import os
-    import sys
-
-    env = os.environ.get("GLOBEVIEW_DATA_DIR")
-    if env:
-        return Path(env)
-    checkout = (Path(__file__).resolve().parents[3] / "data").resolve()
-    if (checkout / "etopo20.tif").exists():
-        return checkout
-    installed = Path(sys.prefix) / "share" / "globeview" / "data"
-    return installed if installed.exists() else checkout
-
-
-EMBEDDED_DATA_DIR: Path = _find_data_dir()
+from globeview.terrain.dem.vdatum import parse_vdatum
+from globeview.terrain.interpolate import bilinear
 
 WGS84 = CRS.from_epsg(4326)
 
@@ -153,17 +134,6 @@ _CF_LON_UNITS = {"degrees_east", "degree_east", "degree_e", "degrees_e", "degree
 
 # Metres per degree on WGS84, used only for approximate resolutions in `DemInfo`.
 _GEOD = Geod(ellps="WGS84")
-
-
-def embedded_dem_paths() -> list[Path]:
-    """The DEMs shipped in data/: the global base first, then the regional samples."""
-    names = [
-        "etopo20.tif",
-        "N44W072.hgt",
-        "craterlake-elev-16bit-30m.tif",
-        "topobathy_vancouver.tif",
-    ]
-    return [EMBEDDED_DATA_DIR / n for n in names]
 
 
 def _metres(v: float) -> str:
@@ -404,9 +374,6 @@ def _vertical_datum(
     national datums; taking them as ellipsoidal would leave them 20..100 m off.
     """
     if override is not None:
-        # vdatum imports this module (for the data folder): imported here, when needed.
-        from globeview.terrain.dem.vdatum import parse_vdatum
-
         return parse_vdatum(override).value, "--vdatum"
     try:
         pc = pyproj.CRS.from_wkt(crs.to_wkt())
@@ -491,7 +458,6 @@ class _SourceWindow:
 
     def _continued_near(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """`continued_at` from the cells around the positions only."""
-        from globeview.terrain.compose.stack import bilinear  # (stack -> store -> vdatum -> dem)
 
         rings = continuation_rings(self.node_cells)
         top, bottom, left, right = (rings if end else 0 for end in self.raster_ends)
