@@ -183,7 +183,7 @@ def _build_store(dem: Path) -> Path:
 
     out = CACHE / f"remote_store_{dem.stem}"
     t = time.perf_counter()
-    from globeview.terrain.store.tile_store import identify
+    from globeview.terrain.store.identify import identify
 
     # This script's own store: one of an older format is rebuilt (ingest asks for --force).
     stale = identify(out).is_globeview and not identify(out).is_current
@@ -290,7 +290,8 @@ def main(argv: list[str] | None = None) -> int:
             )
         except GlobeviewError as exc:
             raise BenchError(str(exc).splitlines()[0]) from None
-        from globeview.terrain.store.tile_store import FORMAT_VERSION, identify
+        from globeview.terrain.store.identify import identify
+        from globeview.terrain.store.schema import FORMAT_VERSION
 
         ident = identify(store)
         if not ident.is_current:  # checked before serving: one line, not three failed runs

@@ -45,7 +45,8 @@ def rss_mb() -> float:
 def big_dem_store(size: int = BIG_DEM_SIZE, progress: bool = True):
     """The tile store of the synthetic-detail benchmark DEM (benchmarks/make_big_dem.py),
     generating and ingesting it under benchmarks/cache/ the first time."""
-    from globeview.terrain.store.tile_store import TileStore, identify
+    from globeview.terrain.store.identify import identify
+    from globeview.terrain.store.tile_store import TileStore
 
     cache = ROOT / "benchmarks" / "cache"
     store = cache / f"store_{size}"

@@ -55,7 +55,7 @@ def is_store(text: str) -> bool:
     from pathlib import Path
 
     from globeview.plugins.store_sources import is_store_url
-    from globeview.terrain.store.tile_store import MANIFEST_NAME
+    from globeview.terrain.store.identify import MANIFEST_NAME
 
     return is_store_url(text) or (Path(text) / MANIFEST_NAME).is_file()
 

@@ -293,7 +293,7 @@ def check_cache_writable(
     from globeview.paths import cache_dir
     from globeview.plugins.store_sources import is_store_url
     from globeview.terrain.embedded import embedded_stores_ready, store_path_for
-    from globeview.terrain.store.tile_store import identify
+    from globeview.terrain.store.identify import identify
 
     dems = [Path(s) for s in sources if not is_store_url(s) and not Path(s).is_dir()]
     if sources:

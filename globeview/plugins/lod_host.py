@@ -19,7 +19,7 @@ from globeview.model.globe import DEFAULT_LOD, Globe
 from globeview.plugins.api import PluginKind
 from globeview.plugins.registry import PluginRegistry
 from globeview.terrain.compose.stack import TerrainStack
-from globeview.terrain.store.http import TileNotReady
+from globeview.terrain.store.backend import TileNotReady
 
 __all__ = ["LodHost", "check_lod_name"]
 

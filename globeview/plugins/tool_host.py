@@ -32,7 +32,7 @@ from globeview.plugins.host_checks import (
 )
 from globeview.plugins.registry import PluginRegistry
 from globeview.render.renderer import DisplacementHook, GlobeRenderer
-from globeview.terrain.store.http import TileNotReady
+from globeview.terrain.store.backend import TileNotReady
 
 __all__ = ["ToolFrame", "ToolHost"]
 

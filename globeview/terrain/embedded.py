@@ -11,7 +11,8 @@ from globeview.errors import StoreError
 from globeview.paths import cache_dir
 from globeview.terrain.dem.data import embedded_dem_paths
 from globeview.terrain.dem.reader import check_dem_path
-from globeview.terrain.store.tile_store import TileStore, identify
+from globeview.terrain.store.identify import identify
+from globeview.terrain.store.tile_store import TileStore
 
 
 def store_path_for(source: Path, *, crs: str | None = None, vdatum: str | None = None) -> Path:

@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from globeview.terrain.store.http import TileNotReady
+from globeview.terrain.store.backend import TileNotReady
 
 
 @pytest.fixture

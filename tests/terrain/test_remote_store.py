@@ -24,7 +24,8 @@ from globeview.bench.http_server import StaticServer
 from globeview.errors import StoreError
 from globeview.terrain.quadtree import TileKey
 from globeview.terrain.store import http as remote
-from globeview.terrain.store.http import RemoteError, RemoteOptions, TileNotReady, fetch, is_url
+from globeview.terrain.store.backend import TileNotReady
+from globeview.terrain.store.http import RemoteError, RemoteOptions, fetch, is_url
 from globeview.terrain.store.http_cache import DiskCache
 from globeview.terrain.store.schema import FORMAT_VERSION
 from globeview.terrain.store.tile_store import TileStore

@@ -20,8 +20,9 @@ from globeview.errors import StoreError
 from globeview.terrain.embedded import open_or_ingest, store_path_for
 from globeview.terrain.ingest.driver import ingest
 from globeview.terrain.quadtree import TileKey
+from globeview.terrain.store.identify import identify
 from globeview.terrain.store.schema import FORMAT_VERSION, STORE_FORMAT
-from globeview.terrain.store.tile_store import TileStore, identify
+from globeview.terrain.store.tile_store import TileStore
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "data"

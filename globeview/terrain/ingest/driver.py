@@ -101,6 +101,8 @@ from globeview.terrain.quadtree import (
     tile_size_deg,
     tiles_covering,
 )
+from globeview.terrain.store.backend import RASTER_ERRORS
+from globeview.terrain.store.identify import MANIFEST_NAME, StoreIdentity, identify, is_store_file
 from globeview.terrain.store.level_chunks import write_level_vrt
 from globeview.terrain.store.schema import (
     CHUNK_TARGET_NODES,
@@ -118,14 +120,7 @@ from globeview.terrain.store.schema import (
     built_before_vdatums,
     chunk_nodes_for,
 )
-from globeview.terrain.store.tile_store import (
-    MANIFEST_NAME,
-    RASTER_ERRORS,
-    StoreIdentity,
-    TileStore,
-    identify,
-    is_store_file,
-)
+from globeview.terrain.store.tile_store import TileStore
 
 __all__ = [
     "FAULT_ENV",

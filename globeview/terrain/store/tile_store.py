@@ -8,19 +8,20 @@ and column ((x - x0) mod 2^(L+1))*2^n, where (x0, y0, nx, ny) is the level's til
 
 Heights are metres; tile metadata (``error``, ``hmin``, ``hmax``, stride errors) are metres.
 
-A store may also be a URL (``http(s)://host/path/store``, see `globeview.terrain.store.http`):
-the same folder served by any static HTTP server. Tiles are read from the level's chunk files
-(``level_LL_rRRRR_cCCCC.tif``) directly, locally and remotely alike (`_LocalFiles`,
-`remote.RemoteSource`): only the chunks a tile's window touches are opened, and a remote
-chunk's bytes come by HTTP range requests through a disk cache. A tile that cannot be
-fetched is one `StoreError` line naming the URL and the HTTP status.
+Where the files are is a store backend's business (`globeview.terrain.store.backend`): a
+folder (`local.LocalFiles`), a URL served by any static HTTP server (``http(s)://host/path/
+store``, `http.RemoteSource`: a remote chunk's bytes come by HTTP range requests through a
+disk cache), or what an installed backend reads. Tiles are read from the level's chunk files
+(``level_LL_rRRRR_cCCCC.tif``) directly, the same way for every backend: only the chunks a
+tile's window touches are opened. A tile that cannot be read is one `StoreError` line naming
+the file (a remote one: its URL and the HTTP status).
 
 The manifest's format is defined once, as typed dataclasses, in
 `globeview.terrain.store.schema` (ingest writes a `StoreManifest`, this module reads one).
 
 A store is recognised *positively*: its manifest carries ``"format": "globeview-tile-store"``
 and a ``format_version``, which only globeview writes. Anything else with a ``manifest.json``
-is somebody else's folder (`identify` says which), and `TileStore.open` checks the manifest
+is somebody else's folder (`identify.identify` says which), and `TileStore.open` checks the manifest
 against the schema and every level file's shape, geotransform and dtype before it serves a
 tile, so a damaged store is one `StoreError` line, never a traceback.
 """
@@ -28,32 +29,37 @@ tile, so a damaged store is one `StoreError` line, never a traceback.
 from __future__ import annotations
 
 import functools
-import hashlib
 import json
-import re
 import threading
-import urllib.parse
 from collections import OrderedDict
 from collections.abc import Iterable
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from types import TracebackType
-from typing import Literal, Protocol
+from typing import Any, Literal
 
 import numpy as np
 import rasterio
 from affine import Affine
-from rasterio.errors import RasterioError
 from rasterio.windows import Window
 
-from globeview.errors import StoreError
+from globeview.errors import GlobeviewError, StoreError
 from globeview.terrain.levels import LevelGrid
 from globeview.terrain.quadtree import TileKey
-from globeview.terrain.store import http as remote
+from globeview.terrain.store.backend import (
+    RASTER_ERRORS,
+    StoreFiles,
+    TileNotReady,
+    claimants,
+    raise_interrupt,
+    report_failure,
+    take_error,
+)
+from globeview.terrain.store.identify import MANIFEST_NAME
 from globeview.terrain.store.level_chunks import BLOCK, chunk_window
+from globeview.terrain.store.local import LocalFiles
 from globeview.terrain.store.schema import (
     FORMAT_VERSION,
-    STORE_FORMAT,
     LevelRecord,
     ManifestError,
     PoleHeights,
@@ -64,16 +70,8 @@ from globeview.terrain.store.schema import (
     chunk_grid_shape,
 )
 
-__all__ = [
-    "MANIFEST_NAME",
-    "StoreIdentity",
-    "TileStore",
-    "identify",
-    "is_store_file",
-    "read_manifest",
-]
+__all__ = ["TileStore"]
 
-MANIFEST_NAME = "manifest.json"
 DEFAULT_CACHE_TILES = 256
 #: Decoded raster blocks a store keeps (256 x 256 float32: 256 KB each, so 16 MB).
 BLOCK_CACHE = 64
@@ -82,94 +80,11 @@ HANDLES_PER_THREAD = 32
 # The per-tile arrays of a `LevelRecord` that `TileStore._lookup` serves.
 _TileArray = Literal["error", "hmin", "hmax", "stride_error"]
 
-# Errors GDAL raises through rasterio on a bad file: rasterio's own and the CPLE_* family.
-try:
-    from rasterio._err import CPLE_BaseError as _CPLE
-except ImportError:  # pragma: no cover - rasterio's private module moved
-    _CPLE = RasterioError
-RASTER_ERRORS: tuple[type[BaseException], ...] = (RasterioError, _CPLE)
 # Reading a window of a level file damaged after the store was opened.
 _READ_ERRORS: tuple[type[BaseException], ...] = (*RASTER_ERRORS, ValueError)
 
 # What warming a block may meet (the loader's own read reports it).
 _WARM_ERRORS: tuple[type[BaseException], ...] = (StoreError, *_READ_ERRORS)
-
-# Files globeview writes in a store (GDAL may add a .aux.xml next to a level).
-# (Format 5: level_LL.vrt mosaics chunk files level_LL_rRRRR_cCCCC.tif; .npz sidecars hold
-# per-chunk build facts; level_LL.tif is format 4's one file per level.)
-_STORE_FILE = re.compile(
-    r"^(manifest\.json(\.part)?|level_\d\d(_r\d{4,}_c\d{4,})?\.(tif|vrt|npz)(\.aux\.xml)?)$"
-)
-
-
-def is_store_file(name: str) -> bool:
-    """Whether ``name`` is a file name globeview writes inside a store."""
-    return bool(_STORE_FILE.match(name))
-
-
-class StoreIdentity:
-    """What a path is, as far as stores go (see `identify`).
-
-    kind: "absent" | "file" | "empty" (an empty folder) | "store" (a globeview store of
-    ``version``, marker present) | "legacy" (a globeview store of format 2, written before
-    the marker existed: recognised by its manifest *and* holding only store files) |
-    "foreign" (anything else: never modified).
-    """
-
-    def __init__(self, kind: str, version: object = None, extra: str | None = None) -> None:
-        self.kind = kind
-        self.version = version
-        self.extra = extra  # a file that is not a store file, when there is one
-
-    @property
-    def is_globeview(self) -> bool:
-        return self.kind in ("store", "legacy")
-
-    @property
-    def is_current(self) -> bool:
-        return self.kind == "store" and self.version == FORMAT_VERSION
-
-
-def read_manifest(path: Path) -> dict[str, object] | None:
-    """The parsed JSON object in ``path``'s manifest, unchecked (`StoreHeader.peek` reads
-    its header; `StoreManifest.from_json` checks all of it), or None if it is missing,
-    unreadable or not an object."""
-    try:
-        data = json.loads((path / MANIFEST_NAME).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError, RecursionError):
-        return None
-    return data if isinstance(data, dict) else None
-
-
-def identify(path: str | Path) -> StoreIdentity:
-    """Classify ``path`` without modifying anything (reads the manifest only)."""
-    p = Path(path)
-    if not p.exists() and not p.is_symlink():
-        return StoreIdentity("absent")
-    if p.is_symlink() or not p.is_dir():
-        return StoreIdentity("file")
-    try:
-        names = sorted(e.name for e in p.iterdir())
-    except OSError:
-        return StoreIdentity("foreign")
-    if not names:
-        return StoreIdentity("empty")
-    extra = next((n for n in names if not is_store_file(n)), None)
-    man = read_manifest(p)
-    if man is None:
-        return StoreIdentity("foreign", extra=extra)
-    head = StoreHeader.peek(man)
-    if head.format == STORE_FORMAT:
-        return StoreIdentity("store", head.format_version, extra)
-    created = head.created_by
-    if (
-        head.format_version == 2
-        and isinstance(created, str)
-        and created.startswith("globeview ")
-        and extra is None
-    ):
-        return StoreIdentity("legacy", 2)
-    return StoreIdentity("foreign", extra=extra)
 
 
 def _short(exc: BaseException) -> str:
@@ -179,7 +94,7 @@ def _short(exc: BaseException) -> str:
     return text if len(text) <= 160 else text[:157] + "..."
 
 
-def _check_level_file(path: Path, ds: rasterio.DatasetReader, grid: LevelGrid) -> None:
+def _check_level_file(path: str, ds: rasterio.DatasetReader, grid: LevelGrid) -> None:
     """StoreError unless ``ds`` is the raster the manifest describes for ``grid``."""
     want = grid.transform
     if (
@@ -195,12 +110,31 @@ def _check_level_file(path: Path, ds: rasterio.DatasetReader, grid: LevelGrid) -
         )
 
 
-def _raise_interrupt() -> None:
-    """Raise a Ctrl-C that arrived inside a remote read GDAL completed anyway (the file
-    object keeps it from GDAL's callbacks, `remote.take_error`)."""
-    err = remote.take_error()
-    if isinstance(err, KeyboardInterrupt | SystemExit):
-        raise err
+def open_files(text: str, options: Any = None) -> StoreFiles:
+    """The files of the store ``text`` names: from the first store backend that claims it
+    and opens it (`backend.claimants`, in priority order); a path nobody claims is taken as a
+    folder, whose backend says in one line why it is not a store. A backend that fails with
+    anything but a one-line `GlobeviewError` is reported and skipped, like a failed plugin
+    (StoreError naming it when no other backend opens the text)."""
+    crashed: tuple[str, BaseException] | None = None
+    for name, backend in claimants(text):
+        try:
+            files = backend.open(text, options)
+            if not isinstance(files, StoreFiles):
+                raise TypeError(f"open() returned {type(files).__name__}, not StoreFiles")
+        except GlobeviewError:
+            raise  # the backend's one line: not a store, unreachable, ...
+        except Exception as exc:  # noqa: BLE001  a failing backend is skipped, like a plugin
+            report_failure(name, "open", exc)
+            crashed = crashed or (name, exc)
+            continue
+        return files
+    if crashed is not None:
+        who, why = crashed
+        raise StoreError(
+            f"cannot open {text}: store backend {who} failed ({type(why).__name__}: {_short(why)})"
+        )
+    return LocalFiles(Path(text))
 
 
 def _checked_manifest(where: str, raw: dict[str, object]) -> StoreManifest:
@@ -241,46 +175,6 @@ def _check_chunk(where: str, ds: rasterio.DatasetReader, grid: LevelGrid, window
         )
 
 
-class _Files(Protocol):
-    """Where a store's files are: a local folder (`_LocalFiles`) or a URL
-    (`remote.RemoteSource`)."""
-
-    def describe(self, name: str) -> str: ...
-
-    def open_raster(self, name: str, sha256: str | None) -> rasterio.DatasetReader: ...
-
-    def sha256(self, name: str) -> str: ...
-
-
-class _LocalFiles:
-    """A store folder on disk."""
-
-    def __init__(self, folder: Path) -> None:
-        self.folder = folder
-
-    def describe(self, name: str) -> str:
-        return str(self.folder / name)
-
-    def open_raster(self, name: str, sha256: str | None) -> rasterio.DatasetReader:
-        """Open a store raster; StoreError naming it when missing (rasterio's error when
-        damaged)."""
-        path = self.folder / name
-        if not path.is_file():
-            raise StoreError(f"{path}: level file is missing; re-run globeview ingest --force")
-        return rasterio.open(path)
-
-    def sha256(self, name: str) -> str:
-        """The sha256 of a store file (StoreError naming it when unreadable)."""
-        h = hashlib.sha256()
-        try:
-            with (self.folder / name).open("rb") as f:
-                while chunk := f.read(1 << 20):
-                    h.update(chunk)
-        except OSError as exc:
-            raise StoreError(f"cannot read {self.folder / name}: {exc.strerror}") from None
-        return h.hexdigest()
-
-
 class TileStore:
     """A tile pyramid on disk. Open with `TileStore.open(path)`; thread-safe reads.
 
@@ -302,16 +196,12 @@ class TileStore:
     """
 
     def __init__(
-        self,
-        path: Path,
-        manifest: StoreManifest,
-        cache_tiles: int = DEFAULT_CACHE_TILES,
-        files: remote.RemoteSource | None = None,
+        self, files: StoreFiles, manifest: StoreManifest, cache_tiles: int = DEFAULT_CACHE_TILES
     ) -> None:
-        self.path = path
-        self.url: str | None = files.base_url if files is not None else None
-        self.location = files.label if files is not None else str(path)
-        self._files: _Files = files if files is not None else _LocalFiles(path)
+        self.path = files.path
+        self.url: str | None = files.base_url
+        self.location = files.location
+        self._files = files
         self.manifest = manifest
         self.tile_n = manifest.tile_n
         self.max_level = manifest.max_level
@@ -330,9 +220,9 @@ class TileStore:
         self._chunk_shape = [
             chunk_grid_shape(g, lv.chunk_nodes) for g, lv in zip(self._grids, self._levels)
         ]
-        if files is None:  # a local store checks its files now (cheap); a remote one on use
+        if files.check_on_open:  # a local store checks its files now (cheap); others on use
             for level in range(self.max_level + 1):
-                self._open_level(level).close()
+                self._check_level_files(level)
         self.tile_size = (1 << self.tile_n) + 1
         self._cache: OrderedDict[TileKey, np.ndarray] = OrderedDict()
         self._cache_tiles = max(1, int(cache_tiles))
@@ -364,75 +254,54 @@ class TileStore:
         cls,
         path: str | Path,
         cache_tiles: int = DEFAULT_CACHE_TILES,
-        remote_options: remote.RemoteOptions | None = None,
+        remote_options: Any = None,
     ) -> TileStore:
-        """Open a store directory, or a store URL (``http(s)://``, read over HTTP with
-        ``remote_options``, default `remote.RemoteOptions()`). Reads only the manifest
-        (fast); no checksum pass.
+        """Open the store ``path`` names through the store backend that claims it
+        (`open_files`): a folder, an ``http(s)://`` URL (read over HTTP with
+        ``remote_options``, default `http.RemoteOptions()`), or what an installed backend
+        reads. Reads only the manifest (fast); no checksum pass.
 
         Raises:
             StoreError: not a directory, no/unreadable/corrupt manifest, unsupported
                 format_version, or a missing level file; for a URL: unreachable, HTTP 404
                 (not a store) or another HTTP error, a manifest over its size bound.
         """
-        if isinstance(path, str) and remote.looks_like_url(path):
-            return cls._open_url(path, cache_tiles, remote_options or remote.RemoteOptions())
-        p = Path(path)
-        mpath = p / MANIFEST_NAME
-        if not p.is_dir():
-            raise StoreError(f"tile store not found: {p}")
-        if not mpath.is_file():
-            raise StoreError(f"{p} is not a globeview tile store (no {MANIFEST_NAME})")
-        try:
-            raw = json.loads(mpath.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
-            raise StoreError(f"{mpath}: unreadable manifest ({type(exc).__name__})") from None
-        if not isinstance(raw, dict):
-            raise StoreError(f"{mpath}: unreadable manifest (not a JSON object)")
-        ident = identify(p.resolve())  # a symlink to a store reads as the store
-        if not ident.is_globeview:
-            raise StoreError(f"{p} is not a globeview tile store ({MANIFEST_NAME} is not ours)")
-        return cls(p, _checked_manifest(str(p), raw), cache_tiles)
+        return cls.from_files(open_files(str(path), remote_options), cache_tiles)
 
     @classmethod
-    def _open_url(cls, url: str, cache_tiles: int, options: remote.RemoteOptions) -> TileStore:
-        """`open` for a store URL: its manifest fetched (bounded) and checked as a local one."""
-        files = remote.RemoteSource(url, options)
-        where = files.label
-        data = files.read_manifest(MANIFEST_NAME)
+    def from_files(cls, files: StoreFiles, cache_tiles: int = DEFAULT_CACHE_TILES) -> TileStore:
+        """The store whose files ``files`` are: its manifest read, parsed and checked (the
+        same checks, in the same words, for every backend)."""
+        name = MANIFEST_NAME
+        data = files.read_manifest(name)
         try:
             raw = json.loads(data.decode("utf-8"))
         except (UnicodeDecodeError, ValueError, RecursionError) as exc:
             raise StoreError(
-                f"{files.describe(MANIFEST_NAME)}: unreadable manifest ({type(exc).__name__})"
+                f"{files.describe(name)}: unreadable manifest ({type(exc).__name__})"
             ) from None
         if not isinstance(raw, dict):
-            raise StoreError(
-                f"{files.describe(MANIFEST_NAME)}: unreadable manifest (not a JSON object)"
-            )
-        if StoreHeader.peek(raw).format != STORE_FORMAT:
-            raise StoreError(f"{where} is not a globeview tile store ({MANIFEST_NAME} is not ours)")
-        manifest = _checked_manifest(where, raw)
-        path = Path(urllib.parse.unquote(urllib.parse.urlsplit(where).path) or "/")
-        return cls(path, manifest, cache_tiles, files)
+            raise StoreError(f"{files.describe(name)}: unreadable manifest (not a JSON object)")
+        if not files.is_ours(raw):
+            raise StoreError(f"{files.location} is not a globeview tile store ({name} is not ours)")
+        return cls(files, _checked_manifest(files.location, raw), cache_tiles)
 
     @property
     def is_remote(self) -> bool:
-        """Whether the store is read over HTTP (its tiles may not be here yet)."""
-        return isinstance(self._files, remote.RemoteSource)
+        """Whether the store is read over a network (its tiles may not be here yet)."""
+        return bool(self._files.is_remote)
 
     @property
     def offline(self) -> bool:
         """A remote store opened from its cached manifest (the server could not be reached):
         only tiles whose chunk bytes are in the disk cache load."""
-        return isinstance(self._files, remote.RemoteSource) and self._files.from_cache
+        return bool(self._files.offline)
 
     def forbid_network_on(self, thread_ident: int) -> None:
         """Reads on this thread (a window's UI thread) never wait on the network: a tile of a
-        remote store whose bytes are not cached raises `remote.TileNotReady` at once and is
+        remote store whose bytes are not cached raises `TileNotReady` at once and is
         loaded in the background (a later call finds it cached). No effect on a local store."""
-        if isinstance(self._files, remote.RemoteSource):
-            self._files.forbid_network_on(thread_ident)
+        self._files.forbid_network_on(thread_ident)
 
     def verify(self) -> None:
         """Check every level file (the VRT and each chunk file) against its sha256 in the
@@ -506,26 +375,25 @@ class TileStore:
 
     # -- heights -------------------------------------------------------------------------------
 
-    def _open_level(self, level: int) -> rasterio.DatasetReader:
-        """Open a level raster, checked against the manifest (StoreError naming the file)."""
-        path = self.path / self._levels[level].file
-        if not path.is_file():
-            raise StoreError(f"{path}: level file is missing; re-run globeview ingest --force")
-        for name in self._levels[level].chunk_files():
-            if not (self.path / name).is_file():
+    def _check_level_files(self, level: int) -> None:
+        """Check that a level's files are there and its raster (the VRT) is the one the
+        manifest describes (StoreError naming the file)."""
+        files, lv = self._files, self._levels[level]
+        for name in (lv.file, *lv.chunk_files()):
+            if not files.exists(name):
                 raise StoreError(
-                    f"{self.path / name}: level file is missing; re-run globeview ingest --force"
+                    f"{files.describe(name)}: level file is missing; re-run globeview ingest "
+                    "--force"
                 )
+        where = files.describe(lv.file)
         try:
-            ds = rasterio.open(path)
+            ds = files.open_raster(lv.file, lv.sha256)
         except RASTER_ERRORS as exc:
-            raise StoreError(f"{path} is damaged: {_short(exc)}") from None
+            raise StoreError(f"{where} is damaged: {_short(exc)}") from None
         try:
-            _check_level_file(path, ds, self._grids[level])
-        except BaseException:
-            ds.close()
-            raise
-        return ds
+            _check_level_file(where, ds, self._grids[level])
+        finally:
+            files.close_raster(ds)
 
     def _open_chunk(self, level: int, index: int) -> rasterio.DatasetReader:
         """Open chunk ``index`` of a level (local or over HTTP), checked against the manifest;
@@ -535,16 +403,16 @@ class TileStore:
         name = chunk_file_name(level, cy, cx)
         where = self._files.describe(name)
         grid = self._grids[level]
-        remote.take_error()
+        take_error()
         try:
             ds = self._files.open_raster(name, lv.chunk_sha256[index])
         except RASTER_ERRORS as exc:
-            err = remote.take_error()
+            err = take_error()
             if err is not None:
                 raise err from None
             raise StoreError(f"{where} is damaged: {_short(exc)}") from None
         try:
-            _raise_interrupt()
+            raise_interrupt()
             _check_chunk(where, ds, grid, chunk_window(grid, lv.chunk_nodes, cy, cx))
         except BaseException:
             ds.close()
@@ -596,7 +464,7 @@ class TileStore:
     def _close_handle(self, ds: rasterio.DatasetReader) -> None:
         with self._lock:
             self._all_handles.discard(ds)
-        remote.close_dataset(ds)
+        self._files.close_raster(ds)
 
     def _read_padded(self, key: TileKey) -> np.ndarray:
         """A tile's nodes with one node beyond each edge: (tile_size + 2)^2 float32, NaN = no
@@ -633,7 +501,7 @@ class TileStore:
                     self._read_into(key.level, r_lo, turn - 1, out[rows, :1])
                 if c0 + size + 2 > grid.width:
                     self._read_into(key.level, r_lo, 1, out[rows, -1:])
-        except remote.TileNotReady:
+        except TileNotReady:
             raise
         except StoreError as exc:
             # A chunk file damaged (truncated, rewritten) after the store was opened, or a
@@ -708,16 +576,16 @@ class TileStore:
         ds = self._chunk_dataset(level, index)
         r0, c0 = bi * bh, bj * bw
         window = Window(c0, r0, min(bw, ds.width - c0), min(bh, ds.height - r0))
-        remote.take_error()
+        take_error()
         try:
             block = ds.read(1, window=window)
         except _READ_ERRORS as exc:
             self._drop_chunk_dataset(level, index)
-            err = remote.take_error()
+            err = take_error()
             if err is not None:
                 raise err from None
             raise StoreError(f"{self._chunk_where(level, index)}: {_short(exc)}") from None
-        _raise_interrupt()
+        raise_interrupt()
         with self._lock:
             self.blocks_read += 1
             self._blocks[key] = block
@@ -737,7 +605,7 @@ class TileStore:
                 return hit
         try:
             tile = self._read_padded(key)
-        except remote.TileNotReady:
+        except TileNotReady:
             # On a thread that must not wait (`forbid_network_on`): load it in the
             # background (once, however often it is asked meanwhile: a cursor moving over
             # it asks every frame); the caller shows it as loading and asks again.
@@ -835,7 +703,7 @@ class TileStore:
         tile-to-block geometry only, keys seen before skipped; chunk headers are opened in
         the background threads. Failures are left to the loader's reads (one line each)."""
         files = self._files
-        if not isinstance(files, remote.RemoteSource) or self._closed:
+        if not files.is_remote or self._closed:
             return []
         todo: list[tuple[int, int, int, int]] = []
         with self._lock:
@@ -855,7 +723,7 @@ class TileStore:
                 return []
             if self._bytes_pool is None:
                 self._bytes_pool = ThreadPoolExecutor(
-                    max_workers=files.options.max_requests, thread_name_prefix="tilebytes"
+                    max_workers=max(1, files.max_requests), thread_name_prefix="tilebytes"
                 )
             pool = self._bytes_pool
         return [pool.submit(self._warm_block, *block) for block in todo]
@@ -895,7 +763,7 @@ class TileStore:
     def _warm_block(self, level: int, index: int, bi: int, bj: int) -> None:
         """Fetch one block's compressed bytes into the remote caches (a background thread)."""
         files = self._files
-        if self._closed or not isinstance(files, remote.RemoteSource):
+        if self._closed or not files.is_remote:
             return
         try:
             ds = self._chunk_dataset(level, index)  # the chunk's header: its block offsets
@@ -906,7 +774,7 @@ class TileStore:
                 files.warm(chunk_file_name(level, cy, cx), int(off), int(size))
         except _WARM_ERRORS:
             pass  # the loader's own read reports it (one line), or finds the bytes later
-        remote.take_error()
+        take_error()
 
     def prefetch(self, keys: Iterable[TileKey | tuple[int, int, int]]) -> list[Future]:
         """Load tiles into the cache in background threads; returns their futures."""
@@ -924,8 +792,7 @@ class TileStore:
         """Stop the prefetch threads and close every dataset handle (a remote store first
         cancels its HTTP reads, so a slow server does not hold the close)."""
         self._closed = True
-        if isinstance(self._files, remote.RemoteSource):
-            self._files.close()
+        self._files.close()
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
@@ -934,7 +801,7 @@ class TileStore:
             self._bytes_pool = None
         with self._lock:
             for ds in self._all_handles:
-                remote.close_dataset(ds)  # (a remote one in its opening thread's context)
+                self._files.close_raster(ds)  # (a remote one in its opening thread's context)
             self._all_handles.clear()
             self._cache.clear()
             self._blocks.clear()
