@@ -53,11 +53,11 @@ def _drop_stem_keyed_store(source: Path) -> None:
     """Remove the cache's format-2 store of ``source`` (keyed by the file stem alone, before
     stores were keyed by path): globeview owns the cache, and only a store positively
     identified as globeview's, holding store files only, is removed."""
-    from globeview.terrain.ingest.driver import _remove_store_dir
+    from globeview.terrain.ingest.safety import remove_store_dir
 
     old = cache_dir() / "stores" / Path(source).stem
     if identify(old).kind == "legacy":
-        _remove_store_dir(old)
+        remove_store_dir(old)
 
 
 def embedded_stores(progress: bool = False) -> list[TileStore]:
