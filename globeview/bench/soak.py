@@ -101,9 +101,9 @@ def open_close_cycle(
         release_headless_context,
     )
     from globeview.terrain.compose.stack import TerrainStack
-    from globeview.terrain.store.tile_store import TileStore
+    from globeview.terrain.sources import open_source
 
-    stores = [TileStore.open(p) for p in store_paths]
+    stores = [open_source(p) for p in store_paths]
     own_ctx = ctx is None
     ctx = create_headless_context() if own_ctx else ctx
     try:

@@ -48,7 +48,8 @@ def embedded_terrain() -> TerrainStack:
     import sys
 
     from globeview.terrain.dem.data import embedded_dem_paths
-    from globeview.terrain.embedded import embedded_stores, embedded_stores_ready, store_path_for
+    from globeview.terrain.embedded import embedded_stores, embedded_stores_ready
+    from globeview.terrain.sources import store_path_for
 
     # Check the cache folder first: a bad one is one line, before any "preparing" line.
     stores_dir = store_path_for(embedded_dem_paths()[0]).parent

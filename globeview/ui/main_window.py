@@ -61,8 +61,8 @@ from globeview.errors import GlobeviewError
 from globeview.model.camera import Camera, camera_for_bounds
 from globeview.model.globe import Globe
 from globeview.plugins.registry import PluginRegistry
-from globeview.plugins.store_sources import check_store_url, is_store_url
 from globeview.terrain.compose.stack import TerrainStack
+from globeview.terrain.sources import check_store_url, is_store_url
 from globeview.terrain.store.tile_store import TileStore
 from globeview.ui.errors import ErrorReporter, UserMessage
 from globeview.ui.globe_widget import GlobeWidget

@@ -200,21 +200,21 @@ def test_the_no_crs_hint_works(work, command: str) -> None:
 
 @pytest.mark.parametrize("name", CASES)
 def test_library_entry_point(name: str, tmp_path: Path, monkeypatch, capfd) -> None:
-    """What the window and plugins call in-process (`open_or_ingest`: open the DEM, ingest it
+    """What the window and plugins call in-process (`open_source`: open the DEM, ingest it
     into the cache, open the store): a store for valid inputs; otherwise a `GlobeviewError`
     with a one-line message and never another exception, with nothing on the process's
     stderr (GDAL's C-level chatter included) and nothing left in the cache."""
     from globeview.errors import GlobeviewError
-    from globeview.terrain.embedded import open_or_ingest
+    from globeview.terrain.sources import open_source
 
     cache = tmp_path / "cache"
     monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(cache))
     case = CASES[name]
     if case.valid:
-        assert open_or_ingest(case.path).max_level >= 0
+        assert open_source(case.path).max_level >= 0
     else:
         with pytest.raises(GlobeviewError) as err:
-            open_or_ingest(case.path)
+            open_source(case.path)
         message = str(err.value)
         assert message.strip() and "\n" not in message.strip(), repr(message)
         if case.error_substring:

@@ -251,14 +251,14 @@ def test_store_built_before_vdatums_is_refused_in_one_line(
 def test_cached_store_built_before_vdatums_is_rebuilt_silently(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from globeview.terrain.embedded import open_or_ingest, store_path_for
+    from globeview.terrain.sources import open_source, store_path_for
 
     monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(tmp_path))
     src = _grid(tmp_path, "EPSG:4326")
-    open_or_ingest(src).close()
+    open_source(src).close()
     cached = store_path_for(src)
     _as_version_3(cached)
-    st = open_or_ingest(src)
+    st = open_source(src)
     assert st.manifest.header.format_version == FORMAT_VERSION
     assert st.manifest.sources[0].vertical_datum == "egm96"
     st.close()

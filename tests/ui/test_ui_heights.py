@@ -62,7 +62,7 @@ def test_layer_panel_opens_a_dem_with_the_chosen_vertical_datum(make_window, sma
     cache store of its own (the default EGM96 store of the same file is another folder, so a
     re-open never rebuilds a store in use); the row's tooltip says which datum it has."""
     from globeview.terrain.dem.vdatum import egm96
-    from globeview.terrain.embedded import store_path_for
+    from globeview.terrain.sources import store_path_for
     from globeview.ui.layer_panel import VDATUM_CHOICES
     from globeview.ui.loading import open_store
 

@@ -291,6 +291,11 @@ def _is_gdal_name(text: str) -> bool:
     return prefix in drivers or prefix in _SUBDATASET_PREFIXES
 
 
+class NoCrsError(DemError):
+    """A DEM file without a coordinate reference system (and none given): the window asks for
+    one (`globeview.ui.crs_dialog`), the command line says to pass ``--crs``."""
+
+
 def check_dem_path(path: Path) -> None:
     """One-line DemError for a path that cannot be a DEM file: missing, a dangling link or a
     link loop, a directory, empty, or not a regular file (a FIFO would block GDAL's open)."""
@@ -317,7 +322,7 @@ def check_dem_path(path: Path) -> None:
         raise DemError(f"{path} is empty (0 bytes), not a DEM raster")
 
 
-def _parse_crs(text: str) -> CRS:
+def parse_crs(text: str) -> CRS:
     """A user's CRS (EPSG:n, WKT, PROJ string) or a one-line DemError.
 
     Parsed inside a rasterio environment so that PROJ's own "ERROR 1: ..." goes to logging
@@ -517,14 +522,14 @@ class Dem:
             raise DemError(f"{self.path} has a degenerate geotransform (zero pixel size): {t[:6]}")
         self.crs_assumed: str | None = None
         if crs_override is not None:
-            self.crs = _parse_crs(crs_override)
+            self.crs = parse_crs(crs_override)
         elif ds.crs is not None and ds.crs.to_wkt():
             self.crs = ds.crs
         elif _cf_geographic(ds):
             # GEBCO, ETOPO 2022 and other CF grids: lat/lon axes in degrees and no grid_mapping.
             self.crs, self.crs_assumed = WGS84, "CF lat/lon axes"
         else:
-            raise DemError(
+            raise NoCrsError(
                 f"{self.path} has no coordinate reference system; supply one with "
                 "--crs EPSG:XXXX (e.g. --crs EPSG:4326 for lon/lat degrees)"
             )
