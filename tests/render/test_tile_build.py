@@ -196,7 +196,7 @@ def _plain_read(st, key):
     if not (0 <= ix < g.nx and 0 <= iy < g.ny):
         return np.full((size, size), np.nan, dtype=np.float32)
     n = g.tile_nodes
-    with rasterio.open(st.path / st._levels[level].file) as ds:
+    with rasterio.open(st.path / st.manifest.levels[level].file) as ds:
         return ds.read(1, window=Window(ix * n, iy * n, size, size)).astype(np.float32)
 
 

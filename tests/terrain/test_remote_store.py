@@ -687,13 +687,13 @@ def test_a_thread_forbidden_the_network_never_waits(
         for _ in range(50):  # asked again and again (a cursor over it): loaded once
             with pytest.raises(TileNotReady):
                 st.heights(key)
-        assert len(st._loading) == 1
+        assert len(st._prefetch.loading) == 1
         deadline = time.monotonic() + 30
         while not st.cached(key) and time.monotonic() < deadline:
             time.sleep(0.05)  # loaded by the store's background pool meanwhile
         assert st.heights(key).shape == (st.tile_size, st.tile_size)
         time.sleep(0.1)
-        assert not st._loading
+        assert not st._prefetch.loading
     # One load of the tile's pages, not one per ask.
     assert len(served.requests("*/level_12_r0001_c0001.tif")) <= 4
 
