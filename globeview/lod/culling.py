@@ -14,7 +14,8 @@ import numpy as np
 
 from globeview.geodesy import WGS84, lonlat_to_ecef
 from globeview.lod.view_state import ViewState
-from globeview.terrain.compose.stack import TerrainStack, TileMetadata
+from globeview.terrain.compose.metadata import TileMetadata
+from globeview.terrain.compose.stack import TerrainStack
 from globeview.terrain.quadtree import tile_bounds_arrays
 
 #: Lattice points per tile side for bounding volumes.

@@ -44,7 +44,8 @@ from globeview.lod.stitching import render_set_by_stride, render_set_from_tiles
 from globeview.lod.tile_indices import IndexVariant, Pole, grid_indices
 from globeview.lod.traversal import MAX_LEVEL, Selection, TileCandidates, traverse
 from globeview.lod.view_state import TAU_RANGE_PX, ViewState
-from globeview.terrain.compose.stack import N_STRIDES, TerrainStack
+from globeview.terrain.compose.metadata import N_STRIDES
+from globeview.terrain.compose.stack import TerrainStack
 
 #: Weights picking the coarsest acceptable stride (`coarsest_stride_within`).
 _STRIDE_RANK = np.arange(1, N_STRIDES + 1)

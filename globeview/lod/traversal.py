@@ -69,7 +69,8 @@ from globeview.lod.tile_cache import (
     tile_cache_for,
 )
 from globeview.lod.view_state import ViewState
-from globeview.terrain.compose.stack import N_STRIDES, TerrainStack
+from globeview.terrain.compose.metadata import N_STRIDES
+from globeview.terrain.compose.stack import TerrainStack
 
 if TYPE_CHECKING:
     from globeview.lod.policy import LodPolicy

@@ -107,7 +107,8 @@ if TYPE_CHECKING:  # the lazy re-exports (`_REEXPORTS`), spelled out for type ch
     from globeview.lod.triangle_count import triangle_count
     from globeview.lod.view_state import ViewState
     from globeview.render.tile_mesh import node_lonlat
-    from globeview.terrain.compose.stack import N_STRIDES, TerrainStack
+    from globeview.terrain.compose.metadata import N_STRIDES
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.quadtree import TileKey, level_shape, tile_bounds_arrays
 
 __all__ = [
@@ -224,7 +225,7 @@ _REEXPORTS: dict[str, str] = {
     "TileKey": "globeview.terrain.quadtree",
     "level_shape": "globeview.terrain.quadtree",
     "tile_bounds_arrays": "globeview.terrain.quadtree",
-    "N_STRIDES": "globeview.terrain.compose.stack",
+    "N_STRIDES": "globeview.terrain.compose.metadata",
     "TerrainStack": "globeview.terrain.compose.stack",
 }
 

@@ -25,7 +25,8 @@ from globeview.lod.tile_indices import IndexVariant
 from globeview.lod.traversal import MAX_LEVEL, traverse
 from globeview.lod.view_state import ViewState
 from globeview.model.camera import Camera
-from globeview.terrain.compose.stack import N_STRIDES, TerrainStack
+from globeview.terrain.compose.metadata import N_STRIDES
+from globeview.terrain.compose.stack import TerrainStack
 from globeview.terrain.quadtree import tile_bounds_arrays
 
 #: (lon, lat, height, heading, pitch) of the compared views.

@@ -40,7 +40,7 @@ import functools
 
 import numpy as np
 
-#: Number of index strides with errors: 1, 2, 4, ..., 64 (as `stack.N_STRIDES`).
+#: Number of index strides with errors: 1, 2, 4, ..., 64 (as `metadata.N_STRIDES`).
 N_STRIDES = 7
 
 
