@@ -31,9 +31,11 @@ from PyQt6.QtCore import QObject, pyqtSignal
 from PyQt6.QtWidgets import QWidget
 
 from globeview.errors import GlobeviewError
+from globeview.terrain.compose.blend import BlendMask
 from globeview.terrain.dem.reader import NoCrsError
 from globeview.terrain.sources import open_source
 from globeview.terrain.store.tile_store import TileStore
+from globeview.ui.crs_dialog import ask_crs
 
 log = logging.getLogger("globeview.ui")
 
@@ -90,8 +92,6 @@ def warm_remote_store(store: TileStore) -> None:
     not build would fail the LOD selection; later reads (the border band's difference tables,
     tiles finer than the layer's data) are bounded without the tiles until they arrive.
     Raises `StoreError` (one line) when those tiles cannot be read: the layer is not added."""
-    from globeview.terrain.compose.blend import BlendMask
-
     BlendMask(store)  # reads the mask level's tiles into the store's and the disk cache
 
 
@@ -106,8 +106,6 @@ def _ask_with_dialog(parent: QObject | None) -> Callable[[str, BaseException], s
     the loader's window."""
 
     def ask(path: str, exc: BaseException) -> str | None:
-        from globeview.ui.crs_dialog import ask_crs
-
         return ask_crs(parent if isinstance(parent, QWidget) else None, path, str(exc))
 
     return ask

@@ -899,7 +899,7 @@ def _progress(enabled: bool) -> Iterator:
     if not enabled:
         yield _NoBar()
         return
-    from tqdm import tqdm
+    from tqdm import tqdm  # deferred: only a terminal ingest draws a bar
 
     tty = tty_stderr()  # fd 2 is redirected during the build (see gdal_quiet)
     bar = tqdm(total=0, unit="win", desc="ingest", dynamic_ncols=True, file=tty)

@@ -30,8 +30,10 @@ identity first with a hard deadline (`probe_scheduler`).
 
 from __future__ import annotations
 
+import asyncio
 import os
 import re
+import threading
 import time
 from collections.abc import Callable, Hashable, Sequence
 from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
@@ -285,6 +287,8 @@ def run_graph(
     failed build may then remove the building folder safely)."""
     if where.kind == "distributed":
         return _run_distributed(graph, where, on_done)
+    # dask's schedulers are imported when a graph runs (deferred: the window and the CLI's
+    # other commands import this module and never run one).
     from dask.callbacks import Callback
 
     class _Progress(Callback):
@@ -319,6 +323,7 @@ def run_graph(
 def _run_distributed(
     graph: Graph, where: SchedulerChoice, on_done: Callable[[str], None]
 ) -> dict[str, Any]:
+    # Deferred: dask.distributed takes about a second to import and only a cluster needs it.
     from distributed import Client, as_completed
     from distributed.client import FutureCancelledError
     from distributed.scheduler import KilledWorker
@@ -367,13 +372,10 @@ def probe_scheduler(address: str) -> None:
     within CONNECT_TIMEOUT_S. `distributed.Client` alone waits forever on a port where
     something else accepts the connection and never answers (an HTTP server: measured), so
     its identity is asked first, on a private event loop with a hard deadline."""
-    import asyncio
-    import threading
-
     result: dict[str, Any] = {}
 
     async def ask() -> Any:
-        from distributed.comm import connect
+        from distributed.comm import connect  # deferred, as in _run_distributed
 
         comm = await connect(address, timeout=CONNECT_TIMEOUT_S)
         try:

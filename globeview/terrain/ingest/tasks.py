@@ -34,6 +34,7 @@ import rasterio
 from rasterio.windows import Window
 
 from globeview.terrain.dem.reader import Dem
+from globeview.terrain.dem.vdatum import egm96
 from globeview.terrain.ingest.tile_errors import (
     stride_deltas,
     tile_min_max,
@@ -277,8 +278,6 @@ def _present(results: Sequence[ChunkResult], lv: int) -> dict[tuple[int, int], s
 
 def _window_undulation(west: float, north: float, d: float, w: int, h: int) -> np.ndarray:
     """EGM96 N (m, float32) on a window's nodes: lon west + j*d, lat north - i*d (degrees)."""
-    from globeview.terrain.dem.vdatum import egm96
-
     lons = west + d * np.arange(w)
     lats = north - d * np.arange(h)
     return egm96().undulation_grid(lons, lats).astype(np.float32)

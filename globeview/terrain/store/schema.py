@@ -41,6 +41,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
+from globeview import __version__
 from globeview.terrain.dem.vdatum import VDATUM_CHOICES
 from globeview.terrain.levels import LevelGrid
 from globeview.terrain.quadtree import level_shape
@@ -149,8 +150,6 @@ class StoreHeader:
     @classmethod
     def current(cls) -> StoreHeader:
         """The header this globeview writes."""
-        from globeview import __version__
-
         return cls(STORE_FORMAT, FORMAT_VERSION, f"globeview {__version__}")
 
 
