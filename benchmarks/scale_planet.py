@@ -127,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
         tiles_all += t
         chunks_all += c
         manifest_tiles += tx * ty
-        # The ingest graph (ingest_graph.build_graph) has a chunk task for every chunk of the
+        # The ingest graph (ingest.schedule.build_graph) has a chunk task for every chunk of the
         # level's bounding extent, sea included, and an error task for each above level 0.
         chunk_tasks += cx * cy
         error_tasks += cx * cy if lv > 0 else 0

@@ -726,11 +726,11 @@ class Dem:
         xs, ys = zip(*corners)
         return min(xs), min(ys), max(xs), max(ys)
 
-    def _make_info(self) -> DemInfo:
-        ds = self._ds
+    def _footprint_lonlat(self) -> tuple[float, float, float, float, bool]:
+        """(west, south, east, north) of the samples in degrees on WGS84, and whether the
+        footprint crosses the antimeridian (west > east, or a grid all the way round)."""
         left, bottom, right, top = self._footprint_native()
         if self._geo_fast:
-            dx, dy = abs(self.transform.a), abs(self.transform.e)
             if self.wraps_longitude:
                 west, east = -180.0, 180.0
             else:
@@ -742,27 +742,31 @@ class Dem:
                 elif west == 180.0 and east > -180.0:
                     west = -180.0
             south, north = max(bottom, -90.0), min(top, 90.0)
-            res_deg = (dx, dy)
-            crosses = self.wraps_longitude or west > east
-        else:
-            try:
-                west, south, east, north = rasterio.warp.transform_bounds(
-                    self.crs, WGS84, left, bottom, right, top, densify_pts=21
-                )
-            except Exception as exc:  # noqa: BLE001  pyproj/GDAL raise several types here
-                raise DemError(
-                    f"cannot place {self.path} on the globe from its CRS: {_short(exc)}"
-                ) from None
-            crosses = west > east
-            dx = dy = 0.0  # filled below from metres
-        # Resolution in metres at the footprint centre, from one cell's neighbours.
+            return west, south, east, north, bool(self.wraps_longitude or west > east)
+        try:
+            west, south, east, north = rasterio.warp.transform_bounds(
+                self.crs, WGS84, left, bottom, right, top, densify_pts=21
+            )
+        except Exception as exc:  # noqa: BLE001  pyproj/GDAL raise several types here
+            raise DemError(
+                f"cannot place {self.path} on the globe from its CRS: {_short(exc)}"
+            ) from None
+        return west, south, east, north, bool(west > east)
+
+    def _resolution(
+        self, bounds: tuple[float, float, float, float]
+    ) -> tuple[tuple[float, float], tuple[float, float]]:
+        """(metres, degrees) of a cell at the footprint's centre, from one cell's neighbours
+        (a projected cell in degrees of arc of the meridian); DemError when the footprint
+        (``bounds``, degrees) or the centre cannot be placed on the globe."""
+        ds = self._ds
         cc, cr = ds.width / 2.0, ds.height / 2.0
         xs, ys = zip(*(self.transform @ p for p in ((cc, cr), (cc + 1, cr), (cc, cr + 1))))
         if self._geo_fast:
             lons, lats = list(xs), list(ys)
         else:
             lons, lats = rasterio.warp.transform(self.crs, WGS84, list(xs), list(ys))
-        bounds_ok = all(math.isfinite(v) for v in (west, south, east, north))
+        bounds_ok = all(math.isfinite(v) for v in bounds)
         if not (bounds_ok and all(math.isfinite(v) and abs(v) <= 90.0 for v in lats)):
             # PROJ gives inf for coordinates outside the CRS's domain (a UTM easting of 1e9).
             raise DemError(
@@ -772,17 +776,23 @@ class Dem:
         _, _, dist_x = _GEOD.inv(lons[0], lats[0], lons[1], lats[1])
         _, _, dist_y = _GEOD.inv(lons[0], lats[0], lons[2], lats[2])
         res_m = (float(dist_x), float(dist_y))
-        if not self._geo_fast:
-            lat_c = math.radians(lats[0])
-            # metres per degree of latitude / longitude on WGS84 (series to O(e^2))
-            m_lat = 111_132.954 - 559.822 * math.cos(2 * lat_c)
-            # A rotated or south-up lon/lat grid keeps degrees of longitude. A projected cell
-            # has a ground size, not a longitude span: degrees of longitude per metre grow
-            # without bound toward a pole (a cell there read as 1e9 degrees), so both sides
-            # are in degrees of arc of the meridian instead.
-            m_lon = max(111_412.84 * math.cos(lat_c), 1e-6) if self.crs.is_geographic else m_lat
-            dx, dy = res_m[0] / m_lon, res_m[1] / m_lat
-            res_deg = (dx, dy)
+        if self._geo_fast:
+            return res_m, (abs(self.transform.a), abs(self.transform.e))
+        lat_c = math.radians(lats[0])
+        # metres per degree of latitude / longitude on WGS84 (series to O(e^2))
+        m_lat = 111_132.954 - 559.822 * math.cos(2 * lat_c)
+        # A rotated or south-up lon/lat grid keeps degrees of longitude. A projected cell has a
+        # ground size, not a longitude span: degrees of longitude per metre grow without bound
+        # toward a pole (a cell there read as 1e9 degrees), so both sides are in degrees of
+        # arc of the meridian instead.
+        m_lon = max(111_412.84 * math.cos(lat_c), 1e-6) if self.crs.is_geographic else m_lat
+        return res_m, (res_m[0] / m_lon, res_m[1] / m_lat)
+
+    def _make_info(self) -> DemInfo:
+        ds = self._ds
+        west, south, east, north, crosses = self._footprint_lonlat()
+        res_m, res_deg = self._resolution((west, south, east, north))
+        dy = res_deg[1]
         reaches_pole = north >= 90.0 - dy * 1.0001 or south <= -90.0 + dy * 1.0001
         crs_txt = _crs_label(self.crs)
         res_crs_m = None

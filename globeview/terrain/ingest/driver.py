@@ -11,13 +11,13 @@ GDAL's block cache, not by the raster size):
    every level up to its own L_s global, while a regional DEM adds detail levels only over
    its footprint.
 3. Levels are written finest first, one chunk (a window of 1024 nodes a side, one chunk file
-   of the store, see `store_schema`) per task of a Dask graph (`ingest_graph`,
-   `ingest_tasks`). A chunk of level L is the wavelet approximation of level L+1 (read back
+   of the store, see `store.schema`) per task of a Dask graph (`schedule`,
+   `tasks`). A chunk of level L is the wavelet approximation of level L+1 (read back
    from the chunk files just written, with ``kernel_halo`` nodes of halo); where that is NaN
    (outside level L+1 or no data there) the sources with L_s <= L are read on the level grid
    with `Dem.read_grid_parts`, the finest source winning where it has data. The nodes just
    past a source's data edge that the grid cells meeting its data need as corners get its
-   surface continued (`dem_edge`; issue #29), unless a source of its level has data there.
+   surface continued (`dem.edge`; issue #29), unless a source of its level has data there.
    The finest level is read from the sources only. Pole rows are set to one value (see
    below). Per-tile hmin, hmax and stride errors are computed from each window before it is
    written.
@@ -25,7 +25,7 @@ GDAL's block cache, not by the raster size):
    footprint, evaluated exactly at the finest nodes (see `tile_errors`). The finest data of a
    place is the finest level that has data there; one task per window of each reference
    level returns the per-tile maxima of every coarser level, folded with fmax.
-5. The level VRTs and the manifest (a `store_schema.StoreManifest`) are written last, then the
+5. The level VRTs and the manifest (a `schema.StoreManifest`) are written last, then the
    temporary directory is renamed into place.
 
 The graph runs on dask's local threaded scheduler (``workers`` threads), a process pool, or
@@ -133,7 +133,7 @@ __all__ = [
 # negligible, small enough that a window and its temporaries stay in tens of MB.
 # The windows are the store's chunks (format 5): one file each.
 _WINDOW_NODES = CHUNK_TARGET_NODES
-# GDAL block cache during the build (see ingest_tasks.GDAL_CACHE_MB).
+# GDAL block cache during the build (see tasks.GDAL_CACHE_MB).
 _GDAL_CACHE_MB = GDAL_CACHE_MB
 
 
@@ -623,7 +623,7 @@ def ingest(
             exception it raises aborts the build (cancel) and, like any failure, leaves no
             store behind.
         workers: local workers (None: every core, os.cpu_count()); ignored on a cluster.
-        scheduler: None (dask's local scheduler, threads, see `ingest_graph.DEFAULT_LOCAL`),
+        scheduler: None (dask's local scheduler, threads, see `schedule.DEFAULT_LOCAL`),
             "threads", "processes", or "tcp://HOST:PORT": an existing dask.distributed
             scheduler, whose workers must see ``out``'s folder (a shared filesystem). The
             store is the same, bit for bit, whatever runs it.

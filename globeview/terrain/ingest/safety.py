@@ -64,7 +64,7 @@ def _owned_by_cache(out: Path) -> bool:
 def check_target(out: Path, force: bool) -> StoreIdentity:
     """What ``out`` is; StoreError when it must not be written (never modifies anything).
 
-    Only a positively identified globeview store (see `store.identify`) may be replaced,
+    Only a positively identified globeview store (see `identify.identify`) may be replaced,
     and only one holding nothing but store files: a folder with somebody's manifest.json
     and their files is refused, not one byte of it changes.
     """

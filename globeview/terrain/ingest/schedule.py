@@ -1,6 +1,6 @@
 """The ingest as a Dask task graph, and running it on a local or a distributed scheduler.
 
-The graph (see `ingest_tasks` for what each task does):
+The graph (see `tasks` for what each task does):
 
 - ``pole``: the pole heights (the mean of the finest level's pole rows); only the chunks
   holding a pole row depend on it.
@@ -18,7 +18,7 @@ the building folder, so a task's memory is bounded by one chunk and the same gra
 cluster whose workers share that folder. The driver (`globeview.terrain.ingest.driver`) folds the
 results, writes the level VRTs and the manifest, and commits.
 
-An incremental update (`ingest_update`) runs the same graph with the results of the tasks
+An incremental update (`update`) runs the same graph with the results of the tasks
 that the changed sources do not reach supplied as data (`Graph.keep`).
 
 Schedulers: threads (dask's local threaded scheduler, our own pool so that a failure can

@@ -8,7 +8,7 @@ task reads the finer level's chunk files it needs (wavelet halo included) and wr
 chunk file; it returns only per-tile statistics (a few KB). The store folder must therefore
 be on a filesystem every worker shares.
 
-Memory per task is bounded by the chunk size (`store_schema.CHUNK_TARGET_NODES` nodes a side:
+Memory per task is bounded by the chunk size (`schema.CHUNK_TARGET_NODES` nodes a side:
 a window, its halo and temporaries, tens of MB) and GDAL's block cache (`GDAL_CACHE_MB`).
 
 The numerics are those of the serial ingest they replace (same reads, same order of

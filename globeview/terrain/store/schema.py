@@ -421,7 +421,7 @@ def _decode(tp: Any, value: object, where: str) -> object:
         return _decode_array(value, where)
     if is_dataclass(tp) and isinstance(tp, type):
         return _decode_object(tp, value, where)
-    raise TypeError(f"store_schema: no decoder for {tp!r} ({where})")  # a schema bug
+    raise TypeError(f"store schema: no decoder for {tp!r} ({where})")  # a schema bug
 
 
 def _decode_object(cls: type, value: object, where: str) -> Any:
