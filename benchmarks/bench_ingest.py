@@ -101,7 +101,7 @@ def _child(spec: dict) -> None:
     elif kind == "cluster":
         from distributed import Client, LocalCluster
 
-        from globeview.terrain.ingest.driver import ingest
+        ingest = _ingest_function()
 
         t0 = time.perf_counter()
         with (
@@ -126,7 +126,7 @@ def _child(spec: dict) -> None:
             "workers": len(after),
         }
     else:
-        from globeview.terrain.ingest.driver import ingest
+        ingest = _ingest_function()
 
         kw = spec.get("kwargs", {})
         t, c = time.perf_counter(), _cpu_self_and_children()
@@ -135,12 +135,21 @@ def _child(spec: dict) -> None:
     print("RESULT " + json.dumps(result), flush=True)
 
 
+def _ingest_function():
+    """`ingest` of the globeview on the path: this checkout's (`globeview.terrain.ingest.driver`
+    since issue #28) or the baseline commit's, where `globeview.terrain.ingest` was a module."""
+    try:
+        from globeview.terrain.ingest.driver import ingest
+    except ImportError:  # the baseline: ingest was one module, not a package
+        from globeview.terrain.ingest import ingest  # type: ignore[attr-defined,no-redef]
+    return ingest
+
+
 def _api_child() -> None:
     """Print which knobs today's `ingest` takes (the Dask API of issue #18 may not be there)."""
     import inspect
 
-    from globeview.terrain.ingest.driver import ingest
-
+    ingest = _ingest_function()
     print("RESULT " + json.dumps(sorted(inspect.signature(ingest).parameters)))
 
 
@@ -514,7 +523,7 @@ def _api() -> list[str]:
     line = next((ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")), None)
     if proc.returncode or line is None:
         last = (proc.stderr.strip().splitlines() or ["no message"])[-1]
-        raise BenchError(f"cannot import globeview.terrain.ingest.driver: {last}")
+        raise BenchError(f"cannot import globeview's ingest: {last}")
     return list(json.loads(line[len("RESULT ") :]))
 
 
