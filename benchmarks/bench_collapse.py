@@ -20,8 +20,8 @@ import sys
 
 from globeview.bench.harness import Bench, machine, parse_size
 from globeview.errors import GlobeviewError
+from globeview.terrain.compose.stack import TerrainStack
 from globeview.terrain.embedded import embedded_stores
-from globeview.terrain.stack import TerrainStack
 
 # name -> (camera lon, lat, height, heading, pitch), (A lon, lat, B lon, lat, ratio)
 VIEWS = {

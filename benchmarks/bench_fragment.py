@@ -42,8 +42,8 @@ from globeview.bench.views import VIEWS
 from globeview.errors import GlobeviewError
 from globeview.lod.render_set import FrameStats
 from globeview.render.shader_source import build_shader
+from globeview.terrain.compose.stack import TerrainStack
 from globeview.terrain.embedded import embedded_stores
-from globeview.terrain.stack import TerrainStack
 
 TARGET_RATIO = 4.0  # terrain pass / trivial pass (CPU time), issue #17 item 1
 

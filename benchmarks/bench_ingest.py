@@ -7,7 +7,8 @@ over 1 x 1 degree, cached in benchmarks/cache/) it runs, each in a fresh child p
 - ``today``: the ingest before issue #18 (commit a46750e), extracted once with ``git archive``
   into benchmarks/cache/baseline-a46750e and run with PYTHONPATH pointing there (skipped, with
   a note, outside a git checkout);
-- ``dask 1`` / ``dask N``: `globeview.terrain.ingest.ingest(..., workers=1 | os.cpu_count())`,
+- ``dask 1`` / ``dask N``: `globeview.terrain.ingest.driver.ingest(...,
+  workers=1 | os.cpu_count())`,
   Dask's local scheduler (threads), and ``dask N processes`` (``scheduler="processes"``);
 - ``cluster 2x1``: a `distributed.LocalCluster(n_workers=2, processes=True,
   threads_per_worker=1)`, the ingest given ``scheduler=cluster.scheduler_address``;
@@ -100,7 +101,7 @@ def _child(spec: dict) -> None:
     elif kind == "cluster":
         from distributed import Client, LocalCluster
 
-        from globeview.terrain.ingest import ingest
+        ingest = _ingest_function()
 
         t0 = time.perf_counter()
         with (
@@ -125,7 +126,7 @@ def _child(spec: dict) -> None:
             "workers": len(after),
         }
     else:
-        from globeview.terrain.ingest import ingest
+        ingest = _ingest_function()
 
         kw = spec.get("kwargs", {})
         t, c = time.perf_counter(), _cpu_self_and_children()
@@ -134,12 +135,21 @@ def _child(spec: dict) -> None:
     print("RESULT " + json.dumps(result), flush=True)
 
 
+def _ingest_function():
+    """`ingest` of the globeview on the path: this checkout's (`globeview.terrain.ingest.driver`
+    since issue #28) or the baseline commit's, where `globeview.terrain.ingest` was a module."""
+    try:
+        from globeview.terrain.ingest.driver import ingest
+    except ImportError:  # the baseline: ingest was one module, not a package
+        from globeview.terrain.ingest import ingest  # type: ignore[attr-defined,no-redef]
+    return ingest
+
+
 def _api_child() -> None:
     """Print which knobs today's `ingest` takes (the Dask API of issue #18 may not be there)."""
     import inspect
 
-    from globeview.terrain.ingest import ingest
-
+    ingest = _ingest_function()
     print("RESULT " + json.dumps(sorted(inspect.signature(ingest).parameters)))
 
 
@@ -513,7 +523,7 @@ def _api() -> list[str]:
     line = next((ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")), None)
     if proc.returncode or line is None:
         last = (proc.stderr.strip().splitlines() or ["no message"])[-1]
-        raise BenchError(f"cannot import globeview.terrain.ingest: {last}")
+        raise BenchError(f"cannot import globeview's ingest: {last}")
     return list(json.loads(line[len("RESULT ") :]))
 
 

@@ -32,10 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-from globeview.terrain import wavelet as wv
-from globeview.terrain.dem import open_dem
-from globeview.terrain.quadtree import node_spacing
-from globeview.terrain.tile_errors import (
+from globeview.terrain.dem.reader import open_dem
+from globeview.terrain.ingest import wavelet as wv
+from globeview.terrain.ingest.tile_errors import (
     cell_max,
     cell_min,
     reduce_cells,
@@ -45,6 +44,7 @@ from globeview.terrain.tile_errors import (
     upsample_nodes,
     upsampled_error_tiles,
 )
+from globeview.terrain.quadtree import node_spacing
 
 ROOT = Path(__file__).resolve().parents[1]
 BIG = ROOT / "benchmarks" / "cache" / "big_dem_8192.tif"

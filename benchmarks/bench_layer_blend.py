@@ -15,8 +15,8 @@ import numpy as np
 
 from globeview.bench.harness import Bench
 from globeview.render.offscreen import create_headless_context
+from globeview.terrain.compose.stack import TerrainStack
 from globeview.terrain.embedded import embedded_stores
-from globeview.terrain.stack import TerrainStack
 
 SIZE = (1280, 720)
 VIEWS = {

@@ -33,8 +33,8 @@ from globeview.bench.views import VIEWS
 from globeview.errors import GlobeviewError
 from globeview.model.drawables import Lines, Points
 from globeview.model.overlay_layers import host_layer
+from globeview.terrain.compose.stack import TerrainStack
 from globeview.terrain.embedded import embedded_stores
-from globeview.terrain.stack import TerrainStack
 
 KINDS = ("boxes", "cones", "placemarks", "labels", "lines")
 #: The scene of issue #17's figure (tests/overlays/test_overlay_render.py,

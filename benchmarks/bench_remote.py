@@ -73,9 +73,9 @@ class BenchError(Exception):
 def _child(spec: dict) -> None:
     from globeview.bench.harness import Bench
     from globeview.bench.views import VIEWS
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
-    from globeview.terrain.store import TileStore
+    from globeview.terrain.store.tile_store import TileStore
 
     embedded = embedded_stores()  # local, built by the prepare child: not timed
     if spec["kind"] == "prepare":
@@ -179,11 +179,11 @@ def _traffic(server, root: Path) -> tuple[int, int, int, dict[int, int]]:
 
 def _build_store(dem: Path) -> Path:
     """The store of ``dem`` under benchmarks/cache (built once; a no-op when current)."""
-    from globeview.terrain.ingest import ingest
+    from globeview.terrain.ingest.driver import ingest
 
     out = CACHE / f"remote_store_{dem.stem}"
     t = time.perf_counter()
-    from globeview.terrain.store import identify
+    from globeview.terrain.store.identify import identify
 
     # This script's own store: one of an older format is rebuilt (ingest asks for --force).
     stale = identify(out).is_globeview and not identify(out).is_current
@@ -290,7 +290,8 @@ def main(argv: list[str] | None = None) -> int:
             )
         except GlobeviewError as exc:
             raise BenchError(str(exc).splitlines()[0]) from None
-        from globeview.terrain.store import FORMAT_VERSION, identify
+        from globeview.terrain.store.identify import identify
+        from globeview.terrain.store.schema import FORMAT_VERSION
 
         ident = identify(store)
         if not ident.is_current:  # checked before serving: one line, not three failed runs

@@ -23,8 +23,8 @@ from pathlib import Path
 
 from globeview.bench.harness import Bench, parse_size
 from globeview.bench.views import VIEWS
+from globeview.terrain.compose.stack import TerrainStack
 from globeview.terrain.embedded import embedded_stores
-from globeview.terrain.stack import TerrainStack
 
 TARGET_MS = 50.0
 #: The default provider's triangles over the fewest any provider draws with max SSE <= tau.

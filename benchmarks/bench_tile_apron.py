@@ -10,9 +10,9 @@ import numpy as np
 
 from globeview.render.renderer import tile_bounds_tuple
 from globeview.render.tile_mesh import build_tile_mesh
+from globeview.terrain.compose.stack import TerrainStack
 from globeview.terrain.embedded import embedded_stores
 from globeview.terrain.quadtree import key_for_lonlat
-from globeview.terrain.stack import TerrainStack
 
 
 def keys(level: int, n: int = 6) -> list[tuple[int, int, int]]:

@@ -62,9 +62,7 @@ def _clear_stores(terrain) -> None:
 
 def _clear_composed(terrain) -> None:
     """Empty the stack's composed-tile cache only (not the one-time metadata tables)."""
-    with terrain._lock:
-        terrain._cache.clear()
-        terrain._order.clear()
+    terrain._tiles.clear()
 
 
 def stage_times(bench: Bench, keys: list[tuple[int, int, int]]) -> dict[str, tuple[float, float]]:

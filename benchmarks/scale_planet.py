@@ -95,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--hours", type=float, default=8.0, help="wall-clock budget of the build")
     try:
         args = ap.parse_args(argv)
-        from globeview.terrain.ingest import MAX_TILES, _natural_level
+        from globeview.terrain.ingest.driver import MAX_TILES, _natural_level
 
         level = _natural_level(1.0 / 3600.0, args.tile_n) if args.level is None else args.level
         if not (0 <= level <= 20 and 4 <= args.tile_n <= 9):
@@ -127,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
         tiles_all += t
         chunks_all += c
         manifest_tiles += tx * ty
-        # The ingest graph (ingest_graph.build_graph) has a chunk task for every chunk of the
+        # The ingest graph (ingest.schedule.build_graph) has a chunk task for every chunk of the
         # level's bounding extent, sea included, and an error task for each above level 0.
         chunk_tasks += cx * cy
         error_tasks += cx * cy if lv > 0 else 0

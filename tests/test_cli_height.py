@@ -50,7 +50,7 @@ def _srtm_bilinear(lon: float, lat: float) -> float:
 
 
 def test_done_when_ellipsoidal_is_srtm_plus_undulation(env: dict[str, str]) -> None:
-    from globeview.terrain.vdatum import egm96
+    from globeview.terrain.dem.vdatum import egm96
 
     # The command as written (a negative longitude, no `--`). Only there: at an SRTM
     # sample that is a local peak (row 875, column 836) the store's nodes, resampled onto the
@@ -72,7 +72,7 @@ def test_done_when_ellipsoidal_is_srtm_plus_undulation(env: dict[str, str]) -> N
 
 
 def _undulation(lon: float, lat: float) -> float:
-    from globeview.terrain.vdatum import egm96
+    from globeview.terrain.dem.vdatum import egm96
 
     return float(np.asarray(egm96().undulation(np.array([lon]), np.array([lat]))).reshape(-1)[0])
 

@@ -12,7 +12,7 @@ import pytest
 import rasterio
 from affine import Affine
 
-from globeview.terrain.dem import EMBEDDED_DATA_DIR
+from globeview.terrain.dem.data import EMBEDDED_DATA_DIR
 
 
 def _run(*args: str) -> subprocess.CompletedProcess[str]:

@@ -117,7 +117,7 @@ def test_odd_sources_and_out_parents_are_one_line(tmp_path: Path) -> None:
 
 def test_max_level_past_the_natural_level(tmp_path: Path) -> None:
     # Was an internal error (argmax of an empty sequence): the levels between had no extent.
-    from globeview.terrain.store import TileStore
+    from globeview.terrain.store.tile_store import TileStore
 
     out = tmp_path / "s"
     r = _cli(str(DATA / "topobathy_vancouver.tif"), "--out", str(out), "--max-level", "9")

@@ -29,7 +29,7 @@ def test_every_non_python_file_in_the_package_is_package_data() -> None:
 
 
 def test_embedded_data_files_ship_with_a_wheel() -> None:
-    from globeview.terrain.dem import embedded_dem_paths
+    from globeview.terrain.dem.data import embedded_dem_paths
 
     shipped = {
         Path(f).name

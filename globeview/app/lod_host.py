@@ -18,8 +18,8 @@ from globeview.lod.view_state import ViewState
 from globeview.model.globe import DEFAULT_LOD, Globe
 from globeview.plugins.api import PluginKind
 from globeview.plugins.registry import PluginRegistry
-from globeview.terrain.remote import TileNotReady
-from globeview.terrain.stack import TerrainStack
+from globeview.terrain.compose.stack import TerrainStack
+from globeview.terrain.store.backend import TileNotReady
 
 __all__ = ["LodHost", "check_lod_name"]
 

@@ -41,7 +41,7 @@ from globeview.model.overlay_layers import (
 from globeview.plugins.api import PluginKind
 from globeview.plugins.registry import PluginRegistry
 from globeview.render.renderer import GlobeRenderer
-from globeview.terrain.dem import EMBEDDED_DATA_DIR
+from globeview.terrain.dem.data import EMBEDDED_DATA_DIR
 from globeview.terrain.imagery import DEFAULT_TEX_SIZE, ImageryError
 
 __all__ = ["OverlayHost"]

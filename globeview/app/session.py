@@ -32,7 +32,7 @@ from globeview.render.frame_pipeline import FramePipeline
 from globeview.render.picking import Pick
 from globeview.render.renderer import GlobeRenderer
 from globeview.render.scene import FrameResult, GlobeScene
-from globeview.terrain.stack import TerrainStack
+from globeview.terrain.compose.stack import TerrainStack
 
 log = logging.getLogger("globeview.session")
 

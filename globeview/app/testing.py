@@ -42,7 +42,7 @@ if TYPE_CHECKING:
     from globeview.lod.view_state import ViewState
     from globeview.model.camera import Camera
     from globeview.plugins.registry import PluginRegistry
-    from globeview.terrain.stack import TerrainStack
+    from globeview.terrain.compose.stack import TerrainStack
 
 __all__ = [
     "PluginSite",
@@ -220,8 +220,8 @@ def globeview_terrain(tmp_path_factory: pytest.TempPathFactory) -> TerrainStack:
 
     The stores are ingested once per test session into a temporary cache directory, so a
     plugin's tests neither need nor touch the user's cache (a few seconds, once)."""
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
 
     cache = tmp_path_factory.mktemp("globeview-cache")
     with pytest.MonkeyPatch.context() as mp:  # session scope: no `monkeypatch` fixture

@@ -34,7 +34,7 @@ from globeview.model.plot import Plot
 from globeview.plugins.api import PluginKind, Tool
 from globeview.plugins.registry import PluginRegistry
 from globeview.render.renderer import DisplacementHook, GlobeRenderer
-from globeview.terrain.remote import TileNotReady
+from globeview.terrain.store.backend import TileNotReady
 
 __all__ = ["ToolFrame", "ToolHost"]
 

@@ -45,7 +45,8 @@ def rss_mb() -> float:
 def big_dem_store(size: int = BIG_DEM_SIZE, progress: bool = True):
     """The tile store of the synthetic-detail benchmark DEM (benchmarks/make_big_dem.py),
     generating and ingesting it under benchmarks/cache/ the first time."""
-    from globeview.terrain.store import TileStore, identify
+    from globeview.terrain.store.identify import identify
+    from globeview.terrain.store.tile_store import TileStore
 
     cache = ROOT / "benchmarks" / "cache"
     store = cache / f"store_{size}"
@@ -61,7 +62,7 @@ def big_dem_store(size: int = BIG_DEM_SIZE, progress: bool = True):
         from make_big_dem import make  # type: ignore[import-not-found]
     finally:
         sys.path.pop(0)
-    from globeview.terrain.ingest import ingest
+    from globeview.terrain.ingest.driver import ingest
 
     if progress:
         print(f"generating the {size}x{size} benchmark DEM (synthetic detail) ...", flush=True)
@@ -72,8 +73,8 @@ def big_dem_store(size: int = BIG_DEM_SIZE, progress: bool = True):
 
 def load_terrain(kind: str = "embedded", big_size: int = BIG_DEM_SIZE):
     """The TerrainStack of a flight: the embedded DEMs, plus the big DEM for ``big-dem``."""
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
 
     stores = embedded_stores()
     if kind == "big-dem":

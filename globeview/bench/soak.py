@@ -100,10 +100,10 @@ def open_close_cycle(
         create_headless_context,
         release_headless_context,
     )
-    from globeview.terrain.stack import TerrainStack
-    from globeview.terrain.store import TileStore
+    from globeview.terrain.compose.stack import TerrainStack
+    from globeview.terrain.sources import open_source
 
-    stores = [TileStore.open(p) for p in store_paths]
+    stores = [open_source(p) for p in store_paths]
     own_ctx = ctx is None
     ctx = create_headless_context() if own_ctx else ctx
     try:

@@ -28,8 +28,8 @@ def add_dem_options(parser: argparse.ArgumentParser) -> None:
 
 def check_dem_options(args: argparse.Namespace) -> None:
     """A bad ``--vdatum`` ("egm2008", a typo) as one line before any work; ``--crs`` is parsed
-    where a DEM is opened (`globeview.terrain.dem.open_dem`: one line for an unknown CRS)."""
+    where a DEM is opened (`globeview.terrain.dem.reader.open_dem`: one line for an unknown CRS)."""
     if args.vdatum is not None:
-        from globeview.terrain.vdatum import parse_vdatum
+        from globeview.terrain.dem.vdatum import parse_vdatum
 
         parse_vdatum(args.vdatum)

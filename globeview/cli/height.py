@@ -128,7 +128,7 @@ def _layer_names(sources: list[str], stores: list) -> list[str]:
             Path(s).name if not Path(s).is_dir() else st.path.name
             for s, st in zip(sources, stores, strict=True)
         ]
-    from globeview.terrain.embedded import embedded_dem_paths
+    from globeview.terrain.dem.data import embedded_dem_paths
 
     return [p.name for p in embedded_dem_paths()]
 
@@ -159,24 +159,22 @@ def format_table(answers: list) -> str:
 
 def run(args: argparse.Namespace) -> int:
     import json
-    from pathlib import Path
 
     import numpy as np
 
     from globeview.cli.dem_options import check_dem_options
-    from globeview.cli.render import check_cache_writable, open_sources_in_cache
+    from globeview.cli.render import check_cache_writable, open_sources
     from globeview.errors import GlobeviewError
-    from globeview.terrain.dem import check_dem_path
-    from globeview.terrain.height_query import query_heights
-    from globeview.terrain.stack import TerrainStack
+    from globeview.terrain.compose.height_query import query_heights
+    from globeview.terrain.compose.stack import TerrainStack
+    from globeview.terrain.sources import check_source
 
     points, sources = split_items(args.items)
     check_dem_options(args)
     for src in sources:  # every argument checked before the first (slow) ingest
-        if not Path(src).is_dir():
-            check_dem_path(Path(src))
+        check_source(src)
     check_cache_writable(sources, args.crs, args.vdatum)
-    stores = open_sources_in_cache(sources, args.crs, args.vdatum)
+    stores = open_sources(sources, args.crs, args.vdatum)
     if not stores:
         raise GlobeviewError("no terrain to query")
     stack = TerrainStack.from_stores(stores, _layer_names(sources, stores))

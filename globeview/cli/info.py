@@ -29,14 +29,16 @@ def run(args: argparse.Namespace) -> int:
     """Print a summary (or JSON) per DEM. DemError propagates to the CLI's one-line handler."""
     import json
 
-    from globeview.terrain.dem import embedded_dem_paths, open_dem
+    from globeview.terrain.dem.data import embedded_dem_paths
+    from globeview.terrain.dem.reader import open_dem
+    from globeview.terrain.sources import source_kind
 
     paths = [*args.dems]
     if args.embedded or not paths:
         paths = [*map(str, embedded_dem_paths()), *paths]
     infos = []
     for p in paths:
-        if is_store(p):
+        if source_kind(p) == "store":  # (a URL no backend reads, a plain folder: one line)
             infos.append(store_info(p))
             continue
         with open_dem(p, crs=args.crs, vdatum=args.vdatum) as dem:
@@ -46,17 +48,6 @@ def run(args: argparse.Namespace) -> int:
     else:
         print("\n\n".join(i.summary() for i in infos))
     return 0
-
-
-def is_store(text: str) -> bool:
-    """A store URL (any ``scheme://``: `check_store_url` says which are read) or a folder
-    holding a manifest (any other folder is refused as a DEM is: "is a directory")."""
-    from pathlib import Path
-
-    from globeview.plugins.store_sources import is_store_url
-    from globeview.terrain.store import MANIFEST_NAME
-
-    return is_store_url(text) or (Path(text) / MANIFEST_NAME).is_file()
 
 
 class StoreInfo:
@@ -124,17 +115,13 @@ class StoreInfo:
 
 
 def store_info(text: str) -> StoreInfo:
-    """Open a store and describe it: a URL from its manifest only; a folder after checking
-    every level file against its sha256 in the manifest (`TileStore.verify`, a StoreError
-    line naming the first damaged one)."""
-    from globeview.plugins.store_sources import check_store_url, is_store_url, open_store_url
-    from globeview.terrain.store import TileStore
+    """Open a store (`open_source`) and describe it: a remote one from its manifest only; a
+    local one after checking every level file against its sha256 in the manifest
+    (`TileStore.verify`, a StoreError line naming the first damaged one)."""
+    from globeview.terrain.sources import check_source, open_source
 
-    if is_store_url(text):
-        where = check_store_url(text)
-        store = open_store_url(where)
-    else:
-        where, store = text, TileStore.open(text)
+    where = check_source(text)  # a URL as it is requested
+    store = open_source(where)
     try:
         if not store.is_remote:
             # Opening checks the level VRTs and that each chunk file exists; a chunk truncated

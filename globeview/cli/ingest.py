@@ -117,7 +117,7 @@ def parallel_kwargs(args: argparse.Namespace, ingest_fn) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     """Build the store; prints a one-line summary. Errors are GlobeviewErrors (exit 2)."""
-    from globeview.terrain.ingest import ingest
+    from globeview.terrain.ingest.driver import ingest
 
     parallel = parallel_kwargs(args, ingest)  # checked before any source is read
     result = ingest(
@@ -144,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
         )
     if not result.up_to_date and (result.masked_samples or result.fill_samples):
         # Said even with --quiet: the store holds less than the source, and why.
-        from globeview.terrain.dem import MAX_HEIGHT_M, MIN_HEIGHT_M
+        from globeview.terrain.dem.reader import MAX_HEIGHT_M, MIN_HEIGHT_M
 
         print(
             f"{result.path}: read as nodata: {result.masked_samples} samples non-finite or "

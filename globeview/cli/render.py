@@ -251,14 +251,10 @@ def check_inputs(args: argparse.Namespace) -> None:
     from pathlib import Path
 
     from globeview.errors import GlobeviewError
-    from globeview.plugins.store_sources import check_store_url, is_store_url
-    from globeview.terrain.dem import check_dem_path
+    from globeview.terrain.sources import check_source
 
     for src in args.sources:
-        if is_store_url(src):
-            check_store_url(src)  # the URL's form; the server is asked when it is opened
-        elif not Path(src).is_dir():  # a folder is a store, checked when it is opened
-            check_dem_path(Path(src))
+        check_source(src)  # a URL's form (the server is asked when it is opened), a DEM file
     from globeview.app.layer_dispatch import parse_layer_spec
 
     for layer in args.layer:
@@ -281,11 +277,11 @@ def check_cache_writable(
     from globeview.errors import GlobeviewError
     from globeview.fileio import writable_folder_problem
     from globeview.paths import cache_dir
-    from globeview.plugins.store_sources import is_store_url
-    from globeview.terrain.embedded import embedded_stores_ready, store_path_for
-    from globeview.terrain.store import identify
+    from globeview.terrain.embedded import embedded_stores_ready
+    from globeview.terrain.sources import cache_message, source_kind, store_path_for
+    from globeview.terrain.store.identify import identify
 
-    dems = [Path(s) for s in sources if not is_store_url(s) and not Path(s).is_dir()]
+    dems = [Path(s) for s in sources if source_kind(s) == "dem"]
     if sources:
         needed = any(
             not identify(store_path_for(p, crs=crs, vdatum=vdatum)).is_current for p in dems
@@ -299,48 +295,16 @@ def check_cache_writable(
         raise GlobeviewError(cache_message(problem))
 
 
-def cache_message(problem: str) -> str:
-    from globeview.paths import cache_dir
-
-    return (
-        f"cannot write the tile cache {cache_dir()} ({problem}); set GLOBEVIEW_CACHE_DIR to "
-        "a writable folder"
-    )
-
-
 def open_sources(sources: list[str], crs: str | None, vdatum: str | None = None):
-    """Tile stores for the given stores/store URLs/DEMs (DEMs ingested into the cache;
-    ``crs`` and ``vdatum`` apply to the DEMs, a store already holds ellipsoidal heights)."""
-    from pathlib import Path
-
-    from globeview.errors import GlobeviewError
-    from globeview.plugins.store_sources import is_store_url, open_store_url
-    from globeview.terrain.embedded import embedded_stores, open_or_ingest
-    from globeview.terrain.store import TileStore
+    """Tile stores for the given sources, each opened by `open_source` (stores as they are,
+    DEM files ingested into the cache; ``crs`` and ``vdatum`` apply to the DEM files); the
+    embedded DEMs when there are none."""
+    from globeview.terrain.embedded import embedded_stores
+    from globeview.terrain.sources import open_source
 
     if not sources:
         return embedded_stores()
-    stores = []
-    for src in sources:
-        p = Path(src)
-        if is_store_url(src):
-            stores.append(open_store_url(src))
-        elif p.is_dir() and (p / "manifest.json").exists():
-            stores.append(TileStore.open(p))
-        elif p.is_dir():
-            raise GlobeviewError(f"{p} is a directory but not a globeview tile store")
-        else:
-            if crs or vdatum:
-                from globeview.terrain.embedded import store_path_for
-                from globeview.terrain.ingest import ingest
-
-                out = store_path_for(p, crs=crs, vdatum=vdatum)
-                out.parent.mkdir(parents=True, exist_ok=True)
-                ingest([p], out, crs=crs, vdatum=vdatum)
-                stores.append(TileStore.open(out))
-            else:
-                stores.append(open_or_ingest(p))
-    return stores
+    return [open_source(src, crs=crs, vdatum=vdatum) for src in sources]
 
 
 #: How the warning of `warn_unused_settings` says to use a contribution, by kind.
@@ -376,7 +340,7 @@ def run(args: argparse.Namespace) -> int:
     from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.settings import apply_overrides
     from globeview.render.offscreen import OffscreenTarget, create_headless_context
-    from globeview.terrain.stack import TerrainStack
+    from globeview.terrain.compose.stack import TerrainStack
 
     # Everything the user typed is checked before the first tile is read: a bad value or an
     # unwritable output fails at once, in one line, and nothing is written.
@@ -392,7 +356,7 @@ def run(args: argparse.Namespace) -> int:
     assignments = check_plugin_options(registry, args.lod, tool_name, sets)
     warn_unused_settings(registry, assignments, {"lod": {args.lod}, "tool": {tool_name}})
     apply_overrides(registry, assignments)  # this render only: nothing is stored
-    stores = open_sources_in_cache(args.sources, args.crs, args.vdatum)
+    stores = open_sources(args.sources, args.crs, args.vdatum)
     terrain = TerrainStack.from_stores(stores)
     if v["camera"] is not None:
         camera = Camera.from_lonlat(*v["camera"], fovy_deg=v["fov"])
@@ -620,23 +584,6 @@ def failure_texts(lod: str, tool: str | None, failures: dict[str, str]) -> list[
     if "tiles" in failures:
         said.append(failures["tiles"])
     return said
-
-
-def open_sources_in_cache(sources: list[str], crs: str | None, vdatum: str | None = None):
-    """`open_sources`, with a cache folder that turns out unwritable (read-only, full) said
-    in one line that tells how to point the cache elsewhere."""
-    import errno
-
-    from globeview.errors import GlobeviewError
-    from globeview.fileio import describe_os_error
-
-    try:
-        return open_sources(sources, crs, vdatum)
-    except OSError as exc:
-        if exc.errno in (errno.EROFS, errno.EACCES, errno.EPERM, errno.ENOSPC, errno.EDQUOT):
-            message = cache_message(describe_os_error(exc, exc.filename or ""))
-            raise GlobeviewError(message) from None
-        raise
 
 
 def write_outputs(image, stats: dict, out, stats_path, texts: dict | None = None) -> None:

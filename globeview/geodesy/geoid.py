@@ -1,6 +1,6 @@
 """A geoid undulation grid: N (metres, height of the geoid above the WGS84 ellipsoid) on a
 regular lon/lat grid, interpolated bilinearly. Pure numpy; loading a grid file is terrain's job
-(`globeview.terrain.vdatum`).
+(`globeview.terrain.dem.vdatum`).
 
 Heights: h (ellipsoidal, above WGS84) = H (orthometric, above the geoid) + N.
 """

@@ -25,7 +25,8 @@ from globeview.lod.tile_cache import (
     LevelTiles,
 )
 from globeview.lod.view_state import ViewState
-from globeview.terrain.stack import N_STRIDES, TerrainStack
+from globeview.terrain.compose.metadata import N_STRIDES
+from globeview.terrain.compose.stack import TerrainStack
 
 __all__ = ["MAX_LEVEL", "Selection", "TileCandidates", "bend_fractions"]
 

@@ -14,8 +14,9 @@ import numpy as np
 
 from globeview.geodesy import WGS84, lonlat_to_ecef
 from globeview.lod.view_state import ViewState
+from globeview.terrain.compose.metadata import TileMetadata
+from globeview.terrain.compose.stack import TerrainStack
 from globeview.terrain.quadtree import tile_bounds_arrays
-from globeview.terrain.stack import TerrainStack, TileMetadata
 
 #: Lattice points per tile side for bounding volumes.
 LATTICE = 3

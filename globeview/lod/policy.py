@@ -40,7 +40,8 @@ from globeview.lod.candidates import MAX_LEVEL, Selection, TileCandidates
 from globeview.lod.render_set import RenderSet
 from globeview.lod.stitching import render_set_by_stride, render_set_from_tiles
 from globeview.lod.view_state import ViewState
-from globeview.terrain.stack import N_STRIDES, TerrainStack
+from globeview.terrain.compose.metadata import N_STRIDES
+from globeview.terrain.compose.stack import TerrainStack
 
 #: Weights picking the coarsest acceptable stride (`coarsest_stride_within`).
 _STRIDE_RANK = np.arange(1, N_STRIDES + 1)

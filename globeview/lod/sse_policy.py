@@ -22,7 +22,8 @@ from globeview.lod.stitching import render_set_by_stride
 from globeview.lod.tile_indices import IndexVariant, Pole, grid_indices
 from globeview.lod.traversal import traverse
 from globeview.lod.view_state import ViewState
-from globeview.terrain.stack import N_STRIDES, TerrainStack
+from globeview.terrain.compose.metadata import N_STRIDES
+from globeview.terrain.compose.stack import TerrainStack
 from globeview.validate import TAU_RANGE_PX
 
 __all__ = [

@@ -31,8 +31,9 @@ from globeview.lod.culling import (
     tile_bounding_points,
 )
 from globeview.lod.view_state import ViewState
+from globeview.terrain.compose.metadata import N_STRIDES
+from globeview.terrain.compose.stack import TerrainStack
 from globeview.terrain.quadtree import tile_bounds_arrays
-from globeview.terrain.stack import N_STRIDES, TerrainStack
 
 #: Most tiles one cache holds (all levels together, ~0.8 KB each); a frame that finds it
 #: fuller starts it afresh.

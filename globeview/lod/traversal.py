@@ -65,7 +65,8 @@ from globeview.lod.tile_cache import (
     tile_cache_for,
 )
 from globeview.lod.view_state import ViewState
-from globeview.terrain.stack import N_STRIDES, TerrainStack
+from globeview.terrain.compose.metadata import N_STRIDES
+from globeview.terrain.compose.stack import TerrainStack
 
 _BOOL, _F64, _I64 = np.dtype(bool), np.dtype(np.float64), np.dtype(np.int64)
 

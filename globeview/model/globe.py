@@ -16,7 +16,7 @@ from psygnal import Signal, SignalGroup, SignalInstance
 
 from globeview.model.camera import Camera
 from globeview.model.display import DisplaySettings
-from globeview.terrain.stack import TerrainStack
+from globeview.terrain.compose.stack import TerrainStack
 from globeview.validate import check_tau
 
 #: Events emitted while an event is delivered wait for it to finish (see `GlobeEvents`).

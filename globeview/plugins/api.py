@@ -102,8 +102,9 @@ if TYPE_CHECKING:  # the lazy re-exports (`_REEXPORTS`), spelled out for type ch
     from globeview.lod.traversal import displacement_key, traverse
     from globeview.lod.triangle_count import triangle_count
     from globeview.lod.view_state import ViewState
+    from globeview.terrain.compose.metadata import N_STRIDES
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.quadtree import TileKey, level_shape, tile_bounds_arrays
-    from globeview.terrain.stack import N_STRIDES, TerrainStack
 
 __all__ = [
     "API_VERSION",
@@ -223,8 +224,8 @@ _REEXPORTS: dict[str, str] = {
     "TileKey": "globeview.terrain.quadtree",
     "level_shape": "globeview.terrain.quadtree",
     "tile_bounds_arrays": "globeview.terrain.quadtree",
-    "N_STRIDES": "globeview.terrain.stack",
-    "TerrainStack": "globeview.terrain.stack",
+    "N_STRIDES": "globeview.terrain.compose.metadata",
+    "TerrainStack": "globeview.terrain.compose.stack",
 }
 
 
@@ -410,7 +411,7 @@ class PluginContext:
         name: the plugin's name (from its manifest).
         scene: the host's scene model (layers); None headless without a scene.
         terrain: the composed terrain of the visible DEM layers
-            (`globeview.terrain.stack.TerrainStack`), or None.
+            (`globeview.terrain.compose.stack.TerrainStack`), or None.
         camera: the `globeview.model.camera.Camera` (ECEF, float64), or None.
         renderer: `RendererHooks`.
         settings: this plugin's persisted settings, a mutable mapping of JSON-able values
@@ -642,7 +643,7 @@ def _check_frame_args(view: Any, terrain: Any) -> None:
     (what the host passes a provider's ``select``)."""
     # Deferred (heavy): the terrain is not loaded by reading a manifest (see `select`).
     from globeview.lod.view_state import ViewState
-    from globeview.terrain.stack import TerrainStack
+    from globeview.terrain.compose.stack import TerrainStack
 
     if not isinstance(view, ViewState):
         raise TypeError(f"select() needs a ViewState, not {type(view).__name__}")

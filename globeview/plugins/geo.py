@@ -4,7 +4,7 @@ Frames and units as everywhere in the API: geodetic degrees on WGS84 (longitude 
 latitude north), azimuths in degrees clockwise from north, distances in metres along the
 ellipsoid, ECEF metres (float64). Heights: ellipsoidal h (metres above WGS84, what the globe
 draws), the EGM96 geoid undulation N, and the orthometric height H = h - N ("above sea
-level"), exactly as ``globeview height`` reports them (`globeview.terrain.height_query`).
+level"), exactly as ``globeview height`` reports them (`globeview.terrain.compose.height_query`).
 """
 
 from __future__ import annotations
@@ -74,7 +74,11 @@ def sample_terrain(terrain: Any, lon: ArrayLike, lat: ArrayLike) -> TerrainSampl
     shapes, or for unreadable terrain."""
     # Deferred (heavy): the API imports this module when a manifest is read, which must not
     # load the terrain.
-    from globeview.terrain.height_query import check_lonlat, composed_heights, geoid_undulation
+    from globeview.terrain.compose.height_query import (
+        check_lonlat,
+        composed_heights,
+        geoid_undulation,
+    )
 
     shape = np.shape(lon)
     if np.shape(lat) != shape:

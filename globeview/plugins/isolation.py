@@ -148,7 +148,7 @@ def install_sigint_marker() -> bool:
 def _not_ready(exc: BaseException) -> bool:
     """Whether ``exc`` is a remote tile not fetched yet (`TileNotReady`), imported only then
     (the registry serves `globeview plugins` too, which reads no terrain)."""
-    from globeview.terrain.remote import TileNotReady
+    from globeview.terrain.store.backend import TileNotReady
 
     return isinstance(exc, TileNotReady)
 

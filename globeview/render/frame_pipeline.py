@@ -40,7 +40,7 @@ from globeview.model.camera import Camera
 if TYPE_CHECKING:
     from globeview.render.overlay_tools import ToolOverlayRenderer
     from globeview.render.renderer import GlobeRenderer
-    from globeview.terrain.stack import TerrainStack
+    from globeview.terrain.compose.stack import TerrainStack
 
 #: Frames further apart than this (seconds) are a pause, not a move: the speed is 0.
 PAUSE_S = 0.5

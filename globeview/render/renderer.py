@@ -40,8 +40,8 @@ from globeview.render.tile_loader import TileLoader, substitute_missing, tile_pr
 from globeview.render.tile_mesh import FLOATS_PER_VERTEX, TileMesh, build_tile_mesh
 from globeview.render.tile_normals import DataLevelNormals
 from globeview.render.tile_pool import IndexPool, TilePool, key_codes
+from globeview.terrain.compose.stack import TerrainStack
 from globeview.terrain.quadtree import tile_bounds, tile_bounds_arrays
-from globeview.terrain.stack import TerrainStack
 
 
 @dataclass

@@ -15,7 +15,7 @@ from globeview.model.camera import Camera
 from globeview.render.frame_pipeline import FramePipeline, FrameResult, FrameTool
 from globeview.render.picking import Pick, pick
 from globeview.render.renderer import GlobeRenderer
-from globeview.terrain.stack import TerrainStack
+from globeview.terrain.compose.stack import TerrainStack
 from globeview.validate import check_tau
 
 LodFunction = Callable[[ViewState, TerrainStack], RenderSet]

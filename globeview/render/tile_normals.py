@@ -34,8 +34,8 @@ import threading
 import numpy as np
 
 from globeview.render.tile_mesh import apron_normals
+from globeview.terrain.compose.stack import TerrainStack
 from globeview.terrain.quadtree import TileKey, tile_bounds
-from globeview.terrain.stack import TerrainStack
 
 Key = tuple[int, int, int]
 

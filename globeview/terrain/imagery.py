@@ -36,6 +36,7 @@ from rasterio.crs import CRS
 from rasterio.enums import Resampling
 
 from globeview.errors import GlobeviewError
+from globeview.geodesy import WGS84
 from globeview.terrain.quadtree import TileKey, tile_bounds
 
 WGS84_CRS = CRS.from_epsg(4326)
@@ -268,8 +269,6 @@ def hillshade_tile(
     """(tex_size, tex_size, 4) uint8 grey hillshade of a terrain tile computed from its DEM
     heights (metres) with the sun at ``azimuth_deg`` (clockwise from north) and
     ``altitude_deg``; slopes use metres on the ellipsoid (lon spacing scaled by cos(lat))."""
-    from globeview.geodesy import WGS84
-
     h = heights(key).astype(np.float64)
     size = h.shape[0]
     w, s, e, n = tile_bounds(TileKey(*key))

@@ -84,7 +84,7 @@ class LevelGrid:
 
     @property
     def file_name(self) -> str:
-        """The level's GDAL VRT (mosaic of its chunk files, see `store_schema`)."""
+        """The level's GDAL VRT (mosaic of its chunk files, see `store.schema`)."""
         return f"level_{self.level:02d}.vrt"
 
     @property

@@ -13,7 +13,7 @@ from PyQt6.QtGui import QSurfaceFormat
 from PyQt6.QtWidgets import QApplication
 
 from globeview.errors import GlobeviewError
-from globeview.terrain.stack import TerrainStack
+from globeview.terrain.compose.stack import TerrainStack
 from globeview.ui.errors import install_excepthook
 from globeview.ui.globe_widget import surface_format
 from globeview.ui.main_window import MainWindow
@@ -47,8 +47,9 @@ def embedded_terrain() -> TerrainStack:
     """The embedded DEMs as a stack (ingested into the cache on first use)."""
     import sys
 
-    from globeview.terrain.dem import embedded_dem_paths
-    from globeview.terrain.embedded import embedded_stores, embedded_stores_ready, store_path_for
+    from globeview.terrain.dem.data import embedded_dem_paths
+    from globeview.terrain.embedded import embedded_stores, embedded_stores_ready
+    from globeview.terrain.sources import store_path_for
 
     # Check the cache folder first: a bad one is one line, before any "preparing" line.
     stores_dir = store_path_for(embedded_dem_paths()[0]).parent
@@ -70,7 +71,7 @@ def embedded_terrain() -> TerrainStack:
 def embedded_stack(stores: list) -> TerrainStack:
     """The embedded stores (in `embedded_stores` order) as a stack whose layers are named
     after their DEMs (etopo20), not after their cache folders (etopo20-<hash>)."""
-    from globeview.terrain.dem import embedded_dem_paths
+    from globeview.terrain.dem.data import embedded_dem_paths
 
     return TerrainStack.from_stores(stores, [p.stem for p in embedded_dem_paths()])
 

@@ -23,8 +23,8 @@ from globeview.app.overlay_host import OverlayHost
 from globeview.errors import GlobeviewError
 from globeview.model.globe import Globe
 from globeview.plugins.registry import PluginRegistry
-from globeview.plugins.store_sources import check_store_url, is_store_url
-from globeview.terrain.store import TileStore
+from globeview.terrain.sources import check_store_url, is_store_url
+from globeview.terrain.store.tile_store import TileStore
 from globeview.ui.errors import ErrorReporter
 from globeview.ui.globe_widget import GlobeWidget
 from globeview.ui.layer_panel import LayerPanel
@@ -255,7 +255,7 @@ class FileOpening:
         """Add a store as the top layer under a unique name; returns the name."""
         # A store read over HTTP: the UI thread (frames, picking, tools) only ever uses what
         # is already fetched; a read that would wait raises TileNotReady at once and the store
-        # fetches the tile in the background (globeview.terrain.remote). No-op when local.
+        # fetches the tile in the background (globeview.terrain.store.http). No-op when local.
         store.forbid_network_on(threading.get_ident())
         taken = {ly.name for ly in self.terrain.layers}
         unique, n = name, 2

@@ -26,7 +26,7 @@ from PyQt6.QtWidgets import (
 )
 
 from globeview.model.globe import Globe
-from globeview.terrain.store import TileStore
+from globeview.terrain.store.tile_store import TileStore
 from globeview.ui.overlay_panel import OverlayPanel
 from globeview.ui.subscriptions import Subscriptions
 

@@ -1,31 +1,41 @@
-"""Opening DEMs off the UI thread.
+"""Opening sources off the UI thread.
 
-`DemLoader` ingests a DEM (or opens an existing tile store) in a worker thread and reports
-back through Qt signals, which arrive on the UI thread (queued connections). One file at a
-time; further requests wait in a queue.
+`DemLoader` opens a source (`globeview.terrain.sources.open_source`: a DEM file, ingested into
+the cache once; a store folder; a store URL; whatever an installed store backend reads) in a
+worker thread and reports back through Qt signals, which arrive on the UI thread (queued
+connections). One source at a time; further requests wait in a queue.
 
-Progress and cancellation: `globeview.terrain.ingest.ingest` has no progress callback or
-cancellation hook yet, so the progress is indeterminate and "cancel" can only be honoured
-between files: the running ingest finishes (its store lands in the cache, complete, for the
-next time) and its result is discarded. If ``ingest`` grows an ``on_progress(done, total)``
-keyword whose exception aborts the build, this loader uses it (see `_ingest_kwargs`).
+Progress and cancellation: the ingest calls the loader's hook after each task (the status
+bar's progress), and once Cancel is pressed the hook raises `LoadCancelled`, which aborts the
+ingest and leaves no store behind; a store being opened when Cancel is pressed is discarded.
+
+A DEM file without a coordinate reference system: the loader asks for one on the UI thread
+(`DemLoader.ask_crs`, by default the dialog of `globeview.ui.crs_dialog`, which checks it as
+``--crs`` is checked) and opens the file again with it; cancelling the dialog reports the
+file's one-line error.
 """
 
 from __future__ import annotations
 
 import errno
-import inspect
 import logging
 import os
 import threading
 from collections import deque
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
+from typing import NamedTuple
 
 from PyQt6.QtCore import QObject, pyqtSignal
+from PyQt6.QtWidgets import QWidget
 
 from globeview.errors import GlobeviewError
-from globeview.terrain.store import MANIFEST_NAME, TileStore
+from globeview.terrain.compose.blend import BlendMask
+from globeview.terrain.dem.reader import NoCrsError
+from globeview.terrain.sources import open_source
+from globeview.terrain.store.tile_store import TileStore
+from globeview.ui.crs_dialog import ask_crs
 
 log = logging.getLogger("globeview.ui")
 
@@ -35,8 +45,9 @@ class LoadCancelled(Exception):
 
 
 def missing_path_error(path: str | Path) -> GlobeviewError:
-    """The one-line error for a path that cannot be opened because it does not resolve: a
-    symbolic link loop, a dangling symbolic link, or a plain missing file."""
+    """The one-line error for a path of any kind (a DEM or an overlay) the window is asked to
+    open that does not resolve: a symbolic link loop, a dangling symbolic link, or a plain
+    missing file. (A source that reaches the loader gets `open_source`'s words.)"""
     p = Path(path)
     if p.is_symlink():
         try:
@@ -49,46 +60,28 @@ def missing_path_error(path: str | Path) -> GlobeviewError:
     return GlobeviewError(f"file not found: {p}")
 
 
-def open_store(path: str | Path, on_progress=None, vdatum: str | None = None) -> TileStore:
-    """A tile store for ``path``: a store directory or a store URL (http/https, read remotely)
-    is opened as is; a DEM file is ingested
-    into the user cache once (an unchanged file opens instantly the next time). ``vdatum``
-    ("egm96" or "ellipsoid") overrides the DEM's vertical datum (None: from the file).
+def open_store(
+    path: str | Path,
+    on_progress: Callable[[int, int], None] | None = None,
+    vdatum: str | None = None,
+    crs: str | None = None,
+) -> TileStore:
+    """`open_source` as the window uses it, on the loader's thread: a store over a network
+    also gets what the UI thread reads first fetched here (`warm_remote_store`).
 
     Raises:
-        GlobeviewError: the path is neither a DEM globeview can read nor a tile store.
+        GlobeviewError: one line for a source that cannot be opened.
     """
-    from globeview.plugins.store_sources import is_store_url, open_store_url
-    from globeview.terrain.embedded import store_path_for
-    from globeview.terrain.ingest import ingest
-
-    if is_store_url(str(path)):
-        # A store over HTTP: the manifest is fetched here, on the loader's thread (the
-        # remote reader's timeouts and retries bound the wait; Cancel discards the result).
-        store = open_store_url(str(path))
+    store = open_source(path, crs=crs, vdatum=vdatum, on_progress=on_progress)
+    if store.is_remote:
+        # The manifest was fetched here, on the loader's thread (the remote reader's timeouts
+        # and retries bound the wait; Cancel discards the result).
         try:
             warm_remote_store(store)
         except BaseException:
             store.close()
             raise
-        return store
-    p = Path(path)
-    if p.is_dir():
-        if (p / MANIFEST_NAME).exists():
-            return TileStore.open(p)
-        raise GlobeviewError(f"{p} is a folder but not a globeview tile store")
-    if not p.exists():
-        raise missing_path_error(p)
-    out = store_path_for(p, vdatum=vdatum)
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:  # $GLOBEVIEW_CACHE_DIR under a file, a read-only home, ...
-        raise GlobeviewError(
-            f"cannot ingest {p.name}: the cache folder {out.parent} cannot be made "
-            f"({exc.strerror or exc}); set GLOBEVIEW_CACHE_DIR to a writable folder"
-        ) from None
-    ingest([p], out, vdatum=vdatum, **_ingest_kwargs(ingest, on_progress))
-    return TileStore.open(out)
+    return store
 
 
 def warm_remote_store(store: TileStore) -> None:
@@ -99,16 +92,23 @@ def warm_remote_store(store: TileStore) -> None:
     not build would fail the LOD selection; later reads (the border band's difference tables,
     tiles finer than the layer's data) are bounded without the tiles until they arrive.
     Raises `StoreError` (one line) when those tiles cannot be read: the layer is not added."""
-    from globeview.terrain.blend import BlendMask
-
     BlendMask(store)  # reads the mask level's tiles into the store's and the disk cache
 
 
-def _ingest_kwargs(ingest_fn, on_progress) -> dict:
-    """Pass a progress hook when ``ingest`` accepts one (forward compatible)."""
-    if on_progress is not None and "on_progress" in inspect.signature(ingest_fn).parameters:
-        return {"on_progress": on_progress}
-    return {}
+class _Request(NamedTuple):
+    path: str
+    vdatum: str | None
+    crs: str | None
+
+
+def _ask_with_dialog(parent: QObject | None) -> Callable[[str, BaseException], str | None]:
+    """The default `DemLoader.ask_crs`: the modal dialog of `globeview.ui.crs_dialog` over
+    the loader's window."""
+
+    def ask(path: str, exc: BaseException) -> str | None:
+        return ask_crs(parent if isinstance(parent, QWidget) else None, path, str(exc))
+
+    return ask
 
 
 class DemLoader(QObject):
@@ -121,6 +121,11 @@ class DemLoader(QObject):
         failed(str, object): the path and the exception.
         cancelled(str): the load was cancelled (its result, if any, discarded).
         idle(): the queue is empty.
+
+    Attributes:
+        ask_crs: called on the UI thread as ``ask_crs(path, error)`` when a DEM file has no
+            CRS; returns the CRS to open it with (a text ``--crs`` takes), or None to give up
+            (the file's error is reported). Default: a dialog over the loader's window.
     """
 
     started = pyqtSignal(str)
@@ -134,20 +139,21 @@ class DemLoader(QObject):
     def __init__(self, parent: QObject | None = None) -> None:
         super().__init__(parent)
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="globeview-load")
-        self._queue: deque[tuple[str, str | None]] = deque()
-        self._current: str | None = None
+        self._queue: deque[_Request] = deque()
+        self._current: _Request | None = None
         self._future: Future | None = None
         self._cancel = threading.Event()
+        self.ask_crs: Callable[[str, BaseException], str | None] | None = _ask_with_dialog(parent)
         self._done.connect(self._on_done)
 
     @property
     def busy(self) -> bool:
         return self._current is not None
 
-    def load(self, path: str | Path, vdatum: str | None = None) -> None:
-        """Queue a file (or store folder) for loading; ``vdatum`` overrides a DEM's vertical
-        datum ("egm96", "ellipsoid"; None: from the file, see `globeview.terrain.vdatum`)."""
-        self._queue.append((str(path), vdatum))
+    def load(self, path: str | Path, vdatum: str | None = None, crs: str | None = None) -> None:
+        """Queue a source for loading; ``vdatum`` and ``crs`` override a DEM file's vertical
+        datum ("egm96", "ellipsoid") and CRS (what ``--crs`` takes); None: from the file."""
+        self._queue.append(_Request(str(path), vdatum, crs))
         self._next()
 
     def cancel(self) -> None:
@@ -162,14 +168,13 @@ class DemLoader(QObject):
         if not self._queue:
             self.idle.emit()
             return
-        path, vdatum = self._queue.popleft()
-        self._current = path
+        request = self._current = self._queue.popleft()
         self._cancel.clear()
-        self.started.emit(path)
+        self.started.emit(request.path)
         self.progress.emit(0, 0)
-        self._future = self._pool.submit(self._work, path, vdatum)
+        self._future = self._pool.submit(self._work, request)
 
-    def _work(self, path: str, vdatum: str | None = None) -> None:
+    def _work(self, request: _Request) -> None:
         """Worker thread: never touches widgets, only emits signals."""
 
         def hook(done: int, total: int) -> None:
@@ -178,15 +183,29 @@ class DemLoader(QObject):
             self.progress.emit(int(done), int(total))
 
         try:
-            store = open_store(path, hook, vdatum)
+            store = open_store(request.path, hook, request.vdatum, request.crs)
         except BaseException as exc:  # noqa: BLE001  delivered to the UI thread, never lost
-            self._done.emit(path, None, exc)
+            self._done.emit(request.path, None, exc)
             return
-        self._done.emit(path, store, None)
+        self._done.emit(request.path, store, None)
 
     def _on_done(self, path: str, store: object, exc: object) -> None:
-        self._current = None
+        request = self._current
         self._future = None
+        if (
+            isinstance(exc, NoCrsError)
+            and request is not None
+            and request.crs is None
+            and self.ask_crs is not None
+            and not self._cancel.is_set()
+        ):
+            crs = self.ask_crs(path, exc)  # modal; the loader stays busy meanwhile
+            if crs and not self._cancel.is_set():
+                self._current = None
+                self._queue.appendleft(request._replace(crs=crs))
+                self._next()
+                return
+        self._current = None
         if self._cancel.is_set() or isinstance(exc, LoadCancelled):
             log.info("load of %s cancelled", path)
             self.cancelled.emit(path)

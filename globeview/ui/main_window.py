@@ -38,7 +38,7 @@ from globeview.errors import GlobeviewError
 from globeview.model.camera import Camera
 from globeview.model.globe import Globe
 from globeview.plugins.registry import PluginRegistry
-from globeview.terrain.stack import TerrainStack
+from globeview.terrain.compose.stack import TerrainStack
 from globeview.ui.errors import ErrorReporter, UserMessage
 from globeview.ui.file_opening import FileOpening
 from globeview.ui.globe_widget import GlobeWidget

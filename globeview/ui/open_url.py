@@ -19,7 +19,7 @@ from PyQt6.QtWidgets import (
 )
 
 from globeview.errors import GlobeviewError
-from globeview.plugins.store_sources import check_store_url
+from globeview.terrain.sources import check_store_url
 
 __all__ = ["UrlDialog", "ask_store_url"]
 

@@ -139,7 +139,7 @@ class StatusBar(QStatusBar):
         if self.height_reference == ELLIPSOIDAL:
             return pick.height, HEIGHT_UNITS[ELLIPSOIDAL]
         try:
-            from globeview.terrain.height_query import geoid_undulation
+            from globeview.terrain.compose.height_query import geoid_undulation
 
             n = float(geoid_undulation(np.array([pick.lon]), np.array([pick.lat]))[0])
         except (ImportError, OSError, GlobeviewError) as exc:

@@ -38,8 +38,8 @@ def test_release_gl_releases_every_gl_object_of_the_session(store_paths):
     from globeview.plugins.settings import MemorySettings
     from globeview.render.gpu_objects import gpu_objects
     from globeview.render.offscreen import OffscreenTarget, create_headless_context
-    from globeview.terrain.stack import TerrainStack
-    from globeview.terrain.store import TileStore
+    from globeview.terrain.compose.stack import TerrainStack
+    from globeview.terrain.store.tile_store import TileStore
 
     stores = [TileStore.open(p) for p in store_paths]
     ctx = create_headless_context()
@@ -106,8 +106,8 @@ def test_a_handed_back_headless_context_is_reused_and_draws_the_same(store_paths
         create_headless_context,
         release_headless_context,
     )
-    from globeview.terrain.stack import TerrainStack
-    from globeview.terrain.store import TileStore
+    from globeview.terrain.compose.stack import TerrainStack
+    from globeview.terrain.store.tile_store import TileStore
 
     def render(wireframe: bool) -> tuple[object, np.ndarray]:
         stores = [TileStore.open(p) for p in store_paths]

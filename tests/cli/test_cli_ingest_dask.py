@@ -26,7 +26,7 @@ def closed_port() -> int:
 
 
 def test_unreachable_scheduler_is_one_line(tmp_path: Path) -> None:
-    from globeview.terrain.ingest import ingest
+    from globeview.terrain.ingest.driver import ingest
 
     if "scheduler" not in inspect.signature(ingest).parameters:
         pytest.fail("ingest() has no scheduler keyword (issue #18's Dask ingest)")

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from globeview.terrain.store_schema import FORMAT_VERSION
+from globeview.terrain.store.schema import FORMAT_VERSION
 
 from .run_cli import GLOBEVIEW, globeview, one_error_line
 
@@ -54,7 +54,7 @@ def served(tmp_path_factory):
     import shutil
 
     from globeview.bench.http_server import StaticServer
-    from globeview.terrain.ingest import ingest
+    from globeview.terrain.ingest.driver import ingest
 
     root = tmp_path_factory.mktemp("www")
     ingest([DATA / "topobathy_vancouver.tif"], root / "store")

@@ -24,8 +24,8 @@ from globeview.plugins.api import Polyline
 from globeview.plugins.registry import PluginRegistry
 from globeview.plugins.settings import MemorySettings
 from globeview.render.offscreen import OffscreenTarget, create_headless_context
+from globeview.terrain.compose.stack import TerrainStack
 from globeview.terrain.embedded import embedded_stores
-from globeview.terrain.stack import TerrainStack
 
 A = (-122.1, 43.0)  # just north of Crater Lake
 B = (-122.6, 48.05)  # the south end of the Salish Sea topobathy

@@ -27,8 +27,8 @@ def session():
     from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.settings import MemorySettings
     from globeview.render.offscreen import OffscreenTarget, RenderError, create_headless_context
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
 
     try:
         ctx = create_headless_context()

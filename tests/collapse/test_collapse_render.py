@@ -37,8 +37,8 @@ def session(gl):
     from globeview.app.session import GlobeSession
     from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.settings import MemorySettings
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
 
     terrain = TerrainStack.from_stores(embedded_stores())
     reg = PluginRegistry(MemorySettings()).discover()

@@ -110,7 +110,7 @@ def test_ingest(name: str, work, corpus_snapshot) -> None:
         assert (out / "manifest.json").is_file()
         _strict_json((out / "manifest.json").read_text(), "the store's manifest.json")
         assert not leftovers(work.cwd), leftovers(work.cwd)
-        from globeview.terrain.store import TileStore
+        from globeview.terrain.store.tile_store import TileStore
 
         store = TileStore.open(out)
         _w, s, _e, n = store.bounds
@@ -200,21 +200,21 @@ def test_the_no_crs_hint_works(work, command: str) -> None:
 
 @pytest.mark.parametrize("name", CASES)
 def test_library_entry_point(name: str, tmp_path: Path, monkeypatch, capfd) -> None:
-    """What the window and plugins call in-process (`open_or_ingest`: open the DEM, ingest it
+    """What the window and plugins call in-process (`open_source`: open the DEM, ingest it
     into the cache, open the store): a store for valid inputs; otherwise a `GlobeviewError`
     with a one-line message and never another exception, with nothing on the process's
     stderr (GDAL's C-level chatter included) and nothing left in the cache."""
     from globeview.errors import GlobeviewError
-    from globeview.terrain.embedded import open_or_ingest
+    from globeview.terrain.sources import open_source
 
     cache = tmp_path / "cache"
     monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(cache))
     case = CASES[name]
     if case.valid:
-        assert open_or_ingest(case.path).max_level >= 0
+        assert open_source(case.path).max_level >= 0
     else:
         with pytest.raises(GlobeviewError) as err:
-            open_or_ingest(case.path)
+            open_source(case.path)
         message = str(err.value)
         assert message.strip() and "\n" not in message.strip(), repr(message)
         if case.error_substring:
@@ -446,7 +446,7 @@ def _wait_for_work_folder(parent: Path, proc: subprocess.Popen, limit_s: float =
 def test_ingest_killed_then_rerun(work, seed: int, when: str) -> None:
     """SIGKILL at a seeded random moment of an ingest, then the same ingest again: exit 0, a
     store that opens, and nothing left of the killed run."""
-    from globeview.terrain.store import TileStore
+    from globeview.terrain.store.tile_store import TileStore
 
     src = DATA / "N44W072.hgt"
     out = work.cwd / "store"
@@ -504,7 +504,7 @@ def test_ingest_interrupted_by_ctrl_c(work, seed: int) -> None:
     assert b"Traceback" not in err
     assert not leftovers(work.cwd), leftovers(work.cwd)
     if out.exists():  # interrupted inside the final rename: then the store is complete
-        from globeview.terrain.store import TileStore
+        from globeview.terrain.store.tile_store import TileStore
 
         TileStore.open(out)
 

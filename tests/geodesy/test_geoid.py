@@ -14,7 +14,7 @@ import pytest
 import rasterio
 
 from globeview.geodesy.geoid import Geoid
-from globeview.terrain.vdatum import geoid_path
+from globeview.terrain.dem.vdatum import geoid_path
 
 #: The original grid, next to the checkout; absent in a clean clone.
 GTX = Path(__file__).resolve().parents[3] / "shared" / "data" / "egm96_15.gtx"
@@ -63,7 +63,7 @@ def _gtx_for_proj(tmp_path: Path) -> Path:
 
 @pytest.fixture(scope="module")
 def egm96():
-    from globeview.terrain.vdatum import egm96
+    from globeview.terrain.dem.vdatum import egm96
 
     return egm96()
 

@@ -26,8 +26,9 @@ from globeview.lod.tile_indices import IndexVariant
 from globeview.lod.traversal import traverse
 from globeview.lod.view_state import ViewState
 from globeview.model.camera import Camera
+from globeview.terrain.compose.metadata import N_STRIDES
+from globeview.terrain.compose.stack import TerrainStack
 from globeview.terrain.quadtree import tile_bounds_arrays
-from globeview.terrain.stack import N_STRIDES, TerrainStack
 
 #: (lon, lat, height, heading, pitch) of the compared views.
 VIEWS = {

@@ -158,8 +158,8 @@ def test_neighbour_edge_strides() -> None:
 # -- selection -----------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def terrain():
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
 
     return TerrainStack.from_stores(embedded_stores())
 

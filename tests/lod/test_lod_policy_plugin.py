@@ -177,7 +177,7 @@ def test_tile_caches_are_per_terrain(globeview_terrain, headless_view) -> None:
     from globeview.lod import tile_cache
     from globeview.lod.sse_policy import ScreenSpaceErrorPolicy
     from globeview.lod.traversal import traverse
-    from globeview.terrain.stack import TerrainStack
+    from globeview.terrain.compose.stack import TerrainStack
 
     view = headless_view(-71.3, 44.27, 3.0e5)
     other = TerrainStack.from_stores([globeview_terrain.layers[0].store])  # the base alone

@@ -19,7 +19,7 @@ from globeview.app.testing import make_view
 from globeview.plugins.builtin.chunked.provider import ChunkedSseProvider
 from globeview.plugins.builtin.regions.provider import DistanceRegionsProvider
 from globeview.plugins.builtin.wavelet.provider import WaveletProvider
-from globeview.terrain.stack import TerrainStack
+from globeview.terrain.compose.stack import TerrainStack
 
 
 @pytest.fixture

@@ -23,8 +23,8 @@ VIEWS = {
 
 @pytest.fixture(scope="module")
 def terrain():
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
 
     return TerrainStack.from_stores(embedded_stores())
 
@@ -197,8 +197,8 @@ def test_unchanged_view_reuses_the_meshes(terrain) -> None:
 
 
 def test_registry_loads_and_runs_it(globeview_registry) -> None:
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
 
     prov = globeview_registry.lod_providers()["quadtree-clod"]
     rs = globeview_registry.select(

@@ -20,8 +20,8 @@ MAGENTA = (1.0, 0.0, 1.0)
 
 @pytest.fixture(scope="module")
 def terrain():
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
 
     return TerrainStack.from_stores(embedded_stores())
 

@@ -10,7 +10,7 @@ import sys
 import pytest
 
 from globeview.model import Camera, DisplaySettings, Globe
-from globeview.terrain.stack import TerrainStack
+from globeview.terrain.compose.stack import TerrainStack
 
 
 def _recorder(signal) -> list:
@@ -90,7 +90,7 @@ def test_overlays_list_and_events(globe: Globe) -> None:
 
 
 def test_terrain_changes_reach_the_globe_once(globe: Globe) -> None:
-    from globeview.terrain.stack import TerrainLayer
+    from globeview.terrain.compose.stack import TerrainLayer
 
     terrain = globe.terrain
     terrain.layers = [TerrainLayer(None, "a"), TerrainLayer(None, "b")]  # type: ignore[arg-type]

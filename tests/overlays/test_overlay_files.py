@@ -16,7 +16,7 @@ from globeview.plugins.builtin.layers.types import (
     VectorLayerType,
     detect_layer_type,
 )
-from globeview.terrain.dem import EMBEDDED_DATA_DIR
+from globeview.terrain.dem.data import EMBEDDED_DATA_DIR
 from globeview.terrain.imagery import ImageryError, RasterImagery, texel_grid
 from globeview.terrain.vectors import GEOD, VectorError, densify, read_geojson_lines
 

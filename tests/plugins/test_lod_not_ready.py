@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from globeview.terrain.remote import TileNotReady
+from globeview.terrain.store.backend import TileNotReady
 
 
 @pytest.fixture
@@ -21,9 +21,9 @@ def remote_wm(tmp_path):
     with its blend mask read (as the window's loader thread does) and reads on this thread
     forbidden to wait for the network."""
     from globeview.bench.http_server import StaticServer
-    from globeview.terrain.blend import BlendMask
+    from globeview.terrain.compose.blend import BlendMask
     from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.store import TileStore
+    from globeview.terrain.store.tile_store import TileStore
 
     wm = next(st for st in embedded_stores() if st.path.name.startswith("N44W072"))
     shutil.copytree(wm.path, tmp_path / "www" / "wm")
@@ -40,8 +40,8 @@ def test_a_provider_reading_late_tiles_is_not_failed(remote_wm, monkeypatch, tmp
     from globeview.model.camera import Camera
     from globeview.plugins.registry import PluginRegistry
     from globeview.render.offscreen import OffscreenTarget, create_headless_context
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
 
     monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(tmp_path / "cache"))
     server, store = remote_wm

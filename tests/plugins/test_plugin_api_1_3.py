@@ -75,7 +75,7 @@ def _tool_host(plugin_site: PluginSite, impl: str):
     from globeview.model.globe import Globe
     from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.settings import MemorySettings
-    from globeview.terrain.stack import TerrainStack
+    from globeview.terrain.compose.stack import TerrainStack
 
     plugin_site.add(
         "gvt_plotter", plugin_manifest("gvt-plotter", "gvt_plotter", "tool", "T"), {"impl": impl}

@@ -23,8 +23,8 @@ def test_chunked_sse_plugin_renders_pixel_identical_to_the_direct_selection() ->
     from globeview.plugins.settings import MemorySettings
     from globeview.render.offscreen import OffscreenTarget, create_headless_context
     from globeview.render.scene import GlobeScene
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
 
     ctx = create_headless_context()
     size = (240, 160)

@@ -278,8 +278,8 @@ def test_plugins_list_check_names_the_failed_contribution(
 @pytest.fixture(scope="module")
 def gl():
     from globeview.render.offscreen import RenderError, create_headless_context
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
 
     try:
         ctx = create_headless_context()

@@ -51,8 +51,8 @@ def _add_wrapper(site, name: str, inner: str) -> None:
 
 @pytest.fixture(scope="module")
 def terrain():
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
 
     return TerrainStack.from_stores(embedded_stores())
 

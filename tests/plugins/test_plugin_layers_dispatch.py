@@ -276,7 +276,7 @@ def test_a_geojson_file_is_parsed_once_while_unchanged(tmp_path, monkeypatch) ->
     import globeview.plugins.builtin.layers.types as layers
     from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.settings import MemorySettings
-    from globeview.terrain.dem import EMBEDDED_DATA_DIR
+    from globeview.terrain.dem.data import EMBEDDED_DATA_DIR
 
     reg = PluginRegistry(MemorySettings()).discover()
     src = tmp_path / "cities.geojson"

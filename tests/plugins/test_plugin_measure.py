@@ -48,11 +48,11 @@ def srtm_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def srtm_stack(srtm_cache: Path, monkeypatch: pytest.MonkeyPatch):
     """The composed terrain of the SRTM tile alone, its store in the module's cache (the
     same store `globeview height ... data/N44W072.hgt` opens with that cache)."""
-    from globeview.terrain.embedded import open_or_ingest
-    from globeview.terrain.stack import TerrainStack
+    from globeview.terrain.compose.stack import TerrainStack
+    from globeview.terrain.sources import open_source
 
     monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(srtm_cache))
-    return TerrainStack.from_stores([open_or_ingest(SRTM)], [SRTM.name])
+    return TerrainStack.from_stores([open_source(SRTM)], [SRTM.name])
 
 
 def ecef(lon: float, lat: float, h: float) -> np.ndarray:

@@ -26,8 +26,8 @@ def gl_ctx(globeview_gl):
 
 @pytest.fixture(scope="session")
 def terrain():
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
 
     return TerrainStack.from_stores(embedded_stores())
 

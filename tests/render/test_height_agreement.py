@@ -66,7 +66,7 @@ def _picks(session, collapse=None, camera=WHITE_MOUNTAINS):
     ids=["white-mountains", "white-mountains-collapse", "crater-lake"],
 )
 def test_picked_height_is_the_height_query(session, camera, collapse, layer) -> None:
-    from globeview.terrain.height_query import answering_layers, composed_heights
+    from globeview.terrain.compose.height_query import answering_layers, composed_heights
 
     picks = _picks(session, collapse, camera)
     assert len(picks) >= 20

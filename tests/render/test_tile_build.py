@@ -23,8 +23,8 @@ from globeview.terrain.quadtree import key_for_lonlat
 
 @pytest.fixture(scope="module")
 def stack():
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
 
     return TerrainStack.from_stores(embedded_stores())
 
@@ -196,7 +196,7 @@ def _plain_read(st, key):
     if not (0 <= ix < g.nx and 0 <= iy < g.ny):
         return np.full((size, size), np.nan, dtype=np.float32)
     n = g.tile_nodes
-    with rasterio.open(st.path / st._levels[level].file) as ds:
+    with rasterio.open(st.path / st.manifest.levels[level].file) as ds:
         return ds.read(1, window=Window(ix * n, iy * n, size, size)).astype(np.float32)
 
 
@@ -252,8 +252,8 @@ def _apron_matches_around(stack, keys):
 
 @pytest.fixture(scope="module")
 def unblended_stack():
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
 
     st = TerrainStack.from_stores(embedded_stores())
     st.blend = False
@@ -285,10 +285,10 @@ def antimeridian_stack(tmp_path_factory):
     import rasterio
     from rasterio.transform import Affine
 
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.ingest import ingest
-    from globeview.terrain.stack import TerrainStack
-    from globeview.terrain.store import TileStore
+    from globeview.terrain.ingest.driver import ingest
+    from globeview.terrain.store.tile_store import TileStore
 
     tmp = tmp_path_factory.mktemp("am")
     stores = list(embedded_stores())

@@ -13,8 +13,8 @@ from globeview.terrain.quadtree import key_for_lonlat
 
 @pytest.fixture(scope="module")
 def stack():
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
 
     return TerrainStack.from_stores(embedded_stores())
 

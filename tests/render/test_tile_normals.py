@@ -18,8 +18,8 @@ LON, LAT = -71.3, 44.25
 
 @pytest.fixture
 def stack():
+    from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
-    from globeview.terrain.stack import TerrainStack
 
     return TerrainStack.from_stores(embedded_stores())
 

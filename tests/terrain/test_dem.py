@@ -1,4 +1,4 @@
-"""Tests of globeview.terrain.dem on the real embedded data and on generated bad inputs."""
+"""Tests of globeview.terrain.dem.reader on the real embedded data and on generated bad inputs."""
 
 from __future__ import annotations
 
@@ -11,7 +11,8 @@ from affine import Affine
 from rasterio.warp import transform as warp_transform
 
 from globeview.errors import DemError
-from globeview.terrain.dem import EMBEDDED_DATA_DIR, embedded_dem_paths, open_dem
+from globeview.terrain.dem.data import EMBEDDED_DATA_DIR, embedded_dem_paths
+from globeview.terrain.dem.reader import open_dem
 
 DATA = EMBEDDED_DATA_DIR
 ETOPO5 = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "etopo5.tif"
@@ -310,7 +311,7 @@ def _reference_window(dem, window, f):  # type: ignore[no-untyped-def]
 
     from rasterio.enums import Resampling
 
-    from globeview.terrain.dem import MAX_HEIGHT_M, MIN_HEIGHT_M
+    from globeview.terrain.dem.reader import MAX_HEIGHT_M, MIN_HEIGHT_M
 
     shape = (max(1, math.ceil(window.height / f)), max(1, math.ceil(window.width / f)))
     clean = not dem.fill_values and not dem.masked_samples
@@ -330,7 +331,7 @@ def test_float32_window_fast_path_is_the_float64_route(tmp_path: Path, nodata) -
     -0, the limits themselves and values just past them, declared nodata, decimation."""
     from rasterio.windows import Window
 
-    from globeview.terrain.dem import MAX_HEIGHT_M, MIN_HEIGHT_M
+    from globeview.terrain.dem.reader import MAX_HEIGHT_M, MIN_HEIGHT_M
 
     rng = np.random.default_rng(4)
     arr = (rng.normal(size=(120, 90)) * 3000.0).astype(np.float32)

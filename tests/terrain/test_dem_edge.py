@@ -4,7 +4,7 @@ Before, over the data's last node spacing the surface ramped toward the ellipsoi
 height query said ``none (ellipsoid)`` there: the nodes just past the data were NaN (GDAL's
 warp leaves a node without data where the source cell holding it is nodata), so the grid
 cells straddling the edge missed corners. Now the store holds the DEM's surface continued
-past its edge at those corners (`globeview.terrain.dem_edge`): wherever the DEM's four samples
+past its edge at those corners (`globeview.terrain.dem.edge`): wherever the DEM's four samples
 around a point are data, the query (and the mesh, built from the same composed nodes) is
 the DEM's own bilinear value, compared here in ellipsoidal heights (the DEM's orthometric
 samples + the EGM96 undulation, as ingest converts them), and names the DEM.
@@ -21,14 +21,14 @@ import rasterio
 from affine import Affine
 from rasterio.warp import transform as warp_transform
 
-from globeview.terrain.dem import open_dem
-from globeview.terrain.dem_edge import DataCells, continue_surface
-from globeview.terrain.height_query import NO_LAYER, answering_layers, composed_heights
-from globeview.terrain.ingest import ingest
+from globeview.terrain.compose.height_query import NO_LAYER, answering_layers, composed_heights
+from globeview.terrain.compose.stack import TerrainStack
+from globeview.terrain.dem.edge import DataCells, continue_surface
+from globeview.terrain.dem.reader import open_dem
+from globeview.terrain.dem.vdatum import egm96
+from globeview.terrain.ingest.driver import ingest
 from globeview.terrain.quadtree import key_for_lonlat, node_spacing, tile_bounds_arrays
-from globeview.terrain.stack import TerrainStack
-from globeview.terrain.store import TileStore
-from globeview.terrain.vdatum import egm96
+from globeview.terrain.store.tile_store import TileStore
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 CRATER_LAKE = DATA / "craterlake-elev-16bit-30m.tif"

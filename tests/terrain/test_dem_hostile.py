@@ -16,9 +16,9 @@ from affine import Affine
 from rasterio.io import MemoryFile
 
 from globeview.errors import DemError
-from globeview.terrain.dem import MAX_HEIGHT_M, MIN_HEIGHT_M, open_dem
-from globeview.terrain.ingest import ingest
-from globeview.terrain.store import TileStore
+from globeview.terrain.dem.reader import MAX_HEIGHT_M, MIN_HEIGHT_M, open_dem
+from globeview.terrain.ingest.driver import ingest
+from globeview.terrain.store.tile_store import TileStore
 
 # 100 x 100 cells of 0.01 deg at 5E..6E, 44N..45N; heights 100 .. 2080 m, no two rows equal.
 T = Affine(0.01, 0, 5.0, 0, -0.01, 45.0)

@@ -1,4 +1,4 @@
-"""The point height query (`globeview.terrain.height_query`) on real stores ingested from
+"""The point height query (`globeview.terrain.compose.height_query`) on real stores ingested from
 rasters written here: it answers the surface the LOD converges to (the composed tile nodes at
 the finest level, bilinear between them), vectorised over points, and names the layer that
 answered."""
@@ -14,16 +14,16 @@ import rasterio
 from rasterio.transform import from_origin
 
 from globeview.errors import GlobeviewError
-from globeview.terrain.height_query import (
+from globeview.terrain.compose.height_query import (
     NO_LAYER,
     answering_layers,
     check_lonlat,
     composed_heights,
 )
-from globeview.terrain.ingest import ingest
+from globeview.terrain.compose.stack import TerrainStack
+from globeview.terrain.ingest.driver import ingest
 from globeview.terrain.quadtree import key_for_lonlat, tile_bounds_arrays
-from globeview.terrain.stack import TerrainStack
-from globeview.terrain.store import TileStore
+from globeview.terrain.store.tile_store import TileStore
 
 
 def _write(path: Path, arr: np.ndarray, west: float, north: float, d: float) -> Path:

@@ -13,13 +13,13 @@ import rasterio
 from affine import Affine
 
 from globeview.errors import DemError, GlobeviewError, StoreError
-from globeview.terrain import ingest_graph
-from globeview.terrain.dem import open_dem
-from globeview.terrain.ingest import ingest
+from globeview.terrain.dem.reader import open_dem
+from globeview.terrain.ingest import schedule as ingest_graph
+from globeview.terrain.ingest.driver import ingest
+from globeview.terrain.ingest.wavelet import approximate_grid
 from globeview.terrain.quadtree import TileKey, tile_bounds
-from globeview.terrain.store import TileStore
-from globeview.terrain.store_schema import write_json_array
-from globeview.terrain.wavelet import approximate_grid
+from globeview.terrain.store.schema import write_json_array
+from globeview.terrain.store.tile_store import TileStore
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 SHARED = Path("/work/shared/data")

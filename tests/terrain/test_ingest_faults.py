@@ -15,9 +15,9 @@ from pathlib import Path
 
 import pytest
 
-from globeview.terrain import ingest as ingest_mod
-from globeview.terrain.ingest import FAULT_ENV, clean_stale_builds, ingest
-from globeview.terrain.store import TileStore
+from globeview.terrain.ingest.driver import FAULT_ENV, ingest
+from globeview.terrain.ingest.safety import build_folder, clean_stale_builds
+from globeview.terrain.store.tile_store import TileStore
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "data"
@@ -107,9 +107,9 @@ def test_kill9_at_a_random_time_then_reingest_is_clean(
 
 def test_a_live_build_is_never_cleaned(tmp_path: Path) -> None:
     # This process holds a build folder (and its lock) while another process cleans.
-    with ingest_mod._build_folder(tmp_path, "s") as (building, _tok):
+    with build_folder(tmp_path, "s") as (building, _tok):
         (building / "level_00.tif").write_bytes(b"in progress")
-        code = "import sys; from pathlib import Path; from globeview.terrain.ingest import "
+        code = "import sys; from pathlib import Path; from globeview.terrain.ingest.safety import "
         code += "clean_stale_builds as c; print(c(Path(sys.argv[1])))"
         r = subprocess.run(
             [sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True

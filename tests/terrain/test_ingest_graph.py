@@ -17,10 +17,11 @@ import numpy as np
 import pytest
 
 from globeview.errors import StoreError
-from globeview.terrain import dem as dem_mod
-from globeview.terrain.dem import open_dem
-from globeview.terrain.ingest import FAULT_ENV, ingest
-from globeview.terrain.store import MANIFEST_NAME, TileStore
+from globeview.terrain.dem import reader as dem_mod
+from globeview.terrain.dem.reader import open_dem
+from globeview.terrain.ingest.driver import FAULT_ENV, ingest
+from globeview.terrain.store.identify import MANIFEST_NAME
+from globeview.terrain.store.tile_store import TileStore
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 # Global (the east edge of a level's last chunk is its first chunk's west edge: lon 180 is

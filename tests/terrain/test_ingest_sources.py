@@ -15,8 +15,8 @@ import rasterio
 from rasterio.windows import Window
 
 from globeview.errors import DemError
-from globeview.terrain.ingest import ingest
-from globeview.terrain.ingest_sources import expand_sources
+from globeview.terrain.ingest.driver import ingest
+from globeview.terrain.ingest.sources import expand_sources
 
 SRTM = Path(__file__).resolve().parents[2] / "data" / "N44W072.hgt"
 GLOBEVIEW = Path(sys.executable).with_name("globeview")

@@ -12,8 +12,9 @@ import pytest
 import rasterio
 from affine import Affine
 
-from globeview.terrain.ingest import ingest
-from globeview.terrain.store import MANIFEST_NAME, TileStore
+from globeview.terrain.ingest.driver import ingest
+from globeview.terrain.store.identify import MANIFEST_NAME
+from globeview.terrain.store.tile_store import TileStore
 
 RES = 1.0 / 2048  # degrees: finest level 12 (tile_n 6), 1456 nodes a degree
 N = 2048  # pixels a side: each 1-degree tile spans 2 chunk columns of level 12

@@ -1,4 +1,4 @@
-"""Tests for the M-band wavelet transforms (globeview.terrain.mband, Zhang eq. 4-5)."""
+"""Tests for the M-band wavelet transforms (globeview.terrain.ingest.mband, Zhang eq. 4-5)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 import pywt
 
 from globeview.errors import GlobeviewError
-from globeview.terrain.mband import (
+from globeview.terrain.ingest.mband import (
     mband_approximate,
     mband_approximate_grid,
     mband_decompose2d,

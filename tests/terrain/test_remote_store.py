@@ -22,12 +22,13 @@ import rasterio
 
 from globeview.bench.http_server import StaticServer
 from globeview.errors import StoreError
-from globeview.terrain import remote
-from globeview.terrain.http_cache import DiskCache
 from globeview.terrain.quadtree import TileKey
-from globeview.terrain.remote import RemoteError, RemoteOptions, TileNotReady, fetch, is_url
-from globeview.terrain.store import TileStore
-from globeview.terrain.store_schema import FORMAT_VERSION
+from globeview.terrain.store import http as remote
+from globeview.terrain.store.backend import TileNotReady
+from globeview.terrain.store.http import RemoteError, RemoteOptions, fetch, is_url
+from globeview.terrain.store.http_cache import DiskCache
+from globeview.terrain.store.schema import FORMAT_VERSION
+from globeview.terrain.store.tile_store import TileStore
 
 # ---------------------------------------------------------------------------------------------
 # Fixtures: a folder of files with known bytes, served
@@ -451,7 +452,7 @@ def store_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A folder holding ``n44/``, the store of the SRTM3 White Mountains tile (levels 0-12,
     four chunk files at level 12), and ``not-a-store/`` (a folder with a foreign
     manifest.json)."""
-    from globeview.terrain.ingest import ingest
+    from globeview.terrain.ingest.driver import ingest
 
     root = tmp_path_factory.mktemp("remote")
     ingest([_n44()], root / "n44")
@@ -686,13 +687,13 @@ def test_a_thread_forbidden_the_network_never_waits(
         for _ in range(50):  # asked again and again (a cursor over it): loaded once
             with pytest.raises(TileNotReady):
                 st.heights(key)
-        assert len(st._loading) == 1
+        assert len(st._prefetch.loading) == 1
         deadline = time.monotonic() + 30
         while not st.cached(key) and time.monotonic() < deadline:
             time.sleep(0.05)  # loaded by the store's background pool meanwhile
         assert st.heights(key).shape == (st.tile_size, st.tile_size)
         time.sleep(0.1)
-        assert not st._loading
+        assert not st._prefetch.loading
     # One load of the tile's pages, not one per ask.
     assert len(served.requests("*/level_12_r0001_c0001.tif")) <= 4
 
@@ -803,7 +804,7 @@ def test_a_remote_store_renders_as_the_local_one(store_root: Path, served, tmp_p
     """The real pipeline (the harness's headless session, the window's FramePipeline) draws
     the same image from the store over HTTP as from its folder."""
     from globeview.bench.harness import Bench
-    from globeview.terrain.stack import TerrainStack
+    from globeview.terrain.compose.stack import TerrainStack
 
     pose = (-71.3, 44.27, 2.0e4, 0.0, -35.0)  # Mount Washington, oblique
     images = []
@@ -884,9 +885,9 @@ def test_remote_datasets_never_crash_the_garbage_collector(
 import gc, threading
 from pathlib import Path
 from globeview.bench.http_server import StaticServer
-from globeview.terrain import remote
-from globeview.terrain.remote import RemoteOptions
-from globeview.terrain.store import TileStore
+from globeview.terrain.store import http as remote
+from globeview.terrain.store.http import RemoteOptions
+from globeview.terrain.store.tile_store import TileStore
 srv = StaticServer({str(store_root)!r}).start()
 opts = RemoteOptions(cache_dir=Path({str(tmp_path / "c")!r}))
 st = TileStore.open(srv.url + "/n44", remote_options=opts)

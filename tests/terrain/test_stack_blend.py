@@ -7,11 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import globeview.terrain.blend as blend_mod
-import globeview.terrain.stack as stack_mod
-from globeview.terrain.blend import blend_band
+import globeview.terrain.compose.blend as blend_mod
+import globeview.terrain.compose.metadata as metadata_mod
+import globeview.terrain.interpolate as interpolate_mod
+from globeview.terrain.compose.blend import blend_band
+from globeview.terrain.compose.stack import TerrainStack
 from globeview.terrain.quadtree import tile_bounds_arrays, tiles_covering
-from globeview.terrain.stack import TerrainStack
 
 
 @pytest.fixture(scope="module")
@@ -96,7 +97,7 @@ def _border_and_relief(stores, name, level, blend=True):
     size = stack.tile_size
 
     def own(key):
-        h = stack._layer_heights(regional, key)
+        h = stack._tiles.layer_heights(regional, key)
         return np.full((size, size), np.nan) if h is None else h
 
     rgrid, _, _ = mosaic(stack, level, (west - m, south - m, east + m, north + m), own)
@@ -175,11 +176,11 @@ def test_recorded_errors_bound_the_blended_surface(stores, name, level):
                 t = stack.heights((fine, int(x) * sub + k, int(y) * sub + j))
                 big[j * cells : (j + 1) * cells + 1, k * cells : (k + 1) * cells + 1] = t
         h = stack.heights((level, int(x), int(y))).astype(np.float64)
-        for si in range(stack_mod.N_STRIDES):
+        for si in range(metadata_mod.N_STRIDES):
             s = 2**si
             p = pos / s
             rr, cc = np.meshgrid(p, p, indexing="ij")
-            drawn = stack_mod.bilinear(h[::s, ::s], rr.ravel(), cc.ravel()).reshape(big.shape)
+            drawn = interpolate_mod.bilinear(h[::s, ::s], rr.ravel(), cc.ravel()).reshape(big.shape)
             err = float(np.abs(drawn - big).max())
             assert err <= meta.stride_error[i, si] + 1e-3, (x, y, s, err, meta.stride_error[i])
     assert len(xs) > 0
@@ -251,8 +252,8 @@ def test_a_layer_across_the_antimeridian_feathers_on_both_sides(tmp_path):
     import rasterio
     from rasterio.transform import from_origin
 
-    from globeview.terrain.ingest import ingest
-    from globeview.terrain.store import TileStore
+    from globeview.terrain.ingest.driver import ingest
+    from globeview.terrain.store.tile_store import TileStore
 
     def write(name, arr, west, north, d):
         path = tmp_path / f"{name}.tif"

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from globeview.errors import StoreError
-from globeview.terrain import stack as stack_module
-from globeview.terrain.stack import TerrainStack
-from globeview.terrain.store import TileStore
+from globeview.terrain.compose import band_errors
+from globeview.terrain.compose.stack import TerrainStack
+from globeview.terrain.store.tile_store import TileStore
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 
@@ -34,7 +34,7 @@ class FlakyStore(TileStore):
 
 @pytest.fixture(scope="module")
 def vancouver_store(tmp_path_factory) -> Path:
-    from globeview.terrain.ingest import ingest
+    from globeview.terrain.ingest.driver import ingest
 
     out = tmp_path_factory.mktemp("stores") / "vancouver"
     ingest([DATA / "topobathy_vancouver.tif"], out)
@@ -69,7 +69,7 @@ def test_unreadable_band_tiles_are_bounded_then_measured(vancouver_store, monkey
     ref = ref_stack.metadata(level, xs, ys).stride_error
     failing = {(level, int(x), int(y)) for x, y in zip(xs[::2], ys[::2], strict=True)}
     assert len(failing) >= 2
-    monkeypatch.setattr(stack_module, "DIFF_RETRY_S", 0.0)  # retried at every call
+    monkeypatch.setattr(band_errors, "DIFF_RETRY_S", 0.0)  # retried at every call
     stack, top = _stack(vancouver_store, failing)
     got = stack.metadata(level, xs, ys).stride_error  # no StoreError escapes
     assert np.all(np.isfinite(got))
@@ -79,7 +79,7 @@ def test_unreadable_band_tiles_are_bounded_then_measured(vancouver_store, monkey
     assert np.all(stack.metadata(level, xs, ys).stride_error >= ref - 1e-9)
     # The server serves them again: the next call measures them, as if none had failed.
     top.failing.clear()
-    stack._cache.clear()
+    stack._tiles.clear()
     np.testing.assert_array_equal(stack.metadata(level, xs, ys).stride_error, ref)
 
 
@@ -96,7 +96,7 @@ def test_unreadable_ancestors_of_virtual_tiles_keep_the_ancestor_bound(vancouver
     got = stack.metadata(level, xs, ys).stride_error
     assert np.all(np.isfinite(got)) and np.all(got >= ref - 1e-9)
     top.failing.clear()  # readable again: measured (nothing unmeasured was kept)
-    stack._cache.clear()
+    stack._tiles.clear()
     np.testing.assert_array_equal(stack.metadata(level, xs, ys).stride_error, ref)
 
 

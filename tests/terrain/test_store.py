@@ -13,10 +13,10 @@ import pytest
 import rasterio
 
 from globeview.errors import StoreError
-from globeview.terrain.ingest import ingest
+from globeview.terrain.ingest.driver import ingest
 from globeview.terrain.quadtree import TileKey
-from globeview.terrain.store import TileStore
-from globeview.terrain.store_schema import FORMAT_VERSION
+from globeview.terrain.store.schema import FORMAT_VERSION
+from globeview.terrain.store.tile_store import TileStore
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 

@@ -17,11 +17,12 @@ import rasterio
 from affine import Affine
 
 from globeview.errors import StoreError
-from globeview.terrain.embedded import open_or_ingest, store_path_for
-from globeview.terrain.ingest import ingest
+from globeview.terrain.ingest.driver import ingest
 from globeview.terrain.quadtree import TileKey
-from globeview.terrain.store import TileStore, identify
-from globeview.terrain.store_schema import FORMAT_VERSION, STORE_FORMAT
+from globeview.terrain.sources import open_source, store_path_for
+from globeview.terrain.store.identify import identify
+from globeview.terrain.store.schema import FORMAT_VERSION, STORE_FORMAT
+from globeview.terrain.store.tile_store import TileStore
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "data"
@@ -155,9 +156,9 @@ def test_cached_store_of_another_version_is_rebuilt_silently(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(tmp_path / "cache"))
-    open_or_ingest(SMALL).close()
+    open_source(SMALL).close()
     _legacy(store_path_for(SMALL))
-    with open_or_ingest(SMALL) as st:  # globeview owns its cache: no --force needed
+    with open_source(SMALL) as st:  # globeview owns its cache: no --force needed
         assert st.manifest.header.format == STORE_FORMAT
         assert st.manifest.header.format_version == FORMAT_VERSION
 
@@ -196,7 +197,7 @@ def test_two_dems_with_one_file_name_get_two_stores(
     b = _dem(tmp_path / "b" / "dem.tif", 3000.0)
     assert store_path_for(a) != store_path_for(b)
     assert store_path_for(a) == store_path_for(tmp_path / "a" / ".." / "a" / "dem.tif")
-    with open_or_ingest(a) as sa, open_or_ingest(b) as sb:
+    with open_source(a) as sa, open_source(b) as sb:
         lv = sa.max_level
         key = next(
             TileKey(lv, x, y)
@@ -349,10 +350,10 @@ def test_stem_keyed_cache_store_of_format_2_is_dropped(
     foreign = tmp_path / "cache" / "stores" / "dem"  # same place, not a globeview store
     foreign.mkdir()
     (foreign / "manifest.json").write_text("{}")
-    open_or_ingest(SMALL).close()
+    open_source(SMALL).close()
     assert not old.exists()
     _dem(tmp_path / "x" / "dem.tif", 5.0)
-    open_or_ingest(tmp_path / "x" / "dem.tif").close()
+    open_source(tmp_path / "x" / "dem.tif").close()
     assert (foreign / "manifest.json").read_text() == "{}"
 
 
@@ -388,5 +389,5 @@ def test_cache_that_cannot_be_created_is_a_store_error(
     blocker.write_text("a file where the cache folder should be")
     monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(blocker))
     with pytest.raises(StoreError, match="cannot create the store cache"):
-        open_or_ingest(SMALL)
+        open_source(SMALL)
     assert blocker.read_text().startswith("a file")

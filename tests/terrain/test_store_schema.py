@@ -15,9 +15,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from globeview.errors import StoreError
-from globeview.terrain.ingest import STRIDES, ingest
-from globeview.terrain.store import MANIFEST_NAME, TileStore
-from globeview.terrain.store_schema import (
+from globeview.terrain.ingest.driver import STRIDES, ingest
+from globeview.terrain.store.identify import MANIFEST_NAME
+from globeview.terrain.store.schema import (
     FORMAT_VERSION,
     STORE_FORMAT,
     ChunkArray,
@@ -30,6 +30,7 @@ from globeview.terrain.store_schema import (
     StoreHeader,
     StoreManifest,
 )
+from globeview.terrain.store.tile_store import TileStore
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 SMALL = DATA / "craterlake-elev-16bit-30m.tif"

@@ -1,5 +1,6 @@
-"""The fast tile-statistics kernels (globeview.terrain.tile_errors) against the straightforward
-gather-based ones they replace: bit-identical results on random grids with NaN, -0 and inf."""
+"""The fast tile-statistics kernels (globeview.terrain.ingest.tile_errors) against the
+straightforward gather-based ones they replace: bit-identical results on random grids with
+NaN, -0 and inf."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from globeview.terrain.tile_errors import (
+from globeview.terrain.ingest.tile_errors import (
     block_node_max,
     block_node_min,
     cell_max,

@@ -19,11 +19,11 @@ import rasterio
 from affine import Affine
 
 from globeview.errors import DemError, StoreError
-from globeview.terrain.dem import open_dem
-from globeview.terrain.ingest import ingest
-from globeview.terrain.store import TileStore
-from globeview.terrain.store_schema import FORMAT_VERSION
-from globeview.terrain.vdatum import VerticalDatum, egm96, parse_vdatum
+from globeview.terrain.dem.reader import open_dem
+from globeview.terrain.dem.vdatum import VerticalDatum, egm96, parse_vdatum
+from globeview.terrain.ingest.driver import ingest
+from globeview.terrain.store.schema import FORMAT_VERSION
+from globeview.terrain.store.tile_store import TileStore
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 SRTM = DATA / "N44W072.hgt"
@@ -251,14 +251,14 @@ def test_store_built_before_vdatums_is_refused_in_one_line(
 def test_cached_store_built_before_vdatums_is_rebuilt_silently(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from globeview.terrain.embedded import open_or_ingest, store_path_for
+    from globeview.terrain.sources import open_source, store_path_for
 
     monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(tmp_path))
     src = _grid(tmp_path, "EPSG:4326")
-    open_or_ingest(src).close()
+    open_source(src).close()
     cached = store_path_for(src)
     _as_version_3(cached)
-    st = open_or_ingest(src)
+    st = open_source(src)
     assert st.manifest.header.format_version == FORMAT_VERSION
     assert st.manifest.sources[0].vertical_datum == "egm96"
     st.close()
@@ -269,7 +269,7 @@ def test_unreadable_geoid_is_one_line_and_no_store(
 ) -> None:
     """A damaged installation (geoid file truncated) fails the ingest in one DemError line and
     leaves nothing behind."""
-    from globeview.terrain import vdatum
+    from globeview.terrain.dem import vdatum
 
     bad = tmp_path / "egm96_15.tif"
     bad.write_bytes(vdatum.geoid_path().read_bytes()[:5000])

@@ -1,5 +1,5 @@
 """Stride errors of tiles finer than a layer's data (issue #17 item 2): measured on each tile's
-own part of its ancestor (`globeview.terrain.drawn_error`), not copied from the ancestor's
+own part of its ancestor (`globeview.terrain.compose.drawn_error`), not copied from the ancestor's
 whole tile, and still upper bounds on the stride-s surface (bilinear between the drawn nodes,
 the convention of every stored error) against the data's surface (the ancestor's bilinear
 surface), brute force."""
@@ -9,9 +9,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from globeview.terrain.drawn_error import N_STRIDES, AncestorErrors
+from globeview.terrain.compose.drawn_error import N_STRIDES, AncestorErrors
+from globeview.terrain.compose.stack import TerrainStack
+from globeview.terrain.interpolate import upsample_subtile
 from globeview.terrain.quadtree import key_for_lonlat
-from globeview.terrain.stack import TerrainStack, upsample_subtile
 
 SIZE = 65
 
@@ -148,7 +149,7 @@ def test_ancestor_tables_are_kept_within_a_byte_budget_least_recently_used_first
     """More ancestors than the budget holds: the cache stays within it (plus the newest
     table) and keeps the most recent ones, instead of starting again from empty (which
     made every later call cold: ~100 ms instead of ~5 ms over 441 ancestors)."""
-    import globeview.terrain.stack as stack_mod
+    import globeview.terrain.compose.metadata as metadata_mod
     from globeview.terrain.embedded import embedded_stores
 
     st = TerrainStack.from_stores(embedded_stores())
@@ -157,19 +158,19 @@ def test_ancestor_tables_are_kept_within_a_byte_budget_least_recently_used_first
     xs, ys = np.meshgrid(np.arange(x0, x0 + 24, 2), np.arange(y0, y0 + 24, 2))
     x, y = xs.ravel(), ys.ravel()
     first = st.metadata(level, x, y)
-    order = list(st._virtual)
-    tables = [t for t in st._virtual.values() if t is not None]
+    order = list(st._meta._virtual)
+    tables = [t for t in st._meta._virtual.values() if t is not None]
     assert len(tables) > 8
     budget = 4 * max(t.nbytes for t in tables)
-    monkeypatch.setattr(stack_mod, "VIRTUAL_CACHE_BYTES", budget)
+    monkeypatch.setattr(metadata_mod, "VIRTUAL_CACHE_BYTES", budget)
     st._changed()  # a new version: the cache starts empty under the small budget
     again = st.metadata(level, x, y)
-    held = [t.nbytes for t in st._virtual.values() if t is not None]
+    held = [t.nbytes for t in st._meta._virtual.values() if t is not None]
     assert 1 <= len(held) < len(tables)
     # The running count is what the tables hold, and within the budget.
-    assert sum(held) == st._virtual_bytes <= budget
+    assert sum(held) == st._meta._virtual_bytes <= budget
     # The most recently used ancestors are the ones kept (the same order as the run
     # without a budget), and the figures do not depend on the cache.
-    kept = list(st._virtual)
+    kept = list(st._meta._virtual)
     assert kept == order[-len(kept) :]
     np.testing.assert_array_equal(first.stride_error, again.stride_error)

@@ -1,4 +1,4 @@
-"""Tests for the grid-registered dyadic wavelet approximation (globeview.terrain.wavelet)."""
+"""Tests for the grid-registered dyadic wavelet approximation (globeview.terrain.ingest.wavelet)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from globeview.errors import GlobeviewError
-from globeview.terrain.wavelet import (
+from globeview.terrain.ingest.wavelet import (
     WaveletError,
     approximate_grid,
     approximate_window,
@@ -166,7 +166,7 @@ def test_bad_dimensions_and_halo_rejected() -> None:
 def test_strip_filter_is_the_whole_array_filter(wavelet: str, step: int, rows: int) -> None:
     """The cache-sized strips of ``_separable`` give the whole-array passes' floats, bit for
     bit, on heights with NaN (the all-valid, NaN-aware and mask passes all use it) and -0."""
-    from globeview.terrain.wavelet import _filter_decimate, _separable
+    from globeview.terrain.ingest.wavelet import _filter_decimate, _separable
 
     rng = np.random.default_rng(step * 100 + rows)
     taps = lowpass_kernel(wavelet)
@@ -211,7 +211,7 @@ def test_window_with_even_sides_is_refused() -> None:
 
 def _whole_array_nan_filter(fine: np.ndarray, taps: np.ndarray, step: int) -> np.ndarray:
     """The NaN-aware filter as whole-array passes (the former filter_decimate_grid body)."""
-    from globeview.terrain.wavelet import _filter_decimate
+    from globeview.terrain.ingest.wavelet import _filter_decimate
 
     def sep(a: np.ndarray, k: np.ndarray) -> np.ndarray:
         return _filter_decimate(_filter_decimate(a, k, 1, step), k, 0, step)
@@ -239,8 +239,8 @@ def test_nan_blocks_are_the_whole_array_nan_filter(
 ) -> None:
     """The convex values computed per block of touched nodes equal the whole-array formula
     bit for bit: NaN borders, blobs, scattered NaN, an all-NaN raster, -0."""
-    from globeview.terrain import wavelet as wv
-    from globeview.terrain.wavelet import filter_decimate_grid
+    from globeview.terrain.ingest import wavelet as wv
+    from globeview.terrain.ingest.wavelet import filter_decimate_grid
 
     monkeypatch.setattr(wv, "_NAN_BLOCK", block)
     taps = lowpass_kernel(wavelet)

@@ -27,7 +27,7 @@ def test_cursor_height_orthometric_by_default_and_ellipsoidal_by_setting(
     make_window, qtbot, tmp_path
 ):
     from globeview.model.camera import Camera
-    from globeview.terrain.vdatum import egm96
+    from globeview.terrain.dem.vdatum import egm96
 
     settings = tmp_path / "heights.ini"
     win = make_window(camera=Camera.from_lonlat(*WHITE_MOUNTAINS), settings_path=settings)
@@ -61,8 +61,8 @@ def test_layer_panel_opens_a_dem_with_the_chosen_vertical_datum(make_window, sma
     """Layers > "Open DEMs as": a DEM declared as ellipsoidal heights is stored unchanged, in a
     cache store of its own (the default EGM96 store of the same file is another folder, so a
     re-open never rebuilds a store in use); the row's tooltip says which datum it has."""
-    from globeview.terrain.embedded import store_path_for
-    from globeview.terrain.vdatum import egm96
+    from globeview.terrain.dem.vdatum import egm96
+    from globeview.terrain.sources import store_path_for
     from globeview.ui.layer_panel import VDATUM_CHOICES
     from globeview.ui.loading import open_store
 

@@ -67,7 +67,7 @@ def _vrt(path: Path, width: int, height: int, source: str | None) -> Path:
 
 def _damaged_store(tmp: Path) -> Path:
     """A real store whose finest level file was swapped for another valid GeoTIFF."""
-    from globeview.terrain.ingest import ingest
+    from globeview.terrain.ingest.driver import ingest
 
     store = tmp / "hill_store"
     ingest([_write_tif(tmp / "hill_src.tif", _hill(256))], store)
@@ -159,12 +159,17 @@ def test_bad_input_gives_one_line_and_the_globe_keeps_drawing(
     path = BAD_INPUTS[case](inputs)
     user_files = _snapshot(inputs)
     win = make_window()
+    # A file without a CRS makes the window ask for one (tests/ui/test_ui_crs_dialog.py);
+    # here the user cancels, and the file's one line is reported as for any bad input.
+    asked: list[str] = []
+    win.files.loader.ask_crs = lambda p, _exc: asked.append(p)
     capfd.readouterr()  # start of the part under test
     n_msgs, n_frames = len(win.errors.history), win.globe.frames
     layers = [ly.name for ly in win.terrain.layers]
 
     win.files.open_paths([str(path)])
     _wait_refused(qtbot, win, n_msgs)
+    assert asked == ([str(path)] if "no CRS" in case or "without CRS" in case else [])
 
     new = win.errors.history[n_msgs:]
     assert len(new) == 1, [m.text for m in new]
@@ -201,7 +206,7 @@ def test_unicode_path_dem_opens(make_window, qtbot, tmp_path, errors_shown):
 def test_cancelled_ingest_leaves_no_store_and_no_partial_folder(make_window, qtbot, tmp_path):
     """Cancel from the status bar's Cancel button while the ingest is running: the worker
     stops at its next progress step; no `.building-*` folder and no store remain."""
-    from globeview.terrain.embedded import store_path_for
+    from globeview.terrain.sources import store_path_for
 
     # Big enough for many progress steps (each a window of work).
     path = _write_tif(tmp_path / "bigger.tif", np.tile(_hill(256), (8, 8)))
@@ -367,6 +372,7 @@ def test_a_drop_of_bad_and_good_files_reports_the_bad_and_opens_the_good(
     empty = tmp_path / "empty.tif"
     empty.write_bytes(b"")
     win = make_window()
+    win.files.loader.ask_crs = lambda _p, _exc: None  # asked for nocrs.tif's CRS, the user cancels
     win.files.open_paths([str(empty), str(bad), str(good)])
     qtbot.waitUntil(lambda: "good" in [ly.name for ly in win.terrain.layers], timeout=60000)
     qtbot.waitUntil(lambda: not win.files.loader.busy, timeout=60000)

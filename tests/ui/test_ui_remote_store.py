@@ -37,7 +37,7 @@ def served(tmp_path_factory, embedded):
     import shutil
 
     from globeview.bench.http_server import StaticServer
-    from globeview.terrain.ingest import ingest
+    from globeview.terrain.ingest.driver import ingest
 
     root = tmp_path_factory.mktemp("www")
     ingest([DATA / "topobathy_vancouver.tif"], root / "store")
@@ -90,8 +90,8 @@ def test_chunks_answered_500_are_counted_and_the_window_keeps_drawing(
     """The server answers 500 for the finest level's chunks of the White Mountains store;
     the retry policy is shortened to none (the window's default retries each page three
     times with backoff, which only makes this test slower, not different)."""
-    from globeview.terrain.remote import RemoteOptions
-    from globeview.terrain.store import TileStore
+    from globeview.terrain.store.http import RemoteOptions
+    from globeview.terrain.store.tile_store import TileStore
 
     real_open = TileStore.open.__func__
 

@@ -30,7 +30,7 @@ fewer triangles). Here:
   counterpart, so a tile may stop only at the dyadic level nearest to, and at least as fine
   as, an exact 3-band level: levels ceil(k log2 3) = 0, 2, 4, 5, 7, 8, 10, ... This keeps the
   3-band *resolution ladder* (each step at least x3 finer), not the 3-band *filter*: the
-  filtered heights are the store's dyadic approximations. (`globeview.terrain.mband` can
+  filtered heights are the store's dyadic approximations. (`globeview.terrain.ingest.mband` can
   compute true 3-band approximations of a tile, but only per tile from its heights — a
   Python loop per tile per frame, which ``select`` must not do.)
 - **Triangulation** ("until the height error is below the given error"): the accepted tile is

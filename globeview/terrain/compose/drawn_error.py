@@ -9,7 +9,7 @@ and the LOD cut could not profit from it. `AncestorErrors` measures each virtual
 part of its ancestor instead, from per-ancestor tables (built once per ancestor, then looked
 up for all its descendants at once: the global base is virtual nearly everywhere).
 
-The bound, in the convention of every stored stride error (`globeview.terrain.ingest`: the
+The bound, in the convention of every stored stride error (`globeview.terrain.ingest.driver`: the
 surface drawn at stride s is taken as S_s, bilinear between the stride-s nodes, and its
 error is max |S_s - T| against the reference T, the finest data's bilinear surface), metres:
 
@@ -40,7 +40,7 @@ import functools
 
 import numpy as np
 
-#: Number of index strides with errors: 1, 2, 4, ..., 64 (as `stack.N_STRIDES`).
+#: Number of index strides with errors: 1, 2, 4, ..., 64 (as `metadata.N_STRIDES`).
 N_STRIDES = 7
 
 

@@ -18,7 +18,7 @@ import rasterio
 
 from globeview.errors import DemError
 from globeview.geodesy.geoid import Geoid
-from globeview.terrain.dem import EMBEDDED_DATA_DIR
+from globeview.terrain.dem.data import EMBEDDED_DATA_DIR
 
 GEOID_FILE = "egm96_15.tif"
 

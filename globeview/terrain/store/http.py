@@ -1,9 +1,11 @@
-"""Tile stores read over HTTP(S): the manifest, then chunk files by range requests.
+"""The built-in store backend for HTTP(S): the manifest, then chunk files by range requests.
 
 A remote store is the URL of a store folder served by any static HTTP server
-(``https://host/path/store``). `globeview.terrain.store.TileStore.open` hands such a URL to a
-`RemoteSource`, which fetches ``manifest.json`` (bounded, checked exactly as a local one) and
-opens each chunk file (``level_LL_rRRRR_cCCCC.tif``) with GDAL through a Python file object
+(``https://host/path/store``). `HttpBackend` (entry point ``http`` of
+``globeview.store_backends``) claims ``http://`` and ``https://`` texts, checks their form
+(`check_http_url`, what the user typed) and hands the URL to a `RemoteSource`, the store's
+`StoreFiles`, which fetches ``manifest.json`` (bounded, checked exactly as a local
+one) and opens each chunk file (``level_LL_rRRRR_cCCCC.tif``) with GDAL through a Python file object
 whose reads are HTTP range requests, page by page, through a bounded disk cache.
 
 Why rasterio's ``opener=`` over GDAL's ``/vsicurl/`` (both were tried on a level file served
@@ -11,7 +13,7 @@ from 127.0.0.1: same heights, vsicurl 19 requests with its adaptive read-ahead, 
 pages): everything the issue asks of the transport is then ours and testable in Python -
 
 - a *disk* cache bounded in MB with LRU eviction, keyed by the chunk's sha256 from the
-  manifest and the page (`globeview.terrain.http_cache`): vsicurl caches in memory only, per
+  manifest and the page (`globeview.terrain.store.http_cache`): vsicurl caches in memory only, per
   process, keyed by URL, so a store rebuilt on the server could serve stale bytes;
 - a bound on requests in flight for the whole process (`_Gate`): GDAL has none across
   datasets;
@@ -41,11 +43,11 @@ offline); a thread in `forbid_network_on` never waits (`TileNotReady`).
 
 Failure contract: every error here is a `StoreError` (or its subclass `RemoteError`) with a
 one-line message. GDAL swallows an exception raised inside a file object's read and reports
-a generic I/O error, so the file object records the error (`take_error`) and the store
-raises that instead.
+a generic I/O error, so the file object records the error (`backend.record_error`) and the
+store raises that instead (`backend.take_error`).
 
 The transport (`fetch`, `RemoteOptions`, `RemoteError`, `is_url`) is
-`globeview.terrain.http_fetch`, the disk cache `globeview.terrain.http_cache`; both are
+`globeview.terrain.store.http_fetch`, the disk cache `globeview.terrain.store.http_cache`; both are
 re-exported here, the one module other layers import.
 
 Units: sizes in bytes unless a name says MB or KB; times in seconds.
@@ -63,14 +65,21 @@ import threading
 import time
 import urllib.parse
 from collections import OrderedDict
-from dataclasses import dataclass, field
-from typing import Any
+from pathlib import Path
+from typing import Any, ClassVar
 
 import rasterio
 from rasterio.abc import FileContainer
 
-from globeview.errors import StoreError
-from globeview.terrain.http_fetch import (
+from globeview.errors import GlobeviewError, StoreError
+from globeview.terrain.store.backend import (
+    StoreFiles,
+    TileNotReady,
+    record_error,
+    take_error,
+    url_scheme,
+)
+from globeview.terrain.store.http_fetch import (
     GATE,
     MAX_REDIRECTS,
     WHOLE_FILE_LIMIT,
@@ -87,27 +96,22 @@ from globeview.terrain.http_fetch import (
 __all__ = [
     "GATE",
     "MAX_REDIRECTS",
+    "MAX_URL_CHARS",
     "WHOLE_FILE_LIMIT",
+    "HttpBackend",
     "RemoteError",
     "RemoteOptions",
     "RemoteSource",
-    "TileNotReady",
+    "check_http_url",
     "clear_memory",
     "close_dataset",
     "fetch",
     "is_url",
     "looks_like_url",
     "open_datasets",
-    "take_error",
 ]
 
 _SHA256 = re.compile(r"^[0-9a-f]{64}$")
-
-
-class TileNotReady(StoreError):
-    """A read on a thread that must not wait on the network (`RemoteSource.forbid_network_on`)
-    needed bytes that are not cached yet: the caller shows the tile as loading and asks
-    again later."""
 
 
 #: Pages kept in memory, process-wide (64 KB pages: 8 MB), least recently used dropped: they
@@ -343,19 +347,6 @@ class _RemoteBytes:
         return out[off : off + (end - pos)]
 
 
-# The error of the last failed remote read on this thread (GDAL hides the exception).
-_errors = threading.local()
-
-
-def take_error() -> BaseException | None:
-    """The `RemoteError` (or `TileNotReady`, or a KeyboardInterrupt that arrived during the
-    read) of this thread's last failed remote read since the last call (and forget it); None
-    if there was none."""
-    err = getattr(_errors, "error", None)
-    _errors.error = None
-    return err
-
-
 class _RemoteFile(io.RawIOBase):
     """A read-only, seekable file object over `_RemoteBytes` (what GDAL reads through)."""
 
@@ -396,17 +387,17 @@ class _RemoteFile(io.RawIOBase):
 
     @staticmethod
     def _guard(fn: Any, failed: Any) -> Any:
-        """``fn()``, or ``failed`` after recording the `RemoteError` (`take_error`): an
+        """``fn()``, or ``failed`` after recording the `RemoteError` (`record_error`): an
         exception raised into GDAL's callbacks is at best a generic error and at worst a
         crash (a failed size read as a huge length), so the callbacks never raise."""
         try:
             return fn()
         except StoreError as exc:
-            _errors.error = exc
+            record_error(exc)
         except Exception as exc:  # noqa: BLE001 - never into GDAL; reported by the store
-            _errors.error = RemoteError(f"reading over HTTP: {type(exc).__name__}: {exc}", "")
+            record_error(RemoteError(f"reading over HTTP: {type(exc).__name__}: {exc}", ""))
         except (KeyboardInterrupt, SystemExit) as exc:  # Ctrl-C: raised once GDAL is out
-            _errors.error = exc
+            record_error(exc)
         return failed
 
 
@@ -486,17 +477,21 @@ def _close_all() -> None:
             ctx.run(ds.close)
 
 
-@dataclass
-class RemoteSource:
-    """A store folder at ``base_url`` (no trailing slash) read over HTTP with ``options``."""
+class RemoteSource(StoreFiles):
+    """A store folder at ``base_url`` (no trailing slash) read over HTTP with ``options``:
+    the `StoreFiles` of `HttpBackend`."""
 
-    base_url: str
-    options: RemoteOptions = field(default_factory=RemoteOptions)
+    is_remote: ClassVar[bool] = True
 
-    def __post_init__(self) -> None:
-        if not is_url(self.base_url):
-            raise StoreError(f"not a valid store URL: {self.base_url[:200]!r}")
-        self.base_url = self.base_url.strip().rstrip("/")
+    def __init__(self, base_url: str, options: RemoteOptions | None = None) -> None:
+        if not is_url(base_url):
+            raise StoreError(f"not a valid store URL: {str(base_url)[:200]!r}")
+        self.base_url: str = base_url.strip().rstrip("/")
+        self.options = options if options is not None else RemoteOptions()
+        self.max_requests = self.options.max_requests
+        self.location = self.label
+        # The URL's path names the store too (``path.name``: the layer's name).
+        self.path = Path(urllib.parse.unquote(urllib.parse.urlsplit(self.label).path) or "/")
         self._files: dict[str, _RemoteBytes] = {}
         self._lock = threading.Lock()
         self._opener = _Opener(self._files)
@@ -504,6 +499,11 @@ class RemoteSource:
         self._cancel = Cancel()
         #: True when the manifest came from the disk cache (the server unreachable).
         self.from_cache = False
+
+    @property
+    def offline(self) -> bool:  # type: ignore[override]
+        """Opened from the cached manifest: the server could not be reached."""
+        return self.from_cache
 
     def close(self) -> None:
         """Cancel every read under way and to come (`Cancel`): threads fetching for a closed
@@ -591,3 +591,70 @@ class RemoteSource:
         with _open_lock:
             _open_datasets[ds] = contextvars.copy_context()
         return ds
+
+    def close_raster(self, ds: rasterio.DatasetReader) -> None:
+        """Close a dataset from any thread, in the context it was opened in (`close_dataset`)."""
+        close_dataset(ds)
+
+
+#: Where a URL's form is checked: http(s) only.
+_REMOTE_SCHEMES = ("http", "https")
+#: Host names, IPv4 and IPv6 literals (as `urlsplit`'s hostname: no brackets, no whitespace).
+_HOST = re.compile(r"^([0-9a-f:.]+|[a-z0-9_][a-z0-9_.-]*)$")
+#: Longest URL accepted (browsers and servers commonly stop near 8 kB).
+MAX_URL_CHARS = 4096
+
+
+def check_http_url(text: str) -> str:
+    """The URL of a store over HTTP as it will be requested: stripped, spaces in the path
+    percent-encoded, a trailing slash dropped. Raises a one-line `GlobeviewError` for no
+    host, a bad port, user info, a query or fragment, control characters, or a URL over
+    `MAX_URL_CHARS` (what the user typed; `RemoteSource` itself takes any http(s) URL)."""
+    raw = str(text).strip()
+    shown = raw if len(raw) <= 80 else raw[:77] + "..."
+    if url_scheme(raw) not in _REMOTE_SCHEMES:
+        raise GlobeviewError(f"not an http:// or https:// URL: {shown!r}")
+    if len(raw) > MAX_URL_CHARS:
+        raise GlobeviewError(f"URL too long ({len(raw)} characters, at most {MAX_URL_CHARS})")
+    if any(c in raw for c in "\r\n\t\0"):
+        raise GlobeviewError(f"URL {shown!r} holds control characters")
+    parts = urllib.parse.urlsplit(raw)
+    try:
+        port = parts.port  # ValueError: not a number or out of 0..65535
+    except ValueError:
+        raise GlobeviewError(f"URL {shown!r} has a bad port") from None
+    if port == 0:
+        raise GlobeviewError(f"URL {shown!r} has a bad port")
+    if "@" in parts.netloc:
+        raise GlobeviewError(f"URL {shown!r}: user names and passwords in URLs are not supported")
+    host = parts.hostname or ""  # lower case, IPv6 brackets stripped
+    if not _HOST.match(host):
+        raise GlobeviewError(f"URL {shown!r} has no valid host name")
+    if parts.query or parts.fragment:
+        raise GlobeviewError(
+            f"URL {shown!r}: a store URL names the store's folder (no ?query or #fragment)"
+        )
+    # Spaces and other characters a server needs encoded, once (an already encoded %20 stays).
+    path = urllib.parse.quote(parts.path, safe="/%:@!$&'()*+,;=~-._")
+    return urllib.parse.urlunsplit((parts.scheme, parts.netloc, path.rstrip("/"), "", ""))
+
+
+class HttpBackend:
+    """Stores served by any static HTTP server (entry point ``http`` of
+    ``globeview.store_backends``)."""
+
+    priority = 0
+
+    def can_open(self, text: str) -> bool:
+        """An ``http://`` or ``https://`` URL (any case)."""
+        return url_scheme(text) in _REMOTE_SCHEMES
+
+    def check(self, text: str) -> str:
+        """`check_http_url`: the URL as it will be requested, or one line saying what is wrong
+        with what the user typed."""
+        return check_http_url(text)
+
+    def open(self, text: str, options: RemoteOptions | None = None) -> RemoteSource:
+        """The store's files over HTTP (nothing fetched yet; `TileStore.open` reads the
+        manifest)."""
+        return RemoteSource(text, options)

@@ -20,7 +20,7 @@ Quirks of real data handled here (see data/README.md):
   read is left as NaN (outside the footprint);
 - at the data's edge (nodata or the raster's end), the nodes just past it that the grid cells
   meeting the data need as corners get the surface continued linearly (`read_grid_parts`,
-  `globeview.terrain.dem_edge`), so bilinear interpolation between the nodes follows the DEM
+  `globeview.terrain.dem.edge`), so bilinear interpolation between the nodes follows the DEM
   up to its last samples.
 """
 
@@ -52,33 +52,14 @@ from rasterio.enums import Resampling
 from rasterio.windows import Window
 
 from globeview.errors import DemError
-from globeview.terrain.dem_edge import (
+from globeview.terrain.dem.edge import (
     DataCells,
     continuation_rings,
     continue_surface,
     edge_candidates,
 )
-
-
-# globeview/terrain/dem.py -> repository root /data
-def _find_data_dir() -> Path:
-    """Where the embedded data lives: ``$GLOBEVIEW_DATA_DIR``; the checkout's ``data/`` (an
-    editable install or running from the source tree); else ``<prefix>/share/globeview/data``
-    where a wheel install puts it (pyproject's data-files)."""
-    import os
-    import sys
-
-    env = os.environ.get("GLOBEVIEW_DATA_DIR")
-    if env:
-        return Path(env)
-    checkout = (Path(__file__).resolve().parent.parent.parent / "data").resolve()
-    if (checkout / "etopo20.tif").exists():
-        return checkout
-    installed = Path(sys.prefix) / "share" / "globeview" / "data"
-    return installed if installed.exists() else checkout
-
-
-EMBEDDED_DATA_DIR: Path = _find_data_dir()
+from globeview.terrain.dem.vdatum import parse_vdatum
+from globeview.terrain.interpolate import bilinear
 
 WGS84 = CRS.from_epsg(4326)
 
@@ -153,17 +134,6 @@ _CF_LON_UNITS = {"degrees_east", "degree_east", "degree_e", "degrees_e", "degree
 
 # Metres per degree on WGS84, used only for approximate resolutions in `DemInfo`.
 _GEOD = Geod(ellps="WGS84")
-
-
-def embedded_dem_paths() -> list[Path]:
-    """The DEMs shipped in data/: the global base first, then the regional samples."""
-    names = [
-        "etopo20.tif",
-        "N44W072.hgt",
-        "craterlake-elev-16bit-30m.tif",
-        "topobathy_vancouver.tif",
-    ]
-    return [EMBEDDED_DATA_DIR / n for n in names]
 
 
 def _metres(v: float) -> str:
@@ -321,6 +291,11 @@ def _is_gdal_name(text: str) -> bool:
     return prefix in drivers or prefix in _SUBDATASET_PREFIXES
 
 
+class NoCrsError(DemError):
+    """A DEM file without a coordinate reference system (and none given): the window asks for
+    one (`globeview.ui.crs_dialog`), the command line says to pass ``--crs``."""
+
+
 def check_dem_path(path: Path) -> None:
     """One-line DemError for a path that cannot be a DEM file: missing, a dangling link or a
     link loop, a directory, empty, or not a regular file (a FIFO would block GDAL's open)."""
@@ -347,7 +322,7 @@ def check_dem_path(path: Path) -> None:
         raise DemError(f"{path} is empty (0 bytes), not a DEM raster")
 
 
-def _parse_crs(text: str) -> CRS:
+def parse_crs(text: str) -> CRS:
     """A user's CRS (EPSG:n, WKT, PROJ string) or a one-line DemError.
 
     Parsed inside a rasterio environment so that PROJ's own "ERROR 1: ..." goes to logging
@@ -404,9 +379,6 @@ def _vertical_datum(
     national datums; taking them as ellipsoidal would leave them 20..100 m off.
     """
     if override is not None:
-        # vdatum imports this module (for the data folder): imported here, when needed.
-        from globeview.terrain.vdatum import parse_vdatum
-
         return parse_vdatum(override).value, "--vdatum"
     try:
         pc = pyproj.CRS.from_wkt(crs.to_wkt())
@@ -491,7 +463,6 @@ class _SourceWindow:
 
     def _continued_near(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """`continued_at` from the cells around the positions only."""
-        from globeview.terrain.stack import bilinear  # (stack -> store -> vdatum -> dem)
 
         rings = continuation_rings(self.node_cells)
         top, bottom, left, right = (rings if end else 0 for end in self.raster_ends)
@@ -551,14 +522,14 @@ class Dem:
             raise DemError(f"{self.path} has a degenerate geotransform (zero pixel size): {t[:6]}")
         self.crs_assumed: str | None = None
         if crs_override is not None:
-            self.crs = _parse_crs(crs_override)
+            self.crs = parse_crs(crs_override)
         elif ds.crs is not None and ds.crs.to_wkt():
             self.crs = ds.crs
         elif _cf_geographic(ds):
             # GEBCO, ETOPO 2022 and other CF grids: lat/lon axes in degrees and no grid_mapping.
             self.crs, self.crs_assumed = WGS84, "CF lat/lon axes"
         else:
-            raise DemError(
+            raise NoCrsError(
                 f"{self.path} has no coordinate reference system; supply one with "
                 "--crs EPSG:XXXX (e.g. --crs EPSG:4326 for lon/lat degrees)"
             )
@@ -755,11 +726,11 @@ class Dem:
         xs, ys = zip(*corners)
         return min(xs), min(ys), max(xs), max(ys)
 
-    def _make_info(self) -> DemInfo:
-        ds = self._ds
+    def _footprint_lonlat(self) -> tuple[float, float, float, float, bool]:
+        """(west, south, east, north) of the samples in degrees on WGS84, and whether the
+        footprint crosses the antimeridian (west > east, or a grid all the way round)."""
         left, bottom, right, top = self._footprint_native()
         if self._geo_fast:
-            dx, dy = abs(self.transform.a), abs(self.transform.e)
             if self.wraps_longitude:
                 west, east = -180.0, 180.0
             else:
@@ -771,27 +742,31 @@ class Dem:
                 elif west == 180.0 and east > -180.0:
                     west = -180.0
             south, north = max(bottom, -90.0), min(top, 90.0)
-            res_deg = (dx, dy)
-            crosses = self.wraps_longitude or west > east
-        else:
-            try:
-                west, south, east, north = rasterio.warp.transform_bounds(
-                    self.crs, WGS84, left, bottom, right, top, densify_pts=21
-                )
-            except Exception as exc:  # noqa: BLE001  pyproj/GDAL raise several types here
-                raise DemError(
-                    f"cannot place {self.path} on the globe from its CRS: {_short(exc)}"
-                ) from None
-            crosses = west > east
-            dx = dy = 0.0  # filled below from metres
-        # Resolution in metres at the footprint centre, from one cell's neighbours.
+            return west, south, east, north, bool(self.wraps_longitude or west > east)
+        try:
+            west, south, east, north = rasterio.warp.transform_bounds(
+                self.crs, WGS84, left, bottom, right, top, densify_pts=21
+            )
+        except Exception as exc:  # noqa: BLE001  pyproj/GDAL raise several types here
+            raise DemError(
+                f"cannot place {self.path} on the globe from its CRS: {_short(exc)}"
+            ) from None
+        return west, south, east, north, bool(west > east)
+
+    def _resolution(
+        self, bounds: tuple[float, float, float, float]
+    ) -> tuple[tuple[float, float], tuple[float, float]]:
+        """(metres, degrees) of a cell at the footprint's centre, from one cell's neighbours
+        (a projected cell in degrees of arc of the meridian); DemError when the footprint
+        (``bounds``, degrees) or the centre cannot be placed on the globe."""
+        ds = self._ds
         cc, cr = ds.width / 2.0, ds.height / 2.0
         xs, ys = zip(*(self.transform @ p for p in ((cc, cr), (cc + 1, cr), (cc, cr + 1))))
         if self._geo_fast:
             lons, lats = list(xs), list(ys)
         else:
             lons, lats = rasterio.warp.transform(self.crs, WGS84, list(xs), list(ys))
-        bounds_ok = all(math.isfinite(v) for v in (west, south, east, north))
+        bounds_ok = all(math.isfinite(v) for v in bounds)
         if not (bounds_ok and all(math.isfinite(v) and abs(v) <= 90.0 for v in lats)):
             # PROJ gives inf for coordinates outside the CRS's domain (a UTM easting of 1e9).
             raise DemError(
@@ -801,17 +776,23 @@ class Dem:
         _, _, dist_x = _GEOD.inv(lons[0], lats[0], lons[1], lats[1])
         _, _, dist_y = _GEOD.inv(lons[0], lats[0], lons[2], lats[2])
         res_m = (float(dist_x), float(dist_y))
-        if not self._geo_fast:
-            lat_c = math.radians(lats[0])
-            # metres per degree of latitude / longitude on WGS84 (series to O(e^2))
-            m_lat = 111_132.954 - 559.822 * math.cos(2 * lat_c)
-            # A rotated or south-up lon/lat grid keeps degrees of longitude. A projected cell
-            # has a ground size, not a longitude span: degrees of longitude per metre grow
-            # without bound toward a pole (a cell there read as 1e9 degrees), so both sides
-            # are in degrees of arc of the meridian instead.
-            m_lon = max(111_412.84 * math.cos(lat_c), 1e-6) if self.crs.is_geographic else m_lat
-            dx, dy = res_m[0] / m_lon, res_m[1] / m_lat
-            res_deg = (dx, dy)
+        if self._geo_fast:
+            return res_m, (abs(self.transform.a), abs(self.transform.e))
+        lat_c = math.radians(lats[0])
+        # metres per degree of latitude / longitude on WGS84 (series to O(e^2))
+        m_lat = 111_132.954 - 559.822 * math.cos(2 * lat_c)
+        # A rotated or south-up lon/lat grid keeps degrees of longitude. A projected cell has a
+        # ground size, not a longitude span: degrees of longitude per metre grow without bound
+        # toward a pole (a cell there read as 1e9 degrees), so both sides are in degrees of
+        # arc of the meridian instead.
+        m_lon = max(111_412.84 * math.cos(lat_c), 1e-6) if self.crs.is_geographic else m_lat
+        return res_m, (res_m[0] / m_lon, res_m[1] / m_lat)
+
+    def _make_info(self) -> DemInfo:
+        ds = self._ds
+        west, south, east, north, crosses = self._footprint_lonlat()
+        res_m, res_deg = self._resolution((west, south, east, north))
+        dy = res_deg[1]
         reaches_pole = north >= 90.0 - dy * 1.0001 or south <= -90.0 + dy * 1.0001
         crs_txt = _crs_label(self.crs)
         res_crs_m = None
@@ -889,7 +870,7 @@ class Dem:
         it has data); ``data`` is that warp, NaN elsewhere. ``edge`` holds the other corners
         of every grid cell that meets the source's data (a source cell whose four samples are
         data, overlapped with positive area): there, the source's surface continued linearly
-        past its data edge (`globeview.terrain.dem_edge`). With them, bilinear interpolation
+        past its data edge (`globeview.terrain.dem.edge`). With them, bilinear interpolation
         between the nodes follows the source up to its last samples instead of ramping to
         whatever lies beyond over the last node spacing (issue #29). The parts are separate
         so that a caller combining sources (ingest) lets one source's data win over another's

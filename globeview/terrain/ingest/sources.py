@@ -21,6 +21,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from globeview.errors import DemError
+from globeview.terrain.store.identify import identify
 
 __all__ = ["FOLDER_SUFFIXES", "expand_sources"]
 
@@ -49,8 +50,6 @@ FOLDER_SUFFIXES = frozenset(
 def _folder_dems(folder: Path) -> list[Path]:
     """The DEM files directly in ``folder``, sorted by name (DemError when there is none)."""
     # A globeview store is a folder of GeoTIFFs too: its chunk files are not DEMs to ingest.
-    from globeview.terrain.store import identify
-
     if identify(folder).is_globeview:
         raise DemError(f"{folder} is a globeview tile store, not a folder of DEM files")
     try:

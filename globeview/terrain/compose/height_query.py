@@ -24,8 +24,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from globeview.errors import GlobeviewError
+from globeview.terrain.compose.stack import TerrainStack
+from globeview.terrain.dem.vdatum import egm96
+from globeview.terrain.interpolate import bilinear
 from globeview.terrain.quadtree import key_for_lonlat, tile_bounds_arrays
-from globeview.terrain.stack import TerrainStack, bilinear
 
 #: What the `layer` field says where no layer has data.
 NO_LAYER = "none (ellipsoid)"
@@ -125,9 +127,9 @@ def composed_heights(
 def answering_layers(stack: TerrainStack, lon: np.ndarray, lat: np.ndarray) -> list[str]:
     """Per point, the name of the topmost visible layer whose finest tile has data at the four
     nodes around the point (`NO_LAYER` where none does). Inside that layer's border band, where
-    it feathers into a layer below (`globeview.terrain.blend`), the answer names both and the
-    upper layer's weight: ``"top over base (blend 0.42)"``. Where no layer has the four nodes
-    but one has some, the surface is its data edge ramping down to the ellipsoid: the answer
+    it feathers into a layer below (`globeview.terrain.compose.blend`), the answer names both
+    and the upper layer's weight: ``"top over base (blend 0.42)"``. Where no layer has the four
+    nodes but one has some, the surface is its data edge ramping down to the ellipsoid: the answer
     names it and the weight of its nodes there, ``"top over none (ellipsoid) (edge 0.37)"``."""
     lon, lat = check_lonlat(lon, lat)
     layers = stack.visible_layers
@@ -217,9 +219,7 @@ def _all_corners_valid(grid: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> 
 
 def geoid_undulation(lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
     """EGM96 undulation N (m, geoid above the WGS84 ellipsoid) at the points, from the geoid
-    grid shipped with the package (`globeview.terrain.vdatum.egm96`)."""
-    from globeview.terrain.vdatum import egm96
-
+    grid shipped with the package (`globeview.terrain.dem.vdatum.egm96`)."""
     return np.asarray(egm96().undulation(lon, lat), dtype=np.float64).reshape(np.shape(lon))
 
 

@@ -8,12 +8,12 @@ task reads the finer level's chunk files it needs (wavelet halo included) and wr
 chunk file; it returns only per-tile statistics (a few KB). The store folder must therefore
 be on a filesystem every worker shares.
 
-Memory per task is bounded by the chunk size (`store_schema.CHUNK_TARGET_NODES` nodes a side:
+Memory per task is bounded by the chunk size (`schema.CHUNK_TARGET_NODES` nodes a side:
 a window, its halo and temporaries, tens of MB) and GDAL's block cache (`GDAL_CACHE_MB`).
 
 The numerics are those of the serial ingest they replace (same reads, same order of
 operations), so the store is bit for bit the same whatever the scheduler: see
-`globeview.terrain.ingest` for the pipeline and `tile_errors` for the error bounds.
+`globeview.terrain.ingest.driver` for the pipeline and `tile_errors` for the error bounds.
 """
 
 from __future__ import annotations
@@ -33,17 +33,18 @@ import numpy as np
 import rasterio
 from rasterio.windows import Window
 
-from globeview.terrain.dem import Dem
-from globeview.terrain.level_chunks import chunk_window, write_chunk
-from globeview.terrain.levels import LevelGrid, read_level_nodes
-from globeview.terrain.store_schema import chunk_file_name, chunk_grid_shape
-from globeview.terrain.tile_errors import (
+from globeview.terrain.dem.reader import Dem
+from globeview.terrain.dem.vdatum import egm96
+from globeview.terrain.ingest.tile_errors import (
     stride_deltas,
     tile_min_max,
     transposed_nodes,
     upsampled_error_tiles,
 )
-from globeview.terrain.wavelet import approximate_window
+from globeview.terrain.ingest.wavelet import approximate_window
+from globeview.terrain.levels import LevelGrid, read_level_nodes
+from globeview.terrain.store.level_chunks import chunk_window, write_chunk
+from globeview.terrain.store.schema import chunk_file_name, chunk_grid_shape
 
 __all__ = [
     "FAULT_ENV",
@@ -277,8 +278,6 @@ def _present(results: Sequence[ChunkResult], lv: int) -> dict[tuple[int, int], s
 
 def _window_undulation(west: float, north: float, d: float, w: int, h: int) -> np.ndarray:
     """EGM96 N (m, float32) on a window's nodes: lon west + j*d, lat north - i*d (degrees)."""
-    from globeview.terrain.vdatum import egm96
-
     lons = west + d * np.arange(w)
     lats = north - d * np.arange(h)
     return egm96().undulation_grid(lons, lats).astype(np.float32)

@@ -1,7 +1,7 @@
 """Writing a level's chunk files and the GDAL VRT that mosaics them (store format 5).
 
 A level raster (see `globeview.terrain.levels`) is split into chunks of C x C node intervals
-(C = `store_schema.chunk_nodes_for`): chunk (cy, cx) holds raster rows [cy*C, (cy+1)*C) and
+(C = `schema.chunk_nodes_for`): chunk (cy, cx) holds raster rows [cy*C, (cy+1)*C) and
 columns [cx*C, (cx+1)*C), clipped to the raster, and the last chunk row/column also holds
 the raster's last row/column. Each chunk is a tiled GeoTIFF at its own position (readable
 alone by GDAL, range-readable over HTTP); ``level_LL.vrt`` places them with relative paths,
@@ -25,7 +25,7 @@ import rasterio
 from affine import Affine
 
 from globeview.terrain.levels import LevelGrid
-from globeview.terrain.store_schema import chunk_file_name, chunk_grid_shape
+from globeview.terrain.store.schema import chunk_file_name, chunk_grid_shape
 
 __all__ = ["chunk_window", "file_sha256", "write_chunk", "write_level_vrt"]
 

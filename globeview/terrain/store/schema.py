@@ -1,7 +1,7 @@
 """The tile store's manifest (``manifest.json``) as typed, versioned dataclasses.
 
-ONE definition of the format: `globeview.terrain.ingest` builds a `StoreManifest` and writes
-it with `StoreManifest.write`; `globeview.terrain.store` reads it with
+ONE definition of the format: `globeview.terrain.ingest.driver` builds a `StoreManifest` and writes
+it with `StoreManifest.write`; `globeview.terrain.store.tile_store` reads it with
 `StoreManifest.from_json`. The JSON keys *are* the dataclass field names (nothing spells a
 key a second time), and both directions are driven by the fields and their annotations, so a
 field added here is written and read with no other change.
@@ -41,9 +41,10 @@ from typing import Any, TextIO
 
 import numpy as np
 
+from globeview import __version__
+from globeview.terrain.dem.vdatum import VDATUM_CHOICES
 from globeview.terrain.levels import LevelGrid
 from globeview.terrain.quadtree import level_shape
-from globeview.terrain.vdatum import VDATUM_CHOICES
 
 __all__ = [
     "FORMAT_VERSION",
@@ -149,8 +150,6 @@ class StoreHeader:
     @classmethod
     def current(cls) -> StoreHeader:
         """The header this globeview writes."""
-        from globeview import __version__
-
         return cls(STORE_FORMAT, FORMAT_VERSION, f"globeview {__version__}")
 
 
@@ -422,7 +421,7 @@ def _decode(tp: Any, value: object, where: str) -> object:
         return _decode_array(value, where)
     if is_dataclass(tp) and isinstance(tp, type):
         return _decode_object(tp, value, where)
-    raise TypeError(f"store_schema: no decoder for {tp!r} ({where})")  # a schema bug
+    raise TypeError(f"store schema: no decoder for {tp!r} ({where})")  # a schema bug
 
 
 def _decode_object(cls: type, value: object, where: str) -> Any:

@@ -1,6 +1,6 @@
 """The ingest as a Dask task graph, and running it on a local or a distributed scheduler.
 
-The graph (see `ingest_tasks` for what each task does):
+The graph (see `tasks` for what each task does):
 
 - ``pole``: the pole heights (the mean of the finest level's pole rows); only the chunks
   holding a pole row depend on it.
@@ -15,10 +15,10 @@ The graph (see `ingest_tasks` for what each task does):
 
 Every task returns a few KB (per-tile statistics); the bulk goes through the chunk files in
 the building folder, so a task's memory is bounded by one chunk and the same graph runs on a
-cluster whose workers share that folder. The driver (`globeview.terrain.ingest`) folds the
+cluster whose workers share that folder. The driver (`globeview.terrain.ingest.driver`) folds the
 results, writes the level VRTs and the manifest, and commits.
 
-An incremental update (`ingest_update`) runs the same graph with the results of the tasks
+An incremental update (`update`) runs the same graph with the results of the tasks
 that the changed sources do not reach supplied as data (`Graph.keep`).
 
 Schedulers: threads (dask's local threaded scheduler, our own pool so that a failure can
@@ -30,8 +30,10 @@ identity first with a hard deadline (`probe_scheduler`).
 
 from __future__ import annotations
 
+import asyncio
 import os
 import re
+import threading
 import time
 from collections.abc import Callable, Hashable, Sequence
 from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
@@ -41,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from globeview.errors import StoreError
-from globeview.terrain.ingest_tasks import (
+from globeview.terrain.ingest.tasks import (
     BuildPlan,
     SourceSpec,
     chunk_task,
@@ -285,6 +287,8 @@ def run_graph(
     failed build may then remove the building folder safely)."""
     if where.kind == "distributed":
         return _run_distributed(graph, where, on_done)
+    # dask's schedulers are imported when a graph runs (deferred: the window and the CLI's
+    # other commands import this module and never run one).
     from dask.callbacks import Callback
 
     class _Progress(Callback):
@@ -319,6 +323,7 @@ def run_graph(
 def _run_distributed(
     graph: Graph, where: SchedulerChoice, on_done: Callable[[str], None]
 ) -> dict[str, Any]:
+    # Deferred: dask.distributed takes about a second to import and only a cluster needs it.
     from distributed import Client, as_completed
     from distributed.client import FutureCancelledError
     from distributed.scheduler import KilledWorker
@@ -367,13 +372,10 @@ def probe_scheduler(address: str) -> None:
     within CONNECT_TIMEOUT_S. `distributed.Client` alone waits forever on a port where
     something else accepts the connection and never answers (an HTTP server: measured), so
     its identity is asked first, on a private event loop with a hard deadline."""
-    import asyncio
-    import threading
-
     result: dict[str, Any] = {}
 
     async def ask() -> Any:
-        from distributed.comm import connect
+        from distributed.comm import connect  # deferred, as in _run_distributed
 
         comm = await connect(address, timeout=CONNECT_TIMEOUT_S)
         try:

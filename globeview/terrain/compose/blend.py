@@ -18,8 +18,9 @@ from typing import Literal
 
 import numpy as np
 
+from globeview.terrain.interpolate import bilinear, linear_weights
 from globeview.terrain.quadtree import node_spacing, tile_bounds_arrays
-from globeview.terrain.store import TileStore
+from globeview.terrain.store.tile_store import TileStore
 
 #: Width of a layer's border band as a fraction of its footprint's shorter side. The band is a
 #: property of the layer (position-only weights). A twentieth of the footprint leaves the
@@ -125,8 +126,6 @@ class BlendMask:
 
     def sample(self, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
         """w at points (degrees; outside the raster: 0)."""
-        from globeview.terrain.stack import bilinear
-
         ny, nx = self.w.shape
         cols = self._east_of_west(np.asarray(lon, dtype=np.float64)) / self.step
         rows = (self.north - np.asarray(lat, dtype=np.float64)) / self.step
@@ -137,8 +136,6 @@ class BlendMask:
         """(size, size) w at a tile's nodes (bounds in degrees, row 0 north): `sample` on a
         regular grid, done as two small matrix products over the raster rows and columns
         the tile spans (bilinear is separable)."""
-        from globeview.terrain.stack import linear_weights
-
         ny, nx = self.w.shape
         start = float(self._east_of_west(np.array(west)))
         cols = (start + np.linspace(0.0, east - west, size)) / self.step
@@ -229,8 +226,6 @@ def interpolation_error(mask: BlendMask, cell_deg: float) -> float:
     hit = cache.get(m)
     if hit is not None:
         return hit
-    from globeview.terrain.stack import linear_weights
-
     w = mask.w.astype(np.float64)
     ny, nx = w.shape
     # Raster node (0, 0) lies on a tile corner of the mask's level; cells of m raster steps

@@ -4,7 +4,7 @@ When a store is re-ingested with the same source paths and parameters but some s
 content changed (size or sha256), only these tasks of the ingest graph run again:
 
 - a chunk whose window reads a changed source, with its old or its new footprint and level
-  (the same test `ingest_tasks.fill_from_sources` uses to decide whether to read a source:
+  (the same test `tasks.fill_from_sources` uses to decide whether to read a source:
   footprint within a node spacing and a pixel of the window; the bilinear reprojection and
   the ring a data edge is continued over reach no further), or whose pole row takes a pole
   height that changed;
@@ -35,14 +35,14 @@ from typing import Any
 
 import numpy as np
 
-from globeview.terrain.ingest_graph import Graph
-from globeview.terrain.ingest_tasks import (
+from globeview.terrain.ingest.schedule import Graph
+from globeview.terrain.ingest.tasks import (
     BuildPlan,
     ChunkResult,
     SourceSpec,
     fill_reads_source,
 )
-from globeview.terrain.store_schema import StoreManifest, chunk_file_name
+from globeview.terrain.store.schema import StoreManifest, chunk_file_name
 
 __all__ = ["Update", "facts_name", "plan_update", "write_facts"]
 
@@ -164,17 +164,52 @@ def plan_update(
     ``specs`` of the i-th source as given; ``changed``: indices (as given) of the sources
     whose content changed; ``pole``: the new pole heights.
     """
-    folder = Path(plan.folder)
-    if len(manifest.levels) != plan.max_level + 1:
+    if not _same_layout(manifest, plan):
         return None
+    read = _old_facts(old, graph, input_order)
+    if read is None:
+        return None
+    facts, old_levels = read
+    new_levels = [specs[j].level for j in input_order]
+    changed_set = set(changed)
+    if any(
+        int(old_levels[i]) != new_levels[i] for i in range(len(new_levels)) if i not in changed_set
+    ):
+        return None  # an unchanged source now fills other levels: the plan is not the same
+    feet = _changed_footprints(manifest, specs, input_order, changed, old_levels)
+    old_pole = manifest.pole_heights.as_dict() if manifest.pole_heights else {}
+    pole_changed = any(old_pole.get(k) != pole.get(k) for k in ("north", "south"))
+    dirty = _dirty_keys(plan, graph, feet, pole_changed)
+    kept = _keep_clean(old, Path(plan.folder), manifest, graph, facts, dirty)
+    if kept is None:
+        return None  # the old store is damaged (or cannot be linked): build everything
+    known: dict[str, Any] = {"pole": pole, **kept}
+    for key in graph.error_keys:
+        if key not in dirty:
+            known[key] = facts[key.replace("error-", "chunk-", 1)][1]
+    n_chunks = len(graph.chunk_keys)
+    return Update(known, sum(1 for k in dirty if k.startswith("chunk-")), n_chunks)
+
+
+def _same_layout(manifest: StoreManifest, plan: BuildPlan) -> bool:
+    """Whether the old store's levels have the new plan's extents and chunk size."""
+    if len(manifest.levels) != plan.max_level + 1:
+        return False
     for lv, rec in enumerate(manifest.levels):
         g = plan.grids[lv]
         e = rec.extent
         if (e.x0, e.y0, e.nx, e.ny) != (g.x0, g.y0, g.nx, g.ny):
-            return None
+            return False
         if rec.chunk_nodes != plan.chunk_nodes:
-            return None
-    # Facts of every chunk of the old store (small), and the levels its sources had.
+            return False
+    return True
+
+
+def _old_facts(
+    old: Path, graph: Graph, input_order: Sequence[int]
+) -> tuple[dict[str, tuple[ChunkResult, list]], np.ndarray] | None:
+    """The facts of every chunk of the old store (small), and the levels its sources had;
+    None when a sidecar is missing or damaged, or the sources were not as many."""
     facts: dict[str, tuple[ChunkResult, list]] = {}
     old_levels: np.ndarray | None = None
     try:
@@ -186,12 +221,18 @@ def plan_update(
         return None
     if old_levels is None or len(old_levels) != len(input_order):
         return None
-    new_levels = [specs[j].level for j in input_order]
-    changed_set = set(changed)
-    if any(
-        int(old_levels[i]) != new_levels[i] for i in range(len(new_levels)) if i not in changed_set
-    ):
-        return None  # an unchanged source now fills other levels: the plan is not the same
+    return facts, old_levels
+
+
+def _changed_footprints(
+    manifest: StoreManifest,
+    specs: Sequence[SourceSpec],
+    input_order: Sequence[int],
+    changed: Sequence[int],
+    old_levels: np.ndarray,
+) -> list[_Footprint]:
+    """Where each changed source was (the old manifest's record) and is now: a chunk that
+    read either place is dirty."""
     feet: list[_Footprint] = []
     for i in changed:
         spec = specs[input_order[i]]
@@ -200,9 +241,15 @@ def plan_update(
         old_res = float(max(manifest.sources[i].res_deg))
         feet.append(_Footprint(int(old_levels[i]), (west, south, east, north), old_wraps, old_res))
         feet.append(_Footprint(spec.level, spec.bounds, spec.wraps, spec.res))
-    old_pole = manifest.pole_heights.as_dict() if manifest.pole_heights else {}
-    pole_changed = any(old_pole.get(k) != pole.get(k) for k in ("north", "south"))
+    return feet
 
+
+def _dirty_keys(
+    plan: BuildPlan, graph: Graph, feet: Sequence[_Footprint], pole_changed: bool
+) -> set[str]:
+    """The graph's tasks to run again: chunks that read a changed source, or depend on a
+    dirty chunk (or on the pole heights, when they changed); error windows over dirty
+    chunks."""
     dirty: set[str] = set()
     for key in graph.chunk_keys:  # finest first: a chunk's dependencies come before it
         deps = graph.deps[key]
@@ -215,10 +262,22 @@ def plan_update(
     for key in graph.error_keys:
         if any(d in dirty for d in graph.deps[key]):
             dirty.add(key)
+    return dirty
 
-    # Keep the rest: check each kept chunk file against the old manifest, then link it and
-    # its sidecar into the building folder (a rebuilt chunk's tasks read its neighbours).
-    known: dict[str, Any] = {"pole": pole}
+
+def _keep_clean(
+    old: Path,
+    folder: Path,
+    manifest: StoreManifest,
+    graph: Graph,
+    facts: dict[str, tuple[ChunkResult, list]],
+    dirty: set[str],
+) -> dict[str, Any] | None:
+    """Keep the chunks that are not dirty: check each kept chunk file against the old
+    manifest, then link it and its sidecar into the building folder (a rebuilt chunk's
+    tasks read its neighbours); their results by graph key. None when a kept file does not
+    match (the old store is damaged) or cannot be linked."""
+    known: dict[str, Any] = {}
     shas = {
         (level, int(a), int(b)): h
         for level, record in enumerate(manifest.levels)
@@ -233,17 +292,13 @@ def plan_update(
             if kept.sha256 is not None:
                 name = chunk_file_name(*at)
                 if shas.get(at) != kept.sha256 or _sha256(old / name) != kept.sha256:
-                    return None  # the old store is damaged: build everything
+                    return None
                 _link(old / name, folder / name)
             _link(old / facts_name(*at), folder / facts_name(*at))
             known[key] = kept
     except OSError:
         return None
-    for key in graph.error_keys:
-        if key not in dirty:
-            known[key] = facts[key.replace("error-", "chunk-", 1)][1]
-    n_chunks = len(graph.chunk_keys)
-    return Update(known, sum(1 for k in dirty if k.startswith("chunk-")), n_chunks)
+    return known
 
 
 def _indices(key: str) -> tuple[int, int, int]:

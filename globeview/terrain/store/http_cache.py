@@ -2,7 +2,7 @@
 
 Entries are files ``<dir>/<key[:2]>/<key>`` holding a 24-byte header (magic, payload length,
 a 16-byte BLAKE2b digest of the payload) and the payload. Keys are chosen by the caller
-(`globeview.terrain.remote` uses the chunk file's sha256 from the store's manifest, the page
+(`globeview.terrain.store.http` uses the chunk file's sha256 from the store's manifest, the page
 size and the page index), so a rebuilt store, whose chunks have new digests, never reads a
 stale entry.
 

@@ -11,13 +11,13 @@ GDAL's block cache, not by the raster size):
    every level up to its own L_s global, while a regional DEM adds detail levels only over
    its footprint.
 3. Levels are written finest first, one chunk (a window of 1024 nodes a side, one chunk file
-   of the store, see `store_schema`) per task of a Dask graph (`ingest_graph`,
-   `ingest_tasks`). A chunk of level L is the wavelet approximation of level L+1 (read back
+   of the store, see `store.schema`) per task of a Dask graph (`schedule`,
+   `tasks`). A chunk of level L is the wavelet approximation of level L+1 (read back
    from the chunk files just written, with ``kernel_halo`` nodes of halo); where that is NaN
    (outside level L+1 or no data there) the sources with L_s <= L are read on the level grid
    with `Dem.read_grid_parts`, the finest source winning where it has data. The nodes just
    past a source's data edge that the grid cells meeting its data need as corners get its
-   surface continued (`dem_edge`; issue #29), unless a source of its level has data there.
+   surface continued (`dem.edge`; issue #29), unless a source of its level has data there.
    The finest level is read from the sources only. Pole rows are set to one value (see
    below). Per-tile hmin, hmax and stride errors are computed from each window before it is
    written.
@@ -25,7 +25,7 @@ GDAL's block cache, not by the raster size):
    footprint, evaluated exactly at the finest nodes (see `tile_errors`). The finest data of a
    place is the finest level that has data there; one task per window of each reference
    level returns the per-tile maxima of every coarser level, folded with fmax.
-5. The level VRTs and the manifest (a `store_schema.StoreManifest`) are written last, then the
+5. The level VRTs and the manifest (a `schema.StoreManifest`) are written last, then the
    temporary directory is renamed into place.
 
 The graph runs on dask's local threaded scheduler (``workers`` threads), a process pool, or
@@ -47,41 +47,40 @@ row to the same constant, so this is consistent with the pyramid.)
 from __future__ import annotations
 
 import contextlib
-import errno
 import hashlib
 import math
 import os
-import re
-import shutil
-import sys
-import tempfile
-import threading
-import uuid
+import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO
 
 import numpy as np
 import rasterio
 
-try:
-    import fcntl
-except ImportError:  # pragma: no cover - not POSIX: no stale-build cleaning
-    fcntl = None  # type: ignore[assignment]
-
 from globeview.errors import DemError, StoreError
-from globeview.terrain.dem import Dem, check_dem_path, open_dem
-from globeview.terrain.ingest_graph import (
+from globeview.terrain.dem.reader import Dem, check_dem_path, open_dem
+from globeview.terrain.dem.vdatum import GEOID_FILE, egm96_sha256, parse_vdatum
+from globeview.terrain.ingest.safety import (
+    build_folder,
+    check_target,
+    clean_stale_builds,
+    clear_folder,
+    commit,
+    gdal_quiet,
+    tty_stderr,
+    write_error,
+)
+from globeview.terrain.ingest.schedule import (
     SchedulerChoice,
     build_graph,
     parse_scheduler,
     probe_scheduler,
     run_graph,
 )
-from globeview.terrain.ingest_sources import expand_sources
-from globeview.terrain.ingest_tasks import (
+from globeview.terrain.ingest.sources import expand_sources
+from globeview.terrain.ingest.tasks import (
     FAULT_ENV,
     GDAL_CACHE_MB,
     STRIDES,
@@ -90,9 +89,10 @@ from globeview.terrain.ingest_tasks import (
     close_thread_sources,
     pole_task,
 )
-from globeview.terrain.ingest_tasks import fault_point as _fault_point
-from globeview.terrain.ingest_update import Update, plan_update, write_facts
-from globeview.terrain.level_chunks import write_level_vrt
+from globeview.terrain.ingest.tasks import fault_point as _fault_point
+from globeview.terrain.ingest.tile_errors import round_sig_down, round_sig_up
+from globeview.terrain.ingest.update import Update, plan_update, write_facts
+from globeview.terrain.ingest.wavelet import DEFAULT_WAVELET, kernel_halo, lowpass_kernel
 from globeview.terrain.levels import LevelGrid
 from globeview.terrain.quadtree import (
     DEFAULT_TILE_N,
@@ -100,15 +100,10 @@ from globeview.terrain.quadtree import (
     tile_size_deg,
     tiles_covering,
 )
-from globeview.terrain.store import (
-    MANIFEST_NAME,
-    RASTER_ERRORS,
-    StoreIdentity,
-    TileStore,
-    identify,
-    is_store_file,
-)
-from globeview.terrain.store_schema import (
+from globeview.terrain.store.backend import RASTER_ERRORS
+from globeview.terrain.store.identify import MANIFEST_NAME, StoreIdentity
+from globeview.terrain.store.level_chunks import write_level_vrt
+from globeview.terrain.store.schema import (
     CHUNK_TARGET_NODES,
     FORMAT_VERSION,
     MAX_LEVEL_LIMIT,
@@ -121,11 +116,9 @@ from globeview.terrain.store_schema import (
     SourceRecord,
     StoreHeader,
     StoreManifest,
-    built_before_vdatums,
     chunk_nodes_for,
 )
-from globeview.terrain.tile_errors import round_sig_down, round_sig_up
-from globeview.terrain.wavelet import DEFAULT_WAVELET, kernel_halo, lowpass_kernel
+from globeview.terrain.store.tile_store import TileStore
 
 __all__ = [
     "FAULT_ENV",
@@ -140,7 +133,7 @@ __all__ = [
 # negligible, small enough that a window and its temporaries stay in tens of MB.
 # The windows are the store's chunks (format 5): one file each.
 _WINDOW_NODES = CHUNK_TARGET_NODES
-# GDAL block cache during the build (see ingest_tasks.GDAL_CACHE_MB).
+# GDAL block cache during the build (see tasks.GDAL_CACHE_MB).
 _GDAL_CACHE_MB = GDAL_CACHE_MB
 
 
@@ -153,7 +146,7 @@ class IngestResult:
     max_level: int = 0
     seconds: float = 0.0
     #: Source samples read as nodata because they were +-inf or impossible heights (outside
-    #: MIN_HEIGHT_M..MAX_HEIGHT_M of `globeview.terrain.dem`), and undeclared fill samples
+    #: MIN_HEIGHT_M..MAX_HEIGHT_M of `globeview.terrain.dem.reader`), and undeclared fill samples
     #: (-9999 plateaus...), summed over the sources (from each source's value scan).
     masked_samples: int = 0
     fill_samples: int = 0
@@ -202,8 +195,6 @@ def _no_tick(n: int = 1) -> None:
 
 def _heights_note(datum: str) -> str:
     """The manifest's account of what ingest did with a source's heights (for people)."""
-    from globeview.terrain.vdatum import GEOID_FILE, egm96_sha256
-
     if datum == "egm96":
         return f"converted to ellipsoidal heights with EGM96 ({GEOID_FILE} sha256 {egm96_sha256()})"
     return "ellipsoidal heights, stored unchanged"
@@ -379,7 +370,7 @@ class _Builder:
                 pole,
             )
             if self.update is None:
-                _clear_folder(self.out_dir)  # what a refused update linked: build it all
+                clear_folder(self.out_dir)  # what a refused update linked: build it all
             else:
                 graph.keep(self.update.known)
         return graph.tasks
@@ -515,259 +506,6 @@ def _union_bounds(sources: Sequence[_Source]) -> list[float]:
     return [west, s, east, n]
 
 
-# ---------------------------------------------------------------------------------------------
-# Safety: what --out is, build folders and their locks, GDAL's chatter, faults
-
-
-def _owned_by_cache(out: Path) -> bool:
-    """Whether ``out`` is one of globeview's cached stores (rebuilt silently on a format
-    change: globeview owns them)."""
-    from globeview.paths import cache_dir
-
-    try:
-        return out.parent.resolve() == (cache_dir() / "stores").resolve()
-    except OSError:
-        return False
-
-
-def _check_target(out: Path, force: bool) -> StoreIdentity:
-    """What ``out`` is; StoreError when it must not be written (never modifies anything).
-
-    Only a positively identified globeview store (see `store.identify`) may be replaced,
-    and only one holding nothing but store files: a folder with somebody's manifest.json
-    and their files is refused, not one byte of it changes.
-    """
-    ident = identify(out)
-    if ident.kind == "file":
-        what = "a symbolic link" if out.is_symlink() else "not a directory"
-        raise StoreError(f"{out} exists and is {what}; choose another --out")
-    if ident.kind == "foreign":
-        raise StoreError(f"{out} is not a globeview store, refusing to overwrite it")
-    if ident.is_globeview and ident.extra is not None:
-        raise StoreError(
-            f"{out} is a globeview store but also holds {ident.extra!r}, which globeview did "
-            "not write; refusing to replace it"
-        )
-    if ident.is_globeview and not ident.is_current and not force and not _owned_by_cache(out):
-        v = ident.version
-        if built_before_vdatums(v):
-            raise StoreError(
-                f"{out} is a store built before vertical datums (format version {v}, heights"
-                " not ellipsoidal); rebuild it with --force"
-            )
-        newer = isinstance(v, int) and not isinstance(v, bool) and v > FORMAT_VERSION
-        who = "a newer globeview" if newer else "an older globeview"
-        raise StoreError(
-            f"{out} is a store of {who} (format version {str(v)[:20]}; this one writes "
-            f"{FORMAT_VERSION}); rebuild it with --force"
-        )
-    return ident
-
-
-# Names of build leftovers next to a store NAME: .NAME.lock-T (held with flock while a build
-# runs), .NAME.building-T (the store being built), .NAME.old-T (the replaced store between the
-# two renames of a commit). Versions before the locks used mkdtemp's 8-character suffixes.
-_LEFTOVER = re.compile(r"^\.(?P<name>.+)\.(?P<kind>lock|building|old)-(?P<tok>[0-9a-f]{12})$")
-_LEGACY_LEFTOVER = re.compile(r"^\.(?P<name>.+)\.(?P<kind>building|old)-(?P<tok>[a-z0-9_]{8})$")
-
-
-def _leftover_path(parent: Path, name: str, kind: str, tok: str) -> Path:
-    return parent / f".{name}.{kind}-{tok}"
-
-
-def _only_store_files(d: Path) -> bool:
-    try:
-        return all(is_store_file(e.name) and e.is_file() for e in d.iterdir())
-    except OSError:
-        return False
-
-
-def _remove_store_dir(d: Path) -> None:
-    """Remove a store folder file by file, only the files globeview writes; a folder that
-    holds anything else is left as it is (never a user's file lost, even in a race)."""
-    try:
-        for e in d.iterdir():
-            if is_store_file(e.name) and e.is_file():
-                e.unlink()
-        d.rmdir()
-    except OSError:
-        pass
-
-
-def _try_lock(path: Path) -> int | None:
-    """fd holding an exclusive flock on ``path`` if nobody holds it, else None."""
-    try:
-        fd = os.open(path, os.O_RDWR)
-    except OSError:
-        return None
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        # Still the same file (an owner deletes its lock last; a new one may reuse the name)?
-        if os.stat(path).st_ino == os.fstat(fd).st_ino:
-            return fd
-    except OSError:
-        pass
-    os.close(fd)
-    return None
-
-
-def clean_stale_builds(parent: Path) -> list[str]:
-    """Remove what dead ingests left in ``parent``; returns the names removed or restored.
-
-    Liveness is the build's flock: the kernel drops it when its process dies however it
-    dies (kill -9, OOM killer), so unlike a recorded pid it cannot be fooled by pid reuse
-    and needs no /proc. A live build's folders are never touched. A replaced store that a
-    dead commit left as .NAME.old-T is moved back when NAME is missing, else removed (store
-    files only).
-    """
-    if fcntl is None:
-        return []
-    try:
-        entries = [e.name for e in parent.iterdir()]
-    except OSError:
-        return []
-    tokens: dict[tuple[str, str], set[str]] = {}
-    for n in entries:
-        m = _LEFTOVER.match(n) or _LEGACY_LEFTOVER.match(n)
-        if m:
-            tokens.setdefault((m["name"], m["tok"]), set()).add(m["kind"])
-    done = []
-    for (name, tok), _kinds in sorted(tokens.items()):
-        lock = _leftover_path(parent, name, "lock", tok)
-        fd = _try_lock(lock) if lock.exists() else None
-        if lock.exists() and fd is None:
-            continue  # a live build (or one that just started): not ours to touch
-        try:
-            old = _leftover_path(parent, name, "old", tok)
-            if old.is_dir():
-                out = parent / name
-                if not out.exists() and not out.is_symlink():
-                    os.replace(old, out)
-                    done.append(f"restored {out}")
-                elif _only_store_files(old):
-                    _remove_store_dir(old)
-                    done.append(old.name)
-            building = _leftover_path(parent, name, "building", tok)
-            if building.is_dir() and _only_store_files(building):
-                shutil.rmtree(building, ignore_errors=True)
-                done.append(building.name)
-            if fd is not None:
-                lock.unlink(missing_ok=True)
-        except OSError:
-            pass
-        finally:
-            if fd is not None:
-                os.close(fd)
-    return done
-
-
-@contextlib.contextmanager
-def _build_folder(parent: Path, name: str) -> Iterator[tuple[Path, str]]:
-    """A fresh .NAME.building-T folder in ``parent`` and its token, locked while the context
-    lasts; the folder is removed on the way out (it is gone already after a commit)."""
-    fd = -1
-    for _ in range(20):
-        tok = uuid.uuid4().hex[:12]
-        lock = _leftover_path(parent, name, "lock", tok)
-        fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_RDWR, 0o644)
-        if fcntl is None:
-            break
-        fcntl.flock(fd, fcntl.LOCK_EX)
-        try:
-            if os.stat(lock).st_ino == os.fstat(fd).st_ino:
-                break  # a cleaner did not remove it between our create and our lock
-        except FileNotFoundError:
-            pass
-        os.close(fd)
-        fd = -1
-    if fd < 0:
-        raise StoreError(f"cannot lock a build folder in {parent}")
-    building = _leftover_path(parent, name, "building", tok)
-    try:
-        building.mkdir()
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(building, 0o777 & ~umask)
-        yield building, tok
-    finally:
-        shutil.rmtree(building, ignore_errors=True)
-        lock.unlink(missing_ok=True)
-        os.close(fd)
-
-
-# GDAL's libtiff prints write errors ("_tiffWriteProc: No space left on device.") straight to
-# file descriptor 2 from its compression threads, bypassing rasterio's error handler and
-# CPL_LOG, so only a descriptor-level redirect keeps them off the terminal. What was
-# captured is replayed afterwards except these lines (anything else printed meanwhile, by
-# another thread of the process, still appears).
-_GDAL_NOISE = re.compile(r"^(_tiff\w+|TIFF\w+|ERROR \d+|Warning \d+|\w+\.tif:).*$")
-_stderr_lock = threading.Lock()
-_stderr_depth = 0
-_stderr_saved: int | None = None
-_stderr_file: IO[bytes] | None = None
-
-
-@contextlib.contextmanager
-def _gdal_quiet() -> Iterator[list[str]]:
-    """Redirect fd 2 for the block; yields a list that receives the dropped GDAL lines."""
-    global _stderr_depth, _stderr_saved, _stderr_file
-    dropped: list[str] = []
-    with _stderr_lock:
-        if _stderr_depth == 0:
-            try:
-                sys.stderr.flush()
-                _stderr_file = tempfile.TemporaryFile()  # noqa: SIM115 - closed on exit
-                _stderr_saved = os.dup(2)
-                os.dup2(_stderr_file.fileno(), 2)
-            except (OSError, ValueError, AttributeError):  # no fd 2, or sys.stderr is None
-                _stderr_file, _stderr_saved = None, None
-        _stderr_depth += 1
-    try:
-        yield dropped
-    finally:
-        with _stderr_lock:
-            _stderr_depth -= 1
-            if _stderr_depth == 0 and _stderr_saved is not None and _stderr_file is not None:
-                with contextlib.suppress(OSError, ValueError, AttributeError):
-                    sys.stderr.flush()
-                os.dup2(_stderr_saved, 2)
-                os.close(_stderr_saved)
-                _stderr_file.seek(0)
-                text = _stderr_file.read().decode("utf-8", "replace")
-                _stderr_file.close()
-                _stderr_saved, _stderr_file = None, None
-                keep: list[str] = []
-                for line in text.splitlines():
-                    (dropped if _GDAL_NOISE.match(line) else keep).append(line)
-                if keep:
-                    with contextlib.suppress(OSError, ValueError, AttributeError):
-                        sys.stderr.write("\n".join(keep) + "\n")
-
-
-def _tty_stderr() -> IO[str] | None:
-    """A stream on the real stderr (for the progress bar while fd 2 is redirected)."""
-    if _stderr_saved is None:
-        return None
-    return os.fdopen(os.dup(_stderr_saved), "w", closefd=True)
-
-
-def _disk_full(dropped: list[str], where: Path) -> bool:
-    """Whether a failed raster write was the disk filling up: libtiff said so, or there is
-    not room for one more compressed block."""
-    if any("No space left" in line or "Disk quota" in line for line in dropped):
-        return True
-    try:
-        st = os.statvfs(where)
-        return st.f_bavail * st.f_frsize < 1 << 20
-    except OSError:
-        return False
-
-
-def _store_megabytes(grids: dict[int, LevelGrid]) -> int:
-    """Uncompressed size of the level rasters, MB (an upper bound of what the store needs)."""
-    return max(1, math.ceil(sum(g.width * g.height * 4 for g in grids.values()) / 1e6))
-
-
 # Per-tile metadata: hmin/hmax/error/6 stride floats, float64 arrays during the build (~72
 # bytes a tile, ~250 more for the rounding temporaries of the manifest, which is streamed to
 # its file row by row). Opening a store parses the manifest into Python lists first: ~600
@@ -885,7 +623,7 @@ def ingest(
             exception it raises aborts the build (cancel) and, like any failure, leaves no
             store behind.
         workers: local workers (None: every core, os.cpu_count()); ignored on a cluster.
-        scheduler: None (dask's local scheduler, threads, see `ingest_graph.DEFAULT_LOCAL`),
+        scheduler: None (dask's local scheduler, threads, see `schedule.DEFAULT_LOCAL`),
             "threads", "processes", or "tcp://HOST:PORT": an existing dask.distributed
             scheduler, whose workers must see ``out``'s folder (a shared filesystem). The
             store is the same, bit for bit, whatever runs it.
@@ -895,42 +633,12 @@ def ingest(
         StoreError: bad parameters, an output location that cannot be used, a disk that
             fills up, or a pyramid too large for the memory bound.
     """
-    import time
-
     t_start = time.perf_counter()
-    if not sources:
-        raise StoreError("no source DEM given")
-    if not (TILE_N_RANGE[0] <= tile_n <= TILE_N_RANGE[1]):
-        raise StoreError(f"--tile-n must be in {TILE_N_RANGE[0]}..{TILE_N_RANGE[1]}, got {tile_n}")
-    if max_level is not None and not (0 <= max_level <= MAX_LEVEL_LIMIT):
-        raise StoreError(f"--max-level must be in 0..{MAX_LEVEL_LIMIT}, got {max_level}")
-    lowpass_kernel(wavelet)  # WaveletError (a GlobeviewError) for a bad name
-    where = parse_scheduler(workers, scheduler)  # one line for a bad value, before any work
-    if where.address is not None:
-        probe_scheduler(where.address)  # one line within seconds if no scheduler answers
+    where = _check_parameters(sources, tile_n, max_level, wavelet, workers, scheduler)
     out_path = Path(out).absolute()
-    parent = out_path.parent
-    # First what dead ingests left here: a store that a killed commit had moved aside is put
-    # back before anything looks at --out.
-    clean_stale_builds(parent)
-    ident = _check_target(out_path, force)
-    if not parent.is_dir():
-        if parent.exists():
-            raise StoreError(f"{parent} is not a folder; choose another --out")
-        raise StoreError(f"the folder for the store does not exist: {parent}")
-
-    # A folder stands for the DEM files in it (a folder of tiles: `ingest_sources`).
-    src_paths = expand_sources([Path(p).absolute() for p in sources])
-    _check_sources(src_paths)
-    # Content identity (size, sha256) of each source: the same content elsewhere is the same.
-    # Hashed on a few threads (hashlib releases the GIL): a folder of thousands of tiles is
-    # read at disk speed rather than one file at a time.
-    pool_size = min(len(src_paths), where.workers or os.cpu_count() or 1, 16)
-    with ThreadPoolExecutor(max_workers=max(1, pool_size)) as pool:
-        contents = list(pool.map(lambda p: (p.stat().st_size, _sha256(p)), src_paths))
+    ident = _check_output(out_path, force)
+    src_paths, contents = _source_contents(sources, where)
     if vdatum is not None:
-        from globeview.terrain.vdatum import parse_vdatum
-
         vdatum = parse_vdatum(vdatum).value  # one line for "egm2008" or a typo, before any work
     params = IngestParams(
         tile_n=tile_n, max_level=max_level, wavelet=wavelet, crs=crs, vdatum=vdatum
@@ -946,80 +654,15 @@ def ingest(
     with contextlib.ExitStack() as stack:
         # A fixed GDAL block cache for everything below, the sources' value scan included.
         stack.enter_context(rasterio.Env(GDAL_CACHEMAX=_GDAL_CACHE_MB * 1024 * 1024))
-        srcs = []
-        for p, (size, sha256), dem in zip(
-            src_paths, contents, _open_sources(src_paths, crs, vdatum, pool_size, stack)
-        ):
-            info = dem.info
-            res = float(min(info.res_deg))
-            if not (res > 0 and math.isfinite(res)):
-                raise DemError(f"{p} has no usable pixel size ({info.res_deg})")
-            rec = SourceRecord(
-                path=str(p),
-                size=size,
-                sha256=sha256,
-                crs=info.crs,
-                bounds=tuple(info.bounds_lonlat),
-                res_deg=tuple(info.res_deg),
-                vertical_datum=info.vertical_datum,
-                vertical_datum_source=info.vertical_datum_source,
-                heights=_heights_note(info.vertical_datum),
-            )
-            srcs.append(
-                _Source(
-                    p,
-                    dem,
-                    _natural_level(res, tile_n, _footprint_extent(info)),
-                    res,
-                    info.bounds_lonlat,
-                    bool(info.wraps_longitude),
-                    rec,
-                    info.vertical_datum,
-                )
-            )
-        natural = max(s.level for s in srcs)
-        l_max = natural if max_level is None else max_level
-        for s in srcs:
-            # Clamped to L_max; past the finest natural level (--max-level above it) the
-            # finest sources supply the extra levels, resampled (the levels between would
-            # otherwise have no extent at all).
-            s.level = l_max if s.level == natural else min(s.level, l_max)
-        by_input = list(srcs)
-        srcs.sort(key=lambda s: s.res)  # finest first: it wins where it has data
-        builder = _Builder(srcs, tile_n, l_max, wavelet, parent, _no_tick)
-        sorted_at = {id(t): j for j, t in enumerate(srcs)}  # not a search per source: 10^4 tiles
-        builder.input_order = [sorted_at[id(s)] for s in by_input]
-        _check_size(builder.grids, srcs, chosen=max_level is not None)
-
-        try:
-            tmp, tok = stack.enter_context(_build_folder(parent, out_path.name))
-        except OSError as exc:
-            raise StoreError(f"cannot write the store in {parent}: {exc.strerror}") from None
-        dropped = stack.enter_context(_gdal_quiet())
-        try:
-            with _progress(progress) as bar:
-                done = [0]
-
-                def step(n: int = 1) -> None:
-                    bar.update(n)
-                    if on_progress is not None:
-                        done[0] += n
-                        on_progress(done[0], total)
-
-                builder.out_dir, builder.tick = tmp, step
-                total = builder.prepare(where, tok, previous)
-                bar.total = total
-                bar.refresh()
-                builder.build()
-            _fault_point("manifest")
-            part = tmp / (MANIFEST_NAME + ".part")
-            with part.open("w", encoding="utf-8") as f:
-                # Sources in the order given (the builder sorts its own list finest first).
-                builder.manifest(params, [s.record for s in by_input]).write(f)
-            os.replace(part, tmp / MANIFEST_NAME)
-            _commit(tmp, out_path, tok)
-        except _BUILD_ERRORS as exc:
-            raise _write_error(exc, dropped, out_path, parent, builder.grids) from None
+        threads = _pool_size(src_paths, where)
+        dems = _open_sources(src_paths, crs, vdatum, threads, stack)
+        srcs = [
+            _source(p, size, sha256, dem, tile_n)
+            for p, (size, sha256), dem in zip(src_paths, contents, dems, strict=True)
+        ]
+        l_max = _clamp_levels(srcs, max_level)
+        builder = _plan_build(srcs, tile_n, l_max, wavelet, out_path.parent, max_level is not None)
+        _build_and_commit(builder, stack, out_path, params, where, previous, progress, on_progress)
     return IngestResult(
         out_path,
         False,
@@ -1032,6 +675,167 @@ def ingest(
         ),
         chunks_total=len(builder.graph.chunk_keys),
     )
+
+
+# -- the steps of `ingest` ----------------------------------------------------------------------
+
+
+def _check_parameters(
+    sources: Sequence[object],
+    tile_n: int,
+    max_level: int | None,
+    wavelet: str,
+    workers: int | None,
+    scheduler: str | None,
+) -> SchedulerChoice:
+    """Every parameter checked before any work (one StoreError line each); where the graph
+    will run (a cluster's scheduler asked whether it answers)."""
+    if not sources:
+        raise StoreError("no source DEM given")
+    if not (TILE_N_RANGE[0] <= tile_n <= TILE_N_RANGE[1]):
+        raise StoreError(f"--tile-n must be in {TILE_N_RANGE[0]}..{TILE_N_RANGE[1]}, got {tile_n}")
+    if max_level is not None and not (0 <= max_level <= MAX_LEVEL_LIMIT):
+        raise StoreError(f"--max-level must be in 0..{MAX_LEVEL_LIMIT}, got {max_level}")
+    lowpass_kernel(wavelet)  # WaveletError (a GlobeviewError) for a bad name
+    where = parse_scheduler(workers, scheduler)  # one line for a bad value, before any work
+    if where.address is not None:
+        probe_scheduler(where.address)  # one line within seconds if no scheduler answers
+    return where
+
+
+def _check_output(out: Path, force: bool) -> StoreIdentity:
+    """What ``out`` is (`check_target`: only a globeview store may be replaced), after
+    cleaning what dead ingests left beside it; its folder must exist."""
+    parent = out.parent
+    # First what dead ingests left here: a store that a killed commit had moved aside is put
+    # back before anything looks at --out.
+    clean_stale_builds(parent)
+    ident = check_target(out, force)
+    if not parent.is_dir():
+        if parent.exists():
+            raise StoreError(f"{parent} is not a folder; choose another --out")
+        raise StoreError(f"the folder for the store does not exist: {parent}")
+    return ident
+
+
+def _pool_size(paths: Sequence[Path], where: SchedulerChoice) -> int:
+    """Threads for hashing and opening the sources: a few, never more than there are."""
+    return min(len(paths), where.workers or os.cpu_count() or 1, 16)
+
+
+def _source_contents(
+    sources: Sequence[str | os.PathLike[str]], where: SchedulerChoice
+) -> tuple[list[Path], list[tuple[int, str]]]:
+    """The DEM files the sources stand for (a folder: the DEM files in it, `ingest.sources`),
+    each checked, and their content identity (size, sha256): the same content elsewhere is
+    the same source."""
+    src_paths = expand_sources([Path(p).absolute() for p in sources])
+    _check_sources(src_paths)
+    # Hashed on a few threads (hashlib releases the GIL): a folder of thousands of tiles is
+    # read at disk speed rather than one file at a time.
+    with ThreadPoolExecutor(max_workers=max(1, _pool_size(src_paths, where))) as pool:
+        contents = list(pool.map(lambda p: (p.stat().st_size, _sha256(p)), src_paths))
+    return src_paths, contents
+
+
+def _source(path: Path, size: int, sha256: str, dem: Dem, tile_n: int) -> _Source:
+    """An opened source with its natural finest level and its manifest record."""
+    info = dem.info
+    res = float(min(info.res_deg))
+    if not (res > 0 and math.isfinite(res)):
+        raise DemError(f"{path} has no usable pixel size ({info.res_deg})")
+    rec = SourceRecord(
+        path=str(path),
+        size=size,
+        sha256=sha256,
+        crs=info.crs,
+        bounds=tuple(info.bounds_lonlat),
+        res_deg=tuple(info.res_deg),
+        vertical_datum=info.vertical_datum,
+        vertical_datum_source=info.vertical_datum_source,
+        heights=_heights_note(info.vertical_datum),
+    )
+    return _Source(
+        path,
+        dem,
+        _natural_level(res, tile_n, _footprint_extent(info)),
+        res,
+        info.bounds_lonlat,
+        bool(info.wraps_longitude),
+        rec,
+        info.vertical_datum,
+    )
+
+
+def _clamp_levels(srcs: Sequence[_Source], max_level: int | None) -> int:
+    """L_max (``max_level``, else the finest natural level); each source's level clamped to
+    it. Past the finest natural level (--max-level above it) the finest sources supply the
+    extra levels, resampled (the levels between would otherwise have no extent at all)."""
+    natural = max(s.level for s in srcs)
+    l_max = natural if max_level is None else max_level
+    for s in srcs:
+        s.level = l_max if s.level == natural else min(s.level, l_max)
+    return l_max
+
+
+def _plan_build(
+    srcs: Sequence[_Source], tile_n: int, l_max: int, wavelet: str, parent: Path, chosen: bool
+) -> _Builder:
+    """The builder of the pyramid: its sources finest first (the finest wins where it has
+    data), the order they were given kept for the manifest; a pyramid over the memory bound
+    refused (``chosen``: L_max came from --max-level)."""
+    ordered = sorted(srcs, key=lambda s: s.res)  # (a stable sort: ties keep input order)
+    builder = _Builder(ordered, tile_n, l_max, wavelet, parent, _no_tick)
+    sorted_at = {id(t): j for j, t in enumerate(ordered)}  # not a search per source: 10^4 tiles
+    builder.input_order = [sorted_at[id(s)] for s in srcs]
+    _check_size(builder.grids, ordered, chosen=chosen)
+    return builder
+
+
+def _build_and_commit(
+    builder: _Builder,
+    stack: contextlib.ExitStack,
+    out: Path,
+    params: IngestParams,
+    where: SchedulerChoice,
+    previous: _Previous | None,
+    progress: bool,
+    on_progress: Callable[[int, int], None] | None,
+) -> None:
+    """Run the build in a locked building folder beside ``out`` (GDAL's chatter on fd 2
+    kept back), write the manifest last and commit the store into place; a failed write is
+    one StoreError line (`write_error`), the building folder removed."""
+    parent = out.parent
+    try:
+        tmp, tok = stack.enter_context(build_folder(parent, out.name))
+    except OSError as exc:
+        raise StoreError(f"cannot write the store in {parent}: {exc.strerror}") from None
+    dropped = stack.enter_context(gdal_quiet())
+    try:
+        with _progress(progress) as bar:
+            done = [0]
+
+            def step(n: int = 1) -> None:
+                bar.update(n)
+                if on_progress is not None:
+                    done[0] += n
+                    on_progress(done[0], total)
+
+            builder.out_dir, builder.tick = tmp, step
+            total = builder.prepare(where, tok, previous)
+            bar.total = total
+            bar.refresh()
+            builder.build()
+        _fault_point("manifest")
+        part = tmp / (MANIFEST_NAME + ".part")
+        with part.open("w", encoding="utf-8") as f:
+            # Sources in the order given (the builder sorts its own list finest first).
+            given = [builder.sources[j].record for j in builder.input_order]
+            builder.manifest(params, given).write(f)
+        os.replace(part, tmp / MANIFEST_NAME)
+        commit(tmp, out, tok)
+    except _BUILD_ERRORS as exc:
+        raise write_error(exc, dropped, out, parent, builder.grids) from None
 
 
 @dataclass(frozen=True)
@@ -1060,36 +864,6 @@ def _changed_sources(
     return _Previous(out, manifest, changed) if changed else None
 
 
-def _clear_folder(folder: Path) -> None:
-    """Remove the store files in a building folder (links of a refused update)."""
-    for e in folder.iterdir():
-        if is_store_file(e.name):
-            e.unlink(missing_ok=True)
-
-
-def _write_error(
-    exc: BaseException, dropped: list[str], out: Path, parent: Path, grids: dict[int, LevelGrid]
-) -> StoreError:
-    """One line for a failed build (the building folder is removed by `_build_folder`)."""
-    if isinstance(exc, StoreError):
-        return exc
-    code = getattr(exc, "errno", None)
-    if code in (errno.ENOSPC, errno.EDQUOT) or (
-        isinstance(exc, RASTER_ERRORS) and _disk_full(dropped, parent)
-    ):
-        return StoreError(f"disk full writing {out} (needs about {_store_megabytes(grids)} MB)")
-    if code == errno.EROFS or any("Read-only file system" in line for line in dropped):
-        return StoreError(f"cannot write the store {out}: {parent} is on a read-only file system")
-    if isinstance(exc, OSError) and not isinstance(exc, RASTER_ERRORS) and exc.errno:
-        from globeview.fileio import describe_os_error  # the wording of every output file
-
-        return StoreError(describe_os_error(exc, out))
-    text = getattr(exc, "strerror", None) or str(exc).strip().splitlines()[0:1]
-    if isinstance(text, list):
-        text = text[0] if text else type(exc).__name__
-    return StoreError(f"cannot write the store {out}: {text}")
-
-
 def _usable(store: Path) -> StoreManifest | None:
     """The manifest of a store that opens (manifest and level files checked, see
     `TileStore.open`), None otherwise: a damaged store is rebuilt rather than called up to
@@ -1110,28 +884,6 @@ def _same_inputs(
     return manifest.params == params and old == list(contents)
 
 
-def _commit(tmp: Path, out: Path, tok: str) -> None:
-    """Move the finished store into place. ``out`` is checked again now (a build takes
-    time): an old store is moved aside, the new one renamed in, and only then is the old
-    one removed; if the second rename fails the old store is put back."""
-    ident = identify(out)
-    if ident.kind in ("absent", "empty"):
-        # rename(2) replaces an empty folder atomically and fails on a non-empty one.
-        os.replace(tmp, out)
-        return
-    if not ident.is_globeview or ident.extra is not None:
-        raise StoreError(f"{out} changed during the build and is not a globeview store now")
-    old = _leftover_path(out.parent, out.name, "old", tok)
-    os.replace(out, old)
-    try:
-        _fault_point("commit")
-        os.replace(tmp, out)
-    except BaseException:
-        os.replace(old, out)
-        raise
-    _remove_store_dir(old)
-
-
 class _NoBar:
     total = 0
 
@@ -1147,9 +899,9 @@ def _progress(enabled: bool) -> Iterator:
     if not enabled:
         yield _NoBar()
         return
-    from tqdm import tqdm
+    from tqdm import tqdm  # deferred: only a terminal ingest draws a bar
 
-    tty = _tty_stderr()  # fd 2 is redirected during the build (see _gdal_quiet)
+    tty = tty_stderr()  # fd 2 is redirected during the build (see gdal_quiet)
     bar = tqdm(total=0, unit="win", desc="ingest", dynamic_ncols=True, file=tty)
     try:
         yield bar

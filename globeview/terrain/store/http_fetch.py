@@ -33,7 +33,7 @@ from pathlib import Path
 
 from globeview.errors import StoreError
 from globeview.paths import cache_dir
-from globeview.terrain.http_cache import DiskCache
+from globeview.terrain.store.http_cache import DiskCache
 
 __all__ = [
     "GATE",

@@ -24,7 +24,7 @@ by M (sqrt(M) per axis); ``mband_approximate`` divides that out to give heights.
 
 Reference code, not used by ingest or the LOD (issue #14 asked: wire it in or say why not).
 The tile store is a dyadic pyramid (each level halves the resolution, CDF 5/3 low-pass,
-`globeview.terrain.wavelet`), because the quadtree that every layer, the LOD and the renderer
+`globeview.terrain.ingest.wavelet`), because the quadtree that every layer, the LOD and the renderer
 share is dyadic; a 3-band level has no tile grid there. The `wavelet` LOD provider keeps
 Zhang's M-band *resolution ladder* on the dyadic levels
 (`builtin.wavelet.provider.stop_levels`), and a
@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from globeview.terrain.wavelet import WaveletError, filter_decimate_grid
+from globeview.terrain.ingest.wavelet import WaveletError, filter_decimate_grid
 
 __all__ = [
     "mband_approximate",

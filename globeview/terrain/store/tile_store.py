@@ -1,0 +1,406 @@
+"""Read access to a tile-pyramid store written by `globeview.terrain.ingest.driver`.
+
+A store is a directory with ``manifest.json`` and, per level, one grid-registered raster
+(EPSG:4326, float32, NaN = no data) split into chunk files ``level_LL_rRRRR_cCCCC.tif``
+mosaicked by ``level_LL.vrt`` (since format 5, `globeview.terrain.store.level_chunks`). Tile
+(L, x, y) is the (2^n+1) x (2^n+1) window of level L's raster starting at row (y - y0)*2^n
+and column ((x - x0) mod 2^(L+1))*2^n, where (x0, y0, nx, ny) is the level's tile extent.
+
+Heights are metres; tile metadata (``error``, ``hmin``, ``hmax``, stride errors) are metres.
+
+Where the files are is a store backend's business (`globeview.terrain.store.backend`): a
+folder (`local.LocalFiles`), a URL served by any static HTTP server (``http(s)://host/path/
+store``, `http.RemoteSource`: a remote chunk's bytes come by HTTP range requests through a
+disk cache), or what an installed backend reads. Tiles are read from the level's chunk files
+(``level_LL_rRRRR_cCCCC.tif``) directly, the same way for every backend: only the chunks a
+tile's window touches are opened. A tile that cannot be read is one `StoreError` line naming
+the file (a remote one: its URL and the HTTP status).
+
+The manifest's format is defined once, as typed dataclasses, in
+`globeview.terrain.store.schema` (ingest writes a `StoreManifest`, this module reads one).
+
+A store is recognised *positively*: its manifest carries ``"format": "globeview-tile-store"``
+and a ``format_version``, which only globeview writes. Anything else with a ``manifest.json``
+is somebody else's folder (`identify.identify` says which), and `TileStore.open` checks the manifest
+against the schema and every level file's shape, geotransform and dtype before it serves a
+tile, so a damaged store is one `StoreError` line, never a traceback.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from collections import OrderedDict
+from collections.abc import Iterable
+from concurrent.futures import Future
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+import rasterio
+
+from globeview.errors import GlobeviewError, StoreError
+from globeview.terrain.levels import LevelGrid
+from globeview.terrain.quadtree import TileKey
+from globeview.terrain.store.backend import (
+    RASTER_ERRORS,
+    StoreFiles,
+    TileNotReady,
+    claimants,
+    report_failure,
+)
+from globeview.terrain.store.blocks import BlockReader
+from globeview.terrain.store.handles import ChunkHandles, short_error
+from globeview.terrain.store.identify import MANIFEST_NAME
+from globeview.terrain.store.local import LocalFiles
+from globeview.terrain.store.metadata import StoreMetadata
+from globeview.terrain.store.prefetch import Prefetcher
+from globeview.terrain.store.schema import (
+    FORMAT_VERSION,
+    ManifestError,
+    PoleHeights,
+    StoreHeader,
+    StoreManifest,
+    built_before_vdatums,
+)
+
+__all__ = ["TileStore"]
+
+DEFAULT_CACHE_TILES = 256
+
+
+def _check_level_file(path: str, ds: rasterio.DatasetReader, grid: LevelGrid) -> None:
+    """StoreError unless ``ds`` is the raster the manifest describes for ``grid``."""
+    want = grid.transform
+    if (
+        (ds.width, ds.height) != (grid.width, grid.height)
+        or ds.count != 1
+        or ds.dtypes[0] != "float32"
+        or not ds.transform.almost_equals(want, precision=grid.d * 1e-6)
+    ):
+        raise StoreError(
+            f"{path} does not match the store's manifest ({ds.width}x{ds.height} "
+            f"{ds.dtypes[0]}, expected {grid.width}x{grid.height} float32 at the level's "
+            "geotransform); re-run globeview ingest --force"
+        )
+
+
+def open_files(text: str, options: Any = None) -> StoreFiles:
+    """The files of the store ``text`` names: from the first store backend that claims it
+    and opens it (`backend.claimants`, in priority order); a path nobody claims is taken as a
+    folder, whose backend says in one line why it is not a store. A backend that fails with
+    anything but a one-line `GlobeviewError` is reported and skipped, like a failed plugin
+    (StoreError naming it when no other backend opens the text)."""
+    crashed: tuple[str, BaseException] | None = None
+    for name, backend in claimants(text):
+        try:
+            files = backend.open(text, options)
+            if not isinstance(files, StoreFiles):
+                raise TypeError(f"open() returned {type(files).__name__}, not StoreFiles")
+        except GlobeviewError:
+            raise  # the backend's one line: not a store, unreachable, ...
+        except Exception as exc:  # noqa: BLE001  a failing backend is skipped, like a plugin
+            report_failure(name, "open", exc)
+            crashed = crashed or (name, exc)
+            continue
+        return files
+    if crashed is not None:
+        who, why = crashed
+        raise StoreError(
+            f"cannot open {text}: store backend {who} failed ({type(why).__name__}: "
+            f"{short_error(why)})"
+        )
+    return LocalFiles(Path(text))
+
+
+def _checked_manifest(where: str, raw: dict[str, object]) -> StoreManifest:
+    """The manifest of the store at ``where`` (a folder or URL) from its parsed JSON, checked:
+    the format version this globeview reads, then the whole schema (StoreError one line)."""
+    version = StoreHeader.peek(raw).format_version
+    if built_before_vdatums(version):
+        raise StoreError(
+            f"{where}: store built before vertical datums (format version {version}, heights"
+            " not ellipsoidal); rebuild it with globeview ingest --force"
+        )
+    if version != FORMAT_VERSION:  # a bool (0/1) is never the current version
+        raise StoreError(
+            f"{where}: store format version {str(version)[:20]} is not supported (this "
+            f"globeview reads version {FORMAT_VERSION}); re-run globeview ingest --force"
+        )
+    try:
+        return StoreManifest.from_json(raw)
+    except ManifestError as exc:
+        raise StoreError(f"{where}: damaged {MANIFEST_NAME} ({short_error(exc)})") from None
+
+
+class TileStore:
+    """A tile pyramid on disk or elsewhere. Open with `TileStore.open(path)`; thread-safe
+    reads.
+
+    Made of parts with one job each: the manifest's lookups (`metadata.StoreMetadata`), each
+    thread's open chunk files (`handles.ChunkHandles`), block reads and their cache
+    (`blocks.BlockReader`) and the background work (`prefetch.Prefetcher`); the store itself
+    opens, keeps the LRU of read tiles and closes. Its files come from a store backend
+    (`backend.StoreFiles`).
+
+    Attributes:
+        path: the store directory (a remote store: its URL's path, so ``path.name`` names
+            it too).
+        url: the store's URL (no trailing slash) when it is read over HTTP, else None.
+        location: the folder or the URL, for people.
+        manifest: the checked manifest (`StoreManifest`: sources with their vertical datums,
+            ingest parameters, levels with their per-tile metadata).
+        tile_n: tiles have 2^tile_n node intervals a side.
+        tile_size: samples per tile side, 2^tile_n + 1.
+        max_level: finest level.
+        strides: the sample strides of `tile_stride_error`'s columns 1..
+        bounds: data footprint (west, south, east, north), degrees; west > east crosses the
+            antimeridian.
+        pole_heights: {"north": metres or None, "south": metres or None}: the single height of
+            each pole point when the data reaches it (every level's pole row holds it).
+    """
+
+    def __init__(
+        self, files: StoreFiles, manifest: StoreManifest, cache_tiles: int = DEFAULT_CACHE_TILES
+    ) -> None:
+        self.path = files.path
+        self.url: str | None = files.base_url
+        self.location = files.location
+        self._files = files
+        self.manifest = manifest
+        self.tile_n = manifest.tile_n
+        self.max_level = manifest.max_level
+        self.strides: tuple[int, ...] = manifest.strides
+        w, s, e, n = manifest.bounds
+        self.bounds: tuple[float, float, float, float] = (w, s, e, n)
+        self.pole_heights = (manifest.pole_heights or PoleHeights()).as_dict()
+        self.tile_size = (1 << self.tile_n) + 1
+        self._meta = StoreMetadata(manifest)
+        if files.check_on_open:  # a local store checks its files now (cheap); others on use
+            for level in range(self.max_level + 1):
+                self._check_level_files(level)
+        self._handles = ChunkHandles(files, self._meta)
+        self._blocks = BlockReader(self._handles, self._meta, self.tile_size)
+        self._prefetch = Prefetcher(
+            files, self._meta, self._handles, self._blocks, self.heights, str(self.path)
+        )
+        self._cache: OrderedDict[TileKey, np.ndarray] = OrderedDict()
+        self._cache_tiles = max(1, int(cache_tiles))
+        self._lock = threading.Lock()
+        self._closed = False
+
+    # -- opening ---------------------------------------------------------------------------
+
+    @classmethod
+    def open(
+        cls,
+        path: str | Path,
+        cache_tiles: int = DEFAULT_CACHE_TILES,
+        remote_options: Any = None,
+    ) -> TileStore:
+        """Open the store ``path`` names through the store backend that claims it
+        (`open_files`): a folder, an ``http(s)://`` URL (read over HTTP with
+        ``remote_options``, default `http.RemoteOptions()`), or what an installed backend
+        reads. Reads only the manifest (fast); no checksum pass.
+
+        Raises:
+            StoreError: not a directory, no/unreadable/corrupt manifest, unsupported
+                format_version, or a missing level file; for a URL: unreachable, HTTP 404
+                (not a store) or another HTTP error, a manifest over its size bound.
+        """
+        return cls.from_files(open_files(str(path), remote_options), cache_tiles)
+
+    @classmethod
+    def from_files(cls, files: StoreFiles, cache_tiles: int = DEFAULT_CACHE_TILES) -> TileStore:
+        """The store whose files ``files`` are: its manifest read, parsed and checked (the
+        same checks, in the same words, for every backend)."""
+        name = MANIFEST_NAME
+        data = files.read_manifest(name)
+        try:
+            raw = json.loads(data.decode("utf-8"))
+        except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+            raise StoreError(
+                f"{files.describe(name)}: unreadable manifest ({type(exc).__name__})"
+            ) from None
+        if not isinstance(raw, dict):
+            raise StoreError(f"{files.describe(name)}: unreadable manifest (not a JSON object)")
+        if not files.is_ours(raw):
+            raise StoreError(f"{files.location} is not a globeview tile store ({name} is not ours)")
+        return cls(files, _checked_manifest(files.location, raw), cache_tiles)
+
+    @property
+    def is_remote(self) -> bool:
+        """Whether the store is read over a network (its tiles may not be here yet)."""
+        return bool(self._files.is_remote)
+
+    @property
+    def offline(self) -> bool:
+        """A remote store opened from its cached manifest (the server could not be reached):
+        only tiles whose chunk bytes are in the disk cache load."""
+        return bool(self._files.offline)
+
+    def forbid_network_on(self, thread_ident: int) -> None:
+        """Reads on this thread (a window's UI thread) never wait on the network: a tile of a
+        remote store whose bytes are not cached raises `TileNotReady` at once and is
+        loaded in the background (a later call finds it cached). No effect on a local store."""
+        self._files.forbid_network_on(thread_ident)
+
+    def verify(self) -> None:
+        """Check every level file (the VRT and each chunk file) against its sha256 in the
+        manifest (reads all data).
+
+        Raises StoreError naming the first file that does not match.
+        """
+        for lv in self._meta.levels:
+            for name, want in ((lv.file, lv.sha256), *zip(lv.chunk_files(), lv.chunk_sha256)):
+                if self._files.sha256(name) != want:
+                    raise StoreError(
+                        f"{self._files.describe(name)} is damaged (checksum mismatch); re-run "
+                        "globeview ingest --force"
+                    )
+
+    # -- metadata (the manifest's lookups, `StoreMetadata`) -----------------------------------
+
+    def level_grid(self, level: int) -> LevelGrid:
+        """Extent and raster geometry of a level."""
+        return self._meta.level_grid(level)
+
+    def level_error(self, level: int) -> float | None:
+        """Largest tile error of a level (metres)."""
+        return self._meta.level_error(level)
+
+    def has_data(self, level: int, x: np.ndarray | int, y: np.ndarray | int) -> np.ndarray:
+        """Bool array: tile inside the level's extent and not all NaN (False beyond
+        max_level)."""
+        return self._meta.has_data(level, x, y)
+
+    def tile_error(self, level: int, x: np.ndarray | int, y: np.ndarray | int) -> np.ndarray:
+        """Geometric error (metres, float32): max |tile bilinear surface - finest data| over
+        the tile. NaN where there is no tile."""
+        return self._meta.tile_error(level, x, y)
+
+    def tile_hrange(
+        self, level: int, x: np.ndarray | int, y: np.ndarray | int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(hmin, hmax) of the tiles' samples, metres, float32 (NaN where no tile)."""
+        return self._meta.tile_hrange(level, x, y)
+
+    def tile_stride_error(self, level: int, x: np.ndarray | int, y: np.ndarray | int) -> np.ndarray:
+        """(..., 7) float32 upper bounds (metres) on the max deviation from the finest data of
+        the tile drawn every 1, 2, 4, ..., 64 samples (column 0 = the tile error)."""
+        return self._meta.tile_stride_error(level, x, y)
+
+    def has_tile(self, level: int, x: int, y: int) -> bool:
+        """`has_data` for one tile, without numpy's per-call overhead (the compose path asks
+        it for every layer of every tile)."""
+        return self._meta.has_tile(level, x, y)
+
+    def has_data_near(self, level: int, x: int, y: int) -> bool:
+        """Whether the tile or any of its 8 same-level neighbours has data (a tile's ring of
+        neighbour nodes may hold data when the tile itself has none)."""
+        return self._meta.has_data_near(level, x, y)
+
+    # -- heights -------------------------------------------------------------------------------
+
+    def _check_level_files(self, level: int) -> None:
+        """Check that a level's files are there and its raster (the VRT) is the one the
+        manifest describes (StoreError naming the file)."""
+        files, lv = self._files, self._meta.levels[level]
+        for name in (lv.file, *lv.chunk_files()):
+            if not files.exists(name):
+                raise StoreError(
+                    f"{files.describe(name)}: level file is missing; re-run globeview ingest "
+                    "--force"
+                )
+        where = files.describe(lv.file)
+        try:
+            ds = files.open_raster(lv.file, lv.sha256)
+        except RASTER_ERRORS as exc:
+            raise StoreError(f"{where} is damaged: {short_error(exc)}") from None
+        try:
+            _check_level_file(where, ds, self._meta.grids[level])
+        finally:
+            files.close_raster(ds)
+
+    def heights_padded(self, key: TileKey | tuple[int, int, int]) -> np.ndarray:
+        """A tile's heights with one node beyond each edge ((tile_size + 2)^2 float32 metres,
+        NaN = no data; see `BlockReader.read_padded`), from the same LRU cache as `heights`;
+        read-only and shared."""
+        key = TileKey(*key)
+        with self._lock:
+            hit = self._cache.get(key)
+            if hit is not None:
+                self._cache.move_to_end(key)
+                return hit
+        try:
+            tile = self._blocks.read_padded(key)
+        except TileNotReady:
+            # On a thread that must not wait (`forbid_network_on`): load it in the
+            # background; the caller shows it as loading and asks again.
+            self._prefetch.load_later(key)
+            raise
+        tile.flags.writeable = False
+        with self._lock:
+            self._cache[key] = tile
+            self._cache.move_to_end(key)
+            while len(self._cache) > self._cache_tiles:
+                self._cache.popitem(last=False)
+        return tile
+
+    def heights(self, key: TileKey | tuple[int, int, int]) -> np.ndarray:
+        """Heights (metres) of a tile's (tile_size x tile_size) nodes, float32, NaN = no data.
+
+        Row r, column c is the node at lon = west + c*d, lat = north - r*d. Served from an
+        LRU cache (thread-safe); the returned array is read-only and shared (a view of the
+        padded tile `heights_padded` caches: one window read serves both).
+        """
+        return self.heights_padded(key)[1:-1, 1:-1]
+
+    def cached(self, key: TileKey | tuple[int, int, int]) -> bool:
+        """Whether a tile is in the cache now."""
+        with self._lock:
+            return TileKey(*key) in self._cache
+
+    @property
+    def blocks_read(self) -> int:
+        """Raster blocks read from chunk files so far (each counted once per read, not per
+        cache hit): 0 after a render means no byte of terrain arrived from this store."""
+        return self._blocks.blocks_read
+
+    # -- background work (`Prefetcher`) --------------------------------------------------------
+
+    def prefetch(self, keys: Iterable[TileKey | tuple[int, int, int]]) -> list[Future]:
+        """Load tiles into the cache in background threads; returns their futures."""
+        return self._prefetch.prefetch(keys)
+
+    def prefetch_bytes(self, keys: Iterable[TileKey | tuple[int, int, int]]) -> list[Future]:
+        """A remote store: fetch the compressed bytes of the blocks these tiles need into its
+        caches, several requests at once (`Prefetcher.prefetch_bytes`); returns the futures
+        of the blocks queued (none for a local store)."""
+        return self._prefetch.prefetch_bytes(keys)
+
+    # -- lifetime --------------------------------------------------------------------------------
+
+    def close(self) -> None:
+        """Stop the prefetch threads and close every dataset handle (a remote store first
+        cancels its HTTP reads, so a slow server does not hold the close)."""
+        self._closed = True
+        self._prefetch.closed = self._handles.closed = True  # nothing new from here on
+        self._files.close()
+        self._prefetch.close()
+        self._handles.close()
+        with self._lock:
+            self._cache.clear()
+        self._blocks.clear()
+
+    def __enter__(self) -> TileStore:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
