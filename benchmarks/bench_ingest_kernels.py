@@ -8,6 +8,8 @@ with `Dem.read_grid` (the ingest's source read, GDAL's warp: timed too, for scal
 - errors:  one 1025^2 finest window against the coarser pyramid levels f = 2 .. 1024 (its own
            wavelet pyramid): `tile_errors.upsampled_error_tiles` vs the gather upsampling,
            `cell_max` and `reduce_cells` of the serial ingest;
+- pruned:  the same errors by branch and bound (`tile_errors.pruned_error_tiles`, issue #25
+           C2: blocks that cannot hold their tile's maximum skipped) vs the strip pass above;
 - stats:   hmin/hmax and stride deltas of that window (`tile_min_max`, `stride_deltas`) vs
            `cell_min`/`cell_max` and a gather upsampling per stride;
 - wavelet: `approximate_window` on a 2053^2 window, all valid and with a NaN border, vs the
@@ -38,6 +40,8 @@ from globeview.terrain.quadtree import node_spacing
 from globeview.terrain.tile_errors import (
     cell_max,
     cell_min,
+    error_window,
+    pruned_error_tiles,
     reduce_cells,
     stride_deltas,
     tile_min_max,
@@ -88,6 +92,14 @@ def _errors_new(fine: np.ndarray, pyramid: dict[int, np.ndarray]) -> list[np.nda
     fine_t = transposed_nodes(fine)
     return [
         upsampled_error_tiles(coarse, fine_t, f, 0, 0, 0, 0, f * S_N, S_N)[2]
+        for f, coarse in pyramid.items()
+    ]
+
+
+def _errors_pruned(fine: np.ndarray, pyramid: dict[int, np.ndarray]) -> list[np.ndarray]:
+    win = error_window(fine)
+    return [
+        pruned_error_tiles(coarse, win, f, 0, 0, 0, 0, f * S_N, S_N)[2]
         for f, coarse in pyramid.items()
     ]
 
@@ -169,6 +181,11 @@ def main() -> None:
             f"errors, 1025^2 window x {len(pyramid)} levels",
             lambda: _errors_reference(fine, pyramid),
             lambda: _errors_new(fine, pyramid),
+        ),
+        (
+            "errors pruned (C2) vs the strip pass",
+            lambda: _errors_new(fine, pyramid),
+            lambda: _errors_pruned(fine, pyramid),
         ),
         (
             "hmin/hmax + stride deltas, 1025^2",
