@@ -59,6 +59,7 @@ from globeview.terrain.dem_edge import (
     edge_candidates,
 )
 from globeview.terrain.resample import resample_bilinear
+from globeview.terrain.value_scan import native_scan_applies, scan_block
 
 
 # globeview/terrain/dem.py -> repository root /data
@@ -661,16 +662,27 @@ class Dem:
             cands.discard(self.nodata)
         cand_arr = np.array(sorted(cands), dtype=np.float64)
         exact = ds.width * ds.height <= EXACT_RANGE_MAX_PIXELS
+        # Stored values that are the heights: scanned as stored (terrain/value_scan.py, the
+        # same answers without a float64 copy and a pass per candidate).
+        native = self._scale == 1.0 and self._offset == 0.0 and native_scan_applies(dtype)
         if exact:
-            arrays: Iterator[np.ndarray] = (self._read_raw(w) for w in self._blocks())
+            arrays: Iterator[np.ndarray] = (
+                self._read_raw(w, native=native) for w in self._blocks()
+            )
         else:
             f = math.sqrt(ds.width * ds.height / _DECIMATED_PIXELS)
             shape = (max(2, int(ds.height / f)), max(2, int(ds.width / f)))
-            arrays = iter([self._read_raw(None, out_shape=shape)])
+            arrays = iter([self._read_raw(None, out_shape=shape, native=native)])
         counts = np.zeros(cand_arr.size, dtype=np.int64)
         masked = 0
         lo, hi = math.inf, -math.inf
         for a in arrays:
+            if native:
+                st = scan_block(a, self.nodata, cand_arr, MIN_HEIGHT_M, MAX_HEIGHT_M)
+                counts += st.counts
+                masked += st.masked
+                lo, hi = min(lo, st.lo), max(hi, st.hi)
+                continue
             # NaN is nodata by convention: not counted as masked (integers have none).
             v = a[~np.isnan(a)] if dtype.kind == "f" else a.ravel()
             if self.nodata is not None:
@@ -726,14 +738,14 @@ class Dem:
         return gap >= max(_MIN_FILL_GAP_M, _MIN_FILL_GAP_FRACTION * (hi - lo))
 
     def _read_raw(
-        self, window: Window | None, out_shape: tuple[int, int] | None = None
+        self, window: Window | None, out_shape: tuple[int, int] | None = None, native: bool = False
     ) -> np.ndarray:
-        """Band 1 as float64 without any masking (for statistics)."""
+        """Band 1 as float64 (as stored with ``native``) without any masking (statistics)."""
         try:
             a = self._ds.read(1, window=window, out_shape=out_shape, resampling=Resampling.nearest)
         except rasterio.errors.RasterioError as exc:
             raise DemError(f"{self.path} is corrupt or truncated: {_short(exc)}") from None
-        return a.astype(np.float64, copy=False)
+        return a if native else a.astype(np.float64, copy=False)
 
     # ---- metadata ------------------------------------------------------------------------
 
