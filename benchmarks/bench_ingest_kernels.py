@@ -3,11 +3,15 @@ ones they replaced, on real heights, CPU per window and whether the results are 
 
 Windows come from the 8192^2 benchmark DEM (benchmarks/cache/big_dem_8192.tif, made by
 make_big_dem.py) when present, else from data/N44W072.hgt, read at the level-14 node spacing
-with `Dem.read_grid` (the ingest's source read, GDAL's warp: timed too, for scale). Kernels:
+with `Dem.read_grid` (the ingest's source read, timed too: the separable resampler of issue
+#25 C1 against GDAL's warp it stands for, with their largest difference in float32 ulps).
+Kernels:
 
 - errors:  one 1025^2 finest window against the coarser pyramid levels f = 2 .. 1024 (its own
            wavelet pyramid): `tile_errors.upsampled_error_tiles` vs the gather upsampling,
            `cell_max` and `reduce_cells` of the serial ingest;
+- pruned:  the same errors by branch and bound (`tile_errors.pruned_error_tiles`, issue #25
+           C2: blocks that cannot hold their tile's maximum skipped) vs the strip pass above;
 - stats:   hmin/hmax and stride deltas of that window (`tile_min_max`, `stride_deltas`) vs
            `cell_min`/`cell_max` and a gather upsampling per stride;
 - wavelet: `approximate_window` on a 2053^2 window, all valid and with a NaN border, vs the
@@ -22,21 +26,28 @@ less sensitive to the load of a shared machine than wall time; the load is print
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import platform
 import statistics
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
+from affine import Affine
+from rasterio.enums import Resampling
+from rasterio.warp import reproject
 
+from globeview.terrain.dem import reader as dem_module
 from globeview.terrain.dem.reader import open_dem
 from globeview.terrain.ingest import wavelet as wv
 from globeview.terrain.ingest.tile_errors import (
     cell_max,
     cell_min,
+    error_window,
+    pruned_error_tiles,
     reduce_cells,
     stride_deltas,
     tile_min_max,
@@ -57,6 +68,43 @@ def _cpu_ms(fn: Callable[[], object]) -> float:
     t = time.thread_time()
     fn()
     return (time.thread_time() - t) * 1e3
+
+
+def _gdal_warp(arr: np.ndarray, src_t: Affine, dst_t: Affine, shape: tuple[int, int]):
+    """GDAL's bilinear warp as `Dem._warp` called it before the separable resampler."""
+    dst = np.full(shape, np.nan, dtype=np.float32)
+    reproject(
+        arr,
+        dst,
+        src_transform=src_t,
+        src_crs="EPSG:4326",
+        dst_transform=dst_t,
+        dst_crs="EPSG:4326",
+        resampling=Resampling.bilinear,
+        src_nodata=np.nan,
+        dst_nodata=np.nan,
+    )
+    return dst
+
+
+@contextlib.contextmanager
+def _with_gdal_warp() -> Iterator[None]:
+    """`Dem.read_grid` through GDAL's warp for lon/lat sources (as before issue #25 C1)."""
+    separable = dem_module.resample_bilinear
+    dem_module.resample_bilinear = _gdal_warp
+    try:
+        yield
+    finally:
+        dem_module.resample_bilinear = separable
+
+
+def _max_ulps(a: np.ndarray, b: np.ndarray) -> float:
+    """Largest |a - b| in float32 ulps of b (NaN where both are NaN; inf if NaN differs)."""
+    if not np.array_equal(np.isnan(a), np.isnan(b)):
+        return float("inf")
+    ok = ~np.isnan(b)
+    diff = np.abs(a[ok].astype(np.float64) - b[ok])
+    return float((diff / np.spacing(np.abs(b[ok]))).max()) if ok.any() else 0.0
 
 
 def _same(a: np.ndarray, b: np.ndarray) -> bool:
@@ -88,6 +136,14 @@ def _errors_new(fine: np.ndarray, pyramid: dict[int, np.ndarray]) -> list[np.nda
     fine_t = transposed_nodes(fine)
     return [
         upsampled_error_tiles(coarse, fine_t, f, 0, 0, 0, 0, f * S_N, S_N)[2]
+        for f, coarse in pyramid.items()
+    ]
+
+
+def _errors_pruned(fine: np.ndarray, pyramid: dict[int, np.ndarray]) -> list[np.ndarray]:
+    win = error_window(fine)
+    return [
+        pruned_error_tiles(coarse, win, f, 0, 0, 0, 0, f * S_N, S_N)[2]
         for f, coarse in pyramid.items()
     ]
 
@@ -152,7 +208,18 @@ def main() -> None:
     with open_dem(src) as dem:
         west, _, _, north = dem.info.bounds_lonlat
         west, north = west + 16 * d, north - 16 * d
-        warp_ms = _cpu_ms(lambda: dem.read_grid(west, north, d, d, 1025, 1025))
+
+        def read() -> np.ndarray:
+            return dem.read_grid(west, north, d, d, 1025, 1025)
+
+        sep_ms, gdal_ms = [], []
+        for _ in range(args.rounds):
+            sep_ms.append(_cpu_ms(read))
+            with _with_gdal_warp():
+                gdal_ms.append(_cpu_ms(read))
+        with _with_gdal_warp():
+            reference = read()
+        ulps = _max_ulps(read(), reference)
         big = dem.read_grid(west, north, d, d, 2053, 2053)
     fine = big[:1025, :1025].copy()
     # The window's own wavelet pyramid stands in for the coarser levels (f = 2 .. 1024).
@@ -169,6 +236,11 @@ def main() -> None:
             f"errors, 1025^2 window x {len(pyramid)} levels",
             lambda: _errors_reference(fine, pyramid),
             lambda: _errors_new(fine, pyramid),
+        ),
+        (
+            "errors pruned (C2) vs the strip pass",
+            lambda: _errors_new(fine, pyramid),
+            lambda: _errors_pruned(fine, pyramid),
         ),
         (
             "hmin/hmax + stride deltas, 1025^2",
@@ -199,7 +271,11 @@ def main() -> None:
         f"# ingest kernels, {src.name}, {cpu}, {len(os.sched_getaffinity(0))} cores, "
         f"{datetime.now(UTC):%Y-%m-%d %H:%M} UTC, load {load[0]:.2f} {load[1]:.2f}"
     )
-    print(f"source read (Dem.read_grid, GDAL warp) of a 1025^2 window: {warp_ms:.1f} ms CPU")
+    print(
+        f"source read (Dem.read_grid) of a 1025^2 window: GDAL warp "
+        f"{statistics.median(gdal_ms):.1f} ms CPU, separable resampler (C1) "
+        f"{statistics.median(sep_ms):.1f} ms, largest difference {ulps:.1f} ulp of float32"
+    )
     print(f"{'kernel':40s} {'before ms':>10s} {'after ms':>9s} {'speed-up':>9s}  identical")
     for name, old, new in cases:
         same = all(_same(a, b) for a, b in zip(old(), new(), strict=True))

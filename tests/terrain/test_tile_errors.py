@@ -9,12 +9,16 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from globeview.terrain.ingest import tile_errors
 from globeview.terrain.ingest.tile_errors import (
+    PRUNE_BLOCK,
     block_node_max,
     block_node_min,
     cell_max,
     cell_min,
+    error_window,
     lerp_rows,
+    pruned_error_tiles,
     reduce_cells,
     stride_deltas,
     tile_min_max,
@@ -184,6 +188,106 @@ def test_upsampled_error_tiles_all_nan_and_misaligned() -> None:
         upsampled_error_tiles(coarse, transposed_nodes(fine), 4, 0, 0, 0, 0, 6, 4)
     with pytest.raises(ValueError, match="whole blocks"):  # 8 cells do not split into blocks of 3
         upsampled_error_tiles(coarse, transposed_nodes(fine), 4, 0, 0, 0, 0, 6, 3)
+
+
+def _terrain_case(
+    rng: np.random.Generator, f: int, block: int, m: int, n: int, aligned: bool
+) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """(coarse, fine, r_off, c_off): a wavy tilted surface (metres) at the coarse nodes and,
+    with noise and a few spikes (the tiles' maxima), at the fine nodes, so that most blocks
+    can be skipped; offsets whole blocks (``aligned``) or anything."""
+    h, w = m * block + 1, n * block + 1
+    pb = PRUNE_BLOCK
+    if aligned and f % pb == 0:
+        r_off, c_off = pb * int(rng.integers(0, f // pb)), pb * int(rng.integers(0, f // pb))
+    else:
+        r_off, c_off = int(rng.integers(0, f)), int(rng.integers(0, f))
+    ax, ay, amp = rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), rng.uniform(0.0, 40.0)
+
+    def surface(y: np.ndarray, x: np.ndarray) -> np.ndarray:
+        return 1500.0 + ay * y[:, None] + ax * x[None, :] + amp * np.sin(x[None, :] / 37.0)
+
+    rc = (r_off + h - 2) // f + 2, (c_off + w - 2) // f + 2
+    coarse = surface(np.arange(rc[0]) * f, np.arange(rc[1]) * f).astype(np.float32)
+    fine = surface(r_off + np.arange(h), c_off + np.arange(w)) + rng.normal(0.0, 0.3, (h, w))
+    spikes = rng.integers(0, fine.size, size=3)
+    fine.flat[spikes] += rng.uniform(-300.0, 300.0, size=3)
+    return coarse, fine.astype(np.float32), r_off, c_off
+
+
+@SETTINGS
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    f=st.sampled_from([2, 8, 16, 32, 64, 256, 24]),
+    block=st.sampled_from([8, 16, 32]),
+    m=st.integers(1, 8),
+    n=st.integers(1, 8),
+    tiles=st.integers(1, 3),
+    masked=st.booleans(),
+    aligned=st.booleans(),
+    holes=st.sampled_from(["none", "coarse", "fine", "both"]),
+    zeros=st.booleans(),
+)
+def test_pruned_error_tiles_are_the_full_pass(
+    seed, f, block, m, n, tiles, masked, aligned, holes, zeros
+) -> None:
+    """Branch and bound gives the strip pass's floats, bit for bit: with NaN coarse nodes
+    (data edges: P finite only along cell edges) and fine NaN, zeros of both signs, ownership
+    masks, tiles spanning several windows' worth of blocks, and factors/offsets where it does
+    not apply (f not a multiple of the block, offsets inside a block: the full pass)."""
+    rng = np.random.default_rng(seed)
+    coarse, fine, r_off, c_off = _terrain_case(rng, f, block, m, n, aligned)
+    if holes in ("coarse", "both"):
+        coarse[rng.random(coarse.shape) < 0.25] = np.nan
+    if holes in ("fine", "both"):
+        fine[rng.random(fine.shape) < 0.2] = np.nan
+        fine[: block // 2 + 1, :] = np.nan
+    if zeros:
+        coarse[rng.random(coarse.shape) < 0.2] = rng.choice(np.array([0.0, -0.0], np.float32))
+        fine[rng.random(fine.shape) < 0.2] = rng.choice(np.array([0.0, -0.0], np.float32))
+    span = block * tiles
+    cell_r0, cell_c0 = block * int(rng.integers(0, 7)), block * int(rng.integers(0, 7))
+    owned = rng.random((m, n)) < 0.6 if masked else None
+    args = (f, r_off, c_off, cell_r0, cell_c0, span, block, owned)
+    ref = upsampled_error_tiles(coarse, transposed_nodes(fine), *args)
+    got = pruned_error_tiles(coarse, error_window(fine), *args)
+    np.testing.assert_array_equal(got[0], ref[0])
+    np.testing.assert_array_equal(got[1], ref[1])
+    _assert_identical(got[2], ref[2])
+
+
+def test_pruned_error_tiles_skip_what_cannot_be_the_maximum(monkeypatch) -> None:
+    """On terrain-like data whose tile maxima show at a block corner (a 200 m spike on one
+    of a tile's corner nodes), the pruned pass computes a few blocks exactly (never the full
+    pass) and still finds every tile's maximum; an infinite height turns pruning off (no
+    rounding margin can be derived), with the same result."""
+    rng = np.random.default_rng(7)
+    f, block, m, n = 64, 32, 16, 16
+    coarse, fine, r_off, c_off = _terrain_case(rng, f, block, m, n, aligned=True)
+    fine[8 * 5, 8 * 9] += 200.0
+    computed: list[int] = []
+    gathered = tile_errors._gathered_block_max
+
+    def counting(*a):  # type: ignore[no-untyped-def]
+        computed.append(a[5].size)
+        return gathered(*a)
+
+    def no_full_pass(*a, **k):  # type: ignore[no-untyped-def]
+        raise AssertionError("the full pass ran")
+
+    args = (f, r_off, c_off, 0, 0, f * 32, block, None)
+    ref = upsampled_error_tiles(coarse, transposed_nodes(fine), *args)
+    with monkeypatch.context() as mp:
+        mp.setattr(tile_errors, "_gathered_block_max", counting)
+        mp.setattr(tile_errors, "upsampled_error_tiles", no_full_pass)
+        got = pruned_error_tiles(coarse, error_window(fine), *args)
+    _assert_identical(got[2], ref[2])
+    blocks = (m * block // PRUNE_BLOCK) * (n * block // PRUNE_BLOCK)
+    assert sum(computed) < 0.05 * blocks
+    fine[3, 5] = np.inf
+    with np.errstate(invalid="ignore"):
+        ref = upsampled_error_tiles(coarse, transposed_nodes(fine), *args)
+        _assert_identical(pruned_error_tiles(coarse, error_window(fine), *args)[2], ref[2])
 
 
 @SETTINGS

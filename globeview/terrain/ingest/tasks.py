@@ -36,10 +36,10 @@ from rasterio.windows import Window
 from globeview.terrain.dem.reader import Dem
 from globeview.terrain.dem.vdatum import egm96
 from globeview.terrain.ingest.tile_errors import (
+    error_window,
+    pruned_error_tiles,
     stride_deltas,
     tile_min_max,
-    transposed_nodes,
-    upsampled_error_tiles,
 )
 from globeview.terrain.ingest.wavelet import approximate_window
 from globeview.terrain.levels import LevelGrid, read_level_nodes
@@ -534,7 +534,9 @@ def error_task(
         fine = reader.read(1, window=Window(bx * s_n, by * s_n, w, h))
         if not np.isfinite(fine).any():
             return []
-        fine_t = transposed_nodes(fine)
+        # Prepared once for every coarser level; the coarse passes skip the blocks that
+        # cannot hold their tile's maximum (branch and bound: the same floats).
+        win = error_window(fine)
         for lv in range(lf):
             g = plan.grids[lv]
             f = 1 << (lf - lv)
@@ -542,8 +544,8 @@ def error_task(
             r1, c1 = -(-(gr0 + h - 1) // f), -(-(gc0 + w - 1) // f)
             with ChunkReader(plan, lv, _present(deps, lv)) as ds:
                 coarse = read_level_nodes(ds, g, r0, c0, r1 - r0 + 1, c1 - c0 + 1)
-            rv, cv, red = upsampled_error_tiles(
-                coarse, fine_t, f, gr0 - r0 * f, gc0 - c0 * f, gr0, gc0, f * s_n, block, owned
+            rv, cv, red = pruned_error_tiles(
+                coarse, win, f, gr0 - r0 * f, gc0 - c0 * f, gr0, gc0, f * s_n, block, owned
             )
             iy, ix, inside = g.tile_slots(rv[:, None], cv[None, :])
             iy, ix, inside = np.broadcast_arrays(iy, ix, inside)

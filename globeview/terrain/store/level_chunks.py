@@ -21,8 +21,8 @@ from pathlib import Path
 from xml.sax.saxutils import escape
 
 import numpy as np
-import rasterio
 from affine import Affine
+from rasterio.io import MemoryFile
 
 from globeview.terrain.levels import LevelGrid
 from globeview.terrain.store.schema import chunk_file_name, chunk_grid_shape
@@ -62,12 +62,15 @@ def _profile(width: int, height: int, transform: Affine, threads: str) -> dict:
         "tiled": True,
         "blockxsize": BLOCK,
         "blockysize": BLOCK,
-        "compress": "deflate",
+        # ZSTD level 1 with the floating-point predictor (issue #25 C5): on a 1024^2 chunk of
+        # the 8192^2 benchmark store 33 vs 39-48 ms to write, 11-13 vs 18 ms to read, 2.39 vs
+        # 2.44 MB, against DEFLATE level 1 (CPU, load 2.3). Writing and reading chunks is
+        # the ingest's largest cost once reprojection and errors are fast; GDAL reads both,
+        # so stores written with DEFLATE before stay readable. (Without the predictor: 16-20
+        # ms to write, 9 ms to read, but 3.50 MB: +46 %; C8 in docs/benchmarks.md.)
+        "compress": "zstd",
         "predictor": 3,
-        # Level 1, not GDAL's 6: on a 1024^2 chunk of terrain 32 vs 73 ms to write (the
-        # ingest's largest cost after reprojection), 2.47 vs 2.40 MB (+3%), reads as fast.
-        # (zstd was faster still, 18 ms, but not every GDAL/QGIS or browser reader has it.)
-        "zlevel": 1,
+        "zstd_level": 1,
         "num_threads": threads,
         "bigtiff": "IF_SAFER",
     }
@@ -94,15 +97,21 @@ def write_chunk(
     if np.isnan(values).all():
         return None
     path = folder / chunk_file_name(grid.level, cy, cx)
+    transform = grid.transform @ Affine.translation(c0, r0)
+    # Encoded in memory and hashed there, then written: the sha256 of the bytes written,
+    # without reading the file back.
+    with MemoryFile() as mem:
+        with mem.open(**_profile(w, h, transform, threads)) as dst:
+            dst.update_tags(AREA_OR_POINT="Point")
+            dst.update_tags(1, LEVEL=str(grid.level), TILE_N=str(grid.tile_n))
+            dst.write(values, 1)
+        data = mem.read()
     # A new inode, never a rewrite in place: an incremental update hard-links the chunks it
     # keeps from the old store, whose files must not change.
     path.unlink(missing_ok=True)
-    transform = grid.transform @ Affine.translation(c0, r0)
-    with rasterio.open(path, "w", **_profile(w, h, transform, threads)) as dst:
-        dst.update_tags(AREA_OR_POINT="Point")
-        dst.update_tags(1, LEVEL=str(grid.level), TILE_N=str(grid.tile_n))
-        dst.write(values, 1)
-    return file_sha256(path)
+    with path.open("xb") as f:
+        f.write(data)
+    return hashlib.sha256(data).hexdigest()
 
 
 def write_level_vrt(
