@@ -28,8 +28,6 @@ import contextlib
 import logging
 import math
 import os
-import signal
-import threading
 import time
 import traceback
 from collections.abc import Callable
@@ -38,6 +36,7 @@ from pathlib import Path
 from typing import Any, Literal, TypeVar
 
 from globeview.errors import GlobeviewError
+from globeview.interrupts import install_sigint_marker, sigint_count
 from globeview.lod.render_set import RenderSet
 from globeview.paths import log_path
 from globeview.plugins.api import LodProvider, PluginKind
@@ -102,47 +101,8 @@ def describe_exception(exc: BaseException) -> str:
 
 
 # -- telling a real Ctrl-C from a KeyboardInterrupt raised by plugin code ----------------------
-_sigint_count = 0
-
-
-_sigint_lock = threading.Lock()
-
-
-_marker_installed = False
-
-
-def _counting_sigint_handler(signum: int, frame: Any) -> None:
-    """SIGINT handler: count the signal, then raise KeyboardInterrupt as Python's default
-    handler does."""
-    global _sigint_count
-    _sigint_count += 1
-    raise KeyboardInterrupt
-
-
-def install_sigint_marker() -> bool:
-    """Make Ctrl-C countable, so `PluginRegistry.call` can tell the user's interrupt (re-raised)
-    from a KeyboardInterrupt that plugin code raised itself (a plugin failure).
-
-    Replaces Python's default SIGINT handler (`signal.default_int_handler`) by one that counts
-    the signal and then raises KeyboardInterrupt exactly as the default does. Leaves any other
-    handler (SIG_DFL, SIG_IGN, an application's own) alone: with those a Ctrl-C raises no
-    KeyboardInterrupt into plugin code. Only possible from the main thread; idempotent.
-    Returns True when the counting handler is in place.
-    """
-    global _marker_installed
-    with _sigint_lock:
-        if _marker_installed:
-            return signal.getsignal(signal.SIGINT) is _counting_sigint_handler
-        if threading.current_thread() is not threading.main_thread():
-            return False
-        try:
-            if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
-                return False
-            signal.signal(signal.SIGINT, _counting_sigint_handler)
-        except (ValueError, OSError):  # not the main interpreter / no signals here
-            return False
-        _marker_installed = True
-        return True
+# The counting SIGINT handler and its count live in globeview.interrupts (the terrain's remote
+# reads defer a Ctrl-C with it too); `install_sigint_marker` and `sigint_count` are re-exported.
 
 
 def _not_ready(exc: BaseException) -> bool:
@@ -151,11 +111,6 @@ def _not_ready(exc: BaseException) -> bool:
     from globeview.terrain.store.backend import TileNotReady
 
     return isinstance(exc, TileNotReady)
-
-
-def sigint_count() -> int:
-    """How many SIGINTs the counting handler has delivered in this process."""
-    return _sigint_count
 
 
 @dataclass
@@ -269,7 +224,7 @@ class Isolation:
                 return default
         elif not self.is_active(plugin_name):
             return default
-        before = _sigint_count
+        before = sigint_count()
         t0 = time.perf_counter()
         try:
             result = fn(*args, **kwargs)
@@ -417,7 +372,7 @@ class Isolation:
             )
             return None
         if check is not None:
-            before = _sigint_count
+            before = sigint_count()
             try:
                 check(result)  # may run plugin code: a RenderSet subclass's properties
             except BaseException as exc:
@@ -536,7 +491,7 @@ def _append_failure_log(what: str, tb: str) -> Path | None:
 def _is_user_interrupt(exc: BaseException, sigints_before: int) -> bool:
     """True for a KeyboardInterrupt from a SIGINT delivered since ``sigints_before`` was read
     (the user's Ctrl-C); False for one plugin code raised itself, and for anything else."""
-    return isinstance(exc, KeyboardInterrupt) and _sigint_count != sigints_before
+    return isinstance(exc, KeyboardInterrupt) and sigint_count() != sigints_before
 
 
 def _clip(text: str, limit: int = 100) -> str:

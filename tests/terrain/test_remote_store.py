@@ -623,6 +623,62 @@ def test_ctrl_c_during_a_remote_read_is_a_keyboard_interrupt(
         assert st.heights(key).shape == (st.tile_size, st.tile_size)
 
 
+_CTRL_C_IN_A_CALLBACK = """
+import signal, sys
+from pathlib import Path
+from globeview.interrupts import install_sigint_marker
+from globeview.terrain.store import http as remote
+from globeview.terrain.store.http import RemoteOptions
+from globeview.terrain.store.tile_store import TileStore
+where, url, cache = sys.argv[1:4]
+assert install_sigint_marker()
+st = TileStore.open(url, remote_options=RemoteOptions(cache_dir=Path(cache)))
+g = st.level_grid(12)
+key = (12, g.x0 + 3, g.y0 + 3)
+if where == "close":
+    st.heights(key)  # its chunk file open, to be closed
+cls = remote._Opener if where == "open" else remote._RemoteFile
+original, calls = getattr(cls, where), []
+def ctrl_c_on_entry(self, *args, **kwargs):  # a Ctrl-C lands as GDAL calls back, outside our guard
+    calls.append(where)
+    if len(calls) == 1:
+        signal.raise_signal(signal.SIGINT)
+    return original(self, *args, **kwargs)
+setattr(cls, where, ctrl_c_on_entry)
+try:
+    st.close() if where == "close" else st.heights(key)
+    print("returned", flush=True)
+except KeyboardInterrupt:
+    print("KeyboardInterrupt", flush=True)
+except Exception as exc:
+    print(type(exc).__name__, exc, flush=True)
+if where != "close":
+    print("then", st.heights(key).shape, flush=True)  # the store reads on
+"""
+
+
+@pytest.mark.parametrize("where", ["read", "seek", "tell", "open", "close"])
+def test_ctrl_c_inside_a_gdal_callback_is_a_keyboard_interrupt(
+    store_root: Path, served, tmp_path: Path, where: str
+) -> None:
+    """A SIGINT that lands in a callback of GDAL's, where rasterio swallows what Python raises
+    (it was a generic read error, a tile stood in for and an interrupted render exiting 0; a
+    close that returned normally; or, at a read's start, an aborted process): held back and
+    raised as KeyboardInterrupt once GDAL returns. In a child process (the failure aborted)."""
+    url = f"{served.url}/n44"
+    r = subprocess.run(
+        [sys.executable, "-c", _CTRL_C_IN_A_CALLBACK, where, url, str(tmp_path / "c")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    lines = r.stdout.splitlines()
+    assert lines[0] == "KeyboardInterrupt", (lines, r.stderr[-2000:])
+    if where != "close":
+        assert lines[1] == "then (65, 65)"
+
+
 def test_dropped_connections_are_retried_for_tiles(
     store_root: Path, served, tmp_path: Path
 ) -> None:

@@ -12,6 +12,7 @@ import numpy as np
 from rasterio.windows import Window
 
 from globeview.errors import StoreError
+from globeview.interrupts import deferred_sigint
 from globeview.terrain.quadtree import TileKey
 from globeview.terrain.store.backend import (
     RASTER_ERRORS,
@@ -206,15 +207,19 @@ class BlockReader:
         r0, c0 = bi * bh, bj * bw
         window = Window(c0, r0, min(bw, ds.width - c0), min(bh, ds.height - r0))
         take_error()
-        try:
-            block = ds.read(1, window=window)
-        except _READ_ERRORS as exc:
-            self._handles.drop(level, index)
-            err = take_error()
-            if err is not None:
-                raise err from None
-            raise StoreError(f"{self._handles.where(level, index)}: {short_error(exc)}") from None
-        raise_interrupt()
+        # A Ctrl-C while GDAL reads (a remote chunk's bytes come through Python callbacks,
+        # which swallow exceptions) is raised when it returns, in place of its result.
+        with deferred_sigint():
+            try:
+                block = ds.read(1, window=window)
+            except _READ_ERRORS as exc:
+                self._handles.drop(level, index)
+                err = take_error()
+                if err is not None:
+                    raise err from None
+                where = self._handles.where(level, index)
+                raise StoreError(f"{where}: {short_error(exc)}") from None
+            raise_interrupt()
         with self._lock:
             self.blocks_read += 1
             self._blocks[key] = block

@@ -12,6 +12,7 @@ import rasterio
 from affine import Affine
 
 from globeview.errors import StoreError
+from globeview.interrupts import deferred_sigint
 from globeview.terrain.levels import LevelGrid
 from globeview.terrain.store.backend import (
     RASTER_ERRORS,
@@ -128,19 +129,22 @@ class ChunkHandles:
         where = self._files.describe(name)
         grid = self._meta.grids[level]
         take_error()
-        try:
-            ds = self._files.open_raster(name, lv.chunk_sha256[index])
-        except RASTER_ERRORS as exc:
-            err = take_error()
-            if err is not None:
-                raise err from None
-            raise StoreError(f"{where} is damaged: {short_error(exc)}") from None
-        try:
-            raise_interrupt()
-            _check_chunk(where, ds, grid, chunk_window(grid, lv.chunk_nodes, cy, cx))
-        except BaseException:
-            ds.close()
-            raise
+        # A Ctrl-C while GDAL opens the file (through Python callbacks, for a remote one) is
+        # raised when it returns, in place of its result or its error.
+        with deferred_sigint():
+            try:
+                ds = self._files.open_raster(name, lv.chunk_sha256[index])
+            except RASTER_ERRORS as exc:
+                err = take_error()
+                if err is not None:
+                    raise err from None
+                raise StoreError(f"{where} is damaged: {short_error(exc)}") from None
+            try:
+                raise_interrupt()
+                _check_chunk(where, ds, grid, chunk_window(grid, lv.chunk_nodes, cy, cx))
+            except BaseException:
+                ds.close()
+                raise
         with self._lock:
             self.block_shapes[(level, index)] = ds.block_shapes[0]
         return ds

@@ -31,8 +31,11 @@ is microseconds beside a network round trip (warm N44W072 tiles: 0.14 ms CPU a t
 works around: its opener keeps file objects in ContextVars, so a dataset is closed in the
 context of the thread that opened it (`close_dataset`) and held until then (a dataset the
 garbage collector closed on another thread crashed the process); and an exception must never
-escape into GDAL's callbacks (a KeyboardInterrupt there aborted the process), so they return
-"no bytes" and record the error.
+escape into GDAL's callbacks (rasterio swallows it: a KeyboardInterrupt there became a generic
+I/O error, a close that returned normally, or an aborted process), so they return "no bytes"
+and record the error. A Ctrl-C during a GDAL call on the main thread is held back and raised
+once GDAL has returned (`globeview.interrupts.deferred_sigint`: opening, reading and closing
+a chunk file), but inside our own reads, which it ends at once.
 
 Behaviour: threads wanting a page another thread is fetching wait for it (one request); a
 chunk whose read failed after its retries fails at once for `RemoteOptions.fail_fast_s`; a
@@ -72,6 +75,12 @@ import rasterio
 from rasterio.abc import FileContainer
 
 from globeview.errors import GlobeviewError, StoreError
+from globeview.interrupts import (
+    deferred_sigint,
+    install_sigint_marker,
+    sigint_pending,
+    sigint_raised_in,
+)
 from globeview.terrain.store.backend import (
     StoreFiles,
     TileNotReady,
@@ -389,9 +398,11 @@ class _RemoteFile(io.RawIOBase):
     def _guard(fn: Any, failed: Any) -> Any:
         """``fn()``, or ``failed`` after recording the `RemoteError` (`record_error`): an
         exception raised into GDAL's callbacks is at best a generic error and at worst a
-        crash (a failed size read as a huge length), so the callbacks never raise."""
+        crash (a failed size read as a huge length), so the callbacks never raise. A Ctrl-C
+        is raised inside `_attempt` only (held back elsewhere in the GDAL call) and recorded
+        here: the store raises it once GDAL returns."""
         try:
-            return fn()
+            return _attempt(fn)
         except StoreError as exc:
             record_error(exc)
         except Exception as exc:  # noqa: BLE001 - never into GDAL; reported by the store
@@ -399,6 +410,16 @@ class _RemoteFile(io.RawIOBase):
         except (KeyboardInterrupt, SystemExit) as exc:  # Ctrl-C: raised once GDAL is out
             record_error(exc)
         return failed
+
+
+@sigint_raised_in
+def _attempt(fn: Any) -> Any:
+    """``fn()`` for `_RemoteFile._guard`, which catches what it raises: a Ctrl-C arriving
+    while it runs is raised here (ending the wait for the network at once), not held back
+    (`globeview.interrupts`); one held back earlier in the same GDAL call stops it first."""
+    if sigint_pending():
+        raise KeyboardInterrupt
+    return fn()
 
 
 class _Opener(FileContainer):
@@ -454,11 +475,12 @@ def close_dataset(ds: rasterio.DatasetReader) -> None:
     effort: a failing close is not the caller's problem)."""
     with _open_lock:
         ctx = _open_datasets.pop(ds, None)
-    if ctx is None:
-        ds.close()
-        return
-    with contextlib.suppress(Exception):
-        ctx.run(ds.close)
+    with deferred_sigint():  # a Ctrl-C in GDAL's close callbacks: raised once it returns
+        if ctx is None:
+            ds.close()
+            return
+        with contextlib.suppress(Exception):
+            ctx.run(ds.close)
 
 
 def open_datasets() -> int:
@@ -499,6 +521,9 @@ class RemoteSource(StoreFiles):
         self._cancel = Cancel()
         #: True when the manifest came from the disk cache (the server unreachable).
         self.from_cache = False
+        # Ctrl-C counted, so one that lands in GDAL's callbacks is not lost (it replaces only
+        # Python's default handler, by one that behaves the same; main thread only).
+        install_sigint_marker()
 
     @property
     def offline(self) -> bool:  # type: ignore[override]
@@ -582,7 +607,8 @@ class RemoteSource(StoreFiles):
                 self._files[url] = data
         take_error()
         try:
-            ds = rasterio.open(url, opener=self._opener, sharing=False)
+            with deferred_sigint():
+                ds = rasterio.open(url, opener=self._opener, sharing=False)
         except Exception:
             err = take_error()
             if err is not None:
