@@ -339,11 +339,13 @@ class GlobeRenderer:
         """Upload the finished tiles (up to ``upload_budget``), stand in ancestors for the
         missing ones and queue them nearest the eye first (see tile_loader.py). Returns the
         render set to draw, tiles uploaded, tiles loading; ``extra`` (the frame's
-        ``FrameStats.extra``) gets ``tiles_missing`` (tiles of the set not resident),
+        ``FrameStats.extra``) gets ``upload_ms`` (wall milliseconds of the uploads),
+        ``tiles_missing`` (tiles of the set not resident),
         ``tiles_standin`` (ancestors drawn for them) and ``tiles_failed`` (missing tiles whose
         build failed: they stay stood in until the layers change)."""
         self._check_terrain_version()
         loader = self._ensure_loader()
+        t_upload = time.perf_counter()
         ready = loader.take_ready(self.upload_budget)
         if ready:
             meshes = dict(ready)
@@ -351,6 +353,7 @@ class GlobeRenderer:
             # partial: near the pool's capacity, finished tiles that do not fit wait (they
             # are requested again) rather than failing the frame.
             self.pool.load(ready_keys, meshes.__getitem__, protect=render_set.keys, partial=True)
+        upload_ms = (time.perf_counter() - t_upload) * 1e3
         drawn, missing = substitute_missing(render_set, lambda k: self.pool.slots_of(k) >= 0)
         # Nearest first, from the last frame's eye (this frame's view is made after loading);
         # the first frame has none: coarse first.
@@ -384,6 +387,7 @@ class GlobeRenderer:
             warm(missing_keys[order])
         n_failed = len(bad)
         if extra is not None:
+            extra["upload_ms"] = upload_ms
             extra["tiles_missing"] = len(missing)
             # Stand-ins: drawn tiles the provider did not ask for (ancestors).
             asked = key_codes(render_set.keys)

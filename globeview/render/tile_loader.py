@@ -130,6 +130,9 @@ class TileLoader:
         self._failed_at: dict[Key, float] = {}  # time.monotonic() of each failure
         # Bumped by cancel_all: a build that started before it is discarded when it ends.
         self._generation = 0
+        #: Tiles built (or failed) by the workers since the loader started, results
+        #: discarded by `cancel_all` included: what `cpu_seconds` was spent on.
+        self.tiles_built = 0
         self._stop = False
         self._threads = [
             threading.Thread(target=self._work, name=f"gv-tiles-{i}", daemon=True)
@@ -164,6 +167,15 @@ class TileLoader:
         """Finished tiles waiting for `take_ready`."""
         with self._cv:
             return len(self._ready)
+
+    def describe(self) -> str:
+        """The loader's kind and size for reports, e.g. ``thread x1``."""
+        return f"thread x{len(self._threads)}"
+
+    def cpu_seconds(self) -> float:
+        """CPU time (s) the worker threads have used so far (their own clocks: the builds,
+        not the render thread's share of the GIL hand-overs); for benchmarks."""
+        return sum(_thread_cpu_s(t) for t in self._threads)
 
     # -- asking ----------------------------------------------------------------------------
     def request(self, keys: np.ndarray, priority: np.ndarray | None = None) -> None:
@@ -294,6 +306,7 @@ class TileLoader:
                 generation = self._generation
             results = self._build_keys(keys)
             with self._cv:
+                self.tiles_built += len(results)
                 if generation != self._generation:
                     continue  # cancelled meanwhile (new layers): the results are stale
                 for key, res in results.items():
@@ -312,6 +325,18 @@ class TileLoader:
                     callback()
                 except Exception:  # a broken listener must not stop loading
                     log.exception("tile loader: on_ready failed")
+
+
+def _thread_cpu_s(thread: threading.Thread) -> float:
+    """CPU seconds a live thread has used (its POSIX CPU clock); 0 for a thread that ended
+    or where the platform has no per-thread clock."""
+    ident = thread.ident
+    if ident is None or not thread.is_alive():
+        return 0.0
+    try:
+        return time.clock_gettime(time.pthread_getcpuclockid(ident))
+    except (AttributeError, OSError):
+        return 0.0
 
 
 def substitute_missing(
