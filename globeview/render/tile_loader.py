@@ -40,11 +40,14 @@ import numpy as np
 from globeview.geodesy import lonlat_to_ecef
 from globeview.lod.render_set import RenderSet
 from globeview.lod.tile_indices import IndexVariant
+from globeview.render.tile_build import ReadyTile
 from globeview.render.tile_mesh import TileMesh
 
 log = logging.getLogger("globeview.render")
 
 Key = tuple[int, int, int]
+#: What a build gives: a mesh (its texels baked at upload) or a tile ready for upload.
+Built = TileMesh | ReadyTile
 
 #: Mean Earth radius (m), for the tiles' ground radius in `tile_priority`.
 _EARTH_R_M = 6.371e6
@@ -87,11 +90,11 @@ class TileLoader:
     """Builds tile meshes on worker threads; the render thread collects finished ones.
 
     Args:
-        build: ``build(key) -> TileMesh`` (called on the workers; must be thread-safe).
+        build: ``build(key) -> TileMesh | ReadyTile`` (called on the workers; must be thread-safe).
         workers: worker threads.
         on_ready: called on a worker thread after each batch of tiles finished (built or
             failed); must be cheap and thread-safe (e.g. emit a Qt signal).
-        build_many: optional ``build_many(keys (N, 3)) -> {key: TileMesh}`` that builds
+        build_many: optional ``build_many(keys (N, 3)) -> {key: TileMesh | ReadyTile}`` that builds
             several tiles in one call (vectorised metadata, fewer hand-overs of the GIL); a
             worker then takes up to ``batch`` tiles at once, in load order. A batch that
             raises is built again tile by tile with ``build`` so only the bad tile fails.
@@ -102,10 +105,10 @@ class TileLoader:
 
     def __init__(
         self,
-        build: Callable[[Key], TileMesh],
+        build: Callable[[Key], Built],
         workers: int = 2,
         on_ready: Callable[[], None] | None = None,
-        build_many: Callable[[np.ndarray], dict[Key, TileMesh]] | None = None,
+        build_many: Callable[[np.ndarray], dict[Key, Built]] | None = None,
         batch: int = 8,
         retry_failed_s: float = RETRY_FAILED_S,
     ) -> None:
@@ -125,7 +128,7 @@ class TileLoader:
         self._prefetch: dict[Key, None] = {}
         self._queue: dict[Key, None] = {}
         self._running: set[Key] = set()
-        self._ready: dict[Key, TileMesh] = {}
+        self._ready: dict[Key, Built] = {}
         self.failed: dict[Key, BaseException] = {}
         self._failed_at: dict[Key, float] = {}  # time.monotonic() of each failure
         # Bumped by cancel_all: a build that started before it is discarded when it ends.
@@ -207,9 +210,9 @@ class TileLoader:
             if self._prefetch:
                 self._cv.notify_all()
 
-    def take_ready(self, limit: int) -> list[tuple[Key, TileMesh]]:
-        """Up to ``limit`` finished meshes, in the order they finished (removed here)."""
-        out: list[tuple[Key, TileMesh]] = []
+    def take_ready(self, limit: int) -> list[tuple[Key, Built]]:
+        """Up to ``limit`` finished tiles, in the order they finished (removed here)."""
+        out: list[tuple[Key, Built]] = []
         with self._cv:
             while self._ready and len(out) < limit:
                 key = next(iter(self._ready))
@@ -279,7 +282,7 @@ class TileLoader:
             self._cv.wait()
         return None
 
-    def _build_keys(self, keys: list[Key]) -> dict[Key, TileMesh | BaseException]:
+    def _build_keys(self, keys: list[Key]) -> dict[Key, Built | BaseException]:
         """Build ``keys``: in one ``build_many`` call when there is one and several keys,
         else (or when the batch raised) one by one, each failure kept as its exception."""
         if self._build_many is not None and len(keys) > 1:
@@ -288,7 +291,7 @@ class TileLoader:
                 return {k: meshes[k] for k in keys}
             except Exception:  # noqa: BLE001  find the bad tile below, one by one
                 pass
-        out: dict[Key, TileMesh | BaseException] = {}
+        out: dict[Key, Built | BaseException] = {}
         for key in keys:
             try:
                 out[key] = self._build(key)
