@@ -105,6 +105,25 @@ class AsyncFlight:
     loader: str
 
 
+def set_loader(renderer, kind: str | None = None, workers: int | None = None) -> None:
+    """Make ``renderer``'s background loader ``kind`` ("thread" or "process"; None: the
+    machine's default, `tile_workers.default_loader`) with ``workers`` (None: 1 thread, or
+    all cores but two processes, at least 1); a loader already made is shut down. Batches of
+    4 tiles for threads, 8 for processes (issue #27)."""
+    import os
+
+    from globeview.render.tile_workers import default_loader
+
+    kind = kind or default_loader()[0]
+    if workers is None:
+        workers = 1 if kind == "thread" else max(1, (os.cpu_count() or 1) - 2)
+    if renderer.loader is not None:
+        renderer.loader.shutdown()
+        renderer.loader = None
+    renderer.load_kind, renderer.load_workers = kind, int(workers)
+    renderer.load_batch = 4 if kind == "thread" else 8
+
+
 def fly_async(
     bench: Bench,
     flight: Flight,
@@ -122,9 +141,13 @@ def fly_async(
     t0 = float(flight.t[0])
     bench.set_pose(flight.pose(t0), cut=True)
     renderer.async_loading = False
-    bench.frame(t0)  # the start, complete: the flight begins from a loaded view
+    start, _ = bench.frame(t0)  # the start, complete: the flight begins from a loaded view
     renderer.async_loading = True
     renderer.on_tile_ready = None  # frames are continuous: no wake-up needed
+    procs = renderer._ensure_loader().processes
+    if procs is not None:  # worker processes started and warm before the clock, as a
+        # window's are after its first view: the start's tiles built in each
+        procs.warm(start.render_set.keys)  # type: ignore[attr-defined]
     motion = session.pipeline.motion
     motion.reset()
     try:

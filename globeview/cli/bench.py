@@ -103,6 +103,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=10.0,
         help="--async: seconds after the path's end to wait for a complete view (default 10)",
     )
+    p.add_argument(
+        "--loader",
+        choices=("thread", "process"),
+        help="--async: build tiles on loader threads or in worker processes (default: "
+        "threads on up to 2 cores, else processes)",
+    )
+    p.add_argument(
+        "--workers",
+        type=positive_int,
+        help="--async: loader threads or processes (default: 1 thread, or cores - 2 processes)",
+    )
 
     p = sub.add_parser("experiments", help="the papers' experiments: CSV, PNG plots, report.md")
     p.add_argument("--out", default="benchmarks/out/experiments", help="output folder")
@@ -152,6 +163,8 @@ def _flight(args: argparse.Namespace) -> int:
         return _flight_async(args)
     if args.fps == 0:
         raise GlobeviewError("--fps 0 (unpaced) is for --async flights only")
+    if args.loader is not None or args.workers is not None:
+        raise GlobeviewError("--loader and --workers are for --async flights only")
     from globeview.bench.flight import Flight, resolve_flight
     from globeview.bench.harness import (
         Bench,
@@ -203,6 +216,7 @@ def _flight_async(args: argparse.Namespace) -> int:
         fly_async,
         lag_text,
         markdown_row,
+        set_loader,
     )
     from globeview.bench.harness import Bench, load_terrain, machine, parse_size, write_csv
 
@@ -212,6 +226,7 @@ def _flight_async(args: argparse.Namespace) -> int:
     bench = Bench(load_terrain(flight.terrain), size, lod=args.lod)
     try:
         bench.use(args.lod, args.tau)
+        set_loader(bench.session.renderer, args.loader, args.workers)
         print(f"machine: {machine(bench.gl_renderer)}")
         paced = f"paced at {fps:g} Hz" if fps > 0 else "unpaced"
         print(

@@ -39,6 +39,7 @@ from globeview.render.tile_build import ReadyTile, TileBuilder, bake
 from globeview.render.tile_loader import TileLoader, substitute_missing, tile_priority
 from globeview.render.tile_mesh import FLOATS_PER_VERTEX, TileMesh
 from globeview.render.tile_pool import IndexPool, TilePool, key_codes
+from globeview.render.tile_workers import ProcessBuilder, TerrainRecipe, default_loader
 from globeview.terrain.compose.stack import TerrainStack
 from globeview.terrain.quadtree import tile_bounds
 
@@ -96,14 +97,15 @@ class GlobeRenderer:
         # finished tile up to this many, so a view completes in few frames (it was 12, which
         # made a 355-tile view wait ~30 frames after its tiles were built).
         self.upload_budget = 256
-        # One background build thread: the build is GIL-bound (one thread built 355 tiles in
-        # 0.47 s, two in 0.92 s), and in the window two also took GIL time from the frames
-        # (White Mountains Go to -> complete 0.90-0.98 s with one, 1.05-1.33 s with two;
-        # benchmarks/bench_goto.py --workers, load 2.2-2.6).
-        self.load_workers = 1
+        # Background builds (`default_loader`): on 2 cores one thread (the build is
+        # GIL-bound: one thread built 355 tiles in 0.47 s, two in 0.92 s, and two also took
+        # GIL time from the frames: White Mountains Go to -> complete 0.90-0.98 s with one,
+        # 1.05-1.33 s with two; benchmarks/bench_goto.py --workers, load 2.2-2.6); with more
+        # cores worker processes, all but two cores (render/tile_workers.py).
+        self.load_kind, self.load_workers = default_loader()
         # Tiles per background build call (one metadata call and one vectorised pass per
         # batch); small, so the nearest tiles come back first.
-        self.load_batch = 4
+        self.load_batch = 4 if self.load_kind == "thread" else 8
         self.loader: TileLoader | None = None
         #: Called on a worker thread when a background tile finished (the window schedules a
         #: frame through it); None: nothing is told.
@@ -239,7 +241,12 @@ class GlobeRenderer:
         if self.terrain.version != self._terrain_version:
             self.pool.invalidate()
             if self.loader is not None:
-                self.loader.cancel_all()
+                if self.loader.processes is not None:
+                    # The workers opened the old layers: new ones for the new recipe.
+                    self.loader.shutdown()
+                    self.loader = None
+                else:
+                    self.loader.cancel_all()
             self._terrain_version = self.terrain.version
 
     def ensure_resident(self, keys: np.ndarray) -> int:
@@ -260,13 +267,24 @@ class GlobeRenderer:
         if self.loader is None:
             # Batches through `build_meshes` where the renderer has it (one metadata call per
             # level for the batch instead of one per tile).
-            self.loader = TileLoader(
-                self._build_ready,
-                workers=self.load_workers,
-                on_ready=self._tile_ready,
-                build_many=self._build_ready_many,
-                batch=self.load_batch,
-            )
+            if self.load_kind == "process":
+                procs = ProcessBuilder(TerrainRecipe.of(self.terrain), self.load_workers)
+                self.loader = TileLoader(
+                    procs.build,
+                    workers=self.load_workers,
+                    on_ready=self._tile_ready,
+                    build_many=procs.build_many,
+                    batch=self.load_batch,
+                    processes=procs,
+                )
+            else:
+                self.loader = TileLoader(
+                    self._build_ready,
+                    workers=self.load_workers,
+                    on_ready=self._tile_ready,
+                    build_many=self._build_ready_many,
+                    batch=self.load_batch,
+                )
         return self.loader
 
     def _load_async(

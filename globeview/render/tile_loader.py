@@ -2,12 +2,15 @@
 
 Building a tile (reading its heights, meshing, averaging normals) takes milliseconds; a fast
 camera move can ask for a hundred new tiles in one frame. In the window the renderer therefore
-builds tiles off the UI thread (one worker thread: the build is mostly GIL-bound numpy on
-small arrays, and a second thread took time from the frames without building faster; the
-loader itself takes any number of workers), uploads the finished ones at the next frame,
-and until a tile is ready draws its nearest resident ancestor instead — never a hole, never
-an overlap (the ancestor replaces every requested tile below it). Headless renders load
-synchronously so every image is complete.
+builds tiles off the UI thread, uploads the finished ones at the next frame, and until a tile
+is ready draws its nearest resident ancestor instead — never a hole, never an overlap (the
+ancestor replaces every requested tile below it). Headless renders load synchronously so
+every image is complete.
+
+Two kinds of workers (issue #27): threads that call the build themselves (the build is
+mostly GIL-bound numpy on small arrays, so one thread is all a 2-core machine should give
+it), or threads that hand batches to worker processes (`tile_workers.ProcessBuilder`, given
+as ``processes``) and wait for them with the GIL released: the builds then use every core.
 
 Scheduling (issue #17: "Go to" -> complete view): the queue is a priority list, not a FIFO.
 
@@ -34,6 +37,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable
+from typing import Protocol
 
 import numpy as np
 
@@ -101,6 +105,9 @@ class TileLoader:
         batch: most tiles per ``build_many`` call.
         retry_failed_s: a failed tile is kept in `failed` (and not built again) for this
             many seconds; the next request or prefetch after that tries it again.
+        processes: the worker processes ``build`` and ``build_many`` hand work to (a
+            `tile_workers.ProcessBuilder`): `describe`, `cpu_seconds` and `shutdown`
+            include them (`shutdown` kills them first, so no thread waits on a build).
     """
 
     def __init__(
@@ -111,6 +118,7 @@ class TileLoader:
         build_many: Callable[[np.ndarray], dict[Key, Built]] | None = None,
         batch: int = 8,
         retry_failed_s: float = RETRY_FAILED_S,
+        processes: ProcessPart | None = None,
     ) -> None:
         if workers < 1:
             raise ValueError(f"tile loader workers must be at least 1, got {workers}")
@@ -123,6 +131,7 @@ class TileLoader:
         self._build_many = build_many
         self._batch = batch if build_many is not None else 1
         self.on_ready = on_ready
+        self.processes = processes
         self._cv = threading.Condition()
         # Wanted, not started: dicts kept in load order (a dict is an ordered set here).
         self._prefetch: dict[Key, None] = {}
@@ -172,13 +181,18 @@ class TileLoader:
             return len(self._ready)
 
     def describe(self) -> str:
-        """The loader's kind and size for reports, e.g. ``thread x1``."""
+        """The loader's kind and size for reports, e.g. ``thread x1``, ``process x14``."""
+        if self.processes is not None:
+            return self.processes.describe()
         return f"thread x{len(self._threads)}"
 
     def cpu_seconds(self) -> float:
-        """CPU time (s) the worker threads have used so far (their own clocks: the builds,
-        not the render thread's share of the GIL hand-overs); for benchmarks."""
-        return sum(_thread_cpu_s(t) for t in self._threads)
+        """CPU time (s) the workers have used so far: the worker threads' own clocks (the
+        builds, or handing batches to the processes and taking their results), plus the
+        worker processes' (not the render thread's share of the GIL hand-overs); for
+        benchmarks."""
+        own = sum(_thread_cpu_s(t) for t in self._threads)
+        return own + (self.processes.cpu_seconds() if self.processes is not None else 0.0)
 
     # -- asking ----------------------------------------------------------------------------
     def request(self, keys: np.ndarray, priority: np.ndarray | None = None) -> None:
@@ -242,6 +256,8 @@ class TileLoader:
             self._prefetch.clear()
             self._queue.clear()
             self._cv.notify_all()
+        if self.processes is not None:
+            self.processes.shutdown()  # builds under way fail at once: nothing to wait for
         me = threading.current_thread()
         for t in self._threads:
             if t is not me and t.is_alive():
@@ -293,6 +309,9 @@ class TileLoader:
                 pass
         out: dict[Key, Built | BaseException] = {}
         for key in keys:
+            if self._stop:  # shutting down: the rest are dropped with the batch
+                out[key] = RuntimeError("tile loader shut down")
+                continue
             try:
                 out[key] = self._build(key)
             except Exception as exc:  # noqa: BLE001  a failed tile is counted, others load
@@ -328,6 +347,14 @@ class TileLoader:
                     callback()
                 except Exception:  # a broken listener must not stop loading
                     log.exception("tile loader: on_ready failed")
+
+
+class ProcessPart(Protocol):
+    """The worker processes a loader hands builds to (`tile_workers.ProcessBuilder`)."""
+
+    def describe(self) -> str: ...
+    def cpu_seconds(self) -> float: ...
+    def shutdown(self) -> None: ...
 
 
 def _thread_cpu_s(thread: threading.Thread) -> float:

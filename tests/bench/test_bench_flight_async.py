@@ -175,11 +175,28 @@ def test_cli_async_flight_writes_its_csv_and_summary(tmp_path, capsys) -> None:
     assert "| short | 64x48 | thread x1 | 30 |" in text
 
 
+def test_cli_async_flight_with_worker_processes(tmp_path, capsys) -> None:
+    """`--loader process --workers 2`: the tiles are built in two worker processes (started
+    before the clock) and the flight completes its view; their CPU is counted."""
+    path = tmp_path / "short.json"
+    path.write_text(json.dumps(SHORT))
+    argv = ["flight", str(path), "--async", "--size", "64x48", "--fps", "30"]
+    assert _bench([*argv, "--loader", "process", "--workers", "2", "--timeout", "60"]) == 0
+    text = capsys.readouterr().out
+    row = next(line for line in text.splitlines() if line.startswith("| short |"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[2] == "process x2"
+    assert cells[11] != "> 60 s"  # the view completed
+    assert int(cells[12]) > 0 and float(cells[13]) > 0.0  # tiles built, CPU per tile
+
+
 @pytest.mark.parametrize(
     ("argv", "needle"),
     [
         (["--frames", "3", "--async"], "--frames samples a synchronous flight"),
         (["--fps", "0"], "--fps 0"),
+        (["--loader", "process"], "--loader and --workers are for --async"),
+        (["--workers", "2"], "--loader and --workers are for --async"),
     ],
 )
 def test_cli_refuses_what_the_mode_cannot_do(argv, needle) -> None:
