@@ -18,7 +18,8 @@ but it is a small part of a build from a warm store. So the builds run in proces
 * Failures: a build that raises fails its call (the loader builds that batch again tile by
   tile, so only the bad tile fails and is retried later). A worker that dies (killed, out of
   memory) breaks the pool: the calls under way fail with `WorkerLost`, and the next call
-  starts a fresh pool. `shutdown` kills the workers, so a build under way never holds up a
+  starts a fresh pool. `shutdown` lets the workers send the batch under way (milliseconds)
+  and kills those that do not end within a second, so a hung build never holds up a
   closing window.
 
 Units: tile keys (level, x, y); CPU times in seconds.
@@ -30,6 +31,7 @@ import concurrent.futures as cf
 import multiprocessing
 import os
 import threading
+import time
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 
@@ -253,18 +255,27 @@ class ProcessBuilder:
             pool = self._pool
             return list(getattr(pool, "_processes", None) or {}) if pool is not None else []
 
-    def shutdown(self) -> None:
-        """Stop for good: the workers are killed (a build under way is dropped; its caller
-        gets WorkerLost) and waited for."""
+    def shutdown(self, grace_s: float = 1.0) -> None:
+        """Stop for good: queued batches are dropped, the workers end once their batch
+        under way is sent (a build takes milliseconds), and any still running after
+        ``grace_s`` seconds (a build that hangs) is killed; waits for them. A caller waiting
+        on a dropped or killed batch gets WorkerLost.
+
+        Not a kill at once: a worker killed while it writes a result leaves the pool's
+        reader thread waiting for the rest of the message forever (this process holds the
+        pipe's other end), and the interpreter's exit waits for that thread."""
         with self._lock:
             self._closed = True
             pool, self._pool = self._pool, None
         if pool is None:
             return
         self.cpu_seconds()
-        # ProcessPoolExecutor has no public kill before Python 3.14 (terminate_workers).
         procs = list((getattr(pool, "_processes", None) or {}).values())
         pool.shutdown(wait=False, cancel_futures=True)
+        end = time.monotonic() + grace_s
+        for p in procs:
+            p.join(max(0.0, end - time.monotonic()))
+        # ProcessPoolExecutor has no public kill before Python 3.14 (terminate_workers).
         for p in procs:
             if p.is_alive():
                 p.kill()

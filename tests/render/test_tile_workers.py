@@ -182,3 +182,36 @@ def test_shutdown_while_tiles_load_returns_promptly_and_ends_the_workers(stack) 
     assert all(not t.is_alive() for t in loader._threads)
     with pytest.raises(WorkerLost):
         procs.build_many(many[:1])
+
+
+EXIT_SCRIPT = """
+import time
+import numpy as np
+from globeview.render.tile_loader import TileLoader
+from globeview.render.tile_workers import ProcessBuilder, TerrainRecipe
+from globeview.terrain.embedded import embedded_stores
+from globeview.terrain.stack import TerrainStack
+
+stack = TerrainStack.from_stores(embedded_stores())
+procs = ProcessBuilder(TerrainRecipe.of(stack), workers=2)
+loader = TileLoader(procs.build, 2, build_many=procs.build_many, batch=8, processes=procs)
+keys = np.array([(12, 1230 + i, 700 + j) for j in range(16) for i in range(16)])
+loader.request(keys)
+while loader.ready < 24:
+    time.sleep(0.005)
+loader.shutdown()
+print("shut down with", loader.building, "tiles left", flush=True)
+"""
+
+
+def test_a_process_that_shut_its_loader_down_mid_load_exits(tmp_path) -> None:
+    """The whole process ends after a shutdown in the middle of loading: no thread of the
+    worker pool is left waiting (the interpreter's exit waits for them)."""
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "-c", EXIT_SCRIPT], capture_output=True, text=True, timeout=240
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "shut down with" in done.stdout
