@@ -75,9 +75,11 @@ class TerrainRecipe:
             st = ly.store
             files = getattr(st, "_files", None)
             remote = st.url is not None
+            # The URL of a store read over HTTP; else its folder or what its backend opens.
+            where = st.url if remote else (getattr(st, "location", None) or str(st.path))
             layers.append(
                 LayerRecipe(
-                    location=st.url if remote else str(st.path),
+                    location=where,
                     name=ly.name,
                     visible=ly.visible,
                     options=getattr(files, "options", None) if remote else None,

@@ -190,7 +190,7 @@ import numpy as np
 from globeview.render.tile_loader import TileLoader
 from globeview.render.tile_workers import ProcessBuilder, TerrainRecipe
 from globeview.terrain.embedded import embedded_stores
-from globeview.terrain.stack import TerrainStack
+from globeview.terrain.compose.stack import TerrainStack
 
 stack = TerrainStack.from_stores(embedded_stores())
 procs = ProcessBuilder(TerrainRecipe.of(stack), workers=2)
