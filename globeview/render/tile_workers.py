@@ -76,7 +76,7 @@ class TerrainRecipe:
             files = getattr(st, "_files", None)
             remote = st.url is not None
             # The URL of a store read over HTTP; else its folder or what its backend opens.
-            where = st.url if remote else (getattr(st, "location", None) or str(st.path))
+            where = st.url if st.url is not None else str(getattr(st, "location", st.path))
             layers.append(
                 LayerRecipe(
                     location=where,
@@ -91,7 +91,7 @@ class TerrainRecipe:
         """The stack this recipe describes, its stores opened here."""
         layers = [
             TerrainLayer(
-                TileStore.open(ly.location, remote_options=ly.options),  # type: ignore[arg-type]
+                TileStore.open(ly.location, remote_options=ly.options),
                 ly.name,
                 ly.visible,
             )
