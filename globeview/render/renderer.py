@@ -268,7 +268,11 @@ class GlobeRenderer:
             # Batches through `build_meshes` where the renderer has it (one metadata call per
             # level for the batch instead of one per tile).
             if self.load_kind == "process":
-                procs = ProcessBuilder(TerrainRecipe.of(self.terrain), self.load_workers)
+                procs = ProcessBuilder(
+                    TerrainRecipe.of(self.terrain),
+                    self.load_workers,
+                    fallback=self._build_ready_many,  # workers that cannot open the terrain
+                )
                 self.loader = TileLoader(
                     procs.build,
                     workers=self.load_workers,

@@ -28,10 +28,12 @@ Units: tile keys (level, x, y); CPU times in seconds.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import logging
 import multiprocessing
 import os
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 
@@ -43,9 +45,16 @@ from globeview.terrain.store.tile_store import TileStore
 
 Key = tuple[int, int, int]
 
+log = logging.getLogger("globeview.render")
+
 
 class WorkerLost(RuntimeError):
     """A tile worker process ended during a build (its tiles were not built)."""
+
+
+class WorkerStartError(RuntimeError):
+    """A tile worker process could not open the terrain from its recipe (the message says
+    why, in one line)."""
 
 
 @dataclass(frozen=True)
@@ -102,24 +111,34 @@ class TerrainRecipe:
 
 # -- in the worker process -------------------------------------------------------------------
 _builder: TileBuilder | None = None
+_start_error: str | None = None
 
 
 def _init_worker(recipe: TerrainRecipe) -> None:
-    """Worker start: open the terrain once."""
-    global _builder
-    _builder = TileBuilder(recipe.open())
+    """Worker start: open the terrain once. A failure is kept (one line) and raised by each
+    build as `WorkerStartError` (an initializer that raised would break the pool and print
+    its traceback)."""
+    global _builder, _start_error
+    try:
+        _builder = TileBuilder(recipe.open())
+    except Exception as exc:  # noqa: BLE001  reported by every build, see above
+        _start_error = f"{type(exc).__name__}: {exc}".splitlines()[0]
+
+
+def _worker_builder() -> TileBuilder:
+    if _builder is None:
+        raise WorkerStartError(f"tile worker could not open the terrain: {_start_error}")
+    return _builder
 
 
 def _build_batch(keys: np.ndarray) -> dict[Key, ReadyTile]:
     """Upload-ready tiles of ``keys`` (N, 3), built in this worker."""
-    assert _builder is not None, "tile worker not initialised"
-    return _builder.ready(keys)
+    return _worker_builder().ready(keys)
 
 
 def _warm_facts(keys: np.ndarray) -> None:
     """The per-tile metadata of ``keys`` (N, 3) (the stack's per-level tables warmed)."""
-    assert _builder is not None, "tile worker not initialised"
-    _builder.skirt_depths(keys)
+    _worker_builder().skirt_depths(keys)
 
 
 def _ready_check() -> bool:
@@ -145,9 +164,18 @@ class ProcessBuilder:
     """Builds batches of tiles in ``workers`` processes opened from ``recipe``.
 
     Thread-safe: the loader's threads call `build_many` / `build` at once, one batch each.
+    ``fallback(keys) -> {key: ReadyTile}`` builds in this process instead where the workers
+    cannot open the terrain (a store they cannot reach, a backend that cannot be reopened):
+    logged once, then every build goes there; without one such builds raise
+    `WorkerStartError`.
     """
 
-    def __init__(self, recipe: TerrainRecipe, workers: int) -> None:
+    def __init__(
+        self,
+        recipe: TerrainRecipe,
+        workers: int,
+        fallback: Callable[[np.ndarray], dict[Key, ReadyTile]] | None = None,
+    ) -> None:
         if workers < 1:
             raise ValueError(f"tile worker processes must be at least 1, got {workers}")
         self.recipe = recipe
@@ -155,6 +183,9 @@ class ProcessBuilder:
         self._lock = threading.Lock()
         self._pool: cf.ProcessPoolExecutor | None = None
         self._closed = False
+        self.fallback = fallback
+        #: Why the workers could not start (then builds go to ``fallback``), or None.
+        self.start_error: str | None = None
         #: Worker processes started so far (a lost worker's pool is replaced: more than N).
         self.started = 0
         # CPU seconds of the workers: by pid, the last figure each reported, and of pools
@@ -163,6 +194,8 @@ class ProcessBuilder:
         self._cpu_gone = 0.0
 
     def describe(self) -> str:
+        if self.start_error is not None and self.fallback is not None:
+            return f"process x{self.workers} (not started: in-process)"
         return f"process x{self.workers}"
 
     def _executor(self) -> cf.ProcessPoolExecutor:
@@ -221,8 +254,10 @@ class ProcessBuilder:
             whatever the build raised in the worker (the batch is then lost); WorkerLost
             when the worker died or the builder is shut down.
         """
-        pool = self._executor()
         keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
+        if self.start_error is not None and self.fallback is not None:
+            return self.fallback(keys)
+        pool = self._executor()
         try:
             future = pool.submit(_build_batch, keys)
         except RuntimeError as exc:  # broken, or shut down by another thread meanwhile
@@ -233,6 +268,16 @@ class ProcessBuilder:
         except (BrokenProcessPool, cf.CancelledError) as exc:
             self._lost(pool)
             raise WorkerLost(f"tile worker lost: {type(exc).__name__}") from None
+        except WorkerStartError as exc:
+            if self.fallback is None:
+                raise
+            with self._lock:
+                first = self.start_error is None
+                self.start_error = str(exc)
+            if first:
+                log.warning("%s; building tiles in this process", exc)
+            self.shutdown_workers()
+            return self.fallback(keys)
 
     def build(self, key: Key) -> ReadyTile:
         """One tile (`build_many` of one)."""
@@ -257,6 +302,13 @@ class ProcessBuilder:
             pool = self._pool
             return list(getattr(pool, "_processes", None) or {}) if pool is not None else []
 
+    def shutdown_workers(self) -> None:
+        """End the workers (as `shutdown`) but keep building through ``fallback``."""
+        with self._lock:
+            pool, self._pool = self._pool, None
+        if pool is not None:
+            self._end(pool, 1.0)
+
     def shutdown(self, grace_s: float = 1.0) -> None:
         """Stop for good: queued batches are dropped, the workers end once their batch
         under way is sent (a build takes milliseconds), and any still running after
@@ -268,9 +320,12 @@ class ProcessBuilder:
         pipe's other end), and the interpreter's exit waits for that thread."""
         with self._lock:
             self._closed = True
+            self.fallback = None
             pool, self._pool = self._pool, None
-        if pool is None:
-            return
+        if pool is not None:
+            self._end(pool, grace_s)
+
+    def _end(self, pool: cf.ProcessPoolExecutor, grace_s: float) -> None:
         self.cpu_seconds()
         procs = list((getattr(pool, "_processes", None) or {}).values())
         pool.shutdown(wait=False, cancel_futures=True)

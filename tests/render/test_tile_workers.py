@@ -184,6 +184,43 @@ def test_shutdown_while_tiles_load_returns_promptly_and_ends_the_workers(stack) 
         procs.build_many(many[:1])
 
 
+def test_workers_that_cannot_open_the_terrain_fall_back_to_this_process(
+    stack, tmp_path, caplog
+) -> None:
+    """A recipe whose store the workers cannot open (moved, deleted, unreachable): one
+    warning line, then the tiles are built here, the same bits; without a fallback each build
+    says why in one line."""
+    import dataclasses
+
+    from globeview.render.tile_workers import WorkerStartError
+
+    recipe = TerrainRecipe.of(stack)
+    gone = dataclasses.replace(recipe.layers[0], location=str(tmp_path / "no-store"))
+    bad = dataclasses.replace(recipe, layers=(gone, *recipe.layers[1:]))
+    keys = np.array(_keys()[:3])
+    here = TileBuilder(stack)
+    procs = ProcessBuilder(bad, workers=1, fallback=here.ready)
+    try:
+        with caplog.at_level("WARNING", logger="globeview.render"):
+            got = procs.build_many(keys)
+            again = procs.build_many(keys)
+        assert set(got) == set(again) == {tuple(k) for k in keys.tolist()}
+        for k, tile in got.items():
+            assert _same(tile, here.ready(np.array([k]))[k])
+        warnings = [r.getMessage() for r in caplog.records]
+        assert len(warnings) == 1 and "no-store" in warnings[0] and "\n" not in warnings[0]
+        assert procs.describe() == "process x1 (not started: in-process)"
+        assert not procs.pids()
+    finally:
+        procs.shutdown()
+    strict = ProcessBuilder(bad, workers=1)
+    try:
+        with pytest.raises(WorkerStartError, match=r"could not open the terrain: .*no-store"):
+            strict.build_many(keys)
+    finally:
+        strict.shutdown()
+
+
 EXIT_SCRIPT = """
 import time
 import numpy as np
