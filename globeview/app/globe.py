@@ -24,8 +24,8 @@ from __future__ import annotations
 import math
 import os
 import time
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -455,8 +455,15 @@ class Globe:
 
     @property
     def session(self) -> GlobeSession | None:
-        """The headless `GlobeSession` drawing this globe (None before the first render)."""
+        """The headless `GlobeSession` drawing this globe (None before the first render).
+        Its GL side lives on the API's GL thread: read its state (``session.last.stats``),
+        draw through `render`."""
         return None if self._gl is None else self._gl.session
+
+    def _pick(self, x_px: float, y_px: float) -> Any:
+        """The terrain point (`Pick`: ECEF, lon, lat, height) under a pixel of the last
+        render, or None (sky, or nothing rendered yet)."""
+        return None if self._gl is None else self._gl.pick(x_px, y_px)
 
     # -- notebooks ---------------------------------------------------------------------------
     def _repr_png_(self) -> bytes | None:
@@ -488,34 +495,43 @@ class Globe:
 
 
 class _Headless:
-    """The globe's EGL context, session and offscreen target (made on first render)."""
+    """The globe's EGL context, session and offscreen target (made on first render).
+
+    Every GL call runs on one worker thread (`gl_call`), never on the caller's: a thread
+    that has had an EGL context current cannot make a GLX context current any more
+    (libglvnd), so the caller's thread stays free for a Qt window (`globeview.show`, IPython's
+    ``%gui qt``), and the window's context never meets this one on a thread."""
 
     def __init__(self, globe: Globe) -> None:
+        self.target: Any = None
+        gl_call(self._make, globe)
+
+    def _make(self, globe: Globe) -> None:
         from globeview.app.session import GlobeSession
         from globeview.render.offscreen import create_headless_context
 
-        self.ctx = create_headless_context()  # RenderError (one line) without EGL
-        with self.current():
-            self.session = GlobeSession(
-                self.ctx,
-                globe.terrain,
-                registry=globe.registry,
-                globe=globe.model,
-                overlay_host=globe.overlay_host,
-            )
-        self.target: Any = None
-
-    @contextmanager
-    def current(self) -> Iterator[None]:
-        """This context current for the block (a window's Qt context may be current)."""
+        self.ctx = create_headless_context(fresh=True)  # RenderError (one line) without EGL
         with self.ctx:
-            yield
+            try:
+                self.session = GlobeSession(
+                    self.ctx,
+                    globe.terrain,
+                    registry=globe.registry,
+                    globe=globe.model,
+                    overlay_host=globe.overlay_host,
+                )
+            except BaseException:
+                self.ctx.release()
+                raise
 
     def draw(self, size: tuple[int, int]) -> np.ndarray:
         """One frame at ``size``, every tile loaded first: (h, w, 3) uint8 RGB."""
+        return gl_call(self._draw, size)  # type: ignore[no-any-return]
+
+    def _draw(self, size: tuple[int, int]) -> np.ndarray:
         from globeview.render.offscreen import OffscreenTarget
 
-        with self.current():
+        with self.ctx:
             if self.target is None or self.target.size != size:
                 if self.target is not None:
                     self.target.release()
@@ -541,14 +557,37 @@ class _Headless:
                 raise GlobeviewError(session.take_overlay_errors()[0])
             return self.target.read_rgb()
 
-    def release(self) -> None:
-        from globeview.render.offscreen import release_headless_context
+    def pick(self, x_px: float, y_px: float) -> Any:
+        """The terrain point under a pixel of the last frame (`GlobeSession.pick`)."""
+        if self.session.last is None:
+            return None
 
-        with self.current():
-            if self.target is not None:
-                self.target.release()
-            self.session.release_gl()
-        release_headless_context(self.ctx)
+        def pick() -> Any:
+            with self.ctx:
+                return self.session.pick(x_px, y_px)
+
+        return gl_call(pick)
+
+    def release(self) -> None:
+        def release() -> None:
+            with self.ctx:
+                if self.target is not None:
+                    self.target.release()
+                self.session.release_gl()
+            self.ctx.release()
+
+        gl_call(release)
+
+
+#: The one thread every headless GL call of the API runs on (see `_Headless`).
+_GL_THREAD: list[ThreadPoolExecutor] = []
+
+
+def gl_call(fn: Callable[..., Any], *args: Any) -> Any:
+    """``fn(*args)`` on the API's GL thread, its result or exception returned here."""
+    if not _GL_THREAD:
+        _GL_THREAD.append(ThreadPoolExecutor(1, thread_name_prefix="globeview-egl"))
+    return _GL_THREAD[0].submit(fn, *args).result()
 
 
 def _embedded_terrain() -> TerrainStack:

@@ -135,11 +135,9 @@ class _Interaction:
     def ground_point(self, x: float, y: float) -> np.ndarray | None:
         """The ECEF point under frame pixel (x, y): the terrain's (depth of the last frame),
         else the ellipsoid's; None in the sky."""
-        session = self.globe.session
-        if session is not None and session.last is not None:
-            hit = session.pick(x, y)
-            if hit is not None:
-                return np.asarray(hit.ecef, dtype=np.float64)
+        hit = self.globe._pick(x, y)
+        if hit is not None:
+            return np.asarray(hit.ecef, dtype=np.float64)
         view = ViewState.from_camera(self.globe.model.camera, self.frame_size)
         p = np.asarray(ray_ellipsoid_intersection(view.eye, view.pixel_ray(x, y)), np.float64)
         return p if np.all(np.isfinite(p)) else None
