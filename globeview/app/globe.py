@@ -526,7 +526,7 @@ class _Headless:
 
     def draw(self, size: tuple[int, int]) -> np.ndarray:
         """One frame at ``size``, every tile loaded first: (h, w, 3) uint8 RGB."""
-        return gl_call(self._draw, size)  # type: ignore[no-any-return]
+        return gl_call(self._draw, size)
 
     def _draw(self, size: tuple[int, int]) -> np.ndarray:
         from globeview.render.offscreen import OffscreenTarget
