@@ -21,9 +21,11 @@ anything changed: a refused DEM, overlay or LOD provider leaves the globe as it 
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import time
+import weakref
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -146,6 +148,7 @@ class Globe:
         self.overlay_host = OverlayHost(self.model, registry)
         registry.attach(terrain=terrain, camera=self.model.camera)
         self._gl: _Headless | None = None
+        self._release: Callable[[], Any] = lambda: None
         self._size = DEFAULT_SIZE
         if embedded:
             self.overlay_host.open_embedded()
@@ -429,6 +432,8 @@ class Globe:
         self._size = size
         if self._gl is None:
             self._gl = _Headless(self)
+            # A globe dropped without close() still releases its GL objects and context.
+            self._release = weakref.finalize(self, _release_quietly, self._gl)
         rgb = self._gl.draw(size)
         alpha = np.full((*rgb.shape[:2], 1), 255, dtype=np.uint8)
         return np.concatenate([rgb, alpha], axis=2)
@@ -450,8 +455,8 @@ class Globe:
         """Release the headless OpenGL objects (the model stays usable; the next `render`
         makes them again)."""
         if self._gl is not None:
-            self._gl.release()
             self._gl = None
+            self._release()
 
     @property
     def session(self) -> GlobeSession | None:
@@ -577,6 +582,13 @@ class _Headless:
             self.ctx.release()
 
         gl_call(release)
+
+
+def _release_quietly(gl: _Headless) -> None:
+    """Release a dropped globe's GL side; nothing to do once the interpreter is ending (the
+    GL thread takes no more work then, and the process takes its context with it)."""
+    with contextlib.suppress(RuntimeError):  # "cannot schedule new futures after shutdown"
+        gl.release()
 
 
 #: The one thread every headless GL call of the API runs on (see `_Headless`).

@@ -203,3 +203,22 @@ def test_repr_png_is_a_png_of_the_last_size(wm_globe):
     with Image.open(io.BytesIO(data)) as im:
         assert im.format == "PNG" and im.size == (180, 100)
     assert "white_mountains" in repr(wm_globe)
+
+
+def test_a_dropped_globe_releases_its_gl(registry, api_cache):
+    """Without close(): the session's GL objects and the context are released when the
+    globe is collected (the finalizer), and close() twice is harmless."""
+    import gc
+
+    globe = globeview.Globe(registry=registry)
+    globe.render((32, 32))
+    session = globe.session
+    ctx = session.ctx
+    del globe
+    gc.collect()
+    assert type(ctx.mglo).__name__ == "InvalidObject"  # the context was released
+    other = globeview.Globe(registry=registry)
+    other.render((32, 32))
+    other.close()
+    other.close()
+    assert other.session is None

@@ -18,8 +18,9 @@ NOTEBOOK = Path(__file__).resolve().parents[2] / "docs" / "notebooks" / "white_m
 
 
 @pytest.fixture(scope="module")
-def executed():
-    """The notebook after a run on a fresh python3 kernel (cwd: its folder)."""
+def executed(api_cache):
+    """The notebook after a run on a fresh python3 kernel (cwd: its folder), its DEM
+    ingested into a cache folder of the module's own (the kernel inherits the variable)."""
     nbformat = pytest.importorskip("nbformat")
     nbclient = pytest.importorskip("nbclient")
     pytest.importorskip("ipykernel")
