@@ -251,7 +251,11 @@ class Globe:
         """Where the camera is (`CameraPose`: lon/lat degrees, height metres above WGS84,
         heading/pitch/roll degrees). Set it to a `CameraPose` or a tuple
         ``(lon, lat, height[, heading[, pitch[, roll]]])``."""
-        return CameraPose(*self.model.camera.lonlat_hpr())
+        lon, lat, height, heading, pitch, roll = self.model.camera.lonlat_hpr()
+        # -1e-14 % 360 is 360.0 in floating point: the pose says 0 for north.
+        heading = 0.0 if heading >= 360.0 else heading
+        roll = 0.0 if roll >= 360.0 else roll
+        return CameraPose(lon, lat, height, heading, pitch, roll)
 
     @camera.setter
     def camera(self, pose: CameraPose | Sequence[float]) -> None:

@@ -136,3 +136,13 @@ def test_render_without_egl_is_one_line(tmp_path):
     assert lines[0].startswith("ERROR RenderError cannot create a headless OpenGL context")
     assert "EGL" in lines[0] and "Traceback" not in out.stderr
     assert lines[1] == "camera 10"
+
+
+def test_show_without_a_display_is_one_line(globe, monkeypatch):
+    for var in ("DISPLAY", "WAYLAND_DISPLAY", "QT_QPA_PLATFORM"):
+        monkeypatch.delenv(var, raising=False)
+    with pytest.raises(GlobeviewError, match="no display") as exc:
+        globeview.show(globe)
+    assert "globe.render()" in str(exc.value)
+    with pytest.raises(GlobeviewError, match="takes a globeview.Globe"):
+        globeview.show(globe.model)
