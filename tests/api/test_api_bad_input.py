@@ -144,5 +144,5 @@ def test_show_without_a_display_is_one_line(globe, monkeypatch):
     with pytest.raises(GlobeviewError, match="no display") as exc:
         globeview.show(globe)
     assert "globe.render()" in str(exc.value)
-    with pytest.raises(GlobeviewError, match="takes a globeview.Globe"):
+    with pytest.raises(GlobeviewError, match=r"takes a globeview\.Globe"):
         globeview.show(globe.model)
