@@ -222,3 +222,26 @@ def test_a_dropped_globe_releases_its_gl(registry, api_cache):
     other.close()
     other.close()
     assert other.session is None
+
+
+def test_add_dem_from_a_data_array_matches_the_numpy_array(wm_globe, white_mountains):
+    """A DataArray with rioxarray's CRS and coordinates (no transform given): the same
+    heights, in the same place, as the numpy array with its transform."""
+    xr = pytest.importorskip("xarray")
+    pytest.importorskip("rioxarray")
+    heights, transform, crs = white_mountains
+    rows, cols = heights.shape
+    x = transform.c + transform.a * (np.arange(cols) + 0.5)  # pixel centres
+    y = transform.f + transform.e * (np.arange(rows) + 0.5)
+    da = xr.DataArray(heights[None], dims=("band", "y", "x"), coords={"y": y, "x": x})
+    da = da.rio.write_crs(crs).rio.write_nodata(-32768)
+    da.name = "wm_xarray"
+    layer = wm_globe.add_dem(da)
+    try:
+        assert layer.name == "wm_xarray" and wm_globe.dems[-1] == "wm_xarray"
+        np.testing.assert_allclose(layer.store.bounds, wm_globe.terrain.layers[0].store.bounds)
+        here = wm_globe.height_at(*WASHINGTON)
+        wm_globe.terrain.set_visible("wm_xarray", False)
+        assert wm_globe.height_at(*WASHINGTON) == pytest.approx(here, abs=1e-6)
+    finally:
+        wm_globe.remove_dem("wm_xarray")
