@@ -26,7 +26,7 @@ import math
 import os
 import time
 import weakref
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -146,7 +146,6 @@ class Globe:
         self.model = GlobeModel(terrain, Camera.from_lonlat(*HOME), lod=lod)
         #: Opens overlay files onto the model through the installed layer types.
         self.overlay_host = OverlayHost(self.model, registry)
-        registry.attach(terrain=terrain, camera=self.model.camera)
         self._gl: _Headless | None = None
         self._release: Callable[[], Any] = lambda: None
         self._size = DEFAULT_SIZE
@@ -395,8 +394,8 @@ class Globe:
         failed = object()
         points = [_lonlat("measure: A", a), _lonlat("measure: B", b)]
         # A registry may serve several globes: the tool measures this one's terrain.
-        self.registry.attach(terrain=self.terrain, camera=self.model.camera)
-        m = self.registry.invoke(tool, "place_points", points, default=failed, user_errors=True)
+        with attached(self.registry, terrain=self.terrain, camera=self.model.camera):
+            m = self.registry.invoke(tool, "place_points", points, default=failed, user_errors=True)
         m = getattr(tool, "measurement", None) if m is not failed else None
         if m is None:
             why = self.registry.failure_of("measure", PluginKind.TOOL) or "no measurement"
@@ -520,7 +519,10 @@ class _Headless:
         from globeview.render.offscreen import create_headless_context
 
         self.ctx = create_headless_context(fresh=True)  # RenderError (one line) without EGL
-        with self.ctx:
+        # The session attaches itself to the registry; a window sharing it keeps its own
+        # (each frame of ours attaches ours for its duration: `_draw`).
+        host = globe.registry.host_objects()
+        with self.ctx, attached(globe.registry, **host):
             try:
                 self.session = GlobeSession(
                     self.ctx,
@@ -546,25 +548,29 @@ class _Headless:
                     self.target.release()
                 self.target = OffscreenTarget(self.ctx, size)
             session = self.session
-            # A registry may serve several globes (and a window): plugins see this one's.
-            session.registry.attach(
+            # A registry may serve several globes (and a window): for this frame plugins see
+            # this one's session, then the host they saw before (a window's redraw hooks).
+            with attached(
+                session.registry,
                 scene=session,
                 terrain=session.terrain,
                 camera=session.camera,
                 renderer=session.hooks,
-            )
-            remote = any(
-                bool(getattr(ly.store, "is_remote", False)) for ly in session.terrain.layers
-            )
-            session.renderer.async_loading = remote
+            ):
+                return self._frame(session, size)
+
+    def _frame(self, session: GlobeSession, size: tuple[int, int]) -> np.ndarray:
+        """Draw ``session`` into the target, every tile loaded: (h, w, 3) uint8 RGB."""
+        remote = any(bool(getattr(ly.store, "is_remote", False)) for ly in session.terrain.layers)
+        session.renderer.async_loading = remote
+        result = session.render(self.target.fbo, size)
+        while remote and result.stats.tiles_loading:
+            # Remote tiles arrive on the loader's worker; coarser ones stand in meanwhile.
+            time.sleep(0.02)
             result = session.render(self.target.fbo, size)
-            while remote and result.stats.tiles_loading:
-                # Remote tiles arrive on the loader's worker; coarser ones stand in meanwhile.
-                time.sleep(0.02)
-                result = session.render(self.target.fbo, size)
-            if session.overlay_errors:
-                raise GlobeviewError(session.take_overlay_errors()[0])
-            return self.target.read_rgb()
+        if session.overlay_errors:
+            raise GlobeviewError(session.take_overlay_errors()[0])
+        return self.target.read_rgb()
 
     def pick(self, x_px: float, y_px: float) -> Any:
         """The terrain point under a pixel of the last frame (`GlobeSession.pick`)."""
@@ -593,6 +599,17 @@ def _release_quietly(gl: _Headless) -> None:
     GL thread takes no more work then, and the process takes its context with it)."""
     with contextlib.suppress(RuntimeError):  # "cannot schedule new futures after shutdown"
         gl.release()
+
+
+@contextlib.contextmanager
+def attached(registry: PluginRegistry, **host: Any) -> Iterator[None]:
+    """``registry.attach(**host)`` for the block, then what plugins saw before."""
+    before = registry.host_objects()
+    registry.attach(**host)
+    try:
+        yield
+    finally:
+        registry.attach(**{k: before[k] for k in host})
 
 
 #: The one thread every headless GL call of the API runs on (see `_Headless`).

@@ -245,3 +245,21 @@ def test_add_dem_from_a_data_array_matches_the_numpy_array(wm_globe, white_mount
         assert wm_globe.height_at(*WASHINGTON) == pytest.approx(here, abs=1e-6)
     finally:
         wm_globe.remove_dem("wm_xarray")
+
+
+def test_render_and_measure_leave_what_a_shared_registry_hands_plugins(wm_globe, registry):
+    """A window sharing the registry keeps its own hooks: a headless frame or a measurement
+    attaches this globe's session and terrain for its duration only."""
+    hooks, scene = object(), object()
+    before = registry.host_objects()
+    registry.attach(renderer=hooks, scene=scene)
+    other = globeview.Globe(registry=registry)
+    try:
+        other.render((32, 32))  # its session is made
+        other.close()
+        wm_globe.render((64, 48))
+        wm_globe.measure((-71.4, 44.27), (-71.2, 44.27), samples=16)
+        now = registry.host_objects()
+        assert now["renderer"] is hooks and now["scene"] is scene
+    finally:
+        registry.attach(**before)
