@@ -110,7 +110,8 @@ def test_a_data_array_without_crs_is_one_line(globe):
 @pytest.mark.gl
 def test_render_without_egl_is_one_line(tmp_path):
     """A kernel whose EGL finds no driver (libglvnd told of no vendor library): render()
-    raises one `RenderError` line naming EGL, and the globe stays usable."""
+    raises one `RenderError` line naming EGL, the globe stays usable, and its picture in a
+    notebook (`_repr_png_`) is None, so Jupyter shows its text."""
     script = (
         "import globeview\n"
         "from globeview.errors import GlobeviewError\n"
@@ -121,6 +122,7 @@ def test_render_without_egl_is_one_line(tmp_path):
         "    print('ERROR', type(exc).__name__, exc)\n"
         "g.fly_to(10, 10, 1e6)\n"
         "print('camera', round(g.camera.lon))\n"
+        "print('png', g._repr_png_())\n"
     )
     env = {
         **os.environ,
@@ -136,6 +138,8 @@ def test_render_without_egl_is_one_line(tmp_path):
     assert lines[0].startswith("ERROR RenderError cannot create a headless OpenGL context")
     assert "EGL" in lines[0] and "Traceback" not in out.stderr
     assert lines[1] == "camera 10"
+    # A notebook shows the text form instead of a traceback, the reason logged once.
+    assert lines[2] == "png None" and "cannot show the globe as an image" in out.stderr
 
 
 def test_show_without_a_display_is_one_line(globe, monkeypatch):
