@@ -291,8 +291,13 @@ def cut_of(
     return tree.keys.compress(draw, axis=0), stride, error, hidden
 
 
-#: Points per pass of the budget search: 64 a bracket, twice, = 12 halvings.
-_GRID = 64
+#: Grid of one pass of the budget search: 2**_GRID_BITS - 1 points of a bracket a pass, and
+#: 12 / _GRID_BITS passes = `cut_within_budget`'s 12 halvings (its grid, the same floats).
+#: Few points a pass: a pass costs about its fixed per-level calls plus K times the rows,
+#: so 4 passes of 7 points cost less than 2 of 63 on a 600-tile cut.
+_GRID_BITS = 3
+_GRID = 1 << _GRID_BITS
+_PASSES = 12 // _GRID_BITS
 #: The bracket's ends: 0, then the powers of 8 below FEWEST_TILES (`cut_within_budget`).
 _POWERS = 8.0 ** np.arange(10)
 
@@ -306,9 +311,10 @@ def cut_within_budget_flat(
     The bisection's result is the least point of a dyadic grid in its bracket whose cut fits
     the budget, when the tiles a cut draws never grow with the per-tile cost (true of an
     exact minimiser: `tests/lod/test_flat_walk.py` checks it on trading views). So: one
-    pass at 0 and FEWEST_TILES (free, over); the ten powers of 8 (the bracket); 63 points
-    of it; 63 points of the sub-bracket (12 halvings: the same grid, the same floats). A
-    pass whose counts do grow (a counter-example) falls back to the bisection.
+    pass at 0 and FEWEST_TILES (free, over); the ten powers of 8 (the bracket); then
+    `_PASSES` passes of the `_GRID` - 1 inner points of the bracket left (12 halvings in
+    all: the same grid, the same floats). A pass whose counts do grow (a counter-example)
+    falls back to the bisection.
 
     Warm start: ``memo`` keeps the last traded multiplier and its grid step; where that
     cut still fits and the point below does not, it is the answer (two more columns in the
@@ -373,7 +379,7 @@ def _search(
         # fewest-tiles cut where no point fits.
         lo, hi, hi_split, hi_value = _POWERS[-1], _POWERS[-1] * 8.0, fewest, FEWEST_TILES
     step: float | None = None
-    for _ in range(2):
+    for _ in range(_PASSES):
         step = (hi - lo) / _GRID
         pts = lo + step * np.arange(1, _GRID)
         got = _first_fit(tree, pts, max_tiles)
