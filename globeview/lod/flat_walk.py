@@ -232,14 +232,6 @@ class SelectionState:
         """Rows of S kept."""
         return 0 if self._rows is None else self._rows.n
 
-    def sub(self, name: str) -> SelectionState:
-        """A state of its own for a second walk of the same provider (e.g. chunked-sse's
-        plain-walk fallback), kept in ``memo``."""
-        sub = self.memo.get(name)
-        if not isinstance(sub, SelectionState):
-            sub = self.memo[name] = SelectionState()
-        return sub
-
     def tree(self, cache: TileCache, terrain: TerrainStack, size: int) -> _Rows:
         """S for this frame: last frame's when the cache is the same one in the same epoch,
         else the roots."""
