@@ -16,8 +16,10 @@ facts (`tile_cache.TileCache.facts_of`), and a frame is:
 3. **grow** where the tree is short: visited rows that refine and whose children are not in S
    get them (`TileCache.children_across`: the facts of the misses in one call a level), which
    are evaluated (step 1 on the new rows only) and reached (step 2); repeated until nothing
-   grows. A turning camera needs no round; an empty state (a first frame, a camera cut) grows
-   one level a round, which is the level walk;
+   grows. A turning camera needs no round; a far jump grows one level a round. An empty
+   state (a first frame, a new terrain) is not grown from the roots: `traverse` walks level
+   by level then and seeds S from that walk (`SelectionState.seed`), made into rows only if
+   a next frame comes;
 4. **budgets after the fact**: the policy's stop (`LodPolicy.stop_level`) and the tile budgets
    (`LodPolicy.max_tiles`, `render_set.MAX_TILES`) are per-level counts of the visited tree; a
    level walk takes each decision at the first level where a count passes its bound, and the
@@ -202,6 +204,46 @@ def _root_rows(cache: TileCache, terrain: TerrainStack, size: int) -> _Rows:
     )
 
 
+def _rows_from_walk(
+    cache: TileCache, terrain: TerrainStack, record: list[tuple[int, np.ndarray, np.ndarray]]
+) -> _Rows:
+    """The rows of S a level walk's ``record`` describes (`SelectionState.seed`): a level's
+    candidates are the children of the last level's refined tiles, child index major, then
+    in their parents' order (`TileCache.children`), so each row's parent and walk key
+    follow from its position."""
+    if not record:
+        return _root_rows(cache, terrain, terrain.tile_size)
+    parts: list[tuple[np.ndarray, ...]] = []
+    facts: list[dict[str, np.ndarray]] = []
+    offset = 0
+    up_rows = up_wkey = np.empty(0, dtype=np.int64)
+    for level, slots, refined in record:
+        n = len(slots)
+        f = cache.facts_of(level, slots)
+        if level == 0:
+            parent = np.full(n, -1, dtype=np.int64)
+            wkey = f["xy"][:, 0].astype(np.int64)  # the roots' walk order: x
+        else:
+            k = len(up_rows)
+            c = np.repeat(np.arange(4, dtype=np.int64), k)
+            parent = np.tile(up_rows, 4)
+            wkey = (c << (2 * (level - 1) + 1)) | np.tile(up_wkey, 4)
+        kids = np.zeros(n, dtype=bool)
+        if len(refined):  # refined is a subsequence of slots (distinct slots of one level)
+            hit = np.zeros(int(slots.max()) + 1, dtype=bool)
+            hit[refined] = True
+            kids = hit.take(slots)
+        up = np.flatnonzero(kids)
+        up_rows, up_wkey = up + offset, wkey.take(up)
+        parts.append((np.full(n, level, dtype=np.int64), slots, parent, wkey, kids))
+        facts.append(f)
+        offset += n
+    cat = np.concatenate
+    level_, slot, parent_, wkey_, kids_ = (cat([p[i] for p in parts]) for i in range(5))
+    merged = {k: cat([f[k] for f in facts], axis=1 if k == "cols" else 0) for k in facts[0]}
+    return _Rows(level_, slot, parent_, wkey_, kids_, merged)
+
+
 class SelectionState:
     """What the flat walk keeps from one frame to the next for one provider (`traverse`'s
     ``state``): the candidate tree S, valid for one tile cache epoch (a new terrain, layers,
@@ -220,26 +262,58 @@ class SelectionState:
         self._rows: _Rows | None = None
         self._cache: weakref.ref | None = None
         self._epoch = -1
+        # A level walk's record of the tree (`seed`), made into rows when a frame needs them.
+        self._record: list[tuple[int, np.ndarray, np.ndarray]] | None = None
 
     def reset(self) -> None:
         """Forget everything (the next frame starts from the roots)."""
-        self._rows, self._cache, self._epoch = None, None, -1
+        self._rows, self._cache, self._epoch, self._record = None, None, -1, None
         self.memo.clear()
         self.stats.clear()
 
     @property
     def rows(self) -> int:
         """Rows of S kept."""
-        return 0 if self._rows is None else self._rows.n
+        if self._rows is None:
+            return 0 if self._record is None else sum(len(r[1]) for r in self._record)
+        return self._rows.n
+
+    def cold(self, cache: TileCache) -> bool:
+        """Whether there is no S for ``cache`` (none kept, or kept for another cache or an
+        earlier epoch of it)."""
+        ref = self._cache
+        held = self._rows is not None or self._record is not None
+        return not held or ref is None or ref() is not cache or self._epoch != cache.epoch
 
     def tree(self, cache: TileCache, terrain: TerrainStack, size: int) -> _Rows:
         """S for this frame: last frame's when the cache is the same one in the same epoch,
         else the roots."""
-        ref = self._cache
-        if self._rows is None or ref is None or ref() is not cache or self._epoch != cache.epoch:
-            self._rows = _root_rows(cache, terrain, size)
-            self._cache, self._epoch = weakref.ref(cache), cache.epoch
-        return self._rows
+        if self.cold(cache):
+            rows = _root_rows(cache, terrain, size)
+        elif self._rows is None:
+            assert self._record is not None  # not cold: one of them is held
+            rows = _rows_from_walk(cache, terrain, self._record)
+        else:
+            rows = self._rows
+        self._rows, self._record = rows, None
+        self._cache, self._epoch = weakref.ref(cache), cache.epoch
+        return rows
+
+    def seed(self, cache: TileCache, record: list[tuple[int, np.ndarray, np.ndarray]]) -> None:
+        """Keep a level walk's ``record`` (`traversal._walk`: per level the candidate slots
+        and the slots refined, in the walk's order) as S: the tree a flat walk would have
+        grown from the roots for the same frame (the roots and the children of the tiles
+        refined). A cold state's frame is the level walk (growing from the roots, one round
+        a level, costs more), and the rows are made only when a next frame needs them
+        (`tree`): a single headless frame pays nothing for them."""
+        self._rows, self._record = None, record
+        self._cache, self._epoch = weakref.ref(cache), cache.epoch
+        self.stats = {
+            "lod_rounds": 0.0,
+            "lod_rows_new": float(self.rows),
+            "lod_rows": 0.0,
+            "lod_cold": 1.0,
+        }
 
     def keep(self, rows: _Rows) -> None:
         """S for the next frame."""

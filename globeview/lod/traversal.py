@@ -112,8 +112,9 @@ def traverse(
     With a ``state`` (a `flat_walk.SelectionState` the caller keeps from frame to frame) and
     a `LodPolicy.per_tile` policy, the flat walk (`flat_walk.select_flat`) selects instead:
     the same tiles, strides and errors, from last frame's candidate tree in one pass, with
-    the stats ``lod_rounds``, ``lod_rows_new`` and ``lod_rows`` (`SelectionState`). Views
-    with a displacement walk level by level."""
+    the stats ``lod_rounds``, ``lod_rows_new`` and ``lod_rows`` (`SelectionState`); a state
+    with nothing to start from (``lod_cold``) walks level by level and keeps that walk's
+    tree for the next frame. Views with a displacement walk level by level."""
     t0 = time.perf_counter()
     if terrain is None or not terrain.layers:
         return RenderSet.empty()
@@ -122,7 +123,13 @@ def traverse(
     flat = state is not None and policy.per_tile and view.displace is None
     with cache.lock:
         cache.sync(terrain, view.exaggeration)
-        if flat:
+        if flat and state is not None and state.cold(cache):
+            # Nothing to start from (a first frame, a new terrain): growing the tree from
+            # the roots would cost more than the level walk, which seeds the tree instead.
+            record: list[tuple[int, np.ndarray, np.ndarray]] = []
+            sel = _walk(view, terrain, policy, cache, record)
+            state.seed(cache, record)
+        elif flat:
             assert state is not None  # flat implies it
             sel = select_flat(view, terrain, policy, cache, state)
         else:
@@ -140,9 +147,16 @@ def traverse(
     return rs
 
 
-def _walk(view: ViewState, terrain: TerrainStack, policy: LodPolicy, cache: TileCache) -> Selection:
+def _walk(
+    view: ViewState,
+    terrain: TerrainStack,
+    policy: LodPolicy,
+    cache: TileCache,
+    record: list[tuple[int, np.ndarray, np.ndarray]] | None = None,
+) -> Selection:
     """The level-by-level walk (module docstring). Per level the candidates are slots in the
-    cache's level table."""
+    cache's level table. With ``record`` the walk appends (level, candidate slots, slots
+    refined) per level it tests, in its order (the flat walk's tree, `SelectionState.seed`)."""
     size = terrain.tile_size
     k_px = view.sse_factor
     eye = view.eye
@@ -174,6 +188,8 @@ def _walk(view: ViewState, terrain: TerrainStack, policy: LodPolicy, cache: Tile
     for level in range(max_level + 1):
         lv = cache.level(level)
         n = len(slots)
+        if record is not None:
+            record.append((level, slots, slots[:0]))
         c = lv.cols.take(slots, axis=1)
         pts = None
         if displace is None:
@@ -262,6 +278,8 @@ def _walk(view: ViewState, terrain: TerrainStack, policy: LodPolicy, cache: Tile
         if n_ref == 0:
             break
         refined = ks.take(refine.nonzero()[0]) if n_ref < m else ks
+        if record is not None:
+            record[-1] = (level, slots, refined)
         slots = cache.children(terrain, level, refined, size)
 
     if not out:

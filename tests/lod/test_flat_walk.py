@@ -34,7 +34,7 @@ from globeview.plugins.builtin.wavelet.provider import WaveletProvider
 
 FLIGHTS = ("big_dem", "canyon_run", "fast_pan", "global_approach", "regional_oblique")
 #: Stats the flat walk adds (the level walk has none) and the timing.
-_OWN_STATS = {"lod_ms", "lod_rounds", "lod_rows_new", "lod_rows"}
+_OWN_STATS = {"lod_ms", "lod_rounds", "lod_rows_new", "lod_rows", "lod_cold"}
 #: (lon, lat) boxes of the regional DEMs (as tests/lod/test_chunked_min_triangles.py).
 REGIONS = (
     (-72.0, -71.0, 44.0, 45.0),
@@ -292,7 +292,7 @@ def test_a_turn_needs_no_growth_and_evaluates_only_the_tree(globeview_terrain, v
         cam.set_lonlat(*pose)
         provider = ChunkedSseProvider()
         first = provider.select(ViewState.from_camera(cam, viewport), globeview_terrain)
-        assert first.stats["lod_rounds"] > 0  # an empty state grows one level a round
+        assert first.stats["lod_cold"] == 1  # an empty state: the level walk seeds the tree
         state = provider._selection_state
         for i in range(6):
             cam.fly_yaw(0.01 * (-1) ** i)
@@ -304,12 +304,34 @@ def test_a_turn_needs_no_growth_and_evaluates_only_the_tree(globeview_terrain, v
             assert rs.stats["tiles_visited"] <= rows
 
 
-def test_a_camera_cut_grows_one_level_a_round(globeview_terrain) -> None:
-    """From an empty state the rounds are the levels below the roots: the level walk."""
+@pytest.mark.parametrize("min_triangles", [True, False])
+def test_a_cold_state_seeds_the_tree_the_flat_walk_grows(globeview_terrain, min_triangles) -> None:
+    """From an empty state the frame is the level walk, whose record seeds the tree: the
+    same rows (levels, slots, parents, walk keys, children held) as the flat walk grows
+    from the roots, one level a round; the next frame at the same view grows nothing."""
+    from globeview.lod.flat_walk import select_flat
+
+    terrain = globeview_terrain
     view = make_view(-71.3, 44.15, 9000.0, 0.0, -30.0, viewport=(1280, 720))
-    state = SelectionState()
-    rs = traverse(view, globeview_terrain, ScreenSpaceErrorPolicy(min_triangles=True), state)
-    assert rs.stats["lod_rounds"] == int(state._rows.level.max()) >= int(rs.keys[:, 0].max())
+    seeded = SelectionState()
+    first = traverse(view, terrain, ScreenSpaceErrorPolicy(min_triangles=min_triangles), seeded)
+    assert first.stats["lod_cold"] == 1 and first.stats["lod_rounds"] == 0
+    assert first.stats["lod_rows_new"] == seeded.rows > 0
+    grown = SelectionState()
+    policy = ScreenSpaceErrorPolicy(min_triangles=min_triangles)
+    policy.begin(view, terrain)
+    cache = tile_cache.tile_cache_for(terrain)
+    with cache.lock:
+        cache.sync(terrain, view.exaggeration)
+        select_flat(view, terrain, policy, cache, grown)
+        want = grown.tree(cache, terrain, terrain.tile_size)
+        got = seeded.tree(cache, terrain, terrain.tile_size)
+    assert grown.stats["lod_rounds"] == int(want.level.max())  # one level a round
+    for name in ("level", "slot", "parent", "wkey", "kids", "xy", "past", "pole"):
+        assert np.array_equal(getattr(got, name), getattr(want, name)), name
+    again = traverse(view, terrain, ScreenSpaceErrorPolicy(min_triangles=min_triangles), seeded)
+    assert again.stats["lod_rounds"] == 0 and again.stats["lod_rows"] == got.n
+    assert_same(first, again, "seeded")
 
 
 def test_the_state_starts_afresh_with_the_tile_cache(globeview_terrain) -> None:
@@ -321,10 +343,10 @@ def test_the_state_starts_afresh_with_the_tile_cache(globeview_terrain) -> None:
     again = traverse(make_view(*pose), globeview_terrain, policy(), state)
     assert again.stats["lod_rounds"] == 0
     other = traverse(make_view(*pose, exaggeration=2.0), globeview_terrain, policy(), state)
-    assert other.stats["lod_rounds"] > 0
+    assert other.stats["lod_cold"] == 1
     tile_cache.tile_cache_for(globeview_terrain).clear()
     cold = traverse(make_view(*pose, exaggeration=2.0), globeview_terrain, policy(), state)
-    assert cold.stats["lod_rounds"] == other.stats["lod_rounds"]
+    assert cold.stats["lod_cold"] == 1
     assert_same(other, cold, "cleared cache")
 
 
