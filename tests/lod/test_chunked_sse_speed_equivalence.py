@@ -361,7 +361,7 @@ def test_cache_is_bounded(terrain, monkeypatch) -> None:
     # The global view walks few tiles: after the White Mountains filled the cache past the
     # cap, it was dropped and holds only what the global view needed.
     assert sizes[1] < sizes[0]
-    tile_cache.tile_cache_for(terrain).levels = {}  # a cold cache
+    tile_cache.tile_cache_for(terrain).clear()  # a cold cache
     select_tiles(_view(*VIEWS["global"]), terrain)
     assert held() == sizes[1]
 
