@@ -49,6 +49,7 @@ def _srtm_bilinear(lon: float, lat: float) -> float:
     return float(top * (1 - fr) + bot * fr)
 
 
+@pytest.mark.slow
 def test_done_when_ellipsoidal_is_srtm_plus_undulation(env: dict[str, str]) -> None:
     from globeview.terrain.dem.vdatum import egm96
 
@@ -77,6 +78,7 @@ def _undulation(lon: float, lat: float) -> float:
     return float(np.asarray(egm96().undulation(np.array([lon]), np.array([lat]))).reshape(-1)[0])
 
 
+@pytest.mark.slow
 def test_off_every_layer_there_is_no_elevation(env: dict[str, str]) -> None:
     r = _run(env, "height", "-71.3033,44.2705", "10,0", "data/N44W072.hgt")
     assert r.returncode == 0, r.stderr
@@ -150,6 +152,7 @@ def _no_crs_tif(path: Path, height_m: float) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_crs_and_vdatum_as_render_has_them(env: dict[str, str], tmp_path: Path) -> None:
     dem = str(_no_crs_tif(tmp_path / "nocrs.tif", 500.0))
     r = _run(env, "height", "5.1,44.9", dem)

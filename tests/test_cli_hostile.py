@@ -175,6 +175,7 @@ def test_bad_output_paths(tmp_path: Path, out: str, stats: str | None, needle: s
     assert not (tmp_path / "x.png").exists() and not leftovers(tmp_path)
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_full_disk_by_fault_keeps_the_old_png_and_writes_nothing(
     tmp_path: Path, filled_cache: Path

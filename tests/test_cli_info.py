@@ -191,6 +191,7 @@ def test_cli_cf_netcdf_assumed_wgs84(tmp_path: Path) -> None:
     assert "CRS         EPSG:4326 (assumed from CF lat/lon axes)" in r.stdout
 
 
+@pytest.mark.slow
 def test_cli_paths_that_are_not_dems_are_one_line_each(tmp_path: Path) -> None:
     import os
 

@@ -156,6 +156,7 @@ def projected(lon: float, lat: float) -> tuple[float, float]:
     return float(x), float(y)
 
 
+@pytest.mark.slow
 def test_installed_tool_gets_clicks_at_the_points_and_draws(site: PluginSite, tmp_path: Path):
     """An installed tool with no headless code: the host clicks each point at its pixel, with
     lonlat and picked set, and the tool's markers land there in the colour --set chose."""
@@ -183,6 +184,7 @@ def test_installed_tool_gets_clicks_at_the_points_and_draws(site: PluginSite, tm
     assert px[2] > 200 and px[0] < 80 and px[1] < 80, px
 
 
+@pytest.mark.slow
 def test_collapse_is_a_spelling_of_tool_points_set(site: PluginSite, tmp_path: Path) -> None:
     proc, a = render(site, tmp_path, "a", "--collapse=-10,0,10,0,0.3", "--stats",
                      str(tmp_path / "a.json"))  # fmt: skip
@@ -280,6 +282,7 @@ def test_a_failed_provider_is_named_in_the_wrote_line(site: PluginSite, tmp_path
     assert len(lines(proc.stderr)) == 1 and "gvt-boom" in proc.stderr  # the plugin warning
 
 
+@pytest.mark.slow
 def test_strict_exits_3_and_writes_nothing_when_a_plugin_fails(
     site: PluginSite, tmp_path: Path
 ) -> None:
@@ -298,6 +301,7 @@ def test_strict_exits_3_and_writes_nothing_when_a_plugin_fails(
     assert proc.returncode == 0 and out.exists(), proc.stderr
 
 
+@pytest.mark.slow
 def test_a_failed_tool_is_named_and_strict_refuses(site: PluginSite, tmp_path: Path) -> None:
     proc, out = render(site, tmp_path, "badtool", "--tool", "gvt-badtool", "--point", "1,2")
     assert proc.returncode == 0 and out.exists(), proc.stderr
@@ -395,6 +399,7 @@ def test_point_longitudes_are_reduced_like_the_cameras(site: PluginSite, tmp_pat
     assert lons[0] == pytest.approx(10.0) and -180.0 <= lons[1] <= 180.0
 
 
+@pytest.mark.slow
 def test_set_of_a_contribution_not_used_warns(site: PluginSite, tmp_path: Path) -> None:
     proc, out = render(site, tmp_path, "unused", "--set", "gvt-pins.colour=blue")
     assert proc.returncode == 0 and out.exists(), proc.stderr

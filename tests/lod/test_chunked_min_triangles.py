@@ -128,6 +128,7 @@ def _ladder_violations(
     return worse, cases
 
 
+@pytest.mark.slow
 def test_triangles_never_grow_with_tau_over_random_views(globeview_terrain) -> None:
     worse, cases = _ladder_violations(globeview_terrain, _views())
     # At exaggeration 1 and the default budget every view of the test draws the cut.
@@ -138,6 +139,7 @@ def test_triangles_never_grow_with_tau_over_random_views(globeview_terrain) -> N
 @pytest.mark.parametrize(
     ("exaggeration", "max_tiles"), [(5.0, 600), (30.0, 600), (1.0, 16), (30.0, 100)]
 )
+@pytest.mark.slow
 def test_triangles_never_grow_with_tau_with_exaggeration_and_budgets(
     globeview_terrain, exaggeration, max_tiles
 ) -> None:

@@ -124,6 +124,7 @@ def test_stitched_edges_have_no_t_junction_and_cover_the_tile(stride, edges) -> 
     assert np.all(tc[tr == 0] % edges[0] == 0) and np.all(tr[tc == 0] % edges[2] == 0)
 
 
+@pytest.mark.slow
 def test_point_coverage_of_stitched_tile() -> None:
     """Each cell centre lies in exactly one triangle (no overlaps, no holes)."""
     tris = _tris(IndexVariant(1, skirts=False, edge_strides=(4, 2, 8, 1)))

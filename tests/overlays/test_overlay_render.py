@@ -116,6 +116,7 @@ def opened(result):
 
 
 # -- imagery drape ----------------------------------------------------------------------------
+@pytest.mark.slow
 def test_thematic_cells_land_where_they_are(clean, tmp_path) -> None:
     """A checkerboard of 15-degree classes (45 x 45 cells of the etopo20 DEM's 1/3-degree grid,
     so its boundaries are DEM cell boundaries, some of them tile edges) draws each class where
@@ -157,6 +158,7 @@ def test_thematic_cells_land_where_they_are(clean, tmp_path) -> None:
     [(0.0, 0.0, 2.0e7, 0.0, -90.0), (180.0, 45.0, 1.5e6, 30.0, -70.0)],
     ids=["globe", "antimeridian-tile-corner"],
 )
+@pytest.mark.slow
 def test_uniform_imagery_shows_no_seams(clean, tmp_path, cam) -> None:
     """A uniform-colour raster drapes uniformly: its colour ratio holds on every globe pixel,
     across tile borders (including the antimeridian and a level-1 tile corner), so no

@@ -79,6 +79,7 @@ def stored(config: Path) -> dict:
     ]
 
 
+@pytest.mark.slow
 def test_set_stores_checked_values_and_get_reads_them(site: PluginSite, tmp_path: Path) -> None:
     config = tmp_path / "config"
     proc = run(site, config, "plugins", "get", "gvt-setpins")
@@ -166,6 +167,7 @@ def test_a_corrupt_settings_file_is_kept_aside_not_lost(site: PluginSite, tmp_pa
     assert "kept as" in proc.stderr and proc.stderr.count("\n") == 1  # one warning line
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_stored_setting_is_what_the_next_render_uses(site: PluginSite, tmp_path: Path) -> None:
     config = tmp_path / "config"

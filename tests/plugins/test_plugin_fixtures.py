@@ -244,6 +244,7 @@ OUTSIDER_TESTS = """
     """
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_a_plugin_project_uses_the_fixtures_with_no_conftest(
     plugin_site: PluginSite, tmp_path: Path

@@ -77,6 +77,7 @@ def reference_png(tmp_path_factory: pytest.TempPathFactory) -> np.ndarray:
         ("nothing", "return None", "returned NoneType"),
     ],
 )
+@pytest.mark.slow
 def test_render_with_a_broken_provider_completes_with_the_fallback(
     plugin_site: PluginSite,
     tmp_path: Path,
@@ -140,6 +141,7 @@ class Layer:
 """
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_render_imports_only_the_plugins_it_uses(plugin_site: PluginSite, tmp_path: Path) -> None:
     markers = {}
@@ -220,6 +222,7 @@ def test_plugins_validate_other_is_quiet_about_broken_plugins(
     assert "failed" in row and "SystemExit: 1" in row
 
 
+@pytest.mark.slow
 def test_plugins_validate_hostile_manifest_files(plugin_site: PluginSite, tmp_path: Path) -> None:
     fifo = tmp_path / "fifo.toml"
     os.mkfifo(fifo)  # opening it for reading would block forever

@@ -44,6 +44,7 @@ def _magenta(path: Path) -> int:
     return int(((rgb[..., 0] > 200) & (rgb[..., 1] < 80) & (rgb[..., 2] > 200)).sum())
 
 
+@pytest.mark.slow
 def test_render_layer_with_a_plugin_format(site, tmp_path) -> None:
     f = tmp_path / "grid.stripes"
     f.write_text("rhumb -60 30 60 30 1 0 1\nrhumb -60 0 60 0 1 0 1\n")
@@ -67,6 +68,7 @@ def test_render_unknown_file_names_the_installed_types(site, tmp_path) -> None:
     assert "stripes (.stripes)" in lines[0] and "vector (.geojson .json)" in lines[0]
 
 
+@pytest.mark.slow
 def test_render_explicit_layer_type(site, tmp_path) -> None:
     lines = tmp_path / "lines.geojson"
     lines.write_text('{"type": "LineString", "coordinates": [[0, 0], [10, 10]]}')

@@ -45,6 +45,7 @@ def test_leaked_since_finds_only_dropped_unreleased_objects(globeview_gl) -> Non
     kept.release()
 
 
+@pytest.mark.slow
 def test_a_session_releases_every_gl_object_it_made(
     globeview_gl, globeview_terrain, globeview_registry
 ) -> None:
@@ -80,6 +81,7 @@ LEAKY_TEST = """
 """
 
 
+@pytest.mark.slow
 def test_the_gl_fixture_fails_a_test_that_leaks(tmp_path) -> None:
     (tmp_path / "test_leaky.py").write_text(textwrap.dedent(LEAKY_TEST))
     env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1")

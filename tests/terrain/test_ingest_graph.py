@@ -71,6 +71,7 @@ def test_local_schedulers_give_the_same_store_bit_for_bit(
     assert _files(out) == reference  # every chunk file, VRT and the manifest, byte for byte
 
 
+@pytest.mark.slow
 def test_a_distributed_cluster_gives_the_same_store_bit_for_bit(
     reference: dict[str, bytes], tmp_path: Path, cluster
 ) -> None:
@@ -155,6 +156,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_a_scheduler_that_does_not_answer_is_one_line_within_seconds(tmp_path: Path) -> None:
     out = tmp_path / "s"
     ingest([ETOPO], out, workers=1, **ETOPO_KW)
@@ -168,6 +170,7 @@ def test_a_scheduler_that_does_not_answer_is_one_line_within_seconds(tmp_path: P
     assert _files(out) == before and _leftovers(tmp_path) == []
 
 
+@pytest.mark.slow
 def test_a_port_that_accepts_but_never_answers_is_one_line_within_seconds(
     tmp_path: Path,
 ) -> None:
@@ -191,6 +194,7 @@ def test_a_worker_address_is_not_a_scheduler(tmp_path: Path, cluster) -> None:
         ingest([ETOPO], tmp_path / "s", scheduler=worker)
 
 
+@pytest.mark.slow
 def test_a_failing_task_on_the_cluster_is_one_line_and_leaves_the_old_store(
     tmp_path: Path, cluster
 ) -> None:
@@ -211,6 +215,7 @@ def test_a_failing_task_on_the_cluster_is_one_line_and_leaves_the_old_store(
     assert _files(out) == before and _leftovers(tmp_path) == []
 
 
+@pytest.mark.slow
 def test_a_worker_that_dies_is_one_line_and_leaves_nothing(tmp_path: Path) -> None:
     """kill -9 of the worker running a chunk (every time it is retried): one StoreError line,
     no store, no building folder (the tasks still running elsewhere finish first)."""

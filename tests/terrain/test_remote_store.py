@@ -492,6 +492,7 @@ def _level12_by_chunk(st: TileStore) -> dict[tuple[int, int], list[TileKey]]:
     return out
 
 
+@pytest.mark.slow
 def test_remote_heights_equal_local_heights(store_root: Path, served, tmp_path: Path) -> None:
     local = TileStore.open(store_root / "n44")
     with TileStore.open(f"{served.url}/n44", remote_options=_opts(tmp_path)) as st:
@@ -729,6 +730,7 @@ def test_prefetch_keeps_requests_in_flight_under_the_bound(
     assert 1 <= served.max_in_flight <= 2
 
 
+@pytest.mark.slow
 def test_a_thread_forbidden_the_network_never_waits(
     store_root: Path, served, tmp_path: Path
 ) -> None:

@@ -137,6 +137,7 @@ ERROR_CASES = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("name", "level"), ERROR_CASES)
 def test_recorded_errors_bound_the_blended_surface(stores, name, level):
     """Measured max |tile surface at stride s - finest composed surface| <= recorded error at

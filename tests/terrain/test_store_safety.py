@@ -75,6 +75,7 @@ def _copy(store: Path, tmp_path: Path) -> Path:
         '["format", "globeview-tile-store"]',
     ],
 )
+@pytest.mark.slow
 def test_foreign_folder_with_a_manifest_is_refused(tmp_path: Path, manifest: str) -> None:
     mine = tmp_path / "mine"
     (mine / "sub").mkdir(parents=True)
@@ -111,6 +112,7 @@ def _legacy(s: Path) -> None:
     (s / "manifest.json").write_text(json.dumps(man))
 
 
+@pytest.mark.slow
 def test_older_store_needs_force_then_is_rebuilt(store: Path, tmp_path: Path) -> None:
     s = _copy(store, tmp_path)
     _legacy(s)
@@ -189,6 +191,7 @@ def _dem(path: Path, height: float) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_two_dems_with_one_file_name_get_two_stores(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -311,6 +314,7 @@ def _mutations(man: dict) -> list[tuple[str, dict]]:
     return out
 
 
+@pytest.mark.slow
 def test_fuzzed_manifest_is_always_one_store_error(store: Path, tmp_path: Path) -> None:
     s = _copy(store, tmp_path)
     man = json.loads((store / "manifest.json").read_text())

@@ -215,6 +215,7 @@ _json = st.recursive(
     path=st.lists(st.sampled_from(["levels", 0, 1, "extent", "sources", "params", "x0"])),
     value=_json,
 )
+@pytest.mark.slow
 def test_any_json_anywhere_is_refused_only_by_manifest_error(path: list, value: object) -> None:
     """Put an arbitrary JSON value at an arbitrary place: from_json accepts it or raises
     ManifestError, never anything else."""
