@@ -166,6 +166,7 @@ def test_tool_csv_of_a_failed_tool_says_it_failed_exit_3(
 
 
 # -- item 9: a layer type that fails --------------------------------------------------------
+@pytest.mark.slow
 @pytest.mark.parametrize("strict", [False, True])
 def test_a_layer_type_that_crashes_in_open_exits_3(
     site: PluginSite, tmp_path: Path, strict: bool

@@ -24,6 +24,7 @@ def closed_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command", ["render", "info"])
 @pytest.mark.parametrize(
     ("url", "needle"),
@@ -87,6 +88,7 @@ def test_render_url_writes_the_local_stores_png(served, tmp_path: Path) -> None:
     assert (tmp_path / "s.png").read_bytes() == (tmp_path / "l.png").read_bytes()
 
 
+@pytest.mark.slow
 def test_info_url_describes_the_store(served, tmp_path: Path) -> None:
     import json
 

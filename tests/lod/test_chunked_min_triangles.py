@@ -153,6 +153,7 @@ def test_triangles_never_grow_with_tau_with_exaggeration_and_budgets(
     assert not worse, f"{len(worse)} views draw more triangles at a larger tau: {worse[:3]}"
 
 
+@pytest.mark.slow
 def test_old_crater_lake_view_is_monotone(globeview_terrain) -> None:
     """The view of the issue: 3 158 / 2 500 / 10 928 / 9 850 / 9 382 triangles at tau
     0.5..8 with the plain walk (one level-10 tile drawn whole at stride 1 at tau 2)."""
@@ -168,6 +169,7 @@ def test_old_crater_lake_view_is_monotone(globeview_terrain) -> None:
     assert counts == sorted(counts, reverse=True), counts
 
 
+@pytest.mark.slow
 def test_chunked_sse_draws_the_cheapest_cut_by_default(globeview_terrain) -> None:
     provider = ChunkedSseProvider()
     assert provider.values["min_triangles"] is True

@@ -170,6 +170,7 @@ def _triangles(rs) -> int:
     return int(sum(per[i] for i in rs.variant_ids))
 
 
+@pytest.mark.slow
 def test_rings_cut_off_and_stats(terrain) -> None:
     v = make_view(-71.3, 44.15, 9000.0, 0.0, -30.0, viewport=(320, 240))
     rs = traverse(v, terrain, RishePolicy())

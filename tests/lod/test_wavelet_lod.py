@@ -41,6 +41,7 @@ def _triangles(rs, size: int = 65) -> int:
 WM = (-71.3, 44.15, 9000.0, 0.0, -30.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("m", [2, 3, 4])
 def test_larger_tau_draws_no_more_triangles(terrain, m: int) -> None:
     v = make_view(*WM, viewport=(320, 240))
@@ -111,6 +112,7 @@ VIEWS = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 @pytest.mark.parametrize("name", list(VIEWS))
 def test_renders_without_cracks(gl_session, name: str) -> None:

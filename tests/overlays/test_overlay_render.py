@@ -181,6 +181,7 @@ def test_uniform_imagery_shows_no_seams(clean, tmp_path, cam) -> None:
     assert np.all(np.abs(g_r - 0.5) < 0.04) and np.all(np.abs(b_r - 0.25) < 0.04)
 
 
+@pytest.mark.slow
 def test_hillshade_drape_from_the_dem(clean) -> None:
     """The hillshade layer computed from the DEM shades Crater Lake's caldera (30 m DEM) in
     grey: lit north-west slopes bright, south-east slopes dark."""
@@ -202,6 +203,7 @@ def test_hillshade_drape_from_the_dem(clean) -> None:
 MAGENTA = (1.0, 0.0, 1.0, 1.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("lod", ["chunked-sse", "quadtree-clod"])
 def test_borders_stay_visible_on_the_alps_at_every_lod(clean, lod) -> None:
     """Country borders across the Alps, seen obliquely: the line pixels neither vanish into
@@ -227,6 +229,7 @@ def test_borders_stay_visible_on_the_alps_at_every_lod(clean, lod) -> None:
 
 
 # -- point objects -----------------------------------------------------------------------------
+@pytest.mark.slow
 def test_ten_thousand_instanced_boxes(clean, capsys) -> None:
     """10 000 boxes in one instanced draw; only those in drawn tiles are resident."""
     from globeview.render.overlay_points import PointOverlay, PointStyle
@@ -265,6 +268,7 @@ def test_ten_thousand_instanced_boxes(clean, capsys) -> None:
         )
 
 
+@pytest.mark.slow
 def test_labelled_placemarks(clean) -> None:
     """City placemarks with labels: red discs and white label text appear over Europe."""
     from globeview.plugins.builtin.layers.types import PointsLayerType

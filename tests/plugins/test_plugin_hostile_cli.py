@@ -103,6 +103,7 @@ def test_render_with_a_broken_provider_completes_with_the_fallback(
         assert "Traceback (most recent call last)" in entry and "impl.py" in entry
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_a_real_ctrl_c_during_select_interrupts_the_render(
     plugin_site: PluginSite, tmp_path: Path
@@ -202,6 +203,7 @@ def test_render_imports_only_the_plugins_it_uses(plugin_site: PluginSite, tmp_pa
     assert not unwanted & imported
 
 
+@pytest.mark.slow
 def test_plugins_validate_other_is_quiet_about_broken_plugins(
     plugin_site: PluginSite, tmp_path: Path
 ) -> None:
@@ -244,6 +246,7 @@ def test_plugins_validate_hostile_manifest_files(plugin_site: PluginSite, tmp_pa
         assert len(lines) == 1 and lines[0].startswith("invalid: ") and reason in lines[0], lines
 
 
+@pytest.mark.slow
 def test_plugins_list_check_stays_json_and_validate_import_is_one_line(
     plugin_site: PluginSite, tmp_path: Path
 ) -> None:

@@ -61,6 +61,7 @@ def test_render_measure_writes_png_status_and_profile(env, tmp_path: Path) -> No
     np.testing.assert_allclose(table[:, 3], want, atol=1e-6)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("points", "words"),
     [

@@ -32,6 +32,7 @@ def test_tracker_counts_live_objects(globeview_gl) -> None:
     assert len(tracker.live) == before
 
 
+@pytest.mark.slow
 def test_leaked_since_finds_only_dropped_unreleased_objects(globeview_gl) -> None:
     tracker = gpu_objects(globeview_gl)
     mark = tracker.mark

@@ -84,6 +84,7 @@ def test_render_camera_and_tau_change_the_frame(tmp_path: Path) -> None:
     assert finer["triangles"] > oblique["triangles"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "args",
     [

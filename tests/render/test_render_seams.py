@@ -69,6 +69,7 @@ def assert_no_seams(scene, targets, gv, terrain, cam) -> None:
     assert edge <= 1.15 * rest, (edge, rest)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("cam", NADIR)
 def test_no_shading_seams_at_tile_edges(scene, targets, gv, terrain, cam):
     assert_no_seams(scene, targets, gv, terrain, cam)

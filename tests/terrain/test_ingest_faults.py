@@ -175,6 +175,7 @@ def test_other_os_errors_are_one_line(tmp_path: Path, fault: str, needle: str) -
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_interrupt_during_build_leaves_nothing(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -194,6 +195,7 @@ def _mount(target: Path, opts: str) -> None:
     subprocess.run(["mount", "-t", "tmpfs", "-o", opts, "tmpfs", str(target)], check=True)
 
 
+@pytest.mark.slow
 @needs_root
 def test_real_disk_full_tmpfs(tmp_path: Path) -> None:
     mnt = tmp_path / "small"
@@ -207,6 +209,7 @@ def test_real_disk_full_tmpfs(tmp_path: Path) -> None:
         subprocess.run(["umount", str(mnt)], check=True)
 
 
+@pytest.mark.slow
 @needs_root
 def test_real_read_only_tmpfs(tmp_path: Path) -> None:
     mnt = tmp_path / "ro"
@@ -221,6 +224,7 @@ def test_real_read_only_tmpfs(tmp_path: Path) -> None:
 # -- a raster far too large --------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_huge_vrt_is_refused_up_front_within_the_memory_bound(tmp_path: Path) -> None:
     # 2,000,000 x 1,000,000 pixels of a real little GeoTIFF placed in a global grid.
     vrt = tmp_path / "huge.vrt"

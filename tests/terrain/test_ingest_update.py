@@ -77,6 +77,7 @@ def test_the_update_equals_a_full_rebuild_bit_for_bit(updated) -> None:
         st.verify()
 
 
+@pytest.mark.slow
 def test_only_the_chunks_that_read_the_changed_source_are_rebuilt(updated) -> None:
     store, before, result, _ = updated
     man = json.loads((store / MANIFEST_NAME).read_text())

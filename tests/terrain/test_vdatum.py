@@ -90,6 +90,7 @@ def test_srtm_store_holds_samples_plus_geoid(srtm_stores: tuple[Path, Path]) -> 
     assert -28.5 < float(np.mean((z - H)[ok])) < -26.5
 
 
+@pytest.mark.slow
 def test_ellipsoid_declared_stores_samples_unchanged(srtm_stores: tuple[Path, Path]) -> None:
     conv, ell = srtm_stores
     zc, lons, lats = _finest(conv)
@@ -130,6 +131,7 @@ def _grid(tmp_path: Path, crs: str) -> Path:
     return _tif(tmp_path / "g.tif", z, crs, Affine(0.01, 0, 10.0, 0, -0.01, 47.0))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("crs", "datum", "converted"),
     [("EPSG:4979", "ellipsoid", False), ("EPSG:4326+5773", "egm96", True)],
