@@ -169,6 +169,7 @@ def test_no_cracks_with_the_collapse_for_every_lod_provider(session, gl, cam, pa
         session.settings.background = (0.0, 0.0, 0.0)
 
 
+@pytest.mark.slow
 def test_session_view_carries_the_collapse_bend_hook(session, gl) -> None:
     """With the collapse active the view carries its bend bound and displacement key (LOD
     providers use them); the bound covers the exact measure; without a tool, neither."""

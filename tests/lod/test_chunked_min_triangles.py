@@ -247,6 +247,7 @@ def test_min_triangles_setting_is_validated(bad) -> None:
     assert isinstance(provider.values["min_triangles"], bool)
 
 
+@pytest.mark.slow
 def test_a_view_tau_cannot_meet_within_the_budget_falls_back_to_the_plain_walk(
     globeview_terrain,
 ) -> None:

@@ -192,6 +192,7 @@ def test_rings_cut_off_and_stats(terrain) -> None:
     assert down.stats["tiles_ring2"] == 0 and down.stats["tiles_ring3"] == 0
 
 
+@pytest.mark.slow
 def test_larger_hr_ratio_refines_monotonically(terrain) -> None:
     v = make_view(-71.3, 44.15, 9000.0, 0.0, -30.0, viewport=(320, 240))
     counts = [

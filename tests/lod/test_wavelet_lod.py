@@ -58,6 +58,7 @@ def test_larger_tau_draws_no_more_triangles(terrain, m: int) -> None:
     assert {"lod_ms", "tiles_culled_frustum", "tiles_culled_horizon"} <= set(rs.stats)
 
 
+@pytest.mark.slow
 def test_flat_tile_is_coarser_than_a_rough_one(terrain) -> None:
     """Same altitude and view, over the flat Atlantic vs the White Mountains: the flat tile
     under the camera is drawn at a coarser level or stride."""

@@ -93,6 +93,7 @@ def test_only_the_chunks_that_read_the_changed_source_are_rebuilt(updated) -> No
     assert all(after[n] != before[n] for n in after if n.endswith(".tif") and n not in kept)
 
 
+@pytest.mark.slow
 def test_an_unchanged_store_is_still_up_to_date(updated, tmp_path: Path) -> None:
     store, _, _, _ = updated
     src = json.loads((store / MANIFEST_NAME).read_text())["sources"]

@@ -103,6 +103,7 @@ def test_ellipsoid_declared_stores_samples_unchanged(srtm_stores: tuple[Path, Pa
     np.testing.assert_allclose(ze[ok], H[ok], atol=1e-3)
 
 
+@pytest.mark.slow
 def test_mount_washington_done_when_figure(srtm_stores: tuple[Path, Path]) -> None:
     """h - H at Mount Washington is N there, about -27.5 m."""
     conv, ell = srtm_stores
