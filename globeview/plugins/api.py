@@ -545,11 +545,11 @@ class PolicyProvider(LodProvider):
     policy: type[LodPolicy]
     # The last selection and what it was selected for (`_reuse_key`); class defaults so that
     # a subclass's __init__ need not call ours.
-    _reuse_key: tuple | None = None
+    _reuse_key: tuple[object, ...] | None = None
     _reuse: RenderSet | None = None
     # The terrain it was for, weakly: an id alone could be a new terrain's after the old one
     # was freed, and a strong reference would keep a closed terrain alive.
-    _reuse_terrain: weakref.ref | None = None
+    _reuse_terrain: weakref.ref[Any] | None = None
     # The flat walk's state (made on first use: this module must not import the LOD engine).
     _selection_state: SelectionState | None = None
 

@@ -45,12 +45,14 @@ DAMAGE: dict[str, tuple[Callable[[Path], None], str]] = {
 }
 
 
+@pytest.mark.slow
 def test_an_intact_store_is_described(store: Path, tmp_path: Path) -> None:
     res = globeview("info", str(store), cache=tmp_path / "c")
     assert res.returncode == 0, res.stderr
     assert "tile store, format" in res.stdout and "levels 0..6" in res.stdout
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("damage", list(DAMAGE))
 def test_a_damaged_store_is_one_line(store: Path, tmp_path: Path, damage: str) -> None:
     harm, name = DAMAGE[damage]

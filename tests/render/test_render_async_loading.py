@@ -32,6 +32,7 @@ def test_substitution_replaces_missing_tiles_by_their_resident_ancestor() -> Non
     assert len(out.variant_ids) == len(out.keys) == len(out.error_px)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["thread", "process"])
 def test_async_frames_converge_to_the_synchronous_image(scene, targets, kind) -> None:
     """Render a view synchronously, then with background loading from an empty pool: frames
@@ -76,6 +77,7 @@ def test_async_frames_converge_to_the_synchronous_image(scene, targets, kind) ->
         scene.renderer.settings.background = (0.0, 0.0, 0.0)
 
 
+@pytest.mark.slow
 def test_async_frames_count_missing_stand_in_and_failed_tiles(scene, targets) -> None:
     """A tile that cannot be built (here: its heights raise, as an unreadable store window
     would) is counted in the frame's ``tiles_failed``, stays stood in by an ancestor, and

@@ -103,6 +103,7 @@ MESH_KEYS = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("key", MESH_KEYS)
 @pytest.mark.parametrize("apron", [False, True])
 def test_mesh_matches_the_reference_builder(stack, key, apron):
@@ -200,6 +201,7 @@ def test_batched_texels_equal_per_tile_at_coasts() -> None:
         assert scale[i] == s
 
 
+@pytest.mark.slow
 def test_batched_skirt_depths_equal_per_tile(stack):
     from globeview.render.offscreen import create_headless_context
     from globeview.render.renderer import GlobeRenderer
@@ -281,6 +283,7 @@ def _plain_read(st, key):
         return ds.read(1, window=Window(ix * n, iy * n, size, size)).astype(np.float32)
 
 
+@pytest.mark.slow
 def test_store_padded_window_is_the_neighbours_nodes(stack):
     """Exact, NaN included: inside, at a regional layer's extent edges (tiles just outside
     it serve NaN), and across the antimeridian on the global base."""
@@ -341,6 +344,7 @@ def unblended_stack():
     return st
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("blend", [True, False])
 @pytest.mark.parametrize(
     "keys",
@@ -386,6 +390,7 @@ def antimeridian_stack(tmp_path_factory):
     return TerrainStack.from_stores(stores)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("level", [10, 11])
 @pytest.mark.parametrize("lat", [10.5, 20.5])
 def test_apron_ring_at_a_layer_edge_on_the_antimeridian(antimeridian_stack, level, lat):

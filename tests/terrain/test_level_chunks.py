@@ -54,6 +54,7 @@ def test_chunk_is_zstd_hashed_as_written_and_a_new_inode(tmp_path: Path) -> None
     assert not (tmp_path / chunk_file_name(grid.level, 0, 2)).exists()
 
 
+@pytest.mark.slow
 def test_a_store_of_deflate_chunks_reads_the_same_heights(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

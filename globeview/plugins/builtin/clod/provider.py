@@ -48,6 +48,7 @@ from globeview.plugins.api import (
     TEXEL_SIZE,
     TILE_BUDGET,
     LodProvider,
+    PluginContext,
     RenderSet,
     ScreenSpaceErrorPolicy,
     SelectionState,
@@ -111,7 +112,7 @@ class QuadtreeClodProvider(LodProvider):
         ),
     )
 
-    def __init__(self, context=None) -> None:
+    def __init__(self, context: PluginContext | None = None) -> None:
         super().__init__(context)
         self._tiles = ClodTiles(TILE_CACHE)
         self._terrain_id: tuple[int, int] | None = None
