@@ -31,11 +31,16 @@ import statistics
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, fields
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from globeview.bench.flight import Flight
+from globeview.bench.flight import Flight, Pose
 from globeview.bench.harness import CSV_COLUMNS, Bench, FrameRecord, rss_mb
+
+if TYPE_CHECKING:
+    from globeview.render.frame_pipeline import FrameResult
+    from globeview.render.renderer import GlobeRenderer
 
 #: Seconds a flight's end may take to reach a complete view before the lag is "> timeout".
 SETTLE_TIMEOUT_S = 10.0
@@ -105,7 +110,9 @@ class AsyncFlight:
     loader: str
 
 
-def set_loader(renderer, kind: str | None = None, workers: int | None = None) -> None:
+def set_loader(
+    renderer: GlobeRenderer, kind: str | None = None, workers: int | None = None
+) -> None:
     """Make ``renderer``'s background loader ``kind`` ("thread" or "process"; None: the
     machine's default, `tile_workers.default_loader`) with ``workers`` (None: 1 thread, or
     all cores but two processes, at least 1); a loader already made is shut down. Batches of
@@ -182,7 +189,7 @@ def _run(
         cpu_ms = (time.thread_time() - c0) * 1e3
         end = clock() - start
         missed = period > 0 and end > (math.floor(wall / period) + 1) * period
-        row = _record(len(rows), wall, pose, result, frame_ms, cpu_ms, settling, missed, bench)
+        row = _record(len(rows), (wall, frame_ms, cpu_ms), pose, result, settling, missed, bench)
         rows.append(row)
         if settling and _complete(row):
             lag = end - duration
@@ -216,15 +223,16 @@ def _complete(row: AsyncFrameRecord) -> bool:
 
 def _record(
     i: int,
-    wall: float,
-    pose,
-    result,
-    frame_ms: float,
-    cpu_ms: float,
+    timing: tuple[float, float, float],
+    pose: Pose,
+    result: FrameResult,
     settling: bool,
     missed: bool,
     bench: Bench,
 ) -> AsyncFrameRecord:
+    """Frame i's row; timing is (wall clock since the start in s, frame ms, render-thread
+    CPU ms)."""
+    wall, frame_ms, cpu_ms = timing
     st = result.stats
     extra = st.extra
     loader = bench.session.renderer.loader

@@ -37,7 +37,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from typing import Protocol
+from typing import Protocol, TypeAlias
 
 import numpy as np
 
@@ -51,7 +51,7 @@ log = logging.getLogger("globeview.render")
 
 Key = tuple[int, int, int]
 #: What a build gives: a mesh (its texels baked at upload) or a tile ready for upload.
-Built = TileMesh | ReadyTile
+Built: TypeAlias = TileMesh | ReadyTile
 
 #: Mean Earth radius (m), for the tiles' ground radius in `tile_priority`.
 _EARTH_R_M = 6.371e6
