@@ -124,7 +124,7 @@ def _check_heights(heights: np.ndarray, nodata: float | None) -> None:
     if nodata is not None:
         valid &= heights != nodata
     if not valid.any():
-        what = "NaN or nodata" if nodata is not None else "NaN"
+        what = "NaN, infinite or nodata" if nodata is not None else "NaN or infinite"
         raise DemError(f"add_dem: every height is {what}: there is no terrain to add")
 
 

@@ -37,7 +37,8 @@ def cache_files(api_cache: str) -> list[str]:
     ("data", "kwargs", "words"),
     [
         (np.full((50, 50), np.nan), {"crs": GEO}, "every height is NaN"),
-        (np.full((50, 50), -32768, np.int16), {"crs": GEO, "nodata": -32768}, "NaN or nodata"),
+        (np.full((50, 50), np.inf), {"crs": GEO}, "every height is NaN or infinite"),
+        (np.full((50, 50), -32768, np.int16), {"crs": GEO, "nodata": -32768}, "infinite or nodata"),
         (np.ones((50, 50)), {"crs": GEO, "transform": None}, "needs transform="),
         (np.ones((50, 50)), {}, "needs crs="),
         (np.ones((3, 50, 50)), {"crs": GEO}, "shape (3, 50, 50)"),
