@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from globeview.bench.flight import Flight, Pose
-from globeview.bench.harness import CSV_COLUMNS, Bench, FrameRecord, rss_mb
+from globeview.bench.harness import CSV_COLUMNS, Bench, FrameRecord, frame_fields
 
 if TYPE_CHECKING:
     from globeview.render.frame_pipeline import FrameResult
@@ -237,26 +237,7 @@ def _record(
     extra = st.extra
     loader = bench.session.renderer.loader
     return AsyncFrameRecord(
-        frame=i,
-        t=round(wall, 4),
-        lon=pose.lon,
-        lat=pose.lat,
-        height=pose.height,
-        heading=pose.heading,
-        pitch=pose.pitch,
-        speed_mps=result.view.speed_mps,
-        frame_ms=frame_ms,
-        lod_ms=st.lod_ms,
-        draw_ms=st.draw_ms,
-        triangles=st.triangles,
-        tiles_drawn=st.tiles_drawn,
-        tiles_culled_frustum=st.tiles_culled_frustum,
-        tiles_culled_horizon=st.tiles_culled_horizon,
-        tiles_loading=st.tiles_loading,
-        tiles_uploaded=st.tiles_uploaded,
-        max_sse_px=st.max_sse_px,
-        resident_tiles=bench.session.renderer.pool.resident_count,
-        rss_mb=rss_mb(),
+        **frame_fields(bench, i, wall, pose, result, frame_ms),
         phase="settle" if settling else "flight",
         wall_s=round(wall, 4),
         missed=bool(missed),

@@ -18,7 +18,7 @@ import sys
 import time
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -279,32 +279,38 @@ def _fly(bench: Bench, flight: Flight, times: np.ndarray, out: list) -> list[Fra
         pose = flight.pose(float(t))
         bench.set_pose(pose)
         r, wall = bench.frame(float(t))
-        st = r.stats
-        out.append(
-            FrameRecord(
-                frame=i,
-                t=round(float(t), 4),
-                lon=pose.lon,
-                lat=pose.lat,
-                height=pose.height,
-                heading=pose.heading,
-                pitch=pose.pitch,
-                speed_mps=r.view.speed_mps,
-                frame_ms=wall,
-                lod_ms=st.lod_ms,
-                draw_ms=st.draw_ms,
-                triangles=st.triangles,
-                tiles_drawn=st.tiles_drawn,
-                tiles_culled_frustum=st.tiles_culled_frustum,
-                tiles_culled_horizon=st.tiles_culled_horizon,
-                tiles_loading=st.tiles_loading,
-                tiles_uploaded=st.tiles_uploaded,
-                max_sse_px=st.max_sse_px,
-                resident_tiles=bench.session.renderer.pool.resident_count,
-                rss_mb=rss_mb(),
-            )
-        )
+        out.append(FrameRecord(**frame_fields(bench, i, float(t), pose, r, wall)))
     return out
+
+
+def frame_fields(
+    bench: Bench, i: int, t: float, pose: Pose, result: FrameResult, frame_ms: float
+) -> dict[str, Any]:
+    """`FrameRecord`'s fields for frame ``i`` at ``t`` seconds of a flight (``pose``: where the
+    camera was; ``frame_ms``: the frame's wall time), for it and the records that extend it."""
+    st = result.stats
+    return dict(
+        frame=i,
+        t=round(t, 4),
+        lon=pose.lon,
+        lat=pose.lat,
+        height=pose.height,
+        heading=pose.heading,
+        pitch=pose.pitch,
+        speed_mps=result.view.speed_mps,
+        frame_ms=frame_ms,
+        lod_ms=st.lod_ms,
+        draw_ms=st.draw_ms,
+        triangles=st.triangles,
+        tiles_drawn=st.tiles_drawn,
+        tiles_culled_frustum=st.tiles_culled_frustum,
+        tiles_culled_horizon=st.tiles_culled_horizon,
+        tiles_loading=st.tiles_loading,
+        tiles_uploaded=st.tiles_uploaded,
+        max_sse_px=st.max_sse_px,
+        resident_tiles=bench.session.renderer.pool.resident_count,
+        rss_mb=rss_mb(),
+    )
 
 
 def write_csv(rows: list, path: str | Path, columns: list[str] | None = None) -> Path:
