@@ -44,6 +44,7 @@ from globeview.model.globe import DEFAULT_LOD
 from globeview.model.globe import Globe as GlobeModel
 from globeview.plugins.api import PluginKind
 from globeview.plugins.registry import PluginRegistry
+from globeview.terrain.compose.height_query import query_heights
 from globeview.terrain.compose.stack import TerrainLayer, TerrainStack
 
 if TYPE_CHECKING:
@@ -416,13 +417,14 @@ class Globe:
 
     def height_at(self, lon: float, lat: float) -> float:
         """The terrain height (metres above the WGS84 ellipsoid) at (lon, lat) degrees, from
-        the finest level any DEM has; 0 (the ellipsoid) where no DEM covers the point, as
-        the window's status bar says. One line (`GlobeviewError`) for a point that is not
-        on the globe."""
+        the finest level any DEM has, as `globeview height` answers it; NaN where no DEM has
+        terrain there (the bare ellipsoid is not an elevation). One line
+        (`GlobeviewError`) for a point that is not on the globe."""
         lon = _lonlat("height_at: the point", (lon, lat))[0]
         if not self.terrain.visible_layers:
-            return 0.0
-        return float(self.terrain.height_at(lon, lat, self.terrain.max_level))
+            return math.nan
+        answer = query_heights(self.terrain, np.array([lon]), np.array([lat]))[0]
+        return math.nan if answer.ellipsoidal is None else answer.ellipsoidal
 
     # -- rendering ---------------------------------------------------------------------------
     def render(self, size: tuple[int, int] | None = None) -> np.ndarray:
