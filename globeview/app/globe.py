@@ -42,6 +42,7 @@ from globeview.model.camera import Camera, check_lonlat_hpr
 from globeview.model.display import DisplaySettings
 from globeview.model.globe import DEFAULT_LOD
 from globeview.model.globe import Globe as GlobeModel
+from globeview.model.tour import Keyframe, Tour, load_tour
 from globeview.plugins.api import PluginKind
 from globeview.plugins.registry import PluginRegistry
 from globeview.terrain.compose.height_query import query_heights
@@ -150,6 +151,8 @@ class Globe:
         self._gl: _Headless | None = None
         self._release: Callable[[], Any] = lambda: None
         self._size = DEFAULT_SIZE
+        #: The tour `fly_to(..., seconds=)` and `add_keyframe` record and `movie` films.
+        self.tour = Tour()
         if embedded:
             self.overlay_host.open_embedded()
 
@@ -279,12 +282,23 @@ class Globe:
         heading: float = 0.0,
         pitch: float = -90.0,
         roll: float = 0.0,
+        *,
+        seconds: float | None = None,
     ) -> CameraPose:
         """Put the camera at (lon, lat) degrees, ``height`` metres above the WGS84 ellipsoid
         (default: the current height), looking along ``heading`` (degrees from north,
         clockwise) and ``pitch`` (degrees; -90 straight down). Headless the move is
-        immediate; a window showing the globe redraws at once. One line (`GlobeviewError`)
-        for a value out of range; the camera then stays."""
+        immediate; a window showing the globe redraws at once. With ``seconds``, the flight
+        there is also recorded in `tour` (a keyframe reached in ``seconds``, after one for
+        the camera before the move if the tour was empty), for `movie` or `play`. One line
+        (`GlobeviewError`) for a value out of range; the camera then stays."""
+        if seconds is not None:
+            start = self.camera if not self.tour.keyframes else None
+            key = self._keyframe((lon, lat, self.camera.height if height is None else height,
+                                  heading, pitch, roll), seconds)  # fmt: skip
+            if start is not None:
+                self.tour.add(Keyframe(*_pose_values(start)))
+            self.tour.add(key)
         if height is None:
             height = self.camera.height
         fov = self.model.camera.fovy_deg
@@ -307,6 +321,56 @@ class Globe:
         bounds = self.terrain.layers[-1].store.bounds
         camera = camera_for_bounds(*bounds, fovy_deg=self.model.camera.fovy_deg)
         return self.fly_to(*camera.lonlat_hpr())
+
+    # -- tours and movies ------------------------------------------------------------------
+    def add_keyframe(self, seconds: float = 0.0, pose: Any = None) -> Keyframe:
+        """Append a keyframe to `tour`: ``pose`` (a `CameraPose` or (lon, lat, height[,
+        heading[, pitch[, roll]]])), default the camera now, reached ``seconds`` after the
+        previous keyframe. One line (`GlobeviewError`) for a value out of range."""
+        return self.tour.add(self._keyframe(pose if pose is not None else self.camera, seconds))
+
+    def _keyframe(self, pose: Any, seconds: float) -> Keyframe:
+        values = _pose_values(pose) if isinstance(pose, CameraPose) else tuple(pose)
+        try:
+            return Keyframe.from_pose(values, seconds)
+        except (TypeError, ValueError) as exc:
+            raise GlobeviewError(f"keyframe: {exc}") from None
+
+    def play(self, tour: Tour | None = None, fps: float = 30.0) -> Iterator[CameraPose]:
+        """Move the camera through ``tour`` (default `tour`) one movie frame at a time
+        (``fps`` frames per tour second, as `movie` films it), yielding each pose; render
+        or wait between steps. A window showing the globe follows."""
+        from globeview.app.movie import check_fps
+
+        tour = self.tour if tour is None else tour
+        try:
+            fps = check_fps(fps)
+        except ValueError as exc:
+            raise GlobeviewError(f"play: {exc}") from None
+        for t in tour.frame_times(fps):
+            yield self.fly_to(*tour.pose_at(float(t)))
+
+    def movie(
+        self,
+        tour: Tour | str | os.PathLike[str] | None,
+        path: str | os.PathLike[str],
+        *,
+        size: tuple[int, int] | None = None,
+        fps: float = 30.0,
+        progress: Callable[[int, int], bool | None] | None = None,
+    ) -> Path:
+        """Film ``tour`` (a `Tour`, a tour file, or None for `tour`) into ``path`` (.mp4:
+        H.264; .gif), ``size`` (width, height) pixels (default: the last render's size),
+        ``fps`` frames a second; every frame has all its tiles loaded. The file appears only
+        when complete (nothing is left on failure or cancel); the camera is put back.
+        ``progress(done, total)`` is called after each frame; returning False cancels
+        (`globeview.app.movie.MovieCancelled`). One line (`GlobeviewError`) for bad input.
+        Returns the path."""
+        from globeview.app.movie import write_movie
+
+        if not isinstance(tour, Tour):
+            tour = self.tour if tour is None else load_tour(tour)
+        return write_movie(self, tour, path, _checked_size(size or self._size), fps, progress)
 
     # -- display, LOD -------------------------------------------------------------------------
     @property
@@ -631,6 +695,10 @@ def _embedded_terrain() -> TerrainStack:
     from globeview.terrain.embedded import embedded_stores
 
     return TerrainStack.from_stores(embedded_stores(), [p.stem for p in embedded_dem_paths()])
+
+
+def _pose_values(pose: CameraPose) -> tuple[float, float, float, float, float, float]:
+    return (pose.lon, pose.lat, pose.height, pose.heading, pose.pitch, pose.roll)
 
 
 def _data_array_name(source: Any) -> str | None:
