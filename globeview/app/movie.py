@@ -22,7 +22,7 @@ import tempfile
 from collections.abc import Callable, Iterator
 from fractions import Fraction
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Any
+from typing import IO, TYPE_CHECKING
 
 import numpy as np
 
@@ -100,7 +100,7 @@ def write_movie(
         raise GlobeviewError(
             f"{len(times)} frames ({tour.duration:g} s at {fps:g} fps): at most {MAX_FRAMES}"
         )
-    before = globe.camera
+    before = globe.model.camera  # the very object: put back exactly, not re-made from angles
     try:
         with atomic_outputs([out]) as (tmp,), ffmpeg_pipe(tmp, suffix, size, fps) as pipe:
             _tell(progress, 0, len(times))
@@ -110,12 +110,9 @@ def write_movie(
                 _tell(progress, i, len(times))
             pipe.finish()
     finally:
-        globe.fly_to(*_pose_tuple(before))
+        globe.model.camera = before
+        globe.registry.attach(camera=before)
     return out
-
-
-def _pose_tuple(pose: Any) -> tuple[float, ...]:
-    return (pose.lon, pose.lat, pose.height, pose.heading, pose.pitch, pose.roll)
 
 
 def _tell(progress: Progress | None, done: int, total: int) -> None:
