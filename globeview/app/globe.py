@@ -156,6 +156,18 @@ class Globe:
         if embedded:
             self.overlay_host.open_embedded()
 
+    @classmethod
+    def on_model(
+        cls, model: GlobeModel, registry: PluginRegistry, overlay_host: OverlayHost
+    ) -> Globe:
+        """A `Globe` drawing an application model that exists already, e.g. a window's (its
+        Export Movie… films through one): terrain, overlays, camera and settings shared."""
+        globe = cls.__new__(cls)
+        globe.registry, globe.model, globe.overlay_host = registry, model, overlay_host
+        globe._gl, globe._release, globe._size = None, lambda: None, DEFAULT_SIZE
+        globe.tour = Tour()
+        return globe
+
     # -- terrain ---------------------------------------------------------------------------
     @property
     def terrain(self) -> TerrainStack:
