@@ -3,6 +3,7 @@ shorter-way heading, no jump at the antimeridian), and their versioned JSON/TOML
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from pathlib import Path
@@ -101,10 +102,8 @@ def test_no_jumps_anywhere(frames: list[tuple[float, float, float, float, float]
     dt = ts[1] - ts[0]
     poses = [tour.pose_at(t) for t in ts]
     kf = tour.keyframes
-    max_rate = max(
-        1.5 * _angle_deg(a.pose, b.pose) / b.seconds for a, b in zip(kf, kf[1:], strict=False)
-    )
-    for p, q in zip(poses, poses[1:], strict=False):
+    max_rate = max(1.5 * _angle_deg(a.pose, b.pose) / b.seconds for a, b in itertools.pairwise(kf))
+    for p, q in itertools.pairwise(poses):
         assert _angle_deg(p, q) <= max_rate * dt * 1.01 + 1e-6
         assert abs((q[3] - p[3] + 180.0) % 360.0 - 180.0) <= 1.5 * 180.0 / 0.5 * dt + 1e-6
         assert abs(math.log(q[2] / p[2])) <= 1.5 * math.log(1e6) / 0.5 * dt + 1e-9
