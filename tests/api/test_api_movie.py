@@ -61,17 +61,24 @@ def stills(globe, tour: Tour) -> tuple[np.ndarray, np.ndarray]:
     return first, last
 
 
+@pytest.mark.slow
 def test_mp4_decodes_to_the_frames_and_stills_of_the_tour(wm_globe, tour, tmp_path) -> None:
     before = wm_globe.camera
     calls: list[tuple[int, int]] = []
-    out = wm_globe.movie(
-        tour, tmp_path / "tour.mp4", size=SIZE, fps=4, progress=lambda d, n: calls.append((d, n))
-    )
+    loading: list[int] = []
+
+    def progress(done: int, total: int) -> None:
+        calls.append((done, total))
+        if done:  # the frame just written was drawn with every tile of its view loaded
+            loading.append(wm_globe.session.last.stats.tiles_loading)
+
+    out = wm_globe.movie(tour, tmp_path / "tour.mp4", size=SIZE, fps=4, progress=progress)
     assert out == tmp_path / "tour.mp4" and [p.name for p in tmp_path.iterdir()] == ["tour.mp4"]
     size, frames = decoded(out)
     assert size == SIZE
     assert len(frames) == len(tour.frame_times(4)) == 8
     assert calls == [(i, 8) for i in range(9)]
+    assert loading == [0] * 8
     assert wm_globe.camera == before  # put back
     first, last = stills(wm_globe, tour)
     assert mean_diff(frames[0], first) < CODEC_TOLERANCE

@@ -80,7 +80,7 @@ def test_over_the_pole_and_between_antipodes_no_nan() -> None:
     assert poses[-1][:2] == pytest.approx((-150.0, -10.0))
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=40, deadline=None)
 @given(
     st.lists(
         st.tuples(
@@ -98,7 +98,7 @@ def test_no_jumps_anywhere(frames: list[tuple[float, float, float, float, float]
     """Sampled finely, consecutive poses are close: no jump in position (antimeridian, pole),
     height or heading. A leg of angle A eased by smoothstep moves at most 1.5 A / leg s."""
     tour = Tour([Keyframe(lon, lat, h, hd, -45.0, seconds=s) for lon, lat, h, hd, s in frames])
-    ts = np.linspace(0.0, tour.duration, 2000)
+    ts = np.linspace(0.0, tour.duration, 300)
     dt = ts[1] - ts[0]
     poses = [tour.pose_at(t) for t in ts]
     kf = tour.keyframes
