@@ -3,10 +3,10 @@ globe, saved as a small versioned JSON or TOML file (Qt-free, GL-free).
 
 A `Tour` is a list of `Keyframe` poses. Each keyframe's ``seconds`` is the time the flight
 from the previous keyframe takes to reach it; the first keyframe's ``seconds`` is a hold at
-the start (the camera waits there). Poses follow the camera's conventions
-(`globeview.model.camera`): lon/lat geodetic degrees on WGS84, height metres above the
-ellipsoid, heading degrees clockwise from north, pitch degrees from the horizontal (-90 looks
-straight down), roll degrees turning the image clockwise.
+the start (the camera waits there), and a later keyframe with 0 seconds is a cut. Poses
+follow the camera's conventions (`globeview.model.camera`): lon/lat geodetic degrees on
+WGS84, height metres above the ellipsoid, heading degrees clockwise from north, pitch degrees
+from the horizontal (-90 looks straight down), roll degrees turning the image clockwise.
 
 Between two keyframes (`interpolate_keyframes`):
 

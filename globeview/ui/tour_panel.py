@@ -139,10 +139,17 @@ class TourPanel(QWidget):
 
     def _item_changed(self, item: QTableWidgetItem) -> None:
         """The user edited a keyframe's seconds: checked, or put back with one line."""
+        from globeview.validate import parse_float
+
         try:
-            self.tour.set_seconds(item.row(), float(item.text()))
+            self.tour.set_seconds(item.row(), parse_float(item.text()))
         except ValueError as exc:
-            self.errors.error(GlobeviewError(f"keyframe {item.row() + 1}: {exc}"))
+            why = (
+                str(exc)
+                if "seconds" in str(exc)
+                else f"seconds must be a number, not {item.text()!r:.40}"
+            )
+            self.errors.error(GlobeviewError(f"keyframe {item.row() + 1}: {why}"))
         self._show()
 
     # -- recording ---------------------------------------------------------------------------
@@ -270,13 +277,13 @@ class TourPanel(QWidget):
         films = ApiGlobe.on_model(self.model, self.registry, self.overlay_host)
         try:
             films.movie(self.tour, path, size=size, fps=fps, progress=progress)
-        except GlobeviewError as exc:
+        except Exception as exc:  # noqa: BLE001  one line in a dialog (a bug's traceback: the log), the window keeps working
             cancelled = dialog.wasCanceled()
             dialog.close()
             if cancelled:
                 self.notice.emit(f"movie cancelled; nothing written to {path}")
             else:
-                self.errors.error(exc)
+                self.errors.error(exc, "exporting the movie")
             return False
         finally:
             films.close()

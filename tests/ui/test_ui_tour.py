@@ -43,6 +43,8 @@ def test_record_and_edit_seconds(recorded, errors_shown) -> None:
     panel.table.item(1, 5).setText("-2")  # refused in one dialog, put back
     assert len(errors_shown) == 1 and "seconds" in errors_shown[0].text
     assert panel.table.item(1, 5).text() == "1" and panel.tour.keyframes[1].seconds == 1.0
+    panel.table.item(1, 5).setText("soon")
+    assert len(errors_shown) == 2 and "seconds must be a number" in errors_shown[1].text
     panel.table.item(1, 5).setText("0.5")
     assert panel.tour.keyframes[1].seconds == 0.5
     assert "Export &Movie…" in [a.text() for a in win.menuBar().actions()[0].menu().actions()]
