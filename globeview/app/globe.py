@@ -288,8 +288,8 @@ class Globe:
 
     def fly_to(
         self,
-        lon: float,
-        lat: float,
+        lon: float | CameraPose,
+        lat: float | None = None,
         height: float | None = None,
         heading: float = 0.0,
         pitch: float = -90.0,
@@ -299,20 +299,20 @@ class Globe:
     ) -> CameraPose:
         """Put the camera at (lon, lat) degrees, ``height`` metres above the WGS84 ellipsoid
         (default: the current height), looking along ``heading`` (degrees from north,
-        clockwise) and ``pitch`` (degrees; -90 straight down). Headless the move is
-        immediate; a window showing the globe redraws at once. With ``seconds``, the flight
-        there is also recorded in `tour` (a keyframe reached in ``seconds``, after one for
-        the camera before the move if the tour was empty), for `movie` or `play`. One line
-        (`GlobeviewError`) for a value out of range; the camera then stays."""
-        if seconds is not None:
-            start = self.camera if not self.tour.keyframes else None
-            key = self._keyframe((lon, lat, self.camera.height if height is None else height,
-                                  heading, pitch, roll), seconds)  # fmt: skip
-            if start is not None:
-                self.tour.add(Keyframe(*_pose_values(start)))
-            self.tour.add(key)
+        clockwise) and ``pitch`` (degrees; -90 straight down); or at a `CameraPose` given
+        instead of ``lon``. Headless the move is immediate; a window showing the globe
+        redraws at once. With ``seconds``, the flight there is also recorded in `tour` (a
+        keyframe reached in ``seconds``, after one for the camera before the move if the
+        tour was empty), for `movie` or `play`. One line (`GlobeviewError`) for a value out
+        of range; the camera then stays."""
+        if isinstance(lon, CameraPose):
+            lon, lat, height, heading, pitch, roll = _pose_values(lon)
+        if lat is None:
+            raise GlobeviewError("fly_to takes lon, lat[, height, ...] degrees or a CameraPose")
         if height is None:
             height = self.camera.height
+        if seconds is not None:
+            self._record_flight((lon, lat, height, heading, pitch, roll), seconds)
         fov = self.model.camera.fovy_deg
         try:
             placed = check_lonlat_hpr(lon, lat, height, heading, pitch, roll)
@@ -322,6 +322,13 @@ class Globe:
         self.model.camera = camera
         self.registry.attach(camera=camera)
         return self.camera
+
+    def _record_flight(self, pose: tuple[float, ...], seconds: float) -> None:
+        """`fly_to`'s ``seconds``: the keyframe (checked first), after the start if none."""
+        key = self._keyframe(pose, seconds)
+        if not self.tour.keyframes:
+            self.tour.add(Keyframe(*_pose_values(self.camera)))
+        self.tour.add(key)
 
     def view_dems(self) -> CameraPose:
         """Look straight down on the top DEM layer, high enough to see all of it (the

@@ -118,13 +118,19 @@ def test_fly_to_with_seconds_records_the_tour_and_play_follows_it(registry, api_
     start = globe.fly_to(-71.6, 44.0, 40_000.0)
     globe.fly_to(-71.35, 44.2, 9_000.0, heading=40, pitch=-35, seconds=2.0)
     globe.add_keyframe(1.5)  # a hold where the camera is
-    assert [k.seconds for k in globe.tour.keyframes] == [0.0, 2.0, 1.5]
+    globe.fly_to(start, seconds=1.0)  # back to the start, given as a CameraPose
+    assert [k.seconds for k in globe.tour.keyframes] == [0.0, 2.0, 1.5, 1.0]
+    c = globe.camera
+    assert (c.lon, c.lat, c.height, c.pitch) == pytest.approx(
+        (start.lon, start.lat, start.height, start.pitch), abs=1e-6
+    )
     assert globe.tour.keyframes[0].pose[:3] == pytest.approx((start.lon, start.lat, start.height))
     poses = list(globe.play(fps=10))
-    assert len(poses) == 35
+    assert len(poses) == 45
     assert poses[0].height == pytest.approx(40_000.0, rel=1e-6)
-    assert poses[-1].height == pytest.approx(9_000.0, rel=1e-6)
-    assert globe.camera.heading == pytest.approx(40.0)
+    assert poses[20].height == pytest.approx(9_000.0, rel=1e-3)  # at 2 s of 4.5
+    assert poses[20].heading == pytest.approx(40.0, abs=0.05)
+    assert poses[-1].height == pytest.approx(40_000.0, rel=1e-6)
 
 
 @pytest.mark.parametrize(
