@@ -60,6 +60,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--no-borders", action="store_true", help="hide the embedded country borders"
     )
+    parser.add_argument(
+        "--lod", default="chunked-sse", help="LOD provider plugin (see `globeview plugins list`)"
+    )
+    parser.add_argument(
+        "--layer",
+        action="append",
+        default=[],
+        metavar="[TYPE:]FILE",
+        help="overlay a file with the layer type that opens it (as `globeview render "
+        "--layer`); repeatable",
+    )
+    parser.add_argument("--background", help="R,G,B background colour in 0..1")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     add_dem_options(parser)
 
@@ -94,7 +106,12 @@ def parse_tour(text: str, seconds: float) -> Tour:
 def check_args(args: argparse.Namespace) -> dict:
     """Everything typed, checked before any DEM is read: one line on the first bad one."""
     from globeview.app.movie import MOVIE_SUFFIXES, check_fps, check_movie_size
-    from globeview.cli.render import check_cache_writable, check_inputs, parse_size
+    from globeview.cli.render import (
+        check_cache_writable,
+        check_inputs,
+        parse_background,
+        parse_size,
+    )
     from globeview.fileio import check_output_file
     from globeview.model.camera import FOV_RANGE_DEG
     from globeview.validate import check_exaggeration, check_number, check_tau
@@ -109,9 +126,9 @@ def check_args(args: argparse.Namespace) -> dict:
         "tau": checked("--tau", check_tau, args.tau),
         "exaggeration": checked("--exaggeration", check_exaggeration, args.exaggeration),
         "tour": parse_tour(args.tour, args.seconds),
+        "background": parse_background(args.background) if args.background else None,
     }
-    args.layer = []  # check_inputs reads render's --layer files: a movie has none
-    check_inputs(args)
+    check_inputs(args)  # the sources and the --layer files
     check_dem_options(args)
     check_cache_writable(args.sources, args.crs, args.vdatum)
     return values
@@ -122,7 +139,7 @@ def make_globe(args: argparse.Namespace, v: dict) -> Globe:
     from globeview.app.globe import Globe
     from globeview.model.camera import Camera
 
-    globe = Globe(embedded=not args.sources)
+    globe = Globe(embedded=not args.sources, lod=args.lod)  # an unknown --lod: before ingest
     for src in args.sources:
         globe.add_dem(src, crs=args.crs, vdatum=args.vdatum)
     if args.sources and (not args.no_borders or args.imagery):
@@ -136,6 +153,10 @@ def make_globe(args: argparse.Namespace, v: dict) -> Globe:
             globe.overlay_host.open_embedded(imagery=True)
             if args.no_borders:
                 globe.remove_overlay(globe.overlays[-1])
+    for layer in args.layer:
+        globe.add_overlay(layer)
+    if v["background"] is not None:
+        globe.display.background = v["background"]
     tour: Tour = v["tour"]
     globe.model.camera = Camera.from_lonlat(*tour.keyframes[0].pose, fovy_deg=v["fov"])
     globe.tau_px = v["tau"]

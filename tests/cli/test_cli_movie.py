@@ -119,6 +119,9 @@ NEWER_TOUR = '{"format": "globeview-tour", "version": 7, "keyframes": []}'
         (["--tour", "<png>"], "is not a globeview tour"),
         (["--tour", "-71.6,nan,40000"], "CAMERAS: camera 1: latitude"),
         (["--out", "x.avi"], "must end in .mp4 or .gif"),
+        (["--lod", "no-such-lod"], "no-such-lod"),
+        (["--layer", "missing.geojson"], "--layer missing.geojson: no such file"),
+        (["--background", "1,2,3"], "--background"),
         (["--out", "no/such/folder/x.mp4"], "does not exist"),
     ],
 )
