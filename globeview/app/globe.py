@@ -362,12 +362,11 @@ class Globe:
         from globeview.app.movie import check_fps
 
         tour = self.tour if tour is None else tour
-        try:
-            fps = check_fps(fps)
+        try:  # checked now, not at the first step
+            times = tour.frame_times(check_fps(fps))
         except ValueError as exc:
             raise GlobeviewError(f"play: {exc}") from None
-        for t in tour.frame_times(fps):
-            yield self.fly_to(*tour.pose_at(float(t)))
+        return (self.fly_to(*tour.pose_at(float(t))) for t in times)
 
     def movie(
         self,
@@ -382,7 +381,8 @@ class Globe:
         H.264; .gif), ``size`` (width, height) pixels (default: the last render's size),
         ``fps`` frames a second; every frame has all its tiles loaded. The file appears only
         when complete (nothing is left on failure or cancel); the camera is put back.
-        ``progress(done, total)`` is called after each frame; returning False cancels
+        ``progress(done, total)`` is called before the first frame and after each one;
+        returning False cancels
         (`globeview.app.movie.MovieCancelled`). One line (`GlobeviewError`) for bad input.
         Returns the path."""
         from globeview.app.movie import write_movie

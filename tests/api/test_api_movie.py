@@ -125,6 +125,8 @@ def test_fly_to_with_seconds_records_the_tour_and_play_follows_it(registry, api_
         (start.lon, start.lat, start.height, start.pitch), abs=1e-6
     )
     assert globe.tour.keyframes[0].pose[:3] == pytest.approx((start.lon, start.lat, start.height))
+    with pytest.raises(GlobeviewError, match="play: fps 0 is out of range"):
+        globe.play(fps=0)
     poses = list(globe.play(fps=10))
     assert len(poses) == 45
     assert poses[0].height == pytest.approx(40_000.0, rel=1e-6)
