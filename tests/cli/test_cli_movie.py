@@ -7,6 +7,7 @@ tests/fault/test_fault_movie.py.)"""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import imageio_ffmpeg
@@ -145,3 +146,43 @@ def test_bad_input_is_one_line_and_nothing_written(
     )
     assert word in one_error_line(res)
     assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_a_terminal_gets_a_progress_bar_with_eta(cache: Path, tmp_path: Path) -> None:
+    """On a terminal (a pseudo-terminal here) stderr shows tqdm's bar: frames done of the
+    total, elapsed<remaining; the last line is still the 'wrote' summary on stdout."""
+    import fcntl
+    import os
+    import pty
+    import struct
+    import subprocess
+    import termios
+
+    from .run_cli import GLOBEVIEW
+
+    out = tmp_path / "m.gif"
+    main, child = pty.openpty()
+    # A terminal 100 columns wide (a fresh pty has 0, where tqdm draws nothing).
+    fcntl.ioctl(child, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))
+    env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(cache)}
+    argv = [str(GLOBEVIEW), "movie", "-o", str(out), "--size", "40x30", "--fps", "3"]
+    with subprocess.Popen(
+        [*argv, "--", CAMERAS, DEM], stdout=subprocess.PIPE, stderr=child, env=env
+    ) as proc:
+        os.close(child)
+        stdout, _ = proc.communicate(timeout=300)
+        chunks = []
+        while True:
+            try:
+                data = os.read(main, 4096)
+            except OSError:  # EIO: the child's end is closed and everything was read
+                break
+            if not data:
+                break
+            chunks.append(data)
+        os.close(main)
+    bar = b"".join(chunks).decode("utf-8", "replace")
+    assert proc.returncode == 0, bar
+    assert "movie:" in bar and "9/9" in bar and "frame/s" in bar, bar
+    assert re.search(r"\[\d\d:\d\d<\d\d:\d\d", bar), bar  # elapsed<ETA
+    assert stdout.decode().startswith(f"wrote {out} (40x30, 9 frames")
