@@ -102,3 +102,12 @@ def test_export_with_progress_then_cancel(recorded, tmp_path, errors_shown) -> N
     assert sorted(p.name for p in tmp_path.iterdir()) == ["t.mp4"]
     assert errors_shown == []  # a cancel is not an error
     assert "cancelled" in win.statusBar().currentMessage()
+
+
+def test_export_to_a_missing_folder_is_one_dialog(recorded, tmp_path, errors_shown) -> None:
+    win, panel = recorded
+    assert not panel.export_movie(str(tmp_path / "no" / "t.mp4"), (64, 48), 8.0)
+    assert len(errors_shown) == 1 and "does not exist" in errors_shown[0].text
+    assert "\n" not in errors_shown[0].text
+    assert panel.progress_dialog is None and list(tmp_path.glob("**/*.mp4")) == []
+    assert win.isVisible()  # the window keeps running
