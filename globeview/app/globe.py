@@ -42,6 +42,7 @@ from globeview.model.camera import Camera, check_lonlat_hpr
 from globeview.model.display import DisplaySettings
 from globeview.model.globe import DEFAULT_LOD
 from globeview.model.globe import Globe as GlobeModel
+from globeview.model.tour import Keyframe, Tour, load_tour
 from globeview.plugins.api import PluginKind
 from globeview.plugins.registry import PluginRegistry
 from globeview.terrain.compose.height_query import query_heights
@@ -150,8 +151,22 @@ class Globe:
         self._gl: _Headless | None = None
         self._release: Callable[[], Any] = lambda: None
         self._size = DEFAULT_SIZE
+        #: The tour `fly_to(..., seconds=)` and `add_keyframe` record and `movie` films.
+        self.tour = Tour()
         if embedded:
             self.overlay_host.open_embedded()
+
+    @classmethod
+    def on_model(
+        cls, model: GlobeModel, registry: PluginRegistry, overlay_host: OverlayHost
+    ) -> Globe:
+        """A `Globe` drawing an application model that exists already, e.g. a window's (its
+        Export Movie… films through one): terrain, overlays, camera and settings shared."""
+        globe = cls.__new__(cls)
+        globe.registry, globe.model, globe.overlay_host = registry, model, overlay_host
+        globe._gl, globe._release, globe._size = None, lambda: None, DEFAULT_SIZE
+        globe.tour = Tour()
+        return globe
 
     # -- terrain ---------------------------------------------------------------------------
     @property
@@ -273,20 +288,31 @@ class Globe:
 
     def fly_to(
         self,
-        lon: float,
-        lat: float,
+        lon: float | CameraPose,
+        lat: float | None = None,
         height: float | None = None,
         heading: float = 0.0,
         pitch: float = -90.0,
         roll: float = 0.0,
+        *,
+        seconds: float | None = None,
     ) -> CameraPose:
         """Put the camera at (lon, lat) degrees, ``height`` metres above the WGS84 ellipsoid
         (default: the current height), looking along ``heading`` (degrees from north,
-        clockwise) and ``pitch`` (degrees; -90 straight down). Headless the move is
-        immediate; a window showing the globe redraws at once. One line (`GlobeviewError`)
-        for a value out of range; the camera then stays."""
+        clockwise) and ``pitch`` (degrees; -90 straight down); or at a `CameraPose` given
+        instead of ``lon``. Headless the move is immediate; a window showing the globe
+        redraws at once. With ``seconds``, the flight there is also recorded in `tour` (a
+        keyframe reached in ``seconds``, after one for the camera before the move if the
+        tour was empty), for `movie` or `play`. One line (`GlobeviewError`) for a value out
+        of range; the camera then stays."""
+        if isinstance(lon, CameraPose):
+            lon, lat, height, heading, pitch, roll = _pose_values(lon)
+        if lat is None:
+            raise GlobeviewError("fly_to takes lon, lat[, height, ...] degrees or a CameraPose")
         if height is None:
             height = self.camera.height
+        if seconds is not None:
+            self._record_flight((lon, lat, height, heading, pitch, roll), seconds)
         fov = self.model.camera.fovy_deg
         try:
             placed = check_lonlat_hpr(lon, lat, height, heading, pitch, roll)
@@ -296,6 +322,13 @@ class Globe:
         self.model.camera = camera
         self.registry.attach(camera=camera)
         return self.camera
+
+    def _record_flight(self, pose: tuple[float, ...], seconds: float) -> None:
+        """`fly_to`'s ``seconds``: the keyframe (checked first), after the start if none."""
+        key = self._keyframe(pose, seconds)
+        if not self.tour.keyframes:
+            self.tour.add(Keyframe(*_pose_values(self.camera)))
+        self.tour.add(key)
 
     def view_dems(self) -> CameraPose:
         """Look straight down on the top DEM layer, high enough to see all of it (the
@@ -307,6 +340,56 @@ class Globe:
         bounds = self.terrain.layers[-1].store.bounds
         camera = camera_for_bounds(*bounds, fovy_deg=self.model.camera.fovy_deg)
         return self.fly_to(*camera.lonlat_hpr())
+
+    # -- tours and movies ------------------------------------------------------------------
+    def add_keyframe(self, seconds: float = 0.0, pose: Any = None) -> Keyframe:
+        """Append a keyframe to `tour`: ``pose`` (a `CameraPose` or (lon, lat, height[,
+        heading[, pitch[, roll]]])), default the camera now, reached ``seconds`` after the
+        previous keyframe. One line (`GlobeviewError`) for a value out of range."""
+        return self.tour.add(self._keyframe(pose if pose is not None else self.camera, seconds))
+
+    def _keyframe(self, pose: Any, seconds: float) -> Keyframe:
+        values = _pose_values(pose) if isinstance(pose, CameraPose) else tuple(pose)
+        try:
+            return Keyframe.from_pose(values, seconds)
+        except (TypeError, ValueError) as exc:
+            raise GlobeviewError(f"keyframe: {exc}") from None
+
+    def play(self, tour: Tour | None = None, fps: float = 30.0) -> Iterator[CameraPose]:
+        """Move the camera through ``tour`` (default `tour`) one movie frame at a time
+        (``fps`` frames per tour second, as `movie` films it), yielding each pose; render
+        or wait between steps. A window showing the globe follows."""
+        from globeview.app.movie import check_fps
+
+        tour = self.tour if tour is None else tour
+        try:  # checked now, not at the first step
+            times = tour.frame_times(check_fps(fps))
+        except ValueError as exc:
+            raise GlobeviewError(f"play: {exc}") from None
+        return (self.fly_to(*tour.pose_at(float(t))) for t in times)
+
+    def movie(
+        self,
+        tour: Tour | str | os.PathLike[str] | None,
+        path: str | os.PathLike[str],
+        *,
+        size: tuple[int, int] | None = None,
+        fps: float = 30.0,
+        progress: Callable[[int, int], bool | None] | None = None,
+    ) -> Path:
+        """Film ``tour`` (a `Tour`, a tour file, or None for `tour`) into ``path`` (.mp4:
+        H.264; .gif), ``size`` (width, height) pixels (default: the last render's size),
+        ``fps`` frames a second; every frame has all its tiles loaded. The file appears only
+        when complete (nothing is left on failure or cancel); the camera is put back.
+        ``progress(done, total)`` is called before the first frame and after each one;
+        returning False cancels
+        (`globeview.app.movie.MovieCancelled`). One line (`GlobeviewError`) for bad input.
+        Returns the path."""
+        from globeview.app.movie import write_movie
+
+        if not isinstance(tour, Tour):
+            tour = self.tour if tour is None else load_tour(tour)
+        return write_movie(self, tour, path, _checked_size(size or self._size), fps, progress)
 
     # -- display, LOD -------------------------------------------------------------------------
     @property
@@ -631,6 +714,10 @@ def _embedded_terrain() -> TerrainStack:
     from globeview.terrain.embedded import embedded_stores
 
     return TerrainStack.from_stores(embedded_stores(), [p.stem for p in embedded_dem_paths()])
+
+
+def _pose_values(pose: CameraPose) -> tuple[float, float, float, float, float, float]:
+    return (pose.lon, pose.lat, pose.height, pose.heading, pose.pitch, pose.roll)
 
 
 def _data_array_name(source: Any) -> str | None:

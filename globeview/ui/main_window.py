@@ -49,6 +49,7 @@ from globeview.ui.plugin_host import PluginHost, QSettingsBackend
 from globeview.ui.plugin_panel import TAU_MAX_PX, TAU_MIN_PX, PluginPanel
 from globeview.ui.status import ELLIPSOIDAL, ORTHOMETRIC, StatusBar
 from globeview.ui.subscriptions import Subscriptions
+from globeview.ui.tour_panel import TourPanel
 from globeview.ui.view_toolbar import EXAG_MAX_TENTHS, ViewToolbar
 from globeview.ui.window_tools import WindowTools
 
@@ -190,7 +191,19 @@ class MainWindow(QMainWindow):
         self.addDockWidget(Qt.DockWidgetArea.LeftDockWidgetArea, dock)
         return dock
 
+    def _tour_dock(self) -> tuple[TourPanel, QDockWidget]:
+        """The Tour dock (record, play, export a movie), a tab behind the plugins."""
+        registry = self.plugins.registry
+        panel = TourPanel(self.model, registry, self.overlay_host, self.errors, self.globe)
+        panel.notice.connect(self.status.notice)
+        dock = self._dock("Tour", "tour", panel)
+        self.tabifyDockWidget(self.plugin_dock, dock)
+        self.plugin_dock.raise_()
+        return panel, dock
+
     def _build_menus(self) -> None:
+        # The Tour dock first: its Export Movie… and toggle go in File and View.
+        self.tour_panel, self.tour_dock = self._tour_dock()
         mb = self.menuBar()
         files = self.files
         file_menu = mb.addMenu("&File")
@@ -202,6 +215,9 @@ class MainWindow(QMainWindow):
         self.export_action.setShortcut(QKeySequence("Ctrl+E"))
         self.export_action.triggered.connect(self.export_dialog)
         file_menu.addAction(self.export_action)
+        self.export_movie_action = QAction("Export &Movie…", self)
+        self.export_movie_action.triggered.connect(self.tour_panel.export_dialog)
+        file_menu.addAction(self.export_movie_action)
         file_menu.addSeparator()
         quit_action = QAction("&Quit", self)
         quit_action.setShortcut(QKeySequence.StandardKey.Quit)
@@ -216,6 +232,7 @@ class MainWindow(QMainWindow):
         view_menu.addSeparator()
         view_menu.addAction(self.layer_dock.toggleViewAction())
         view_menu.addAction(self.plugin_dock.toggleViewAction())
+        view_menu.addAction(self.tour_dock.toggleViewAction())
         view_menu.addSeparator()
         # Cursor heights above the geoid (m a.s.l., the default) or the ellipsoid (m ell.).
         self.ellipsoidal_action = QAction("&Ellipsoidal Heights (m ell.)", self)
@@ -355,6 +372,7 @@ class MainWindow(QMainWindow):
     def closeEvent(self, event: QCloseEvent) -> None:
         self.save_settings()
         self.globe.flight.stop()
+        self.tour_panel.stop()
         self.files.loader.shutdown()
         self.globe.release_gl()
         # Nothing may keep the released session (and its terrain caches) alive, and the
