@@ -68,9 +68,7 @@ class OverlayHost:
         self.types_used: set[str] = set()
         #: Layer -> (absolute path of its file, the layer type that opened it), for project
         #: files (`globeview.app.project`). Weak: a layer dropped is forgotten.
-        self.origins: weakref.WeakKeyDictionary[Any, tuple[str, str]] = (
-            weakref.WeakKeyDictionary()
-        )
+        self.origins: weakref.WeakKeyDictionary[Any, tuple[str, str]] = weakref.WeakKeyDictionary()
 
     # -- layer types ---------------------------------------------------------------------------
     def layer_types(self) -> list:
