@@ -47,6 +47,7 @@ from globeview.ui.navigation import HOME_POSE
 from globeview.ui.plot_dock import install_plot_dock
 from globeview.ui.plugin_host import PluginHost, QSettingsBackend
 from globeview.ui.plugin_panel import TAU_MAX_PX, TAU_MIN_PX, PluginPanel
+from globeview.ui.project_actions import ProjectActions
 from globeview.ui.status import ELLIPSOIDAL, ORTHOMETRIC, StatusBar
 from globeview.ui.subscriptions import Subscriptions
 from globeview.ui.view_toolbar import EXAG_MAX_TENTHS, ViewToolbar
@@ -198,6 +199,12 @@ class MainWindow(QMainWindow):
         file_menu.addAction(files.open_overlay_action)
         file_menu.addAction(files.open_url_action)
         file_menu.addMenu(files.recent_menu)
+        # Projects and bookmarks (ui/project_actions.py, issue #26 item 4).
+        self.projects = ProjectActions(self)
+        file_menu.addSeparator()
+        file_menu.addAction(self.projects.open_action)
+        file_menu.addAction(self.projects.save_action)
+        file_menu.addSeparator()
         self.export_action = QAction("&Export Image…", self)
         self.export_action.setShortcut(QKeySequence("Ctrl+E"))
         self.export_action.triggered.connect(self.export_dialog)
@@ -225,6 +232,7 @@ class MainWindow(QMainWindow):
         )
         self.ellipsoidal_action.toggled.connect(self._height_reference_changed)
         view_menu.addAction(self.ellipsoidal_action)
+        mb.addMenu(self.projects.bookmarks_menu)
 
     def _height_reference_changed(self, ellipsoidal: bool) -> None:
         reference = ELLIPSOIDAL if ellipsoidal else ORTHOMETRIC
