@@ -16,6 +16,8 @@ view and one another:
   `OverlayHost` with or without GL (the session draws them);
 - `WindowTools` (ui/window_tools.py): the Tools toolbar and menu, the tools' declared
   commands and the Tool options bar;
+- `ProjectActions` (ui/project_actions.py): File > Open Project… / Save Project… and the
+  Bookmarks menu;
 - the docks (`LayerPanel`, `PluginPanel`, the Plot dock), the status bar (`StatusBar`) and
   the plugins' window side (`PluginHost`).
 
