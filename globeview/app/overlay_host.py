@@ -15,6 +15,7 @@ the globe's overlays and drops a layer the GPU side refuses, with one line in `e
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import weakref
@@ -143,7 +144,8 @@ class OverlayHost:
             )
         self.globe.add_overlay(layer)
         self.types_used.add(name)
-        self.origins[layer] = (os.path.abspath(path), name)
+        with contextlib.suppress(TypeError):  # a layer object that cannot be weakly keyed
+            self.origins[layer] = (os.path.abspath(path), name)
         return layer
 
     def open_embedded(self, imagery: bool = False) -> list:

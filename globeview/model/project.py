@@ -157,6 +157,8 @@ def read_project(path: str | os.PathLike[str]) -> Project:
     try:
         if p.is_dir():
             raise ProjectError(f"{p} is a directory, not a project file")
+        if p.exists() and not p.is_file():  # a FIFO or a device would block or never end
+            raise ProjectError(f"{p} is not a regular file, not a project file")
         size = p.stat().st_size
         if size > MAX_BYTES:
             raise ProjectError(f"{p} is {size} bytes: not a project file (at most {MAX_BYTES})")

@@ -41,7 +41,7 @@ class ProjectActions(QObject):
         self.window = window
         self.path: Path | None = None
         self.open_action = QAction("Open &Project…", window)
-        self.open_action.setShortcut(QKeySequence("Ctrl+Shift+O"))
+        self.open_action.setShortcut(QKeySequence("Ctrl+Alt+O"))  # Ctrl+Shift+O: Open Overlay
         self.open_action.triggered.connect(self.open_dialog)
         self.save_action = QAction("&Save Project…", window)
         self.save_action.setShortcut(QKeySequence("Ctrl+Shift+S"))

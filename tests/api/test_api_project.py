@@ -159,16 +159,18 @@ def test_missing_layers_are_reported_per_layer_and_the_rest_opens(
         '[[dems]]\nname = "up"\npath = "../../../../../../etc/hostname"\n'
         '[[dems]]\nname = "wm"\npath = "wm.tif"\n'
         '[[overlays]]\nname = "dir"\npath = "."\n'
+        '[[overlays]]\nname = "out"\nembedded = "../../pyproject.toml"\n'
     )
     globe = globeview.Globe.open_project(tmp_path / "p.toml", registry=registry)
     try:
         assert globe.dems == ["wm"]
         problems = globe.project_problems
-        assert len(problems) == 4, problems
+        assert len(problems) == 5, problems
         assert problems[0].startswith("DEM layer 'gone': 'nowhere/gone.tif': no such file")
         assert "absolute path" in problems[1]
         assert problems[2].startswith("DEM layer 'up': ")
         assert problems[3] == "overlay 'dir': '.' is not a file"
+        assert problems[4] == "overlay 'out': '../../pyproject.toml' is not a file globeview ships"
         assert all("\n" not in p for p in problems)
     finally:
         globe.close()
@@ -219,9 +221,12 @@ def test_hostile_values_are_one_line_and_nothing_opens(tmp_path, registry, body,
     assert "\n" not in str(info.value)
 
 
-def test_a_directory_or_a_missing_file_is_one_line(tmp_path, registry):
+def test_a_directory_a_fifo_or_a_missing_file_is_one_line(tmp_path, registry):
     with pytest.raises(GlobeviewError, match="is a directory, not a project file"):
         globeview.Globe.open_project(tmp_path, registry=registry)
+    os.mkfifo(tmp_path / "fifo.toml")
+    with pytest.raises(GlobeviewError, match="is not a regular file"):
+        globeview.Globe.open_project(tmp_path / "fifo.toml", registry=registry)
     with pytest.raises(GlobeviewError, match="cannot read project"):
         globeview.Globe.open_project(tmp_path / "none.toml", registry=registry)
 
