@@ -110,9 +110,12 @@ def test_the_collapse_tool_and_its_points_come_back(tmp_path, api_cache, dem_fil
     globe.model.tool = "collapse"
     tool = registry.find(PluginKind.TOOL, "collapse")
     tool.place_points([(-71.5, 44.3), (-71.1, 44.3)])
+    collapsed = globe.render(SIZE)
     path = globe.save_project(tmp_path / "c.toml")
     tool.cancel()
     globe.model.tool = None
+    flat = globe.render(SIZE)
+    assert np.abs(flat.astype(int) - collapsed.astype(int)).max() > 30  # the fold shows
     doc = tomllib.loads(path.read_text())
     assert doc["tool"]["name"] == "collapse"
     assert doc["tool"]["points"] == [[-71.5, 44.3], [-71.1, 44.3]]
@@ -121,6 +124,7 @@ def test_the_collapse_tool_and_its_points_come_back(tmp_path, api_cache, dem_fil
         assert again.model.tool == "collapse"
         assert (tool.a, tool.b) == ((-71.5, 44.3), (-71.1, 44.3))
         assert tool.state == "collapsed"
+        assert int(np.abs(again.render(SIZE).astype(int) - collapsed.astype(int)).max()) == 0
     finally:
         tool.cancel()
         again.model.tool = None
@@ -278,3 +282,19 @@ def _re(text: str) -> str:
     import re
 
     return re.escape(text)
+
+
+def test_crs_and_vdatum_given_when_opened_are_saved_and_used_again(
+    tmp_path, api_cache, dem_file, registry
+):
+    globe = globeview.Globe(registry=registry)
+    globe.add_dem(dem_file, crs="EPSG:4326", vdatum="ellipsoid", name="wm_ell")
+    path = globe.save_project(tmp_path / "v.toml")
+    dem = tomllib.loads(path.read_text())["dems"][0]
+    assert (dem["crs"], dem["vdatum"]) == ("EPSG:4326", "ellipsoid")
+    again = globeview.Globe.open_project(path, registry=registry)
+    plain = globeview.Globe(registry=registry)
+    plain.add_dem(dem_file)  # its own datum, EGM96: the geoid is about 28 m below WGS84 here
+    point = (-71.3036, 44.2705)
+    assert again.height_at(*point) == globe.height_at(*point)
+    assert abs(plain.height_at(*point) - again.height_at(*point)) > 10.0
