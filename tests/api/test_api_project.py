@@ -298,3 +298,18 @@ def test_crs_and_vdatum_given_when_opened_are_saved_and_used_again(
     point = (-71.3036, 44.2705)
     assert again.height_at(*point) == globe.height_at(*point)
     assert abs(plain.height_at(*point) - again.height_at(*point)) > 10.0
+
+
+def test_a_store_folder_is_named_relative_to_the_project(tmp_path, api_cache, dem_file, registry):
+    from globeview.terrain.ingest.driver import ingest
+
+    (tmp_path / "stores").mkdir()
+    ingest([dem_file], tmp_path / "stores" / "wm")
+    globe = globeview.Globe(registry=registry)
+    globe.add_dem(tmp_path / "stores" / "wm", name="store")
+    (tmp_path / "p").mkdir()
+    path = globe.save_project(tmp_path / "p" / "s.toml")
+    assert tomllib.loads(path.read_text())["dems"][0]["path"] == "../stores/wm"
+    again = globeview.Globe.open_project(path, registry=registry)
+    assert again.project_problems == [] and again.dems == ["store"]
+    assert again.height_at(-71.3036, 44.2705) == globe.height_at(-71.3036, 44.2705)
