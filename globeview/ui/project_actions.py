@@ -11,6 +11,7 @@ target and moves it into place, so a read-only folder or a full disk leaves noth
 
 from __future__ import annotations
 
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -21,8 +22,17 @@ from PyQt6.QtWidgets import QApplication, QFileDialog, QInputDialog, QMenu
 from globeview.app.project import GlobeParts, apply_project, save_project
 from globeview.errors import GlobeviewError
 from globeview.model.project import read_project
+from globeview.terrain.store.tile_store import TileStore
+from globeview.ui.loading import open_store
 
 __all__ = ["ProjectActions"]
+
+
+def _open_store(text: str, crs: str | None, vdatum: str | None) -> TileStore:
+    """A project's DEM as the window opens one (`open_store`: a remote store's first tiles
+    fetched before the UI thread reads it)."""
+    return open_store(text, None, vdatum, crs)
+
 
 #: The file dialogs' filter.
 PROJECT_FILTER = "globeview projects (*.toml)"
@@ -94,7 +104,8 @@ class ProjectActions(QObject):
         """Show the project ``path`` in the window: its layers replace the window's, then
         its view, LOD provider, display, tool and bookmarks. A file that cannot be read is
         one dialog and nothing changes; missing layers are listed in one dialog while the
-        rest opens. DEMs not yet in the tile cache are ingested first (a wait cursor)."""
+        rest opens. DEMs not yet in the tile cache are ingested first, on the UI thread (a wait
+        cursor: the window waits for them)."""
         try:
             project = read_project(path)
         except GlobeviewError as exc:
@@ -102,12 +113,18 @@ class ProjectActions(QObject):
             return False
         QApplication.setOverrideCursor(Qt.CursorShape.WaitCursor)
         try:
-            problems = apply_project(project, Path(path).resolve().parent, self._parts())
+            problems = apply_project(
+                project, Path(path).resolve().parent, self._parts(), open_dem=_open_store
+            )
         except GlobeviewError as exc:
             self.window.errors.error(exc, "Open Project")
             return False
         finally:
             QApplication.restoreOverrideCursor()
+        for layer in self.window.model.terrain.layers:
+            # As File > Open does: the UI thread never waits for a store's server (a tile
+            # not fetched yet is fetched in the background; coarser ones stand in).
+            layer.store.forbid_network_on(threading.get_ident())
         self.path = Path(path)
         self.window.plugins.refresh()  # the panel shows the provider's values from the file
         self.window.globe.request_frame()
