@@ -265,13 +265,14 @@ def apply_project(
     for name in dict.fromkeys(ly.name for ly in model.terrain.layers):
         model.terrain.remove(name)
     for spec, store in stores:
+        name = _unique(spec.name, [ly.name for ly in model.terrain.layers])
         try:
-            model.terrain.add(store, spec.name)
+            model.terrain.add(store, name)
         except GlobeviewError as exc:  # e.g. another tile size than the layers below
             problems.append(f"DEM layer {spec.name!r:.60}: {exc}")
             continue
         if not spec.visible:
-            model.terrain.set_visible(spec.name, False)
+            model.terrain.set_visible(name, False)
     for layer in list(model.overlays):
         parts.overlays.remove(layer)
     for ospec in project.overlays:
@@ -286,6 +287,15 @@ def apply_project(
     return problems
 
 
+def _unique(name: str, taken: list[str]) -> str:
+    """``name``, or ``name (2)``, ``name (3)``... if a layer has it (as File > Open names
+    layers), so showing or hiding one layer never touches another."""
+    unique, n = name, 2
+    while unique in taken:
+        unique, n = f"{name} ({n})", n + 1
+    return unique
+
+
 def _open_dems(
     specs: list[DemSpec], base: Path, open_dem: OpenDem, problems: list[str]
 ) -> list[tuple[DemSpec, TileStore]]:
@@ -297,6 +307,8 @@ def _open_dems(
             out.append((spec, open_dem(text, spec.crs, spec.vdatum)))
         except (GlobeviewError, ValueError) as exc:
             problems.append(f"DEM layer {spec.name!r:.60}: {exc}")
+        except OSError as exc:  # e.g. a file that cannot be read (permissions, I/O)
+            problems.append(f"DEM layer {spec.name!r:.60}: {exc.strerror or exc}")
     return out
 
 
@@ -327,6 +339,8 @@ def _open_overlay(host: OverlayHost, spec: OverlaySpec, base: Path) -> str | Non
         layer = host.open(str(path), spec.layer_type)
     except (GlobeviewError, ValueError) as exc:
         return str(exc)
+    except OSError as exc:
+        return str(exc.strerror or exc)
     try:
         _style(layer, spec)
     except (TypeError, ValueError) as exc:

@@ -313,3 +313,15 @@ def test_a_store_folder_is_named_relative_to_the_project(tmp_path, api_cache, de
     again = globeview.Globe.open_project(path, registry=registry)
     assert again.project_problems == [] and again.dems == ["store"]
     assert again.height_at(-71.3036, 44.2705) == globe.height_at(-71.3036, 44.2705)
+
+
+def test_layers_of_one_name_stay_apart(tmp_path, api_cache, dem_file, registry):
+    os.symlink(dem_file, tmp_path / "wm.tif")
+    (tmp_path / "p.toml").write_text(
+        f"{HEAD}lon = -71.3\nlat = 44.3\nheight = 9000.0\n"
+        '[[dems]]\nname = "wm"\npath = "wm.tif"\n'
+        '[[dems]]\nname = "wm"\npath = "wm.tif"\nvisible = false\n'
+    )
+    globe = globeview.Globe.open_project(tmp_path / "p.toml", registry=registry)
+    assert globe.dems == ["wm", "wm (2)"]
+    assert [ly.visible for ly in globe.terrain.layers] == [True, False]
