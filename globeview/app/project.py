@@ -46,10 +46,12 @@ from globeview.terrain.store.tile_store import TileStore
 
 __all__ = [
     "GlobeParts",
+    "OpenedDems",
     "apply_project",
     "capture_project",
     "check_plugins",
     "is_project_path",
+    "open_dems",
     "save_project",
 ]
 
@@ -250,18 +252,42 @@ def _open_dem(text: str, crs: str | None, vdatum: str | None) -> TileStore:
     return open_source(text, crs=crs, vdatum=vdatum)
 
 
+@dataclass
+class OpenedDems:
+    """A project's DEM layers opened (`open_dems`): each spec with its store, and one line
+    per layer that could not be opened."""
+
+    stores: list[tuple[DemSpec, TileStore]]
+    problems: list[str]
+
+
+def open_dems(project: Project, base: Path, open_dem: OpenDem = _open_dem) -> OpenedDems:
+    """Open (ingest if needed) the project's DEMs, touching no globe: the slow part of
+    `apply_project`, which a window runs off its UI thread."""
+    problems: list[str] = []
+    stores = _open_dems(project.dems, base, open_dem, problems)
+    return OpenedDems(stores, problems)
+
+
 def apply_project(
-    project: Project, base: Path, parts: GlobeParts, open_dem: OpenDem = _open_dem
+    project: Project,
+    base: Path,
+    parts: GlobeParts,
+    open_dem: OpenDem = _open_dem,
+    opened: OpenedDems | None = None,
 ) -> list[str]:
     """Make the globe ``parts`` show ``project`` (paths relative to the folder ``base``):
     its DEMs and overlays replace the globe's, then the camera, LOD provider and settings,
     display, tool and bookmarks. Plugin names and settings are checked first
-    (`check_plugins`: one line, nothing changes). Returns one line per layer that could not
-    be opened (missing, absolute path, not a DEM...); the rest opens."""
+    (`check_plugins`: one line, nothing changes). The DEMs are opened here with
+    ``open_dem``, or were opened already (``opened``, from `open_dems`). Returns one line
+    per layer that could not be opened (missing, absolute path, not a DEM...); the rest
+    opens."""
     registry, model = parts.registry, parts.model
     check_plugins(project, registry)
-    problems: list[str] = []
-    stores = _open_dems(project.dems, base, open_dem, problems)
+    if opened is None:
+        opened = open_dems(project, base, open_dem)
+    problems, stores = list(opened.problems), opened.stores
     for name in dict.fromkeys(ly.name for ly in model.terrain.layers):
         model.terrain.remove(name)
     for spec, store in stores:

@@ -12,16 +12,24 @@ target and moves it into place, so a read-only folder or a full disk leaves noth
 from __future__ import annotations
 
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from PyQt6.QtCore import QObject, Qt
+from PyQt6.QtCore import QEventLoop, QObject, QTimer
 from PyQt6.QtGui import QAction, QKeySequence
-from PyQt6.QtWidgets import QApplication, QFileDialog, QInputDialog, QMenu
+from PyQt6.QtWidgets import QFileDialog, QInputDialog, QMenu
 
-from globeview.app.project import GlobeParts, apply_project, save_project
+from globeview.app.project import (
+    GlobeParts,
+    OpenedDems,
+    apply_project,
+    check_plugins,
+    open_dems,
+    save_project,
+)
 from globeview.errors import GlobeviewError
-from globeview.model.project import read_project
+from globeview.model.project import Project, read_project
 from globeview.terrain.store.tile_store import TileStore
 from globeview.ui.loading import open_store
 
@@ -102,25 +110,26 @@ class ProjectActions(QObject):
 
     def open(self, path: str | Path) -> bool:
         """Show the project ``path`` in the window: its layers replace the window's, then
-        its view, LOD provider, display, tool and bookmarks. A file that cannot be read is
-        one dialog and nothing changes; missing layers are listed in one dialog while the
-        rest opens. DEMs not yet in the tile cache are ingested first, on the UI thread (a wait
-        cursor: the window waits for them)."""
+        its view, LOD provider, display, tool and bookmarks. A file that cannot be read (or
+        names an unknown plugin or setting) is one dialog and nothing changes; missing
+        layers are listed in one dialog while the rest opens. The DEMs are opened (ingested
+        into the tile cache if needed) on a worker thread while the window keeps drawing;
+        the project actions wait meanwhile."""
         try:
             project = read_project(path)
+            check_plugins(project, self.window.plugins.registry)
         except GlobeviewError as exc:
             self.window.errors.error(exc, "Open Project")
             return False
-        QApplication.setOverrideCursor(Qt.CursorShape.WaitCursor)
+        base = Path(path).resolve().parent
+        opened = self._open_dems(project, base, Path(path).name)
+        if opened is None:  # the window was closed meanwhile
+            return False
         try:
-            problems = apply_project(
-                project, Path(path).resolve().parent, self._parts(), open_dem=_open_store
-            )
-        except GlobeviewError as exc:
+            problems = apply_project(project, base, self._parts(), opened=opened)
+        except GlobeviewError as exc:  # a plugin changed while the DEMs were opened
             self.window.errors.error(exc, "Open Project")
             return False
-        finally:
-            QApplication.restoreOverrideCursor()
         for layer in self.window.model.terrain.layers:
             # As File > Open does: the UI thread never waits for a store's server (a tile
             # not fetched yet is fetched in the background; coarser ones stand in).
@@ -137,6 +146,35 @@ class ProjectActions(QObject):
         else:
             self.window.status.notice(f"opened project {self.path.name}")
         return True
+
+    def _open_dems(self, project: Project, base: Path, name: str) -> OpenedDems | None:
+        """`open_dems` on a worker thread, the window's events processed meanwhile (a nested
+        event loop; the project actions are disabled). None if the window closed."""
+        actions = (self.open_action, self.save_action)
+        for action in actions:
+            action.setEnabled(False)
+        self.window.status.notice(f"opening project {name}…")
+        pool = ThreadPoolExecutor(1, thread_name_prefix="globeview-project")
+        try:
+            future = pool.submit(open_dems, project, base, _open_store)
+            loop = QEventLoop()
+            timer = QTimer()
+            timer.setInterval(20)
+            timer.timeout.connect(lambda: loop.quit() if future.done() else None)
+            timer.start()
+            if not future.done():
+                loop.exec()
+            timer.stop()
+            opened = future.result()  # a bug in opening is raised here, on the UI thread
+        finally:
+            pool.shutdown(wait=False)
+            for action in actions:
+                action.setEnabled(True)
+        if not self.window.isVisible():
+            for _spec, store in opened.stores:
+                store.close()
+            return None
+        return opened
 
     # -- bookmarks -------------------------------------------------------------------------
     def add_bookmark_dialog(self) -> None:

@@ -113,3 +113,36 @@ def test_a_save_that_cannot_be_written_is_one_dialog_and_no_file(
     assert not window.projects.save(tmp_path / "p.toml")
     assert len(errors_shown) == 1
     assert list(tmp_path.glob("p.toml*")) == [] and list(tmp_path.glob(".p.toml*")) == []
+
+
+def test_the_window_keeps_running_while_a_projects_dem_is_ingested(
+    make_window, tmp_path, errors_shown, qtbot
+):
+    """The DEM (data/N44W072.hgt, not in this test's fresh cache) is ingested on a worker
+    thread: a 10 ms timer on the UI thread keeps firing meanwhile, and the layer arrives."""
+    import shutil
+
+    from PyQt6.QtCore import QTimer
+
+    from globeview.terrain.dem.data import EMBEDDED_DATA_DIR
+
+    win = make_window()
+    shutil.copy(EMBEDDED_DATA_DIR / "N44W072.hgt", tmp_path / "N44W072.hgt")
+    path = tmp_path / "p.toml"
+    path.write_text(
+        "schema = 1\n[camera]\nlon = -71.3\nlat = 44.27\nheight = 40000.0\n"
+        '[[dems]]\nname = "wm"\npath = "N44W072.hgt"\n'
+    )
+    ticks = []
+    timer = QTimer()
+    timer.setInterval(10)
+    timer.timeout.connect(lambda: ticks.append(1))
+    timer.start()
+    try:
+        assert win.projects.open(path)
+    finally:
+        timer.stop()
+    assert errors_shown == []
+    assert [ly.name for ly in win.model.terrain.layers] == ["wm"]
+    assert len(ticks) >= 3, "the UI thread waited for the ingest"
+    assert win.projects.open_action.isEnabled() and win.projects.save_action.isEnabled()
