@@ -27,6 +27,7 @@ from globeview.model.bookmarks import Bookmark
 from globeview.model.camera import Camera
 from globeview.model.globe import Globe as GlobeModel
 from globeview.model.project import (
+    PROJECT_SUFFIX,
     CameraSpec,
     DemSpec,
     OverlaySpec,
@@ -50,13 +51,10 @@ __all__ = [
     "apply_project",
     "capture_project",
     "check_plugins",
-    "is_project_path",
     "open_dems",
     "save_project",
 ]
 
-#: The suffix a project file has (``globeview PROJECT.toml`` tells projects apart by it).
-PROJECT_SUFFIX = ".toml"
 #: The display settings a project holds.
 DISPLAY_FIELDS = ("exaggeration", "wireframe", "hillshade", "fog", "background")
 
@@ -69,11 +67,6 @@ class GlobeParts:
     model: GlobeModel
     overlays: OverlayHost
     registry: PluginRegistry
-
-
-def is_project_path(text: str) -> bool:
-    """Whether a command-line argument names a project file (by its ``.toml`` suffix)."""
-    return Path(text).suffix.lower() == PROJECT_SUFFIX
 
 
 # -- capture and save --------------------------------------------------------------------------

@@ -1,7 +1,7 @@
 """Project files on the command line (issue #26 item 4): ``globeview PROJECT.toml`` opens
 the window on a project, ``globeview render PROJECT.toml -o out.png`` draws it headless.
 
-A project is told apart by its ``.toml`` suffix (`globeview.app.project.is_project_path`).
+A project is told apart by its ``.toml`` suffix (`globeview.model.project.is_project_path`).
 It is read and checked, plugins included, before any window or GL exists: a file that is not
 a project, of a newer schema, or with a bad value, an unknown LOD provider or setting is one
 ``globeview: error:`` line (exit 2). ``render`` draws through the Python API's
@@ -50,8 +50,8 @@ _GUI_DEFAULTS: dict[str, object] = {"camera": None, "lod": None, "tool": None, "
 def project_argument(files: Sequence[str]) -> str | None:
     """The project file among command-line ``files`` (None when there is none); one
     `GlobeviewError` line when a project is given with other files."""
-    from globeview.app.project import is_project_path
     from globeview.errors import GlobeviewError
+    from globeview.model.project import is_project_path
 
     projects = [f for f in files if is_project_path(f)]
     if not projects:

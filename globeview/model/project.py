@@ -46,6 +46,7 @@ from globeview.model.overlay_layers import style_problem
 from globeview.validate import check_exaggeration, check_tau
 
 __all__ = [
+    "PROJECT_SUFFIX",
     "SCHEMA",
     "CameraSpec",
     "DemSpec",
@@ -53,12 +54,15 @@ __all__ = [
     "Project",
     "ProjectError",
     "ToolSpec",
+    "is_project_path",
     "parse_project",
     "project_text",
     "read_project",
     "resolve_path",
 ]
 
+#: The suffix a project file has (``globeview PROJECT.toml`` tells projects apart by it).
+PROJECT_SUFFIX = ".toml"
 #: The schema version this globeview writes and the newest it reads.
 SCHEMA = 1
 #: The schema versions this reader reads.
@@ -70,6 +74,11 @@ MAX_ITEMS = 10_000
 #: Sources a DEM layer may name (one of them), and an overlay.
 DEM_SOURCES = ("path", "url", "embedded")
 OVERLAY_SOURCES = ("path", "embedded")
+
+
+def is_project_path(text: str | os.PathLike[str]) -> bool:
+    """Whether a command-line argument names a project file (by its ``.toml`` suffix)."""
+    return Path(text).suffix.lower() == PROJECT_SUFFIX
 
 
 class ProjectError(GlobeviewError):
