@@ -76,6 +76,11 @@ class ProjectActions(QObject):
         w = self.window
         return GlobeParts(w.model, w.overlay_host, w.plugins.registry)
 
+    def _set_path(self, path: Path) -> None:
+        """Remember the project (the dialogs start in its folder) and name it in the title."""
+        self.path = path
+        self.window.setWindowTitle(f"{path.name} — globeview")
+
     def _folder(self) -> str:
         return str(self.path.parent) if self.path is not None else str(Path.home())
 
@@ -95,10 +100,10 @@ class ProjectActions(QObject):
         except GlobeviewError as exc:
             self.window.errors.error(exc, "Save Project")
             return False
-        self.path = Path(path)
+        self._set_path(Path(path))
         for line in skipped:
             self.window.errors.notify(f"Save Project: {line}; left out")
-        self.window.status.notice(f"saved project {self.path.name}")
+        self.window.status.notice(f"saved project {Path(path).name}")
         return True
 
     def open_dialog(self) -> None:
@@ -134,17 +139,14 @@ class ProjectActions(QObject):
             # As File > Open does: the UI thread never waits for a store's server (a tile
             # not fetched yet is fetched in the background; coarser ones stand in).
             layer.store.forbid_network_on(threading.get_ident())
-        self.path = Path(path)
+        self._set_path(Path(path))
         self.window.plugins.refresh()  # the panel shows the provider's values from the file
         self.window.globe.request_frame()
         if problems:
-            lines = "; ".join(problems)
-            self.window.errors.error(
-                GlobeviewError(f"{len(problems)} layer(s) of {self.path.name} not opened: {lines}"),
-                "Open Project",
-            )
+            text = f"{len(problems)} layer(s) of {Path(path).name} not opened: "
+            self.window.errors.error(GlobeviewError(text + "; ".join(problems)), "Open Project")
         else:
-            self.window.status.notice(f"opened project {self.path.name}")
+            self.window.status.notice(f"opened project {Path(path).name}")
         return True
 
     def _open_dems(self, project: Project, base: Path, name: str) -> OpenedDems | None:

@@ -46,6 +46,7 @@ def test_save_and_open_project_restore_layers_view_and_bookmarks(
     path.parent.mkdir()
     assert win.projects.save(path)
     assert errors_shown == []
+    assert win.windowTitle() == "p.toml — globeview"
     doc = tomllib.loads(path.read_text())
     assert [d["name"] for d in doc["dems"]] == dems
     assert all("embedded" in d for d in doc["dems"])
