@@ -83,6 +83,7 @@ def test_the_file_is_readable_toml_with_relative_paths(saved, dem_file):
 
 
 @pytest.mark.gl
+@pytest.mark.slow  # a render on llvmpipe, over 1 s
 def test_reopened_project_renders_the_same_picture(saved, registry):
     globe, path = saved
     before = globe.render(SIZE)
@@ -103,6 +104,7 @@ def test_reopened_project_renders_the_same_picture(saved, registry):
 
 
 @pytest.mark.gl
+@pytest.mark.slow  # a render on llvmpipe, over 1 s
 def test_the_collapse_tool_and_its_points_come_back(tmp_path, api_cache, dem_file, registry):
     globe = globeview.Globe(registry=registry)
     globe.add_dem(dem_file)
