@@ -22,6 +22,7 @@ anything changed: a refused DEM, overlay or LOD provider leaves the globe as it 
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import os
 import time
@@ -38,6 +39,7 @@ from globeview.app.dem_input import array_dem_file, checked_array_dem, is_data_a
 from globeview.app.lod_host import check_lod_name
 from globeview.app.overlay_host import OverlayHost
 from globeview.errors import GlobeviewError
+from globeview.model.bookmarks import Bookmarks
 from globeview.model.camera import Camera, check_lonlat_hpr
 from globeview.model.display import DisplaySettings
 from globeview.model.globe import DEFAULT_LOD
@@ -52,6 +54,8 @@ if TYPE_CHECKING:
     from globeview.app.session import GlobeSession
 
 __all__ = ["CameraPose", "Globe", "Profile"]
+
+_log = logging.getLogger("globeview.project")
 
 #: Image sides (pixels) `Globe.render` accepts.
 SIZE_RANGE_PX = (16, 16384)
@@ -153,6 +157,8 @@ class Globe:
         self._size = DEFAULT_SIZE
         #: The tour `fly_to(..., seconds=)` and `add_keyframe` record and `movie` films.
         self.tour = Tour()
+        #: One line per layer `open_project` could not open (empty otherwise).
+        self.project_problems: list[str] = []
         if embedded:
             self.overlay_host.open_embedded()
 
@@ -166,6 +172,7 @@ class Globe:
         globe.registry, globe.model, globe.overlay_host = registry, model, overlay_host
         globe._gl, globe._release, globe._size = None, lambda: None, DEFAULT_SIZE
         globe.tour = Tour()
+        globe.project_problems = []
         return globe
 
     # -- terrain ---------------------------------------------------------------------------
@@ -436,23 +443,11 @@ class Globe:
         if provider is None:
             why = self.registry.failure_of(name) or "it did not load"
             raise GlobeviewError(f"LOD provider {name} is not available: {why}")
-        values = self._checked_settings(name, provider, settings)
+        values = checked_settings(name, provider, settings)
         if settings:
             self.registry.invoke(provider, "configure", values)
         self.model.lod = name
         return self.lod_settings()
-
-    def _checked_settings(self, name: str, provider: Any, settings: dict) -> dict[str, Any]:
-        """The provider's current values overlaid with ``settings``, each checked."""
-        declared = {s.name: s for s in getattr(provider, "settings", ())}
-        values = dict(getattr(provider, "values", {}))
-        for key, value in settings.items():
-            setting = declared.get(key)
-            if setting is None:
-                offered = ", ".join(declared) or "none"
-                raise GlobeviewError(f"{name} has no setting {key!r} (settings: {offered})")
-            values[key] = _setting_value(f"{name}.{key}", setting, value)
-        return values
 
     def lod_settings(self) -> dict[str, Any]:
         """The active LOD provider's setting values (name -> value)."""
@@ -508,6 +503,69 @@ class Globe:
             return math.nan
         answer = query_heights(self.terrain, np.array([lon]), np.array([lat]))[0]
         return math.nan if answer.ellipsoidal is None else answer.ellipsoidal
+
+    # -- projects and bookmarks (issue #26 item 4; docs/python_api.md) -----------------------
+    @property
+    def bookmarks(self) -> Bookmarks:
+        """The named views (`globeview.model.bookmarks.Bookmarks`: ``names``, ``[name]``,
+        ``remove(name)``); `add_bookmark` and `goto_bookmark` use them."""
+        return self.model.bookmarks
+
+    def add_bookmark(self, name: str, camera: CameraPose | Sequence[float] | None = None) -> Any:
+        """Bookmark the current view (or ``camera``, as `camera` takes it) as ``name``
+        (replacing a bookmark of that name). One line (`GlobeviewError`) for a bad name."""
+        pose = self.camera if camera is None else camera
+        values = (
+            (pose.lon, pose.lat, pose.height, pose.heading, pose.pitch, pose.roll)
+            if isinstance(pose, CameraPose)
+            else (*tuple(pose), 0.0, -90.0, 0.0)[:6]
+        )
+        try:
+            return self.model.bookmarks.add(name, values)
+        except (TypeError, ValueError) as exc:
+            raise GlobeviewError(f"add_bookmark: {exc}") from None
+
+    def goto_bookmark(self, name: str) -> CameraPose:
+        """Put the camera at the bookmark ``name`` (one line if there is none)."""
+        if name not in self.model.bookmarks:
+            raise GlobeviewError(f"no bookmark named {name!r:.60} ({self.model.bookmarks.names})")
+        return self.fly_to(*self.model.bookmarks[name].pose)
+
+    def save_project(self, path: str | os.PathLike[str]) -> Path:
+        """Write the globe (DEMs and overlays with their order, visibility, opacity and
+        style, camera, LOD provider and settings, display, tool, bookmarks) to a project
+        file (``.toml``, paths relative to it), atomically. A layer no file stands for (a
+        DEM from an array) is left out with a warning. One line (`GlobeviewError`) for a
+        path that cannot be written; nothing partial is left."""
+        from globeview.app.project import save_project
+
+        for line in save_project(self._parts(), path):
+            _log.warning("save_project: %s; left out", line)
+        return Path(path)
+
+    @classmethod
+    def open_project(
+        cls, path: str | os.PathLike[str], *, registry: PluginRegistry | None = None
+    ) -> Globe:
+        """A globe showing the project file ``path`` (see `save_project`). One line
+        (`GlobeviewError`) for a file that is not a project, of a newer schema, or with a bad
+        value or an unknown plugin or setting. A layer whose file is missing (or absolute,
+        or unreadable) is one warning line and left out; the list is ``project_problems``."""
+        from globeview.app.project import apply_project
+        from globeview.model.project import read_project
+
+        project = read_project(path)
+        globe = cls(registry=registry, lod=DEFAULT_LOD)
+        base = Path(path).resolve().parent
+        globe.project_problems = apply_project(project, base, globe._parts())
+        for line in globe.project_problems:
+            _log.warning("%s: %s", Path(path).name, line)
+        return globe
+
+    def _parts(self) -> Any:
+        from globeview.app.project import GlobeParts
+
+        return GlobeParts(self.model, self.overlay_host, self.registry)
 
     # -- rendering ---------------------------------------------------------------------------
     def render(self, size: tuple[int, int] | None = None) -> np.ndarray:
@@ -738,6 +796,20 @@ def _lonlat(label: str, point: Sequence[float]) -> tuple[float, float]:
             "in -90..90 degrees"
         )
     return lon, lat
+
+
+def checked_settings(name: str, contribution: Any, settings: dict) -> dict[str, Any]:
+    """A plugin contribution's current setting values overlaid with ``settings``, each
+    checked (`_setting_value`); one `GlobeviewError` line for a setting it lacks."""
+    declared = {s.name: s for s in getattr(contribution, "settings", ())}
+    values = dict(getattr(contribution, "values", {}))
+    for key, value in settings.items():
+        setting = declared.get(key)
+        if setting is None:
+            offered = ", ".join(declared) or "none"
+            raise GlobeviewError(f"{name} has no setting {key!r} (settings: {offered})")
+        values[key] = _setting_value(f"{name}.{key}", setting, value)
+    return values
 
 
 def _checked_samples(tool: Any, samples: Any) -> int:

@@ -15,7 +15,10 @@ the globe's overlays and drops a layer the GPU side refuses, with one line in `e
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
+import weakref
 from pathlib import Path
 from typing import Any
 
@@ -64,6 +67,9 @@ class OverlayHost:
         #: The layer types that opened a file this session (`open`), e.g. to tell the user a
         #: setting of another type changed nothing.
         self.types_used: set[str] = set()
+        #: Layer -> (absolute path of its file, the layer type that opened it), for project
+        #: files (`globeview.app.project`). Weak: a layer dropped is forgotten.
+        self.origins: weakref.WeakKeyDictionary[Any, tuple[str, str]] = weakref.WeakKeyDictionary()
 
     # -- layer types ---------------------------------------------------------------------------
     def layer_types(self) -> list:
@@ -138,6 +144,8 @@ class OverlayHost:
             )
         self.globe.add_overlay(layer)
         self.types_used.add(name)
+        with contextlib.suppress(TypeError):  # a layer object that cannot be weakly keyed
+            self.origins[layer] = (os.path.abspath(path), name)
         return layer
 
     def open_embedded(self, imagery: bool = False) -> list:

@@ -16,6 +16,8 @@ view and one another:
   `OverlayHost` with or without GL (the session draws them);
 - `WindowTools` (ui/window_tools.py): the Tools toolbar and menu, the tools' declared
   commands and the Tool options bar;
+- `ProjectActions` (ui/project_actions.py): File > Open Project… / Save Project… and the
+  Bookmarks menu;
 - the docks (`LayerPanel`, `PluginPanel`, the Plot dock), the status bar (`StatusBar`) and
   the plugins' window side (`PluginHost`).
 
@@ -47,6 +49,7 @@ from globeview.ui.navigation import HOME_POSE
 from globeview.ui.plot_dock import install_plot_dock
 from globeview.ui.plugin_host import PluginHost, QSettingsBackend
 from globeview.ui.plugin_panel import TAU_MAX_PX, TAU_MIN_PX, PluginPanel
+from globeview.ui.project_actions import ProjectActions
 from globeview.ui.status import ELLIPSOIDAL, ORTHOMETRIC, StatusBar
 from globeview.ui.subscriptions import Subscriptions
 from globeview.ui.tour_panel import TourPanel
@@ -211,6 +214,12 @@ class MainWindow(QMainWindow):
         file_menu.addAction(files.open_overlay_action)
         file_menu.addAction(files.open_url_action)
         file_menu.addMenu(files.recent_menu)
+        # Projects and bookmarks (ui/project_actions.py, issue #26 item 4).
+        self.projects = ProjectActions(self)
+        file_menu.addSeparator()
+        file_menu.addAction(self.projects.open_action)
+        file_menu.addAction(self.projects.save_action)
+        file_menu.addSeparator()
         self.export_action = QAction("&Export Image…", self)
         self.export_action.setShortcut(QKeySequence("Ctrl+E"))
         self.export_action.triggered.connect(self.export_dialog)
@@ -242,6 +251,7 @@ class MainWindow(QMainWindow):
         )
         self.ellipsoidal_action.toggled.connect(self._height_reference_changed)
         view_menu.addAction(self.ellipsoidal_action)
+        mb.addMenu(self.projects.bookmarks_menu)
 
     def _height_reference_changed(self, ellipsoidal: bool) -> None:
         reference = ELLIPSOIDAL if ellipsoidal else ORTHOMETRIC
