@@ -176,12 +176,10 @@ class TileBuilder:
         size = terrain.tile_size
         heights = np.empty((len(keys), size, size), dtype=np.float32)
         aprons = np.zeros((len(keys), size + 2, size + 2), dtype=np.float32)
-        normals: list[np.ndarray | None] = []
+        normals = self._data_normals.normals_many(keys)
         for i, key in enumerate(keys):
             heights[i] = terrain.heights(key)
-            given = self._data_normals.normals(key)
-            normals.append(given)
-            if given is None:
+            if normals[i] is None:
                 aprons[i] = terrain.heights_apron(key)
         karr = np.array(keys, dtype=np.int64)
         bounds = np.empty((len(keys), 4))
