@@ -26,6 +26,7 @@ import numpy as np
 
 from globeview.geodesy import WGS84
 from globeview.render.colour_ramp import tile_texels_batch
+from globeview.render.heap import keep_freed_heap
 from globeview.render.tile_mesh import TileMesh, build_tile_meshes
 from globeview.render.tile_normals import DataLevelNormals
 from globeview.terrain.compose.stack import TerrainStack
@@ -91,6 +92,7 @@ class TileBuilder:
     """
 
     def __init__(self, terrain: TerrainStack) -> None:
+        keep_freed_heap()  # batches reuse their freed temporaries (`heap`)
         self.terrain = terrain
         self._data_normals = DataLevelNormals(terrain)
         # Skirt depths of one-tile builds ({key: depth} for one terrain version; bounded).
