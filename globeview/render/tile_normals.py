@@ -57,27 +57,6 @@ def data_level(terrain: TerrainStack, key: Key) -> int:
 
 
 @functools.lru_cache(maxsize=256)
-def catmull_rom_taps(size: int, f: int, d: int) -> tuple[np.ndarray, np.ndarray]:
-    """The Catmull-Rom cubic of `catmull_rom_weights` as its four taps: ``first`` (size,)
-    int64, the apron index of each node's first tap (its taps are first .. first + 3), and
-    ``w`` (size, 4) float64 their weights. Read-only (shared by the cache)."""
-    cells = size - 1
-    pos = (d * cells + np.arange(size, dtype=np.float64)) / 2**f  # ancestor node units
-    i = np.minimum(np.floor(pos).astype(np.int64), cells - 1)
-    t = pos - i
-    t2, t3 = t * t, t * t * t
-    w = np.empty((size, 4))
-    # Apron index of ancestor node j is j + 1, so nodes i - 1 .. i + 2 are columns i .. i + 3.
-    w[:, 0] = 0.5 * (-t3 + 2.0 * t2 - t)
-    w[:, 1] = 0.5 * (3.0 * t3 - 5.0 * t2 + 2.0)
-    w[:, 2] = 0.5 * (-3.0 * t3 + 4.0 * t2 + t)
-    w[:, 3] = 0.5 * (t3 - t2)
-    i.flags.writeable = False
-    w.flags.writeable = False
-    return i, w
-
-
-@functools.lru_cache(maxsize=256)
 def catmull_rom_weights(size: int, f: int, d: int) -> np.ndarray:
     """(size, size + 2) weights taking the node values of an ancestor ``f`` levels up, on its
     apron grid (index 0 is the ring node before its node 0), to the nodes of its descendant at
@@ -87,52 +66,50 @@ def catmull_rom_weights(size: int, f: int, d: int) -> np.ndarray:
     At t = 0 the weights are (0, 1, 0, 0): the descendant's nodes on an ancestor node take its
     value exactly (the last one is taken from cell size - 2 at t = 1, which keeps the four
     nodes inside the apron)."""
-    first, taps = catmull_rom_taps(size, f, d)
+    cells = size - 1
+    pos = (d * cells + np.arange(size, dtype=np.float64)) / 2**f  # ancestor node units
+    i = np.minimum(np.floor(pos).astype(np.int64), cells - 1)
+    t = pos - i
+    t2, t3 = t * t, t * t * t
     w = np.zeros((size, size + 2))
     rows = np.arange(size)
-    for k in range(4):
-        w[rows, first + k] = taps[:, k]
+    # Apron index of ancestor node j is j + 1, so nodes i - 1 .. i + 2 are columns i .. i + 3.
+    w[rows, i] = 0.5 * (-t3 + 2.0 * t2 - t)
+    w[rows, i + 1] = 0.5 * (3.0 * t3 - 5.0 * t2 + 2.0)
+    w[rows, i + 2] = 0.5 * (-3.0 * t3 + 4.0 * t2 + t)
+    w[rows, i + 3] = 0.5 * (t3 - t2)
     w.flags.writeable = False
     return w
+
+
+@functools.lru_cache(maxsize=256)
+def catmull_rom_window(size: int, f: int, d: int) -> tuple[slice, np.ndarray]:
+    """`catmull_rom_weights` without its zero columns: (the apron rows a descendant's nodes
+    read, as a slice; the (size, window) weights on them, contiguous, read-only). A
+    descendant f levels down reads ~size / 2^f + 4 of the size + 2 ancestor nodes."""
+    w = catmull_rom_weights(size, f, d)
+    used = np.nonzero(np.any(w != 0.0, axis=0))[0]
+    lo, hi = int(used[0]), int(used[-1]) + 1
+    sub = np.ascontiguousarray(w[:, lo:hi])
+    sub.flags.writeable = False
+    return slice(lo, hi), sub
 
 
 def upsample_normals(ancestor: np.ndarray, f: int, dx: int, dy: int) -> np.ndarray:
     """(size, size, 3) float32 unit normals of the descendant ``f`` levels below, at tile offset
     (dx, dy) inside it, of an ancestor's apron normals ``ancestor`` ((size + 2, size + 2, 3),
-    unit ECEF vectors): Catmull-Rom along each axis (`catmull_rom_weights`), renormalised."""
-    return upsample_normals_batch(ancestor[None], np.array([[f, dx, dy]]))[0]
+    unit ECEF vectors): Catmull-Rom along each axis (`catmull_rom_weights`), renormalised.
 
-
-def upsample_normals_batch(ancestors: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-    """`upsample_normals` of B tiles at once: ``ancestors`` (B, size + 2, size + 2, 3) apron
-    normals, ``offsets`` (B, 3) each tile's (f, dx, dy); returns (B, size, size, 3) float32.
-
-    The cubic has four taps a node, so rows then columns are four weighted gathers each
-    (float64, taps in order), not products with the (size, size + 2) weight matrices: a
-    sixteenth of the arithmetic, no BLAS threads, one pass over the batch. The sums are the
-    matrix products' less their zero terms, in another order: equal to them within float32
-    rounding (tests/render/test_tile_normals.py)."""
-    b = len(ancestors)
-    size = ancestors.shape[1] - 2
-    taps = [
-        (catmull_rom_taps(size, int(f), int(dy)), catmull_rom_taps(size, int(f), int(dx)))
-        for f, dx, dy in np.asarray(offsets).reshape(b, 3).tolist()
-    ]
-    first_r = np.stack([t[0][0] for t in taps])  # (B, size)
-    w_r = np.stack([t[0][1] for t in taps])  # (B, size, 4)
-    first_c = np.stack([t[1][0] for t in taps])
-    w_c = np.stack([t[1][1] for t in taps])
-    tile = np.arange(b)[:, None]
-    rows = w_r[:, :, 0, None, None] * ancestors[tile, first_r]  # (B, size, size + 2, 3)
-    for k in range(1, 4):
-        rows += w_r[:, :, k, None, None] * ancestors[tile, first_r + k]
-    out = w_c[:, None, :, 0, None] * np.take_along_axis(rows, first_c[:, None, :, None], axis=2)
-    for k in range(1, 4):
-        picked = np.take_along_axis(rows, (first_c + k)[:, None, :, None], axis=2)
-        out += w_c[:, None, :, k, None] * picked
-    ox, oy, oz = out[..., 0], out[..., 1], out[..., 2]
-    norm = np.sqrt(ox * ox + oy * oy + oz * oz)
-    out /= np.maximum(norm, 1e-30)[..., None]
+    Only the ancestor nodes the descendant reads enter the products (`catmull_rom_window`:
+    2.4x fewer operations a level down, 5x two levels down); the terms left out are zeros,
+    so the result is the full products' within float32 rounding
+    (tests/render/test_tile_normals.py)."""
+    size = ancestor.shape[0] - 2
+    rows, wr = catmull_rom_window(size, f, dy)
+    cols, wc = catmull_rom_window(size, f, dx)
+    # Separable: per component, rows then columns (two small matrix products).
+    out = np.moveaxis(wr @ np.moveaxis(ancestor[rows, cols], -1, 0) @ wc.T, 0, -1)
+    out /= np.maximum(np.linalg.norm(out, axis=-1, keepdims=True), 1e-30)
     return out.astype(np.float32)
 
 
@@ -161,22 +138,15 @@ class DataLevelNormals:
         return self.normals_many([key])[0]
 
     def normals_many(self, keys: list[Key]) -> list[np.ndarray | None]:
-        """`normals` of each of ``keys``, the interpolations in one pass over the batch
-        (`upsample_normals_batch`)."""
+        """`normals` of each of ``keys`` (a builder's batch)."""
         out: list[np.ndarray | None] = [None] * len(keys)
-        rows, ancestors, offsets = [], [], []
         for i, (level, x, y) in enumerate(keys):
             d = data_level(self.terrain, (level, x, y))
             if d >= level:
                 continue
             f = level - d
-            rows.append(i)
-            ancestors.append(self._ancestor((d, x >> f, y >> f)))
-            offsets.append((f, x - ((x >> f) << f), y - ((y >> f) << f)))
-        if rows:
-            up = upsample_normals_batch(np.stack(ancestors), np.array(offsets))
-            for j, i in enumerate(rows):
-                out[i] = up[j]
+            anc = self._ancestor((d, x >> f, y >> f))
+            out[i] = upsample_normals(anc, f, x - ((x >> f) << f), y - ((y >> f) << f))
         return out
 
     def _ancestor(self, key: Key) -> np.ndarray:

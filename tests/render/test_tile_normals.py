@@ -131,12 +131,13 @@ def _matrix_upsample(ancestor: np.ndarray, f: int, dx: int, dy: int) -> np.ndarr
     return out.astype(np.float32)
 
 
-def test_batched_four_tap_upsampling_equals_the_weight_matrices(stack):
-    """Issue #27: `upsample_normals_batch` (four weighted gathers per axis, a batch at once)
-    gives the matrix products' normals within float32 rounding, on real apron normals of the
-    White Mountains and random unit fields, at every offset of f = 1..3 and deeper."""
+def test_windowed_upsampling_equals_the_full_weight_matrices(stack):
+    """Issue #27: `upsample_normals` multiplies only the ancestor nodes a descendant reads
+    (`catmull_rom_window`); its normals are the full products' within float32 rounding, on
+    real apron normals of the White Mountains and random unit fields, at every offset of
+    f = 1..3 and deeper; the windows hold every non-zero weight."""
     from globeview.render.tile_mesh import apron_normals
-    from globeview.render.tile_normals import upsample_normals, upsample_normals_batch
+    from globeview.render.tile_normals import catmull_rom_window, upsample_normals
 
     key = _key(12)
     real = apron_normals(tile_bounds_tuple(key), stack.heights_apron(key)).astype(np.float64)
@@ -145,12 +146,14 @@ def test_batched_four_tap_upsampling_equals_the_weight_matrices(stack):
     noise /= np.linalg.norm(noise, axis=-1, keepdims=True)
     offsets = [(f, dx, dy) for f in (1, 2, 3) for dx in range(2**f) for dy in range(2**f)]
     offsets += [(6, 37, 5), (9, 511, 0)]
-    for anc in (real, noise):
-        batch = upsample_normals_batch(np.stack([anc] * len(offsets)), np.array(offsets))
-        for i, (f, dx, dy) in enumerate(offsets):
-            ref = _matrix_upsample(anc, f, dx, dy)
-            np.testing.assert_array_max_ulp(batch[i], ref, maxulp=4)
-            assert upsample_normals(anc, f, dx, dy).tobytes() == batch[i].tobytes()
+    for f, dx, dy in offsets:
+        window, sub = catmull_rom_window(65, f, dx)
+        full = catmull_rom_weights(65, f, dx)
+        assert np.array_equal(full[:, window], sub) and not full[:, : window.start].any()
+        assert not full[:, window.stop :].any() and not sub.flags.writeable
+        for anc in (real, noise):
+            got = upsample_normals(anc, f, dx, dy)
+            np.testing.assert_array_max_ulp(got, _matrix_upsample(anc, f, dx, dy), maxulp=4)
 
 
 @pytest.mark.slow
