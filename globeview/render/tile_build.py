@@ -72,9 +72,12 @@ def bake(meshes: list[TileMesh]) -> list[ReadyTile]:
         return []
     heights = np.stack([m.heights for m in meshes])
     albedo, coast, scale = tile_texels_batch(heights)
-    normals = np.stack([m.normals for m in meshes])
+    scaled = np.stack([m.normals for m in meshes])  # a copy: scaled in place below
+    np.multiply(scaled, np.float32(127.5), out=scaled)
+    scaled += np.float32(127.5)
+    np.rint(scaled, out=scaled)  # unit normals: 0..255
     nrm8 = np.empty((*heights.shape, 4), dtype=np.uint8)
-    nrm8[..., :3] = np.rint(normals * 127.5 + 127.5)  # unit normals: 0..255
+    nrm8[..., :3] = scaled
     nrm8[..., 3] = coast
     return [
         ReadyTile(m.center, m.vertices, albedo[i], nrm8[i], float(scale[i]))
