@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import sys
 import threading
 import weakref
@@ -93,6 +94,7 @@ class TileSlab:
             raise ValueError(f"a tile slab needs at least 1 slot, got {slots}")
         probe = SlabSpec("", slots, tile_size)
         self._shm = shared_memory.SharedMemory(create=True, size=slots * probe.offsets()[2])
+        _reserve(self._shm)
         self.spec = SlabSpec(self._shm.name, slots, tile_size)
         self._array: np.ndarray | None = np.ndarray(
             (self._shm.size,), np.uint8, buffer=self._shm.buf
@@ -172,7 +174,12 @@ class TileSlab:
 
     def close(self) -> None:
         """Unlink the segment (its name leaves /dev/shm at once) and unmap it once no tile
-        views it any more. Idempotent."""
+        views it any more. Idempotent.
+
+        Not `SharedMemory.close` at once: numpy arrays over a buffer hold no export of it,
+        so closing would unmap the memory under tiles not uploaded yet (a crash when they
+        are read). Every tile views ``_array``, so the segment is closed when that array is
+        collected, i.e. after the last tile."""
         with self._lock:
             array, self._array = self._array, None
             self._free.clear()
@@ -180,26 +187,24 @@ class TileSlab:
             return
         with contextlib.suppress(FileNotFoundError):  # the resource tracker's doing
             self._shm.unlink()
-        del array
-        try:
-            self._shm.close()
-        except BufferError:
-            # Tiles still view it (not uploaded yet): unmapped when the last one goes.
-            shm = self._shm
-            self._shm = _Unmapped()  # type: ignore[assignment]
-            _orphans.append(shm)
+        fin = weakref.finalize(array, self._shm.close)
+        fin.atexit = False
+        del array  # no tile left: closed here
 
 
-class _Unmapped:
-    """Stands in for a segment handed to `_orphans`."""
-
-    name = ""
-    size = 0
-
-
-#: Segments closed while tiles still viewed them: kept referenced (their __del__ would
-#: report the views as an error) until the process ends; unlinked already.
-_orphans: list[shared_memory.SharedMemory] = []
+def _reserve(shm: shared_memory.SharedMemory) -> None:
+    """Give the segment its memory now: a tmpfs too small for it (a container's 64 MB
+    /dev/shm shared with others) fails here with OSError, and the segment is unlinked,
+    rather than with SIGBUS in a worker writing a tile into a page that cannot be had."""
+    fd = getattr(shm, "_fd", -1)
+    if fd < 0 or not hasattr(os, "posix_fallocate"):
+        return
+    try:
+        os.posix_fallocate(fd, 0, shm.size)
+    except OSError:
+        shm.close()
+        shm.unlink()
+        raise
 
 
 # -- in a worker process -----------------------------------------------------------------------

@@ -232,7 +232,7 @@ class ProcessBuilder:
                 raise WorkerLost("the tile workers are shut down")
             if self._pool is None:
                 if self.slab is None and self.slab_tiles:
-                    self.slab = TileSlab(self.recipe.tile_size, self.slab_tiles)
+                    self.slab = self._new_slab()
                 self._pool = cf.ProcessPoolExecutor(
                     self.workers,
                     mp_context=multiprocessing.get_context("forkserver"),
@@ -241,6 +241,16 @@ class ProcessBuilder:
                 )
                 self.started += self.workers
             return self._pool
+
+    def _new_slab(self) -> TileSlab | None:
+        """The shared-memory slots, or None (one warning; tiles then travel pickled) where
+        the system cannot give them (/dev/shm full or missing)."""
+        try:
+            return TileSlab(self.recipe.tile_size, self.slab_tiles)
+        except OSError as exc:
+            log.warning("tile workers send their tiles pickled: no shared memory (%s)", exc)
+            self.slab_tiles = 0
+            return None
 
     def start(self, wait_s: float = 0.0) -> bool:
         """Start the workers now (they open the terrain: ~1-2 s) rather than at the first
@@ -426,6 +436,8 @@ class _Lease:
         coast scales, in the slots' order)."""
         assert self.slab is not None and self.slots is not None
         slab = self.slab
+        if slab.closed:  # shut down while the batch was built
+            raise WorkerLost("the tile workers are shut down")
         return {k: slab.tile(s, c, sc) for (k, c, sc), s in zip(got, self.slots, strict=True)}
 
 
