@@ -149,8 +149,8 @@ def _build_batch_shared(
 ) -> list[tuple[Key, np.ndarray, float]]:
     """`_build_batch` with the tiles' arrays written into ``slots`` of the slab ``spec``
     (one per key, in order); returns each tile's (key, centre, coast scale)."""
-    ready = _worker_builder().ready(keys)
-    write_tiles(spec, slots, list(ready.values()))
+    ready = _worker_builder().ready(keys)  # a key given twice is built once
+    write_tiles(spec, slots[: len(ready)], list(ready.values()))
     return [(k, t.center, t.coast_scale) for k, t in ready.items()]
 
 
@@ -438,7 +438,8 @@ class _Lease:
         slab = self.slab
         if slab.closed:  # shut down while the batch was built
             raise WorkerLost("the tile workers are shut down")
-        return {k: slab.tile(s, c, sc) for (k, c, sc), s in zip(got, self.slots, strict=True)}
+        slab.free(self.slots[len(got) :])  # keys given twice: one tile, one slot
+        return {k: slab.tile(s, c, sc) for (k, c, sc), s in zip(got, self.slots, strict=False)}
 
 
 def _processes(pool: cf.ProcessPoolExecutor) -> list[multiprocessing.Process]:

@@ -283,6 +283,10 @@ def test_tiles_come_back_through_shared_memory_and_free_their_slots(stack) -> No
         more = procs.build_many(np.array(keys[:8]))  # 8 > 7 free: pickled
         assert procs.tiles_pickled == 8 and slab.free_count == 7
         assert all(t.release is None for t in more.values())
+        twice = procs.build_many(np.array([keys[0], keys[0], keys[1]]))  # a key given twice
+        assert list(twice) == [keys[0], keys[1]] and slab.free_count == 5
+        assert _same(twice[keys[1]], serial.ready(np.array([keys[1]]))[keys[1]])
+        del twice
         del got
         gc.collect()
         assert slab.free_count == 12  # dropped tiles free their slots
