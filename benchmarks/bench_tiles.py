@@ -12,9 +12,12 @@ store, and the big-DEM flight's median frame with synchronous loading.
               the stores' own tile caches emptied first, the files warm in the OS cache;
    - compose: the layers composed and feathered (`TerrainStack.heights`), its cache empty;
    - apron:   the ring of neighbour nodes (`heights_apron`), the tiles of the sample composed;
+   - normals: the normals of tiles finer than their data, interpolated from their data-level
+              ancestors' (`tile_normals.DataLevelNormals`, its ancestor cache emptied first);
    - skirts:  the per-tile metadata for the skirt depths (one: the loader's cached 4 x 4
               block per tile; batch: one vectorised call per level of each batch);
-   - mesh:    vertices, skirts and normals (`build_tile_mesh` / `build_tile_meshes`);
+   - mesh:    vertices, skirts and the other tiles' normals (`build_tile_mesh` /
+              `build_tile_meshes`, from their aprons);
    - texels:  the albedo and normal texels baked from the heights and normals (`bake`);
    - upload:  the GPU writes of one slot (vertex buffer, the albedo and normal layers) from
               the baked texels: what the render thread does per tile;
@@ -56,7 +59,7 @@ TILE_MS = 0.5
 FRAME_MS = 100.0
 #: Tiles per batch, as the renderer's loader takes them (`GlobeRenderer.load_batch`).
 BATCH = 8
-STAGES = ("read", "compose", "apron", "skirts", "mesh", "texels", "upload", "total")
+STAGES = ("read", "compose", "apron", "normals", "skirts", "mesh", "texels", "upload", "total")
 
 Key = tuple[int, int, int]
 
@@ -118,7 +121,11 @@ def stage_times(bench: Bench, keys: list[Key]) -> dict[str, dict[str, tuple[floa
     heights = [terrain.heights(k) for k in keys]
     one["compose"] = batch["compose"] = _since(t, n)
 
-    given = [builder._data_normals.normals(k) for k in keys]  # tiles finer than their data
+    with builder._data_normals._lock:
+        builder._data_normals._cache.clear()  # the ancestors' apron normals computed again
+    t = _clock()
+    given = builder._data_normals.normals_many(keys)  # tiles finer than their data
+    one["normals"] = batch["normals"] = _since(t, n)
     size = terrain.tile_size
     t = _clock()
     aprons = [
@@ -303,8 +310,10 @@ def _make_loader(
     (processes: ``warm``, tiles not in the sample, built first and the ``sample``'s
     metadata computed, as this process's builder and stack did during the flight)."""
     builder = bench.session.renderer.builder
-    if kind == "process":
-        procs = ProcessBuilder(TerrainRecipe.of(bench.terrain), workers)
+    if kind.startswith("process"):
+        # "process": results through the shared-memory slab; "process, pickled": without it.
+        slab = 0 if kind.endswith("pickled") else 256
+        procs = ProcessBuilder(TerrainRecipe.of(bench.terrain), workers, slab_tiles=slab)
         procs.warm(np.array(warm), wait_s=300.0)
         procs.warm(np.array(sample), wait_s=300.0, facts_only=True)
         return TileLoader(
@@ -340,7 +349,8 @@ def loader_scaling(bench: Bench, keys: list[Key], workers: list[int], warm: list
     the render thread keeps meanwhile. Each worker process has caches of its own (data-level
     normals, ancestors' errors, store blocks) that this process's builder had warm from the
     flight; "again" builds the sample a second time in the same workers (their caches warm,
-    the composed heights too: a lower bound)."""
+    the composed heights too: a lower bound). "process, pickled" is "process" with the tiles
+    sent back pickled instead of through the shared-memory slab (`tile_slab`)."""
     alone = _python_rate(0.5)
     print(f"background loader over {len(keys)} tiles, batches of {BATCH} (wall):")
     print("| kind | workers | tiles/s | loader CPU ms/tile | render thread's speed |")
@@ -348,12 +358,12 @@ def loader_scaling(bench: Bench, keys: list[Key], workers: list[int], warm: list
     karr = np.array(keys, dtype=np.int64)
     n_keys = len(keys)
     for n in workers:
-        for kind in ("thread", "process"):
+        for kind in ("thread", "process", "process, pickled"):
             _clear_composed(bench.terrain)
             loader = _make_loader(bench, kind, n, warm, keys)
             try:
                 runs = [("", _load_all(loader, karr))]
-                if kind == "process":
+                if kind.startswith("process"):
                     runs.append((", again", _load_all(loader, karr)))
             finally:
                 loader.shutdown()

@@ -26,6 +26,7 @@ import numpy as np
 
 from globeview.geodesy import WGS84
 from globeview.render.colour_ramp import tile_texels_batch
+from globeview.render.heap import keep_freed_heap
 from globeview.render.tile_mesh import TileMesh, build_tile_meshes
 from globeview.render.tile_normals import DataLevelNormals
 from globeview.terrain.compose.stack import TerrainStack
@@ -71,9 +72,12 @@ def bake(meshes: list[TileMesh]) -> list[ReadyTile]:
         return []
     heights = np.stack([m.heights for m in meshes])
     albedo, coast, scale = tile_texels_batch(heights)
-    normals = np.stack([m.normals for m in meshes])
+    scaled = np.stack([m.normals for m in meshes])  # a copy: scaled in place below
+    np.multiply(scaled, np.float32(127.5), out=scaled)
+    scaled += np.float32(127.5)
+    np.rint(scaled, out=scaled)  # unit normals: 0..255
     nrm8 = np.empty((*heights.shape, 4), dtype=np.uint8)
-    nrm8[..., :3] = np.rint(normals * 127.5 + 127.5)  # unit normals: 0..255
+    nrm8[..., :3] = scaled
     nrm8[..., 3] = coast
     return [
         ReadyTile(m.center, m.vertices, albedo[i], nrm8[i], float(scale[i]))
@@ -91,6 +95,7 @@ class TileBuilder:
     """
 
     def __init__(self, terrain: TerrainStack) -> None:
+        keep_freed_heap()  # batches reuse their freed temporaries (`heap`)
         self.terrain = terrain
         self._data_normals = DataLevelNormals(terrain)
         # Skirt depths of one-tile builds ({key: depth} for one terrain version; bounded).
@@ -176,12 +181,10 @@ class TileBuilder:
         size = terrain.tile_size
         heights = np.empty((len(keys), size, size), dtype=np.float32)
         aprons = np.zeros((len(keys), size + 2, size + 2), dtype=np.float32)
-        normals: list[np.ndarray | None] = []
+        normals = self._data_normals.normals_many(keys)
         for i, key in enumerate(keys):
             heights[i] = terrain.heights(key)
-            given = self._data_normals.normals(key)
-            normals.append(given)
-            if given is None:
+            if normals[i] is None:
                 aprons[i] = terrain.heights_apron(key)
         karr = np.array(keys, dtype=np.int64)
         bounds = np.empty((len(keys), 4))

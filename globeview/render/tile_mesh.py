@@ -204,12 +204,11 @@ def _batch_vertices(
     vertices = np.empty((b, vertices_per_tile(size), FLOATS_PER_VERTEX), dtype=np.float32)
     c = center[:, :, None, None]  # (B, 3, 1, 1)
     rel = (bx - c[:, 0], by - c[:, 1], bz - c[:, 2])  # float64 relative to the centre
-    h64 = heights.astype(np.float64)
     tex = (np.arange(size) + 0.5) / size
     grid = vertices[:, :nn].reshape(b, size, size, FLOATS_PER_VERTEX)
     for k in range(3):
         grid[..., k] = rel[k]
-    grid[..., 3] = h64
+    grid[..., 3] = heights  # float32 already (no rounding)
     grid[..., 4] = tex[None, :]
     grid[..., 5] = tex[:, None]
     # Skirts: north, south, west, east edges (the order tile_indices.py expects).
@@ -231,7 +230,7 @@ def _batch_vertices(
     depth = skirt[:, None]
     for k in range(3):
         skirts[..., k] = rel[k][:, er, ec] + out_dir[k].reshape(b, -1) * depth
-    skirts[..., 3] = h64[:, er, ec] - depth
+    skirts[..., 3] = heights[:, er, ec].astype(np.float64) - depth  # (exact widening)
     skirts[..., 4] = tex[ec]
     skirts[..., 5] = tex[er]
     return vertices

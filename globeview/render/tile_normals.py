@@ -82,15 +82,33 @@ def catmull_rom_weights(size: int, f: int, d: int) -> np.ndarray:
     return w
 
 
+@functools.lru_cache(maxsize=256)
+def catmull_rom_window(size: int, f: int, d: int) -> tuple[slice, np.ndarray]:
+    """`catmull_rom_weights` without its zero columns: (the apron rows a descendant's nodes
+    read, as a slice; the (size, window) weights on them, contiguous, read-only). A
+    descendant f levels down reads ~size / 2^f + 4 of the size + 2 ancestor nodes."""
+    w = catmull_rom_weights(size, f, d)
+    used = np.nonzero(np.any(w != 0.0, axis=0))[0]
+    lo, hi = int(used[0]), int(used[-1]) + 1
+    sub = np.ascontiguousarray(w[:, lo:hi])
+    sub.flags.writeable = False
+    return slice(lo, hi), sub
+
+
 def upsample_normals(ancestor: np.ndarray, f: int, dx: int, dy: int) -> np.ndarray:
     """(size, size, 3) float32 unit normals of the descendant ``f`` levels below, at tile offset
     (dx, dy) inside it, of an ancestor's apron normals ``ancestor`` ((size + 2, size + 2, 3),
-    unit ECEF vectors): Catmull-Rom along each axis (`catmull_rom_weights`), renormalised."""
+    unit ECEF vectors): Catmull-Rom along each axis (`catmull_rom_weights`), renormalised.
+
+    Only the ancestor nodes the descendant reads enter the products (`catmull_rom_window`:
+    2.4x fewer operations a level down, 5x two levels down); the terms left out are zeros,
+    so the result is the full products' within float32 rounding
+    (tests/render/test_tile_normals.py)."""
     size = ancestor.shape[0] - 2
-    wr = catmull_rom_weights(size, f, dy)
-    wc = catmull_rom_weights(size, f, dx)
-    # Separable: per component, rows then columns (two small matrix products, ~0.1 ms).
-    out = np.moveaxis(wr @ np.moveaxis(ancestor, -1, 0) @ wc.T, 0, -1)
+    rows, wr = catmull_rom_window(size, f, dy)
+    cols, wc = catmull_rom_window(size, f, dx)
+    # Separable: per component, rows then columns (two small matrix products).
+    out = np.moveaxis(wr @ np.moveaxis(ancestor[rows, cols], -1, 0) @ wc.T, 0, -1)
     out /= np.maximum(np.linalg.norm(out, axis=-1, keepdims=True), 1e-30)
     return out.astype(np.float32)
 
@@ -117,13 +135,19 @@ class DataLevelNormals:
         """(size, size, 3) float32 unit ECEF normals of tile ``key`` interpolated from its data
         level, or None where the tile is at or above its data level (its own heights carry the
         data: `build_tile_mesh` computes its normals from them)."""
-        level, x, y = key
-        d = data_level(self.terrain, key)
-        if d >= level:
-            return None
-        f = level - d
-        anc = self._ancestor((d, x >> f, y >> f))
-        return upsample_normals(anc, f, x - ((x >> f) << f), y - ((y >> f) << f))
+        return self.normals_many([key])[0]
+
+    def normals_many(self, keys: list[Key]) -> list[np.ndarray | None]:
+        """`normals` of each of ``keys`` (a builder's batch)."""
+        out: list[np.ndarray | None] = [None] * len(keys)
+        for i, (level, x, y) in enumerate(keys):
+            d = data_level(self.terrain, (level, x, y))
+            if d >= level:
+                continue
+            f = level - d
+            anc = self._ancestor((d, x >> f, y >> f))
+            out[i] = upsample_normals(anc, f, x - ((x >> f) << f), y - ((y >> f) << f))
+        return out
 
     def _ancestor(self, key: Key) -> np.ndarray:
         version = self.terrain.version

@@ -188,4 +188,6 @@ class TilePool:
         self.normal_tex.write(ready.normal, viewport=(0, 0, slot, s, s, 1))
         self.centers[slot] = ready.center
         self.coast_scale[slot] = ready.coast_scale
+        if ready.release is not None:
+            ready.release()  # its arrays are on the GPU now (a worker's shared slot)
         self.generation[slot] += 1

@@ -12,15 +12,20 @@ but it is a small part of a build from a warm store. So the builds run in proces
 * `ProcessBuilder` keeps N worker processes (``forkserver``: never ``fork`` a process that
   holds a GL context and threads), each with its own stack and `TileBuilder`, and builds a
   batch of tiles in one of them: heights, meshes and texels in one vectorised pass
-  (`tile_build.TileBuilder.ready`), returned as `ReadyTile`s the render thread uploads as
-  they are. The loader's threads (`tile_loader.TileLoader`) only hand batches over and wait,
-  with the GIL released.
+  (`tile_build.TileBuilder.ready`), written into slots of a shared-memory slab the window's
+  process owns (`tile_slab`: only keys, centres and coast scales travel pickled), returned
+  as `ReadyTile`s viewing their slots, which the render thread uploads as they are (a slot
+  is free again once its tile is uploaded or dropped; with no slot free a batch travels
+  pickled). The loader's threads (`tile_loader.TileLoader`) only hand batches over and
+  wait, with the GIL released.
 * Failures: a build that raises fails its call (the loader builds that batch again tile by
   tile, so only the bad tile fails and is retried later). A worker that dies (killed, out of
-  memory) breaks the pool: the calls under way fail with `WorkerLost`, and the next call
-  starts a fresh pool. `shutdown` lets the workers send the batch under way (milliseconds)
-  and kills those that do not end within a second, so a hung build never holds up a
-  closing window.
+  memory) breaks the pool: the calls under way fail with `WorkerLost` (their slab slots are
+  reused once every process of that pool is seen dead), and the next call starts a fresh
+  pool. The slab is the window's: a killed worker leaves no shared memory behind.
+  `shutdown` lets the workers send the batch under way (milliseconds) and kills those that
+  do not end within a second, so a hung build never holds up a closing window, and unlinks
+  the slab.
 
 Units: tile keys (level, x, y); CPU times in seconds.
 """
@@ -36,10 +41,12 @@ import time
 from collections.abc import Callable
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
+from typing import Any, cast
 
 import numpy as np
 
 from globeview.render.tile_build import ReadyTile, TileBuilder
+from globeview.render.tile_slab import SlabSpec, TileSlab, write_tiles
 from globeview.terrain.compose.stack import TerrainLayer, TerrainStack
 from globeview.terrain.store.tile_store import TileStore
 
@@ -75,6 +82,7 @@ class TerrainRecipe:
     layers: tuple[LayerRecipe, ...]
     blend: bool
     cache_tiles: int
+    tile_size: int = 65
 
     @classmethod
     def of(cls, stack: TerrainStack) -> TerrainRecipe:
@@ -94,7 +102,7 @@ class TerrainRecipe:
                     options=getattr(files, "options", None) if remote else None,
                 )
             )
-        return cls(tuple(layers), bool(stack.blend), int(stack.cache_tiles))
+        return cls(tuple(layers), bool(stack.blend), int(stack.cache_tiles), int(stack.tile_size))
 
     def open(self) -> TerrainStack:
         """The stack this recipe describes, its stores opened here."""
@@ -136,6 +144,16 @@ def _build_batch(keys: np.ndarray) -> dict[Key, ReadyTile]:
     return _worker_builder().ready(keys)
 
 
+def _build_batch_shared(
+    keys: np.ndarray, spec: SlabSpec, slots: list[int]
+) -> list[tuple[Key, np.ndarray, float]]:
+    """`_build_batch` with the tiles' arrays written into ``slots`` of the slab ``spec``
+    (one per key, in order); returns each tile's (key, centre, coast scale)."""
+    ready = _worker_builder().ready(keys)  # a key given twice is built once
+    write_tiles(spec, slots[: len(ready)], list(ready.values()))
+    return [(k, t.center, t.coast_scale) for k, t in ready.items()]
+
+
 def _warm_facts(keys: np.ndarray) -> None:
     """The per-tile metadata of ``keys`` (N, 3) (the stack's per-level tables warmed)."""
     _worker_builder().skirt_depths(keys)
@@ -167,7 +185,8 @@ class ProcessBuilder:
     ``fallback(keys) -> {key: ReadyTile}`` builds in this process instead where the workers
     cannot open the terrain (a store they cannot reach, a backend that cannot be reopened):
     logged once, then every build goes there; without one such builds raise
-    `WorkerStartError`.
+    `WorkerStartError`. ``slab_tiles``: slots of the shared-memory slab results come back
+    through (`tile_slab`; 0: pickled, as before the slab).
     """
 
     def __init__(
@@ -175,11 +194,20 @@ class ProcessBuilder:
         recipe: TerrainRecipe,
         workers: int,
         fallback: Callable[[np.ndarray], dict[Key, ReadyTile]] | None = None,
+        slab_tiles: int = 256,
     ) -> None:
         if workers < 1:
             raise ValueError(f"tile worker processes must be at least 1, got {workers}")
+        if slab_tiles < 0:
+            raise ValueError(f"slab_tiles must be >= 0, got {slab_tiles}")
         self.recipe = recipe
         self.workers = int(workers)
+        self.slab_tiles = int(slab_tiles)
+        #: The shared-memory slots (made with the first pool; None: none, or shut down).
+        self.slab: TileSlab | None = None
+        #: Tiles that came back through the slab, and pickled (no slot was free).
+        self.tiles_shared = 0
+        self.tiles_pickled = 0
         self._lock = threading.Lock()
         self._pool: cf.ProcessPoolExecutor | None = None
         self._closed = False
@@ -203,6 +231,8 @@ class ProcessBuilder:
             if self._closed:
                 raise WorkerLost("the tile workers are shut down")
             if self._pool is None:
+                if self.slab is None and self.slab_tiles:
+                    self.slab = self._new_slab()
                 self._pool = cf.ProcessPoolExecutor(
                     self.workers,
                     mp_context=multiprocessing.get_context("forkserver"),
@@ -211,6 +241,16 @@ class ProcessBuilder:
                 )
                 self.started += self.workers
             return self._pool
+
+    def _new_slab(self) -> TileSlab | None:
+        """The shared-memory slots, or None (one warning; tiles then travel pickled) where
+        the system cannot give them (/dev/shm full or missing)."""
+        try:
+            return TileSlab(self.recipe.tile_size, self.slab_tiles)
+        except OSError as exc:
+            log.warning("tile workers send their tiles pickled: no shared memory (%s)", exc)
+            self.slab_tiles = 0
+            return None
 
     def start(self, wait_s: float = 0.0) -> bool:
         """Start the workers now (they open the terrain: ~1-2 s) rather than at the first
@@ -248,7 +288,8 @@ class ProcessBuilder:
         pool.shutdown(wait=False, cancel_futures=True)
 
     def build_many(self, keys: np.ndarray) -> dict[Key, ReadyTile]:
-        """Upload-ready tiles of ``keys`` (N, 3), built in one worker in one batch.
+        """Upload-ready tiles of ``keys`` (N, 3), built in one worker in one batch, their
+        arrays in the slab's slots where enough are free (release each tile once uploaded).
 
         Raises:
             whatever the build raised in the worker (the batch is then lost); WorkerLost
@@ -258,26 +299,45 @@ class ProcessBuilder:
         if self.start_error is not None and self.fallback is not None:
             return self.fallback(keys)
         pool = self._executor()
+        lease = _Lease(self.slab, len(keys))
         try:
-            future = pool.submit(_build_batch, keys)
+            future = lease.submit(pool, keys)
         except RuntimeError as exc:  # broken, or shut down by another thread meanwhile
+            lease.free()  # no worker has them
             self._lost(pool)
             raise WorkerLost(f"tile worker lost: {exc}") from None
+        procs = _processes(pool)
         try:
-            return future.result()
+            got = future.result()
         except (BrokenProcessPool, cf.CancelledError) as exc:
             self._lost(pool)
+            # A worker of the broken pool may still be writing the slots until it ends.
+            lease.free_when_dead([*procs, *_processes(pool)])
             raise WorkerLost(f"tile worker lost: {type(exc).__name__}") from None
         except WorkerStartError as exc:
-            if self.fallback is None:
-                raise
-            with self._lock:
-                first = self.start_error is None
-                self.start_error = str(exc)
-            if first:
-                log.warning("%s; building tiles in this process", exc)
-            self.shutdown_workers()
-            return self.fallback(keys)
+            lease.free()  # the worker's call has ended
+            return self._start_failed(exc, keys)
+        except BaseException:
+            lease.free()
+            raise
+        if lease.slots is None:
+            self.tiles_pickled += len(got)
+            return cast(dict[Key, ReadyTile], got)
+        self.tiles_shared += len(got)
+        return lease.tiles(got)
+
+    def _start_failed(self, exc: WorkerStartError, keys: np.ndarray) -> dict[Key, ReadyTile]:
+        """The workers cannot open the terrain: build ``keys`` with the fallback from now on
+        (one warning), or raise ``exc`` without one."""
+        if self.fallback is None:
+            raise exc
+        with self._lock:
+            first = self.start_error is None
+            self.start_error = str(exc)
+        if first:
+            log.warning("%s; building tiles in this process", exc)
+        self.shutdown_workers()
+        return self.fallback(keys)
 
     def build(self, key: Key) -> ReadyTile:
         """One tile (`build_many` of one)."""
@@ -308,6 +368,15 @@ class ProcessBuilder:
             pool, self._pool = self._pool, None
         if pool is not None:
             self._end(pool, 1.0)
+        self._close_slab()
+
+    def _close_slab(self) -> None:
+        """Unlink the slab (tiles still viewing it keep their memory until they go)."""
+        with self._lock:
+            slab, self.slab = self.slab, None
+            self.slab_tiles = 0  # no new slab for this builder
+        if slab is not None:
+            slab.close()
 
     def shutdown(self, grace_s: float = 1.0) -> None:
         """Stop for good: queued batches are dropped, the workers end once their batch
@@ -324,6 +393,7 @@ class ProcessBuilder:
             pool, self._pool = self._pool, None
         if pool is not None:
             self._end(pool, grace_s)
+        self._close_slab()
 
     def _end(self, pool: cf.ProcessPoolExecutor, grace_s: float) -> None:
         self.cpu_seconds()
@@ -338,6 +408,43 @@ class ProcessBuilder:
                 p.kill()
         for p in procs:
             p.join(5.0)
+
+
+class _Lease:
+    """The slab slots of one batch (``slots`` None: the batch travels pickled)."""
+
+    def __init__(self, slab: TileSlab | None, n: int) -> None:
+        self.slab = slab
+        self.slots = slab.take(n) if slab is not None else None
+
+    def submit(self, pool: cf.ProcessPoolExecutor, keys: np.ndarray) -> cf.Future[Any]:
+        """The batch's build in the pool: into the slots, or pickled without them."""
+        if self.slab is not None and self.slots is not None:
+            return pool.submit(_build_batch_shared, keys, self.slab.spec, self.slots)
+        return pool.submit(_build_batch, keys)
+
+    def free(self) -> None:
+        if self.slab is not None and self.slots is not None:
+            self.slab.free(self.slots)
+
+    def free_when_dead(self, procs: list[multiprocessing.Process]) -> None:
+        if self.slab is not None and self.slots is not None:
+            self.slab.free_when_dead(procs, self.slots)
+
+    def tiles(self, got: list[tuple[Key, np.ndarray, float]]) -> dict[Key, ReadyTile]:
+        """The batch's tiles viewing their slots (``got``: the worker's keys, centres and
+        coast scales, in the slots' order)."""
+        assert self.slab is not None and self.slots is not None
+        slab = self.slab
+        if slab.closed:  # shut down while the batch was built
+            raise WorkerLost("the tile workers are shut down")
+        slab.free(self.slots[len(got) :])  # keys given twice: one tile, one slot
+        return {k: slab.tile(s, c, sc) for (k, c, sc), s in zip(got, self.slots, strict=False)}
+
+
+def _processes(pool: cf.ProcessPoolExecutor) -> list[multiprocessing.Process]:
+    """The pool's worker processes now (none once it has forgotten them)."""
+    return list((getattr(pool, "_processes", None) or {}).values())
 
 
 def _proc_cpu_s(pid: int) -> float | None:

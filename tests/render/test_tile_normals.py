@@ -120,3 +120,54 @@ def test_normals_follow_the_terrain_version(stack):
     assert data_level(stack, key) == 3
     after = normals.normals(key)
     assert np.abs(after - before).max() > 0.05
+
+
+def _matrix_upsample(ancestor: np.ndarray, f: int, dx: int, dy: int) -> np.ndarray:
+    """The interpolation as it was before issue #27: products with the weight matrices."""
+    wr = catmull_rom_weights(ancestor.shape[0] - 2, f, dy)
+    wc = catmull_rom_weights(ancestor.shape[0] - 2, f, dx)
+    out = np.moveaxis(wr @ np.moveaxis(ancestor, -1, 0) @ wc.T, 0, -1)
+    out /= np.maximum(np.linalg.norm(out, axis=-1, keepdims=True), 1e-30)
+    return out.astype(np.float32)
+
+
+def test_windowed_upsampling_equals_the_full_weight_matrices(stack):
+    """Issue #27: `upsample_normals` multiplies only the ancestor nodes a descendant reads
+    (`catmull_rom_window`); its normals are the full products' within float32 rounding, on
+    real apron normals of the White Mountains and random unit fields, at every offset of
+    f = 1..3 and deeper; the windows hold every non-zero weight."""
+    from globeview.render.tile_mesh import apron_normals
+    from globeview.render.tile_normals import catmull_rom_window, upsample_normals
+
+    key = _key(12)
+    real = apron_normals(tile_bounds_tuple(key), stack.heights_apron(key)).astype(np.float64)
+    rng = np.random.default_rng(3)
+    noise = rng.normal(size=(67, 67, 3))
+    noise /= np.linalg.norm(noise, axis=-1, keepdims=True)
+    offsets = [(f, dx, dy) for f in (1, 2, 3) for dx in range(2**f) for dy in range(2**f)]
+    offsets += [(6, 37, 5), (9, 511, 0)]
+    for f, dx, dy in offsets:
+        window, sub = catmull_rom_window(65, f, dx)
+        full = catmull_rom_weights(65, f, dx)
+        assert np.array_equal(full[:, window], sub) and not full[:, : window.start].any()
+        assert not full[:, window.stop :].any() and not sub.flags.writeable
+        for anc in (real, noise):
+            got = upsample_normals(anc, f, dx, dy)
+            np.testing.assert_array_max_ulp(got, _matrix_upsample(anc, f, dx, dy), maxulp=4)
+
+
+@pytest.mark.slow
+def test_normals_many_are_each_tiles_normals(stack):
+    """`DataLevelNormals.normals_many` (the builder's batch) gives each tile what `normals`
+    gives it alone: tiles finer than their data at several depths and ancestors, and tiles
+    at their data level (None)."""
+    keys = [_key(13), _key(14), _key(15), _key(12), _key(14, -122.1, 42.94), _key(9)]
+    keys.append((keys[1][0], keys[1][1] + 1, keys[1][2]))
+    many = DataLevelNormals(stack).normals_many(keys)
+    alone = DataLevelNormals(stack)
+    for key, got in zip(keys, many, strict=True):
+        one = alone.normals(key)
+        assert (got is None) == (one is None), key
+        if one is not None:
+            assert got is not None and got.tobytes() == one.tobytes(), key
+    assert many[3] is None and many[-2] is None

@@ -252,3 +252,102 @@ def test_a_process_that_shut_its_loader_down_mid_load_exits(tmp_path) -> None:
     )
     assert done.returncode == 0, done.stderr[-2000:]
     assert "shut down with" in done.stdout
+
+
+def _psm() -> set[str]:
+    """Shared-memory segments on this machine (Python's are named psm_*)."""
+    return {n for n in os.listdir("/dev/shm") if n.startswith("psm_")}
+
+
+def test_tiles_come_back_through_shared_memory_and_free_their_slots(stack) -> None:
+    """Issue #27: a worker writes its batch into the window's slab; the tiles view their
+    slots (the serial builds' bits), a slot is free again once its tile is released (as an
+    upload does) or dropped, and with too few slots free a batch travels pickled."""
+    import gc
+
+    keys = _keys()[:8]
+    serial = TileBuilder(stack)
+    procs = ProcessBuilder(TerrainRecipe.of(stack), workers=1, slab_tiles=12)
+    try:
+        got = procs.build_many(np.array(keys))
+        slab = procs.slab
+        assert slab is not None and slab.spec.name.lstrip("/") in _psm()
+        assert procs.tiles_shared == 8 and slab.free_count == 4
+        for k in keys:
+            assert _same(got[k], serial.ready(np.array([k]))[k]), k
+            assert got[k].vertices.base is not None  # a view of the slab, not a copy
+        for k in keys[:3]:
+            got[k].release()
+            got[k].release()  # idempotent
+        assert slab.free_count == 7
+        more = procs.build_many(np.array(keys[:8]))  # 8 > 7 free: pickled
+        assert procs.tiles_pickled == 8 and slab.free_count == 7
+        assert all(t.release is None for t in more.values())
+        twice = procs.build_many(np.array([keys[0], keys[0], keys[1]]))  # a key given twice
+        assert list(twice) == [keys[0], keys[1]] and slab.free_count == 5
+        assert _same(twice[keys[1]], serial.ready(np.array([keys[1]]))[keys[1]])
+        del twice
+        del got
+        gc.collect()
+        assert slab.free_count == 12  # dropped tiles free their slots
+    finally:
+        procs.shutdown()
+    assert procs.slab is None and slab.closed
+    assert slab.spec.name.lstrip("/") not in _psm()
+
+
+def test_a_worker_killed_mid_batch_leaks_no_shared_memory(stack) -> None:
+    """SIGKILL to a worker while it builds a batch into the slab: the call fails with
+    WorkerLost, the batch's slots are free again once the pool's processes are gone, the next
+    build (a fresh worker) writes into the same slab the serial builds' bits, a loader over
+    it goes on building, and after shutdown no shared memory is left in /dev/shm."""
+    before = _psm()
+    lv, x, y = _key(12, -71.3, 44.2)
+    big = np.array([(lv, x + i, y + j) for j in range(16) for i in range(16)])  # ~0.3 s CPU
+    procs = ProcessBuilder(TerrainRecipe.of(stack), workers=1, slab_tiles=300)
+    errors: list[BaseException] = []
+    try:
+        assert procs.start(wait_s=120.0)
+        procs.warm(big[:8])
+        slab = procs.slab
+        assert slab is not None
+        (pid,) = procs.pids()
+        from globeview.render.tile_workers import _proc_cpu_s
+
+        cpu0 = _proc_cpu_s(pid) or 0.0
+
+        def build() -> None:
+            try:
+                procs.build_many(big)
+            except BaseException as exc:  # noqa: BLE001  checked below
+                errors.append(exc)
+
+        t = threading.Thread(target=build)
+        t.start()
+        # Mid-batch: the worker has spent CPU on this batch and its slots are taken.
+        _wait_for(lambda: (_proc_cpu_s(pid) or 0.0) > cpu0 + 0.05, 60.0)
+        assert slab.free_count == 300 - len(big)
+        os.kill(pid, signal.SIGKILL)
+        t.join(60.0)
+        assert not t.is_alive()
+        assert len(errors) == 1 and isinstance(errors[0], WorkerLost), errors
+        assert slab.free_count == 300 and slab.lost == 0
+        keys = _keys()[:4]
+        got = procs.build_many(np.array(keys))
+        assert procs.slab is slab and pid not in procs.pids()
+        serial = TileBuilder(stack)
+        for k in keys:
+            assert _same(got[k], serial.ready(np.array([k]))[k]), k
+        loader = TileLoader(procs.build, 1, build_many=procs.build_many, batch=4, processes=procs)
+        loader.request(np.array(_keys()[4:12]))
+        _wait_for(lambda: loader.ready == 8 and loader.building == 0)
+        for _, tile in loader.take_ready(100):
+            assert tile.release is not None
+            tile.release()  # as the upload does
+        del got
+        assert slab.free_count == 300
+        loader.shutdown()
+    finally:
+        procs.shutdown()
+    assert procs.slab is None
+    _wait_for(lambda: not (_psm() - before), 10.0)
