@@ -27,6 +27,7 @@ from globeview.app.layer_dispatch import (
     layer_type_infos,
     overlay_file_filter,
     parse_layer_spec,
+    split_sublayer,
 )
 from globeview.errors import GlobeviewError, PluginFailed
 from globeview.model.globe import Globe
@@ -95,10 +96,14 @@ class OverlayHost:
         path = str(path)
         if layer_type is None:
             layer_type, path = parse_layer_spec(path)
+        path, sublayer = split_sublayer(path)
         name = self.layer_type_for(path, layer_type)
         obj = self.registry.find(PluginKind.LAYER, name)
         if obj is None:
             raise GlobeviewError(f"layer type {name} is not available ({path})")
+        if sublayer is not None:  # FILE::LAYER: the layer inside the file, for types taking one
+            _check_takes_layer(obj, name, Path(path).name, sublayer)
+            style = {**style, "layer": sublayer}
         failed = object()
         result = self.registry.invoke(obj, "open", path, default=failed, user_errors=True, **style)
         layer: Any = failed
@@ -279,6 +284,21 @@ class _Named:
 
     def drawables(self) -> object:
         return self.items
+
+
+def _check_takes_layer(obj: object, type_name: str, file_name: str, sublayer: str) -> None:
+    """One line when a ``FILE::LAYER`` goes to a layer type whose ``open`` has no ``layer``
+    parameter (the plugin would fail on an argument the user added, not on its own fault)."""
+    import inspect
+
+    try:
+        params = inspect.signature(obj.open).parameters  # type: ignore[attr-defined]
+    except (TypeError, ValueError, AttributeError):
+        return
+    if "layer" not in params:
+        raise GlobeviewError(
+            f"{file_name}::{sublayer:.60}: layer type {type_name} opens whole files (no ::LAYER)"
+        )
 
 
 def _contains(layer: object, part: object) -> bool:

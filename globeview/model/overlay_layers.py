@@ -52,6 +52,7 @@ __all__ = [
     "ArrayImagery",
     "DrawnLayer",
     "ImageryOverlayLayer",
+    "LegendEntry",
     "PointsLayer",
     "VectorLayer",
     "as_drawables",
@@ -141,11 +142,23 @@ class ImageryOverlayLayer(_ModelLayer):
         return True
 
 
+@dataclass(frozen=True)
+class LegendEntry:
+    """One row of a layer's legend: its ``label`` (e.g. a field's value or a range of
+    values) and the ``color`` (RGBA 0..1) it is drawn in."""
+
+    label: str
+    color: tuple[float, float, float, float]
+
+
 class _StyledLayer(_ModelLayer):
     """Vector and point layers: a style edited live; ``style_version`` counts the edits, so
     the renderer rebuilds the layer's GPU twin once after a change."""
 
     style_version: int
+    color: tuple[float, float, float, float]
+    #: This layer's legend text ("": not in the legend), from its drawable's ``legend``.
+    legend_label: str
     #: The attributes `set_style` changes (the rest is the layer's data).
     style_fields: tuple[str, ...] = ()
 
@@ -157,6 +170,11 @@ class _StyledLayer(_ModelLayer):
             problem = style_problem(k, v)
             if problem is not None:
                 raise ValueError(f"{type(self).__name__} style {problem}")
+
+    @property
+    def legend(self) -> list[LegendEntry]:
+        """The layer's legend: one entry in its colour, or none."""
+        return [LegendEntry(self.legend_label, self.color)] if self.legend_label else []
 
     def set_style(self, **style: Any) -> bool:
         """Change style attributes (colour, width_px, size_px, ...); next frame. An unknown
@@ -194,6 +212,7 @@ class VectorLayer(_StyledLayer):
     kind: str = "vector"
     coarser: list = field(default_factory=list)  # (max segment m, Polylines), for far views
     visible: bool = True
+    legend_label: str = ""
     style_version: int = field(default=0, repr=False)
     gpu_kind = "vectors"
     style_fields = ("color", "width_px", "dash_px")
@@ -224,6 +243,7 @@ class PointsLayer(_StyledLayer):
     label_color: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
     kind: str = "points"
     visible: bool = True
+    legend_label: str = ""
     style_version: int = field(default=0, repr=False)
     point_sizes_px: np.ndarray | None = field(default=None, repr=False)
     point_scales_m: np.ndarray | None = field(default=None, repr=False)
@@ -257,6 +277,15 @@ class DrawnLayer(_ModelLayer):
         self.name = name
         self.parts = list(parts)
         self.visible = True
+
+    @property
+    def legend(self) -> list[LegendEntry]:
+        """The parts' legend entries, each label once (the first part's colour), in order."""
+        seen: dict[str, LegendEntry] = {}
+        for p in self.parts:
+            for entry in getattr(p, "legend", ()):
+                seen.setdefault(entry.label, entry)
+        return list(seen.values())
 
     def set_visible(self, visible: bool) -> bool:
         """Show or hide every part; one ``changed`` if the group's visibility changed."""
@@ -460,7 +489,8 @@ def drawable_problem(d: Any) -> str | None:
         if total > MAX_INPUT_VERTICES:
             return f"Lines with {total} vertices (at most {MAX_INPUT_VERTICES})"
         return (
-            _rgba_problem(d.color, "Lines color")
+            _legend_problem(d.legend, "Lines")
+            or _rgba_problem(d.color, "Lines color")
             or _positive(d.width_px, "Lines width_px", 200.0)
             or (None if d.dash_px == 0 else _positive(d.dash_px, "Lines dash_px", 1e4))
             or _positive(d.segment_m, "Lines segment_m", 1e7)
@@ -486,7 +516,8 @@ def drawable_problem(d: Any) -> str | None:
             return f"Points kind {d.kind!r:.40} (one of {POINT_KINDS})"
         count = len(lon)
         return (
-            point_colors_problem(d.color, count, "Points color")
+            _legend_problem(d.legend, "Points")
+            or point_colors_problem(d.color, count, "Points color")
             or _rgba_problem(d.label_color, "Points label_color")
             or point_sizes_problem(d.size_px, count, "Points size_px", 500.0)
             or point_sizes_problem(d.scale_m, count, "Points scale_m", 1e7)
@@ -530,6 +561,12 @@ def style_problem(name: str, value: Any) -> str | None:
     if name == "object_kind":
         return None if value in POINT_KINDS else f"object_kind {value!r:.40} ({POINT_KINDS})"
     return None
+
+
+def _legend_problem(text: Any, what: str) -> str | None:
+    if not isinstance(text, str):
+        return f"{what} legend {text!r:.40} is not a string"
+    return None if len(text) <= 200 else f"{what} legend of {len(text)} characters (at most 200)"
 
 
 def _finite(v: Any) -> bool:
@@ -591,6 +628,7 @@ def vector_layer(d: Lines, name: str) -> VectorLayer:
         width_px=float(d.width_px),
         dash_px=float(d.dash_px),
         coarser=coarser,
+        legend_label=str(d.legend),
     )
 
 
@@ -641,6 +679,7 @@ def points_layer(d: Points, name: str) -> PointsLayer:
         point_sizes_px=sizes_px,
         point_scales_m=scales_m,
         point_colors=colors,
+        legend_label=str(d.legend),
     )
 
 
