@@ -4,7 +4,9 @@ vectors, points), topmost first.
 Each row has a visibility checkbox; rows reorder by drag and drop or the ↑/↓ buttons (the
 model's overlays are reordered, and the next frame composes the imagery drapes in the listed
 order); "Remove" drops a layer. Below the list, the selected layer's style:
-opacity for imagery/thematic drapes, colour and width (vectors) or size (points). Every edit
+opacity for imagery/thematic drapes, colour and width (vectors) or size (points), the line
+width of a drawing made of several line layers (a GIS file coloured by a field), and the
+selected layer's legend (its classes' colours and labels) when it has one. Every edit
 goes to the layer's setters (`globeview.model.overlay_layers`), which announce a real
 change (the layer's ``changed``, re-emitted by the Globe as ``globe.events.overlays``); the
 panel shows what that event says, whoever changed the overlays (the window, code, a plugin),
@@ -144,11 +146,19 @@ class OverlayPanel(QWidget):
         ):
             style.addWidget(w)
 
+        #: The selected layer's legend (rich text: a coloured square and a label per class).
+        self.legend_label = QLabel()
+        self.legend_label.setObjectName("overlay-legend")
+        self.legend_label.setTextFormat(Qt.TextFormat.RichText)
+        self.legend_label.setWordWrap(True)
+        self.legend_label.setToolTip("The colours of the selected layer's classes")
+
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
         layout.addWidget(self.list)
         layout.addLayout(buttons)
         layout.addLayout(style)
+        layout.addWidget(self.legend_label)
         #: The model subscriptions, the window's (cleared when it closes), or its own.
         self.subscriptions = Subscriptions() if subscriptions is None else subscriptions
         self.subscriptions.connect(model.events.overlays, self.refresh)
@@ -238,10 +248,15 @@ class OverlayPanel(QWidget):
         self.remove_button.setEnabled(layer is not None)
         drape = layer is not None and layer.kind in DRAPE_KINDS
         styled = layer is not None and layer.kind in ("vector", "points")
+        lines = _line_parts(layer)
         for w in (self.opacity_label, self.opacity_slider, self.opacity_value):
             w.setVisible(drape)
-        for w in (self.color_button, self.width_label, self.width_spin):
-            w.setVisible(styled)
+        self.color_button.setVisible(styled)
+        for w in (self.width_label, self.width_spin):
+            w.setVisible(styled or bool(lines))
+        legend = list(getattr(layer, "legend", None) or []) if layer is not None else []
+        self.legend_label.setText(legend_html(legend))
+        self.legend_label.setVisible(bool(legend))
         self._updating = True
         try:
             if drape:
@@ -252,6 +267,9 @@ class OverlayPanel(QWidget):
                 self.width_label.setText("Width" if layer.kind == "vector" else "Size")
                 self.width_spin.setValue(float(_size_of(layer)))
                 self._show_color(layer.color)
+            elif lines:
+                self.width_label.setText("Width")
+                self.width_spin.setValue(float(lines[0].width_px))
         finally:
             self._updating = False
 
@@ -308,8 +326,9 @@ class OverlayPanel(QWidget):
             self.set_color(layer, color)
 
     def set_width(self, layer: Any, px: float) -> None:
-        """Line width (vectors) or placemark size (points), in pixels."""
-        if layer.kind == "vector":
+        """Line width (vectors, a drawing's line parts) or placemark size (points), in
+        pixels."""
+        if layer.kind == "vector" or (layer.kind == "drawing" and _line_parts(layer)):
             layer.set_style(width_px=float(px))  # announced by the layer
         elif layer.kind == "points":
             layer.set_style(size_px=float(px))
@@ -354,6 +373,26 @@ class OverlayPanel(QWidget):
         if self.host is None:
             return
         self.host.remove(layer)
+
+
+def _line_parts(layer: Any) -> list:
+    """A drawing's line layers (none for another kind)."""
+    if layer is None or layer.kind != "drawing":
+        return []
+    return [p for p in getattr(layer, "parts", ()) if getattr(p, "kind", "") == "vector"]
+
+
+def legend_html(entries: list) -> str:
+    """A legend (`LegendEntry` rows: label, RGBA 0..1) as rich text, one row a line."""
+    import html
+
+    rows = []
+    for e in entries[:24]:
+        c = QColor.fromRgbF(*(float(v) for v in e.color[:3]))
+        rows.append(f'<span style="color:{c.name()}">&#9632;</span> {html.escape(e.label)}')
+    if len(entries) > 24:
+        rows.append(f"… {len(entries) - 24} more")
+    return "<br>".join(rows)
 
 
 def _size_of(layer: Any) -> float:

@@ -47,6 +47,7 @@ def _has_cross(paths: list[np.ndarray], tol: float = 1e-6) -> None:
     [
         ("cross.shp", "ESRI Shapefile", 26919),  # NAD83 / UTM 19N
         ("cross.kml", "KML", 4326),
+        ("cross.kmz", "LIBKML", 4326),  # zipped KML
         ("cross.fgb", "FlatGeobuf", 3857),  # web Mercator
         ("cross.geojson", "GeoJSON", 32619),  # an old-style GeoJSON with a projected CRS
     ],
@@ -226,3 +227,14 @@ def test_every_broken_geometry_is_counted_and_skipped(tmp_path):
     assert (g.broken, g.empty) == (3, 2)
     assert g.line_feature.tolist() == [0] and g.point_feature.tolist() == [6]
     assert g.point_xy.tolist() == [[-71.3, 44.27]]
+
+
+def test_geoparquet_without_gdal_s_driver_says_so(tmp_path):
+    import pyogrio
+
+    if "Parquet" in pyogrio.list_drivers():
+        pytest.skip("this GDAL reads GeoParquet")
+    path = tmp_path / "x.parquet"
+    path.write_bytes(b"PAR1 not read")
+    with pytest.raises(GlobeviewError, match=r"^x.parquet: GeoParquet needs GDAL's Parquet driver"):
+        read_vector_file(path)
