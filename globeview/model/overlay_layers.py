@@ -46,7 +46,13 @@ from globeview.terrain.imagery import (
     texel_grid,
 )
 from globeview.terrain.quadtree import TileKey, tile_bounds
-from globeview.terrain.vectors import Polylines, densify, densify_rhumb
+from globeview.terrain.vectors import (
+    Polylines,
+    densify,
+    densify_rhumb,
+    segment_lengths_m,
+    thin,
+)
 
 __all__ = [
     "ArrayImagery",
@@ -78,6 +84,8 @@ MAX_DRAPE_SIDE = 16_384
 #: Coarser line levels: x4 spacing each, up to about 1000 km.
 _COARSER_MAX_M = 1.3e6
 _MEAN_RADIUS_M = 6_371_008.8
+#: Lines of fewer segments get no thinned levels below ``segment_m`` (nothing to gain).
+_THIN_MIN_SEGMENTS = 10_000
 
 
 # -- layer objects (models: data + style + visible, no GL) ------------------------------------
@@ -611,15 +619,31 @@ def _length_m(pl: Polylines) -> float:
     return float(np.sum(2 * _MEAN_RADIUS_M * np.arcsin(np.sqrt(np.clip(h, 0, 1))))) * 1.6
 
 
+def _level_spacings(raw: Polylines, step: float) -> list[float]:
+    """The coarser line levels' spacings (m): x4 each from ``step`` up to ~1000 km, and
+    below ``step`` x4 each from four times the median segment of dense input (a layer of
+    vertices metres apart, drawn from far away, thinned level by level)."""
+    coarse = [step * 4.0**k for k in range(1, 6) if step * 4.0**k <= _COARSER_MAX_M]
+    lengths = segment_lengths_m(raw)
+    if len(lengths) < _THIN_MIN_SEGMENTS:
+        return coarse
+    fine = 4.0 * max(float(np.median(lengths)), 1.0)
+    below = []
+    while fine < step:
+        below.append(fine)
+        fine *= 4.0
+    return below + coarse
+
+
 def vector_layer(d: Lines, name: str) -> VectorLayer:
     """A `VectorLayer` of checked `Lines`: densified along its interpolation, with coarser
-    levels (x4 spacing each, up to ~1000 km) for far views."""
+    levels for far views (`_level_spacings`: each thinned to half its spacing, then densified
+    to at most its spacing or ``segment_m``)."""
     raw = _polylines(d)
     step = float(d.segment_m)
     step = max(step, _length_m(raw) / MAX_LINE_VERTICES)
     fn = densify_rhumb if d.interpolation == "rhumb" else densify
-    steps = [step * 4.0**k for k in range(1, 6) if step * 4.0**k <= _COARSER_MAX_M]
-    coarser = [(m, fn(raw, m)) for m in steps]
+    coarser = [(m, fn(thin(raw, m / 2.0), max(m, step))) for m in _level_spacings(raw, step)]
     color = tuple(float(v) for v in [*d.color, 1.0][:4])
     return VectorLayer(
         d.name or name,
