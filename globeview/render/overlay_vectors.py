@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import moderngl
 import numpy as np
 
-from globeview.geodesy import ecef_to_lonlat, lonlat_to_ecef
+from globeview.geodesy import WGS84, lonlat_to_ecef
 from globeview.lod.render_set import RenderSet
 from globeview.lod.view_state import INV_AXES2, ViewState
 from globeview.render.gpu_objects import gpu_objects
@@ -163,9 +163,14 @@ class VectorOverlay:
     def choose_level(self, view: ViewState) -> int:
         """Index of the coarsest level whose segments span at most SEGMENT_PX pixels on the
         ground below the eye."""
-        # The eye's height above the ellipsoid (the polar radius would add ~10 km at
-        # mid-latitudes: thinned levels of dense lines would be chosen twice too coarse).
-        alt = max(float(np.asarray(ecef_to_lonlat(np.asarray(view.eye, np.float64))[2])), 1.0)
+        # The eye's height above the ellipsoid along the radius (within metres of the
+        # geodetic height at these heights; the polar radius would add ~10 km at
+        # mid-latitudes, and thinned levels of dense lines be chosen twice too coarse).
+        eye = np.asarray(view.eye, np.float64)
+        r = float(np.linalg.norm(eye))
+        sin2 = (eye[2] / r) ** 2 if r > 0 else 0.0
+        radius = WGS84.a * WGS84.b / math.sqrt(WGS84.b**2 * (1.0 - sin2) + WGS84.a**2 * sin2)
+        alt = max(r - radius, 1.0)
         m_per_px = alt * 2.0 * math.tan(math.radians(view.fovy_deg) / 2.0) / view.viewport[1]
         ok = [i for i, (sp, _) in enumerate(self.levels) if sp <= SEGMENT_PX * m_per_px]
         return max(ok)
