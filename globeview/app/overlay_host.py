@@ -16,6 +16,7 @@ the globe's overlays and drops a layer the GPU side refuses, with one line in `e
 from __future__ import annotations
 
 import logging
+import weakref
 from pathlib import Path
 from typing import Any
 
@@ -65,6 +66,11 @@ class OverlayHost:
         #: The layer types that opened a file this session (`open`), e.g. to tell the user a
         #: setting of another type changed nothing.
         self.types_used: set[str] = set()
+        #: Each host layer opened here -> (file, layer type, style) it was opened with
+        #: (`restyle` reopens it so).
+        self._sources: weakref.WeakKeyDictionary[Any, tuple[str, str, dict[str, Any]]] = (
+            weakref.WeakKeyDictionary()
+        )
 
     # -- layer types ---------------------------------------------------------------------------
     def layer_types(self) -> list:
@@ -93,17 +99,7 @@ class OverlayHost:
         renderer). Bad files raise a one-line `GlobeviewError` and leave the plugin
         enabled; garbage returned, or a crash, fails that layer type (reported) and raises
         a one-line `PluginFailed` (a `GlobeviewError`: exit 3 on the command line)."""
-        path = str(path)
-        if layer_type is None:
-            layer_type, path = parse_layer_spec(path)
-        path, sublayer = split_sublayer(path)
-        name = self.layer_type_for(path, layer_type)
-        obj = self.registry.find(PluginKind.LAYER, name)
-        if obj is None:
-            raise GlobeviewError(f"layer type {name} is not available ({path})")
-        if sublayer is not None:  # FILE::LAYER: the layer inside the file, for types taking one
-            _check_takes_layer(obj, name, Path(path).name, sublayer)
-            style = {**style, "layer": sublayer}
+        path, name, obj, style = self._resolve(str(path), layer_type, style)
         failed = object()
         result = self.registry.invoke(obj, "open", path, default=failed, user_errors=True, **style)
         layer: Any = failed
@@ -143,7 +139,63 @@ class OverlayHost:
             )
         self.globe.add_overlay(layer)
         self.types_used.add(name)
+        if isinstance(layer, _HOST_LAYERS):
+            self._sources[layer] = (path, name, dict(style))
         return layer
+
+    def _resolve(
+        self, path: str, layer_type: str | None, style: dict[str, Any]
+    ) -> tuple[str, str, Any, dict[str, Any]]:
+        """(file, layer type name, its object, style) for what `open` was given: ``TYPE:``
+        and ``::LAYER`` taken off the path (the layer joins the style as ``layer=``)."""
+        if layer_type is None:
+            layer_type, path = parse_layer_spec(path)
+        path, sublayer = split_sublayer(path)
+        name = self.layer_type_for(path, layer_type)
+        obj = self.registry.find(PluginKind.LAYER, name)
+        if obj is None:
+            raise GlobeviewError(f"layer type {name} is not available ({path})")
+        if sublayer is not None:  # FILE::LAYER: the layer inside the file, for types taking one
+            _check_takes_layer(obj, name, Path(path).name, sublayer)
+            style = {**style, "layer": sublayer}
+        return path, name, obj, style
+
+    # -- styling by attribute (GIS vector files) ------------------------------------------------
+    def vector_fields(self, layer: Any) -> list[str] | None:
+        """The attribute fields of a layer the ``gis`` layer type opened (what it can be
+        coloured or labelled by), or None for another layer. One line (`GlobeviewError`)
+        when its file can no longer be read."""
+        src = self._sources.get(layer)
+        if src is None or src[1] != "gis":
+            return None
+        from globeview.terrain.ogr_vectors import layer_fields
+
+        return layer_fields(src[0], src[2].get("layer"))
+
+    def opened_style(self, layer: Any) -> dict[str, Any] | None:
+        """The style ``layer`` was opened with (a copy; None: not opened from a file here)."""
+        src = self._sources.get(layer)
+        return None if src is None else dict(src[2])
+
+    def restyle(self, layer: Any, **style: Any) -> Any:
+        """Reopen ``layer`` from its file with ``style`` over the style it was opened with
+        (e.g. ``color_by="kind"``, ``label=None``), in its place among the overlays and
+        with its visibility; returns the new layer. Raises `GlobeviewError` (one line, the
+        old layer kept) for a layer not opened from a file here or a style its type refuses."""
+        src = self._sources.get(layer)
+        if src is None:
+            raise GlobeviewError(f"{getattr(layer, 'name', 'overlay')}: not opened from a file")
+        path, type_name, old = src
+        new = self.open(path, type_name, **{**old, **style})
+        order = [ly for ly in self.globe.overlays if ly is not new]
+        at = next(i for i, ly in enumerate(order) if ly is layer)
+        order[at] = new
+        order.append(layer)  # on top for a moment, then removed: one row changes in place
+        self.globe.set_overlay_order(order)
+        if not getattr(layer, "visible", True):
+            new.set_visible(False)
+        self.remove(layer)
+        return new
 
     def open_embedded(self, imagery: bool = False) -> list:
         """The embedded default overlays: Natural Earth borders and coastlines (and the Blue

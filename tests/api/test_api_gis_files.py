@@ -238,3 +238,27 @@ def test_geoparquet_without_gdal_s_driver_says_so(tmp_path):
     path.write_bytes(b"PAR1 not read")
     with pytest.raises(GlobeviewError, match=r"^x.parquet: GeoParquet needs GDAL's Parquet driver"):
         read_vector_file(path)
+
+
+def test_restyle_reopens_a_layer_in_its_place(tmp_path, registry):
+    """`OverlayHost.restyle` (the Layers dock's colour-by and label choice) on the API's globe:
+    no GL is needed to open or restyle."""
+    import globeview
+
+    path = write_cross(tmp_path / "cross.fgb", "FlatGeobuf", 32619)
+    globe = globeview.Globe(registry=registry)
+    try:
+        first = globe.add_vectors(path)
+        top = globe.add_overlay(write_gpx(tmp_path / "cross.gpx"))
+        host = globe.overlay_host
+        assert host.vector_fields(first) == ["name", "kind"]
+        assert host.vector_fields(top)[0] == "name"  # then GPX's own (cmt, desc, src, ...)
+        coloured = host.restyle(first, color_by="kind", width_px=4.0)
+        assert globe.overlays == [coloured, top]
+        assert [e.label for e in coloured.legend] == ["road", "trail"]
+        assert host.opened_style(coloured)["color_by"] == "kind"
+        with pytest.raises(GlobeviewError, match="no field 'colour'"):
+            host.restyle(coloured, color_by="colour")
+        assert globe.overlays == [coloured, top]  # refused: the old layer kept
+    finally:
+        globe.close()

@@ -103,3 +103,37 @@ def test_colour_by_field_legend_and_width_in_the_layers_dock(make_window, tmp_pa
     plain = win.files.overlay_host.open(f"{path}::trails")
     panel.select(plain)
     assert not panel.legend_label.isVisibleTo(panel) and panel.color_button.isVisibleTo(panel)
+
+
+def test_colour_by_and_label_chosen_in_the_dock_reopen_the_layer_in_its_row(make_window, tmp_path):
+    path = _gpkg(tmp_path / "wm.gpkg")
+    win = make_window(camera=Camera.from_lonlat(*VIEW))
+    host = win.files.overlay_host
+    below = host.open(f"{path}::trails")
+    roads = host.open(f"{path}::roads")
+    above = host.open(f"{path}::trails", name="top")
+    panel = win.layer_panel.overlays
+    panel.select(roads)
+    combo = panel.color_by_combo
+    assert combo.isVisibleTo(panel) and panel.label_combo.isVisibleTo(panel)
+    assert [combo.itemText(i) for i in range(combo.count())] == ["(none)", "kind"]
+    assert not panel.legend_label.isVisibleTo(panel)
+    roads.set_visible(False)
+    # As a user picks "kind" in the combo box.
+    combo.setCurrentIndex(1)
+    combo.activated.emit(1)
+    new = panel.selected_layer()
+    assert new is not roads and [e.label for e in new.legend] == ["highway", "road"]
+    assert win.overlay_layers() == [below, new, above]  # the same row
+    assert not new.visible  # its visibility kept
+    assert panel.legend_label.isVisibleTo(panel) and panel.color_by_combo.currentText() == "kind"
+    labelled = panel.set_field(new, "label", "kind")
+    assert sorted(p.kind for p in labelled.parts) == ["points", "vector", "vector"]
+    assert panel.label_combo.currentText() == "kind"
+    plain = panel.set_field(labelled, "color_by", "(none)")
+    assert plain.legend == [] and win.overlay_layers() == [below, plain, above]
+    # A GeoJSON layer (the built-in vector type, not read through OGR) has no field choices.
+    geojson = tmp_path / "line.geojson"
+    geojson.write_text('{"type": "LineString", "coordinates": [[-71.4, 44.2], [-71.2, 44.3]]}')
+    panel.select(host.open(str(geojson)))
+    assert not panel.color_by_combo.isVisibleTo(panel)
