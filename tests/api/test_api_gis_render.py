@@ -183,3 +183,41 @@ def test_cli_renders_a_geopackage_layer_and_refuses_a_crs_less_projected_file(tm
         "globeview: error: metres.fgb: no CRS, and the coordinates are not lon/lat degrees "
         "(give the file its CRS, e.g. a .prj beside a Shapefile)"
     ]
+
+
+@pytest.mark.slow
+def test_a_dense_layer_draws_far_segments_from_coarse_levels(wm_globe, tmp_path):
+    """100 000 vertices 15 m apart on the 9 km oblique view: the near part from the finest
+    level, the far part from thinned ones (distance bands), so far fewer segments are drawn
+    than the layer has, and lines show both near and far."""
+    from pyogrio.raw import write
+
+    rng = np.random.default_rng(5)
+    lines, per = 200, 500
+    start = rng.uniform([-71.6, 44.0], [-71.0, 44.5], (lines, 2))
+    walks = start[:, None, :] + rng.normal(0.0, 1.5e-4, (lines, per, 2)).cumsum(axis=1)
+    from .gis_samples import line_wkb
+
+    path = tmp_path / "walks.fgb"
+    write(
+        str(path),
+        np.array([line_wkb(w) for w in walks], dtype=object),
+        [np.arange(lines, dtype=np.float64)],
+        ["id"],
+        crs="EPSG:4326",
+        geometry_type="LineString",
+        driver="FlatGeobuf",
+    )
+    before = wm_globe.camera
+    try:
+        wm_globe.fly_to(-71.3, 44.0, 9000.0, heading=0.0, pitch=-30.0)
+        layer = wm_globe.add_vectors(path, color=MAGENTA, width_px=2.0)
+        rgb = wm_globe.render((320, 200))
+        drawn = wm_globe.session.last.stats.extra["vector_segments"]
+        # 5 462 of 99 800 here (one level for the whole view, from the eye's height: 19 139).
+        assert 0 < drawn < 0.1 * lines * (per - 1), drawn
+        mask = magenta(rgb)
+        assert mask[130:].sum() > 50 and mask[60:100].sum() > 50  # near and far
+        wm_globe.remove_overlay(layer)
+    finally:
+        wm_globe.camera = before
