@@ -619,13 +619,12 @@ def _length_m(pl: Polylines) -> float:
     return float(np.sum(2 * _MEAN_RADIUS_M * np.arcsin(np.sqrt(np.clip(h, 0, 1))))) * 1.6
 
 
-def _level_spacings(raw: Polylines, step: float) -> list[float]:
+def _level_spacings(lengths: np.ndarray, step: float) -> list[float]:
     """The coarser line levels' spacings (m): x4 each from ``step`` up to ~1000 km, and
-    below ``step`` x2 each from four times the median segment of dense input (a layer of
-    vertices metres apart, drawn from far away, thinned level by level: x2, so the level a
-    view picks has segments of 1.5 to 6 pixels, not down to 0.4)."""
+    below ``step`` x2 each from four times the median segment (``lengths``, m) of dense
+    input (a layer of vertices metres apart, drawn from far away, thinned level by level:
+    x2, so the level a view picks has segments of 1.5 to 6 pixels, not down to 0.4)."""
     coarse = [step * 4.0**k for k in range(1, 6) if step * 4.0**k <= _COARSER_MAX_M]
-    lengths = segment_lengths_m(raw)
     if len(lengths) < _THIN_MIN_SEGMENTS:
         return coarse
     fine = 4.0 * max(float(np.median(lengths)), 1.0)
@@ -641,14 +640,26 @@ def vector_layer(d: Lines, name: str) -> VectorLayer:
     levels for far views (`_level_spacings`: each thinned to half its spacing, then densified
     to at most its spacing or ``segment_m``)."""
     raw = _polylines(d)
+    lengths = segment_lengths_m(raw)
     step = float(d.segment_m)
     step = max(step, _length_m(raw) / MAX_LINE_VERTICES)
-    fn = densify_rhumb if d.interpolation == "rhumb" else densify
-    coarser = [(m, fn(thin(raw, m / 2.0), max(m, step))) for m in _level_spacings(raw, step)]
+    rhumb = d.interpolation == "rhumb"
+
+    def level(thin_m: float | None, target_m: float) -> Polylines:
+        pl = raw if thin_m is None else thin(raw, thin_m, lengths)
+        seg = lengths if thin_m is None else segment_lengths_m(pl)
+        # Geodesic lines already finer than the target are kept as they are (densify would
+        # insert nothing); rhumb lines are always unwrapped and clipped by densify_rhumb.
+        if not rhumb and (not len(seg) or float(seg.max()) < 0.98 * target_m):
+            return pl
+        return (densify_rhumb if rhumb else densify)(pl, target_m)
+
+    fine = level(None, step)
+    coarser = [(m, level(m / 2.0, max(m, step))) for m in _level_spacings(lengths, step)]
     color = tuple(float(v) for v in [*d.color, 1.0][:4])
     return VectorLayer(
         d.name or name,
-        fn(raw, step),
+        fine,
         color=color,  # type: ignore[arg-type]
         width_px=float(d.width_px),
         dash_px=float(d.dash_px),

@@ -279,13 +279,14 @@ def segment_lengths_m(lines: Polylines) -> np.ndarray:
     return 6_371_008.8 * np.hypot(dx, dy)
 
 
-def thin(lines: Polylines, spacing_m: float) -> Polylines:
+def thin(lines: Polylines, spacing_m: float, lengths: np.ndarray | None = None) -> Polylines:
     """``lines`` keeping, along each polyline, its first and last vertex and the first vertex
     past each multiple of ``spacing_m`` metres of length from its start (vectorised). A
-    dropped vertex lies within about ``spacing_m`` of the thinned line."""
+    dropped vertex lies within about ``spacing_m`` of the thinned line. ``lengths``: the
+    segments' `segment_lengths_m`, when the caller has them."""
     _, b = lines.segments()
     along = np.zeros(len(lines.lon))
-    along[b] = segment_lengths_m(lines)
+    along[b] = segment_lengths_m(lines) if lengths is None else lengths
     along = np.cumsum(along)
     counts = np.diff(lines.starts)
     along -= np.repeat(along[lines.starts[:-1]], counts)
