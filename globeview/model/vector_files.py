@@ -76,6 +76,8 @@ LINE_COLOR: RGBA = (1.0, 0.9, 0.2, 1.0)
 POINT_COLOR: RGBA = (1.0, 0.25, 0.15, 1.0)
 #: Features without a value, and categories past the palette.
 GREY: RGBA = (0.6, 0.6, 0.6, 1.0)
+#: Most points one layer draws (the host's limit on a `Points` drawable).
+MAX_POINTS = 1_000_000
 #: Most labels one layer draws (the label atlas's limit on distinct labels).
 MAX_LABELS = 2_000
 #: Default densification of GIS lines (metres): local data (roads, trails) drapes closely.
@@ -215,6 +217,8 @@ def read_vector_file(
     g = feats.geometry
     if not len(g.line_starts) > 1 and not len(g.point_xy):
         raise VectorFileError(f"{p.name}: no point, line or polygon geometry to draw")
+    if len(g.point_xy) > MAX_POINTS:  # the user's file, not the layer type's fault: one line
+        raise VectorFileError(f"{p.name}: {len(g.point_xy):,} points (at most {MAX_POINTS:,})")
     drawn = np.zeros(feats.count, bool)
     drawn[g.line_feature] = True
     drawn[g.point_feature] = True

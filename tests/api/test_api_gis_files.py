@@ -203,8 +203,24 @@ def test_bad_input_is_one_line(tmp_path, monkeypatch):
     junk.write_bytes(b"SQLite format 3\x00 but not really")
     with pytest.raises(GlobeviewError, match=r"^junk.gpkg: not a vector file OGR reads"):
         read_vector_file(junk)
+    import globeview.model.vector_files as vf
     import globeview.terrain.ogr_vectors as ogr
 
+    peaks = tmp_path / "peaks.fgb"
+    from pyogrio.raw import write
+
+    write(
+        str(peaks),
+        np.array([point_wkb(-71.3, 44.27), point_wkb(-71.2, 44.2)], dtype=object),
+        [np.array(["a", "b"], dtype=object)],
+        ["name"],
+        crs="EPSG:4326",
+        geometry_type="Point",
+        driver="FlatGeobuf",
+    )
+    monkeypatch.setattr(vf, "MAX_POINTS", 1)  # more points than a layer draws: the file's line
+    with pytest.raises(GlobeviewError, match=r"^peaks.fgb: 2 points \(at most 1\)$"):
+        read_vector_file(peaks)
     monkeypatch.setattr(ogr, "MAX_FEATURES", 2)  # a file with too many features: refused first
     with pytest.raises(GlobeviewError, match=r"layer 'roads' has 3 features \(at most 2\)"):
         read_vector_file(path)
