@@ -278,3 +278,37 @@ def test_restyle_reopens_a_layer_in_its_place(tmp_path, registry):
         assert globe.overlays == [coloured, top]  # refused: the old layer kept
     finally:
         globe.close()
+
+
+def _hostile(tmp_path, kind: str):
+    import shutil
+
+    good = write_cross(tmp_path / "cross.shp", "ESRI Shapefile", 26919)
+    data = good.read_bytes()
+    if kind == "truncated.shp":
+        for ext in (".shx", ".dbf", ".prj"):
+            shutil.copy(good.with_suffix(ext), tmp_path / f"truncated{ext}")
+        (tmp_path / kind).write_bytes(data[: len(data) // 2])
+    elif kind == "noshx.shp":
+        (tmp_path / kind).write_bytes(data)
+    elif kind == "zeros.gpkg":
+        (tmp_path / kind).write_bytes(b"\x00" * 1000)
+    else:
+        (tmp_path / kind).write_text("")
+    return tmp_path / kind
+
+
+@pytest.mark.parametrize(
+    ("kind", "line"),
+    [
+        ("truncated.shp", "truncated.shp: no point, line or polygon geometry to draw"),
+        ("noshx.shp", "noshx.shp: not a vector file OGR reads (Unable to open "),
+        ("zeros.gpkg", "zeros.gpkg: not a vector file OGR reads ("),
+        ("empty.kml", "empty.kml: not a vector file OGR reads ("),
+    ],
+)
+def test_hostile_files_are_one_line(tmp_path, kind, line):
+    with pytest.raises(GlobeviewError) as err:
+        read_vector_file(_hostile(tmp_path, kind))
+    text = str(err.value)
+    assert text.startswith(line) and "\n" not in text and len(text) < 300
