@@ -31,7 +31,7 @@ from typing import Any
 
 __version__ = "0.1.0"
 
-__all__ = ["CameraPose", "Globe", "Profile", "__version__", "show"]
+__all__ = ["CameraPose", "Globe", "Keyframe", "Profile", "Tour", "__version__", "show"]
 
 #: Public name -> the module that defines it (imported on first use, by name: the layers
 #: contract sees no import of app or ui here, so a module importing ``globeview`` for its
@@ -40,6 +40,8 @@ _LAZY = {
     "Globe": "globeview.app.globe",
     "CameraPose": "globeview.app.globe",
     "Profile": "globeview.app.globe",
+    "Tour": "globeview.model.tour",
+    "Keyframe": "globeview.model.tour",
     "show": "globeview.ui.show",
 }
 

@@ -3,6 +3,8 @@
 from globeview.app.globe import CameraPose as CameraPose
 from globeview.app.globe import Globe as Globe
 from globeview.app.globe import Profile as Profile
+from globeview.model.tour import Keyframe as Keyframe
+from globeview.model.tour import Tour as Tour
 from globeview.ui.show import show as show
 
 __version__: str

@@ -22,6 +22,7 @@ anything changed: a refused DEM, overlay or LOD provider leaves the globe as it 
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import os
 import time
@@ -38,10 +39,12 @@ from globeview.app.dem_input import array_dem_file, checked_array_dem, is_data_a
 from globeview.app.lod_host import check_lod_name
 from globeview.app.overlay_host import OverlayHost
 from globeview.errors import GlobeviewError
+from globeview.model.bookmarks import Bookmarks
 from globeview.model.camera import Camera, check_lonlat_hpr
 from globeview.model.display import DisplaySettings
 from globeview.model.globe import DEFAULT_LOD
 from globeview.model.globe import Globe as GlobeModel
+from globeview.model.tour import Keyframe, Tour, load_tour
 from globeview.plugins.api import PluginKind
 from globeview.plugins.registry import PluginRegistry
 from globeview.terrain.compose.height_query import query_heights
@@ -51,6 +54,8 @@ if TYPE_CHECKING:
     from globeview.app.session import GlobeSession
 
 __all__ = ["CameraPose", "Globe", "Profile"]
+
+_log = logging.getLogger("globeview.project")
 
 #: Image sides (pixels) `Globe.render` accepts.
 SIZE_RANGE_PX = (16, 16384)
@@ -150,8 +155,25 @@ class Globe:
         self._gl: _Headless | None = None
         self._release: Callable[[], Any] = lambda: None
         self._size = DEFAULT_SIZE
+        #: The tour `fly_to(..., seconds=)` and `add_keyframe` record and `movie` films.
+        self.tour = Tour()
+        #: One line per layer `open_project` could not open (empty otherwise).
+        self.project_problems: list[str] = []
         if embedded:
             self.overlay_host.open_embedded()
+
+    @classmethod
+    def on_model(
+        cls, model: GlobeModel, registry: PluginRegistry, overlay_host: OverlayHost
+    ) -> Globe:
+        """A `Globe` drawing an application model that exists already, e.g. a window's (its
+        Export Movie… films through one): terrain, overlays, camera and settings shared."""
+        globe = cls.__new__(cls)
+        globe.registry, globe.model, globe.overlay_host = registry, model, overlay_host
+        globe._gl, globe._release, globe._size = None, lambda: None, DEFAULT_SIZE
+        globe.tour = Tour()
+        globe.project_problems = []
+        return globe
 
     # -- terrain ---------------------------------------------------------------------------
     @property
@@ -295,20 +317,31 @@ class Globe:
 
     def fly_to(
         self,
-        lon: float,
-        lat: float,
+        lon: float | CameraPose,
+        lat: float | None = None,
         height: float | None = None,
         heading: float = 0.0,
         pitch: float = -90.0,
         roll: float = 0.0,
+        *,
+        seconds: float | None = None,
     ) -> CameraPose:
         """Put the camera at (lon, lat) degrees, ``height`` metres above the WGS84 ellipsoid
         (default: the current height), looking along ``heading`` (degrees from north,
-        clockwise) and ``pitch`` (degrees; -90 straight down). Headless the move is
-        immediate; a window showing the globe redraws at once. One line (`GlobeviewError`)
-        for a value out of range; the camera then stays."""
+        clockwise) and ``pitch`` (degrees; -90 straight down); or at a `CameraPose` given
+        instead of ``lon``. Headless the move is immediate; a window showing the globe
+        redraws at once. With ``seconds``, the flight there is also recorded in `tour` (a
+        keyframe reached in ``seconds``, after one for the camera before the move if the
+        tour was empty), for `movie` or `play`. One line (`GlobeviewError`) for a value out
+        of range; the camera then stays."""
+        if isinstance(lon, CameraPose):
+            lon, lat, height, heading, pitch, roll = _pose_values(lon)
+        if lat is None:
+            raise GlobeviewError("fly_to takes lon, lat[, height, ...] degrees or a CameraPose")
         if height is None:
             height = self.camera.height
+        if seconds is not None:
+            self._record_flight((lon, lat, height, heading, pitch, roll), seconds)
         fov = self.model.camera.fovy_deg
         try:
             placed = check_lonlat_hpr(lon, lat, height, heading, pitch, roll)
@@ -318,6 +351,13 @@ class Globe:
         self.model.camera = camera
         self.registry.attach(camera=camera)
         return self.camera
+
+    def _record_flight(self, pose: tuple[float, ...], seconds: float) -> None:
+        """`fly_to`'s ``seconds``: the keyframe (checked first), after the start if none."""
+        key = self._keyframe(pose, seconds)
+        if not self.tour.keyframes:
+            self.tour.add(Keyframe(*_pose_values(self.camera)))
+        self.tour.add(key)
 
     def view_dems(self) -> CameraPose:
         """Look straight down on the top DEM layer, high enough to see all of it (the
@@ -329,6 +369,56 @@ class Globe:
         bounds = self.terrain.layers[-1].store.bounds
         camera = camera_for_bounds(*bounds, fovy_deg=self.model.camera.fovy_deg)
         return self.fly_to(*camera.lonlat_hpr())
+
+    # -- tours and movies ------------------------------------------------------------------
+    def add_keyframe(self, seconds: float = 0.0, pose: Any = None) -> Keyframe:
+        """Append a keyframe to `tour`: ``pose`` (a `CameraPose` or (lon, lat, height[,
+        heading[, pitch[, roll]]])), default the camera now, reached ``seconds`` after the
+        previous keyframe. One line (`GlobeviewError`) for a value out of range."""
+        return self.tour.add(self._keyframe(pose if pose is not None else self.camera, seconds))
+
+    def _keyframe(self, pose: Any, seconds: float) -> Keyframe:
+        values = _pose_values(pose) if isinstance(pose, CameraPose) else tuple(pose)
+        try:
+            return Keyframe.from_pose(values, seconds)
+        except (TypeError, ValueError) as exc:
+            raise GlobeviewError(f"keyframe: {exc}") from None
+
+    def play(self, tour: Tour | None = None, fps: float = 30.0) -> Iterator[CameraPose]:
+        """Move the camera through ``tour`` (default `tour`) one movie frame at a time
+        (``fps`` frames per tour second, as `movie` films it), yielding each pose; render
+        or wait between steps. A window showing the globe follows."""
+        from globeview.app.movie import check_fps
+
+        tour = self.tour if tour is None else tour
+        try:  # checked now, not at the first step
+            times = tour.frame_times(check_fps(fps))
+        except ValueError as exc:
+            raise GlobeviewError(f"play: {exc}") from None
+        return (self.fly_to(*tour.pose_at(float(t))) for t in times)
+
+    def movie(
+        self,
+        tour: Tour | str | os.PathLike[str] | None,
+        path: str | os.PathLike[str],
+        *,
+        size: tuple[int, int] | None = None,
+        fps: float = 30.0,
+        progress: Callable[[int, int], bool | None] | None = None,
+    ) -> Path:
+        """Film ``tour`` (a `Tour`, a tour file, or None for `tour`) into ``path`` (.mp4:
+        H.264; .gif), ``size`` (width, height) pixels (default: the last render's size),
+        ``fps`` frames a second; every frame has all its tiles loaded. The file appears only
+        when complete (nothing is left on failure or cancel); the camera is put back.
+        ``progress(done, total)`` is called before the first frame and after each one;
+        returning False cancels
+        (`globeview.app.movie.MovieCancelled`). One line (`GlobeviewError`) for bad input.
+        Returns the path."""
+        from globeview.app.movie import write_movie
+
+        if not isinstance(tour, Tour):
+            tour = self.tour if tour is None else load_tour(tour)
+        return write_movie(self, tour, path, _checked_size(size or self._size), fps, progress)
 
     # -- display, LOD -------------------------------------------------------------------------
     @property
@@ -375,23 +465,11 @@ class Globe:
         if provider is None:
             why = self.registry.failure_of(name) or "it did not load"
             raise GlobeviewError(f"LOD provider {name} is not available: {why}")
-        values = self._checked_settings(name, provider, settings)
+        values = checked_settings(name, provider, settings)
         if settings:
             self.registry.invoke(provider, "configure", values)
         self.model.lod = name
         return self.lod_settings()
-
-    def _checked_settings(self, name: str, provider: Any, settings: dict) -> dict[str, Any]:
-        """The provider's current values overlaid with ``settings``, each checked."""
-        declared = {s.name: s for s in getattr(provider, "settings", ())}
-        values = dict(getattr(provider, "values", {}))
-        for key, value in settings.items():
-            setting = declared.get(key)
-            if setting is None:
-                offered = ", ".join(declared) or "none"
-                raise GlobeviewError(f"{name} has no setting {key!r} (settings: {offered})")
-            values[key] = _setting_value(f"{name}.{key}", setting, value)
-        return values
 
     def lod_settings(self) -> dict[str, Any]:
         """The active LOD provider's setting values (name -> value)."""
@@ -447,6 +525,69 @@ class Globe:
             return math.nan
         answer = query_heights(self.terrain, np.array([lon]), np.array([lat]))[0]
         return math.nan if answer.ellipsoidal is None else answer.ellipsoidal
+
+    # -- projects and bookmarks (issue #26 item 4; docs/python_api.md) -----------------------
+    @property
+    def bookmarks(self) -> Bookmarks:
+        """The named views (`globeview.model.bookmarks.Bookmarks`: ``names``, ``[name]``,
+        ``remove(name)``); `add_bookmark` and `goto_bookmark` use them."""
+        return self.model.bookmarks
+
+    def add_bookmark(self, name: str, camera: CameraPose | Sequence[float] | None = None) -> Any:
+        """Bookmark the current view (or ``camera``, as `camera` takes it) as ``name``
+        (replacing a bookmark of that name). One line (`GlobeviewError`) for a bad name."""
+        pose = self.camera if camera is None else camera
+        values = (
+            (pose.lon, pose.lat, pose.height, pose.heading, pose.pitch, pose.roll)
+            if isinstance(pose, CameraPose)
+            else (*tuple(pose), 0.0, -90.0, 0.0)[:6]
+        )
+        try:
+            return self.model.bookmarks.add(name, values)
+        except (TypeError, ValueError) as exc:
+            raise GlobeviewError(f"add_bookmark: {exc}") from None
+
+    def goto_bookmark(self, name: str) -> CameraPose:
+        """Put the camera at the bookmark ``name`` (one line if there is none)."""
+        if name not in self.model.bookmarks:
+            raise GlobeviewError(f"no bookmark named {name!r:.60} ({self.model.bookmarks.names})")
+        return self.fly_to(*self.model.bookmarks[name].pose)
+
+    def save_project(self, path: str | os.PathLike[str]) -> Path:
+        """Write the globe (DEMs and overlays with their order, visibility, opacity and
+        style, camera, LOD provider and settings, display, tool, bookmarks) to a project
+        file (``.toml``, paths relative to it), atomically. A layer no file stands for (a
+        DEM from an array) is left out with a warning. One line (`GlobeviewError`) for a
+        path that cannot be written; nothing partial is left."""
+        from globeview.app.project import save_project
+
+        for line in save_project(self._parts(), path):
+            _log.warning("save_project: %s; left out", line)
+        return Path(path)
+
+    @classmethod
+    def open_project(
+        cls, path: str | os.PathLike[str], *, registry: PluginRegistry | None = None
+    ) -> Globe:
+        """A globe showing the project file ``path`` (see `save_project`). One line
+        (`GlobeviewError`) for a file that is not a project, of a newer schema, or with a bad
+        value or an unknown plugin or setting. A layer whose file is missing (or absolute,
+        or unreadable) is one warning line and left out; the list is ``project_problems``."""
+        from globeview.app.project import apply_project
+        from globeview.model.project import read_project
+
+        project = read_project(path)
+        globe = cls(registry=registry, lod=DEFAULT_LOD)
+        base = Path(path).resolve().parent
+        globe.project_problems = apply_project(project, base, globe._parts())
+        for line in globe.project_problems:
+            _log.warning("%s: %s", Path(path).name, line)
+        return globe
+
+    def _parts(self) -> Any:
+        from globeview.app.project import GlobeParts
+
+        return GlobeParts(self.model, self.overlay_host, self.registry)
 
     # -- rendering ---------------------------------------------------------------------------
     def render(self, size: tuple[int, int] | None = None) -> np.ndarray:
@@ -655,6 +796,10 @@ def _embedded_terrain() -> TerrainStack:
     return TerrainStack.from_stores(embedded_stores(), [p.stem for p in embedded_dem_paths()])
 
 
+def _pose_values(pose: CameraPose) -> tuple[float, float, float, float, float, float]:
+    return (pose.lon, pose.lat, pose.height, pose.heading, pose.pitch, pose.roll)
+
+
 def _data_array_name(source: Any) -> str | None:
     """A DataArray's own name, if it has a usable one."""
     name = getattr(source, "name", None) if is_data_array(source) else None
@@ -673,6 +818,20 @@ def _lonlat(label: str, point: Sequence[float]) -> tuple[float, float]:
             "in -90..90 degrees"
         )
     return lon, lat
+
+
+def checked_settings(name: str, contribution: Any, settings: dict) -> dict[str, Any]:
+    """A plugin contribution's current setting values overlaid with ``settings``, each
+    checked (`_setting_value`); one `GlobeviewError` line for a setting it lacks."""
+    declared = {s.name: s for s in getattr(contribution, "settings", ())}
+    values = dict(getattr(contribution, "values", {}))
+    for key, value in settings.items():
+        setting = declared.get(key)
+        if setting is None:
+            offered = ", ".join(declared) or "none"
+            raise GlobeviewError(f"{name} has no setting {key!r} (settings: {offered})")
+        values[key] = _setting_value(f"{name}.{key}", setting, value)
+    return values
 
 
 def _checked_samples(tool: Any, samples: Any) -> int:

@@ -15,7 +15,9 @@ the globe's overlays and drops a layer the GPU side refuses, with one line in `e
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
 import weakref
 from pathlib import Path
 from typing import Any
@@ -71,6 +73,9 @@ class OverlayHost:
         self._sources: weakref.WeakKeyDictionary[Any, tuple[str, str, dict[str, Any]]] = (
             weakref.WeakKeyDictionary()
         )
+        #: Layer -> (absolute path of its file, the layer type that opened it), for project
+        #: files (`globeview.app.project`). Weak: a layer dropped is forgotten.
+        self.origins: weakref.WeakKeyDictionary[Any, tuple[str, str]] = weakref.WeakKeyDictionary()
 
     # -- layer types ---------------------------------------------------------------------------
     def layer_types(self) -> list:
@@ -141,6 +146,8 @@ class OverlayHost:
         self.types_used.add(name)
         if isinstance(layer, _HOST_LAYERS):
             self._sources[layer] = (path, name, dict(style))
+        with contextlib.suppress(TypeError):  # a layer object that cannot be weakly keyed
+            self.origins[layer] = (os.path.abspath(path), name)
         return layer
 
     def _resolve(

@@ -40,6 +40,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "info": ("info", "describe DEM rasters (bounds, resolution, nodata, value range)"),
     "ingest": ("ingest", "build a tile-pyramid store from one or more DEMs"),
     "render": ("render", "render the globe headless to a PNG (EGL, no display needed)"),
+    "movie": (
+        "movie",
+        "fly a tour (a tour file or cameras) over DEMs headless and write an MP4 or GIF",
+    ),
     "height": ("height", "heights of the terrain at points: ellipsoidal, geoid, orthometric"),
     "plugins": ("plugins", "list, validate, enable and disable plugins"),
     "bench": ("bench", "benchmarks: camera flights, the papers' experiments, budgets, soak"),

@@ -22,7 +22,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="DEM files, tile store folders or store URLs (https://HOST/path/store) to open "
         "on top of the embedded data, and overlay files (GeoJSON, imagery or thematic "
         "rasters, any file an installed layer type opens) shown over it; each is told apart "
-        "by its content, as File > Open and drag and drop do",
+        "by its content, as File > Open and drag and drop do; or one project file "
+        "(PROJECT.toml), opened as File > Open Project does",
     )
     add_view_options(parser, window=True)
 
@@ -46,6 +47,9 @@ def run(args: argparse.Namespace) -> int:
     import os
     import sys
 
+    from globeview.cli.project import check_gui_project
+
+    project = check_gui_project(args)  # `globeview PROJECT.toml`: checked before Qt
     start = check_start(args)  # bad input is one line whether or not a window can open
     # Checked before Qt is imported: without a display Qt would abort with a platform-plugin
     # traceback instead of a message.
@@ -58,4 +62,6 @@ def run(args: argparse.Namespace) -> int:
         return 1
     from globeview.ui.app import run as run_app
 
+    if project is not None:
+        return run_app([], start=start, project=project)
     return run_app(args.files, start=start)

@@ -22,7 +22,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="STORE|URL|DEM",
         help="tile store folders, store URLs (https://HOST/path/store, read over HTTP with "
         "a local disk cache) or DEM files (DEMs are ingested into the cache once); "
-        "none: the embedded data",
+        "none: the embedded data; or one project file (PROJECT.toml, saved by the window or "
+        "Globe.save_project), drawn as it was saved",
     )
     parser.add_argument("--out", "-o", required=True, help="PNG file to write")
     parser.add_argument("--size", default="1280x720", help="WIDTHxHEIGHT in pixels")
@@ -337,6 +338,7 @@ def run(args: argparse.Namespace) -> int:
 
     from globeview.app.headless import place_points
     from globeview.app.session import GlobeSession
+    from globeview.cli.project import project_argument, render_project
     from globeview.model.camera import Camera, camera_for_bounds
     from globeview.plugins.api import PluginKind
     from globeview.plugins.registry import PluginRegistry
@@ -344,6 +346,9 @@ def run(args: argparse.Namespace) -> int:
     from globeview.render.offscreen import OffscreenTarget, create_headless_context
     from globeview.terrain.compose.stack import TerrainStack
 
+    project = project_argument(args.sources)  # `render PROJECT.toml`: cli/project.py
+    if project is not None:
+        return render_project(args, project)
     # Everything the user typed is checked before the first tile is read: a bad value or an
     # unwritable output fails at once, in one line, and nothing is written.
     v = check_view_args(args)

@@ -14,6 +14,7 @@ from typing import Any, Final
 
 from psygnal import Signal, SignalGroup, SignalInstance
 
+from globeview.model.bookmarks import Bookmarks
 from globeview.model.camera import Camera
 from globeview.model.display import DisplaySettings
 from globeview.terrain.compose.stack import TerrainStack
@@ -77,6 +78,8 @@ class Globe:
         self._tau_px = check_tau(tau_px)
         self.display = display if display is not None else DisplaySettings()
         self.overlays: list[Any] = []
+        #: Named camera views (evented on their own: ``globe.bookmarks.changed``).
+        self.bookmarks = Bookmarks()
         # psygnal holds the bound method weakly: a terrain outlives the globes shown on it
         # (a test session's shared stack, a window reopening a globe) without keeping them.
         terrain.changed.connect(self._terrain_changed)

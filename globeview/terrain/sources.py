@@ -22,7 +22,9 @@ from __future__ import annotations
 import errno
 import hashlib
 import os
+import weakref
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
@@ -47,6 +49,7 @@ __all__ = [
     "check_store_url",
     "is_store_url",
     "open_source",
+    "opened_as",
     "source_kind",
     "store_path_for",
 ]
@@ -160,9 +163,36 @@ def open_source(
     text = os.fspath(text)
     found = find_backend(text)
     if found is not None:
-        return TileStore.open(_checked_by(*found, text))
+        store = TileStore.open(_checked_by(*found, text))
+        where = text if is_store_url(text) else os.path.abspath(text)
+        _OPENED[store] = SourceOrigin(where, "store", None, None)
+        return store
     _refuse_unclaimed(text)
-    return _open_dem(Path(text), crs, vdatum, on_progress, progress)
+    store = _open_dem(Path(text), crs, vdatum, on_progress, progress)
+    _OPENED[store] = SourceOrigin(os.path.abspath(text), "dem", crs, vdatum)
+    return store
+
+
+@dataclass(frozen=True)
+class SourceOrigin:
+    """What a store was opened from (`opened_as`): ``text`` the absolute path of a DEM file
+    or store folder, or a store URL as typed; ``kind`` "dem" or "store"; the ``crs`` and
+    ``vdatum`` given for a DEM file (None: the file's own)."""
+
+    text: str
+    kind: str
+    crs: str | None
+    vdatum: str | None
+
+
+#: The origin of every store `open_source` opened in this process (a project file names
+#: the sources, not the cache's stores). Weak: a store closed and dropped is forgotten.
+_OPENED: weakref.WeakKeyDictionary[TileStore, SourceOrigin] = weakref.WeakKeyDictionary()
+
+
+def opened_as(store: TileStore) -> SourceOrigin | None:
+    """What `open_source` opened ``store`` from, or None (a store opened otherwise)."""
+    return _OPENED.get(store)
 
 
 def _open_dem(

@@ -110,10 +110,11 @@ def run(
     files: Sequence[str] = (),
     settings: QSettings | None = None,
     start: WindowStart | None = None,
+    project: str | None = None,
 ) -> int:
     """Open the window with the embedded data plus ``files`` (DEMs, stores, store URLs,
-    overlay files), on ``start``'s view, LOD provider, tool and settings (`apply_start`);
-    returns the exit code."""
+    overlay files), on ``start``'s view, LOD provider, tool and settings (`apply_start`),
+    or on a ``project`` file (File > Open Project); returns the exit code."""
     logging.basicConfig(level=logging.WARNING, format="globeview: %(levelname)s: %(message)s")
     app = create_application()
     qsettings = settings or QSettings(ORGANIZATION, APPLICATION)
@@ -129,6 +130,8 @@ def run(
     try:
         apply_start(window, start)
         window.show()
+        if project is not None:
+            window.projects.open(project)
         window.files.open_paths(list(files))
         return int(app.exec())
     finally:

@@ -16,6 +16,8 @@ view and one another:
   `OverlayHost` with or without GL (the session draws them);
 - `WindowTools` (ui/window_tools.py): the Tools toolbar and menu, the tools' declared
   commands and the Tool options bar;
+- `ProjectActions` (ui/project_actions.py): File > Open Project… / Save Project… and the
+  Bookmarks menu;
 - the docks (`LayerPanel`, `PluginPanel`, the Plot dock), the status bar (`StatusBar`) and
   the plugins' window side (`PluginHost`).
 
@@ -47,8 +49,10 @@ from globeview.ui.navigation import HOME_POSE
 from globeview.ui.plot_dock import install_plot_dock
 from globeview.ui.plugin_host import PluginHost, QSettingsBackend
 from globeview.ui.plugin_panel import TAU_MAX_PX, TAU_MIN_PX, PluginPanel
+from globeview.ui.project_actions import ProjectActions
 from globeview.ui.status import ELLIPSOIDAL, ORTHOMETRIC, StatusBar
 from globeview.ui.subscriptions import Subscriptions
+from globeview.ui.tour_panel import TourPanel
 from globeview.ui.view_toolbar import EXAG_MAX_TENTHS, ViewToolbar
 from globeview.ui.window_tools import WindowTools
 
@@ -190,7 +194,19 @@ class MainWindow(QMainWindow):
         self.addDockWidget(Qt.DockWidgetArea.LeftDockWidgetArea, dock)
         return dock
 
+    def _tour_dock(self) -> tuple[TourPanel, QDockWidget]:
+        """The Tour dock (record, play, export a movie), a tab behind the plugins."""
+        registry = self.plugins.registry
+        panel = TourPanel(self.model, registry, self.overlay_host, self.errors, self.globe)
+        panel.notice.connect(self.status.notice)
+        dock = self._dock("Tour", "tour", panel)
+        self.tabifyDockWidget(self.plugin_dock, dock)
+        self.plugin_dock.raise_()
+        return panel, dock
+
     def _build_menus(self) -> None:
+        # The Tour dock first: its Export Movie… and toggle go in File and View.
+        self.tour_panel, self.tour_dock = self._tour_dock()
         mb = self.menuBar()
         files = self.files
         file_menu = mb.addMenu("&File")
@@ -198,10 +214,19 @@ class MainWindow(QMainWindow):
         file_menu.addAction(files.open_overlay_action)
         file_menu.addAction(files.open_url_action)
         file_menu.addMenu(files.recent_menu)
+        # Projects and bookmarks (ui/project_actions.py, issue #26 item 4).
+        self.projects = ProjectActions(self)
+        file_menu.addSeparator()
+        file_menu.addAction(self.projects.open_action)
+        file_menu.addAction(self.projects.save_action)
+        file_menu.addSeparator()
         self.export_action = QAction("&Export Image…", self)
         self.export_action.setShortcut(QKeySequence("Ctrl+E"))
         self.export_action.triggered.connect(self.export_dialog)
         file_menu.addAction(self.export_action)
+        self.export_movie_action = QAction("Export &Movie…", self)
+        self.export_movie_action.triggered.connect(self.tour_panel.export_dialog)
+        file_menu.addAction(self.export_movie_action)
         file_menu.addSeparator()
         quit_action = QAction("&Quit", self)
         quit_action.setShortcut(QKeySequence.StandardKey.Quit)
@@ -216,6 +241,7 @@ class MainWindow(QMainWindow):
         view_menu.addSeparator()
         view_menu.addAction(self.layer_dock.toggleViewAction())
         view_menu.addAction(self.plugin_dock.toggleViewAction())
+        view_menu.addAction(self.tour_dock.toggleViewAction())
         view_menu.addSeparator()
         # Cursor heights above the geoid (m a.s.l., the default) or the ellipsoid (m ell.).
         self.ellipsoidal_action = QAction("&Ellipsoidal Heights (m ell.)", self)
@@ -225,6 +251,7 @@ class MainWindow(QMainWindow):
         )
         self.ellipsoidal_action.toggled.connect(self._height_reference_changed)
         view_menu.addAction(self.ellipsoidal_action)
+        mb.addMenu(self.projects.bookmarks_menu)
 
     def _height_reference_changed(self, ellipsoidal: bool) -> None:
         reference = ELLIPSOIDAL if ellipsoidal else ORTHOMETRIC
@@ -355,6 +382,7 @@ class MainWindow(QMainWindow):
     def closeEvent(self, event: QCloseEvent) -> None:
         self.save_settings()
         self.globe.flight.stop()
+        self.tour_panel.stop()
         self.files.loader.shutdown()
         self.globe.release_gl()
         # Nothing may keep the released session (and its terrain caches) alive, and the
