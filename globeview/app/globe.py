@@ -250,13 +250,35 @@ class Globe:
         terrain, on top of the other overlays; ``style`` goes to the layer type (e.g.
         ``color=(r, g, b, a)`` in 0..1, ``width_px=2``). Returns the layer. One line
         (`GlobeviewError`) for a file no layer type opens."""
-        from globeview.app.layer_dispatch import parse_layer_spec
+        from globeview.app.layer_dispatch import parse_layer_spec, split_sublayer
 
         text = os.fspath(path)
-        file = Path(parse_layer_spec(text)[1] if layer_type is None else text)
+        file = Path(split_sublayer(parse_layer_spec(text)[1] if layer_type is None else text)[0])
         if not file.is_file():
             raise GlobeviewError(f"add_overlay: no such file: {file}")
         return self.overlay_host.open(text, layer_type, **style)
+
+    def add_vectors(
+        self,
+        path: str | os.PathLike[str],
+        layer: str | None = None,
+        *,
+        color_by: str | None = None,
+        label: str | None = None,
+        width_px: float = 1.5,
+        **style: Any,
+    ) -> Any:
+        """Show a GIS vector file (Shapefile, GeoPackage, KML/KMZ, GPX, FlatGeobuf, GeoJSON,
+        any OGR source, any CRS) through the ``gis`` layer type: ``layer`` names a layer of a
+        multi-layer file (default: the first with features; ``"FILE::LAYER"`` says the
+        same), ``color_by`` colours by a field (the returned layer's ``legend``: a list of
+        `LegendEntry` label/colour rows), ``label`` labels features with a field, and
+        ``width_px`` is the line width; further ``style`` as `read_vector_file` takes it
+        (``color``, ``size_px``, ``classes``, ``segment_m``, ``name``)."""
+        if layer is not None:
+            style["layer"] = layer
+        style.update(color_by=color_by, label=label, width_px=width_px)
+        return self.add_overlay(path, "gis", **style)
 
     @property
     def overlays(self) -> list[Any]:

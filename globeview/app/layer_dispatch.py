@@ -39,6 +39,7 @@ __all__ = [
     "layer_type_infos",
     "overlay_file_filter",
     "parse_layer_spec",
+    "split_sublayer",
 ]
 
 _SPEC_RE = re.compile(r"^([a-z0-9][a-z0-9._-]+):(.+)$")
@@ -66,6 +67,16 @@ def parse_layer_spec(spec: str) -> tuple[str | None, str]:
     if m is None or Path(spec).exists():
         return None, spec
     return m.group(1), m.group(2)
+
+
+def split_sublayer(text: str) -> tuple[str, str | None]:
+    """``"FILE::LAYER"`` -> (FILE, LAYER), a layer inside a multi-layer file (a GeoPackage's
+    table, a GPX file's tracks); anything else -> (text, None). A name that exists as it is
+    stays whole (a file called ``a::b`` opens as itself)."""
+    head, sep, layer = text.rpartition("::")
+    if not sep or not head or not layer or Path(text).exists():
+        return text, None
+    return head, layer
 
 
 def _object_extensions(registry: Any, name: str) -> tuple[str, ...]:

@@ -30,6 +30,7 @@ from globeview.app.layer_dispatch import (
     layer_type_infos,
     overlay_file_filter,
     parse_layer_spec,
+    split_sublayer,
 )
 from globeview.errors import GlobeviewError, PluginFailed
 from globeview.model.globe import Globe
@@ -67,6 +68,11 @@ class OverlayHost:
         #: The layer types that opened a file this session (`open`), e.g. to tell the user a
         #: setting of another type changed nothing.
         self.types_used: set[str] = set()
+        #: Each host layer opened here -> (file, layer type, style) it was opened with
+        #: (`restyle` reopens it so).
+        self._sources: weakref.WeakKeyDictionary[Any, tuple[str, str, dict[str, Any]]] = (
+            weakref.WeakKeyDictionary()
+        )
         #: Layer -> (absolute path of its file, the layer type that opened it), for project
         #: files (`globeview.app.project`). Weak: a layer dropped is forgotten.
         self.origins: weakref.WeakKeyDictionary[Any, tuple[str, str]] = weakref.WeakKeyDictionary()
@@ -98,13 +104,7 @@ class OverlayHost:
         renderer). Bad files raise a one-line `GlobeviewError` and leave the plugin
         enabled; garbage returned, or a crash, fails that layer type (reported) and raises
         a one-line `PluginFailed` (a `GlobeviewError`: exit 3 on the command line)."""
-        path = str(path)
-        if layer_type is None:
-            layer_type, path = parse_layer_spec(path)
-        name = self.layer_type_for(path, layer_type)
-        obj = self.registry.find(PluginKind.LAYER, name)
-        if obj is None:
-            raise GlobeviewError(f"layer type {name} is not available ({path})")
+        path, name, obj, style = self._resolve(str(path), layer_type, style)
         failed = object()
         result = self.registry.invoke(obj, "open", path, default=failed, user_errors=True, **style)
         layer: Any = failed
@@ -144,9 +144,65 @@ class OverlayHost:
             )
         self.globe.add_overlay(layer)
         self.types_used.add(name)
+        if isinstance(layer, _HOST_LAYERS):
+            self._sources[layer] = (path, name, dict(style))
         with contextlib.suppress(TypeError):  # a layer object that cannot be weakly keyed
             self.origins[layer] = (os.path.abspath(path), name)
         return layer
+
+    def _resolve(
+        self, path: str, layer_type: str | None, style: dict[str, Any]
+    ) -> tuple[str, str, Any, dict[str, Any]]:
+        """(file, layer type name, its object, style) for what `open` was given: ``TYPE:``
+        and ``::LAYER`` taken off the path (the layer joins the style as ``layer=``)."""
+        if layer_type is None:
+            layer_type, path = parse_layer_spec(path)
+        path, sublayer = split_sublayer(path)
+        name = self.layer_type_for(path, layer_type)
+        obj = self.registry.find(PluginKind.LAYER, name)
+        if obj is None:
+            raise GlobeviewError(f"layer type {name} is not available ({path})")
+        if sublayer is not None:  # FILE::LAYER: the layer inside the file, for types taking one
+            _check_takes_layer(obj, name, Path(path).name, sublayer)
+            style = {**style, "layer": sublayer}
+        return path, name, obj, style
+
+    # -- styling by attribute (GIS vector files) ------------------------------------------------
+    def vector_fields(self, layer: Any) -> list[str] | None:
+        """The attribute fields of a layer the ``gis`` layer type opened (what it can be
+        coloured or labelled by), or None for another layer. One line (`GlobeviewError`)
+        when its file can no longer be read."""
+        src = self._sources.get(layer)
+        if src is None or src[1] != "gis":
+            return None
+        from globeview.terrain.ogr_vectors import layer_fields
+
+        return layer_fields(src[0], src[2].get("layer"))
+
+    def opened_style(self, layer: Any) -> dict[str, Any] | None:
+        """The style ``layer`` was opened with (a copy; None: not opened from a file here)."""
+        src = self._sources.get(layer)
+        return None if src is None else dict(src[2])
+
+    def restyle(self, layer: Any, **style: Any) -> Any:
+        """Reopen ``layer`` from its file with ``style`` over the style it was opened with
+        (e.g. ``color_by="kind"``, ``label=None``), in its place among the overlays and
+        with its visibility; returns the new layer. Raises `GlobeviewError` (one line, the
+        old layer kept) for a layer not opened from a file here or a style its type refuses."""
+        src = self._sources.get(layer)
+        if src is None:
+            raise GlobeviewError(f"{getattr(layer, 'name', 'overlay')}: not opened from a file")
+        path, type_name, old = src
+        new = self.open(path, type_name, **{**old, **style})
+        order = [ly for ly in self.globe.overlays if ly is not new]
+        at = next(i for i, ly in enumerate(order) if ly is layer)
+        order[at] = new
+        order.append(layer)  # on top for a moment, then removed: one row changes in place
+        self.globe.set_overlay_order(order)
+        if not getattr(layer, "visible", True):
+            new.set_visible(False)
+        self.remove(layer)
+        return new
 
     def open_embedded(self, imagery: bool = False) -> list:
         """The embedded default overlays: Natural Earth borders and coastlines (and the Blue
@@ -287,6 +343,21 @@ class _Named:
 
     def drawables(self) -> object:
         return self.items
+
+
+def _check_takes_layer(obj: object, type_name: str, file_name: str, sublayer: str) -> None:
+    """One line when a ``FILE::LAYER`` goes to a layer type whose ``open`` has no ``layer``
+    parameter (the plugin would fail on an argument the user added, not on its own fault)."""
+    import inspect
+
+    try:
+        params = inspect.signature(obj.open).parameters  # type: ignore[attr-defined]
+    except (TypeError, ValueError, AttributeError):
+        return
+    if "layer" not in params:
+        raise GlobeviewError(
+            f"{file_name}::{sublayer:.60}: layer type {type_name} opens whole files (no ::LAYER)"
+        )
 
 
 def _contains(layer: object, part: object) -> bool:

@@ -42,9 +42,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--layer",
         action="append",
         default=[],
-        metavar="[TYPE:]FILE",
+        metavar="[TYPE:]FILE[::LAYER]",
         help="overlay a file with the layer type that opens it (by extension, then content; "
-        "TYPE:FILE chooses one, e.g. thematic:x.tif; see `globeview plugins list`); repeatable",
+        "TYPE:FILE chooses one, e.g. thematic:x.tif; see `globeview plugins list`); "
+        "FILE::LAYER opens one layer of a multi-layer file, e.g. roads.gpkg::highways; "
+        "repeatable",
     )
     parser.add_argument(
         "--imagery", action="store_true", help="drape the embedded Blue Marble imagery"
@@ -256,10 +258,10 @@ def check_inputs(args: argparse.Namespace) -> None:
 
     for src in args.sources:
         check_source(src)  # a URL's form (the server is asked when it is opened), a DEM file
-    from globeview.app.layer_dispatch import parse_layer_spec
+    from globeview.app.layer_dispatch import parse_layer_spec, split_sublayer
 
     for layer in args.layer:
-        p = Path(parse_layer_spec(layer)[1])  # TYPE:FILE names FILE
+        p = Path(split_sublayer(parse_layer_spec(layer)[1])[0])  # [TYPE:]FILE[::LAYER]
         if p.is_dir():
             raise GlobeviewError(f"--layer {layer} is a directory, not a layer file")
         if not p.is_file():

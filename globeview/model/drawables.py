@@ -62,6 +62,8 @@ class Lines:
         segment_m: the longest piece (metres) between vertices the host inserts along the
             curve (coarser versions are made for far views).
         name: shown in the overlay panel (default: the file name).
+        legend: this drawable's entry in its layer's legend (API 1.5; "": none), e.g. the
+            value of the field a layer is coloured by.
     """
 
     paths: Any
@@ -72,6 +74,7 @@ class Lines:
     closed: bool = False
     segment_m: float = 20_000.0
     name: str = ""
+    legend: str = ""
 
     def path_list(self) -> list[np.ndarray]:
         """The polylines as a list of (N, 2) float64 arrays (a single array: one path)."""
@@ -110,6 +113,7 @@ class Points:
         color: RGBA 0..1 for every point, or (API 1.2) an (N, 3 or 4) array, one per point;
             label_color: the labels' RGBA.
         name: shown in the overlay panel (default: the file name).
+        legend: this drawable's entry in its layer's legend (API 1.5; "": none).
 
     Per-point arrays of the wrong length or with NaN fail the layer type that returned them
     (one line). The overlay panel shows the first point's size and colour; setting one
@@ -125,6 +129,7 @@ class Points:
     color: RGBA = (1.0, 0.25, 0.15, 1.0)
     label_color: RGBA = (1.0, 1.0, 1.0, 1.0)
     name: str = ""
+    legend: str = ""
 
     @classmethod
     def from_geojson(cls, path: str | Path, **style: Any) -> Points:

@@ -46,12 +46,19 @@ from globeview.terrain.imagery import (
     texel_grid,
 )
 from globeview.terrain.quadtree import TileKey, tile_bounds
-from globeview.terrain.vectors import Polylines, densify, densify_rhumb
+from globeview.terrain.vectors import (
+    Polylines,
+    densify,
+    densify_rhumb,
+    segment_lengths_m,
+    thin,
+)
 
 __all__ = [
     "ArrayImagery",
     "DrawnLayer",
     "ImageryOverlayLayer",
+    "LegendEntry",
     "PointsLayer",
     "VectorLayer",
     "as_drawables",
@@ -77,6 +84,8 @@ MAX_DRAPE_SIDE = 16_384
 #: Coarser line levels: x4 spacing each, up to about 1000 km.
 _COARSER_MAX_M = 1.3e6
 _MEAN_RADIUS_M = 6_371_008.8
+#: Lines of fewer segments get no thinned levels below ``segment_m`` (nothing to gain).
+_THIN_MIN_SEGMENTS = 10_000
 
 
 # -- layer objects (models: data + style + visible, no GL) ------------------------------------
@@ -141,11 +150,23 @@ class ImageryOverlayLayer(_ModelLayer):
         return True
 
 
+@dataclass(frozen=True)
+class LegendEntry:
+    """One row of a layer's legend: its ``label`` (e.g. a field's value or a range of
+    values) and the ``color`` (RGBA 0..1) it is drawn in."""
+
+    label: str
+    color: tuple[float, float, float, float]
+
+
 class _StyledLayer(_ModelLayer):
     """Vector and point layers: a style edited live; ``style_version`` counts the edits, so
     the renderer rebuilds the layer's GPU twin once after a change."""
 
     style_version: int
+    color: tuple[float, float, float, float]
+    #: This layer's legend text ("": not in the legend), from its drawable's ``legend``.
+    legend_label: str
     #: The attributes `set_style` changes (the rest is the layer's data).
     style_fields: tuple[str, ...] = ()
 
@@ -157,6 +178,11 @@ class _StyledLayer(_ModelLayer):
             problem = style_problem(k, v)
             if problem is not None:
                 raise ValueError(f"{type(self).__name__} style {problem}")
+
+    @property
+    def legend(self) -> list[LegendEntry]:
+        """The layer's legend: one entry in its colour, or none."""
+        return [LegendEntry(self.legend_label, self.color)] if self.legend_label else []
 
     def set_style(self, **style: Any) -> bool:
         """Change style attributes (colour, width_px, size_px, ...); next frame. An unknown
@@ -194,6 +220,7 @@ class VectorLayer(_StyledLayer):
     kind: str = "vector"
     coarser: list = field(default_factory=list)  # (max segment m, Polylines), for far views
     visible: bool = True
+    legend_label: str = ""
     style_version: int = field(default=0, repr=False)
     gpu_kind = "vectors"
     style_fields = ("color", "width_px", "dash_px")
@@ -224,6 +251,7 @@ class PointsLayer(_StyledLayer):
     label_color: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
     kind: str = "points"
     visible: bool = True
+    legend_label: str = ""
     style_version: int = field(default=0, repr=False)
     point_sizes_px: np.ndarray | None = field(default=None, repr=False)
     point_scales_m: np.ndarray | None = field(default=None, repr=False)
@@ -257,6 +285,15 @@ class DrawnLayer(_ModelLayer):
         self.name = name
         self.parts = list(parts)
         self.visible = True
+
+    @property
+    def legend(self) -> list[LegendEntry]:
+        """The parts' legend entries, each label once (the first part's colour), in order."""
+        seen: dict[str, LegendEntry] = {}
+        for p in self.parts:
+            for entry in getattr(p, "legend", ()):
+                seen.setdefault(entry.label, entry)
+        return list(seen.values())
 
     def set_visible(self, visible: bool) -> bool:
         """Show or hide every part; one ``changed`` if the group's visibility changed."""
@@ -460,7 +497,8 @@ def drawable_problem(d: Any) -> str | None:
         if total > MAX_INPUT_VERTICES:
             return f"Lines with {total} vertices (at most {MAX_INPUT_VERTICES})"
         return (
-            _rgba_problem(d.color, "Lines color")
+            _legend_problem(d.legend, "Lines")
+            or _rgba_problem(d.color, "Lines color")
             or _positive(d.width_px, "Lines width_px", 200.0)
             or (None if d.dash_px == 0 else _positive(d.dash_px, "Lines dash_px", 1e4))
             or _positive(d.segment_m, "Lines segment_m", 1e7)
@@ -486,7 +524,8 @@ def drawable_problem(d: Any) -> str | None:
             return f"Points kind {d.kind!r:.40} (one of {POINT_KINDS})"
         count = len(lon)
         return (
-            point_colors_problem(d.color, count, "Points color")
+            _legend_problem(d.legend, "Points")
+            or point_colors_problem(d.color, count, "Points color")
             or _rgba_problem(d.label_color, "Points label_color")
             or point_sizes_problem(d.size_px, count, "Points size_px", 500.0)
             or point_sizes_problem(d.scale_m, count, "Points scale_m", 1e7)
@@ -532,6 +571,12 @@ def style_problem(name: str, value: Any) -> str | None:
     return None
 
 
+def _legend_problem(text: Any, what: str) -> str | None:
+    if not isinstance(text, str):
+        return f"{what} legend {text!r:.40} is not a string"
+    return None if len(text) <= 200 else f"{what} legend of {len(text)} characters (at most 200)"
+
+
 def _finite(v: Any) -> bool:
     try:
         return math.isfinite(float(v))
@@ -574,23 +619,52 @@ def _length_m(pl: Polylines) -> float:
     return float(np.sum(2 * _MEAN_RADIUS_M * np.arcsin(np.sqrt(np.clip(h, 0, 1))))) * 1.6
 
 
+def _level_spacings(lengths: np.ndarray, step: float) -> list[float]:
+    """The coarser line levels' spacings (m): x4 each from ``step`` up to ~1000 km, and
+    below ``step`` x2 each from four times the median segment (``lengths``, m) of dense
+    input (a layer of vertices metres apart, drawn from far away, thinned level by level:
+    x2, so the level a view picks has segments of 1.5 to 6 pixels, not down to 0.4)."""
+    coarse = [step * 4.0**k for k in range(1, 6) if step * 4.0**k <= _COARSER_MAX_M]
+    if len(lengths) < _THIN_MIN_SEGMENTS:
+        return coarse
+    fine = 4.0 * max(float(np.median(lengths)), 1.0)
+    below = []
+    while fine < step:
+        below.append(fine)
+        fine *= 2.0
+    return below + coarse
+
+
 def vector_layer(d: Lines, name: str) -> VectorLayer:
     """A `VectorLayer` of checked `Lines`: densified along its interpolation, with coarser
-    levels (x4 spacing each, up to ~1000 km) for far views."""
+    levels for far views (`_level_spacings`: each thinned to half its spacing, then densified
+    to at most its spacing or ``segment_m``)."""
     raw = _polylines(d)
+    lengths = segment_lengths_m(raw)
     step = float(d.segment_m)
     step = max(step, _length_m(raw) / MAX_LINE_VERTICES)
-    fn = densify_rhumb if d.interpolation == "rhumb" else densify
-    steps = [step * 4.0**k for k in range(1, 6) if step * 4.0**k <= _COARSER_MAX_M]
-    coarser = [(m, fn(raw, m)) for m in steps]
+    rhumb = d.interpolation == "rhumb"
+
+    def level(thin_m: float | None, target_m: float) -> Polylines:
+        pl = raw if thin_m is None else thin(raw, thin_m, lengths)
+        seg = lengths if thin_m is None else segment_lengths_m(pl)
+        # Geodesic lines already finer than the target are kept as they are (densify would
+        # insert nothing); rhumb lines are always unwrapped and clipped by densify_rhumb.
+        if not rhumb and (not len(seg) or float(seg.max()) < 0.98 * target_m):
+            return pl
+        return (densify_rhumb if rhumb else densify)(pl, target_m)
+
+    fine = level(None, step)
+    coarser = [(m, level(m / 2.0, max(m, step))) for m in _level_spacings(lengths, step)]
     color = tuple(float(v) for v in [*d.color, 1.0][:4])
     return VectorLayer(
         d.name or name,
-        fn(raw, step),
+        fine,
         color=color,  # type: ignore[arg-type]
         width_px=float(d.width_px),
         dash_px=float(d.dash_px),
         coarser=coarser,
+        legend_label=str(d.legend),
     )
 
 
@@ -641,6 +715,7 @@ def points_layer(d: Points, name: str) -> PointsLayer:
         point_sizes_px=sizes_px,
         point_scales_m=scales_m,
         point_colors=colors,
+        legend_label=str(d.legend),
     )
 
 

@@ -103,6 +103,7 @@ if TYPE_CHECKING:  # the lazy re-exports (`_REEXPORTS`), spelled out for type ch
     from globeview.lod.traversal import displacement_key, traverse
     from globeview.lod.triangle_count import triangle_count
     from globeview.lod.view_state import ViewState
+    from globeview.model.vector_files import read_vector_file, vector_file_layers
     from globeview.terrain.compose.metadata import N_STRIDES
     from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.quadtree import TileKey, level_shape, tile_bounds_arrays
@@ -179,12 +180,14 @@ __all__ = [
     "node_lonlat",
     "raster_info",
     "read_csv_columns",
+    "read_vector_file",
     "render_set_from_tiles",
     "sample_terrain",
     "tile_bounding_points",
     "tile_bounds_arrays",
     "traverse",
     "triangle_count",
+    "vector_file_layers",
 ]
 
 #: Public name -> the host module defining it. These names are the supported surface (the
@@ -231,6 +234,8 @@ _REEXPORTS: dict[str, str] = {
     "tile_bounds_arrays": "globeview.terrain.quadtree",
     "N_STRIDES": "globeview.terrain.compose.metadata",
     "TerrainStack": "globeview.terrain.compose.stack",
+    "read_vector_file": "globeview.model.vector_files",
+    "vector_file_layers": "globeview.model.vector_files",
 }
 
 
@@ -257,8 +262,10 @@ def __dir__() -> list[str]:
 #: `TEXEL_SIZE`, `TAU_OVERRIDE`). 1.4 added the flat selection (issue #27): `traverse`'s
 #: ``state`` (`SelectionState`, which `PolicyProvider` keeps), `LodPolicy.per_tile` and
 #: `LodPolicy.stop_level` (`TreeRows`), `TileCandidates.flat`, ``levels_past_data`` and
-#: ``pole``, and `Selection.tree`.
-API_VERSION = "1.4"
+#: ``pole``, and `Selection.tree`. 1.5 added GIS vector files (issue #26):
+#: `read_vector_file` (any OGR source as drawables, coloured and labelled by attribute),
+#: `vector_file_layers`, and the ``legend`` text of `Lines` and `Points`.
+API_VERSION = "1.5"
 
 
 class PluginKind(StrEnum):

@@ -12,7 +12,9 @@ logarithmic depth, i.e. the same relative pull at every distance) hides that whi
 front of the line still occludes it. Positions are sent as float32 hi/lo pairs of absolute ECEF
 (emulated double precision), the eye likewise, so no re-upload is needed while the camera moves.
 
-Only segments whose two ends lie in drawn tiles are uploaded (vectors paged by tile). The
+Only segments whose two ends lie in drawn tiles are uploaded (vectors paged by tile), each
+from the level of detail of the line work its distance from the eye calls for (the far part
+of an oblique view from coarse levels, the near part from fine ones). The
 active tool's displacement (`view.displace`) is applied on the CPU to the vertices, every frame
 while a displacement is active.
 """
@@ -34,6 +36,8 @@ from globeview.terrain.vectors import Polylines, drape_heights
 
 #: Coarser line levels are used while their segments span fewer pixels than this.
 SEGMENT_PX = 6.0
+#: The eye moves this fraction of its height before the levels' distance bands are redone.
+BAND_STEP = 0.05
 #: Depth pull toward the eye, as a fraction of the view distance.
 DEPTH_BIAS_FRACTION = 0.004
 
@@ -123,8 +127,7 @@ class VectorOverlay:
         # uses the coarsest whose segments stay under SEGMENT_PX pixels at the eye's altitude.
         self.levels = [(0.0, lines), *sorted(coarser or [], key=lambda t: t[0])]
         self._prep = [self._prepare(ly) for _, ly in self.levels]
-        self.level = 0
-        self.lines, self._a, self._b, self._along = self._prep[0]
+        self.level = 0  # the level below the eye (the band of the nearest segments)
         n_max = max(len(p[1]) for p in self._prep)
         self.program = gpu_objects(ctx).program(
             vertex_shader=load_shader("overlay_line.vert"),
@@ -158,53 +161,98 @@ class VectorOverlay:
         along[b] = np.linalg.norm(base[b] - base[a], axis=1)
         along = np.cumsum(along)
         along = along - np.repeat(along[lines.starts[:-1]], np.diff(lines.starts))
-        return lines, a, b, along
+        mid = 0.5 * (base[a] + base[b])  # segment midpoints on the ellipsoid, for the bands
+        return lines, a, b, along, mid
+
+    @staticmethod
+    def _eye_height(view: ViewState) -> float:
+        """The eye's height above the ellipsoid along the radius (within metres of the
+        geodetic height at these heights; the polar radius would add ~10 km at
+        mid-latitudes, and thinned levels of dense lines be chosen twice too coarse)."""
+        eye = np.asarray(view.eye, np.float64)
+        r = float(np.linalg.norm(eye))
+        sin2 = (eye[2] / r) ** 2 if r > 0 else 0.0
+        radius = WGS84.a * WGS84.b / math.sqrt(WGS84.b**2 * (1.0 - sin2) + WGS84.a**2 * sin2)
+        return max(r - radius, 1.0)
+
+    def _band_key(self, view: ViewState) -> tuple:
+        """What the distance bands depend on, coarsely: the eye's height in quarter octaves
+        and its position in steps of `BAND_STEP` of that height, the field of view and the
+        viewport's height (bands are redone when one of these changes)."""
+        octave = round(math.log2(self._eye_height(view)) * 4.0)
+        step = BAND_STEP * 2.0 ** (octave / 4.0)
+        cell = tuple(int(v) for v in np.round(np.asarray(view.eye, np.float64) / step))
+        return (octave, cell, float(view.fovy_deg), int(view.viewport[1]))
 
     def choose_level(self, view: ViewState) -> int:
         """Index of the coarsest level whose segments span at most SEGMENT_PX pixels on the
         ground below the eye."""
-        alt = max(float(np.linalg.norm(view.eye)) - WGS84.b, 1.0)
+        alt = self._eye_height(view)
         m_per_px = alt * 2.0 * math.tan(math.radians(view.fovy_deg) / 2.0) / view.viewport[1]
         ok = [i for i, (sp, _) in enumerate(self.levels) if sp <= SEGMENT_PX * m_per_px]
         return max(ok)
 
+    def _band_starts(self, view: ViewState) -> np.ndarray:
+        """(L,) the distance (m) from the eye from which each level is drawn: where its
+        spacing spans SEGMENT_PX pixels (level 0: from the eye)."""
+        px_m = 2.0 * math.tan(math.radians(view.fovy_deg) / 2.0) / view.viewport[1]
+        return np.array([sp for sp, _ in self.levels], np.float64) / (SEGMENT_PX * px_m)
+
     def update(self, view: ViewState, render_set: RenderSet, terrain, exaggeration: float) -> int:
         """Recompute heights on the drawn mesh and upload the visible segments if the mesh (or
-        a displacement, or the line level) changed; returns the number of segments to draw."""
-        level = self.choose_level(view)
-        sig = (*render_set_signature(render_set, exaggeration), level)
+        a displacement, or the distance bands) changed; returns the number of segments to
+        draw. Each segment is drawn from the coarsest level whose spacing spans at most
+        SEGMENT_PX pixels at its distance from the eye (bands of distance per level), so the
+        far part of an oblique view draws coarse levels and the near part fine ones."""
+        sig = (*render_set_signature(render_set, exaggeration), self._band_key(view))
         if sig == self._sig and view.displace is None:
             return self.count
         self._sig = sig
-        self.level = level
-        self.lines, self._a, self._b, self._along = self._prep[level]
-        lon, lat = self.lines.lon, self.lines.lat
-        h, drawn, _ = drape_heights(
-            terrain.heights, render_set.keys, render_set_strides(render_set), lon, lat
-        )
-        pts = lonlat_to_ecef(lon, lat, h * exaggeration)
-        if view.displace is not None:
-            pts = np.asarray(view.displace(pts), np.float64)
-        keep = drawn[self._a] & drawn[self._b]
-        a, b = self._a[keep], self._b[keep]
-        hi, lo = split_hi_lo(pts)
-        data = np.concatenate(
-            [
-                hi[a],
-                lo[a],
-                hi[b],
-                lo[b],
-                self._along[a, None],
-                self._along[b, None],
-                np.zeros((len(a), 1)),
-            ],
-            axis=1,
-        ).astype(np.float32)
+        self.level = self.choose_level(view)
+        starts = self._band_starts(view)
+        eye = np.asarray(view.eye, np.float64)
+        keys, strides = render_set.keys, render_set_strides(render_set)
+        rows = []
+        for k, (lines, a_all, b_all, along, mid) in enumerate(self._prep):
+            if not len(a_all):
+                continue
+            d = np.linalg.norm(mid - eye, axis=1)
+            sel = d >= starts[k]
+            if k + 1 < len(starts):
+                sel &= d < starts[k + 1]
+            if not sel.any():
+                continue
+            a, b = a_all[sel], b_all[sel]
+            idx = np.unique(np.concatenate([a, b]))
+            lon, lat = lines.lon[idx], lines.lat[idx]
+            h, drawn, _ = drape_heights(terrain.heights, keys, strides, lon, lat)
+            pts = lonlat_to_ecef(lon, lat, h * exaggeration)
+            if view.displace is not None:
+                pts = np.asarray(view.displace(pts), np.float64)
+            ia, ib = np.searchsorted(idx, a), np.searchsorted(idx, b)
+            keep = drawn[ia] & drawn[ib]
+            ia, ib, a, b = ia[keep], ib[keep], a[keep], b[keep]
+            hi, lo = split_hi_lo(pts)
+            rows.append(
+                np.concatenate(
+                    [
+                        hi[ia],
+                        lo[ia],
+                        hi[ib],
+                        lo[ib],
+                        along[a, None],
+                        along[b, None],
+                        np.zeros((len(a), 1)),
+                    ],
+                    axis=1,
+                ).astype(np.float32)
+            )
+        data = np.concatenate(rows) if rows else np.zeros((0, self.FLOATS), np.float32)
         if data.nbytes > self.buffer.size:
             self.buffer.orphan(data.nbytes)
-        if len(a):
+        if len(data):
             self.buffer.write(data.tobytes())
-        self.count = len(a)
+        self.count = len(data)
         return self.count
 
     def draw(self, view: ViewState, render_set: RenderSet, terrain, exaggeration: float) -> int:

@@ -31,6 +31,7 @@ from globeview.ui.layer_panel import LayerPanel
 from globeview.ui.loading import DemLoader, missing_path_error
 from globeview.ui.open_url import ask_store_url
 from globeview.ui.status import StatusBar
+from globeview.ui.vector_layer_dialog import ask_vector_layer
 
 MAX_RECENT = 10
 DEM_FILTER = (
@@ -79,6 +80,9 @@ class FileOpening:
         #: How File > Open URL… asks for the URL: ``ask_url(parent, initial) -> str | None``
         #: (the checked URL or None when cancelled); tests put a function of their own here.
         self.ask_url = ask_store_url
+        #: How opening a GIS file of several layers asks which: ``ask_layer(parent, file name,
+        #: [(layer, geometry type), ...]) -> layer | None`` (None: cancelled); tests replace it.
+        self.ask_layer = ask_vector_layer
 
         # The File menu's entries (the window places them).
         self.open_action = QAction("&Open DEM…", window)
@@ -87,7 +91,8 @@ class FileOpening:
         self.open_overlay_action = QAction("Open &Overlay…", window)
         self.open_overlay_action.setShortcut(QKeySequence("Ctrl+Shift+O"))
         self.open_overlay_action.setToolTip(
-            "Drape imagery or a thematic raster, or show GeoJSON lines or points"
+            "Drape imagery or a thematic raster, or show GeoJSON or GIS vector files "
+            "(Shapefile, GeoPackage, KML, GPX, FlatGeobuf...)"
         )
         self.open_overlay_action.triggered.connect(self.open_overlay_dialog)
         self.open_url_action = QAction("Open &URL…", window)
@@ -194,8 +199,11 @@ class FileOpening:
         top of the overlays; a bad file reports its one-line error and changes nothing.
         Returns the layer (None on error). No GL: it works before the globe's GL is up."""
         try:
+            chosen = self._vector_layer_choice(str(path))
+            if chosen is None:
+                return None
             # No GL here: the layer's GPU side is made at the next frame.
-            layer = self.overlay_host.open(str(path))  # listed by the model's event
+            layer = self.overlay_host.open(chosen)  # listed by the model's event
         except Exception as exc:  # noqa: BLE001  any failure is one line in a dialog, the window keeps working
             self.errors.error(exc, "" if isinstance(exc, GlobeviewError) else "opening overlay")
             return None
@@ -204,6 +212,20 @@ class FileOpening:
         if layer.kind != "thematic":  # reopened from the recent list by content
             self.add_recent(path)
         return layer
+
+    def _vector_layer_choice(self, path: str) -> str | None:
+        """``path``, or ``path::LAYER`` for a GIS file of several layers (asked with
+        `ask_layer`; None when the user cancels)."""
+        from globeview.app.layer_dispatch import split_sublayer
+        from globeview.model.vector_files import vector_file_layers
+
+        if split_sublayer(path)[1] is not None or self.overlay_host.layer_type_for(path) != "gis":
+            return path
+        layers = vector_file_layers(path)
+        if len(layers) < 2:
+            return path
+        name = self.ask_layer(self.window, Path(path).name, layers)
+        return None if name is None else f"{path}::{name}"
 
     def open_embedded_overlays(self) -> None:
         """The embedded overlays: the borders shown, the Blue Marble listed but hidden

@@ -4,7 +4,10 @@ vectors, points), topmost first.
 Each row has a visibility checkbox; rows reorder by drag and drop or the ↑/↓ buttons (the
 model's overlays are reordered, and the next frame composes the imagery drapes in the listed
 order); "Remove" drops a layer. Below the list, the selected layer's style:
-opacity for imagery/thematic drapes, colour and width (vectors) or size (points). Every edit
+opacity for imagery/thematic drapes, colour and width (vectors) or size (points), the line
+width of a drawing made of several line layers (a GIS file coloured by a field), a GIS
+vector layer's field to colour by and to label with (the layer is reopened so, in its row),
+and the selected layer's legend (its classes' colours and labels) when it has one. Every edit
 goes to the layer's setters (`globeview.model.overlay_layers`), which announce a real
 change (the layer's ``changed``, re-emitted by the Globe as ``globe.events.overlays``); the
 panel shows what that event says, whoever changed the overlays (the window, code, a plugin),
@@ -23,6 +26,7 @@ from PyQt6.QtGui import QColor
 from PyQt6.QtWidgets import (
     QAbstractItemView,
     QColorDialog,
+    QComboBox,
     QDoubleSpinBox,
     QHBoxLayout,
     QLabel,
@@ -34,10 +38,13 @@ from PyQt6.QtWidgets import (
     QWidget,
 )
 
+from globeview.errors import GlobeviewError
 from globeview.model.globe import Globe
 from globeview.ui.subscriptions import Subscriptions
 
 ID_ROLE = Qt.ItemDataRole.UserRole
+#: The colour-by / label choice meaning "no field".
+NO_FIELD = "(none)"
 DRAPE_KINDS = ("imagery", "thematic")
 #: Short labels of the layer kinds shown in the rows.
 KIND_LABELS = {
@@ -85,6 +92,8 @@ class OverlayPanel(QWidget):
         self.model = model
         #: Where layers are removed (`OverlayHost.remove`); None: the list is disabled.
         self.host: Any = None
+        #: The last restyle that failed (one line), for the window's status.
+        self.last_error = ""
         self._updating = False
         self._by_id: dict[int, Any] = {}
 
@@ -144,11 +153,33 @@ class OverlayPanel(QWidget):
         ):
             style.addWidget(w)
 
+        # Styling by attribute (a GIS vector layer): the field to colour by, to label with.
+        self.color_by_label = QLabel("Colour by")
+        self.color_by_combo = QComboBox()
+        self.color_by_combo.setToolTip("Colour the features by a field's values (a legend below)")
+        self.label_label = QLabel("Label")
+        self.label_combo = QComboBox()
+        self.label_combo.setToolTip("Write a field's value beside each feature")
+        self.color_by_combo.activated.connect(lambda _i: self._field_chosen("color_by"))
+        self.label_combo.activated.connect(lambda _i: self._field_chosen("label"))
+        fields = QHBoxLayout()
+        for w in (self.color_by_label, self.color_by_combo, self.label_label, self.label_combo):
+            fields.addWidget(w)
+
+        #: The selected layer's legend (rich text: a coloured square and a label per class).
+        self.legend_label = QLabel()
+        self.legend_label.setObjectName("overlay-legend")
+        self.legend_label.setTextFormat(Qt.TextFormat.RichText)
+        self.legend_label.setWordWrap(True)
+        self.legend_label.setToolTip("The colours of the selected layer's classes")
+
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
         layout.addWidget(self.list)
         layout.addLayout(buttons)
         layout.addLayout(style)
+        layout.addLayout(fields)
+        layout.addWidget(self.legend_label)
         #: The model subscriptions, the window's (cleared when it closes), or its own.
         self.subscriptions = Subscriptions() if subscriptions is None else subscriptions
         self.subscriptions.connect(model.events.overlays, self.refresh)
@@ -238,10 +269,16 @@ class OverlayPanel(QWidget):
         self.remove_button.setEnabled(layer is not None)
         drape = layer is not None and layer.kind in DRAPE_KINDS
         styled = layer is not None and layer.kind in ("vector", "points")
+        lines = _line_parts(layer)
         for w in (self.opacity_label, self.opacity_slider, self.opacity_value):
             w.setVisible(drape)
-        for w in (self.color_button, self.width_label, self.width_spin):
-            w.setVisible(styled)
+        self.color_button.setVisible(styled)
+        for w in (self.width_label, self.width_spin):
+            w.setVisible(styled or bool(lines))
+        legend = list(getattr(layer, "legend", None) or []) if layer is not None else []
+        self.legend_label.setText(legend_html(legend))
+        self.legend_label.setVisible(bool(legend))
+        self._show_fields(layer)
         self._updating = True
         try:
             if drape:
@@ -252,8 +289,55 @@ class OverlayPanel(QWidget):
                 self.width_label.setText("Width" if layer.kind == "vector" else "Size")
                 self.width_spin.setValue(float(_size_of(layer)))
                 self._show_color(layer.color)
+            elif lines:
+                self.width_label.setText("Width")
+                self.width_spin.setValue(float(lines[0].width_px))
         finally:
             self._updating = False
+
+    def _show_fields(self, layer: Any) -> None:
+        """The colour-by and label choices of a GIS vector layer (hidden for others)."""
+        fields = None
+        if layer is not None and self.host is not None and hasattr(self.host, "vector_fields"):
+            try:
+                fields = self.host.vector_fields(layer)
+            except GlobeviewError:  # its file went away: nothing to choose from
+                fields = None
+        for w in (self.color_by_label, self.color_by_combo, self.label_label, self.label_combo):
+            w.setVisible(fields is not None)
+        if fields is None:
+            return
+        style = self.host.opened_style(layer) or {}
+        for combo, key in ((self.color_by_combo, "color_by"), (self.label_combo, "label")):
+            combo.blockSignals(True)
+            combo.clear()
+            combo.addItems([NO_FIELD, *fields])
+            current = style.get(key)
+            combo.setCurrentIndex(fields.index(current) + 1 if current in fields else 0)
+            combo.blockSignals(False)
+
+    def _field_chosen(self, key: str) -> None:
+        combo = self.color_by_combo if key == "color_by" else self.label_combo
+        self.set_field(self.selected_layer(), key, combo.currentText())
+
+    def set_field(self, layer: Any, key: str, field: str) -> Any:
+        """Reopen a GIS vector layer coloured by (``key="color_by"``) or labelled with
+        (``"label"``) ``field`` (`NO_FIELD`: none); the new layer takes the old one's row and
+        is selected. Returns it (None when nothing changed or the file cannot be read: the
+        old layer stays, the reason in `last_error`)."""
+        if layer is None or self.host is None:
+            return None
+        value = None if field == NO_FIELD else field
+        if (self.host.opened_style(layer) or {}).get(key) == value:
+            return None
+        try:
+            new = self.host.restyle(layer, **{key: value})
+        except GlobeviewError as exc:
+            self.last_error = str(exc)
+            self._update_controls()
+            return None
+        self.select(new)
+        return new
 
     def _show_color(self, rgba: tuple) -> None:
         c = QColor.fromRgbF(*(float(v) for v in rgba[:3]))
@@ -308,8 +392,9 @@ class OverlayPanel(QWidget):
             self.set_color(layer, color)
 
     def set_width(self, layer: Any, px: float) -> None:
-        """Line width (vectors) or placemark size (points), in pixels."""
-        if layer.kind == "vector":
+        """Line width (vectors, a drawing's line parts) or placemark size (points), in
+        pixels."""
+        if layer.kind == "vector" or (layer.kind == "drawing" and _line_parts(layer)):
             layer.set_style(width_px=float(px))  # announced by the layer
         elif layer.kind == "points":
             layer.set_style(size_px=float(px))
@@ -354,6 +439,26 @@ class OverlayPanel(QWidget):
         if self.host is None:
             return
         self.host.remove(layer)
+
+
+def _line_parts(layer: Any) -> list:
+    """A drawing's line layers (none for another kind)."""
+    if layer is None or layer.kind != "drawing":
+        return []
+    return [p for p in getattr(layer, "parts", ()) if getattr(p, "kind", "") == "vector"]
+
+
+def legend_html(entries: list) -> str:
+    """A legend (`LegendEntry` rows: label, RGBA 0..1) as rich text, one row a line."""
+    import html
+
+    rows = []
+    for e in entries[:24]:
+        c = QColor.fromRgbF(*(float(v) for v in e.color[:3]))
+        rows.append(f'<span style="color:{c.name()}">&#9632;</span> {html.escape(e.label)}')
+    if len(entries) > 24:
+        rows.append(f"… {len(entries) - 24} more")
+    return "<br>".join(rows)
 
 
 def _size_of(layer: Any) -> float:

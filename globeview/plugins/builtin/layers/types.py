@@ -23,9 +23,12 @@ from globeview.plugins.api import (
     Points,
     RasterFile,
     raster_info,
+    read_vector_file,
+    vector_file_layers,
 )
 
 __all__ = [
+    "GisVectorLayerType",
     "ImageryLayerType",
     "PointsLayerType",
     "ThematicLayerType",
@@ -35,6 +38,23 @@ __all__ = [
 
 RASTER_EXTENSIONS = (".tif", ".tiff", ".png", ".jpg", ".jpeg", ".jp2", ".img", ".vrt", ".asc")
 VECTOR_EXTENSIONS = (".geojson", ".json")
+#: GIS vector formats read through OGR (a GeoJSON file too when this type is chosen).
+GIS_EXTENSIONS = (
+    ".shp",
+    ".shp.zip",
+    ".shz",
+    ".gpkg",
+    ".kml",
+    ".kmz",
+    ".gpx",
+    ".fgb",
+    ".parquet",
+    ".geoparquet",
+    ".gml",
+    ".tab",
+    ".mif",
+    ".sqlite",
+)
 #: Default densification of vector lines (metres between vertices).
 DENSIFY_M = 20_000.0
 _LINE_TYPES = {"LineString", "MultiLineString", "Polygon", "MultiPolygon"}
@@ -191,6 +211,33 @@ class PointsLayerType(_LayerTypeBase):
 
     def open(self, path: str, **style: Any) -> Points:
         return Points.from_geojson(path, **style)
+
+
+class GisVectorLayerType(_LayerTypeBase):
+    """GIS vector files through GDAL/OGR (Shapefile, GeoPackage, KML/KMZ, GPX, FlatGeobuf,
+    GeoParquet where GDAL has the driver, any OGR source) in any CRS: lines and polygon
+    outlines draped along geodesics, points as placemarks; coloured and labelled by attribute.
+
+    ``open(path, layer=None, color_by=None, label=None, color=None, width_px=1.5, size_px=8,
+    classes=5, segment_m=1000, name=None)``; see `read_vector_file`."""
+
+    name = "gis"
+    label = "GIS vectors (Shapefile, GeoPackage, KML, GPX, FlatGeobuf... via OGR)"
+    extensions = GIS_EXTENSIONS
+
+    def sniff(self, path: str) -> bool:
+        suffix = "".join(Path(path).suffixes[-2:]).lower()
+        claimed = any(suffix.endswith(e) for e in GIS_EXTENSIONS)
+        if claimed:
+            vector_file_layers(path)  # its format but unreadable: that line, not "no type"
+            return True
+        try:  # content sniffing of an unknown extension: OGR decides, silently
+            return bool(vector_file_layers(path))
+        except GlobeviewError:
+            return False
+
+    def open(self, path: str, layer: str | None = None, **style: Any) -> list:
+        return read_vector_file(path, layer, **style)
 
 
 def detect_layer_type(path: str | Path) -> str:
