@@ -532,8 +532,10 @@ class PolicyProvider(LodProvider):
     A repaint with an unchanged view (window expose, overlay redraw) reuses the last render
     set (its stats then say ``lod_ms`` 0 and ``lod_cached`` 1); any change of the camera,
     viewport, field of view, tau, exaggeration, navigation speed or frame rate, of a setting
-    or of the terrain (its ``version``) selects afresh, and so does every frame with a tool
-    displacement (``view.displace``), which can change between frames with the same view.
+    or of the terrain (its ``version``) selects afresh, and so does a frame whose tool
+    displacement (``view.displace``) changed: its `displacement_key` (the tool's key and
+    where the displacement moves fixed probe points) differs from the last frame's. A
+    displacement without the tool's key (``view.displacement_key`` None) selects every frame.
     A policy that reads anything else of the view must not be wrapped this way.
 
     The provider keeps a `SelectionState` (API 1.4): with a `LodPolicy.per_tile` policy a
@@ -568,9 +570,10 @@ class PolicyProvider(LodProvider):
     def select(self, view: ViewState, terrain: Any) -> RenderSet:
         # Deferred (heavy): reading a manifest imports this module, and must not load the
         # LOD engine and the terrain (tests/plugins/test_plugin_facade.py).
-        from globeview.lod.traversal import traverse
+        from globeview.lod.traversal import displacement_key, traverse
 
-        if terrain is None or view.displace is not None:
+        # A displacement without the tool's key could change where no probe point sees it.
+        if terrain is None or (view.displace is not None and view.displacement_key is None):
             self._reuse_key = self._reuse = self._reuse_terrain = None
             return traverse(view, terrain, self.policy(**self.values), state=self._state())
         key = (
@@ -585,6 +588,8 @@ class PolicyProvider(LodProvider):
             view.frame_rate_hz,
             terrain.version,
             tuple(sorted(self.values.items())),
+            # A still collapse selects once; an animating one (its key changes) every frame.
+            displacement_key(view),
         )
         old = self._reuse_terrain
         if (
