@@ -554,9 +554,14 @@ class PolicyProvider(LodProvider):
     _reuse_terrain: weakref.ref[Any] | None = None
     # The flat walk's state (made on first use: this module must not import the LOD engine).
     _selection_state: SelectionState | None = None
+    # Under a tool displacement: the view selected for and where its displacement moves the
+    # probe points (`displacement_key`, computed only once a still frame asks).
+    _reuse_view: ViewState | None = None
+    _reuse_moved: object | None = None
 
     def reset(self) -> None:
         self._reuse_key = self._reuse = self._reuse_terrain = None
+        self._reuse_view = self._reuse_moved = None
         if self._selection_state is not None:
             self._selection_state.reset()
 
@@ -589,7 +594,8 @@ class PolicyProvider(LodProvider):
             terrain.version,
             tuple(sorted(self.values.items())),
             # A still collapse selects once; an animating one (its key changes) every frame.
-            displacement_key(view),
+            view.displacement_key,
+            view.displacement_bend is not None,
         )
         old = self._reuse_terrain
         if (
@@ -597,6 +603,7 @@ class PolicyProvider(LodProvider):
             and key == self._reuse_key
             and old is not None
             and old() is terrain
+            and self._same_displacement(view, displacement_key)
         ):
             rs = self._reuse
             rs.stats["lod_ms"] = 0.0
@@ -604,7 +611,19 @@ class PolicyProvider(LodProvider):
             return rs
         rs = traverse(view, terrain, self.policy(**self.values), state=self._state())
         self._reuse_key, self._reuse, self._reuse_terrain = key, rs, weakref.ref(terrain)
+        self._reuse_view = view if view.displace is not None else None
+        self._reuse_moved = None
         return rs
+
+    def _same_displacement(self, view: ViewState, moved: Callable[[ViewState], object]) -> bool:
+        """Whether ``view``'s displacement moves the probe points exactly as the one last
+        selected for did (``moved``: `displacement_key`); True without a displacement. Only
+        a frame otherwise equal to the last pays for the probes (a moving one never)."""
+        if view.displace is None or self._reuse_view is None:
+            return view.displace is None and self._reuse_view is None
+        if self._reuse_moved is None:
+            self._reuse_moved = moved(self._reuse_view)
+        return bool(moved(view) == self._reuse_moved)
 
 
 class ProviderUnavailable(Exception):
