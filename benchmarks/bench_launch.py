@@ -1,7 +1,7 @@
 """Window launch to the globe drawn, as a user sees it (issue #27's launch target).
 
-Each run starts ``python -m globeview gui`` as a fresh process on a private Xvfb screen
-(1600x1000 by default) and polls that screen from outside: Xvfb writes its framebuffer to a
+Each run starts ``python -m globeview gui`` as a fresh process on a new private Xvfb screen
+(1600x1000 by default, blank) and polls that screen from outside: Xvfb writes its framebuffer to a
 file (``-fbdir``, XWD layout) that this script reads every ``--poll-ms`` without being an X
 client. The globe is told from the rest of the window by colour: the window's chrome is grey
 and space is near-black, while the shaded globe (ocean, land) is saturated. Per run it reports,
@@ -118,11 +118,29 @@ def cpu_seconds(pid: int) -> float:
 
 
 def launch(
-    screen: Screen, env: dict[str, str], args: argparse.Namespace, timeout: float | None = None
+    size: tuple[int, int],
+    env: dict[str, str],
+    args: argparse.Namespace,
+    timeout: float | None = None,
+    save: Path | None = None,
 ) -> Run:
-    """Spawn the window, poll until the globe has been still for ``--settle`` s, stop it
-    (RuntimeError if no globe shows within ``timeout`` s, default ``--timeout``)."""
-    timeout = args.timeout if timeout is None else timeout
+    """Spawn the window on a new blank screen, poll until the globe has been still for
+    ``--settle`` s, stop it (RuntimeError if no globe shows within ``timeout`` s, default
+    ``--timeout``); ``save``: a PNG of the last screen."""
+    with tempfile.TemporaryDirectory(prefix="gv-launch-fb-") as fb:
+        screen = Screen(*size, Path(fb))
+        try:
+            if screen.saturated():
+                raise RuntimeError("the new Xvfb screen is not blank")
+            run = _poll(screen, env, args.timeout if timeout is None else timeout, args)
+            if save is not None:
+                save_final(screen, save)
+            return run
+        finally:
+            screen.close()
+
+
+def _poll(screen: Screen, env: dict[str, str], timeout: float, args: argparse.Namespace) -> Run:
     run = Run()
     t0 = time.perf_counter()
     proc = subprocess.Popen(
@@ -208,29 +226,23 @@ def main(argv: list[str] | None = None) -> int:
             env["GLOBEVIEW_CACHE_DIR"] = str(args.cache)
         # As an installed Python does: the run not counted writes the bytecode caches.
         env.pop("PYTHONDONTWRITEBYTECODE", None)
-        (folder / "fb").mkdir()
-        screen = Screen(width, height, folder / "fb")
         try:
-            return _measure(screen, env, args, width, height)
+            return _measure((width, height), env, args)
         except RuntimeError as exc:
             print(f"bench_launch: {exc}", file=sys.stderr)
             return 1
-        finally:
-            screen.close()
 
 
-def _measure(
-    screen: Screen, env: dict[str, str], args: argparse.Namespace, width: int, height: int
-) -> int:
-    launch(screen, env, args, INGEST_S)  # fills the cache (ingests the embedded data)
+def _measure(size: tuple[int, int], env: dict[str, str], args: argparse.Namespace) -> int:
+    launch(size, env, args, INGEST_S)  # fills the cache (ingests the embedded data)
     runs, loads = [], []
+    if args.save:
+        args.save.mkdir(parents=True, exist_ok=True)
     for i in range(args.runs):
         loads.append(load_average()[0])
-        runs.append(launch(screen, env, args))
-        if args.save:
-            args.save.mkdir(parents=True, exist_ok=True)
-            save_final(screen, args.save / f"launch-{i + 1}.png")
-        time.sleep(0.5)
+        save = args.save / f"launch-{i + 1}.png" if args.save else None
+        runs.append(launch(size, env, args, save=save))
+    width, height = size
     print(
         f"Window launch, `python -m globeview gui` on Xvfb {width}x{height} (screen polled "
         f"every {args.poll_ms:.0f} ms), warm cache, {args.runs} runs after one not counted"
