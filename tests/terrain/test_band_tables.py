@@ -1,6 +1,7 @@
 """The border blend's difference tables kept in the cache between sessions (issue #27, the
 window's launch): a stack that reads them back gives the very stride errors of one that
-measured them, without composing a tile; a damaged file or another layer order measures."""
+measured them, without composing a tile; a damaged file, another layer order or other terrain
+code measures."""
 
 from __future__ import annotations
 
@@ -61,6 +62,15 @@ def test_a_damaged_table_is_measured_again(stores, kept):
         f.write_bytes(b"not a table")
     for a, b in zip(measured, _errors(_stack(stores)), strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+def test_the_key_changes_with_the_terrain_code(stores, monkeypatch):
+    upper = band_tables.store_digest(stores["N44W072"])
+    assert upper is not None
+    key = band_tables.tables_key(upper, [], 5, True)
+    assert len(band_tables.code_digest()) == 64
+    monkeypatch.setattr(band_tables, "code_digest", lambda: "edited")
+    assert band_tables.tables_key(upper, [], 5, True) != key
 
 
 def test_the_key_names_the_layers_below_and_the_level(stores):

@@ -357,7 +357,10 @@ class BandErrors:
             if digest is None:
                 return None
             digests.append(digest)
-        return tables_key(digests[0], digests[1:], level, self._stack.blend)
+        try:
+            return tables_key(digests[0], digests[1:], level, self._stack.blend)
+        except OSError:  # the package's source unreadable (`code_digest`): measure instead
+            return None
 
     def _bound_unread(
         self,

@@ -5,15 +5,17 @@ border band at a level: a few hundred composed tiles for the embedded terrain, a
 second of CPU at the window's first frame (issue #27's launch target). The tables depend only
 on the stores' contents and the order of the layers, so they are written once to
 ``<cache>/band-tables/<key>.npz`` and read back at the next launch. The key is a sha256 of
-this module's `TABLE_FORMAT`, globeview's version, the level, whether layers blend, and the
-``manifest.json`` bytes of the layer and of each layer below it (a manifest names every level
-file's sha256, so a rebuilt store gets other keys). Remote stores are not kept (their
+this module's `TABLE_FORMAT`, globeview's version, the terrain package's source
+(`code_digest`), the level, whether layers blend, and the ``manifest.json`` bytes of the layer
+and of each layer below it (a manifest names every level file's sha256, so a rebuilt store
+gets other keys). Remote stores are not kept (their
 manifest is not a local file). A file that cannot be written or read back as the expected
 arrays costs only the recomputation: nothing here raises.
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import io
 import logging
@@ -51,9 +53,23 @@ def store_digest(st: TileStore) -> str | None:
         return None
 
 
+@functools.cache
+def code_digest() -> str:
+    """sha256 of the terrain package's source (~50 files, a few ms once a process): the
+    tables are its results, so any change of the code that reads, composes or measures
+    heights makes new keys (the version number does not change with every commit)."""
+    h = hashlib.sha256()
+    root = Path(__file__).resolve().parents[1]  # globeview/terrain
+    for path in sorted(root.rglob("*.py")):
+        h.update(path.relative_to(root).as_posix().encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()
+
+
 def tables_key(upper: str, below: Sequence[str], level: int, blend: bool) -> str:
     """The file name stem of a table: layer digest ``upper`` over ``below`` (bottom first)."""
-    parts = [f"format={TABLE_FORMAT}", __version__, f"level={level}", f"blend={blend}", upper]
+    parts = [f"format={TABLE_FORMAT}", __version__, code_digest(), f"level={level}"]
+    parts += [f"blend={blend}", upper]
     return hashlib.sha256("|".join([*parts, *below]).encode()).hexdigest()[:32]
 
 
