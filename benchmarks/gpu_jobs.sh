@@ -14,5 +14,5 @@ export PYTHONPATH=/tmp/site GLOBEVIEW_CACHE_DIR=/tmp/gvc GLOBEVIEW_CONFIG_DIR=/t
 export PATH=/tmp/site/bin:$PATH
 nvidia-smi --query-gpu=name,driver_version --format=csv 2>&1 | tee "$OUT/gpu.txt"
 python3 -m globeview render --size 256x256 --out /tmp/warm.png 2>&1 | tail -2  # ingests the embedded data
-timeout 420 python3 benchmarks/publish.py ${GPU_JOBS:-render-4k lod tiles flight-async} 2>&1 | tee "$OUT/publish.log"
+timeout 420 python3 benchmarks/publish.py ${GPU_JOBS:-render-4k lod tiles flight-async overlays collapse fragment} 2>&1 | tee "$OUT/publish.log"
 cp docs/benchmarks.md "$OUT/"

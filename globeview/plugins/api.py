@@ -539,8 +539,10 @@ class PolicyProvider(LodProvider):
     A repaint with an unchanged view (window expose, overlay redraw) reuses the last render
     set (its stats then say ``lod_ms`` 0 and ``lod_cached`` 1); any change of the camera,
     viewport, field of view, tau, exaggeration, navigation speed or frame rate, of a setting
-    or of the terrain (its ``version``) selects afresh, and so does every frame with a tool
-    displacement (``view.displace``), which can change between frames with the same view.
+    or of the terrain (its ``version``) selects afresh, and so does a frame whose tool
+    displacement (``view.displace``) changed: its `displacement_key` (the tool's key and
+    where the displacement moves fixed probe points) differs from the last frame's. A
+    displacement without the tool's key (``view.displacement_key`` None) selects every frame.
     A policy that reads anything else of the view must not be wrapped this way.
 
     The provider keeps a `SelectionState` (API 1.4): with a `LodPolicy.per_tile` policy a
@@ -559,9 +561,14 @@ class PolicyProvider(LodProvider):
     _reuse_terrain: weakref.ref[Any] | None = None
     # The flat walk's state (made on first use: this module must not import the LOD engine).
     _selection_state: SelectionState | None = None
+    # Under a tool displacement: the view selected for and where its displacement moves the
+    # probe points (`displacement_key`, computed only once a still frame asks).
+    _reuse_view: ViewState | None = None
+    _reuse_moved: object | None = None
 
     def reset(self) -> None:
         self._reuse_key = self._reuse = self._reuse_terrain = None
+        self._reuse_view = self._reuse_moved = None
         if self._selection_state is not None:
             self._selection_state.reset()
 
@@ -575,9 +582,10 @@ class PolicyProvider(LodProvider):
     def select(self, view: ViewState, terrain: Any) -> RenderSet:
         # Deferred (heavy): reading a manifest imports this module, and must not load the
         # LOD engine and the terrain (tests/plugins/test_plugin_facade.py).
-        from globeview.lod.traversal import traverse
+        from globeview.lod.traversal import displacement_key, traverse
 
-        if terrain is None or view.displace is not None:
+        # A displacement without the tool's key could change where no probe point sees it.
+        if terrain is None or (view.displace is not None and view.displacement_key is None):
             self._reuse_key = self._reuse = self._reuse_terrain = None
             return traverse(view, terrain, self.policy(**self.values), state=self._state())
         key = (
@@ -592,6 +600,9 @@ class PolicyProvider(LodProvider):
             view.frame_rate_hz,
             terrain.version,
             tuple(sorted(self.values.items())),
+            # A still collapse selects once; an animating one (its key changes) every frame.
+            view.displacement_key,
+            view.displacement_bend is not None,
         )
         old = self._reuse_terrain
         if (
@@ -599,6 +610,7 @@ class PolicyProvider(LodProvider):
             and key == self._reuse_key
             and old is not None
             and old() is terrain
+            and self._same_displacement(view, displacement_key)
         ):
             rs = self._reuse
             rs.stats["lod_ms"] = 0.0
@@ -606,7 +618,19 @@ class PolicyProvider(LodProvider):
             return rs
         rs = traverse(view, terrain, self.policy(**self.values), state=self._state())
         self._reuse_key, self._reuse, self._reuse_terrain = key, rs, weakref.ref(terrain)
+        self._reuse_view = view if view.displace is not None else None
+        self._reuse_moved = None
         return rs
+
+    def _same_displacement(self, view: ViewState, moved: Callable[[ViewState], object]) -> bool:
+        """Whether ``view``'s displacement moves the probe points exactly as the one last
+        selected for did (``moved``: `displacement_key`); True without a displacement. Only
+        a frame otherwise equal to the last pays for the probes (a moving one never)."""
+        if view.displace is None or self._reuse_view is None:
+            return view.displace is None and self._reuse_view is None
+        if self._reuse_moved is None:
+            self._reuse_moved = moved(self._reuse_view)
+        return bool(moved(view) == self._reuse_moved)
 
 
 class ProviderUnavailable(Exception):

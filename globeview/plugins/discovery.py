@@ -48,28 +48,26 @@ class PluginDiscovery:
         self._owners = {}
         self._live = set()
         seen: set[tuple[str, str]] = set()
-        eps = sorted(
-            _plugin_entry_points(), key=lambda e: (_dist_name(e) != BUILTIN_DISTRIBUTION, e.name)
-        )
+        eps = _plugin_entry_points()
+        facts = _dist_facts(eps)
+        eps.sort(key=lambda e: (facts[id(e)][0] != BUILTIN_DISTRIBUTION, e.name))
         for ep in eps:
             if (ep.name, ep.value) in seen:  # the same distribution found twice on sys.path
                 continue
             seen.add((ep.name, ep.value))
             try:
-                self._discover_one(ep)
+                self._discover_one(ep, *facts[id(ep)])
             except Exception as exc:  # noqa: BLE001  hostile metadata: one plugin's problem, not discovery's
                 self._add_invalid(_clip(ep.name), ep.value, describe_exception(exc), False)
         for p in paths:
             self.add_path(p)
         return self
 
-    def _discover_one(self, ep: md.EntryPoint) -> None:
-        dist = ep.dist
-        try:
-            source = f"{dist.metadata['Name']} {dist.version}" if dist else ep.value
-        except Exception:  # noqa: BLE001  unreadable METADATA: the entry point still names the manifest
-            source = ep.value
-        builtin = _dist_name(ep) == BUILTIN_DISTRIBUTION
+    def _discover_one(self, ep: md.EntryPoint, dist_name: str, source: str | None) -> None:
+        """Read ``ep``'s manifest into a record; ``dist_name`` and ``source`` from
+        `_dist_facts` (``source`` None: the entry point's value names the plugin)."""
+        source = ep.value if source is None else source
+        builtin = dist_name == BUILTIN_DISTRIBUTION
         try:
             manifest = read_manifest(locate_manifest(ep.value))
             if manifest.name != ep.name:
@@ -138,12 +136,37 @@ def _plugin_entry_points() -> list[md.EntryPoint]:
     return out
 
 
-def _dist_name(ep: md.EntryPoint) -> str:
-    """The normalised name of the distribution of ``ep`` ("" when unknown or unreadable)."""
-    try:
-        dist = ep.dist
+def _dist_facts(eps: list[md.EntryPoint]) -> dict[int, tuple[str, str | None]]:
+    """Per entry point (by ``id``): the normalised name of its distribution ("" when unknown
+    or unreadable) and "Name version" (None when there is no distribution or its METADATA
+    cannot be read). Each distribution's METADATA is parsed once (an email-format parse each
+    time it is asked for: ~10 ms for globeview's own, four times per plugin before)."""
+    by_dist: dict[int, tuple[str, str | None]] = {}
+    out: dict[int, tuple[str, str | None]] = {}
+    for ep in eps:
+        dist = getattr(ep, "dist", None)
         if dist is None:
-            return ""
-        return (dist.metadata["Name"] or "").lower().replace("_", "-")
+            out[id(ep)] = ("", None)
+            continue
+        hit = by_dist.get(id(dist))
+        if hit is None:
+            hit = by_dist[id(dist)] = _read_dist(dist)
+        out[id(ep)] = hit
+    return out
+
+
+def _read_dist(dist: md.Distribution) -> tuple[str, str | None]:
+    """(normalised name or "", "Name version" or None) of one distribution's METADATA."""
+    try:
+        meta = dist.metadata
     except Exception:  # noqa: BLE001  installed metadata may be broken any way: skip, never fail discovery
-        return ""
+        return "", None
+    try:
+        name = (meta["Name"] or "").lower().replace("_", "-")
+    except Exception:  # noqa: BLE001  as above
+        name = ""
+    try:
+        source: str | None = f"{meta['Name']} {meta['Version']}"
+    except Exception:  # noqa: BLE001  unreadable METADATA: the entry point still names the manifest
+        source = None
+    return name, source

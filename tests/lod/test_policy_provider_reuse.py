@@ -3,7 +3,7 @@
 A repaint with the same view (window expose, overlay redraw) must not walk the quadtree again
 for any provider built on `PolicyProvider` (chunked-sse, distance-regions, wavelet); anything
 a policy reads - the camera, a setting, the terrain, the navigation speed - selects afresh,
-and so does every frame with a tool displacement.
+and so does a changed tool displacement (every frame for one without the tool's key).
 """
 
 from __future__ import annotations
@@ -71,10 +71,31 @@ def test_a_change_selects_afresh(cls, stack) -> None:
     # another terrain object equal in every key (version 0 again, same view)
     other = TerrainStack.from_stores([ly.store for ly in stack.layers])
     assert _fresh(provider.select(sized, other))
-    # a tool displacement can change between frames with the same view: never reused
+    # a tool displacement without the tool's key can change unseen: never reused
     bent = dataclasses.replace(sized, displace=lambda p: p)
     assert _fresh(provider.select(bent, other))
     assert _fresh(provider.select(bent, other))
+
+
+@pytest.mark.slow
+def test_a_still_displacement_with_a_key_reuses_until_it_changes(stack) -> None:
+    """Issue #27: a still camera over a still collapse selects once; the tool's key or the
+    probe points moving (an animating collapse) select afresh."""
+    provider = ChunkedSseProvider()
+    view = make_view(-71.3, 44.27, 3.0e5, 10.0, -40.0)
+
+    def lifted(dz: float):
+        return lambda p: np.asarray(p, dtype=np.float64) * (1.0 + dz)
+
+    still = dataclasses.replace(view, displace=lifted(1e-6), displacement_key=("k", 1))
+    first = provider.select(still, stack)
+    assert _fresh(first)
+    assert provider.select(dataclasses.replace(still), stack) is first
+    rekeyed = dataclasses.replace(still, displacement_key=("k", 2))
+    assert _fresh(provider.select(rekeyed, stack))
+    moved = dataclasses.replace(rekeyed, displace=lifted(2e-6))  # same key, probes moved
+    assert _fresh(provider.select(moved, stack))
+    assert _fresh(provider.select(view, stack))  # no displacement any more
 
 
 @pytest.mark.slow

@@ -18,6 +18,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from globeview.errors import StoreError
+from globeview.terrain.compose.band_tables import (
+    load_tables,
+    save_tables,
+    store_digest,
+    tables_key,
+)
 from globeview.terrain.compose.blend import interpolation_error, weight_change_bound
 from globeview.terrain.compose.metadata import N_STRIDES
 from globeview.terrain.interpolate import linear_weights
@@ -49,6 +55,8 @@ class BandErrors:
         # _diffs entries with unread band tiles: key -> (time.monotonic() to retry, tiles).
         self._diffs_unread: dict[tuple, tuple[float, list[tuple[int, int]]]] = {}
         self._band_counts: dict[tuple[TileStore, int], int] = {}  # band tiles per level
+        # sha256 of each store's manifest (`band_tables.store_digest`), None for remote ones.
+        self._digests: dict[TileStore, str | None] = {}
 
     def clear(self) -> None:
         """The layers changed: |upper - lower| bounds depend on which layers lie below."""
@@ -56,6 +64,7 @@ class BandErrors:
             self._diffs.clear()
             self._diffs_unread.clear()
             self._band_counts.clear()
+            self._digests.clear()  # holds the stores: forget removed ones
 
     def blend_error(
         self,
@@ -273,6 +282,11 @@ class BandErrors:
         grid = st.level_grid(level)
         ys, xs = np.mgrid[grid.y0 : grid.y0 + grid.ny, grid.x0 : grid.x0 + grid.nx]
         xs = xs % grid.ncols
+        disk_key = self._disk_key(st, below, level) if hit is None else None
+        if disk_key is not None:
+            kept = load_tables(disk_key, xs.shape)
+            if kept is not None:  # measured in an earlier session: the same numbers
+                return self._keep(key, version, (grid, *kept), [])
         if hit is None:
             mask = self._stack.blend_mask(st)
             todo = st.has_data(level, xs, ys)
@@ -313,7 +327,13 @@ class BandErrors:
             measured[j, c] = _stride_interpolation_errors(composed)
         if missed:
             self._bound_unread(i, st, level, xs, ys, missed, table, spread, measured)
-        hit = (grid, table, spread, measured)
+        elif disk_key is not None:
+            save_tables(disk_key, (table, spread, measured))
+        return self._keep(key, version, (grid, table, spread, measured), missed)
+
+    def _keep(self, key: tuple, version: int, hit: tuple, missed: list[tuple[int, int]]) -> tuple:
+        """Remember a difference table (unless the layers changed since ``version``), with
+        the band tiles it could not read for a retry; returns it."""
         with self._lock:
             if self._stack.version == version:  # the layers changed meanwhile: do not keep it
                 self._diffs[key] = hit
@@ -322,6 +342,25 @@ class BandErrors:
                 else:
                     self._diffs_unread.pop(key, None)
         return hit
+
+    def _disk_key(self, st: TileStore, below: tuple[TileStore, ...], level: int) -> str | None:
+        """The key of this table in the user's cache (`band_tables`), None where a store is
+        remote or its manifest unreadable (then the table is measured every session)."""
+        digests = []
+        for store in (st, *below):
+            with self._lock:
+                digest = self._digests.get(store, "")
+            if digest == "":
+                digest = store_digest(store)
+                with self._lock:
+                    self._digests[store] = digest
+            if digest is None:
+                return None
+            digests.append(digest)
+        try:
+            return tables_key(digests[0], digests[1:], level, self._stack.blend)
+        except OSError:  # the package's source unreadable (`code_digest`): measure instead
+            return None
 
     def _bound_unread(
         self,

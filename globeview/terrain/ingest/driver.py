@@ -696,7 +696,8 @@ def _check_parameters(
         raise StoreError(f"--tile-n must be in {TILE_N_RANGE[0]}..{TILE_N_RANGE[1]}, got {tile_n}")
     if max_level is not None and not (0 <= max_level <= MAX_LEVEL_LIMIT):
         raise StoreError(f"--max-level must be in 0..{MAX_LEVEL_LIMIT}, got {max_level}")
-    lowpass_kernel(wavelet)  # WaveletError (a GlobeviewError) for a bad name
+    if wavelet != DEFAULT_WAVELET:  # the default is good; checking it would load pywt
+        lowpass_kernel(wavelet)  # WaveletError (a GlobeviewError) for a bad name
     where = parse_scheduler(workers, scheduler)  # one line for a bad value, before any work
     if where.address is not None:
         probe_scheduler(where.address)  # one line within seconds if no scheduler answers

@@ -30,7 +30,6 @@ identity first with a hard deadline (`probe_scheduler`).
 
 from __future__ import annotations
 
-import asyncio
 import os
 import re
 import threading
@@ -385,6 +384,8 @@ def probe_scheduler(address: str) -> None:
             comm.abort()
 
     def run() -> None:
+        import asyncio  # here: only a scheduler probe needs it (~0.08 s to import)
+
         try:
             result["reply"] = asyncio.run(asyncio.wait_for(ask(), CONNECT_TIMEOUT_S))
         except BaseException as exc:  # noqa: BLE001  reported below as one line

@@ -28,7 +28,6 @@ array shifted by H: the window then equals the whole-array result there too.
 from __future__ import annotations
 
 import numpy as np
-import pywt
 
 from globeview.errors import GlobeviewError
 
@@ -70,6 +69,8 @@ def lowpass_kernel(wavelet: str = DEFAULT_WAVELET) -> np.ndarray:
             symmetric with odd length (e.g. 'haar', 'db2'): those shift the coarse node by half
             a sample or off-centre, so coarse node j would not sit on fine node 2j.
     """
+    import pywt  # here: its extension takes ~0.2 s to load, and opening a store needs none
+
     try:
         w = pywt.Wavelet(wavelet)
     except (ValueError, TypeError) as exc:
