@@ -43,9 +43,7 @@ def test_add_bookmark_menu_adds_the_bookmarks_view(make_window, errors_shown) ->
     assert len(panel.tour.keyframes) == 2
 
 
-def test_save_project_keeps_the_tour_and_open_shows_it(
-    make_window, tmp_path, errors_shown
-) -> None:
+def test_save_project_keeps_the_tour_and_open_shows_it(make_window, tmp_path, errors_shown) -> None:
     win = make_window()
     panel = win.tour_panel
     win.model.camera = Camera.from_lonlat(*A)
