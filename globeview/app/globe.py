@@ -371,10 +371,20 @@ class Globe:
         return self.fly_to(*camera.lonlat_hpr())
 
     # -- tours and movies ------------------------------------------------------------------
-    def add_keyframe(self, seconds: float = 0.0, pose: Any = None) -> Keyframe:
+    def add_keyframe(
+        self, seconds: float = 0.0, pose: Any = None, *, bookmark: str | None = None
+    ) -> Keyframe:
         """Append a keyframe to `tour`: ``pose`` (a `CameraPose` or (lon, lat, height[,
-        heading[, pitch[, roll]]])), default the camera now, reached ``seconds`` after the
-        previous keyframe. One line (`GlobeviewError`) for a value out of range."""
+        heading[, pitch[, roll]]])), or the view of the bookmark named ``bookmark``, default
+        the camera now, reached ``seconds`` after the previous keyframe. One line
+        (`GlobeviewError`) for a value out of range, an unknown bookmark, or both given."""
+        if bookmark is not None:
+            if pose is not None:
+                raise GlobeviewError("add_keyframe takes a pose or a bookmark, not both")
+            if bookmark not in self.model.bookmarks:
+                names = self.model.bookmarks.names
+                raise GlobeviewError(f"no bookmark named {bookmark!r:.60} ({names})")
+            pose = self.model.bookmarks[bookmark].pose
         return self.tour.add(self._keyframe(pose if pose is not None else self.camera, seconds))
 
     def _keyframe(self, pose: Any, seconds: float) -> Keyframe:
@@ -555,8 +565,8 @@ class Globe:
 
     def save_project(self, path: str | os.PathLike[str]) -> Path:
         """Write the globe (DEMs and overlays with their order, visibility, opacity and
-        style, camera, LOD provider and settings, display, tool, bookmarks) to a project
-        file (``.toml``, paths relative to it), atomically. A layer no file stands for (a
+        style, camera, LOD provider and settings, display, tool, bookmarks, `tour`) to a
+        project file (``.toml``, paths relative to it), atomically. A layer no file stands for (a
         DEM from an array) is left out with a warning. One line (`GlobeviewError`) for a
         path that cannot be written; nothing partial is left."""
         from globeview.app.project import save_project
@@ -572,7 +582,8 @@ class Globe:
         """A globe showing the project file ``path`` (see `save_project`). One line
         (`GlobeviewError`) for a file that is not a project, of a newer schema, or with a bad
         value or an unknown plugin or setting. A layer whose file is missing (or absolute,
-        or unreadable) is one warning line and left out; the list is ``project_problems``."""
+        or unreadable) is one warning line and left out, as is a tour with a bad keyframe;
+        the list is ``project_problems``. The project's tour becomes `tour`."""
         from globeview.app.project import apply_project
         from globeview.model.project import read_project
 
@@ -587,7 +598,7 @@ class Globe:
     def _parts(self) -> Any:
         from globeview.app.project import GlobeParts
 
-        return GlobeParts(self.model, self.overlay_host, self.registry)
+        return GlobeParts(self.model, self.overlay_host, self.registry, self.tour)
 
     # -- rendering ---------------------------------------------------------------------------
     def render(self, size: tuple[int, int] | None = None) -> np.ndarray:

@@ -37,6 +37,7 @@ from globeview.model.project import (
     relative_path,
     resolve_path,
 )
+from globeview.model.tour import TOUR_FORMAT, TOUR_VERSION, Tour, tour_from_dict, tour_to_dict
 from globeview.paths import cache_dir
 from globeview.plugins.api import PluginKind
 from globeview.plugins.registry import PluginRegistry
@@ -52,6 +53,7 @@ __all__ = [
     "capture_project",
     "check_plugins",
     "open_dems",
+    "project_tour",
     "save_project",
 ]
 
@@ -62,11 +64,14 @@ DISPLAY_FIELDS = ("exaggeration", "wireframe", "hillshade", "fog", "background")
 @dataclass(frozen=True)
 class GlobeParts:
     """What a project is captured from and applied to: the evented model, the overlay host
-    that opens its overlays and the plugin registry that serves its LOD provider and tool."""
+    that opens its overlays and the plugin registry that serves its LOD provider and tool,
+    and the tour (the API globe's `tour` or the Tour dock's): saved into the project's
+    ``[[tours]]`` and replaced in place by an opened project's (None: no tour kept)."""
 
     model: GlobeModel
     overlays: OverlayHost
     registry: PluginRegistry
+    tour: Tour | None = None
 
 
 # -- capture and save --------------------------------------------------------------------------
@@ -102,8 +107,20 @@ def capture_project(parts: GlobeParts, base: Path) -> tuple[Project, list[str]]:
         dems=dems,
         overlays=overlays,
         bookmarks=[Bookmark(b.name, _tidy_pose(b.pose)) for b in model.bookmarks],
+        tours=_tours(parts.tour),
     )
     return project, skipped
+
+
+#: The name a tour without one is saved under in a project.
+DEFAULT_TOUR_NAME = "Tour"
+
+
+def _tours(tour: Tour | None) -> list[dict[str, Any]]:
+    """The project's ``[[tours]]``: the tour (named) if it has keyframes."""
+    if tour is None or not tour.keyframes:
+        return []
+    return [tour_to_dict(Tour(list(tour.keyframes), tour.name or DEFAULT_TOUR_NAME))]
 
 
 def save_project(parts: GlobeParts, path: str | os.PathLike[str]) -> list[str]:
@@ -303,7 +320,31 @@ def apply_project(
     if problem is not None:
         problems.append(problem)
     model.bookmarks.set(project.bookmarks)
+    if parts.tour is not None:
+        found, lines = project_tour(project)
+        parts.tour.keyframes[:] = found.keyframes
+        parts.tour.name = found.name
+        problems += lines
     return problems
+
+
+def project_tour(project: Project) -> tuple[Tour, list[str]]:
+    """The project's tour (its first ``[[tours]]`` entry that reads; an empty `Tour` if
+    none) and one line per ``[[tours]]`` entry that is not opened: a bad keyframe or value
+    (`tour_from_dict`'s line), or a tour after the one shown (a globe has one tour)."""
+    tours: list[Tour] = []
+    problems: list[str] = []
+    for i, table in enumerate(project.tours, 1):
+        name = table.get("name")
+        where = f"tour {name!r:.60}" if isinstance(name, str) and name else f"tour {i}"
+        data = {"format": TOUR_FORMAT, "version": TOUR_VERSION} | table
+        try:
+            tours.append(tour_from_dict(data, where))
+        except GlobeviewError as exc:
+            problems.append(str(exc))
+    for extra in tours[1:]:
+        problems.append(f"tour {extra.name!r:.60}: a globe shows one tour; left out")
+    return (tours[0] if tours else Tour()), problems
 
 
 def _unique(name: str, taken: list[str]) -> str:

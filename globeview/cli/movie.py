@@ -1,5 +1,6 @@
-"""`globeview movie`: fly a tour (a tour file, or cameras given on the command line) over
-DEMs headless (EGL) and write it as an MP4 or a GIF, every frame with all its tiles loaded.
+"""`globeview movie`: fly a tour (a tour file, a project's tour over the project's layers, or
+cameras given on the command line) over DEMs headless (EGL) and write it as an MP4 or a GIF,
+every frame with all its tiles loaded.
 
 The movie is written to a temporary file beside ``--out`` and renamed at the end: a bad
 argument, a full disk, a read-only folder or Ctrl-C leaves nothing behind (one line, exit
@@ -29,7 +30,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "tour",
         metavar="TOUR|CAMERAS",
-        help="a tour file (.json or .toml, saved by the window or globeview.Tour), or cameras "
+        help="a tour file (.json or .toml, saved by the window or globeview.Tour), a project "
+        "(PROJECT.toml with a tour: its own layers, camera and display are filmed), or cameras "
         "'LON,LAT,HEIGHT[,HEADING,PITCH[,ROLL]];...' (degrees, metres above WGS84) flown "
         "--seconds apart; put -- before a list that starts with '-'",
     )
@@ -166,11 +168,78 @@ def make_globe(args: argparse.Namespace, v: dict) -> Globe:
     return globe
 
 
+#: The options a project sets itself (its layers, camera, LOD and display), with their
+#: defaults: given with a project they are refused, not silently overridden.
+_PROJECT_SETS: dict[str, object] = {
+    "seconds": DEFAULT_LEG_S,
+    "fov": 45.0,
+    "tau": 2.0,
+    "exaggeration": 1.0,
+    "hillshade": False,
+    "no_fog": False,
+    "imagery": False,
+    "no_borders": False,
+    "lod": "chunked-sse",
+    "layer": [],
+    "background": None,
+    "crs": None,
+    "vdatum": None,
+}
+
+
+def is_project(text: str) -> bool:
+    """Whether the TOUR argument is a project file (a ``.toml`` with a ``schema`` key;
+    a tour file has ``format = "globeview-tour"`` instead)."""
+    import tomllib
+    from pathlib import Path
+
+    from globeview.model.project import MAX_BYTES, is_project_path
+
+    p = Path(text)
+    if not is_project_path(p) or not p.is_file() or p.stat().st_size > MAX_BYTES:
+        return False
+    try:
+        return "schema" in tomllib.loads(p.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return False  # load_tour says what is wrong with it
+
+
+def project_globe(args: argparse.Namespace) -> tuple[dict, Globe]:
+    """``globeview movie PROJECT.toml -o out.mp4``: the project's globe (layers, camera,
+    LOD, display) and its tour; one line for DEMs given too, an option the project sets,
+    or a project without a tour."""
+    from globeview.app.globe import Globe
+    from globeview.app.movie import MOVIE_SUFFIXES, check_fps, check_movie_size
+    from globeview.cli.project import check_project, refuse_options
+    from globeview.cli.render import parse_size
+    from globeview.errors import GlobeviewError
+    from globeview.fileio import check_output_file
+
+    if args.sources:
+        raise GlobeviewError(f"a project films its own layers: {args.tour} was given with DEMs")
+    refuse_options(args, _PROJECT_SETS)
+    out = check_output_file(args.out, "--out", MOVIE_SUFFIXES)
+    size = checked("--size", check_movie_size, parse_size(args.size), out.suffix.lower())
+    fps = checked("--fps", check_fps, args.fps)
+    check_project(args.tour)  # not a project, newer schema, unknown plugin: before any DEM
+    globe = Globe.open_project(args.tour)
+    if not globe.tour.keyframes:
+        globe.close()
+        raise GlobeviewError(
+            f"{args.tour} has no tour to film (record one in the window's Tour dock and "
+            "Save Project, or Globe.add_keyframe then save_project)"
+        )
+    return {"out": out, "size": size, "fps": fps, "tour": globe.tour}, globe
+
+
 def run(args: argparse.Namespace) -> int:
     import time
 
-    v = check_args(args)
-    globe = make_globe(args, v)
+    if is_project(args.tour):
+        v, globe = project_globe(args)
+    else:
+        v = check_args(args)
+        globe = make_globe(args, v)
     tour, size, fps = v["tour"], v["size"], v["fps"]
     t0 = time.perf_counter()
     with progress_bar(not args.quiet and sys.stderr.isatty()) as tell:

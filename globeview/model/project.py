@@ -18,7 +18,8 @@ A project is a TOML file a person can read and edit::
     [[overlays]]                     # bottom first: name, path | embedded, type, visible,
     path = "roads.geojson"           # opacity (drapes), [overlays.style]
     [[bookmarks]]                    # name + camera
-    [[tours]]                        # optional, kept as written (tours come later)
+    [[tours]]                        # optional: name + [[tours.keyframes]] (model/tour.py's
+                                     # form; checked when a globe opens it, app/project.py)
 
 Paths are relative to the project file (``/`` separated; ``..`` allowed); an absolute path,
 one that is missing or of the wrong kind is a problem of that layer only (`resolve_path`),
@@ -155,7 +156,8 @@ class Project:
     dems: list[DemSpec] = field(default_factory=list)
     overlays: list[OverlaySpec] = field(default_factory=list)
     bookmarks: list[Bookmark] = field(default_factory=list)
-    #: Tours (issue #26 item 5), kept as read: a later globeview fills them.
+    #: Tours (issue #26 item 5) in `globeview.model.tour.tour_to_dict`'s form, kept as read
+    #: here and checked per tour when a globe opens them (`globeview.app.project`).
     tours: list[dict[str, Any]] = field(default_factory=list)
 
 

@@ -74,7 +74,7 @@ class ProjectActions(QObject):
     # -- parts ---------------------------------------------------------------------------------
     def _parts(self) -> GlobeParts:
         w = self.window
-        return GlobeParts(w.model, w.overlay_host, w.plugins.registry)
+        return GlobeParts(w.model, w.overlay_host, w.plugins.registry, w.tour_panel.tour)
 
     def _set_path(self, path: Path) -> None:
         """Remember the project (the dialogs start in its folder) and name it in the title."""
@@ -115,11 +115,12 @@ class ProjectActions(QObject):
 
     def open(self, path: str | Path) -> bool:
         """Show the project ``path`` in the window: its layers replace the window's, then
-        its view, LOD provider, display, tool and bookmarks. A file that cannot be read (or
-        names an unknown plugin or setting) is one dialog and nothing changes; missing
-        layers are listed in one dialog while the rest opens. The DEMs are opened (ingested
-        into the tile cache if needed) on a worker thread while the window keeps drawing;
-        the project actions wait meanwhile."""
+        its view, LOD provider, display, tool, bookmarks and tour (the Tour dock's). A file
+        that cannot be read (or names an unknown plugin or setting) is one dialog and
+        nothing changes; missing layers (and a tour with a bad keyframe) are listed in one
+        dialog while the rest opens. The DEMs are opened (ingested into the tile cache if
+        needed) on a worker thread while the window keeps drawing; the project
+        actions wait meanwhile."""
         try:
             project = read_project(path)
             check_plugins(project, self.window.plugins.registry)
@@ -130,11 +131,13 @@ class ProjectActions(QObject):
         opened = self._open_dems(project, base, Path(path).name)
         if opened is None:  # the window was closed meanwhile
             return False
+        self.window.tour_panel.stop()
         try:
             problems = apply_project(project, base, self._parts(), opened=opened)
         except GlobeviewError as exc:  # a plugin changed while the DEMs were opened
             self.window.errors.error(exc, "Open Project")
             return False
+        self.window.tour_panel.refresh()  # the Tour dock shows the project's tour
         for layer in self.window.model.terrain.layers:
             # As File > Open does: the UI thread never waits for a store's server (a tile
             # not fetched yet is fetched in the background; coarser ones stand in).

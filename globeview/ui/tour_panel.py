@@ -1,6 +1,7 @@
-"""The Tour dock: record a tour (the current view as a keyframe, the seconds to reach it),
-play it back in the window, open and save it, and export it as a movie with a progress
-dialog (ETA, Cancel).
+"""The Tour dock: record a tour (the current view or a bookmark's as a keyframe, the seconds
+to reach it), play it back in the window, open and save it, and export it as a movie with a
+progress dialog (ETA, Cancel). An opened project's tour is shown here and Save Project saves
+this one (`globeview.ui.project_actions`).
 
 The tour is the Qt-free `globeview.model.tour.Tour`; playback moves the window's camera in
 place along `Tour.pose_at` on a timer (the tiles stream in as in any flight). Export films
@@ -22,6 +23,7 @@ from PyQt6.QtWidgets import (
     QFileDialog,
     QHBoxLayout,
     QLabel,
+    QMenu,
     QProgressDialog,
     QPushButton,
     QSpinBox,
@@ -93,6 +95,12 @@ class TourPanel(QWidget):
         self.add_button = self._button(
             "Add View", "The current view as the next keyframe", self.add_view
         )
+        self.bookmark_button = QPushButton("Add Bookmark")
+        self.bookmark_button.setToolTip("A bookmark's view as the next keyframe")
+        self.bookmark_menu = QMenu(self.bookmark_button)
+        self.bookmark_menu.aboutToShow.connect(self._fill_bookmarks)
+        self.bookmark_button.setMenu(self.bookmark_menu)
+        self._fill_bookmarks()
         self.remove_button = self._button(
             "Remove", "Remove the selected keyframes", self.remove_selected
         )
@@ -104,7 +112,8 @@ class TourPanel(QWidget):
         self.fps_box.setValue(30)
         self.fps_box.setSuffix(" fps")
         rows: list[list[QWidget]] = [
-            [QLabel("Reach in"), self.seconds, self.add_button, self.remove_button],
+            [QLabel("Reach in"), self.seconds, self.add_button, self.bookmark_button,
+             self.remove_button],
             [self.play_button, self._button("Open…", "Open a tour file", self.open_dialog),
              self._button("Save…", "Save the tour as JSON or TOML", self.save_dialog)],
             [self.size_box, self.fps_box,
@@ -123,6 +132,11 @@ class TourPanel(QWidget):
         b.setToolTip(tip)
         b.clicked.connect(lambda _checked=False: slot())
         return b
+
+    def refresh(self) -> None:
+        """Show `tour` again after it was changed in place (an opened project's)."""
+        self.stop()
+        self._show()
 
     def _show(self) -> None:
         """The table from `tour` (signals held: this is not the user's edit)."""
@@ -160,6 +174,30 @@ class TourPanel(QWidget):
         key = self.tour.add(Keyframe(lon, lat, h, heading, pitch, roll, seconds))
         self._show()
         return key
+
+    def add_bookmark(self, name: str) -> Keyframe | None:
+        """Append the bookmark ``name``'s view, reached in the seconds shown (the first: at
+        once); one dialog line (None) if there is no such bookmark."""
+        if name not in self.model.bookmarks:
+            self.errors.error(GlobeviewError(f"no bookmark named {name!r:.60}"), "Add Bookmark")
+            return None
+        seconds = self.seconds.value() if self.tour.keyframes else 0.0
+        key = self.tour.add(Keyframe.from_pose(self.model.bookmarks[name].pose, seconds))
+        self._show()
+        return key
+
+    def _fill_bookmarks(self) -> None:
+        """The Add Bookmark menu: one entry per bookmark (filled as it opens)."""
+        self.bookmark_menu.clear()
+        names = self.model.bookmarks.names
+        for name in names:
+            action = self.bookmark_menu.addAction(name)
+            if action is not None:
+                action.triggered.connect(lambda _=False, n=name: self.add_bookmark(n))
+        if not names:
+            none = self.bookmark_menu.addAction("(no bookmarks: Bookmarks > Add Bookmark…)")
+            if none is not None:
+                none.setEnabled(False)
 
     def remove_selected(self) -> None:
         rows = sorted({i.row() for i in self.table.selectedIndexes()}, reverse=True)

@@ -22,7 +22,12 @@ def test_the_documented_example_reads():
     assert [d.kind for d in project.dems] == ["path", "embedded"]
     assert project.tool is not None and project.tool.points == ((-71.5, 44.3), (-71.1, 44.3))
     assert project.overlays[0].style["color"] == (1.0, 0.9, 0.2, 1.0)
-    assert project.bookmarks[0].name == "washington" and project.tours == [{}]
+    assert project.bookmarks[0].name == "washington"
+    assert [t["name"] for t in project.tours] == ["washington"]
+    from globeview.app.project import project_tour
+
+    tour, problems = project_tour(project)
+    assert problems == [] and tour.name == "washington" and tour.duration == 6.0
 
 
 def test_write_then_read_is_the_same_project():
