@@ -9,9 +9,18 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cpu_durations
 import pytest
 
 PROBE = "from globeview.render.offscreen import create_headless_context as c; c().release()"
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    cpu_durations.addoption(parser)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    cpu_durations.configure(config)
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:
