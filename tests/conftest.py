@@ -26,6 +26,8 @@ def pytest_configure(config: pytest.Config) -> None:
 def pytest_sessionstart(session: pytest.Session) -> None:
     if os.environ.get("GLOBEVIEW_REQUIRE_GL") != "1":
         return
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        return  # the controlling process probed once for all its workers
     # Probe in a child process: once a thread of this process has had an EGL context current,
     # libglvnd will not make Qt's GLX context current here (the window tests need that).
     probe = subprocess.run([sys.executable, "-c", PROBE], capture_output=True, text=True)
