@@ -2,7 +2,9 @@
 stdout and stderr captured at the file-descriptor level (Python's prints and GDAL's or PROJ's
 C-level chatter alike), its exit status (argparse's `SystemExit` included), environment and
 working folder set for the call and restored after, and the process-wide state `main` sets up
-(the root logger's handler and level, warnings routed to logging, SIGINT's handler) undone.
+(the root logger's handler and level, warnings routed to logging) undone. The counting
+SIGINT handler `globeview.interrupts` installs stays: it is process-wide by design and raises
+KeyboardInterrupt as Python's default handler does.
 
 For tests about what a command prints, writes and exits with: a child process costs 0.5-2
 CPU-seconds of interpreter start, imports, plugin discovery and a GL context before the
@@ -15,7 +17,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
-import signal
 import subprocess
 import sys
 import tempfile
@@ -50,7 +51,6 @@ def _process_state() -> Iterator[None]:
     root = logging.getLogger()
     handlers, level = list(root.handlers), root.level
     captured = logging._warnings_showwarning is not None  # type: ignore[attr-defined]
-    sigint = signal.getsignal(signal.SIGINT)
     try:
         yield
     finally:
@@ -59,7 +59,6 @@ def _process_state() -> Iterator[None]:
         root.setLevel(level)
         if not captured:
             logging.captureWarnings(False)
-        signal.signal(signal.SIGINT, sigint)
 
 
 @contextlib.contextmanager
