@@ -22,8 +22,8 @@ ISSUE_NADIR = [(-71.3, 44.15, h, 0.0, -90.0) for h in (4000.0, 9000.0, 30000.0)]
 def heights_at(terrain, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
     """`TerrainStack.height_at` (m) at many points in one pass: the same tile per point (at the
     default level), the same node positions and `bilinear`, so the same floats; the first and
-    last points are checked against `height_at` itself. (Point by point, the 160 000 calls
-    of a frame's edge lines took 90 % of this file's CPU time.)"""
+    last points are checked against `height_at` itself. (Point by point, the ~50 000 calls a
+    frame's edge lines need took 85 % of this file's CPU time: 34.7 CPU-s, now 5.2.)"""
     level = min(terrain.max_level, 12)
     kx, ky = (np.asarray(a).reshape(-1) for a in key_for_lonlat(level, lon, lat))
     out = np.empty(len(lon))
