@@ -9,14 +9,25 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cpu_durations
 import pytest
 
 PROBE = "from globeview.render.offscreen import create_headless_context as c; c().release()"
 
 
+def pytest_addoption(parser: pytest.Parser) -> None:
+    cpu_durations.addoption(parser)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    cpu_durations.configure(config)
+
+
 def pytest_sessionstart(session: pytest.Session) -> None:
     if os.environ.get("GLOBEVIEW_REQUIRE_GL") != "1":
         return
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        return  # the controlling process probed once for all its workers
     # Probe in a child process: once a thread of this process has had an EGL context current,
     # libglvnd will not make Qt's GLX context current here (the window tests need that).
     probe = subprocess.run([sys.executable, "-c", PROBE], capture_output=True, text=True)

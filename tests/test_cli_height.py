@@ -1,4 +1,6 @@
-"""`globeview height` end to end, in a subprocess like a user runs it (issue #16).
+"""`globeview height` end to end (issue #16): the first check in a subprocess like a user runs
+it, the rest in this process (`inprocess_cli`: the same output and exit status without a new
+interpreter's start-up each call).
 
 The done-when check of the issue: at a White Mountains point the ellipsoidal height of the
 SRTM tile differs from the SRTM sample (orthometric, EGM96) by the geoid undulation there."""
@@ -14,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rasterio
+from inprocess_cli import run_globeview
 
 REPO = Path(__file__).resolve().parents[1]
 SRTM = REPO / "data" / "N44W072.hgt"
@@ -25,6 +28,11 @@ def env(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
 
 
 def _run(env: dict[str, str], *args: str) -> subprocess.CompletedProcess[str]:
+    cache = {"GLOBEVIEW_CACHE_DIR": env["GLOBEVIEW_CACHE_DIR"], "GLOBEVIEW_DEBUG": None}
+    return run_globeview(list(args), env=cache, cwd=REPO)
+
+
+def _subprocess(env: dict[str, str], *args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [sys.executable, "-m", "globeview", *args],
         capture_output=True,
@@ -57,7 +65,7 @@ def test_done_when_ellipsoidal_is_srtm_plus_undulation(env: dict[str, str]) -> N
     # sample that is a local peak (row 875, column 836) the store's nodes, resampled onto the
     # quadtree grid (2.5" apart, the samples 3"), stand 1.5 m lower than the sample itself --
     # resampling, not the datum.
-    r = _run(env, "height", "-71.3033,44.2705", "data/N44W072.hgt", "--json")
+    r = _subprocess(env, "height", "-71.3033,44.2705", "data/N44W072.hgt", "--json")
     assert r.returncode == 0, r.stderr
     rows = json.loads(r.stdout)
     assert len(rows) == 1

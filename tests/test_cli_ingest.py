@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from inprocess_cli import run_globeview
 
 from globeview.cli import ingest as cli_ingest
 from globeview.errors import GlobeviewError
@@ -59,13 +60,10 @@ def test_bad_input_is_one_line_nonzero(tmp_path: Path) -> None:
     assert not (tmp_path / "s").exists()
 
 
-GLOBEVIEW = Path(sys.executable).parent / "globeview"
-
-
 def _cli(*argv: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [str(GLOBEVIEW), "ingest", *argv], capture_output=True, text=True, timeout=120
-    )
+    """``globeview ingest ARGV`` run in this process (`inprocess_cli`: its output and exit
+    status as the child process above would give them)."""
+    return run_globeview(["ingest", *argv], env={"GLOBEVIEW_DEBUG": None})
 
 
 @pytest.mark.slow

@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from inprocess_cli import run_globeview
+
 GLOBEVIEW = Path(sys.executable).with_name("globeview")
 
 
@@ -18,6 +20,13 @@ def globeview(*args: str, cache: Path, timeout: float = 300) -> subprocess.Compl
     return subprocess.run(
         [str(GLOBEVIEW), *args], capture_output=True, text=True, timeout=timeout, env=env
     )
+
+
+def globeview_here(*args: str, cache: Path) -> subprocess.CompletedProcess:
+    """`globeview` as `globeview` does it, but run in this process (`inprocess_cli`): for tests
+    about what a command prints and exits with, not about the process (signals, timeouts)."""
+    env = {"GLOBEVIEW_CACHE_DIR": str(cache), "GLOBEVIEW_DEBUG": None}
+    return run_globeview(list(args), env=env)
 
 
 def one_error_line(res: subprocess.CompletedProcess) -> str:

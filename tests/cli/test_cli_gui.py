@@ -4,8 +4,10 @@ checked before any window exists, so a bad value is the same one line as `render
 even where no window can open; ``gui --help`` says overlay files open there too.
 
 Real subprocesses of the installed command, with no display: a command line that passes the
-checks ends at "no display" (exit 1), one that does not at its error line (exit 2). The
-window itself is tested in tests/ui/test_ui_gui_start.py.
+checks ends at "no display" (exit 1), one that does not at its error line (exit 2). The bad
+options' gui-and-render pairs run in this process (`inprocess_cli`, no display either: Qt is
+never imported, and render refuses them before any GL context). The window itself is tested
+in tests/ui/test_ui_gui_start.py.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
+from inprocess_cli import run_globeview
 
 from .run_cli import GLOBEVIEW, one_error_line
 
@@ -28,6 +31,15 @@ def gv(tmp: Path, *args: str) -> subprocess.CompletedProcess:
     return subprocess.run(
         [str(GLOBEVIEW), *args], capture_output=True, text=True, env=env, timeout=120
     )
+
+
+def gv_here(tmp: Path, *args: str) -> subprocess.CompletedProcess:
+    """`gv` in this process: the same environment changes for the call only."""
+    env: dict[str, str | None] = {k: None for k in ("DISPLAY", "WAYLAND_DISPLAY")}
+    env |= {"QT_QPA_PLATFORM": None, "GLOBEVIEW_DEBUG": None}
+    env["GLOBEVIEW_CONFIG_DIR"] = str(tmp / "config")
+    env["GLOBEVIEW_CACHE_DIR"] = str(tmp / "cache")
+    return run_globeview(list(args), env=env)
 
 
 def test_gui_help_names_the_options_and_overlays(tmp_path: Path) -> None:
@@ -52,11 +64,11 @@ def test_gui_help_names_the_options_and_overlays(tmp_path: Path) -> None:
     ],
 )
 def test_bad_options_are_one_line_exit_2_as_in_render(tmp_path: Path, args, message) -> None:
-    line = one_error_line(gv(tmp_path, "gui", *args))
+    line = one_error_line(gv_here(tmp_path, "gui", *args))
     assert message in line
     # The same check as render's, word for word (render refuses it before any work too).
     out = tmp_path / "x.png"
-    assert one_error_line(gv(tmp_path, "render", "--out", str(out), *args)) == line
+    assert one_error_line(gv_here(tmp_path, "render", "--out", str(out), *args)) == line
     assert not out.exists()
 
 

@@ -1,5 +1,7 @@
 """`globeview info STORE` on a damaged store: a chunk file truncated, deleted or swapped with
-another level's is one line (exit 2), as reading the store's tiles is, not a description."""
+another level's is one line (exit 2), as reading the store's tiles is, not a description.
+The commands run in this process (`inprocess_cli`); test_cli_hostile and the fault corpus
+hold the real process to one line."""
 
 from __future__ import annotations
 
@@ -9,7 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from .run_cli import globeview, one_error_line
+from .run_cli import globeview_here as globeview
+from .run_cli import one_error_line
 
 SRTM = Path(__file__).resolve().parents[2] / "data" / "N44W072.hgt"
 

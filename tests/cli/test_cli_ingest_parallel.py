@@ -1,5 +1,6 @@
 """`globeview ingest --workers N --scheduler tcp://HOST:PORT` (issue #18): the options are
-checked before any source is read (one line, exit 2, nothing written)."""
+checked before any source is read (one line, exit 2, nothing written). The commands run in
+this process (`inprocess_cli`)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from .run_cli import globeview, one_error_line
+from .run_cli import globeview_here as globeview
+from .run_cli import one_error_line
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 

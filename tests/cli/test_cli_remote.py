@@ -14,7 +14,7 @@ import pytest
 
 from globeview.terrain.store.schema import FORMAT_VERSION
 
-from .run_cli import GLOBEVIEW, globeview, one_error_line
+from .run_cli import GLOBEVIEW, globeview, globeview_here, one_error_line
 
 
 def closed_port() -> int:
@@ -37,9 +37,10 @@ def closed_port() -> int:
     ],
 )
 def test_urls_of_the_wrong_form_are_one_line(tmp_path: Path, command: str, url: str, needle):
+    # In this process (`inprocess_cli`): the URL is refused before any request or GL context.
     out = tmp_path / "x.png"
     extra = ["--out", str(out)] if command == "render" else []
-    res = globeview(command, url, *extra, cache=tmp_path / "c")
+    res = globeview_here(command, url, *extra, cache=tmp_path / "c")
     assert needle in one_error_line(res)
     assert not out.exists()
 

@@ -101,8 +101,14 @@ def compare_along(terrain, poses, make_policy, state=None, **view_kw) -> dict[st
     return cases
 
 
+def _slow(*values: object) -> object:
+    """A case ./test --fast leaves out (each takes 2-9 CPU-s here): --fast keeps the cheapest
+    case of each identity test, ./test runs them all."""
+    return pytest.param(*values, marks=pytest.mark.slow)
+
+
 # -- identity ---------------------------------------------------------------------------------
-@pytest.mark.parametrize("tau", [0.5, 2.0, 8.0])
+@pytest.mark.parametrize("tau", [_slow(0.5), _slow(2.0), 8.0])
 def test_same_as_the_level_walk_over_random_views(globeview_terrain, tau) -> None:
     """200 random views in a row, one state carried through them all (each view a camera
     cut from the last: the tree grows and is pruned), chunked-sse's cut."""
@@ -117,7 +123,9 @@ def test_same_as_the_level_walk_over_random_views(globeview_terrain, tau) -> Non
     assert sum(cases.values()) == len(poses)
 
 
-@pytest.mark.parametrize(("exaggeration", "max_tiles"), [(1.0, 150), (3.0, 600), (10.0, 80)])
+@pytest.mark.parametrize(
+    ("exaggeration", "max_tiles"), [(1.0, 150), _slow(3.0, 600), _slow(10.0, 80)]
+)
 def test_same_with_exaggeration_and_budgets(globeview_terrain, exaggeration, max_tiles) -> None:
     """The cut's budget cases (free, traded, over: the plain walk with its own state) and
     the plain walk with a binding budget (quadtree-clod's tiles) agree too."""
@@ -138,7 +146,7 @@ def test_same_with_exaggeration_and_budgets(globeview_terrain, exaggeration, max
         assert seen["traded"] > 0, seen
 
 
-@pytest.mark.parametrize("name", FLIGHTS)
+@pytest.mark.parametrize("name", [n if n == "global_approach" else _slow(n) for n in FLIGHTS])
 def test_same_along_the_flights(globeview_terrain, name) -> None:
     """Consecutive 60 fps frames of each benchmark flight, state carried, at three taus,
     tight budgets (trading with warm-started multipliers; over: the plain walk) and

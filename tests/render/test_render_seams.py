@@ -10,12 +10,33 @@ import pytest
 
 from globeview.geodesy import lonlat_to_ecef
 from globeview.model.camera import Camera
-from globeview.terrain.quadtree import tile_bounds_arrays
+from globeview.terrain.interpolate import bilinear
+from globeview.terrain.quadtree import TileKey, key_for_lonlat, tile_bounds, tile_bounds_arrays
 
 SIZE = (480, 360)
 NADIR = [(-71.3, 44.15, 9000.0, 0.0, -90.0), (-71.25, 44.27, 6000.0, 0.0, -90.0)]
 #: Issue #29's nadir views, drawn as the default provider draws them (`chunked_scene`).
 ISSUE_NADIR = [(-71.3, 44.15, h, 0.0, -90.0) for h in (4000.0, 9000.0, 30000.0)]
+
+
+def heights_at(terrain, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
+    """`TerrainStack.height_at` (m) at many points in one pass: the same tile per point (at the
+    default level), the same node positions and `bilinear`, so the same floats; the first and
+    last points are checked against `height_at` itself. (Point by point, the ~50 000 calls a
+    frame's edge lines need took 85 % of this file's CPU time: 34.7 CPU-s, now 5.2.)"""
+    level = min(terrain.max_level, 12)
+    kx, ky = (np.asarray(a).reshape(-1) for a in key_for_lonlat(level, lon, lat))
+    out = np.empty(len(lon))
+    for x, y in {(int(a), int(b)) for a, b in zip(kx, ky, strict=True)}:
+        sel = (kx == x) & (ky == y)
+        h = terrain.heights((level, x, y))
+        w, s, e, n = tile_bounds(TileKey(level, x, y))
+        c = (lon[sel] - w) / (e - w) * (h.shape[0] - 1)
+        r = (n - lat[sel]) / (n - s) * (h.shape[0] - 1)
+        out[sel] = bilinear(h, r, c)
+    for i in (0, len(lon) - 1):
+        assert out[i] == terrain.height_at(float(lon[i]), float(lat[i])), i
+    return out
 
 
 def edge_masks(result, terrain, size):
@@ -36,7 +57,7 @@ def edge_masks(result, terrain, size):
             ):
                 lon = lon0 + (lon1 - lon0) * t
                 lat = lat0 + (lat1 - lat0) * t
-                hh = np.array([terrain.height_at(a, b) for a, b in zip(lon, lat, strict=True)])
+                hh = heights_at(terrain, lon, lat)
                 px = result.view.project(lonlat_to_ecef(lon, lat, hh).reshape(-1, 3))
                 x, y = px[:, 0], px[:, 1]
                 ok = (px[:, 2] > 0) & (x >= 1) & (x < w - 1) & (y >= 1) & (y < h - 1)

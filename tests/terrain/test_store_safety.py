@@ -8,13 +8,13 @@ import math
 import os
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import rasterio
 from affine import Affine
+from inprocess_cli import run_globeview
 
 from globeview.errors import StoreError
 from globeview.terrain.ingest.driver import ingest
@@ -26,18 +26,13 @@ from globeview.terrain.store.tile_store import TileStore
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "data"
-GLOBEVIEW = Path(sys.executable).parent / "globeview"
 SMALL = DATA / "craterlake-elev-16bit-30m.tif"
 
 
 def _cli(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [str(GLOBEVIEW), *args],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        env={**os.environ, **(env or {})},
-    )
+    """``globeview ARGS`` run in this process (`inprocess_cli`: its output and exit status
+    as a child process would give them), ``env`` set for the call."""
+    return run_globeview(list(args), env=env)
 
 
 def _snapshot(d: Path) -> dict[str, bytes | None]:

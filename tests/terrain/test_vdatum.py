@@ -1,15 +1,13 @@
 """Vertical datums at ingest (issue #16): stores hold ellipsoidal heights h = H + N.
 
 Real rasters (the SRTM tile, GeoTIFFs with real compound CRSs written here), real ingests, real
-`globeview` subprocesses for the one-line CLI contracts."""
+`globeview` commands (run in this process, `inprocess_cli`) for the one-line CLI contracts."""
 
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +15,7 @@ import pyproj
 import pytest
 import rasterio
 from affine import Affine
+from inprocess_cli import run_globeview
 
 from globeview.errors import DemError, StoreError
 from globeview.terrain.dem.reader import open_dem
@@ -27,14 +26,12 @@ from globeview.terrain.store.tile_store import TileStore
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 SRTM = DATA / "N44W072.hgt"
-GLOBEVIEW = Path(sys.executable).parent / "globeview"
 
 
 def _cli(*args: str, cache: Path) -> subprocess.CompletedProcess:
-    env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(cache)}
-    return subprocess.run(
-        [str(GLOBEVIEW), *args], capture_output=True, text=True, timeout=300, env=env
-    )
+    """``globeview ARGS`` run in this process (`inprocess_cli`: its output and exit status
+    as a child process would give them) with its cache in ``cache``."""
+    return run_globeview(list(args), env={"GLOBEVIEW_CACHE_DIR": str(cache)})
 
 
 def _finest(store: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
