@@ -42,7 +42,8 @@ __all__ = [
     "split_sublayer",
 ]
 
-_SPEC_RE = re.compile(r"^([a-z0-9][a-z0-9._-]+):(.+)$")
+# One colon, not two: ``roads.gpkg::highways`` is a file's layer (split_sublayer), not a TYPE.
+_SPEC_RE = re.compile(r"^([a-z0-9][a-z0-9._-]+):(?!:)(.+)$")
 
 
 @dataclass(frozen=True)
@@ -62,7 +63,8 @@ def parse_layer_spec(spec: str) -> tuple[str | None, str]:
 
     TYPE is a contribution-like name of two or more characters (so ``C:\\x.tif`` stays a
     path), and a string naming an existing file is always a path (a file called
-    ``vector:x.geojson`` opens as itself)."""
+    ``vector:x.geojson`` opens as itself). ``FILE::LAYER`` is no TYPE (``wm.gpkg::trails``
+    is the file wm.gpkg's layer trails)."""
     m = _SPEC_RE.match(spec)
     if m is None or Path(spec).exists():
         return None, spec

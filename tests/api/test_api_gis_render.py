@@ -88,12 +88,13 @@ def test_gpx_track_draws(down, tmp_path):
 
 
 @pytest.mark.slow
-def test_geopackage_layers_by_name_in_utm(down, tmp_path):
+def test_geopackage_layers_by_name_in_utm(down, tmp_path, monkeypatch):
     path = write_gpkg(tmp_path / "wm.gpkg")
     roads = down.add_vectors(path, color=MAGENTA, width_px=3.0)  # the first layer: roads
     _cross_drawn(down, expect_column=False)
     down.remove_overlay(roads)
-    trails = down.add_overlay(f"{path}::trails", color=MAGENTA, width_px=3.0)
+    monkeypatch.chdir(tmp_path)  # FILE::LAYER with a relative FILE, as the README writes it
+    trails = down.add_overlay("wm.gpkg::trails", color=MAGENTA, width_px=3.0)
     assert trails.name == "wm.gpkg::trails"
     _cross_drawn(down, expect_row=False)
 

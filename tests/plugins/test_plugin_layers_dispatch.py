@@ -155,6 +155,9 @@ def test_explicit_type_spec() -> None:
     assert parse_layer_spec("zebra:/tmp/x.zebra") == ("zebra", "/tmp/x.zebra")
     assert parse_layer_spec("C:\\maps\\x.tif") == (None, "C:\\maps\\x.tif")  # a drive letter
     assert parse_layer_spec("plain.geojson") == (None, "plain.geojson")
+    # a relative FILE::LAYER is a file's layer, not TYPE "wm.gpkg" with file ":trails"
+    assert parse_layer_spec("wm.gpkg::trails") == (None, "wm.gpkg::trails")
+    assert parse_layer_spec("gis:wm.gpkg::trails") == ("gis", "wm.gpkg::trails")
 
 
 def test_existing_file_with_a_colon_is_a_path(tmp_path, monkeypatch) -> None:
