@@ -201,6 +201,7 @@ def _overlay_spec(host: OverlayHost, layer: Any, base: Path) -> OverlaySpec | No
     fields = getattr(layer, "style_fields", ())
     style = {k: _plain(getattr(layer, k)) for k in fields if hasattr(layer, k)}
     visible = bool(getattr(layer, "visible", True))
+    opened = {k: _plain(v) for k, v in (host.opened_style(layer) or {}).items()}
     return OverlaySpec(
         str(getattr(layer, "name", Path(path).name)),
         kind,
@@ -209,6 +210,7 @@ def _overlay_spec(host: OverlayHost, layer: Any, base: Path) -> OverlaySpec | No
         visible,
         opacity,
         {k: v for k, v in style.items() if v is not None},
+        {k: tuple(v) if isinstance(v, list) else v for k, v in opened.items() if v is not None},
     )
 
 
@@ -396,7 +398,8 @@ def _open_overlay(host: OverlayHost, spec: OverlaySpec, base: Path) -> str | Non
             path = _embedded_file(spec.source)
         else:
             path = resolve_path(base, spec.source)
-        layer = host.open(str(path), spec.layer_type)
+        _check_open_options(spec.open)
+        layer = host.open(str(path), spec.layer_type, **spec.open)
     except (GlobeviewError, ValueError) as exc:
         return str(exc)
     except OSError as exc:
@@ -407,6 +410,18 @@ def _open_overlay(host: OverlayHost, spec: OverlaySpec, base: Path) -> str | Non
         host.remove(layer)
         return str(exc)
     return None
+
+
+def _check_open_options(options: dict[str, Any]) -> None:
+    """The host's limits on the style values among an overlay's ``open`` options (a NaN
+    or huge ``width_px``, a colour outside 0..1): ValueError, that layer's problem, before
+    the layer type sees them (so a hostile project never fails a layer type)."""
+    from globeview.model.overlay_layers import style_problem
+
+    for k, v in options.items():
+        problem = style_problem(k, v)
+        if problem is not None:
+            raise ValueError(problem)
 
 
 def _style(layer: Any, spec: OverlaySpec) -> None:
