@@ -1,7 +1,8 @@
 """GIS vector files (any OGR source) as drawables, styled by attribute (plugin API 1.5).
 
 `read_vector_file` reads one layer of a Shapefile, GeoPackage, KML/KMZ, GPX, FlatGeobuf,
-GeoParquet or any file OGR opens (`globeview.terrain.ogr_vectors`: reprojected to WGS84
+GeoParquet (pyarrow where GDAL lacks the driver) or any file OGR opens
+(`globeview.terrain.ogr_vectors`: reprojected to WGS84
 lon/lat degrees) and returns the drawables the host draws:
 
 - lines and polygon outlines as `Lines` (joined along geodesics), points as `Points`;
