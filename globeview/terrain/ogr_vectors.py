@@ -35,10 +35,8 @@ __all__ = [
     "MAX_VERTICES",
     "VectorFeatures",
     "VectorFileError",
-    "first_line",
     "layer_fields",
     "read_vector_features",
-    "to_lonlat",
     "vector_layers",
 ]
 
@@ -87,7 +85,7 @@ def _pyogrio() -> Any:
     return pyogrio
 
 
-def first_line(exc: BaseException) -> str:
+def _first_line(exc: BaseException) -> str:
     text = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
     return text if len(text) <= 160 else text[:157] + "..."
 
@@ -106,7 +104,7 @@ def vector_layers(path: str | Path) -> list[tuple[str, str]]:
             rows = _pyogrio().list_layers(p)
     except Exception as exc:  # noqa: BLE001  pyogrio/GDAL raise many types: the file's one line
         raise VectorFileError(
-            f"{p.name}: not a vector file OGR reads ({first_line(exc)})"
+            f"{p.name}: not a vector file OGR reads ({_first_line(exc)})"
         ) from None
     layers = [(str(r[0]), str(r[1])) for r in rows]
     if not layers:
@@ -133,7 +131,7 @@ def _info(p: Path, layer: str) -> dict[str, Any]:
             info: dict[str, Any] = _pyogrio().read_info(p, layer=layer, force_feature_count=True)
     except Exception as exc:  # noqa: BLE001  as in vector_layers
         raise VectorFileError(
-            f"{p.name}: cannot read layer {layer!r} ({first_line(exc)})"
+            f"{p.name}: cannot read layer {layer!r} ({_first_line(exc)})"
         ) from None
     return info
 
@@ -209,7 +207,7 @@ def _read_layer(p: Path, layer: str, fields: list[str]) -> VectorFeatures:
             )
     except Exception as exc:  # noqa: BLE001  as in vector_layers
         raise VectorFileError(
-            f"{p.name}: cannot read layer {layer!r} ({first_line(exc)})"
+            f"{p.name}: cannot read layer {layer!r} ({_first_line(exc)})"
         ) from None
     blobs: Sequence[bytes | None] = [] if wkb is None else wkb
     geometry = decode_wkb(blobs)
@@ -218,7 +216,7 @@ def _read_layer(p: Path, layer: str, fields: list[str]) -> VectorFeatures:
         raise VectorFileError(
             f"{p.name}: layer {layer!r:.60} has {total:,} vertices (at most {MAX_VERTICES:,})"
         )
-    to_lonlat(p, meta.get("crs"), geometry)
+    _to_lonlat(p, meta.get("crs"), geometry)
     # pyogrio returns the columns in the layer's order, whatever order they were asked in.
     names = [str(f) for f in meta.get("fields", [])]
     attributes = {f: np.asarray(v) for f, v in zip(names, values, strict=True)}
@@ -235,7 +233,7 @@ def _read_geoparquet(p: Path, fields: Sequence[str]) -> VectorFeatures:
     total = len(geometry.line_xy) + len(geometry.point_xy)
     if total > MAX_VERTICES:
         raise VectorFileError(f"{p.name}: {total:,} vertices (at most {MAX_VERTICES:,})")
-    to_lonlat(p, rows.crs, geometry)
+    _to_lonlat(p, rows.crs, geometry)
     return VectorFeatures(rows.name, len(rows.wkb), geometry, rows.attributes)
 
 
@@ -246,7 +244,7 @@ def _fits_lonlat(g: Decoded) -> bool:
     )
 
 
-def to_lonlat(p: Path, crs_text: str | None, g: Decoded) -> None:
+def _to_lonlat(p: Path, crs_text: str | None, g: Decoded) -> None:
     """Reproject ``g`` in place to WGS84 lon/lat degrees; features whose vertices do not
     reproject (outside the CRS's area) are dropped and counted as broken."""
     from pyproj import CRS, Transformer
