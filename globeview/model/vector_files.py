@@ -206,12 +206,13 @@ def _style(style: dict[str, Any]) -> VectorFileStyle:
         value = getattr(st, key)
         if value is not None and not isinstance(value, str):
             raise VectorFileError(f"{key} {value!r:.40} is not a field name")
+    for key in ("width_px", "size_px", "segment_m"):
+        if not _positive_finite(getattr(st, key)):
+            raise VectorFileError(f"{key} {getattr(st, key)!r:.20} is not a positive number")
     for key in ("width_px", "size_px", "color"):  # the host's limits on drawables
         problem = None if getattr(st, key) is None else style_problem(key, getattr(st, key))
         if problem is not None:
             raise VectorFileError(problem)
-    if not _positive_finite(st.segment_m):
-        raise VectorFileError(f"segment_m {st.segment_m!r:.20} is not a positive number (metres)")
     return st
 
 

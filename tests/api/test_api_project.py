@@ -385,20 +385,30 @@ def test_hostile_gis_options_are_one_line_for_that_layer(tmp_path, registry):
         + entry.format("huge", "{ width_px = 1e9 }")
         + entry.format("option", "{ colour = 3 }")
         + entry.format("layer", '{ layer = "rivers" }')
-        + entry.format("ok", '{ layer = "roads", color_by = "kind" }'),
+        + entry.format("text", '{ width_px = "3" }')
+        + entry.format("ok", '{ layer = "roads", color_by = "kind" }')
+        # Another layer type's options are not kept: it may not check them (a TypeError
+        # from the built-in vector type would disable it for the session).
+        + '[[overlays]]\nname = "vector"\nembedded = "ne_110m_countries.geojson"\n'
+        'type = "vector"\nopen = { bogus = 1 }\n',
     )
     globe = globeview.Globe.open_project(path, registry=registry)
     try:
         problems = globe.project_problems
-        assert len(problems) == 5, problems
+        assert len(problems) == 7, problems
         assert problems[0].startswith("overlay 'field': ") and "no field 'colour'" in problems[0]
         assert problems[1] == "overlay 'nan': width_px nan is not in (0, 200]"
         assert problems[2] == "overlay 'huge': width_px 1000000000.0 is not in (0, 200]"
         assert problems[3].startswith("overlay 'option': no vector style 'colour'")
         assert problems[4].startswith("overlay 'layer': wm.gpkg: no layer 'rivers'")
+        assert problems[5] == "overlay 'text': width_px '3' is not a positive number"
+        assert problems[6] == (
+            "overlay 'vector': open options are for the gis layer type; this file opens as vector"
+        )
         assert all("\n" not in p for p in problems)
         (layer,) = globe.overlays
         assert [e.label for e in layer.legend] == ["road"]
-        assert registry.failure_of("gis") is None  # the user's values: the type stays enabled
+        # The user's values: the types stay enabled.
+        assert registry.failure_of("gis") is None and registry.failure_of("vector") is None
     finally:
         globe.close()
