@@ -57,6 +57,9 @@ __all__ = [
     "save_project",
 ]
 
+#: The layer types whose open options a project keeps (``[overlays.open]``): those that check
+#: every option themselves, in one line (`globeview.model.vector_files.read_vector_file`).
+OPEN_TYPES = ("gis",)
 #: The display settings a project holds.
 DISPLAY_FIELDS = ("exaggeration", "wireframe", "hillshade", "fog", "background")
 
@@ -201,6 +204,8 @@ def _overlay_spec(host: OverlayHost, layer: Any, base: Path) -> OverlaySpec | No
     fields = getattr(layer, "style_fields", ())
     style = {k: _plain(getattr(layer, k)) for k in fields if hasattr(layer, k)}
     visible = bool(getattr(layer, "visible", True))
+    given = host.opened_style(layer) if layer_type in OPEN_TYPES else None
+    opened = {k: _plain(v) for k, v in (given or {}).items()}
     return OverlaySpec(
         str(getattr(layer, "name", Path(path).name)),
         kind,
@@ -209,6 +214,7 @@ def _overlay_spec(host: OverlayHost, layer: Any, base: Path) -> OverlaySpec | No
         visible,
         opacity,
         {k: v for k, v in style.items() if v is not None},
+        {k: tuple(v) if isinstance(v, list) else v for k, v in opened.items() if v is not None},
     )
 
 
@@ -396,7 +402,9 @@ def _open_overlay(host: OverlayHost, spec: OverlaySpec, base: Path) -> str | Non
             path = _embedded_file(spec.source)
         else:
             path = resolve_path(base, spec.source)
-        layer = host.open(str(path), spec.layer_type)
+        if spec.open:
+            _check_open_options(spec.open, host.layer_type_for(str(path), spec.layer_type))
+        layer = host.open(str(path), spec.layer_type, **spec.open)
     except (GlobeviewError, ValueError) as exc:
         return str(exc)
     except OSError as exc:
@@ -407,6 +415,25 @@ def _open_overlay(host: OverlayHost, spec: OverlaySpec, base: Path) -> str | Non
         host.remove(layer)
         return str(exc)
     return None
+
+
+def _check_open_options(options: dict[str, Any], layer_type: str) -> None:
+    """An overlay's ``open`` options are for a layer type that checks them itself (the
+    ``gis`` type: an unknown option or field is its one line) and within the host's limits
+    on style values (a NaN or huge ``width_px``, a colour that is not 3 or 4 numbers):
+    ValueError, that layer's problem, before the layer type sees them, so a hostile project
+    never fails a layer type."""
+    from globeview.model.overlay_layers import style_problem
+
+    if layer_type not in OPEN_TYPES:
+        raise ValueError(
+            f"open options are for the {', '.join(OPEN_TYPES)} layer type; "
+            f"this file opens as {layer_type}"
+        )
+    for k, v in options.items():
+        problem = style_problem(k, v)
+        if problem is not None:
+            raise ValueError(problem)
 
 
 def _style(layer: Any, spec: OverlaySpec) -> None:

@@ -16,7 +16,9 @@ A project is a TOML file a person can read and edit::
     [[dems]]                         # bottom first: name, path | url | embedded, visible,
     path = "data/N44W072.hgt"        # crs and vdatum as the DEM was opened with
     [[overlays]]                     # bottom first: name, path | embedded, type, visible,
-    path = "roads.geojson"           # opacity (drapes), [overlays.style]
+    path = "roads.geojson"           # opacity (drapes), [overlays.style], and optional
+                                     # [overlays.open]: what the layer type opened the file
+                                     # with (a GIS file's layer, color_by, label, width_px)
     [[bookmarks]]                    # name + camera
     [[tours]]                        # optional: name + [[tours.keyframes]] (model/tour.py's
                                      # form; checked when a globe opens it, app/project.py)
@@ -121,8 +123,11 @@ class DemSpec:
 @dataclass(frozen=True)
 class OverlaySpec:
     """An overlay layer: ``kind`` "path" (relative to the project) or "embedded", the layer
-    type that opened it, visibility, opacity 0..1 (drapes; None: the layer's own) and style
-    (the layer's style fields: colour RGBA 0..1, widths in pixels...)."""
+    type that opened it, visibility, opacity 0..1 (drapes; None: the layer's own), style
+    (the layer's style fields: colour RGBA 0..1, widths in pixels...) and ``open``: the
+    options its layer type opened the file with (the ``gis`` type's ``layer``, ``color_by``,
+    ``label``, ``width_px``...; checked by the layer type when the project is opened, so a
+    bad one is a problem of that layer only)."""
 
     name: str
     kind: str
@@ -131,6 +136,7 @@ class OverlaySpec:
     visible: bool = True
     opacity: float | None = None
     style: dict[str, Any] = field(default_factory=dict)
+    open: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -364,7 +370,7 @@ def _dem(t: dict[str, Any], where: str) -> DemSpec:
 
 
 def _overlay(t: dict[str, Any], where: str) -> OverlaySpec:
-    _keys(t, where, ("name", *OVERLAY_SOURCES, "type", "visible", "opacity", "style"))
+    _keys(t, where, ("name", *OVERLAY_SOURCES, "type", "visible", "opacity", "style", "open"))
     kind, source = _source(t, where, OVERLAY_SOURCES)
     style = t.get("style", {})
     if not isinstance(style, dict):
@@ -381,7 +387,31 @@ def _overlay(t: dict[str, Any], where: str) -> OverlaySpec:
         visible=_bool(t.get("visible", True), f"{where}visible"),
         opacity=_number(t["opacity"], f"{where}opacity", 0.0, 1.0) if "opacity" in t else None,
         style={k: tuple(v) if isinstance(v, list) else v for k, v in style.items()},
+        open=_open_options(t.get("open", {}), f"{where}open"),
     )
+
+
+#: Most options an overlay's ``open`` table holds.
+MAX_OPEN_OPTIONS = 32
+
+
+def _open_options(value: Any, key: str) -> dict[str, Any]:
+    """An overlay's ``open`` table: option names to text, true/false, numbers or lists of
+    numbers. Only the shape is checked here; the values (a field the file lacks, a NaN
+    width) are the layer type's to refuse, as a problem of that layer
+    (`globeview.app.project`)."""
+    if not isinstance(value, dict) or len(value) > MAX_OPEN_OPTIONS:
+        raise ValueError(f"{key} must be a table of at most {MAX_OPEN_OPTIONS} options")
+    out: dict[str, Any] = {}
+    for k, v in value.items():
+        scalar = (bool, int, float, str)
+        if isinstance(v, list) and len(v) <= 16 and all(isinstance(x, scalar) for x in v):
+            out[k] = tuple(v)
+        elif isinstance(v, scalar) and (not isinstance(v, str) or len(v) <= 4096):
+            out[k] = v
+        else:
+            raise ValueError(f"{key}.{k} must be text, true/false, a number or a list of those")
+    return out
 
 
 def _bookmarks(tables: list[dict[str, Any]]) -> list[Bookmark]:
@@ -470,4 +500,6 @@ def _overlay_table(o: OverlaySpec) -> dict[str, Any]:
     if o.opacity is not None:
         t["opacity"] = float(o.opacity)
     t["style"] = {k: list(v) if isinstance(v, tuple) else v for k, v in o.style.items()}
+    if o.open:
+        t["open"] = {k: list(v) if isinstance(v, tuple) else v for k, v in o.open.items()}
     return t

@@ -1,7 +1,8 @@
 """GIS vector files (any OGR source) as drawables, styled by attribute (plugin API 1.5).
 
 `read_vector_file` reads one layer of a Shapefile, GeoPackage, KML/KMZ, GPX, FlatGeobuf,
-GeoParquet or any file OGR opens (`globeview.terrain.ogr_vectors`: reprojected to WGS84
+GeoParquet (pyarrow where GDAL lacks the driver) or any file OGR opens
+(`globeview.terrain.ogr_vectors`: reprojected to WGS84
 lon/lat degrees) and returns the drawables the host draws:
 
 - lines and polygon outlines as `Lines` (joined along geodesics), points as `Points`;
@@ -20,6 +21,7 @@ Broken geometries are skipped and counted in one warning line (logger ``globevie
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from globeview.model.drawables import Lines, Points
+from globeview.model.overlay_layers import style_problem
 from globeview.terrain.ogr_vectors import (
     VectorFeatures,
     VectorFileError,
@@ -199,7 +202,27 @@ def _style(style: dict[str, Any]) -> VectorFileStyle:
     st = VectorFileStyle(**style)
     if isinstance(st.classes, bool) or not isinstance(st.classes, int) or not 2 <= st.classes <= 12:
         raise VectorFileError(f"classes {st.classes!r:.20} is not a whole number in 2..12")
+    for key in ("color_by", "label", "name"):
+        value = getattr(st, key)
+        if value is not None and not isinstance(value, str):
+            raise VectorFileError(f"{key} {value!r:.40} is not a field name")
+    for key in ("width_px", "size_px", "segment_m"):
+        if not _positive_finite(getattr(st, key)):
+            raise VectorFileError(f"{key} {getattr(st, key)!r:.20} is not a positive number")
+    for key in ("width_px", "size_px", "color"):  # the host's limits on drawables
+        problem = None if getattr(st, key) is None else style_problem(key, getattr(st, key))
+        if problem is not None:
+            raise VectorFileError(problem)
     return st
+
+
+def _positive_finite(value: object) -> bool:
+    return (
+        isinstance(value, int | float)
+        and not isinstance(value, bool)
+        and math.isfinite(value)
+        and value > 0
+    )
 
 
 def read_vector_file(

@@ -1,5 +1,6 @@
 """GIS vector files through GDAL/OGR (pyogrio): Shapefile, GeoPackage, KML/KMZ, GPX,
-FlatGeobuf, GeoParquet (when pyogrio's GDAL has the driver) and any other OGR source.
+FlatGeobuf, GeoParquet and any other OGR source. GeoParquet goes through GDAL's Parquet
+driver where pyogrio's GDAL has it, else through pyarrow (`globeview.terrain.geoparquet`).
 
 - `vector_layers(path)`: the file's layers (name, geometry type), one line when OGR cannot
   open it as vectors.
@@ -93,11 +94,10 @@ def vector_layers(path: str | Path) -> list[tuple[str, str]]:
     """(layer name, geometry type) of every layer OGR finds in ``path``; `VectorFileError`
     (one line) when OGR cannot open it as a vector file."""
     p = Path(path)
-    if p.suffix.lower() in (".parquet", ".geoparquet") and not _has_driver("Parquet"):
-        raise VectorFileError(
-            f"{p.name}: GeoParquet needs GDAL's Parquet driver, which the installed pyogrio "
-            "lacks; convert it (ogr2ogr out.gpkg in.parquet)"
-        )
+    if _through_pyarrow(p):
+        from globeview.terrain.geoparquet import geoparquet_layers
+
+        return geoparquet_layers(p)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -114,6 +114,14 @@ def vector_layers(path: str | Path) -> list[tuple[str, str]]:
 
 def _has_driver(name: str) -> bool:
     return name in _pyogrio().list_drivers()
+
+
+def _through_pyarrow(p: Path) -> bool:
+    """Whether ``p`` is GeoParquet that GDAL cannot read here (pyogrio's wheel has no Parquet
+    driver): pyarrow reads it."""
+    from globeview.terrain.geoparquet import is_geoparquet_path
+
+    return is_geoparquet_path(p) and not _has_driver("Parquet")
 
 
 def _info(p: Path, layer: str) -> dict[str, Any]:
@@ -139,6 +147,8 @@ def _chosen_layers(p: Path, layer: str | None) -> list[str]:
                 f"{p.name}: no layer {layer!r:.60} (layers: {', '.join(names)[:200]})"
             )
         return [layer]
+    if _through_pyarrow(p):  # one layer; its features are counted when it is read
+        return names
     counts = {n: int(_info(p, n).get("features", 0) or 0) for n in names}
     gpx = [n for n in _GPX_LAYERS if counts.get(n, 0) > 0]
     if gpx and set(_GPX_LAYERS) <= set(names):
@@ -154,6 +164,10 @@ def layer_fields(path: str | Path, layer: str | None = None) -> list[str]:
     layers, those they all have)."""
     p = Path(path)
     chosen = _chosen_layers(p, layer)
+    if _through_pyarrow(p):
+        from globeview.terrain.geoparquet import geoparquet_fields
+
+        return geoparquet_fields(p)
     fields = [[str(f) for f in _info(p, name).get("fields", [])] for name in chosen]
     return [f for f in fields[0] if all(f in other for other in fields[1:])]
 
@@ -165,6 +179,8 @@ def read_vector_features(
     degrees with the attribute columns ``fields``; see the module docstring for errors."""
     p = Path(path)
     chosen = _chosen_layers(p, layer)
+    if _through_pyarrow(p):
+        return _read_geoparquet(p, fields)
     parts = [_read_layer(p, name, list(dict.fromkeys(fields))) for name in chosen]
     return parts[0] if len(parts) == 1 else _merge(parts)
 
@@ -205,6 +221,20 @@ def _read_layer(p: Path, layer: str, fields: list[str]) -> VectorFeatures:
     names = [str(f) for f in meta.get("fields", [])]
     attributes = {f: np.asarray(v) for f, v in zip(names, values, strict=True)}
     return VectorFeatures(layer, len(blobs), geometry, attributes)
+
+
+def _read_geoparquet(p: Path, fields: Sequence[str]) -> VectorFeatures:
+    """A GeoParquet file's features through pyarrow: its WKB decoded and reprojected as
+    pyogrio's is."""
+    from globeview.terrain.geoparquet import read_geoparquet
+
+    rows = read_geoparquet(p, fields, MAX_FEATURES)
+    geometry = decode_wkb(rows.wkb)
+    total = len(geometry.line_xy) + len(geometry.point_xy)
+    if total > MAX_VERTICES:
+        raise VectorFileError(f"{p.name}: {total:,} vertices (at most {MAX_VERTICES:,})")
+    _to_lonlat(p, rows.crs, geometry)
+    return VectorFeatures(rows.name, len(rows.wkb), geometry, rows.attributes)
 
 
 def _fits_lonlat(g: Decoded) -> bool:

@@ -327,3 +327,88 @@ def test_layers_of_one_name_stay_apart(tmp_path, api_cache, dem_file, registry):
     globe = globeview.Globe.open_project(tmp_path / "p.toml", registry=registry)
     assert globe.dems == ["wm", "wm (2)"]
     assert [ly.visible for ly in globe.terrain.layers] == [True, False]
+
+
+@pytest.mark.gl
+@pytest.mark.slow  # two renders on llvmpipe, over 1 s
+def test_a_gis_layer_keeps_its_layer_and_style(tmp_path, api_cache, dem_file, registry):
+    """A GeoPackage's second layer coloured by a field, labelled and widened comes back from
+    its project the same: the same layer of the file, legend, options and picture."""
+    from .gis_samples import COLUMN_LON, ROW_LAT, write_gpkg
+
+    gpkg = write_gpkg(tmp_path / "wm.gpkg")
+    globe = globeview.Globe(registry=registry)
+    try:
+        globe.add_dem(dem_file, name="wm")
+        trails = globe.add_vectors(gpkg, "trails", color_by="name", label="name", width_px=4.0)
+        globe.fly_to(COLUMN_LON, ROW_LAT, 40000.0)
+        before = globe.render(SIZE)
+        path = globe.save_project(tmp_path / "gis.toml")
+        opened = globe.overlay_host.opened_style(trails)
+    finally:
+        globe.close()
+    doc = tomllib.loads(path.read_text())
+    assert doc["overlays"][0]["path"] == "wm.gpkg" and doc["overlays"][0]["type"] == "gis"
+    assert doc["overlays"][0]["open"] == {
+        "layer": "trails",
+        "color_by": "name",
+        "label": "name",
+        "width_px": 4.0,
+    }
+    again = globeview.Globe.open_project(path, registry=registry)
+    try:
+        assert again.project_problems == []
+        (layer,) = again.overlays
+        assert again.overlay_host.opened_style(layer) == opened
+        assert [(e.label, e.color) for e in layer.legend] == [
+            (e.label, e.color) for e in trails.legend
+        ]
+        assert [e.label for e in layer.legend] == ["Appalachian Trail"]  # trails, not roads
+        widths = {p.width_px for p in layer.parts if hasattr(p, "width_px")}
+        assert widths == {4.0}
+        after = again.render(SIZE)
+    finally:
+        again.close()
+    diff = np.abs(before.astype(int) - after.astype(int)).max(axis=2)
+    assert int(diff.max()) == 0, f"{int((diff > 0).sum())} pixels differ, by up to {diff.max()}"
+
+
+def test_hostile_gis_options_are_one_line_for_that_layer(tmp_path, registry):
+    from .gis_samples import write_gpkg
+
+    write_gpkg(tmp_path / "wm.gpkg")
+    entry = '[[overlays]]\nname = "{}"\npath = "wm.gpkg"\ntype = "gis"\nopen = {}\n'
+    path = _project(
+        tmp_path,
+        entry.format("field", '{ layer = "trails", color_by = "colour" }')
+        + entry.format("nan", '{ layer = "trails", width_px = nan }')
+        + entry.format("huge", "{ width_px = 1e9 }")
+        + entry.format("option", "{ colour = 3 }")
+        + entry.format("layer", '{ layer = "rivers" }')
+        + entry.format("text", '{ width_px = "3" }')
+        + entry.format("ok", '{ layer = "roads", color_by = "kind" }')
+        # Another layer type's options are not kept: it may not check them (a TypeError
+        # from the built-in vector type would disable it for the session).
+        + '[[overlays]]\nname = "vector"\nembedded = "ne_110m_countries.geojson"\n'
+        'type = "vector"\nopen = { bogus = 1 }\n',
+    )
+    globe = globeview.Globe.open_project(path, registry=registry)
+    try:
+        problems = globe.project_problems
+        assert len(problems) == 7, problems
+        assert problems[0].startswith("overlay 'field': ") and "no field 'colour'" in problems[0]
+        assert problems[1] == "overlay 'nan': width_px nan is not in (0, 200]"
+        assert problems[2] == "overlay 'huge': width_px 1000000000.0 is not in (0, 200]"
+        assert problems[3].startswith("overlay 'option': no vector style 'colour'")
+        assert problems[4].startswith("overlay 'layer': wm.gpkg: no layer 'rivers'")
+        assert problems[5] == "overlay 'text': width_px '3' is not a positive number"
+        assert problems[6] == (
+            "overlay 'vector': open options are for the gis layer type; this file opens as vector"
+        )
+        assert all("\n" not in p for p in problems)
+        (layer,) = globe.overlays
+        assert [e.label for e in layer.legend] == ["road"]
+        # The user's values: the types stay enabled.
+        assert registry.failure_of("gis") is None and registry.failure_of("vector") is None
+    finally:
+        globe.close()

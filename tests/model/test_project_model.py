@@ -22,6 +22,13 @@ def test_the_documented_example_reads():
     assert [d.kind for d in project.dems] == ["path", "embedded"]
     assert project.tool is not None and project.tool.points == ((-71.5, 44.3), (-71.1, 44.3))
     assert project.overlays[0].style["color"] == (1.0, 0.9, 0.2, 1.0)
+    assert project.overlays[0].open == {}
+    assert project.overlays[1].open == {
+        "layer": "trails",
+        "color_by": "kind",
+        "label": "name",
+        "width_px": 3.0,
+    }
     assert project.bookmarks[0].name == "washington"
     assert [t["name"] for t in project.tours] == ["washington"]
     from globeview.app.project import project_tour
@@ -57,6 +64,16 @@ def test_write_then_read_is_the_same_project():
             "is used twice",
         ),
         (b"\xff\xfe\x00schema", "not TOML"),
+        (
+            'schema = 1\n[camera]\nlon = 0.0\nlat = 0.0\nheight = 1.0\n[[overlays]]\npath = "a"\n'
+            "open = { width_px = { x = 1 } }\n",
+            "overlays[0].open.width_px must be text, true/false, a number or a list of those",
+        ),
+        (
+            'schema = 1\n[camera]\nlon = 0.0\nlat = 0.0\nheight = 1.0\n[[overlays]]\npath = "a"\n'
+            "open = 3\n",
+            "overlays[0].open must be a table of at most 32 options",
+        ),
     ],
 )
 def test_hostile_text_is_one_line(text, message):

@@ -215,7 +215,7 @@ class PointsLayerType(_LayerTypeBase):
 
 class GisVectorLayerType(_LayerTypeBase):
     """GIS vector files through GDAL/OGR (Shapefile, GeoPackage, KML/KMZ, GPX, FlatGeobuf,
-    GeoParquet where GDAL has the driver, any OGR source) in any CRS: lines and polygon
+    GeoParquet (GDAL's driver, else pyarrow), any OGR source) in any CRS: lines and polygon
     outlines draped along geodesics, points as placemarks; coloured and labelled by attribute.
 
     ``open(path, layer=None, color_by=None, label=None, color=None, width_px=1.5, size_px=8,
