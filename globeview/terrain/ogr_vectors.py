@@ -245,18 +245,11 @@ def _fits_lonlat(g: Decoded) -> bool:
 
 
 def _to_lonlat(p: Path, crs_text: str | None, g: Decoded) -> None:
-    """Reproject ``g`` in place to WGS84 lon/lat degrees; features whose vertices do not
-    reproject (outside the CRS's area) are dropped and counted as broken."""
-    from pyproj import CRS, Transformer
-    from pyproj.exceptions import CRSError
-
-    crs = None
-    if crs_text:
-        try:
-            crs = CRS.from_user_input(crs_text)
-        except CRSError:
-            crs = None
-    if crs is None:
+    """Reproject ``g`` in place to WGS84 lon/lat degrees; features with a vertex that does
+    not reproject (outside the CRS's area) or lands off the globe (latitude past 90 degrees,
+    longitude past 540) are dropped and counted as broken."""
+    transformer = _transformer_to_wgs84(crs_text)
+    if transformer is None:
         what = f"unknown CRS {crs_text!r:.60}" if crs_text else "no CRS"
         if not _fits_lonlat(g):
             raise VectorFileError(
@@ -265,13 +258,43 @@ def _to_lonlat(p: Path, crs_text: str | None, g: Decoded) -> None:
             )
         log.warning("%s: %s; its coordinates fit lon/lat degrees: read as WGS84", p.name, what)
         return
-    if crs.equals("EPSG:4326") or crs.equals("OGC:CRS84"):
-        return
-    tr = Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
+    if transformer is not _IDENTITY:
+        for xy in (g.line_xy, g.point_xy):
+            if len(xy):
+                lon, lat = transformer.transform(xy[:, 0], xy[:, 1])
+                xy[:, 0], xy[:, 1] = lon, lat
+    _drop_off_globe(g)
+
+
+#: `_transformer_to_wgs84`'s answer for a file already in WGS84 lon/lat.
+_IDENTITY: Any = object()
+
+
+def _transformer_to_wgs84(crs_text: str | None) -> Any:
+    """A pyproj Transformer from ``crs_text`` to WGS84 lon/lat, `_IDENTITY` when it is WGS84
+    already, None when PROJ does not know the CRS or cannot transform it (a LOCAL_CS, an
+    engineering CRS): the caller then tells lon/lat coordinates from others."""
+    from pyproj import CRS, Transformer
+    from pyproj.exceptions import CRSError, ProjError
+
+    if not crs_text:
+        return None
+    try:
+        crs = CRS.from_user_input(crs_text)
+        if crs.equals("EPSG:4326") or crs.equals("OGC:CRS84"):
+            return _IDENTITY
+        return Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
+    except (CRSError, ProjError):
+        return None
+
+
+def _drop_off_globe(g: Decoded) -> None:
+    """Drop every feature with a vertex that is not finite (did not reproject) or lies off
+    the globe (|latitude| > 90 or |longitude| > 540 degrees, the overlays' limit)."""
     for xy in (g.line_xy, g.point_xy):
         if len(xy):
-            lon, lat = tr.transform(xy[:, 0], xy[:, 1])
-            xy[:, 0], xy[:, 1] = lon, lat
+            off = (np.abs(xy[:, 1]) > 90.0) | (np.abs(xy[:, 0]) > 540.0)
+            xy[off] = np.inf
     _drop_non_finite(g)
 
 

@@ -314,3 +314,43 @@ def test_hostile_files_are_one_line(tmp_path, kind, line):
         read_vector_file(_hostile(tmp_path, kind))
     text = str(err.value)
     assert text.startswith(line) and "\n" not in text and len(text) < 300
+
+
+def test_features_off_the_globe_or_a_crs_proj_cannot_use_do_not_break_the_layer_type(
+    tmp_path, caplog
+):
+    """Found by the issue #26 review: a WGS84 file with a vertex at latitude 100 (or a
+    LOCAL_CS file) made the layer return a path off the globe, and the host disabled the
+    built-in `gis` type for the rest of the session. Such features are broken geometry
+    (skipped, counted); a CRS PROJ cannot transform is an unknown CRS."""
+    import pyogrio.raw
+
+    off = np.array([[-71.3, 44.2], [-71.2, 100.0]])
+    far = np.array([[1e300, 44.2], [-71.2, 44.3]])
+    blobs = np.array([line_wkb(east_west()), line_wkb(off), line_wkb(far)], dtype=object)
+    names = [np.array(["ok", "lat100", "lon1e300"], dtype=object)]
+    path = tmp_path / "off.gpkg"
+    pyogrio.raw.write(
+        path, blobs, names, ["name"], geometry_type="LineString", crs="EPSG:4326", driver="GPKG"
+    )
+    with caplog.at_level(logging.WARNING):
+        drawn = read_vector_file(path)
+    paths = _paths(drawn)
+    assert len(paths) == 1 and np.abs(paths[0] - east_west()).max() < 1e-9
+    assert "2 features with broken geometry skipped (1 drawn)" in caplog.text
+
+    local = 'LOCAL_CS["site",LOCAL_DATUM["x",0],UNIT["metre",1],AXIS["X",EAST],AXIS["Y",NORTH]]'
+    lpath = tmp_path / "local.gpkg"
+    pyogrio.raw.write(
+        lpath,
+        blobs[:1],
+        [names[0][:1]],
+        ["name"],
+        geometry_type="LineString",
+        crs=local,
+        driver="GPKG",
+    )
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        assert len(_paths(read_vector_file(lpath))) == 1
+    assert "its coordinates fit lon/lat degrees: read as WGS84" in caplog.text
