@@ -729,7 +729,7 @@ def _source_contents(
     """The DEM files the sources stand for (a folder: the DEM files in it, `ingest.sources`),
     each checked, and their content identity (size, sha256): the same content elsewhere is
     the same source."""
-    src_paths = expand_sources([Path(p).absolute() for p in sources])
+    src_paths = [p.absolute() for p in expand_sources(sources)]
     _check_sources(src_paths)
     # Hashed on a few threads (hashlib releases the GIL): a folder of thousands of tiles is
     # read at disk speed rather than one file at a time.
