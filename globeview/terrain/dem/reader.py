@@ -489,10 +489,16 @@ class Dem:
     """
 
     def __init__(
-        self, path: Path, crs_override: str | None = None, vdatum: str | None = None
+        self,
+        path: Path,
+        crs_override: str | None = None,
+        vdatum: str | None = None,
+        *,
+        scan: bool = True,
     ) -> None:
         self.path = path
         self._vdatum_override = vdatum
+        self._scan = scan
         check_dem_path(path)
         try:
             with warnings.catch_warnings():
@@ -555,7 +561,9 @@ class Dem:
         self.height_scale_m = unit_m
         self._scale = float(ds.scales[0] if ds.scales else 1.0) * unit_m
         self._offset = float(ds.offsets[0] if ds.offsets else 0.0) * unit_m
-        scan = self._scan_values()
+        # Header only (planning from footprints, issue #25): no pass over the pixels; the
+        # value range is then unknown (NaN) and no fill or masked samples are counted.
+        scan = self._scan_values() if self._scan else ((), 0, 0, math.nan, math.nan, False)
         self.fill_values, self.fill_samples, self.masked_samples = scan[:3]
         self.fill_value = self.fill_values[0] if self.fill_values else None
         self.vmin, self.vmax, self.range_exact = scan[3:]
@@ -1237,10 +1245,14 @@ def _wrap_lon(lon: float) -> float:
     return ((lon + 180.0) % 360.0) - 180.0
 
 
-def open_dem(path: str | Path, crs: str | None = None, vdatum: str | None = None) -> Dem:
+def open_dem(
+    path: str | Path, crs: str | None = None, vdatum: str | None = None, *, scan: bool = True
+) -> Dem:
     """Open a DEM raster (band 1 = elevation); `crs` overrides or supplies its CRS, `vdatum`
-    ("ellipsoid" or "egm96") its vertical datum.
+    ("ellipsoid" or "egm96") its vertical datum. ``scan=False`` reads the header only (no
+    pass over the pixels: ``info`` then has a NaN value range and no fill counts), for
+    planning from footprints.
 
     Raises DemError with a one-line message for anything that cannot be used as a DEM.
     """
-    return Dem(Path(path), crs, vdatum)
+    return Dem(Path(path), crs, vdatum, scan=scan)
