@@ -280,3 +280,40 @@ def test_unreadable_geoid_is_one_line_and_no_store(
     assert "\n" not in str(err.value)
     assert not (tmp_path / "s").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["egm96_15.tif", "g.tif"]  # no build
+
+
+# -- geoid grids not shipped (issue #25: Copernicus heights are EGM2008) ----------------------
+
+
+def test_geoid_grids_from_the_option_the_environment_and_proj(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from globeview.terrain.dem import vdatum
+    from tests.terrain.planet_tiles import write_geotiff
+
+    grid = write_geotiff(tmp_path / "g.tif", -180.0, 90.0, 2.0, 90)
+    assert vdatum.parse_geoid_grids([str(grid)]) == {"egm2008": grid}
+    assert vdatum.parse_geoid_grids([f"EGM2008={grid}"]) == {"egm2008": grid}
+    with pytest.raises(DemError, match=r"unknown geoid 'egm84' \(known: egm2008\)"):
+        vdatum.parse_geoid_grids([f"egm84={grid}"])
+    (tmp_path / "text.tif").write_text("no grid")
+    with pytest.raises(DemError, match="text.tif: not a geoid grid GDAL can read"):
+        vdatum.parse_geoid_grids([str(tmp_path / "text.tif")])
+    projected = write_geotiff(tmp_path / "utm.tif", 500000.0, 5e6, 1000.0, 10, crs="EPSG:32618")
+    with pytest.raises(DemError, match="a geoid grid must be on lon/lat"):
+        vdatum.parse_geoid_grids([str(projected)])
+    # Nowhere: None (PROJ's folders looked in are empty ones here).
+    monkeypatch.setattr(vdatum, "_proj_dirs", lambda: [tmp_path / "proj"])
+    monkeypatch.delenv(vdatum.GEOID_GRIDS_ENV, raising=False)
+    assert vdatum.find_geoid_grid("egm2008") is None
+    monkeypatch.setenv(vdatum.GEOID_GRIDS_ENV, f"egm2008={grid}")
+    assert vdatum.find_geoid_grid("egm2008") == grid
+    monkeypatch.setenv(vdatum.GEOID_GRIDS_ENV, f"egm2008={tmp_path / 'gone.tif'}")
+    with pytest.raises(DemError, match=r"\$GLOBEVIEW_GEOID_GRIDS egm2008=.*gone.tif: no such file"):
+        vdatum.find_geoid_grid("egm2008")
+    monkeypatch.delenv(vdatum.GEOID_GRIDS_ENV)
+    (tmp_path / "proj").mkdir()
+    (tmp_path / "proj" / "us_nga_egm08_25.tif").write_bytes(grid.read_bytes())
+    assert vdatum.find_geoid_grid("egm2008") == tmp_path / "proj" / "us_nga_egm08_25.tif"
+    # --geoid-grid wins over both.
+    assert vdatum.find_geoid_grid("egm2008", {"egm2008": grid}) == grid

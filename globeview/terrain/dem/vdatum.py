@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import enum
 import hashlib
+import os
 import threading
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -122,3 +124,88 @@ def _load(path: Path) -> Geoid:
         raise DemError(f"cannot read the EGM96 geoid {path}: {exc}") from None
     dlon, dlat = float(t.a), float(-t.e)
     return Geoid(grid, t.c + dlon / 2, t.f - dlat / 2, dlon, dlat)
+
+
+# -- geoid grids that are not shipped (issue #25: sources on several datums in one build) ----
+
+#: Geoid models globeview knows by name whose grids the user supplies: name -> the file
+#: PROJ distributes (the 2.5' EGM2008 grid, ~80 MB) and where to get it.
+EXTERNAL_GRIDS: dict[str, tuple[str, str]] = {
+    "egm2008": ("us_nga_egm08_25.tif", "https://cdn.proj.org/us_nga_egm08_25.tif"),
+}
+#: ``NAME=PATH`` pairs separated by the OS path separator, read after ``--geoid-grid``.
+GEOID_GRIDS_ENV = "GLOBEVIEW_GEOID_GRIDS"
+
+
+def parse_geoid_grids(texts: Sequence[str]) -> dict[str, Path]:
+    """``--geoid-grid`` values (``egm2008=PATH``, or a bare ``PATH`` for EGM2008) -> name ->
+    path, each checked (`check_geoid_grid`); DemError (one line) for an unknown model."""
+    out: dict[str, Path] = {}
+    for text in texts:
+        name, sep, path = text.partition("=")
+        if not sep:
+            name, path = "egm2008", text
+        key = name.strip().lower()
+        if key not in EXTERNAL_GRIDS:
+            known = ", ".join(EXTERNAL_GRIDS)
+            raise DemError(f"--geoid-grid {text!r:.80}: unknown geoid {name!r} (known: {known})")
+        out[key] = check_geoid_grid(Path(path.strip()), f"--geoid-grid {key}=")
+    return out
+
+
+def check_geoid_grid(path: Path, where: str) -> Path:
+    """``path`` when it is a raster GDAL opens on a geographic CRS; DemError (one line,
+    ``where`` saying who named it) otherwise."""
+    if not path.is_file():
+        raise DemError(f"{where}{path}: no such file")
+    try:
+        with rasterio.open(path) as ds:
+            geographic = ds.crs is not None and ds.crs.is_geographic
+    except (rasterio.errors.RasterioError, OSError) as exc:
+        raise DemError(f"{where}{path}: not a geoid grid GDAL can read ({exc})") from None
+    if not geographic:
+        raise DemError(f"{where}{path}: a geoid grid must be on lon/lat (a geographic CRS)")
+    return path
+
+
+def _env_grids() -> dict[str, Path]:
+    out: dict[str, Path] = {}
+    for item in os.environ.get(GEOID_GRIDS_ENV, "").split(os.pathsep):
+        name, sep, path = item.partition("=")
+        if sep and name.strip().lower() in EXTERNAL_GRIDS:
+            out[name.strip().lower()] = Path(path.strip())
+    return out
+
+
+def _proj_dirs() -> list[Path]:
+    """PROJ's data folders (where projsync and PROJ-data packages put grids)."""
+    import pyproj.datadir  # deferred: only asked when a grid is looked for
+
+    dirs = [pyproj.datadir.get_data_dir(), pyproj.datadir.get_user_data_dir()]
+    return [Path(p) for d in dirs for p in d.split(os.pathsep) if p]
+
+
+def find_geoid_grid(name: str, given: Mapping[str, Path] | None = None) -> Path | None:
+    """The grid of geoid ``name`` on this machine: ``given`` (``--geoid-grid``), then
+    `GEOID_GRIDS_ENV`, then PROJ's data folders (its file name); None when nowhere."""
+    if given and name in given:
+        return given[name]
+    env = _env_grids()
+    if name in env:
+        return check_geoid_grid(env[name], f"${GEOID_GRIDS_ENV} {name}=")
+    file_name = EXTERNAL_GRIDS[name][0]
+    for folder in _proj_dirs():
+        if (folder / file_name).is_file():
+            return folder / file_name
+    return None
+
+
+def missing_grid_line(name: str, source: str, why: str) -> str:
+    """The one line saying that ``source``'s heights are on geoid ``name`` and its grid is
+    not on this machine, and how to point at one."""
+    file_name, url = EXTERNAL_GRIDS[name]
+    return (
+        f"{source}: heights are on {name.upper()} ({why}) and no {name.upper()} grid is on this "
+        f"machine; get {file_name} ({url}) and pass --geoid-grid {name}=PATH, or --vdatum "
+        "egm96 to approximate (about 1 m)"
+    )
