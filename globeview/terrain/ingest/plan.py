@@ -46,7 +46,6 @@ from globeview.terrain.store.layout import (
     chunk_tiles,
     decode_chunk_code,
     shard_roots,
-    top_levels,
 )
 
 __all__ = [
@@ -140,12 +139,6 @@ class ChunkPlan:
                 found.append(chunk_code(cy >> s, cx >> s))
             count += int(np.unique(np.concatenate(found)).size) if found else 0
         return count
-
-    def top_chunks(self) -> int:
-        """Chunks in the top shard (levels 0..c0+1)."""
-        return sum(
-            self.levels[lv].chunks for lv in range(min(top_levels(self.tile_n), self.max_level + 1))
-        )
 
 
 def clamp_levels(natural: np.ndarray, max_level: int | None) -> tuple[np.ndarray, int]:
