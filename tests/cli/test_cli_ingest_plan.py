@@ -91,6 +91,14 @@ def test_copernicus_names_need_the_egm2008_grid(tmp_path: Path) -> None:
     assert "datums: egm2008 1 (Copernicus DEM default)" in ok.stdout
     assert f"geoid grid egm2008: {grid}" in ok.stdout
     assert level_rows(ok.stdout)[12][0] > 0  # GLO-90: 3", level 12
+    # Two datums in one build: SRTM's EGM96 beside Copernicus' EGM2008.
+    hgt = write_hgt(tmp_path, 44, -72)
+    both = globeview("ingest", src, str(hgt), "--plan", "--geoid-grid", str(grid), cache=tmp_path)
+    assert both.returncode == 0, both.stderr
+    assert (
+        "sources: 2 (2 by name, 0 by header); datums: egm2008 1 (Copernicus DEM default), "
+        "egm96 1 (SRTM .hgt default)"
+    ) in both.stdout
     bad = one_error_line(globeview("ingest", src, "--plan", "--geoid-grid", "x=1", cache=tmp_path))
     assert "unknown geoid 'x' (known: egm2008)" in bad
     nofile = globeview(
