@@ -297,7 +297,7 @@ def test_geoid_grids_from_the_option_the_environment_and_proj(
     with pytest.raises(DemError, match=r"unknown geoid 'egm84' \(known: egm2008\)"):
         vdatum.parse_geoid_grids([f"egm84={grid}"])
     (tmp_path / "text.tif").write_text("no grid")
-    with pytest.raises(DemError, match="text.tif: not a geoid grid GDAL can read"):
+    with pytest.raises(DemError, match=r"text\.tif: not a geoid grid GDAL can read"):
         vdatum.parse_geoid_grids([str(tmp_path / "text.tif")])
     projected = write_geotiff(tmp_path / "utm.tif", 500000.0, 5e6, 1000.0, 10, crs="EPSG:32618")
     with pytest.raises(DemError, match="a geoid grid must be on lon/lat"):
@@ -317,3 +317,33 @@ def test_geoid_grids_from_the_option_the_environment_and_proj(
     assert vdatum.find_geoid_grid("egm2008") == tmp_path / "proj" / "us_nga_egm08_25.tif"
     # --geoid-grid wins over both.
     assert vdatum.find_geoid_grid("egm2008", {"egm2008": grid}) == grid
+
+
+@pytest.mark.parametrize(
+    ("west", "south", "east", "north"),
+    [
+        (-72.3, 44.1, -71.2, 45.4),  # a chunk over N44W072
+        (-0.01, -0.02, 0.01, 0.01),  # inside one grid cell
+        (178.5, -17.5, -178.7, -16.2),  # across the antimeridian
+        (170.0, 80.0, 180.0, 90.0),  # the north pole and lon 180
+        (-180.0, -90.0, -179.0, -88.5),  # the south pole and the grid's first column
+    ],
+)
+def test_a_geoid_window_interpolates_as_the_whole_grid(
+    west: float, south: float, east: float, north: float
+) -> None:
+    """`grid_window` reads a few rows and columns of a grid file; N on a window's nodes is
+    the whole grid's (the shipped EGM96 grid standing in for EGM2008's)."""
+    from globeview.terrain.dem import vdatum
+
+    span = (east - west) % 360.0
+    lons = west + np.linspace(0.0, span, 37)
+    lats = np.linspace(north, south, 29)
+    win = vdatum.grid_window(vdatum.geoid_path(), west, south, east, north)
+    whole = vdatum.egm96()
+    np.testing.assert_allclose(
+        win.undulation_grid(lons, lats), whole.undulation_grid(lons, lats), rtol=0, atol=1e-9
+    )
+    if span < 10:  # a few rows (across the grid's seam: whole rows), not the grid
+        assert win.grid.shape[0] < whole.grid.shape[0] / 20
+        assert win.grid.shape[1] < whole.grid.shape[1] / 20 or win.wraps

@@ -9,7 +9,9 @@ NGA grid by scripts/make_geoid_tif.py). Tile stores hold h.
 from __future__ import annotations
 
 import enum
+import functools
 import hashlib
+import math
 import os
 import threading
 from collections.abc import Mapping, Sequence
@@ -209,3 +211,55 @@ def missing_grid_line(name: str, source: str, why: str) -> str:
         f"machine; get {file_name} ({url}) and pass --geoid-grid {name}=PATH, or --vdatum "
         "egm96 to approximate (about 1 m)"
     )
+
+
+# -- windows of a large geoid grid (the build's per-chunk read, §4.6) -------------------------
+
+#: Windows of external grids kept per process (a chunk task's sources share one or two).
+GRID_WINDOW_CACHE = 8
+
+
+@functools.lru_cache(maxsize=32)
+def _grid_header(path: str) -> tuple[int, int, float, float, float, float]:
+    """(rows, cols, west node lon, north node lat, dlon, dlat) of a node-registered grid
+    (its GDAL transform puts the first node half a cell inside the corner, as `_load`)."""
+    try:
+        with rasterio.open(path) as ds:
+            t, rows, cols = ds.transform, ds.height, ds.width
+    except (rasterio.errors.RasterioError, OSError) as exc:
+        raise DemError(f"cannot read the geoid grid {path}: {exc}") from None
+    dlon, dlat = float(t.a), float(-t.e)
+    return rows, cols, t.c + dlon / 2, t.f - dlat / 2, dlon, dlat
+
+
+@functools.lru_cache(maxsize=GRID_WINDOW_CACHE)
+def _read_window(path: str, i0: int, i1: int, j0: int, j1: int) -> np.ndarray:
+    from rasterio.windows import Window
+
+    try:
+        with rasterio.open(path) as ds:
+            return ds.read(1, window=Window(j0, i0, j1 - j0 + 1, i1 - i0 + 1)).astype(np.float64)
+    except (rasterio.errors.RasterioError, OSError) as exc:
+        raise DemError(f"cannot read the geoid grid {path}: {exc}") from None
+
+
+def grid_window(path: Path, west: float, south: float, east: float, north: float) -> Geoid:
+    """The part of the geoid grid file ``path`` that N on lon west..east, lat south..north
+    (degrees; west > east: across the antimeridian) interpolates from, as a `Geoid` with the
+    same values there as the whole grid's: only those rows (and columns, unless the window
+    crosses the grid's seam) are read, a node of margin each side; the last
+    `GRID_WINDOW_CACHE` windows are kept. The 2.5' EGM2008 grid is ~150 MB in memory whole;
+    a chunk's window is a few KB."""
+    rows, cols, lon0, lat0, dlon, dlat = _grid_header(str(path))
+    i0 = max(0, math.floor((lat0 - north) / dlat) - 1)
+    i1 = min(rows - 1, math.ceil((lat0 - south) / dlat) + 1)
+    i1 = max(i1, min(rows - 1, i0 + 1))
+    wraps = abs(cols * dlon - 360.0) < 1e-9
+    span = (east - west) % 360.0
+    j0 = math.floor(((west - lon0) % 360.0 if wraps else west - lon0) / dlon) - 1
+    j1 = j0 + math.ceil(span / dlon) + 3
+    if wraps and (j0 < 0 or j1 > cols - 1):  # across the grid's seam: every column
+        j0, j1 = 0, cols - 1
+    j0, j1 = max(0, j0), min(cols - 1, max(j1, j0 + 1))
+    grid = _read_window(str(path), i0, i1, j0, j1)
+    return Geoid(grid, lon0 + j0 * dlon, lat0 - i0 * dlat, dlon, dlat)
