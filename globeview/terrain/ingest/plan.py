@@ -308,6 +308,6 @@ def plan_chunks(t: FootprintTable, tile_n: int, max_level: int | None = None) ->
 
 
 def estimated_files(plan: ChunkPlan) -> int:
-    """Files a build of ``plan`` writes at most: chunks, shards, level VRTs, the manifest
-    and the sources file."""
+    """Files a build of ``plan`` writes, about: its chunks (at most), shards, level VRTs, the
+    manifest and the sources file (per-shard facts packs and nested sub-VRTs not counted)."""
     return plan.chunks + plan.shards() + (plan.max_level + 1) + 2
