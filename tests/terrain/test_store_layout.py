@@ -89,7 +89,7 @@ def test_names_hold_level_22() -> None:
     assert L.is_store_path("level_07.vrt") and L.is_store_path("manifest.json")
     for bad in ("../x.tif", "chunks/05/01/2-0123456789abcdef.tif", "chunks/5/1/2-01.tif", "x"):
         assert not L.is_store_path(bad)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="sha256"):
         L.chunk_file_name(3, 0, 0, "nothex")
 
 

@@ -12,9 +12,10 @@ d = `quadtree.node_spacing(L, tile_n)`.
 
 Chunks. A chunk is C x C node intervals, C = k * 2^tile_n with k = `chunk_tiles(tile_n)` tiles
 a side (k = 16, C = 1024 at tile_n 6). Chunk (L, cy, cx) is fixed by the quadtree, not by any
-data extent: it *stores* global node rows [cy*C, min((cy+1)*C, R)) (the last chunk row also
-stores row R, the south pole row) and columns [cx*C, min((cx+1)*C, W)) (column W is never
-stored: reads fold columns modulo W). Level L's chunk grid has ceil(2^L / k) rows and
+data extent: it *owns* global node rows [cy*C, min((cy+1)*C, R)) (the last chunk row also
+row R, the south pole row) and columns [cx*C, min((cx+1)*C, W)) (column W is never stored:
+reads fold columns modulo W); a chunk whose neighbour below / east has no data also stores
+its closing row / column (`chunk_window`'s flags). Level L's chunk grid has ceil(2^L / k) rows and
 ceil(2^(L+1) / k) columns, so levels 0..c0-1 (c0 = log2 k) are one chunk and level c0 is one
 row of two. Tile (L, x, y) lies in chunk (y // k, x // k). A chunk exists (has a file) only
 where some node it stores is finite; a missing chunk reads as NaN ("no data here").
@@ -34,6 +35,7 @@ File names (relative to the store folder, '/'-separated, integers unpadded decim
 - ``chunks/LL/<cy>/<cx>-<h16>.tif`` (a chunk GeoTIFF)
 - ``meta/top-<h16>.gvm`` and ``meta/LL/<cy>/<cx>-<h16>.gvm`` (metadata shards)
 - ``sources-<h16>.json`` (the source records)
+- ``facts/LL/<cy>/<cx>.npz`` (a chunk's exact build facts, for incremental updates)
 
 ``<h16>`` is the first 16 hex digits of the file's sha256 (content-addressed, immutable files).
 """
@@ -47,6 +49,9 @@ import numpy as np
 
 __all__ = [
     "CHUNK_TARGET_NODES",
+    "EXTRA_COL",
+    "EXTRA_ROW",
+    "STORE_DIRS",
     "ChunkSpan",
     "ShardRef",
     "chunk_children",
@@ -61,6 +66,7 @@ __all__ = [
     "chunk_tiles",
     "chunk_window",
     "decode_chunk_code",
+    "facts_file_name",
     "is_store_path",
     "level_vrt_name",
     "shard_chunks",
@@ -98,11 +104,16 @@ def chunk_grid_shape(level: int, tile_n: int) -> tuple[int, int]:
     return -(-(1 << level) // k), -(-(1 << (level + 1)) // k)
 
 
-def chunk_window(level: int, tile_n: int, cy: int, cx: int) -> tuple[int, int, int, int]:
+def chunk_window(
+    level: int, tile_n: int, cy: int, cx: int, extra_row: bool = False, extra_col: bool = False
+) -> tuple[int, int, int, int]:
     """(gr0, gc0, height, width): the global nodes chunk (level, cy, cx) stores.
 
     Rows [gr0, gr0 + height), columns [gc0, gc0 + width); the last chunk row includes the
-    south pole row R; column W (= column 0) is never stored.
+    south pole row R; column W (= column 0) is never stored. ``extra_row`` / ``extra_col``
+    (`EXTRA_ROW` / `EXTRA_COL` flags of its record): the chunk also stores its closing row /
+    column, which belong to the chunk below / east of it, because that chunk has no data
+    (so a tile on the edge of the data keeps its last row and column of nodes).
     """
     c = chunk_nodes(tile_n)
     rows_total = 1 << (level + tile_n)  # R
@@ -111,9 +122,14 @@ def chunk_window(level: int, tile_n: int, cy: int, cx: int) -> tuple[int, int, i
     if not (0 <= cy < rows and 0 <= cx < cols):
         raise ValueError(f"chunk {level}/{cy}/{cx} is outside level {level}'s chunk grid")
     gr0, gc0 = cy * c, cx * c
-    gr1 = rows_total + 1 if cy == rows - 1 else gr0 + c
-    gc1 = min(gc0 + c, cols_total)
+    gr1 = rows_total + 1 if cy == rows - 1 else gr0 + c + bool(extra_row)
+    gc1 = min(gc0 + c + (bool(extra_col) and cx < cols - 1), cols_total)
     return gr0, gc0, gr1 - gr0, gc1 - gc0
+
+
+#: Flags of a chunk record: it also stores its closing row / column (`chunk_window`).
+EXTRA_ROW = 1
+EXTRA_COL = 2
 
 
 def chunk_tile_range(level: int, tile_n: int, cy: int, cx: int) -> tuple[int, int, int, int]:
@@ -295,9 +311,7 @@ def shard_chunks(ref: ShardRef, tile_n: int) -> list[tuple[int, int, int]]:
             continue
         r0, c0, n = ref.cy << d, ref.cx << d, 1 << d
         out += [
-            (lv, r, c)
-            for r in range(r0, min(r0 + n, rows))
-            for c in range(c0, min(c0 + n, cols))
+            (lv, r, c) for r in range(r0, min(r0 + n, rows)) for c in range(c0, min(c0 + n, cols))
         ]
     return out
 
@@ -313,7 +327,8 @@ _STORE_PATH = re.compile(
     rf"|sources-{_H16}\.json"
     rf"|meta/top-{_H16}\.gvm"
     rf"|meta/\d\d/{_INT}/{_INT}-{_H16}\.gvm"
-    rf"|chunks/\d\d/{_INT}/{_INT}-{_H16}\.tif)$"
+    rf"|chunks/\d\d/{_INT}/{_INT}-{_H16}\.tif"
+    rf"|facts/\d\d/{_INT}/{_INT}\.npz)$"
 )
 
 
@@ -343,6 +358,15 @@ def shard_file_name(ref: ShardRef, sha256: str) -> str:
 def sources_file_name(sha256: str) -> str:
     """``sources-<h16>.json``: the store's source records."""
     return f"sources-{_h16(sha256)}.json"
+
+
+#: The folders of a format-7 store (everything else is a file at its top).
+STORE_DIRS = ("chunks", "meta", "facts")
+
+
+def facts_file_name(level: int, cy: int, cx: int) -> str:
+    """``facts/LL/<cy>/<cx>.npz``: chunk (level, cy, cx)'s build facts (incremental updates)."""
+    return f"facts/{level:02d}/{cy}/{cx}.npz"
 
 
 def is_store_path(rel: str) -> bool:
