@@ -8,8 +8,10 @@ from names (`footprints_from_names` with the 1" size, `plan_chunks`, the shard c
 the plan's table, wall and CPU seconds of the planning and the process's peak RSS.
 
 Measure (``--measure``): ingests data/N44W072.hgt (a real SRTM3 tile) with one local worker
-into a temporary store and prints CPU nanoseconds and store bytes per node written (every
-level's chunk files), the figures `terrain/ingest/cost.py` holds.
+into a temporary store and prints the figures `terrain/ingest/cost.py` holds: CPU
+nanoseconds a node of the chunk files (format 7's chunks are whole 1024^2 windows, NaN where
+no source has data: the nodes `--plan` counts), and store bytes a node with data (NaN
+compresses to almost nothing; a planet's land chunks are nearly full).
 
     .venv/bin/python benchmarks/bench_plan.py [--tiles 14277] [--measure [--rounds 5]]
 """
@@ -89,18 +91,20 @@ def bench_plan(n: int) -> None:
 def bench_measure(rounds: int) -> None:
     """Median over ``rounds`` builds (a shared machine's load moves one run 1.5x)."""
     runs = sorted((_measure_once() for _ in range(rounds)), key=lambda r: r[0])
-    cpu, wall, nodes, size = runs[len(runs) // 2]
+    cpu, wall, nodes, finite, size = runs[len(runs) // 2]
     print(
         f"measure: N44W072.hgt, 1 worker, median of {rounds}: {cpu:.2f} CPU s ({wall:.2f} s "
-        f"wall; CPU {runs[0][0]:.2f}..{runs[-1][0]:.2f} s), {nodes} nodes written (every "
-        f"level), {size} bytes of chunks"
+        f"wall; CPU {runs[0][0]:.2f}..{runs[-1][0]:.2f} s), {nodes} nodes in the chunk files "
+        f"of every level ({finite} with data), {size} bytes of chunks"
     )
-    print(f"NS_PER_NODE = {cpu / nodes * 1e9:.0f}.0")
-    print(f"BYTES_PER_NODE = {size / nodes:.2f}")
+    print(f"NS_PER_NODE = {cpu / nodes * 1e9:.0f}.0  # CPU a node of the planned chunks")
+    print(f"BYTES_PER_NODE = {size / finite:.2f}  # bytes a node with data")
 
 
-def _measure_once() -> tuple[float, float, int, int]:
-    """(CPU s, wall s, nodes, bytes) of one 1-worker build of data/N44W072.hgt."""
+def _measure_once() -> tuple[float, float, int, int, int]:
+    """(CPU s, wall s, nodes, nodes with data, bytes) of one 1-worker build of
+    data/N44W072.hgt: the nodes of its chunk files (what `--plan` counts: format 7's chunks
+    are whole, NaN where no source has data) and the finite ones among them."""
     import rasterio
 
     from globeview.terrain.ingest.driver import ingest
@@ -114,12 +118,17 @@ def _measure_once() -> tuple[float, float, int, int]:
         wall = time.perf_counter() - t0
         r1 = resource.getrusage(resource.RUSAGE_SELF)
         cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
-        nodes = size = 0
-        for f in out.glob("level_*_r*_c*.tif"):
+        files = list(out.glob("chunks/**/*.tif"))  # store format 7's chunk files
+        if not files:
+            raise SystemExit("bench_plan: the store has no chunks/ folder (not store format 7)")
+        nodes = finite = size = 0
+        for f in files:
             with rasterio.open(f) as ds:
-                nodes += ds.width * ds.height
+                a = ds.read(1)
+            nodes += a.size
+            finite += int(np.isfinite(a).sum())
             size += f.stat().st_size
-    return cpu, wall, nodes, size
+    return cpu, wall, nodes, finite, size
 
 
 def main() -> None:

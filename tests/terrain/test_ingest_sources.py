@@ -47,11 +47,19 @@ def split_into_tiles(src: Path, folder: Path) -> list[Path]:
 
 
 def manifest_arrays(store: Path) -> dict:
-    m = json.loads((store / "manifest.json").read_text())
-    return {
-        lv["level"]: (lv["error"], lv["hmin"], lv["hmax"], lv["stride_error"], lv["chunk_sha256"])
-        for lv in m["levels"]
-    }
+    """Every chunk's sha256 and its tiles' facts (errors, hmin, hmax; NaN as None), by
+    (level, cy, cx): equal for stores with the same contents (store format 7's shards)."""
+    from globeview.terrain.store.tile_store import TileStore
+
+    st = TileStore.open(store)
+    out = {}
+    try:
+        for lv, cy, cx, f in st._meta.iter_chunks():
+            arrays = (f.errors, f.hmin, f.hmax)
+            out[(lv, cy, cx)] = (f.sha256, *(np.nan_to_num(a, nan=-1e30).tolist() for a in arrays))
+    finally:
+        st.close()
+    return out
 
 
 def test_a_folder_of_tiles_ingests_as_its_files(tmp_path: Path) -> None:

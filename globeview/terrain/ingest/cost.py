@@ -16,16 +16,18 @@ __all__ = [
     "core_hours",
 ]
 
-#: CPU nanoseconds an ingest spends per node it writes, every level counted (source hash
-#: and scan, chunks, the wavelet, errors, compression, writes; Dask, 1 worker): the CPU of a
-#: whole build over the nodes of all its levels' chunk files. Measured on one SRTM3 tile
-#: (3.2 M nodes written), so the build's fixed costs weigh more than on a planet: an upper
-#: bound (bench_ingest's 8192^2 run gives ~204 ns a finest node, ~150 ns a node written).
-NS_PER_NODE = 358.0
-#: Store bytes per node written (ZSTD chunks of a real SRTM3 tile, every level).
-BYTES_PER_NODE = 2.46
+#: CPU nanoseconds an ingest spends per node of the chunks it computes, every level counted
+#: (source hash and scan, chunks, the wavelet, errors, compression, writes; Dask, 1 worker):
+#: a whole build's CPU over the nodes of its chunk files. Store format 7's chunks are whole
+#: 1024^2 windows of the global grid, NaN where no source has data: the nodes `--plan`
+#: counts. Measured on one SRTM3 tile, whose chunks are mostly NaN, so a build's fixed costs
+#: and its NaN nodes weigh more than on a planet's full land chunks.
+NS_PER_NODE = 249.0
+#: Store bytes per node with data (ZSTD chunks of a real SRTM3 tile, every level; NaN nodes
+#: compress to almost nothing): bytes of full chunks, an upper bound for partial ones.
+BYTES_PER_NODE = 2.85
 #: Where NS_PER_NODE and BYTES_PER_NODE come from (what `--plan` prints beside them).
-COST_SOURCE = "bench_plan.py --measure, N44W072.hgt, median of 5, 2026-11-28, load 5.5"
+COST_SOURCE = "bench_plan.py --measure, N44W072.hgt, median of 5, 2026-11-28, load 11.6"
 #: A dask.distributed cluster spends this much more CPU than one local worker (reopened
 #: sources, chunk re-reads, results shipped): docs/scale.md, bench_ingest 8192^2, 2026-11-23.
 CLUSTER_FACTOR = 1.77

@@ -167,7 +167,7 @@ def format_plan(r: PlanReport) -> str:
         f"total  {chunks:,} chunks, {tasks:,} tasks ({len(t):,} source, {chunks:,} chunk, "
         f"{chunks:,} error+meta, {shards:,} shard, 1 pole), {estimated_files(p):,} files, "
         f"{_bytes(data)} + {_bytes(meta)} metadata",
-        f"cost   {hours:.3g} core-hours at {cost.NS_PER_NODE:g} ns a node written "
+        f"cost   {hours:.3g} core-hours at {cost.NS_PER_NODE:g} ns a chunk node "
         f"({cost.COST_SOURCE}); x{cost.CLUSTER_FACTOR} on a dask.distributed cluster",
         f"plan   {r.seconds:.2f} s, peak RSS {r.peak_rss / 1e6:.0f} MB (upper bounds from "
         "footprints: the build drops chunks its sources hold no data in)",
