@@ -128,3 +128,30 @@ def test_natural_levels_are_the_builds() -> None:
     for tile_n in (4, 6, 10):
         want = [driver._natural_level(r, tile_n, e) for r, e in zip(res, extent, strict=True)]
         assert natural_levels(res, extent, tile_n).tolist() == want
+
+
+def test_a_table_from_opened_sources_plans_as_one_from_headers() -> None:
+    """What a build that opened its sources hands the planner: the same table and plan as
+    the header footprints give."""
+    from globeview.terrain.ingest.footprints import table_from_bounds
+    from globeview.terrain.ingest.plan import plan_chunks
+
+    paths = [SRTM, Path(__file__).resolve().parents[2] / "data" / "topobathy_vancouver.tif"]
+    infos = []
+    for p in paths:
+        with open_dem(p, scan=False) as dem:
+            infos.append(dem.info)
+    t = table_from_bounds(
+        [str(p) for p in paths],
+        [i.bounds_lonlat for i in infos],
+        [min(i.res_deg) for i in infos],
+        [max(i.res_deg) for i in infos],
+        [i.wraps_longitude for i in infos],
+        [i.vertical_datum for i in infos],
+    )
+    h = footprints(paths, how="header")
+    for col in ("west", "south", "east", "north", "res", "reach", "extent", "wraps", "datum"):
+        np.testing.assert_array_equal(getattr(t, col), getattr(h, col))
+    a, b = plan_chunks(t, 6), plan_chunks(h, 6)
+    assert a.chunk_sets() == b.chunk_sets() and len(a.chunk_sets()) == a.max_level + 1
+    assert sum(len(s) for s in a.chunk_sets()) == a.chunks

@@ -59,6 +59,7 @@ __all__ = [
     "footprints",
     "footprints_from_names",
     "natural_levels",
+    "table_from_bounds",
 ]
 
 #: Vertical datum codes of `FootprintTable.datum` (index into this tuple).
@@ -135,6 +136,37 @@ class FootprintTable:
         """The path of the first source on ``datum`` (None: none is)."""
         hits = np.flatnonzero(self.datum == DATUMS.index(datum))
         return self.paths[int(hits[0])] if hits.size else None
+
+
+def table_from_bounds(
+    paths: Sequence[str],
+    bounds: Sequence[tuple[float, float, float, float]],
+    res: Sequence[float],
+    reach: Sequence[float],
+    wraps: Sequence[bool],
+    datums: Sequence[str],
+) -> FootprintTable:
+    """A FootprintTable from footprints already known (an opened source's ``DemInfo``:
+    bounds_lonlat, min and max of res_deg, wraps_longitude, vertical_datum), e.g. for a
+    build that has opened its sources: ``plan_chunks(table_from_bounds(...), tile_n)``."""
+    b = np.asarray(bounds, dtype=np.float64).reshape(len(paths), 4)
+    wr = np.asarray(wraps, dtype=bool)
+    width = np.where(wr, 360.0, (b[:, 2] - b[:, 0]) % 360.0)
+    width = np.where(width == 0, 360.0, width)
+    return FootprintTable(
+        paths=tuple(map(str, paths)),
+        west=b[:, 0],
+        south=b[:, 1],
+        east=b[:, 2],
+        north=b[:, 3],
+        res=np.asarray(res, dtype=np.float64),
+        reach=np.asarray(reach, dtype=np.float64),
+        extent=np.minimum(width, b[:, 3] - b[:, 1]),
+        wraps=wr,
+        datum=np.array([DATUMS.index(d) for d in datums], dtype=np.int8),
+        how=np.ones(len(paths), dtype=np.int8),
+        datum_why=("header",) * len(paths),
+    )
 
 
 def natural_levels(res: np.ndarray, extent: np.ndarray, tile_n: int) -> np.ndarray:

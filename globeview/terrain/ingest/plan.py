@@ -125,6 +125,15 @@ class ChunkPlan:
             return lp.chunks * rows * (1 << (level + 1 + self.tile_n))
         return lp.chunks * c * c
 
+    def chunk_sets(self) -> list[set[tuple[int, int]]]:
+        """Each level's planned chunks as a set of (cy, cx), index = level (the shape of
+        ``driver._Builder.planned``)."""
+        out = []
+        for lp in self.levels:
+            cy, cx = decode_chunk_code(lp.codes)
+            out.append(set(zip(cy.tolist(), cx.tolist(), strict=True)))
+        return out
+
     def shards(self) -> int:
         """Metadata shards the plan's chunks need: the top one and one a root chunk
         (`layout.shard_roots`) with planned chunks under it."""
