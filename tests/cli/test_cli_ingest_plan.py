@@ -24,10 +24,18 @@ CELLS = [(44, -72), (44, -71), (-17, 179)]  # two neighbours and one at the anti
 
 
 def level_rows(stdout: str) -> dict[int, tuple[int, int]]:
-    """level -> (chunks, source reads) from the plan's table."""
+    """level -> (chunks, source reads) from the plan's table (checking each level's tasks:
+    a chunk and an error+meta task a chunk, and the shards rooted there)."""
     rows = {}
-    for m in re.finditer(r"^\s+(\d+)\s+([\d,]+)\s+([\d,]+)\s", stdout, re.MULTILINE):
-        rows[int(m.group(1))] = (int(m.group(2).replace(",", "")), int(m.group(3).replace(",", "")))
+    tasks = 0
+    for m in re.finditer(r"^\s+(\d+)\s+([\d,]+)\s+([\d,]+)\s+([\d,]+)\s", stdout, re.MULTILINE):
+        lv, chunks, t, reads = (int(g.replace(",", "")) for g in m.groups())
+        assert 2 * chunks <= t <= 2 * chunks + chunks
+        tasks += t
+        rows[lv] = (chunks, reads)
+    total = re.search(r"chunks, ([\d,]+) tasks \(([\d,]+) source", stdout)
+    assert total is not None
+    assert int(total.group(1).replace(",", "")) == tasks + int(total.group(2).replace(",", "")) + 1
     return rows
 
 

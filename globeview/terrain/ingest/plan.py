@@ -134,11 +134,11 @@ class ChunkPlan:
             out.append(set(zip(cy.tolist(), cx.tolist(), strict=True)))
         return out
 
-    def shards(self) -> int:
-        """Metadata shards the plan's chunks need: the top one and one a root chunk
-        (`layout.shard_roots`) with planned chunks under it."""
+    def shards_by_root(self) -> dict[int, int]:
+        """Metadata shards the plan's chunks need, by root level: the top one (level 0) and
+        one a root chunk (`layout.shard_roots`) with planned chunks under it."""
         roots = shard_roots(self.max_level, self.tile_n)
-        count = 1
+        out = {0: 1}
         for i, root in enumerate(roots):
             end = roots[i + 1] if i + 1 < len(roots) else self.max_level + 1
             found: list[np.ndarray] = []
@@ -146,8 +146,12 @@ class ChunkPlan:
                 cy, cx = decode_chunk_code(self.levels[lv].codes)
                 s = lv - root
                 found.append(chunk_code(cy >> s, cx >> s))
-            count += int(np.unique(np.concatenate(found)).size) if found else 0
-        return count
+            out[root] = int(np.unique(np.concatenate(found)).size) if found else 0
+        return out
+
+    def shards(self) -> int:
+        """Metadata shards the plan's chunks need (`shards_by_root`'s total)."""
+        return sum(self.shards_by_root().values())
 
 
 def clamp_levels(natural: np.ndarray, max_level: int | None) -> tuple[np.ndarray, int]:

@@ -136,16 +136,24 @@ def _source_lines(t: FootprintTable, grids: Mapping[str, Path]) -> list[str]:
 
 
 def _level_lines(p: ChunkPlan) -> list[str]:
-    lines = [
-        f"{'level':>5}  {'chunks':>10}  {'source reads':>12}  {'nodes':>9}  {'est. bytes':>10}"
-    ]
+    """The per-level table; tasks: a chunk and an error+meta task a chunk, and the shards
+    rooted at the level (the top shard at level 0)."""
+    shards = p.shards_by_root()
+    head = ("level", "chunks", "tasks", "source reads", "nodes", "est. bytes")
+    widths = (5, 10, 10, 12, 9, 10)
+    lines = ["  ".join(f"{h:>{w}}" for h, w in zip(head, widths, strict=True))]
     for lv in range(p.max_level, -1, -1):
         lp = p.levels[lv]
         nodes = p.level_nodes(lv)
-        lines.append(
-            f"{lv:>5}  {lp.chunks:>10,}  {lp.source_reads:>12,}  {nodes:>9.3g}  "
-            f"{_bytes(nodes * cost.BYTES_PER_NODE):>10}"
+        cells = (
+            f"{lv}",
+            f"{lp.chunks:,}",
+            f"{2 * lp.chunks + shards.get(lv, 0):,}",
+            f"{lp.source_reads:,}",
+            f"{nodes:.3g}",
+            _bytes(nodes * cost.BYTES_PER_NODE),
         )
+        lines.append("  ".join(f"{c:>{w}}" for c, w in zip(cells, widths, strict=True)))
     return lines
 
 
@@ -156,7 +164,7 @@ def format_plan(r: PlanReport) -> str:
     n_tile = (1 << p.tile_n) + 1
     chunks, shards = p.chunks, p.shards()
     nodes = sum(p.level_nodes(lv) for lv in range(p.max_level + 1))
-    tasks = len(t) + 2 * chunks + shards + 1
+    tasks = len(t) + 2 * chunks + shards + 1  # + the pole task
     data, meta = nodes * cost.BYTES_PER_NODE, chunks * cost.META_BYTES_PER_CHUNK
     hours = cost.core_hours(nodes)
     lines = [
