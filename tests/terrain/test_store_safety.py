@@ -259,7 +259,7 @@ def test_damage_after_open_is_a_store_error(store: Path, tmp_path: Path) -> None
         lv = st.max_level
         g = st.level_grid(lv)
         # Tiles are read from the chunk files, not through the level's VRT.
-        name = next(f.file for L, _, _, f in st._meta.iter_chunks() if L == lv and f.file)
+        name = next(f.file for lvl, _, _, f in st.iter_chunks() if lvl == lv and f.file)
         f = s / name
         size = f.stat().st_size
         with f.open("r+b") as fh:  # in place: the same inode, now half gone

@@ -32,7 +32,7 @@ from __future__ import annotations
 import json
 import threading
 from collections import OrderedDict
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from concurrent.futures import Future
 from pathlib import Path
 from types import TracebackType
@@ -55,7 +55,7 @@ from globeview.terrain.store.blocks import BlockReader
 from globeview.terrain.store.handles import ChunkHandles, short_error
 from globeview.terrain.store.identify import MANIFEST_NAME
 from globeview.terrain.store.local import LocalFiles
-from globeview.terrain.store.metadata import StoreMetadata
+from globeview.terrain.store.metadata import ChunkFacts, StoreMetadata
 from globeview.terrain.store.prefetch import Prefetcher
 from globeview.terrain.store.schema import (
     DENSE_FORMAT_VERSIONS,
@@ -265,7 +265,7 @@ class TileStore:
         checked = 0
         for lv in self._meta.levels:
             self._check_file(lv.file, lv.sha256, None, full)
-        for _lv, _cy, _cx, facts in self._meta.iter_chunks():
+        for _lv, _cy, _cx, facts in self.iter_chunks():
             if facts.file is not None:
                 self._check_file(facts.file, facts.sha256, facts.bytes, full)
                 checked += 1
@@ -282,6 +282,13 @@ class TileStore:
                 f"{self._files.describe(name)} is damaged (checksum mismatch); re-run "
                 "globeview ingest --force"
             )
+
+    def iter_chunks(self) -> Iterator[tuple[int, int, int, ChunkFacts]]:
+        """(level, cy, cx, facts) of every chunk record of the store, shard by shard from the
+        top (reads every shard): the per-tile facts a whole-store comparison or report needs.
+        ``facts.errors[j, i]`` etc. are tile (cx * k + i, cy * k + j) of the level, k =
+        ``manifest.chunk_tiles``; NaN where a tile has no data."""
+        return self._meta.iter_chunks()
 
     @property
     def shards_loaded(self) -> int:
