@@ -5,6 +5,8 @@ fill order; the SRTM-named planet layout counts on a small case; the limit is on
 
 from __future__ import annotations
 
+import math
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -195,3 +197,129 @@ def test_a_plan_over_the_limit_is_one_line(monkeypatch: pytest.MonkeyPatch) -> N
     t = footprints_from_names(srtm_names([(44, -72)]))
     with pytest.raises(StoreError, match=r"over the limit of 100; use a smaller --max-level"):
         plan_chunks(t, 6, 16)
+
+
+# ---------------------------------------------------------------------------------------------
+# The build plans with plan.py (one planner): the same chunks as the builder's own planner had
+
+
+def _footprint_chunks_v1(
+    lv: int, tile_n: int, bounds: tuple[float, float, float, float], wraps: bool, res: float
+) -> set[tuple[int, int]]:
+    """The builder's former planner (driver._footprint_chunks, before it used plan.py): the
+    chunks of level lv whose closed node windows come within a node spacing and a pixel of a
+    footprint, columns folded across the antimeridian."""
+    d = node_spacing(lv, tile_n)
+    reach = d + res
+    c = chunk_nodes(tile_n)
+    rows, cols = chunk_grid_shape(lv, tile_n)
+    r_nodes = 1 << (lv + tile_n)
+    w, s, e, n = bounds
+    gr_lo = max(0, math.floor((90.0 - n - reach) / d))
+    gr_hi = min(r_nodes, math.ceil((90.0 - s + reach) / d))
+    if gr_lo > gr_hi:
+        return set()
+    cy_lo = max(0, -(-(gr_lo - c) // c))
+    cy_hi = min(rows - 1, gr_hi // c)
+    width = 360.0 if wraps else ((e - w) % 360.0 or (360.0 if e != w else 0.0))
+    gc_lo = math.floor((w + 180.0 - reach) / d)
+    gc_hi = math.ceil((w + 180.0 + width + reach) / d)
+    if wraps or gc_hi - gc_lo >= (1 << (lv + 1 + tile_n)):
+        cxs: set[int] = set(range(cols))
+    else:
+        cxs = {cx % cols for cx in range(-(-(gc_lo - c) // c), gc_hi // c + 1)}
+    return {(cy, cx) for cy in range(cy_lo, cy_hi + 1) for cx in cxs}
+
+
+def _plan_v1(srcs: list, tile_n: int, max_level: int) -> list[set[tuple[int, int]]]:
+    """driver._Builder._plan_chunks as it was: each level's chunks a source of that level or
+    finer reaches, plus the parents of the finer level's."""
+    planned: list[set[tuple[int, int]]] = [set() for _ in range(max_level + 1)]
+    for lv in range(max_level, -1, -1):
+        for s in srcs:
+            if s.level >= lv:
+                planned[lv] |= _footprint_chunks_v1(lv, tile_n, s.bounds, s.wraps, s.res)
+        if lv < max_level:
+            for cy, cx in planned[lv + 1]:
+                planned[lv].add((0, 0) if lv < chunk_levels_c0(tile_n) else (cy >> 1, cx >> 1))
+    return planned
+
+
+def _sources(rows: list[tuple], wraps: list[bool], tile_n: int) -> list[SimpleNamespace]:
+    out = []
+    for i, (w, s, e, n, res) in enumerate(rows):
+        width = 360.0 if wraps[i] else (e - w) % 360.0 or 360.0
+        level = driver._natural_level(res, tile_n, min(width, n - s))
+        out.append(
+            SimpleNamespace(
+                path=f"s{i}",
+                bounds=(w, s, e, n),
+                res=res,
+                wraps=wraps[i],
+                datum="egm96",
+                level=level,
+            )
+        )
+    return out
+
+
+@pytest.mark.parametrize(("tile_n", "max_level"), [(6, None), (6, 9), (8, None), (10, 4)])
+def test_the_builds_plan_is_its_former_planners(tile_n: int, max_level: int | None) -> None:
+    """plan_chunks of the table a build makes of its opened sources (driver._footprint_table)
+    gives each level the chunks the builder's own planner gave: random footprints (across
+    the antimeridian, at the poles), a global source, several levels."""
+    rng = np.random.default_rng(7)
+    rows = random_footprints(rng, 10)
+    rows += [(-180.0, -90.0, 180.0, 90.0, 1 / 3), (170.0, -89.5, -175.0, -80.0, 0.01)]
+    wraps = [False] * (len(rows) - 2) + [True, False]
+    srcs = _sources(rows, wraps, tile_n)
+    got = plan_chunks(driver._footprint_table(srcs), tile_n, max_level).chunk_sets()
+    l_max = driver._clamp_levels(srcs, max_level)
+    assert got == _plan_v1(srcs, tile_n, l_max)
+
+
+def test_a_store_built_with_plan_py_is_the_former_planners_bit_for_bit(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A global coarse DEM under a regional finer one (levels 0..7, chunks across the
+    antimeridian): the store ingest writes with plan.py's chunks is, file by file, the one
+    written with the builder's former planner's."""
+    data = Path(__file__).resolve().parents[2] / "data"
+    srcs = [data / "etopo20.tif", data / "topobathy_vancouver.tif"]
+    a = tmp_path / "plan_py"
+    driver.ingest(srcs, a, workers=1)
+
+    real = driver.plan_chunks
+
+    def v1_plan(t, tile_n, max_level):
+        p = real(t, tile_n, max_level)
+        opened = [
+            SimpleNamespace(
+                bounds=(t.west[i], t.south[i], t.east[i], t.north[i]),
+                res=float(t.res[i]),
+                wraps=bool(t.wraps[i]),
+                level=int(lv),
+            )
+            for i, lv in enumerate(p.source_levels)
+        ]
+        sets = _plan_v1(opened, tile_n, p.max_level)
+        assert sets == p.chunk_sets()  # the two planners agree here too
+        return SimpleNamespace(
+            max_level=p.max_level, chunks=p.chunks, level_nodes=p.level_nodes,
+            chunk_sets=lambda: sets,
+        )  # fmt: skip
+
+    monkeypatch.setattr(driver, "plan_chunks", v1_plan)
+    b = tmp_path / "v1"
+    driver.ingest(srcs, b, workers=1)
+
+    def files(store: Path) -> dict[str, bytes]:
+        return {
+            p.relative_to(store).as_posix(): p.read_bytes()
+            for p in sorted(store.rglob("*"))
+            if p.is_file()
+        }
+
+    fa, fb = files(a), files(b)
+    assert sum(k.startswith("chunks/") for k in fa) > 2
+    assert fa == fb

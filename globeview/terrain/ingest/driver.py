@@ -50,6 +50,7 @@ import contextlib
 import hashlib
 import math
 import os
+import shutil
 import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -62,6 +63,9 @@ import rasterio
 from globeview.errors import DemError, StoreError
 from globeview.terrain.dem.reader import Dem, check_dem_path, open_dem
 from globeview.terrain.dem.vdatum import GEOID_FILE, egm96_sha256, parse_vdatum
+from globeview.terrain.ingest import cost
+from globeview.terrain.ingest.footprints import DATUMS, FootprintTable, table_from_bounds
+from globeview.terrain.ingest.plan import ChunkPlan, plan_chunks
 from globeview.terrain.ingest.safety import (
     build_folder,
     check_target,
@@ -96,7 +100,6 @@ from globeview.terrain.levels import LevelGrid
 from globeview.terrain.quadtree import (
     DEFAULT_TILE_N,
     level_shape,
-    node_spacing,
     tile_size_deg,
     tiles_covering,
 )
@@ -106,7 +109,6 @@ from globeview.terrain.store.layout import (
     chunk_code,
     chunk_file_name,
     chunk_grid_shape,
-    chunk_levels_c0,
     chunk_nodes,
     chunk_tiles,
     shard_roots,
@@ -281,6 +283,7 @@ class _Builder:
         wavelet: str,
         out_dir: Path,
         tick: Callable[[int], None],
+        planned: list[set[tuple[int, int]]],
     ) -> None:
         self.sources = sources
         self.tile_n = tile_n
@@ -293,7 +296,9 @@ class _Builder:
         self.grids = {
             lv: LevelGrid(lv, tile_n, 0, 0, *level_shape(lv)) for lv in range(max_level + 1)
         }
-        self.planned = self._plan_chunks()
+        # The chunks (cy, cx) of each level that may hold data (`plan.plan_chunks`): every
+        # other chunk has no data, no task, no file.
+        self.planned = planned
         self.stats: dict[tuple[int, int, int], _ChunkStats] = {}
         self.level_files: dict[int, str] = {}  # level -> its VRT's sha256
         self.pole: dict[str, float | None] = {"north": None, "south": None}
@@ -303,23 +308,6 @@ class _Builder:
         self.writes = 0  # window writes so far (the fault-injection points)
 
     # -- planning ---------------------------------------------------------------------------
-
-    def _plan_chunks(self) -> list[set[tuple[int, int]]]:
-        """The chunks (cy, cx) of each level's global chunk grid (`store.layout`) that may
-        hold data: those a source of that level or finer reads (its footprint within a node
-        spacing and a pixel, `tasks.fill_reads_source`), and the parents of the next finer
-        level's (levels nest). Every other chunk has no data: no task, no file."""
-        planned: list[set[tuple[int, int]]] = [set() for _ in range(self.max_level + 1)]
-        for lv in range(self.max_level, -1, -1):
-            chunks = planned[lv]
-            for s in self.sources:
-                if s.level >= lv:
-                    chunks |= _footprint_chunks(lv, self.tile_n, s.bounds, s.wraps, s.res)
-            if lv < self.max_level:
-                c0 = chunk_levels_c0(self.tile_n)
-                for cy, cx in planned[lv + 1]:
-                    chunks.add((0, 0) if lv < c0 else (cy >> 1, cx >> 1))
-        return planned
 
     # -- run --------------------------------------------------------------------------------
 
@@ -556,34 +544,6 @@ def _has(st: _ChunkStats) -> bool:
     return st.sha256 is not None or bool(np.isfinite(st.hmin).any())
 
 
-def _footprint_chunks(
-    lv: int, tile_n: int, bounds: tuple[float, float, float, float], wraps: bool, res: float
-) -> set[tuple[int, int]]:
-    """The chunks of level lv whose closed node windows come within a node spacing and a
-    pixel of a footprint (degrees; the `tasks.fill_reads_source` reach), columns folded
-    across the antimeridian."""
-    d = node_spacing(lv, tile_n)
-    reach = d + res
-    c = chunk_nodes(tile_n)
-    rows, cols = chunk_grid_shape(lv, tile_n)
-    r_nodes = 1 << (lv + tile_n)
-    w, s, e, n = bounds
-    gr_lo = max(0, math.floor((90.0 - n - reach) / d))
-    gr_hi = min(r_nodes, math.ceil((90.0 - s + reach) / d))
-    if gr_lo > gr_hi:
-        return set()
-    cy_lo = max(0, -(-(gr_lo - c) // c))
-    cy_hi = min(rows - 1, gr_hi // c)
-    width = 360.0 if wraps else ((e - w) % 360.0 or (360.0 if e != w else 0.0))
-    gc_lo = math.floor((w + 180.0 - reach) / d)
-    gc_hi = math.ceil((w + 180.0 + width + reach) / d)
-    if wraps or gc_hi - gc_lo >= (1 << (lv + 1 + tile_n)):
-        cxs: set[int] = set(range(cols))
-    else:
-        cxs = {cx % cols for cx in range(-(-(gc_lo - c) // c), gc_hi // c + 1)}
-    return {(cy, cx) for cy in range(cy_lo, cy_hi + 1) for cx in cxs}
-
-
 def _union_bounds(sources: Sequence[_Source]) -> list[float]:
     """Footprint (w, s, e, n) in degrees covering every source; w > e crosses the antimeridian.
 
@@ -730,7 +690,9 @@ def ingest(
             for p, (size, sha256), dem in zip(src_paths, contents, dems, strict=True)
         ]
         l_max = _clamp_levels(srcs, max_level)
-        builder = _plan_build(srcs, tile_n, l_max, wavelet, out_path.parent, max_level is not None)
+        plan = plan_chunks(_footprint_table(srcs), tile_n, max_level)
+        _check_size(plan, out_path.parent, max_level)
+        builder = _plan_build(srcs, tile_n, l_max, wavelet, out_path.parent, plan)
         _build_and_commit(builder, stack, out_path, params, where, previous, progress, on_progress)
     return IngestResult(
         out_path,
@@ -847,14 +809,60 @@ def _clamp_levels(srcs: Sequence[_Source], max_level: int | None) -> int:
     return l_max
 
 
+def _footprint_table(srcs: Sequence[_Source]) -> FootprintTable:
+    """The planner's table of the opened sources: their footprints, finer pixel sizes (also
+    the reach `tasks.fill_reads_source` grows a footprint by) and datums."""
+    return table_from_bounds(
+        [str(s.path) for s in srcs],
+        [s.bounds for s in srcs],
+        [s.res for s in srcs],
+        [s.res for s in srcs],
+        [s.wraps for s in srcs],
+        [s.datum if s.datum in DATUMS else "ellipsoid" for s in srcs],
+    )
+
+
+def _check_size(plan: ChunkPlan, parent: Path, max_level: int | None) -> None:
+    """StoreError (one line, before anything is written) when the planned chunks would not
+    fit on the disk the store goes to: their nodes at `cost.BYTES_PER_NODE` (an upper bound:
+    NaN nodes compress to almost nothing) and their metadata. No tile count caps a build
+    (store format 7); the disk does, and `plan.PLAN_MAX_CHUNKS` the plan's memory."""
+    nodes = sum(plan.level_nodes(lv) for lv in range(plan.max_level + 1))
+    need = nodes * cost.BYTES_PER_NODE + plan.chunks * cost.META_BYTES_PER_CHUNK
+    where = parent
+    while not where.exists() and where != where.parent:
+        where = where.parent
+    try:
+        free = shutil.disk_usage(where).free
+    except OSError:
+        return  # the output checks say what is wrong with the location
+    if need <= free:
+        return
+    what = "the store" if max_level is None else f"--max-level {max_level}"
+    raise StoreError(
+        f"{what} would have {plan.chunks:,} chunk files, about {_size_text(need)}; the limit "
+        f"is the free space in {where}: {_size_text(free)}"
+        + ("; use a smaller --max-level" if max_level is not None else "")
+    )
+
+
+def _size_text(n: float) -> str:
+    """Bytes for people: 3.2 GB, 51 TB."""
+    for unit, f in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6)):
+        if n >= f:
+            return f"{n / f:.3g} {unit}"
+    return f"{n / 1e3:.3g} kB"
+
+
 def _plan_build(
-    srcs: Sequence[_Source], tile_n: int, l_max: int, wavelet: str, parent: Path, chosen: bool
+    srcs: Sequence[_Source], tile_n: int, l_max: int, wavelet: str, parent: Path, plan: ChunkPlan
 ) -> _Builder:
     """The builder of the pyramid: its sources finest first (the finest wins where it has
-    data), the order they were given kept for the manifest. No tile count caps it (store
-    format 7: only the chunks with data are planned, ``chosen`` is kept for callers)."""
+    data), the order they were given kept for the manifest, and the chunks ``plan`` holds
+    (`plan.plan_chunks` of the same sources: the one planner of `ingest --plan` and the
+    build)."""
     ordered = sorted(srcs, key=lambda s: s.res)  # (a stable sort: ties keep input order)
-    builder = _Builder(ordered, tile_n, l_max, wavelet, parent, _no_tick)
+    builder = _Builder(ordered, tile_n, l_max, wavelet, parent, _no_tick, plan.chunk_sets())
     sorted_at = {id(t): j for j, t in enumerate(ordered)}  # not a search per source: 10^4 tiles
     builder.input_order = [sorted_at[id(s)] for s in srcs]
     return builder

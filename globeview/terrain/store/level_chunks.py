@@ -127,9 +127,12 @@ def write_atomic(path: Path, data: bytes) -> None:
         raise
 
 
-def write_level_vrt(path: Path, grid: LevelGrid, chunks: Sequence[tuple[int, int, str]]) -> str:
+def write_level_vrt(
+    path: Path, grid: LevelGrid, chunks: Sequence[tuple[int, int, str, int]]
+) -> str:
     """Write the VRT of a level over ``grid`` (its bbox) whose chunk files ``chunks``
-    ((cy, cx, file name relative to the store), row-major) exist beside it; returns the
+    ((cy, cx, file name relative to the store, `layout.EXTRA_ROW` | `EXTRA_COL` flags),
+    row-major) exist beside it; returns the
     VRT's sha256. On a bbox all the way round, the chunks of column 0 are placed again as
     the raster's last column (lon +180)."""
     t = grid.transform
