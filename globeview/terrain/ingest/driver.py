@@ -691,7 +691,7 @@ def ingest(
         ]
         l_max = _clamp_levels(srcs, max_level)
         plan = plan_chunks(_footprint_table(srcs), tile_n, max_level)
-        _check_size(plan, out_path.parent, max_level)
+        _check_size(plan, srcs, out_path.parent, max_level)
         builder = _plan_build(srcs, tile_n, l_max, wavelet, out_path.parent, plan)
         _build_and_commit(builder, stack, out_path, params, where, previous, progress, on_progress)
     return IngestResult(
@@ -822,13 +822,18 @@ def _footprint_table(srcs: Sequence[_Source]) -> FootprintTable:
     )
 
 
-def _check_size(plan: ChunkPlan, parent: Path, max_level: int | None) -> None:
+def _check_size(
+    plan: ChunkPlan, srcs: Sequence[_Source], parent: Path, max_level: int | None
+) -> None:
     """StoreError (one line, before anything is written) when the planned chunks would not
     fit on the disk the store goes to: their nodes at `cost.BYTES_PER_NODE` (an upper bound:
     NaN nodes compress to almost nothing) and their metadata. No tile count caps a build
     (store format 7); the disk does, and `plan.PLAN_MAX_CHUNKS` the plan's memory."""
-    nodes = sum(plan.level_nodes(lv) for lv in range(plan.max_level + 1))
-    need = nodes * cost.BYTES_PER_NODE + plan.chunks * cost.META_BYTES_PER_CHUNK
+    need = [
+        plan.level_nodes(lv) * cost.BYTES_PER_NODE
+        + plan.levels[lv].chunks * cost.META_BYTES_PER_CHUNK
+        for lv in range(plan.max_level + 1)
+    ]
     where = parent
     while not where.exists() and where != where.parent:
         where = where.parent
@@ -836,13 +841,20 @@ def _check_size(plan: ChunkPlan, parent: Path, max_level: int | None) -> None:
         free = shutil.disk_usage(where).free
     except OSError:
         return  # the output checks say what is wrong with the location
-    if need <= free:
+    total = sum(need)
+    if total <= free:
         return
-    what = "the store" if max_level is None else f"--max-level {max_level}"
+    fit = max((lv for lv in range(plan.max_level + 1) if sum(need[: lv + 1]) <= free), default=0)
+    src = min(srcs, key=lambda s: s.res)
+    what = (
+        f"--max-level {plan.max_level}"
+        if max_level is not None
+        else f"{src.path} is {src.dem.info.width}x{src.dem.info.height} pixels: its finest "
+        f"level {plan.max_level}"
+    )
     raise StoreError(
-        f"{what} would have {plan.chunks:,} chunk files, about {_size_text(need)}; the limit "
-        f"is the free space in {where}: {_size_text(free)}"
-        + ("; use a smaller --max-level" if max_level is not None else "")
+        f"{what} would have {plan.chunks:,} chunk files, about {_size_text(total)}; the limit "
+        f"is the free space in {where}: {_size_text(free)}; use --max-level {fit}"
     )
 
 
