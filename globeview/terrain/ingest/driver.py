@@ -415,8 +415,13 @@ class _Builder:
         levels = [self.sources[j].level for j in self.input_order]
         for key in graph.chunk_keys:
             error_key = key.replace("chunk-", "error-", 1)
-            if key in ran or error_key in ran:
-                write_facts(self.out_dir, results[key], results.get(error_key, []), levels)
+            errors = results.get(error_key, [])
+            # A chunk without data and without error maxima has no facts file (an update
+            # reads a missing one as that: `update._read_facts`).
+            if (key in ran or error_key in ran) and (
+                _has(self.stats[_indices(key)]) or any(len(e[1]) for e in errors)
+            ):
+                write_facts(self.out_dir, results[key], errors, levels)
 
     def _fold_errors(
         self, lv: int, iy: np.ndarray, ix: np.ndarray, red: np.ndarray, k: int
@@ -536,6 +541,12 @@ class _Builder:
         c = chunk_nodes(self.tile_n)
         n = sum(len(p) for p in self.planned)
         return max(1, math.ceil(n * (c + 1) ** 2 * 4 / 1e6))
+
+
+def _indices(key: str) -> tuple[int, int, int]:
+    """(level, cy, cx) of a graph key "chunk-L-CY-CX"."""
+    _, lv, cy, cx = key.split("-")
+    return int(lv), int(cy), int(cx)
 
 
 def _has(st: _ChunkStats) -> bool:

@@ -37,6 +37,7 @@ import numpy as np
 
 from globeview.terrain.ingest.schedule import Graph
 from globeview.terrain.ingest.tasks import (
+    STRIDES,
     BuildPlan,
     ChunkResult,
     SourceSpec,
@@ -95,9 +96,18 @@ def write_facts(
 
 
 def _read_facts(
-    folder: Path, lv: int, cy: int, cx: int
-) -> tuple[ChunkResult, list[tuple[int, np.ndarray, np.ndarray, np.ndarray]], np.ndarray]:
-    with np.load(folder / facts_name(lv, cy, cx), allow_pickle=False) as z:
+    folder: Path, lv: int, cy: int, cx: int, plan: BuildPlan | None = None
+) -> tuple[ChunkResult, list[tuple[int, np.ndarray, np.ndarray, np.ndarray]], np.ndarray | None]:
+    """A chunk's facts; with ``plan``, a chunk without a facts file is one without data or
+    error maxima (none is written for those: a store over a large extent holds few), its
+    levels unknown (None)."""
+    path = folder / facts_name(lv, cy, cx)
+    if plan is not None and not path.exists():
+        _, _, kty, ktx = plan.window(lv, cy, cx)
+        nan = np.full((kty, ktx), np.nan)
+        empty = ChunkResult(lv, cy, cx, nan, nan.copy(), np.zeros((kty, ktx, len(STRIDES))), None)
+        return empty, [], None
+    with np.load(path, allow_pickle=False) as z:
         if int(z["version"]) != _FACTS_VERSION:
             raise ValueError("sidecar of another version")
         sha = str(z["sha256"])
@@ -173,7 +183,7 @@ def plan_update(
     """
     if not _same_layout(manifest, plan):
         return None
-    read = _old_facts(old, graph, input_order)
+    read = _old_facts(old, graph, input_order, plan)
     if read is None:
         return None
     facts, old_levels = read
@@ -209,17 +219,17 @@ def _same_layout(manifest: StoreManifest, plan: BuildPlan) -> bool:
 
 
 def _old_facts(
-    old: Path, graph: Graph, input_order: Sequence[int]
+    old: Path, graph: Graph, input_order: Sequence[int], plan: BuildPlan
 ) -> tuple[dict[str, tuple[ChunkResult, list]], np.ndarray] | None:
     """The facts of every chunk of the old store (small), and the levels its sources had;
-    None when a sidecar is missing or damaged, or the sources were not as many."""
+    None when a sidecar is damaged, none is readable, or the sources were not as many."""
     facts: dict[str, tuple[ChunkResult, list]] = {}
     old_levels: np.ndarray | None = None
     try:
         for key in graph.chunk_keys:
-            chunk, errors, levels = _read_facts(old, *_indices(key))
+            chunk, errors, levels = _read_facts(old, *_indices(key), plan)
             facts[key] = (chunk, errors)
-            old_levels = levels
+            old_levels = levels if levels is not None else old_levels
     except (OSError, ValueError, KeyError, zipfile.BadZipFile):
         return None
     if old_levels is None or len(old_levels) != len(input_order):
@@ -292,7 +302,8 @@ def _keep_clean(
                 if _sha256(old / name) != kept.sha256:
                     return None
                 _link(old / name, folder / name)
-            _link(old / facts_name(*at), folder / facts_name(*at))
+            if (old / facts_name(*at)).exists():
+                _link(old / facts_name(*at), folder / facts_name(*at))
             known[key] = kept
     except OSError:
         return None
