@@ -993,3 +993,52 @@ print("OK")
 """
     r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and r.stdout.strip().endswith("OK"), r.stderr[-2000:]
+
+
+def test_opening_by_url_reads_the_manifest_and_the_top_shard_only(
+    store_root: Path, served, tmp_path: Path
+) -> None:
+    """Store format 7: opening a store over HTTP asks for two small files (the manifest and
+    the top metadata shard); the first frame's level-0 tiles add one chunk file: at most 3
+    files before the first frame, whatever the store's size. Deeper shards come when a tile
+    under them is asked about, once (then from the disk cache, keyed by their sha256)."""
+    served.reset_log()
+    opts = _opts(tmp_path)
+    with TileStore.open(f"{served.url}/n44", remote_options=opts) as st:
+        opened = sorted({r.path for r in served.log})
+        assert opened[0] == "/n44/manifest.json" and len(opened) == 2, opened
+        assert opened[1].startswith("/n44/meta/top-") and st.shards_loaded == 1
+        for x in (0, 1):
+            st.heights(TileKey(0, x, 0))
+        assert len({r.path for r in served.log}) <= 3
+        g = st.level_grid(12)
+        # Level 12's facts: its shard (rooted at level 10) and the one naming it (at 6).
+        assert st.has_data(12, g.x0 + 20, g.y0 + 20)
+        shards = {r.path for r in served.log if "/meta/" in r.path}
+        assert len(shards) == 3 and st.shards_loaded == 3
+    served.reset_log()
+    remote.clear_memory()
+    with TileStore.open(f"{served.url}/n44", remote_options=opts) as again:
+        assert again.has_data(12, g.x0 + 20, g.y0 + 20)
+    assert not [r for r in served.log if "/meta/" in r.path]  # from the disk cache
+
+
+def test_a_shard_asked_for_on_a_thread_that_must_not_wait_loads_in_the_background(
+    store_root: Path, served, tmp_path: Path
+) -> None:
+    """A window's thread asking about tiles under a shard not fetched yet: TileNotReady at
+    once, the shard fetched in the background, then the answer."""
+    with TileStore.open(f"{served.url}/n44", remote_options=_opts(tmp_path, cache_mb=0)) as st:
+        g = st.level_grid(12)
+        st.forbid_network_on(threading.get_ident())
+        with pytest.raises(TileNotReady):
+            st.has_data(12, g.x0 + 20, g.y0 + 20)
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            try:
+                assert st.has_data(12, g.x0 + 20, g.y0 + 20)
+                break
+            except TileNotReady:
+                time.sleep(0.05)  # the parent shard first, then level 12's
+        else:
+            pytest.fail("the shard never arrived")

@@ -23,6 +23,7 @@ import numpy as np
 
 from globeview.errors import StoreError
 from globeview.terrain.levels import LevelGrid
+from globeview.terrain.store.backend import TileNotReady
 from globeview.terrain.store.layout import (
     ShardRef,
     chunk_code,
@@ -87,6 +88,9 @@ class StoreMetadata:
         self._empty: dict[int, ChunkFacts] = {}
         self.shards_loaded = 0
         self._tables: dict[tuple[int, int], dict[int, np.ndarray]] = {}
+        #: Runs a shard fetch in the background (`TileStore` sets it: a thread pool).
+        self.background: Callable[[Callable[[], None]], object] | None = None
+        self._pending: set[ShardRef] = set()
 
     # -- shards ---------------------------------------------------------------------------
 
@@ -120,7 +124,13 @@ class StoreMetadata:
             if where is None:
                 return self._empty
             name, sha, size = where
-            data = self._load(name, sha, size)
+            try:
+                data = self._load(name, sha, size)
+            except TileNotReady:
+                # A thread that must not wait (a window's): fetched in the background, so a
+                # later ask finds it cached; this one reads as "not loaded yet".
+                self._load_later(ref)
+                raise
             if hashlib.sha256(data).hexdigest() != sha:
                 raise StoreError(
                     f"{self._describe(name)}: damaged metadata shard (checksum mismatch); "
@@ -143,6 +153,22 @@ class StoreMetadata:
                     old = next(iter(self._shards))
                 del self._shards[old]
             return chunks
+
+    def _load_later(self, ref: ShardRef) -> None:
+        """Fetch shard ``ref`` on the background thread (once at a time)."""
+        if self.background is None or ref in self._pending:
+            return
+        self._pending.add(ref)
+
+        def run() -> None:
+            try:
+                self._chunks_of(ref)
+            except StoreError:
+                pass  # a damaged or missing shard: the next ask reports it (one line)
+            finally:
+                self._pending.discard(ref)
+
+        self.background(run)
 
     def _index(self, shard: Shard) -> dict[int, ChunkFacts]:
         k, ns1 = self.k, len(self.strides) + 1

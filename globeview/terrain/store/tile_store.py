@@ -29,11 +29,12 @@ tile, so a damaged store is one `StoreError` line, never a traceback.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import threading
 from collections import OrderedDict
-from collections.abc import Iterable, Iterator
-from concurrent.futures import Future
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -185,6 +186,8 @@ class TileStore:
         self.pole_heights = (manifest.pole_heights or PoleHeights()).as_dict()
         self.tile_size = (1 << self.tile_n) + 1
         self._meta = StoreMetadata(manifest, files.read_small, files.describe)
+        self._meta_pool: ThreadPoolExecutor | None = None
+        self._meta.background = self._fetch_shard
         self._meta.load_top()  # the top shard: levels 0..c0+1 and where the others are
         if files.check_on_open:  # a local store checks its level VRTs now (cheap)
             for level in range(self.max_level + 1):
@@ -289,6 +292,16 @@ class TileStore:
         ``facts.errors[j, i]`` etc. are tile (cx * k + i, cy * k + j) of the level, k =
         ``manifest.chunk_tiles``; NaN where a tile has no data."""
         return self._meta.iter_chunks()
+
+    def _fetch_shard(self, job: Callable[[], None]) -> None:
+        """Run a metadata shard's fetch on the store's shard thread (a remote store read on a
+        thread that must not wait)."""
+        if getattr(self, "_closed", False):
+            return
+        if self._meta_pool is None:
+            self._meta_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="shards")
+        with contextlib.suppress(RuntimeError):  # shut down: the store is closing
+            self._meta_pool.submit(job)
 
     @property
     def shards_loaded(self) -> int:
@@ -421,6 +434,8 @@ class TileStore:
         self._closed = True
         self._prefetch.closed = self._handles.closed = True  # nothing new from here on
         self._files.close()
+        if self._meta_pool is not None:
+            self._meta_pool.shutdown(wait=True, cancel_futures=True)
         self._prefetch.close()
         self._handles.close()
         with self._lock:
