@@ -76,6 +76,8 @@ JOBS: dict[str, Job] = {
         Job("tiles", ("benchmarks/bench_tiles.py",)),
         Job("check", ("-m", "globeview", "bench", "check", "--frames", "12")),
         Job("goto", ("benchmarks/bench_goto.py", "--rounds", "5"), needs_display=True),
+        # Issue #27: flights in wall time with the window's background loader.
+        Job("flight-async", ("benchmarks/bench_flight_async.py",)),
         Job("overlays", ("benchmarks/bench_overlays.py",)),
         Job("collapse", ("benchmarks/bench_collapse.py", "--frames", "9")),
         Job(

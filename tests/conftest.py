@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -22,3 +23,20 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     if probe.returncode != 0:
         reason = (probe.stderr.strip().splitlines() or ["unknown error"])[-1]
         pytest.exit(f"headless OpenGL is required by ./test: {reason}", returncode=1)
+
+
+# Marks by folder: every test under tests/ui needs a real window, every test under tests/bench
+# runs a benchmark (./test --fast leaves both out).
+_FOLDER_MARKS = {"ui": "gui", "bench": "bench"}
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    tests_dir = Path(__file__).resolve().parent
+    for item in items:
+        try:
+            folder = item.path.resolve().relative_to(tests_dir).parts[0]
+        except ValueError:
+            continue
+        mark = _FOLDER_MARKS.get(folder)
+        if mark is not None:
+            item.add_marker(mark)

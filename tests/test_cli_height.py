@@ -49,6 +49,7 @@ def _srtm_bilinear(lon: float, lat: float) -> float:
     return float(top * (1 - fr) + bot * fr)
 
 
+@pytest.mark.slow
 def test_done_when_ellipsoidal_is_srtm_plus_undulation(env: dict[str, str]) -> None:
     from globeview.terrain.dem.vdatum import egm96
 
@@ -77,6 +78,7 @@ def _undulation(lon: float, lat: float) -> float:
     return float(np.asarray(egm96().undulation(np.array([lon]), np.array([lat]))).reshape(-1)[0])
 
 
+@pytest.mark.slow
 def test_off_every_layer_there_is_no_elevation(env: dict[str, str]) -> None:
     r = _run(env, "height", "-71.3033,44.2705", "10,0", "data/N44W072.hgt")
     assert r.returncode == 0, r.stderr
@@ -96,6 +98,7 @@ def test_off_every_layer_there_is_no_elevation(env: dict[str, str]) -> None:
     assert off["geoid_undulation_m"] == pytest.approx(_undulation(10.0, 0.0), abs=1e-6)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("args", "words"),
     [
@@ -123,6 +126,7 @@ def test_bad_input_is_one_line(env: dict[str, str], args: list[str], words: str)
     assert r.stdout == ""
 
 
+@pytest.mark.slow
 def test_json_flag_may_stand_between_points_and_sources(env: dict[str, str]) -> None:
     # argparse alone refused this: "unrecognized arguments: data/N44W072.hgt"
     r = _run(env, "height", "-71.3033,44.2705", "--json", "10,0", "data/N44W072.hgt")
@@ -150,6 +154,7 @@ def _no_crs_tif(path: Path, height_m: float) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_crs_and_vdatum_as_render_has_them(env: dict[str, str], tmp_path: Path) -> None:
     dem = str(_no_crs_tif(tmp_path / "nocrs.tif", 500.0))
     r = _run(env, "height", "5.1,44.9", dem)
@@ -169,6 +174,7 @@ def test_crs_and_vdatum_as_render_has_them(env: dict[str, str], tmp_path: Path) 
     assert row["orthometric_m"] == pytest.approx(500.0 - n, abs=0.01)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("args", "words"),
     [

@@ -75,6 +75,7 @@ def tmpfs(folder: Path, options: str) -> Iterator[Path]:
 
 
 # -- the before-stop hook's contract ---------------------------------------------------------
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "args",
     [
@@ -123,6 +124,7 @@ HOSTILE_VIEWS = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("args", "needle"), HOSTILE_VIEWS)
 def test_hostile_view_arguments_are_one_line_with_the_range(
     tmp_path: Path, args: tuple[str, ...], needle: str
@@ -142,12 +144,14 @@ def test_huge_but_finite_heading_is_reduced_not_refused() -> None:
 
 
 # -- output paths (item 5) ---------------------------------------------------------------------
+@pytest.mark.slow
 def test_out_into_a_missing_folder(tmp_path: Path) -> None:
     res = globeview("render", "--out", str(tmp_path / "no" / "x.png"), cache=tmp_path / "c")
     line = one_error_line(res)
     assert "does not exist" in line and str(tmp_path / "no") in line
 
 
+@pytest.mark.slow
 def test_out_is_a_directory_leaves_no_temporary(tmp_path: Path) -> None:
     d = tmp_path / "d"
     d.mkdir()
@@ -157,6 +161,7 @@ def test_out_is_a_directory_leaves_no_temporary(tmp_path: Path) -> None:
     assert list(d.iterdir()) == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("out", "stats", "needle"),
     [
@@ -175,6 +180,7 @@ def test_bad_output_paths(tmp_path: Path, out: str, stats: str | None, needle: s
     assert not (tmp_path / "x.png").exists() and not leftovers(tmp_path)
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_full_disk_by_fault_keeps_the_old_png_and_writes_nothing(
     tmp_path: Path, filled_cache: Path
@@ -188,6 +194,7 @@ def test_full_disk_by_fault_keeps_the_old_png_and_writes_nothing(
     assert not stats.exists() and not leftovers(tmp_path)
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_png_and_stats_are_written_together(tmp_path: Path, filled_cache: Path) -> None:
     png, stats = tmp_path / "x.png", tmp_path / "s.json"
@@ -200,6 +207,7 @@ def test_png_and_stats_are_written_together(tmp_path: Path, filled_cache: Path) 
     assert not leftovers(tmp_path) and res.stderr == ""
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 @pytest.mark.skipif(not IS_ROOT, reason="a real full tmpfs needs root to mount (fault test runs)")
 def test_full_disk_real_mount(tmp_path: Path, filled_cache: Path) -> None:
@@ -213,6 +221,7 @@ def test_full_disk_real_mount(tmp_path: Path, filled_cache: Path) -> None:
         assert sorted(p.name for p in full.iterdir()) == ["filler"]
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not IS_ROOT, reason="a real read-only tmpfs needs root to mount")
 def test_read_only_mount_out_and_stats(tmp_path: Path) -> None:
     with tmpfs(tmp_path / "ro", "ro") as ro:
@@ -227,6 +236,7 @@ def test_read_only_mount_out_and_stats(tmp_path: Path) -> None:
         assert not good.exists()
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not IS_ROOT, reason="a real read-only tmpfs needs root to mount")
 def test_read_only_cache_mount_says_how_to_move_it(tmp_path: Path) -> None:
     with tmpfs(tmp_path / "rocache", "ro") as ro:
@@ -236,6 +246,7 @@ def test_read_only_cache_mount_says_how_to_move_it(tmp_path: Path) -> None:
         assert not (tmp_path / "x.png").exists()
 
 
+@pytest.mark.slow
 def test_cache_that_cannot_be_a_folder_says_how_to_move_it(tmp_path: Path) -> None:
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
@@ -245,6 +256,7 @@ def test_cache_that_cannot_be_a_folder_says_how_to_move_it(tmp_path: Path) -> No
 
 
 # -- argparse and argv (items 6, 11) -----------------------------------------------------------
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "args",
     [
@@ -260,6 +272,7 @@ def test_argparse_errors_are_one_line(tmp_path: Path, args: tuple[str, ...]) -> 
     assert one_error_line(res).startswith("globeview: error: ")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("args", "needle"),
     [
@@ -286,6 +299,7 @@ def test_help_still_prints_usage(tmp_path: Path) -> None:
     assert res.returncode == 0 and "--camera" in res.stdout
 
 
+@pytest.mark.slow
 def test_negative_camera_without_equals_is_a_value(tmp_path: Path) -> None:
     # Parsed as the value of --camera, so the latitude check (not argparse) answers.
     res = globeview("render", "--camera", "-71,95,9000", "--out", "x.png", cache=tmp_path / "c")
@@ -310,6 +324,7 @@ def test_join_negative_values_unit() -> None:
     assert route_bare_files(["render", "--out", "x.png"]) == ["render", "--out", "x.png"]
 
 
+@pytest.mark.slow
 def test_bare_file_opens_the_window(tmp_path: Path) -> None:
     dem = Path(__file__).resolve().parents[1] / "data" / "N44W072.hgt"
     env = {k: "" for k in ("DISPLAY", "WAYLAND_DISPLAY", "QT_QPA_PLATFORM")}
@@ -320,6 +335,7 @@ def test_bare_file_opens_the_window(tmp_path: Path) -> None:
 
 
 # -- GDAL chatter and the last line of defence (item 6) --------------------------------------
+@pytest.mark.slow
 def test_bad_crs_prints_no_gdal_chatter(tmp_path: Path) -> None:
     dem = Path(__file__).resolve().parents[1] / "data" / "N44W072.hgt"
     for cmd in (("info",), ("ingest", "--out", str(tmp_path / "s"))):
@@ -335,6 +351,7 @@ INTERNAL_BUG = (
 )
 
 
+@pytest.mark.slow
 def test_internal_error_is_one_line_with_the_traceback_in_the_log(tmp_path: Path) -> None:
     env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(tmp_path)}
     env.pop("GLOBEVIEW_DEBUG", None)

@@ -21,6 +21,7 @@ def _run(*args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.slow
 def test_info_etopo20() -> None:
     r = _run("info", str(EMBEDDED_DATA_DIR / "etopo20.tif"))
     assert r.returncode == 0, r.stderr
@@ -28,6 +29,7 @@ def test_info_etopo20() -> None:
     assert "reaches a pole" in r.stdout
 
 
+@pytest.mark.slow
 def test_info_json_embedded() -> None:
     r = _run("info", "--embedded", "--json")
     assert r.returncode == 0, r.stderr
@@ -38,6 +40,7 @@ def test_info_json_embedded() -> None:
     assert crater["fill_value"] == -32767
 
 
+@pytest.mark.slow
 def test_info_embedded_describes_the_embedded_dems() -> None:
     # (The bare `globeview` command opens the window; tests/ui covers it.)
     r = _run("info", "--embedded")
@@ -53,16 +56,19 @@ def _assert_one_line_error(r: subprocess.CompletedProcess[str], needle: str) -> 
     assert "Traceback" not in r.stderr
 
 
+@pytest.mark.slow
 def test_cli_missing_file(tmp_path: Path) -> None:
     _assert_one_line_error(_run("info", str(tmp_path / "missing.tif")), "not found")
 
 
+@pytest.mark.slow
 def test_cli_text_file(tmp_path: Path) -> None:
     p = tmp_path / "x.tif"
     p.write_text("hello")
     _assert_one_line_error(_run("info", str(p)), "cannot read")
 
 
+@pytest.mark.slow
 def test_cli_no_crs_then_crs_flag(tmp_path: Path) -> None:
     p = tmp_path / "nocrs.tif"
     with rasterio.open(
@@ -101,6 +107,7 @@ def _geo_tif(path: Path, arr: np.ndarray, **profile: object) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_cli_reports_masked_samples(tmp_path: Path) -> None:
     a = np.linspace(100, 2000, 400, dtype=np.float32).reshape(20, 20)
     a[5:10, 5:10] = np.inf
@@ -114,6 +121,7 @@ def test_cli_reports_masked_samples(tmp_path: Path) -> None:
     assert rows[0]["masked_samples"] == 26
 
 
+@pytest.mark.slow
 def test_cli_unknown_crs_is_one_line(tmp_path: Path) -> None:
     p = _geo_tif(tmp_path / "a.tif", np.ones((5, 5), np.float32))
     r = _run("info", "--crs", "EPSG:999999", str(p))
@@ -121,6 +129,7 @@ def test_cli_unknown_crs_is_one_line(tmp_path: Path) -> None:
     assert "ERROR 1" not in r.stderr  # PROJ's own chatter stays out
 
 
+@pytest.mark.slow
 def test_cli_directory_and_complex(tmp_path: Path) -> None:
     _assert_one_line_error(_run("info", str(tmp_path)), "is a directory, not a DEM file")
     c = _geo_tif(tmp_path / "c.tif", np.ones((5, 5), np.complex64))
@@ -129,6 +138,7 @@ def test_cli_directory_and_complex(tmp_path: Path) -> None:
     assert "ComplexWarning" not in r.stderr
 
 
+@pytest.mark.slow
 def test_cli_polar_stereographic_resolution_in_km(tmp_path: Path) -> None:
     # 1 km cells around the south pole: degrees of longitude per cell are meaningless there
     p = _geo_tif(
@@ -143,6 +153,7 @@ def test_cli_polar_stereographic_resolution_in_km(tmp_path: Path) -> None:
     assert line.split()[1:5] == ["1", "km", "x", "1"] and "deg" not in line and "e+" not in line
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("crs", ["EPSG:3413", "EPSG:3031"])
 def test_cli_polar_stereographic_json_resolution_in_degrees(tmp_path: Path, crs: str) -> None:
     # 300 x 300 cells of 1 km centred on the pole: res_deg said ~1e9 (a degree of longitude
@@ -168,6 +179,7 @@ def test_cli_polar_stereographic_json_resolution_in_degrees(tmp_path: Path, crs:
         assert deg == pytest.approx(m / m_per_deg, rel=2e-3), d["res_deg"]
 
 
+@pytest.mark.slow
 def test_cli_cf_netcdf_assumed_wgs84(tmp_path: Path) -> None:
     import rasterio.shutil
     from rasterio.io import MemoryFile
@@ -191,6 +203,7 @@ def test_cli_cf_netcdf_assumed_wgs84(tmp_path: Path) -> None:
     assert "CRS         EPSG:4326 (assumed from CF lat/lon axes)" in r.stdout
 
 
+@pytest.mark.slow
 def test_cli_paths_that_are_not_dems_are_one_line_each(tmp_path: Path) -> None:
     import os
 

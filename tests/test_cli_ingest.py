@@ -31,6 +31,7 @@ def test_ingest_then_up_to_date(tmp_path: Path, capsys: pytest.CaptureFixture[st
     assert "store is up to date" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_bad_input_is_one_line_nonzero(tmp_path: Path) -> None:
     bad = tmp_path / "fake.tif"
     bad.write_text("not a raster")
@@ -67,6 +68,7 @@ def _cli(*argv: str) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.slow
 def test_directory_and_missing_source_wording(tmp_path: Path) -> None:
     # A folder is a folder of DEM tiles (issue #18); one with none in it is one line.
     out = tmp_path / "s"
@@ -82,6 +84,7 @@ def test_directory_and_missing_source_wording(tmp_path: Path) -> None:
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_out_that_is_a_file_or_a_link(tmp_path: Path) -> None:
     src = str(DATA / "topobathy_vancouver.tif")
     f = tmp_path / "report.pdf"
@@ -96,12 +99,14 @@ def test_out_that_is_a_file_or_a_link(tmp_path: Path) -> None:
     assert list((tmp_path / "real").iterdir()) == []
 
 
+@pytest.mark.slow
 def test_not_a_tty_means_no_progress_lines(tmp_path: Path) -> None:
     r = _cli(str(DATA / "topobathy_vancouver.tif"), "--out", str(tmp_path / "s"))
     assert r.returncode == 0 and r.stderr == ""
     assert r.stdout.count("\n") == 1 and "levels 0.." in r.stdout
 
 
+@pytest.mark.slow
 def test_odd_sources_and_out_parents_are_one_line(tmp_path: Path) -> None:
     src = str(DATA / "topobathy_vancouver.tif")
     r = _cli("/dev/zero", "--out", str(tmp_path / "s"))
@@ -115,6 +120,7 @@ def test_odd_sources_and_out_parents_are_one_line(tmp_path: Path) -> None:
     assert r.stderr.splitlines() == [f"globeview: error: {f} is not a folder; choose another --out"]
 
 
+@pytest.mark.slow
 def test_max_level_past_the_natural_level(tmp_path: Path) -> None:
     # Was an internal error (argmax of an empty sequence): the levels between had no extent.
     from globeview.terrain.store.tile_store import TileStore
@@ -130,6 +136,7 @@ def test_max_level_past_the_natural_level(tmp_path: Path) -> None:
     assert "--max-level 22 would have" in r.stderr and "the limit is" in r.stderr
 
 
+@pytest.mark.slow
 def test_ingest_says_how_many_samples_were_read_as_nodata(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -19,6 +19,7 @@ CAMERA = (-122.3, 46.2, 4.0e5, 0.0, -70.0)
 POINTS = [(-122.9, 45.6), (-121.7, 46.8)]
 
 
+@pytest.mark.slow
 def test_cli_tool_overlay_is_the_frames_own(
     tmp_path, monkeypatch, globeview_gl, globeview_terrain, globeview_registry
 ) -> None:

@@ -156,6 +156,7 @@ def projected(lon: float, lat: float) -> tuple[float, float]:
     return float(x), float(y)
 
 
+@pytest.mark.slow
 def test_installed_tool_gets_clicks_at_the_points_and_draws(site: PluginSite, tmp_path: Path):
     """An installed tool with no headless code: the host clicks each point at its pixel, with
     lonlat and picked set, and the tool's markers land there in the colour --set chose."""
@@ -183,6 +184,7 @@ def test_installed_tool_gets_clicks_at_the_points_and_draws(site: PluginSite, tm
     assert px[2] > 200 and px[0] < 80 and px[1] < 80, px
 
 
+@pytest.mark.slow
 def test_collapse_is_a_spelling_of_tool_points_set(site: PluginSite, tmp_path: Path) -> None:
     proc, a = render(site, tmp_path, "a", "--collapse=-10,0,10,0,0.3", "--stats",
                      str(tmp_path / "a.json"))  # fmt: skip
@@ -200,6 +202,7 @@ def test_collapse_is_a_spelling_of_tool_points_set(site: PluginSite, tmp_path: P
     assert stats["settings"] == {"collapse.ratio": 0.3}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("args", "message"),
     [
@@ -227,6 +230,7 @@ def test_bad_tool_and_setting_arguments_are_one_line(
     assert not out.exists() and proc.stdout == ""
 
 
+@pytest.mark.slow
 def test_set_for_one_render_is_not_stored(site: PluginSite, tmp_path: Path) -> None:
     proc, _ = render(site, tmp_path, "once", "--set", "gvt-pins.colour=blue")
     assert proc.returncode == 0, proc.stderr
@@ -234,6 +238,7 @@ def test_set_for_one_render_is_not_stored(site: PluginSite, tmp_path: Path) -> N
     assert not settings.exists() or "blue" not in settings.read_text()
 
 
+@pytest.mark.slow
 def test_provider_stats_reach_stats_json_namespaced_and_clipped(
     site: PluginSite, tmp_path: Path
 ) -> None:
@@ -253,6 +258,7 @@ def test_provider_stats_reach_stats_json_namespaced_and_clipped(
     assert "my_counter" not in stats  # namespaced: a plugin never overwrites a host figure
 
 
+@pytest.mark.slow
 def test_default_provider_stats_and_level_histogram(site: PluginSite, tmp_path: Path) -> None:
     stats_path = tmp_path / "s.json"
     proc, _ = render(site, tmp_path, "default", "--stats", str(stats_path))
@@ -263,6 +269,7 @@ def test_default_provider_stats_and_level_histogram(site: PluginSite, tmp_path: 
     assert sum(stats["levels"].values()) == stats["tiles_drawn"] > 0
 
 
+@pytest.mark.slow
 def test_a_failed_provider_is_named_in_the_wrote_line(site: PluginSite, tmp_path: Path) -> None:
     stats_path = tmp_path / "s.json"
     proc, out = render(site, tmp_path, "boom", "--lod", "gvt-boom", "--stats", str(stats_path))
@@ -280,6 +287,7 @@ def test_a_failed_provider_is_named_in_the_wrote_line(site: PluginSite, tmp_path
     assert len(lines(proc.stderr)) == 1 and "gvt-boom" in proc.stderr  # the plugin warning
 
 
+@pytest.mark.slow
 def test_strict_exits_3_and_writes_nothing_when_a_plugin_fails(
     site: PluginSite, tmp_path: Path
 ) -> None:
@@ -298,6 +306,7 @@ def test_strict_exits_3_and_writes_nothing_when_a_plugin_fails(
     assert proc.returncode == 0 and out.exists(), proc.stderr
 
 
+@pytest.mark.slow
 def test_a_failed_tool_is_named_and_strict_refuses(site: PluginSite, tmp_path: Path) -> None:
     proc, out = render(site, tmp_path, "badtool", "--tool", "gvt-badtool", "--point", "1,2")
     assert proc.returncode == 0 and out.exists(), proc.stderr
@@ -314,6 +323,7 @@ def test_a_failed_tool_is_named_and_strict_refuses(site: PluginSite, tmp_path: P
     )
 
 
+@pytest.mark.slow
 def test_no_provider_left_says_nothing_was_drawn(site: PluginSite, tmp_path: Path) -> None:
     """The requested provider fails and the fallback is disabled: the frame is empty, and
     the line must not claim chunked-sse drew it."""
@@ -355,6 +365,7 @@ def plot_site(site: PluginSite) -> PluginSite:
     return site
 
 
+@pytest.mark.slow
 def test_tool_csv_writes_the_tools_plot_with_the_png(plot_site: PluginSite, tmp_path: Path):
     csv, stats = tmp_path / "p.csv", tmp_path / "p.json"
     proc, out = render(
@@ -369,6 +380,7 @@ def test_tool_csv_writes_the_tools_plot_with_the_png(plot_site: PluginSite, tmp_
     assert json.loads(stats.read_text())["tool"]["status"] == "profile: 2 points"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("args", "message"),
     [
@@ -387,6 +399,7 @@ def test_tool_csv_without_a_plot_writes_nothing(
     assert not out.exists() and not csv.exists()
 
 
+@pytest.mark.slow
 def test_point_longitudes_are_reduced_like_the_cameras(site: PluginSite, tmp_path: Path):
     proc, _ = render(site, tmp_path, "wrap", "--tool", "gvt-pins", "--points", "370,20;-1e308,5")
     assert proc.returncode == 0, proc.stderr
@@ -395,6 +408,7 @@ def test_point_longitudes_are_reduced_like_the_cameras(site: PluginSite, tmp_pat
     assert lons[0] == pytest.approx(10.0) and -180.0 <= lons[1] <= 180.0
 
 
+@pytest.mark.slow
 def test_set_of_a_contribution_not_used_warns(site: PluginSite, tmp_path: Path) -> None:
     proc, out = render(site, tmp_path, "unused", "--set", "gvt-pins.colour=blue")
     assert proc.returncode == 0 and out.exists(), proc.stderr

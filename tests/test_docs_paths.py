@@ -20,6 +20,7 @@ DOCS = [
     "docs/papers.md",
     "docs/collapse.md",
     "docs/benchmarks.md",
+    "docs/python_api.md",
     "README.md",
 ]
 

@@ -13,7 +13,7 @@ reaches the caller.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -52,7 +52,11 @@ def place_points(
         if session.displacing:  # the tool moves the terrain (compiled or not yet)
             drawn = session.tool_host.displace(drawn)
         x, y, _ = (float(v) for v in view.project(drawn)[0])
-        for kind, held in (("press", frozenset({"left"})), ("release", frozenset())):
+        clicks: tuple[tuple[Literal["press", "release"], frozenset[str]], ...] = (
+            ("press", frozenset({"left"})),
+            ("release", frozenset()),
+        )
+        for kind, held in clicks:
             event = PointerEvent(
                 x,
                 y,

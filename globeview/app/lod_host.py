@@ -135,7 +135,11 @@ class LodHost:
         return RenderSet.empty()
 
     def _select_default(
-        self, tried: object, view: ViewState, terrain: TerrainStack, check
+        self,
+        tried: object,
+        view: ViewState,
+        terrain: TerrainStack,
+        check: Callable[[RenderSet], None],
     ) -> RenderSet:
         """The `DEFAULT_LOD` provider's render set for one frame (``tried``, the provider that
         could not select, is not asked again), else an empty set."""

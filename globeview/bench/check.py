@@ -10,6 +10,7 @@ Targets (from the issue):
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -43,7 +44,7 @@ def run_check(
     lod: str = "chunked-sse",
     quick: bool = False,
     csv: str | Path | None = None,
-    log=print,
+    log: Callable[[str], object] = print,
 ) -> list[Verdict]:
     """Fly the standard flight and return one verdict per target. ``quick``: the embedded
     canyon run, 160x90, 3 frames (a smoke run; its figures are not the targets' setting)."""

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -175,7 +176,7 @@ def run_experiments(
     frames: int = 3,
     view_name: str = "view",
     providers: list[str] | None = None,
-    log=print,
+    log: Callable[[str], object] = print,
 ) -> dict:
     """Run the three experiments on one view; write CSV, PNG and Markdown into ``out``."""
     out.mkdir(parents=True, exist_ok=True)
@@ -249,7 +250,16 @@ def run_experiments(
     return {"points": points, "reference": ref, "table1": table1, "files": [*pngs]}
 
 
-def report(bench, pose, view_name, ref, points, table1, lod_tau, seconds) -> str:
+def report(
+    bench: Bench,
+    pose: Pose,
+    view_name: str,
+    ref: dict,
+    points: list[Point],
+    table1: list[dict],
+    lod_tau: float,
+    seconds: float,
+) -> str:
     """The Markdown report of a run."""
     lines = [
         "# globeview bench experiments",

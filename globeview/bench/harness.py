@@ -18,11 +18,19 @@ import sys
 import time
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from globeview.bench.flight import Flight, Pose
 from globeview.errors import GlobeviewError
+
+if TYPE_CHECKING:
+    import moderngl
+
+    from globeview.render.frame_pipeline import FrameResult
+    from globeview.terrain.compose.stack import TerrainStack
+    from globeview.terrain.store.tile_store import TileStore
 
 ROOT = Path(__file__).resolve().parents[2]
 BIG_DEM_SIZE = 8192
@@ -42,7 +50,7 @@ def rss_mb() -> float:
         return float("nan")
 
 
-def big_dem_store(size: int = BIG_DEM_SIZE, progress: bool = True):
+def big_dem_store(size: int = BIG_DEM_SIZE, progress: bool = True) -> TileStore:
     """The tile store of the synthetic-detail benchmark DEM (benchmarks/make_big_dem.py),
     generating and ingesting it under benchmarks/cache/ the first time."""
     from globeview.terrain.store.identify import identify
@@ -71,7 +79,7 @@ def big_dem_store(size: int = BIG_DEM_SIZE, progress: bool = True):
     return TileStore.open(store)
 
 
-def load_terrain(kind: str = "embedded", big_size: int = BIG_DEM_SIZE):
+def load_terrain(kind: str = "embedded", big_size: int = BIG_DEM_SIZE) -> TerrainStack:
     """The TerrainStack of a flight: the embedded DEMs, plus the big DEM for ``big-dem``."""
     from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
@@ -89,7 +97,13 @@ class Bench:
     user's saved plugin settings are neither read nor written.
     """
 
-    def __init__(self, terrain, size: tuple[int, int], lod: str = "chunked-sse", ctx=None) -> None:
+    def __init__(
+        self,
+        terrain: TerrainStack,
+        size: tuple[int, int],
+        lod: str = "chunked-sse",
+        ctx: moderngl.Context | None = None,
+    ) -> None:
         from globeview.app.session import GlobeSession
         from globeview.plugins.registry import PluginRegistry
         from globeview.plugins.settings import MemorySettings
@@ -111,7 +125,7 @@ class Bench:
     def providers(self) -> list[str]:
         return sorted(self.session.lod_providers())
 
-    def use(self, lod: str, tau: float, **settings) -> None:
+    def use(self, lod: str, tau: float, **settings: object) -> None:
         """Make ``lod`` active with threshold ``tau`` and the given settings (others default)."""
         s = self.session
         s.set_lod(lod)
@@ -131,7 +145,7 @@ class Bench:
         if cut:
             self.session.pipeline.motion.reset()
 
-    def frame(self, now_s: float | None = None):
+    def frame(self, now_s: float | None = None) -> tuple[FrameResult, float]:
         """Render one frame at time ``now_s`` (seconds; default the monotonic clock);
         returns (FrameResult, wall milliseconds around render())."""
         t0 = time.perf_counter()
@@ -265,32 +279,38 @@ def _fly(bench: Bench, flight: Flight, times: np.ndarray, out: list) -> list[Fra
         pose = flight.pose(float(t))
         bench.set_pose(pose)
         r, wall = bench.frame(float(t))
-        st = r.stats
-        out.append(
-            FrameRecord(
-                frame=i,
-                t=round(float(t), 4),
-                lon=pose.lon,
-                lat=pose.lat,
-                height=pose.height,
-                heading=pose.heading,
-                pitch=pose.pitch,
-                speed_mps=r.view.speed_mps,
-                frame_ms=wall,
-                lod_ms=st.lod_ms,
-                draw_ms=st.draw_ms,
-                triangles=st.triangles,
-                tiles_drawn=st.tiles_drawn,
-                tiles_culled_frustum=st.tiles_culled_frustum,
-                tiles_culled_horizon=st.tiles_culled_horizon,
-                tiles_loading=st.tiles_loading,
-                tiles_uploaded=st.tiles_uploaded,
-                max_sse_px=st.max_sse_px,
-                resident_tiles=bench.session.renderer.pool.resident_count,
-                rss_mb=rss_mb(),
-            )
-        )
+        out.append(FrameRecord(**frame_fields(bench, i, float(t), pose, r, wall)))
     return out
+
+
+def frame_fields(
+    bench: Bench, i: int, t: float, pose: Pose, result: FrameResult, frame_ms: float
+) -> dict[str, Any]:
+    """`FrameRecord`'s fields for frame ``i`` at ``t`` seconds of a flight (``pose``: where the
+    camera was; ``frame_ms``: the frame's wall time), for it and the records that extend it."""
+    st = result.stats
+    return dict(
+        frame=i,
+        t=round(t, 4),
+        lon=pose.lon,
+        lat=pose.lat,
+        height=pose.height,
+        heading=pose.heading,
+        pitch=pose.pitch,
+        speed_mps=result.view.speed_mps,
+        frame_ms=frame_ms,
+        lod_ms=st.lod_ms,
+        draw_ms=st.draw_ms,
+        triangles=st.triangles,
+        tiles_drawn=st.tiles_drawn,
+        tiles_culled_frustum=st.tiles_culled_frustum,
+        tiles_culled_horizon=st.tiles_culled_horizon,
+        tiles_loading=st.tiles_loading,
+        tiles_uploaded=st.tiles_uploaded,
+        max_sse_px=st.max_sse_px,
+        resident_tiles=bench.session.renderer.pool.resident_count,
+        rss_mb=rss_mb(),
+    )
 
 
 def write_csv(rows: list, path: str | Path, columns: list[str] | None = None) -> Path:

@@ -7,11 +7,16 @@ first pass over every flight, which fills the tile pool and the allocator's aren
 from __future__ import annotations
 
 import gc
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from globeview.bench.flight import Flight, shipped_flights_dir
 from globeview.bench.harness import Bench, fly, load_terrain, machine, rss_mb
+
+if TYPE_CHECKING:
+    import moderngl
 
 SOAK_FLIGHTS = ("global_approach.json", "canyon_run.json", "fast_pan.json", "regional_oblique.json")
 
@@ -26,7 +31,7 @@ def run_soak(
     lod: str = "chunked-sse",
     tau: float = 2.0,
     per_flight: int = 10,
-    log=print,
+    log: Callable[[str], object] = print,
 ) -> dict:
     """Render ``frames`` frames cycling through the embedded flights (``per_flight`` frames
     each); sample RSS and GL object counts after every flight. Returns the samples and the
@@ -81,7 +86,7 @@ def open_close_cycle(
     store_paths: list,
     size: tuple[int, int] = (160, 90),
     lod: str = "chunked-sse",
-    ctx=None,
+    ctx: moderngl.Context | None = None,
 ) -> dict:
     """One cycle as an application opening and closing a globe would: open the tile stores,
     stack them, make a headless context, a session, render one frame, then release everything
@@ -105,7 +110,7 @@ def open_close_cycle(
 
     stores = [open_source(p) for p in store_paths]
     own_ctx = ctx is None
-    ctx = create_headless_context() if own_ctx else ctx
+    ctx = create_headless_context() if ctx is None else ctx
     try:
         terrain = TerrainStack.from_stores(stores)
         target = OffscreenTarget(ctx, size)
@@ -175,7 +180,7 @@ def run_open_close(
     lod: str = "chunked-sse",
     warmup: int = 20,
     every: int = 10,
-    log=print,
+    log: Callable[[str], object] = print,
 ) -> dict:
     """``cycles`` open-render-close cycles on the embedded stores; samples RSS every
     ``every`` cycles. The drift is RSS at the last cycle minus RSS after ``warmup`` cycles

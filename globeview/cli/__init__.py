@@ -29,6 +29,7 @@ import os
 import sys
 from collections import deque
 from pathlib import Path
+from typing import NoReturn
 
 from globeview import __version__
 from globeview.errors import GlobeviewError
@@ -68,7 +69,7 @@ class OneLineParser(argparse.ArgumentParser):
     """argparse whose errors are one line (``globeview: error: ...``, exit 2) instead of the
     usage block plus the message; ``--help`` still prints the full usage."""
 
-    def error(self, message: str):  # type: ignore[override]
+    def error(self, message: str) -> NoReturn:
         hint = f"; see `{self.prog} --help`"
         print(f"globeview: error: {message}{hint}", file=sys.stderr)
         sys.exit(2)

@@ -30,6 +30,20 @@ def positive_float(text: str) -> float:
     return value
 
 
+def rate(text: str) -> float:
+    """argparse type: a frame rate in Hz, a finite number in [0, 1000] (0: unpaced, which
+    only an asynchronous flight accepts)."""
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, not {text!r}") from None
+    if not (math.isfinite(value) and 0.0 <= value <= 1000.0):
+        raise argparse.ArgumentTypeError(f"must be a finite number in [0, 1000], not {text}")
+    return value
+
+
 def tau(text: str) -> float:
     """argparse type: a screen-space error threshold, checked like the view checks it."""
     from globeview.validate import check_tau
@@ -69,8 +83,37 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--frames", type=positive_int, help="frames evenly spaced over the path (default 30)"
     )
-    g.add_argument("--fps", type=positive_float, help="sample the path at this rate instead")
+    g.add_argument(
+        "--fps",
+        type=rate,
+        help="sample the path at this rate instead; with --async: pace frames at this rate "
+        "in wall time (default 60; 0: unpaced)",
+    )
     p.add_argument("--csv", help="write one row per frame to this CSV file")
+    p.add_argument(
+        "--async",
+        dest="asynchronous",
+        action="store_true",
+        help="fly in wall time as the window does: tiles load in the background while "
+        "coarser ones stand in; report frame time percentiles, stand-ins and the detail lag",
+    )
+    p.add_argument(
+        "--timeout",
+        type=positive_float,
+        default=10.0,
+        help="--async: seconds after the path's end to wait for a complete view (default 10)",
+    )
+    p.add_argument(
+        "--loader",
+        choices=("thread", "process"),
+        help="--async: build tiles on loader threads or in worker processes (default: "
+        "threads on up to 2 cores, else processes)",
+    )
+    p.add_argument(
+        "--workers",
+        type=positive_int,
+        help="--async: loader threads or processes (default: 1 thread, or cores - 2 processes)",
+    )
 
     p = sub.add_parser("experiments", help="the papers' experiments: CSV, PNG plots, report.md")
     p.add_argument("--out", default="benchmarks/out/experiments", help="output folder")
@@ -112,6 +155,16 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _flight(args: argparse.Namespace) -> int:
+    from globeview.errors import GlobeviewError
+
+    if args.asynchronous:
+        if args.frames is not None:
+            raise GlobeviewError("--frames samples a synchronous flight; --async runs in wall time")
+        return _flight_async(args)
+    if args.fps == 0:
+        raise GlobeviewError("--fps 0 (unpaced) is for --async flights only")
+    if args.loader is not None or args.workers is not None:
+        raise GlobeviewError("--loader and --workers are for --async flights only")
     from globeview.bench.flight import Flight, resolve_flight
     from globeview.bench.harness import (
         Bench,
@@ -148,6 +201,58 @@ def _flight(args: argparse.Namespace) -> int:
         f"triangles median {s['triangles_median']:.0f}; tiles median {s['tiles_median']:.0f}; "
         f"max SSE {s['max_sse_px']:.2f} px; RSS {s['rss_mb_last']:.0f} MB"
     )
+    return 0
+
+
+def _flight_async(args: argparse.Namespace) -> int:
+    """`bench flight --async`: the flight in wall time with background loading
+    (`globeview.bench.flight_async`)."""
+    from globeview.bench.flight import Flight, resolve_flight
+    from globeview.bench.flight_async import (
+        ASYNC_CSV_COLUMNS,
+        DEFAULT_FPS,
+        MARKDOWN_HEADER,
+        async_summary,
+        fly_async,
+        lag_text,
+        markdown_row,
+        set_loader,
+    )
+    from globeview.bench.harness import Bench, load_terrain, machine, parse_size, write_csv
+
+    flight = Flight.load(resolve_flight(args.path))
+    size = parse_size(args.size)
+    fps = DEFAULT_FPS if args.fps is None else args.fps
+    bench = Bench(load_terrain(flight.terrain), size, lod=args.lod)
+    try:
+        bench.use(args.lod, args.tau)
+        set_loader(bench.session.renderer, args.loader, args.workers)
+        print(f"machine: {machine(bench.gl_renderer)}")
+        paced = f"paced at {fps:g} Hz" if fps > 0 else "unpaced"
+        print(
+            f"flight {flight.name!r} in wall time ({flight.duration:g} s, {paced}), "
+            f"{size[0]}x{size[1]}, {args.lod}, tau {args.tau:g} px, terrain {flight.terrain}, "
+            "tiles loaded in the background"
+        )
+        run = fly_async(bench, flight, fps=fps, timeout_s=args.timeout)
+    finally:
+        bench.release()
+    if args.csv:
+        print(f"wrote {write_csv(run.rows, args.csv, ASYNC_CSV_COLUMNS)}")
+    s = async_summary(run)
+    print(
+        f"frame_ms p50 {s['frame_ms_p50']:.1f} p95 {s['frame_ms_p95']:.1f} "
+        f"p99 {s['frame_ms_p99']:.1f} over {s['frames']} moving frames "
+        f"({s['missed']} missed); frames with stand-ins {s['standin_share']:.0%}, "
+        f"tiles missing {s['missing_share']:.1%} of those asked; "
+        f"detail lag {lag_text(run.detail_lag_s, args.timeout)} ({s['settle_frames']} frames); "
+        f"{s['tiles_built']} tiles built, loader {run.loader} "
+        f"{s['loader_cpu_ms_per_tile']:.2f} ms CPU a tile; "
+        f"render thread {s['cpu_ms_per_frame']:.1f} ms CPU a frame"
+    )
+    print()
+    print(MARKDOWN_HEADER)
+    print(markdown_row(flight.name, size, run, args.timeout))
     return 0
 
 

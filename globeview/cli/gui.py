@@ -6,8 +6,12 @@ cli/view_options.py)."""
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 from globeview.cli.view_options import add_view_options, check_plugin_options, parse_camera
+
+if TYPE_CHECKING:
+    from globeview.ui.start import WindowStart
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -23,7 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_view_options(parser, window=True)
 
 
-def check_start(args: argparse.Namespace):
+def check_start(args: argparse.Namespace) -> WindowStart:
     """The `WindowStart` of the command line, every value checked before the window exists
     (one `GlobeviewError` line, exit 2): the camera as `render` checks it, the LOD provider,
     tool and settings against the installed plugins (discovered with the settings file the

@@ -9,6 +9,8 @@ from __future__ import annotations
 import argparse
 import re
 import sys
+from collections.abc import Callable
+from typing import Any
 
 from globeview.cli.dem_options import add_dem_options
 
@@ -120,7 +122,7 @@ def parse_scheduler(text: str | None) -> str | None:
     return str(text).strip()
 
 
-def parallel_kwargs(args: argparse.Namespace, ingest_fn) -> dict:
+def parallel_kwargs(args: argparse.Namespace, ingest_fn: Callable[..., object]) -> dict[str, Any]:
     """The ingest's ``workers``/``scheduler`` keywords from the checked options."""
     import inspect
 

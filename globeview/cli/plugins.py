@@ -20,6 +20,11 @@ from __future__ import annotations
 import argparse
 import contextlib
 from collections.abc import Iterator
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from globeview.plugins.manifest import Manifest
+    from globeview.plugins.registry import PluginRegistry
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -87,7 +92,7 @@ def _quiet_plugin_log() -> Iterator[None]:
         logger.propagate = saved
 
 
-def _registry():
+def _registry() -> PluginRegistry:
     from globeview.plugins.registry import PluginRegistry
 
     return PluginRegistry().discover()
@@ -173,7 +178,7 @@ def _validate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _import_contributions(reg, manifest) -> tuple[list[str], list[str]]:
+def _import_contributions(reg: PluginRegistry, manifest: Manifest) -> tuple[list[str], list[str]]:
     """Import and create every contribution of ``manifest`` and check its settings'
     defaults; returns (problems, one "NAME (kind: Class, N settings)" per contribution)."""
     from globeview.plugins.settings import contribution_settings, settings_problems
@@ -215,7 +220,7 @@ def _set_enabled(args: argparse.Namespace) -> int:
     return 0
 
 
-def _show(value) -> str:
+def _show(value: object) -> str:
     """A setting value as typed on the command line: true/false, 0.3, fast."""
     import json
 
@@ -224,7 +229,7 @@ def _show(value) -> str:
     return json.dumps(value)
 
 
-def _split_setting(reg, text: str) -> tuple[str, str | None]:
+def _split_setting(reg: PluginRegistry, text: str) -> tuple[str, str | None]:
     """``NAME`` or ``NAME.KEY`` -> (NAME, KEY or None); a whole text that names a
     contribution is a NAME even with dots in it."""
     declared = {c.name for rec in reg if rec.manifest for c in rec.manifest.contributions}

@@ -9,7 +9,10 @@ model and the plugin registry when they run (no GL, no Qt).
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+T = TypeVar("T")
 
 
 def add_view_options(parser: argparse.ArgumentParser, *, window: bool = False) -> None:
@@ -64,7 +67,7 @@ def parse_floats(text: str, name: str, lengths: tuple[int, ...]) -> list[float]:
     return vals
 
 
-def checked(option: str, check, *values):
+def checked(option: str, check: Callable[..., T], *values: Any) -> T:
     """``check(*values)``, its ValueError turned into a one-line error naming ``option``
     (the model's checks say what is wrong and the valid range; the CLI adds the option)."""
     from globeview.errors import GlobeviewError

@@ -1,6 +1,7 @@
 """What a traversal hands its policy and gets back: one level's candidate tiles
-(`TileCandidates`) and the tiles drawn (`Selection`), with the deepest level a walk visits
-(`MAX_LEVEL`).
+(`TileCandidates`; with a `LodPolicy.per_tile` policy on the flat walk, the rows of several
+levels at once), the tiles drawn (`Selection`), the tree a flat walk visited (`TreeRows`),
+and the deepest level a walk visits (`MAX_LEVEL`).
 
 They sit below both `globeview.lod.policy` (the interface a provider implements, which
 reads them) and `globeview.lod.traversal` (the walk, which builds them and calls the
@@ -9,9 +10,10 @@ policy), so neither of those imports the other's module for its types.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -22,13 +24,12 @@ from globeview.lod.tile_cache import (
     COL_NORTH,
     COL_SOUTH,
     COL_WEST,
-    LevelTiles,
 )
 from globeview.lod.view_state import ViewState
 from globeview.terrain.compose.metadata import N_STRIDES
 from globeview.terrain.compose.stack import TerrainStack
 
-__all__ = ["MAX_LEVEL", "Selection", "TileCandidates", "bend_fractions"]
+__all__ = ["MAX_LEVEL", "Selection", "TileCandidates", "TileFacts", "TreeRows", "bend_fractions"]
 
 #: Deepest level the walk goes to even where the data stops (curvature alone).
 MAX_LEVEL = 22
@@ -40,9 +41,25 @@ def bend_fractions(size: int) -> np.ndarray:
     return np.minimum(1.0, 2.0 ** np.arange(N_STRIDES) * (LATTICE - 1) / (size - 1))
 
 
+class TileFacts(Protocol):
+    """The per-tile facts a `TileCandidates` reads by slot: a level's table of the tile cache
+    (`tile_cache.LevelTiles`) or the flat walk's candidate rows (`flat_walk`)."""
+
+    xy: np.ndarray
+    herr: np.ndarray
+    finer: np.ndarray
+    pts: np.ndarray
+    past: np.ndarray
+    pole: np.ndarray
+
+
 @dataclass
 class TileCandidates:
     """One level's tiles that passed the frustum and horizon tests, as a policy sees them.
+
+    For a `LodPolicy.per_tile` policy on the flat walk (`globeview.lod.flat_walk`) the rows
+    are tiles of several levels at once, some of them not visible (their answers are not
+    used): ``level`` is then an (N,) int64 array and ``flat`` is True.
 
     Arrays are per tile (N,) unless noted; they are the traversal's own (do not write them).
 
@@ -64,12 +81,14 @@ class TileCandidates:
     ``x``, ``y``, ``keys`` (N, 3), ``west``, ``south``, ``east``, ``north`` (degrees),
     ``height_err_m`` (N, N_STRIDES, the store's, not exaggerated), ``has_finer``, ``margin``
     (m), ``bend_m``, ``bend_m_strides``, ``points`` (N, K, 3) the bounding lattice as drawn
-    (displaced when displaced), ``points_true`` (never displaced).
+    (displaced when displaced), ``points_true`` (never displaced), ``levels_past_data`` (how
+    many levels each tile lies below the finest data under it: 0 within the data),
+    ``pole`` (`stitching.pole_codes`).
     """
 
     view: ViewState
     terrain: TerrainStack
-    level: int
+    level: int | np.ndarray
     size: int
     _slots: np.ndarray = field(repr=False)
     _cols: np.ndarray = field(repr=False)
@@ -78,12 +97,17 @@ class TileCandidates:
     err_m: np.ndarray
     _bend: np.ndarray | None = field(repr=False)
     _bend_strides: np.ndarray | None = field(repr=False)
-    _lv: LevelTiles = field(repr=False)
+    _lv: TileFacts = field(repr=False)
     _dpts: np.ndarray | None = field(default=None, repr=False)
     scratch: dict[str, Any] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self._slots)
+
+    @property
+    def flat(self) -> bool:
+        """Whether the rows span several levels (``level`` an array: the flat walk)."""
+        return isinstance(self.level, np.ndarray)
 
     @cached_property
     def bend_m(self) -> np.ndarray:
@@ -147,19 +171,97 @@ class TileCandidates:
     def points_true(self) -> np.ndarray:
         return self._lv.pts.take(self._slots, axis=0)
 
+    @cached_property
+    def levels_past_data(self) -> np.ndarray:
+        return self._lv.past.take(self._slots)
+
+    @cached_property
+    def pole(self) -> np.ndarray:
+        return self._lv.pole.take(self._slots)
+
     @property
     def points(self) -> np.ndarray:
         return self._dpts if self._dpts is not None else self.points_true
+
+
+def ancestor_jumps(parent: np.ndarray, level: np.ndarray) -> list[np.ndarray]:
+    """Rows of each row's ancestor 1, 2, 4, .. levels up (``parent`` (N,): -1 for a root,
+    which is then its own ancestor), as many tables as the levels the rows span need."""
+    n = len(parent)
+    out = [np.where(parent < 0, np.arange(n), parent)]
+    depth = int(level.max() - level.min()) if n else 0
+    while (1 << len(out)) < depth:
+        out.append(out[-1].take(out[-1]))
+    return out
+
+
+def all_ancestors(flag: np.ndarray, parent: np.ndarray, jumps: list[np.ndarray]) -> np.ndarray:
+    """(N,) bool: whether every ancestor of each row (parent, grandparent, .. a root) has
+    ``flag`` (True for the roots), by pointer jumping over `ancestor_jumps`: two numpy calls
+    a round, log2(depth) rounds, no loop over the levels."""
+    acc = flag.take(jumps[0]) | (parent < 0)  # the parent (a root: nothing above)
+    for up in jumps:
+        # acc covers the d nearest ancestors (d = the jump's distance); so does the
+        # ancestor's, d up: together the 2d nearest. A root's acc is True, and a root is
+        # its own ancestor, so chains that end sooner stop there.
+        acc = acc & acc.take(up)
+    return acc
+
+
+@dataclass
+class TreeRows:
+    """Rows of a quadtree a flat walk holds (`globeview.lod.flat_walk`), as a
+    `LodPolicy.per_tile` policy sees them in `LodPolicy.stop_level` (every candidate row)
+    and through `Selection.tree` (the rows visited, level by level in the walk's order).
+
+    Arrays (N,): ``keys`` (N, 3) (level, x, y); ``level``; ``parent`` the row of each tile's
+    parent (-1: a root); ``visited`` whether the walk reaches the tile and it is visible;
+    ``refine`` whether it refines (`stop_level`: what the policy asked where the level
+    allows; `Selection.tree`: what the walk refined); ``scratch`` what the policy left in
+    `TileCandidates.scratch`, per row; ``memo`` a dict the policy may keep values in from
+    one frame to the next (the selection state's: a provider's own). Through
+    `Selection.tree` the rows are level-major, in the walk's order within a level, and
+    include candidates not visited (``visited`` False: culled, or below a tile that was not
+    refined).
+    """
+
+    keys: np.ndarray
+    level: np.ndarray
+    parent: np.ndarray
+    visited: np.ndarray
+    refine: np.ndarray
+    scratch: dict[str, Any]
+    memo: dict[str, Any] = field(default_factory=dict)
+    _jumps: list[np.ndarray] | None = field(default=None, repr=False)
+
+    def __len__(self) -> int:
+        return len(self.level)
+
+    @property
+    def jumps(self) -> list[np.ndarray]:
+        """Ancestor rows 1, 2, 4, .. levels up (a root is its own ancestor), as many as the
+        levels the rows span need (`ancestor_jumps`; the walk may hand its own)."""
+        if self._jumps is None:
+            self._jumps = ancestor_jumps(self.parent, self.level)
+        return self._jumps
+
+    def all_ancestors(self, flag: np.ndarray) -> np.ndarray:
+        """(N,) bool: whether every ancestor of each row (parent, grandparent, ... a root)
+        has ``flag`` (True for the roots), by pointer jumping: log2(depth) rounds of two
+        numpy calls, no loop over the levels."""
+        return all_ancestors(flag, self.parent, self.jumps)
 
 
 @dataclass
 class Selection:
     """What a traversal drew: ``keys`` (N, 3) (level, x, y), each tile's ``stride_idx``
     (stride = 2**stride_idx) and ``error_px`` (the policy's projected error at that stride),
-    and the cull counts."""
+    and the cull counts. From the flat walk also ``tree``: called, it returns the
+    `TreeRows` visited (None from the level-by-level walk)."""
 
     keys: np.ndarray
     stride_idx: np.ndarray
     error_px: np.ndarray
     culled_frustum: int = 0
     culled_horizon: int = 0
+    tree: Callable[[], TreeRows] | None = None

@@ -13,6 +13,12 @@ only answers, for one level's visible tiles (`TileCandidates`, vectorised over N
   `LodPolicy.max_level`, `LodPolicy.stitch` or `LodPolicy.render_set` (index variants,
   stitching) and `LodPolicy.frame_stats`.
 
+A policy whose answers depend only on each tile's own facts and the view (no values handed
+from one level to the next) may say so with `LodPolicy.per_tile`: with a selection state
+(`traverse(..., state=)`, which `PolicyProvider` keeps) the traversal then evaluates last
+frame's whole candidate tree in one pass (`globeview.lod.flat_walk`) instead of walking it
+level by level, with the same result.
+
 A policy takes its settings as keyword arguments, so that a new LOD provider is a policy
 plus a manifest (`globeview.plugins.api.PolicyProvider` builds the policy from the
 provider's setting values each frame)::
@@ -36,7 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from globeview.lod.candidates import MAX_LEVEL, Selection, TileCandidates
+from globeview.lod.candidates import MAX_LEVEL, Selection, TileCandidates, TreeRows
 from globeview.lod.render_set import RenderSet
 from globeview.lod.stitching import render_set_by_stride, render_set_from_tiles
 from globeview.lod.view_state import ViewState
@@ -62,6 +68,14 @@ class LodPolicy:
     Attributes:
         max_level: deepest quadtree level to visit (at most `candidates.MAX_LEVEL`).
         max_tiles: the tile budget (None: none; `render_set.MAX_TILES` holds either way).
+        per_tile: the policy's `cull`, `error_px`, `refine`, `priority` and `stride` answer
+            for each tile from that tile's own facts and the view alone (nothing kept in
+            ``scratch`` across levels, no state changed per level), so they may be asked
+            about tiles of several levels at once (`TileCandidates.flat`: ``tiles.level``
+            an array) and about tiles the walk will not reach. With a selection state the
+            traversal then uses the flat walk (`globeview.lod.flat_walk`): the same tiles,
+            strides and errors, a fraction of the numpy calls. Default False (the level
+            walk, for any policy).
         stitch: whether the default `render_set` stitches same-level neighbours drawn at
             different strides (`render_set_from_tiles`) instead of leaving the cracks to the
             skirts (`render_set_by_stride`).
@@ -73,6 +87,7 @@ class LodPolicy:
     max_level: int = MAX_LEVEL
     max_tiles: int | None = None
     stitch: bool = False
+    per_tile: bool = False
 
     def __init__(self, tau_px: float | None = None) -> None:
         self._tau_override = tau_px
@@ -90,6 +105,14 @@ class LodPolicy:
     def frame_stats(self) -> dict[str, Any]:
         """Counters of the frame (numbers) for the render set's stats."""
         return {}
+
+    def stop_level(self, rows: TreeRows) -> int | None:
+        """`per_tile` policies on the flat walk: the level from which a level-by-level walk
+        of ``rows`` (every candidate row: ``visited`` and ``refine`` as if nothing stopped
+        it) would refine nothing more, e.g. a bound on the tiles visited; None: none (the
+        default). Asked after each growth of the tree, the last answer is the frame's; what
+        it decides must depend only on the rows of that level and above."""
+        return None
 
     # -- per level ------------------------------------------------------------------------------
     def cull(self, tiles: TileCandidates) -> np.ndarray | None:

@@ -14,8 +14,14 @@ from typing import Any
 
 import numpy as np
 
-from globeview.lod.candidates import MAX_LEVEL, Selection, TileCandidates
-from globeview.lod.cheapest_cut import VisitedLevel, cut_within_budget
+from globeview.lod.candidates import MAX_LEVEL, Selection, TileCandidates, TreeRows
+from globeview.lod.cheapest_cut import (
+    CutTree,
+    VisitedLevel,
+    cut_within_budget,
+    cut_within_budget_flat,
+)
+from globeview.lod.flat_walk import SelectionState
 from globeview.lod.policy import LodPolicy, coarsest_stride_within
 from globeview.lod.render_set import MAX_TILES, RenderSet
 from globeview.lod.stitching import render_set_by_stride
@@ -47,6 +53,35 @@ WALK_BUDGET = 8
 NEAR_RATIO = 4.0
 #: `variant_triangles` for a stride beyond the tile's grid (never the cheapest choice).
 _NO_VARIANT = 1 << 40
+#: Width (m) of a tile of each level on a sphere of the mean radius (what `_tile_m` computes
+#: for one level, the same floats), for the flat walk's rows of many levels.
+_TILE_M = np.array([math.radians(180.0 / 2**level) * 6.371e6 for level in range(MAX_LEVEL + 1)])
+#: What a subclass must leave as they are for the policy to stay `LodPolicy.per_tile`.
+_PER_TILE_METHODS = ("cull", "error_px", "refine", "priority", "stride", "_must_refine")
+
+
+#: `_judges_per_tile`'s answers, per class (asked once per frame: policies are made per frame).
+_PER_TILE_CLASSES: dict[type, bool] = {}
+
+
+def _judges_per_tile(cls: type) -> bool:
+    """Whether ``cls`` judges tiles as `ScreenSpaceErrorPolicy` does (so it is per tile): a
+    subclass overriding how could keep values across levels."""
+    got = _PER_TILE_CLASSES.get(cls)
+    if got is None:
+        base = ScreenSpaceErrorPolicy
+        got = _PER_TILE_CLASSES[cls] = all(
+            getattr(cls, m) is getattr(base, m) for m in _PER_TILE_METHODS
+        )
+    return got
+
+
+def _tile_m(level: int | np.ndarray) -> float | np.ndarray:
+    """The width (m) of a tile of ``level`` (an int, or an array of levels: per row) on a
+    sphere of the mean radius."""
+    if isinstance(level, np.ndarray):
+        return _TILE_M.take(level)
+    return math.radians(180.0 / 2**level) * 6.371e6
 
 
 @functools.lru_cache(maxsize=4)
@@ -98,6 +133,12 @@ class ScreenSpaceErrorPolicy(LodPolicy):
       cut), and it leaves tiles over tau where the cut at a larger tau draws them finer.
 
     Cracks between tiles drawn at different levels or strides are hidden by skirts.
+
+    It is `LodPolicy.per_tile` (unless a subclass overrides how it judges tiles): with a
+    selection state the flat walk selects for it, the walk's budget and the fewest-tiles
+    bound become `stop_level`, and the cut is taken on the flat tree with parent pointers
+    (`cheapest_cut.cut_within_budget_flat`), the budget's multiplier warm-started from the
+    last frame's.
     """
 
     def __init__(
@@ -123,6 +164,7 @@ class ScreenSpaceErrorPolicy(LodPolicy):
         self._hidden = 0
         self._seen = 0
         self._over = False
+        self.per_tile = _judges_per_tile(type(self))
 
     def begin(self, view: ViewState, terrain: TerrainStack) -> None:
         super().begin(view, terrain)
@@ -141,6 +183,9 @@ class ScreenSpaceErrorPolicy(LodPolicy):
         self._parents: np.ndarray | None = None
         self._fewest_refines: np.ndarray | None = None
         self._fewest_drawn = 0
+        # The flat walk's (`_refine_flat`): whether it selects, and the coarsest stride.
+        self._flat = False
+        self._coarsest = 0
 
     def _parent_rows(self, keys: np.ndarray) -> np.ndarray:
         """(N,) the row of each tile's parent in the last level visited (tiles of a level are
@@ -188,38 +233,30 @@ class ScreenSpaceErrorPolicy(LodPolicy):
     def frame_stats(self) -> dict[str, Any]:
         if not self._cut:
             return {}
-        return {
-            "tiles_visited": sum(len(v.keys) for v in self._visited),
-            "tiles_hidden": self._hidden,
-        }
+        # The level walk's visited levels add up to _seen; the flat walk has only the count.
+        visited = self._seen if self._flat else sum(len(v.keys) for v in self._visited)
+        return {"tiles_visited": visited, "tiles_hidden": self._hidden}
 
     def _must_refine(self, tiles: TileCandidates, error_px: np.ndarray) -> np.ndarray:
         # A texel of the tile's height/normal textures: the level's tile width (m, on a
         # sphere of the mean radius) over its cells, projected.
-        tile_m = math.radians(180.0 / 2**tiles.level) * 6.371e6
+        tile_m = _tile_m(tiles.level)
         texel = tile_m / (tiles.size - 1) * tiles.px_per_m
         return (error_px[:, 0] > self.tau_px) | ((texel > self.texel_px) & tiles.has_finer)
 
-    def refine(self, tiles: TileCandidates, error_px: np.ndarray) -> np.ndarray:
-        must = self._must_refine(tiles, error_px)
-        if not self._cut:
-            return must
-        self._parents = None
-        if self._fewest_over(tiles.keys, must):
-            # The fewest-tiles cut will draw more than the cut's budget (`render_set` would
-            # find so after the walk, `cut_within_budget`): stop now.
-            self._over = True
-            return np.zeros(len(must), dtype=bool)
+    def _explore(
+        self,
+        tiles: TileCandidates,
+        error_px: np.ndarray,
+        pole: np.ndarray,
+        past: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+        """(stride index, own triangles, whether to visit the children for the cut, the
+        floor (one cell), the coarsest stride index) of each tile (`refine`)."""
         idx = coarsest_stride_within(error_px, self.tau_px)
-        keys = tiles.keys
         table = variant_triangles(tiles.size)
-        y = keys[:, 2]
-        # = pole_codes(keys) for one level, without its casts (a dozen calls per frame).
-        pole = (y == 0) + 2 * (y == (1 << tiles.level) - 1)
         own = table[idx, pole]
         coarsest = int(np.flatnonzero(table[:, 0] < _NO_VARIANT)[-1])
-        has_finer = tiles.has_finer
-        past = self._levels_past_data(keys, has_finer)
         # Which tiles' children to visit. All that could be drawn cheaper (own over the one
         # cell, the least any visible child costs) would be exact (cheapest_cut) but visits
         # thousands of tiles whose children rarely pay, so only those within the data or
@@ -228,11 +265,33 @@ class ScreenSpaceErrorPolicy(LodPolicy):
         # tau a view accepts. A tile these leave out is one that no tau makes refine for its
         # error (texels do not depend on tau), so whether it is a leaf does not depend on
         # tau and the cut stays monotone in tau.
-        tile_m = math.radians(180.0 / 2**tiles.level) * 6.371e6
+        tile_m = _tile_m(tiles.level)
         may_refine = error_px[:, 0] > TAU_RANGE_PX[0]
         worth = (tiles.dist_m < NEAR_RATIO * tile_m) | may_refine
-        deeper = has_finer | (past < BEYOND_DATA_LEVELS) | may_refine
-        explore = deeper & worth & (own > table[coarsest, pole])
+        deeper = tiles.has_finer | (past < BEYOND_DATA_LEVELS) | may_refine
+        floor = table[coarsest, pole]
+        explore = deeper & worth & (own > floor)
+        return idx, own, explore, floor, coarsest
+
+    def refine(self, tiles: TileCandidates, error_px: np.ndarray) -> np.ndarray:
+        must = self._must_refine(tiles, error_px)
+        if not self._cut:
+            return must
+        if tiles.flat:
+            return self._refine_flat(tiles, error_px, must)
+        self._parents = None
+        if self._fewest_over(tiles.keys, must):
+            # The fewest-tiles cut will draw more than the cut's budget (`render_set` would
+            # find so after the walk, `cut_within_budget`): stop now.
+            self._over = True
+            return np.zeros(len(must), dtype=bool)
+        keys = tiles.keys
+        y = keys[:, 2]
+        # = pole_codes(keys) for one level, without its casts (a dozen calls per frame).
+        pole = (y == 0) + 2 * (y == (1 << tiles.level) - 1)
+        has_finer = tiles.has_finer
+        past = self._levels_past_data(keys, has_finer)
+        idx, own, explore, floor, coarsest = self._explore(tiles, error_px, pole, past)
         if tiles.view.displace is not None:
             # Not where a displacement (a tool's, e.g. the collapse) bends the tile: culling
             # tests displaced bounding lattices, which a fold likely bends past between their
@@ -243,9 +302,7 @@ class ScreenSpaceErrorPolicy(LodPolicy):
         rows = np.arange(len(idx))
         asked = must | explore
         self._visited.append(
-            VisitedLevel(
-                keys, idx, own, must, error_px[rows, idx], asked, table[coarsest, pole], coarsest
-            )
+            VisitedLevel(keys, idx, own, must, error_px[rows, idx], asked, floor, coarsest)
         )
         self._finer, self._past_data = has_finer, past
         # The walk's budget, all or nothing: past it the walk stops here and `render_set` draws
@@ -262,9 +319,103 @@ class ScreenSpaceErrorPolicy(LodPolicy):
             return np.zeros(m, dtype=bool)
         return asked
 
+    def _refine_flat(
+        self, tiles: TileCandidates, error_px: np.ndarray, must: np.ndarray
+    ) -> np.ndarray:
+        """`refine` on the flat walk's rows (several levels, no displacement): what to visit
+        for the cut, per tile, and the values the cut reads kept in ``scratch`` per row; the
+        walk's budget and the fewest-tiles bound are `stop_level`'s."""
+        idx, own, explore, floor, coarsest = self._explore(
+            tiles, error_px, tiles.pole, tiles.levels_past_data
+        )
+        rows = np.arange(len(idx))
+        tiles.scratch.update(
+            must=must, stride_idx=idx, own=own, floor=floor, cut_error_px=error_px[rows, idx]
+        )
+        self._flat, self._coarsest = True, coarsest
+        return must | explore
+
+    def stop_level(self, rows: TreeRows) -> int | None:
+        """With min_triangles: the level where the level walk's `refine` stops (the
+        fewest-tiles cut sure to pass ``tile_budget``, or the walk's budget passed), from
+        per-level counts of the tree (module docstring of `globeview.lod.flat_walk`)."""
+        self._over = False
+        if not self._cut or not len(rows):
+            return None
+        vis, level = rows.visited, rows.level
+        n_vis = int(np.count_nonzero(vis))
+        n_ref = int(np.count_nonzero(vis & rows.refine))
+        if n_vis <= self.tile_budget and n_vis + 4 * n_ref <= self._walk_budget:
+            # Neither bound can pass (each counts a part of these at some level).
+            self._seen = n_vis
+            return None
+        must = rows.scratch["must"]
+        n = MAX_LEVEL + 2
+
+        def per_level(mask: np.ndarray) -> np.ndarray:
+            return np.bincount(level.compress(mask), minlength=n)
+
+        # The fewest-tiles cut reaches the visible tiles all of whose ancestors must refine;
+        # it draws those that need not and at least one tile for each that must
+        # (`_fewest_over`): by level L, the first sum over the levels to L, the second L's.
+        reached = vis & rows.all_ancestors(must)
+        fewest = np.cumsum(per_level(reached & ~must)) + per_level(reached & must)
+        fewest_over = fewest > self.tile_budget
+        # The walk's budget: the tiles visited to L and the four children of L's refined.
+        seen = per_level(vis)
+        walk_over = np.cumsum(seen) + 4 * per_level(vis & rows.refine) > self._walk_budget
+        over = fewest_over | walk_over
+        if not over.any():
+            self._seen = int(seen.sum())
+            return None
+        stop = int(np.argmax(over))
+        self._over = True
+        # The level walk keeps the stop level's tiles as visited unless the bound stopped it.
+        self._seen = int(seen[:stop].sum()) + (0 if fewest_over[stop] else int(seen[stop]))
+        return stop
+
+    def stride(self, tiles: TileCandidates, error_px: np.ndarray, index: np.ndarray) -> np.ndarray:
+        if tiles.flat and "stride_idx" in tiles.scratch:
+            # `refine` computed it for every row (`_explore`: the same formula).
+            return tiles.scratch["stride_idx"].take(index)
+        return super().stride(tiles, error_px, index)
+
+    def _render_set_flat(self, selection: Selection) -> RenderSet:
+        """`render_set` after the flat walk: the cut of its tree, or the plain walk where a
+        bound stopped it (with its own selection state)."""
+        assert selection.tree is not None  # the flat walk's
+        tree = selection.tree()
+        if self._over:
+            assert self.view is not None and self.terrain is not None  # set by begin
+            plain = ScreenSpaceErrorPolicy(self.tau_px, self.texel_px, self.tile_budget)
+            state = tree.memo.get("plain")
+            if not isinstance(state, SelectionState):
+                state = tree.memo["plain"] = SelectionState()
+            rs = traverse(self.view, self.terrain, plain, state=state)
+            rs.stats["cut_over_budget"] = 1.0
+            return rs
+        sc = tree.scratch
+        cut = CutTree(
+            tree.keys, tree.level, tree.parent, tree.visited, tree.refine, sc["stride_idx"],
+            sc["own"], sc["must"], sc["cut_error_px"], sc["floor"], self._coarsest, tree.jumps,
+        )  # fmt: skip
+        (keys, stride_idx, error_px, hidden), how = cut_within_budget_flat(
+            cut, self.tile_budget, tree.memo
+        )
+        if how == "over":
+            self._over = True
+            return self._render_set_flat(selection)
+        self._hidden = int(np.count_nonzero(hidden))
+        rs = render_set_by_stride(keys, stride_idx, error_px)
+        if how == "traded":
+            rs.stats["cut_traded"] = 1.0
+        return rs
+
     def render_set(self, selection: Selection, size: int) -> RenderSet:
         if not self._cut:
             return super().render_set(selection, size)
+        if selection.tree is not None:
+            return self._render_set_flat(selection)
         how = "over"
         if not self._over:
             (keys, stride_idx, error_px, hidden), how = cut_within_budget(

@@ -83,7 +83,11 @@ class LevelTiles:
     ``herr`` the store's height errors per stride (m, not exaggerated); ``err`` the stride
     errors (m, exaggerated, chord sag included, `stride_errors_m`); ``finer`` whether finer
     data exists below; ``child`` (cap, 4) the children's slots in the order (2x, 2y),
-    (2x+1, 2y), (2x, 2y+1), (2x+1, 2y+1).
+    (2x+1, 2y), (2x, 2y+1), (2x+1, 2y+1); ``pole`` the tile's pole code
+    (`stitching.pole_codes`: 1 its first row is the north pole, 2 its last the south pole);
+    ``past`` how many levels the tile lies below the finest data under it (0 where its
+    parent has finer data, else the parent's + 1; the roots 0; -1 until the tile is reached
+    as a child, `TileCache.children`): chunked-sse's `BEYOND_DATA_LEVELS` reads it.
 
     With a displacement (a tool's ``view.displace``) also ``dpts``, the displaced lattice, and
     ``bend``, the displacement's bend over it (NaN: not computed yet), for the displacement
@@ -104,6 +108,8 @@ class LevelTiles:
         self.err = np.empty((0, N_STRIDES))
         self.finer = np.empty(0, dtype=bool)
         self.child = np.empty((0, 4), dtype=np.int64)
+        self.pole = np.empty(0, dtype=np.int64)
+        self.past = np.empty(0, dtype=np.int64)
         self.dkey: tuple | None = None
         self.dpts = np.empty((0, N_LATTICE_POINTS, 3))
         self.dvalid = np.empty(0, dtype=bool)
@@ -148,8 +154,11 @@ class LevelTiles:
         pos = np.minimum(np.searchsorted(self.codes, codes), self.n - 1)
         return np.where(self.codes[pos] == codes, self.code_slots[pos], -1)
 
-    def add(self, codes: np.ndarray, xy: np.ndarray, facts: dict[str, np.ndarray]) -> np.ndarray:
-        """Store the facts of new (distinct, uncached) tiles; returns their slots."""
+    def add(
+        self, level: int, codes: np.ndarray, xy: np.ndarray, facts: dict[str, np.ndarray]
+    ) -> np.ndarray:
+        """Store the facts of new (distinct, uncached) tiles of ``level``; returns their
+        slots."""
         m = len(codes)
         n = self.n
         if n + m > len(self.finer):
@@ -163,6 +172,9 @@ class LevelTiles:
         self.err[n : n + m] = facts["err"]
         self.finer[n : n + m] = facts["finer"]
         self.child[n : n + m] = -1
+        y = xy[:, 1]
+        self.pole[n : n + m] = (y == 0) + 2 * (y == (1 << level) - 1)
+        self.past[n : n + m] = 0 if level == 0 else -1
         self.dvalid[n : n + m] = False
         self.bend[n : n + m] = np.nan
         order = np.argsort(codes)
@@ -187,6 +199,7 @@ class LevelTiles:
 
         self.cols = grown(self.cols, axis=1)
         self.xy, self.child = grown(self.xy), grown(self.child)
+        self.pole, self.past = grown(self.pole), grown(self.past)
         self.pts, self.centre = grown(self.pts), grown(self.centre)
         self.herr, self.err, self.finer = grown(self.herr), grown(self.err), grown(self.finer)
         self.dpts, self.dvalid, self.bend = grown(self.dpts), grown(self.dvalid), grown(self.bend)
@@ -227,17 +240,20 @@ def tile_facts(
 class TileCache:
     """The per-level `LevelTiles` of one terrain at one exaggeration (see the module
     docstring). ``lock`` serialises traversals of the same terrain (the facts tables are
-    appended to during a walk)."""
+    appended to during a walk). ``epoch`` counts the restarts: slots are valid within one
+    epoch (a `flat_walk.SelectionState` holding slots starts afresh when it changes)."""
 
     def __init__(self) -> None:
         self.lock = threading.Lock()
         self._key: tuple | None = None
         self.levels: dict[int, LevelTiles] = {}
+        self.epoch = 0
+        self._held = 0
 
     @property
     def held(self) -> int:
         """Tiles held, all levels together."""
-        return sum(lv.n for lv in self.levels.values())
+        return self._held
 
     def sync(self, terrain: TerrainStack, exag: float) -> None:
         """Drop everything unless it was computed for this terrain state and exaggeration
@@ -247,7 +263,13 @@ class TileCache:
         key = (terrain.version, terrain.tile_size, exag)
         if self._key != key or self.held > TILE_CACHE_CAP:
             self._key = key
-            self.levels = {}
+            self.clear()
+
+    def clear(self) -> None:
+        """Drop every tile (a new epoch: a cold cache, as `sync` makes it)."""
+        self.levels = {}
+        self.epoch += 1
+        self._held = 0
 
     def roots(self, terrain: TerrainStack, size: int) -> np.ndarray:
         """Slots of the two level-0 tiles (0, 0, 0) and (0, 1, 0)."""
@@ -275,7 +297,8 @@ class TileCache:
             assert self._key is not None  # sync() ran
             facts = tile_facts(terrain, level, x[miss], y[miss], self._key[2], size)
             xy = np.stack([x[miss], y[miss]], axis=1)
-            slots[miss] = lv.add(codes[miss], xy, facts)
+            slots[miss] = lv.add(level, codes[miss], xy, facts)
+            self._held += len(xy)
         return slots
 
     def children(
@@ -295,7 +318,57 @@ class TileCache:
             found = self.slots(terrain, level + 1, cx, cy, size).reshape(4, -1).T
             lv.child[up] = found
             ch[unknown] = found
+            # Levels past the data, from the parent (camera independent): set as the link is
+            # made, the only way a tile below the roots enters a walk.
+            past = np.where(lv.finer.take(up), 0, lv.past.take(up) + 1)
+            self.levels[level + 1].past[found] = past[:, None]
         return ch.T.ravel()
+
+    def children_across(
+        self, terrain: TerrainStack, levels: np.ndarray, parents: np.ndarray, size: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        """The children of tiles of several levels at once (``parents`` slots at ``levels``):
+        (child level, child slot, index of the parent in ``parents``, child index c =
+        dx + 2 dy, copies of the children's facts as `facts_of` gives them); levels
+        ascending, each level's children in `children`'s order. The misses of a level are
+        computed in one `tile_facts` call."""
+        parts: list[tuple[np.ndarray, ...]] = []
+        facts: list[dict[str, np.ndarray]] = []
+        for level in np.unique(levels).tolist():
+            at = np.flatnonzero(levels == level)
+            ch = self.children(terrain, level, parents.take(at), size)
+            k = len(at)
+            parts.append(
+                (
+                    np.full(4 * k, level + 1, dtype=np.int64),
+                    ch,
+                    np.tile(at, 4),
+                    np.repeat(np.arange(4, dtype=np.int64), k),
+                )
+            )
+            facts.append(self.facts_of(level + 1, ch))
+        cat = np.concatenate
+        lv, sl, pi, c = (cat([p[i] for p in parts]) for i in range(4))
+        if len(facts) == 1:
+            return lv, sl, pi, c, facts[0]
+        axis = {"cols": 1}
+        return lv, sl, pi, c, {k: cat([f[k] for f in facts], axis=axis.get(k, 0)) for k in facts[0]}
+
+    def facts_of(self, level: int, slots: np.ndarray) -> dict[str, np.ndarray]:
+        """Copies of the facts of tiles ``slots`` of ``level`` (`LevelTiles`' arrays, rows in
+        the order of ``slots``; ``cols`` (N_COLS, N))."""
+        lv = self.levels[level]
+        return {
+            "xy": lv.xy.take(slots, axis=0),
+            "cols": lv.cols.take(slots, axis=1),
+            "pts": lv.pts.take(slots, axis=0),
+            "centre": lv.centre.take(slots, axis=0),
+            "err": lv.err.take(slots, axis=0),
+            "herr": lv.herr.take(slots, axis=0),
+            "finer": lv.finer.take(slots),
+            "pole": lv.pole.take(slots),
+            "past": lv.past.take(slots),
+        }
 
 
 def tile_cache_for(terrain: TerrainStack) -> TileCache:

@@ -36,7 +36,6 @@ tiles across a fold refine and no gap opens between them. Both are cached per di
 from __future__ import annotations
 
 import time
-from typing import Any
 
 import numpy as np
 
@@ -54,6 +53,7 @@ from globeview.lod.culling import (
     horizon_cap,
     norm3,
 )
+from globeview.lod.flat_walk import SelectionState, select_flat
 from globeview.lod.policy import LodPolicy
 from globeview.lod.render_set import MAX_TILES, RenderSet
 from globeview.lod.tile_cache import (
@@ -65,10 +65,13 @@ from globeview.lod.tile_cache import (
     tile_cache_for,
 )
 from globeview.lod.view_state import ViewState
+from globeview.lod.walk_rules import BOOL as _BOOL
+from globeview.lod.walk_rules import F64 as _F64
+from globeview.lod.walk_rules import I64 as _I64
+from globeview.lod.walk_rules import budget_refinement
+from globeview.lod.walk_rules import checked as _checked
 from globeview.terrain.compose.metadata import N_STRIDES
 from globeview.terrain.compose.stack import TerrainStack
-
-_BOOL, _F64, _I64 = np.dtype(bool), np.dtype(np.float64), np.dtype(np.int64)
 
 
 def _probe_points(n: int = 64) -> np.ndarray:
@@ -94,52 +97,66 @@ def displacement_key(view: ViewState) -> tuple | None:
     return (view.displacement_key, moved, view.displacement_bend is not None)
 
 
-def budget_refinement(
-    refine: np.ndarray, priority: np.ndarray, room: int, fanout: int = 4
-) -> np.ndarray:
-    """Limit refinement so the drawn tiles stay within a budget: when refining every tile in
-    ``refine`` would add more than ``room`` tiles (each refined tile becomes ``fanout``), the
-    tiles with the largest ``priority`` refine first. Returns the (possibly new) mask."""
-    n_ref = int(np.count_nonzero(refine))
-    if n_ref * fanout <= room or n_ref == 0:
-        return refine
-    allowed = max(room // fanout, 0)
-    order = np.argsort(-priority)
-    idx = order[refine[order]][:allowed]
-    out = np.zeros_like(refine)
-    out[idx] = True
-    return out
-
-
 # -- the walk -----------------------------------------------------------------------------------
-def traverse(view: ViewState, terrain: TerrainStack, policy: LodPolicy) -> RenderSet:
+def traverse(
+    view: ViewState,
+    terrain: TerrainStack,
+    policy: LodPolicy,
+    state: SelectionState | None = None,
+) -> RenderSet:
     """Select the tiles to draw for ``view`` over ``terrain`` as ``policy`` decides (the
     module docstring): one level-by-level walk, the policy's `LodPolicy.render_set` of what
     it drew, with ``tiles_culled_frustum``, ``tiles_culled_horizon`` and ``lod_ms`` stats.
-    An empty terrain (no layers) draws nothing."""
+    An empty terrain (no layers) draws nothing.
+
+    With a ``state`` (a `flat_walk.SelectionState` the caller keeps from frame to frame) and
+    a `LodPolicy.per_tile` policy, the flat walk (`flat_walk.select_flat`) selects instead:
+    the same tiles, strides and errors, from last frame's candidate tree in one pass, with
+    the stats ``lod_rounds``, ``lod_rows_new`` and ``lod_rows`` (`SelectionState`); a state
+    with nothing to start from (``lod_cold``) walks level by level and keeps that walk's
+    tree for the next frame. Views with a displacement walk level by level."""
     t0 = time.perf_counter()
     if terrain is None or not terrain.layers:
         return RenderSet.empty()
     policy.begin(view, terrain)
     cache = tile_cache_for(terrain)
+    flat = state is not None and policy.per_tile and view.displace is None
     with cache.lock:
         cache.sync(terrain, view.exaggeration)
-        sel = _walk(view, terrain, policy, cache)
+        if flat and state is not None and state.cold(cache):
+            # Nothing to start from (a first frame, a new terrain): growing the tree from
+            # the roots would cost more than the level walk, which seeds the tree instead.
+            record: list[tuple[int, np.ndarray, np.ndarray]] = []
+            sel = _walk(view, terrain, policy, cache, record)
+            state.seed(cache, record)
+        elif flat:
+            assert state is not None  # flat implies it
+            sel = select_flat(view, terrain, policy, cache, state)
+        else:
+            sel = _walk(view, terrain, policy, cache)
     rs = policy.render_set(sel, terrain.tile_size)
     rs.stats.update(
         {
             "tiles_culled_frustum": sel.culled_frustum,
             "tiles_culled_horizon": sel.culled_horizon,
             **policy.frame_stats(),
+            **(state.stats if flat and state is not None else {}),
             "lod_ms": (time.perf_counter() - t0) * 1e3,
         }
     )
     return rs
 
 
-def _walk(view: ViewState, terrain: TerrainStack, policy: LodPolicy, cache: TileCache) -> Selection:
+def _walk(
+    view: ViewState,
+    terrain: TerrainStack,
+    policy: LodPolicy,
+    cache: TileCache,
+    record: list[tuple[int, np.ndarray, np.ndarray]] | None = None,
+) -> Selection:
     """The level-by-level walk (module docstring). Per level the candidates are slots in the
-    cache's level table."""
+    cache's level table. With ``record`` the walk appends (level, candidate slots, slots
+    refined) per level it tests, in its order (the flat walk's tree, `SelectionState.seed`)."""
     size = terrain.tile_size
     k_px = view.sse_factor
     eye = view.eye
@@ -171,6 +188,8 @@ def _walk(view: ViewState, terrain: TerrainStack, policy: LodPolicy, cache: Tile
     for level in range(max_level + 1):
         lv = cache.level(level)
         n = len(slots)
+        if record is not None:
+            record.append((level, slots, slots[:0]))
         c = lv.cols.take(slots, axis=1)
         pts = None
         if displace is None:
@@ -259,6 +278,8 @@ def _walk(view: ViewState, terrain: TerrainStack, policy: LodPolicy, cache: Tile
         if n_ref == 0:
             break
         refined = ks.take(refine.nonzero()[0]) if n_ref < m else ks
+        if record is not None:
+            record[-1] = (level, slots, refined)
         slots = cache.children(terrain, level, refined, size)
 
     if not out:
@@ -273,35 +294,6 @@ def _walk(view: ViewState, terrain: TerrainStack, policy: LodPolicy, cache: Tile
     keys[:, 0] = np.repeat([lvl for lvl, _, _ in out], [len(s) for _, _, s in out])
     keys[:, 1:] = np.concatenate([lv.xy.take(s, axis=0) for _, lv, s in out])
     return Selection(keys, stride_idx, np.concatenate(out_err), culled_f, culled_h)
-
-
-def _checked(
-    policy: LodPolicy,
-    what: str,
-    value: Any,
-    shape: tuple[int, ...],
-    dtype: np.dtype,
-    none_ok: bool = False,
-) -> Any:
-    """``value`` as an array of ``dtype`` after checking it has ``shape`` (one-line
-    ValueError naming the policy's method otherwise: a policy bug fails its provider).
-    With ``none_ok`` None passes as None (`LodPolicy.cull`: keep every tile)."""
-    # The plain case first, with no more work than these tests: a frame has a dozen levels
-    # and a few policy calls per level, so what each check costs adds up.
-    if type(value) is np.ndarray and value.dtype is dtype and value.shape == shape:
-        return value
-    if value is None and none_ok:
-        return None
-    arr = np.asarray(value)
-    if arr.shape != shape:
-        raise ValueError(
-            f"{type(policy).__name__}.{what} returned shape {arr.shape}, expected {shape}"
-        )
-    if dtype is _I64 and arr.dtype.kind not in "iu":
-        raise ValueError(f"{type(policy).__name__}.{what} returned {arr.dtype}, not integers")
-    if dtype is _F64 and arr.dtype.kind not in "fiu":
-        raise ValueError(f"{type(policy).__name__}.{what} returned {arr.dtype}, not numbers")
-    return arr.astype(dtype, copy=False)
 
 
 def _subset(tiles: TileCandidates, idx: np.ndarray) -> TileCandidates:

@@ -79,7 +79,7 @@ from globeview.plugins.geo import (
 
 if TYPE_CHECKING:  # the lazy re-exports (`_REEXPORTS`), spelled out for type checkers
     from globeview.geodesy import WGS84, ecef_foot_points, enu_basis
-    from globeview.lod.candidates import MAX_LEVEL, Selection, TileCandidates
+    from globeview.lod.candidates import MAX_LEVEL, Selection, TileCandidates, TreeRows
     from globeview.lod.culling import (
         LATTICE,
         bounding_distance,
@@ -94,6 +94,7 @@ if TYPE_CHECKING:  # the lazy re-exports (`_REEXPORTS`), spelled out for type ch
         horizon_visible,
         tile_bounding_points,
     )
+    from globeview.lod.flat_walk import SelectionState
     from globeview.lod.policy import LodPolicy, coarsest_stride_within
     from globeview.lod.render_set import MAX_KEY_LEVEL, MAX_TILES, InvalidRenderSet, RenderSet
     from globeview.lod.sse_policy import ScreenSpaceErrorPolicy
@@ -144,12 +145,14 @@ __all__ = [
     "RendererHooks",
     "ScreenSpaceErrorPolicy",
     "Selection",
+    "SelectionState",
     "Setting",
     "TerrainSample",
     "TerrainStack",
     "TileCandidates",
     "TileKey",
     "Tool",
+    "TreeRows",
     "TwoPointPick",
     "ViewState",
     "bounding_distance",
@@ -216,6 +219,8 @@ _REEXPORTS: dict[str, str] = {
     "MAX_LEVEL": "globeview.lod.candidates",
     "Selection": "globeview.lod.candidates",
     "TileCandidates": "globeview.lod.candidates",
+    "TreeRows": "globeview.lod.candidates",
+    "SelectionState": "globeview.lod.flat_walk",
     "traverse": "globeview.lod.traversal",
     "displacement_key": "globeview.lod.traversal",
     "triangle_count": "globeview.lod.triangle_count",
@@ -249,8 +254,11 @@ def __dir__() -> list[str]:
 #: `triangle_count`, and the ``sniff`` contract written down (docs/plugins.md). 1.3 added:
 #: `Tool.animate` and `Tool.plot` declared on `Tool` (the host called them before), the
 #: two-point picking helper `TwoPointPick`, and shared setting declarations (`TILE_BUDGET`,
-#: `TEXEL_SIZE`, `TAU_OVERRIDE`).
-API_VERSION = "1.3"
+#: `TEXEL_SIZE`, `TAU_OVERRIDE`). 1.4 added the flat selection (issue #27): `traverse`'s
+#: ``state`` (`SelectionState`, which `PolicyProvider` keeps), `LodPolicy.per_tile` and
+#: `LodPolicy.stop_level` (`TreeRows`), `TileCandidates.flat`, ``levels_past_data`` and
+#: ``pole``, and `Selection.tree`.
+API_VERSION = "1.4"
 
 
 class PluginKind(StrEnum):
@@ -514,8 +522,8 @@ class LodProvider(_Contribution):
 class PolicyProvider(LodProvider):
     """An LOD provider that is one `LodPolicy` on the shared traversal: ``select`` builds
     ``policy(**self.values)`` (the policy takes the provider's settings as keyword arguments,
-    one per `Setting`) and returns ``traverse(view, terrain, that policy)``. Adding an LOD
-    provider is then a policy class, this subclass naming it, and a manifest::
+    one per `Setting`) and returns ``traverse(view, terrain, that policy, state=...)``. Adding
+    an LOD provider is then a policy class, this subclass naming it, and a manifest::
 
         class CoarseProvider(PolicyProvider):
             policy = CoarsePolicy
@@ -527,20 +535,35 @@ class PolicyProvider(LodProvider):
     or of the terrain (its ``version``) selects afresh, and so does every frame with a tool
     displacement (``view.displace``), which can change between frames with the same view.
     A policy that reads anything else of the view must not be wrapped this way.
+
+    The provider keeps a `SelectionState` (API 1.4): with a `LodPolicy.per_tile` policy a
+    moving camera's selection starts from last frame's candidate tree (the flat walk), with
+    the same result as a walk from scratch; `reset` forgets it.
     """
 
     #: The policy class, called with the setting values as keyword arguments each frame.
     policy: type[LodPolicy]
     # The last selection and what it was selected for (`_reuse_key`); class defaults so that
     # a subclass's __init__ need not call ours.
-    _reuse_key: tuple | None = None
+    _reuse_key: tuple[object, ...] | None = None
     _reuse: RenderSet | None = None
     # The terrain it was for, weakly: an id alone could be a new terrain's after the old one
     # was freed, and a strong reference would keep a closed terrain alive.
-    _reuse_terrain: weakref.ref | None = None
+    _reuse_terrain: weakref.ref[Any] | None = None
+    # The flat walk's state (made on first use: this module must not import the LOD engine).
+    _selection_state: SelectionState | None = None
 
     def reset(self) -> None:
         self._reuse_key = self._reuse = self._reuse_terrain = None
+        if self._selection_state is not None:
+            self._selection_state.reset()
+
+    def _state(self) -> SelectionState:
+        from globeview.lod.flat_walk import SelectionState
+
+        if self._selection_state is None:
+            self._selection_state = SelectionState()
+        return self._selection_state
 
     def select(self, view: ViewState, terrain: Any) -> RenderSet:
         # Deferred (heavy): reading a manifest imports this module, and must not load the
@@ -549,7 +572,7 @@ class PolicyProvider(LodProvider):
 
         if terrain is None or view.displace is not None:
             self._reuse_key = self._reuse = self._reuse_terrain = None
-            return traverse(view, terrain, self.policy(**self.values))
+            return traverse(view, terrain, self.policy(**self.values), state=self._state())
         key = (
             view.eye.tobytes(),
             view.rotation.tobytes(),
@@ -574,7 +597,7 @@ class PolicyProvider(LodProvider):
             rs.stats["lod_ms"] = 0.0
             rs.stats["lod_cached"] = 1.0
             return rs
-        rs = traverse(view, terrain, self.policy(**self.values))
+        rs = traverse(view, terrain, self.policy(**self.values), state=self._state())
         self._reuse_key, self._reuse, self._reuse_terrain = key, rs, weakref.ref(terrain)
         return rs
 

@@ -58,6 +58,11 @@ class ContributionLoading:
                 for k, v in host.items():
                     setattr(rec.context, k, v)
 
+    def host_objects(self) -> dict[str, Any]:
+        """What contexts hand plugins now (scene, terrain, camera, renderer), as `attach`
+        takes it: a host that attaches its own for a while puts these back after."""
+        return dict(self._host)
+
     def context(self, name: str) -> PluginContext:
         """The `PluginContext` of plugin ``name`` (created on first use)."""
         rec = self.get(name)

@@ -20,6 +20,7 @@ settings and the frame-time budget) and the container protocol.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from typing import Any, Literal
 
 from globeview.plugins.api import RendererHooks
@@ -71,7 +72,7 @@ class PluginRegistry(PluginDiscovery, EnableState, ContributionLoading, Isolatio
         self._live: set[int] = set()
 
     # -- the records -------------------------------------------------------------------------
-    def __iter__(self):
+    def __iter__(self) -> Iterator[PluginRecord]:
         return iter(self.records.values())
 
     def __len__(self) -> int:

@@ -140,6 +140,15 @@ def tile_texels(heights: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     return (albedo, *_coast_of(_lut_height(idx)))
 
 
+def tile_texels_batch(heights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`tile_texels` of B tiles at once: heights (B, rows, cols) metres (rows, cols >= 2) ->
+    (albedo (B, rows, cols, 4) uint8, coast (B, rows, cols) uint8, coast scales (B,) metres
+    float64); each tile's the bits `tile_texels` gives it alone."""
+    idx = _lut_index(heights)
+    albedo = _lut()[idx].view(np.uint8).reshape(*idx.shape, 4)
+    return (albedo, *_coast_of_grids(_lut_height(idx)))
+
+
 def albedo_texels(heights: np.ndarray) -> np.ndarray:
     """(..., 4) uint8 RGBA albedo of heights (metres; NaN is treated as 0 m, heights beyond
     the ramp's range take its end colours): the ramp colour of each height, alpha its coast
@@ -184,6 +193,29 @@ def _coast_of(h: np.ndarray) -> tuple[np.ndarray, float]:
     code += (code < x) & (h >= hi)
     code -= (code > x) & (h <= lo)
     # float32: -s * (127.5 / s) + 127.5 can be -1e-5 (floored to -1).
+    return np.clip(code, 0.0, 255.0).astype(np.uint8), s
+
+
+def _coast_of_grids(h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`_coast_of` of B grids (h: (B, rows, cols) float32 metres, table heights): the codes
+    (B, rows, cols) uint8 and each grid's scale s (B,) float64, by the same operations."""
+    lo, hi = _coast_band()
+    cell_lo = np.minimum(h[:, :-1], h[:, 1:])
+    cell_hi = np.maximum(h[:, :-1], h[:, 1:])
+    cell_lo = np.minimum(cell_lo[:, :, :-1], cell_lo[:, :, 1:])
+    cell_hi = np.maximum(cell_hi[:, :, :-1], cell_hi[:, :, 1:])
+    band = (cell_lo < hi) & (cell_hi > lo)
+    # Per grid max(COAST_MIN_M, -min(band lows), max(band highs)); a grid without a band
+    # cell keeps COAST_MIN_M (its extremes are -inf).
+    low = np.where(band, cell_lo, np.float32(np.inf)).min(axis=(1, 2)).astype(np.float64)
+    high = np.where(band, cell_hi, np.float32(-np.inf)).max(axis=(1, 2)).astype(np.float64)
+    s = np.maximum(np.maximum(COAST_MIN_M, -low), high)
+    s32 = s.astype(np.float32)[:, None, None]
+    scale = (127.5 / s).astype(np.float32)[:, None, None]
+    x = np.clip(h, -s32, s32) * scale + np.float32(127.5)
+    code = np.floor(x + 0.5)
+    code += (code < x) & (h >= hi)
+    code -= (code > x) & (h <= lo)
     return np.clip(code, 0.0, 255.0).astype(np.uint8), s
 
 

@@ -20,10 +20,13 @@ class RenderError(GlobeviewError):
 _SPARE: list[moderngl.Context] = []
 
 
-def create_headless_context() -> moderngl.Context:
+def create_headless_context(*, fresh: bool = False) -> moderngl.Context:
     """A moderngl context without a display (EGL; Mesa llvmpipe works with no GPU): the one
-    handed back by `release_headless_context` when there is one, else a new one."""
-    if _SPARE:
+    handed back by `release_headless_context` when there is one, else a new one. ``fresh``:
+    always a new one, for a context that lives on a thread of its own (the spare is current
+    on the thread that handed it back, and EGL makes a context current on one thread only);
+    release it with ``ctx.release()`` on that thread."""
+    if _SPARE and not fresh:
         ctx = _SPARE.pop()
         ctx.__enter__()  # make it current on this thread again (no __exit__: it stays current)
         return ctx

@@ -166,8 +166,8 @@ def pick(
         if not np.all(np.isfinite(p)):
             return None
         on_terrain = False
-    lon, lat, h = ecef_to_lonlat(p)
-    h = float(h) / view.exaggeration if on_terrain else float(h)
+    lon, lat, h_drawn = ecef_to_lonlat(p)
+    h = float(h_drawn) / view.exaggeration if on_terrain else float(h_drawn)
     if view.exaggeration != 1.0:
         from globeview.geodesy import lonlat_to_ecef
 

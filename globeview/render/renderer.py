@@ -14,7 +14,6 @@ with numpy. No GL object is created per frame in steady state.
 from __future__ import annotations
 
 import math
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -36,12 +35,13 @@ from globeview.render.colour_ramp import coast_ramp
 from globeview.render.gpu_objects import gpu_objects
 from globeview.render.overlay_imagery import OverlaySet  # overlays:
 from globeview.render.shader_source import build_shader, explain_sources
+from globeview.render.tile_build import ReadyTile, TileBuilder, bake
 from globeview.render.tile_loader import TileLoader, substitute_missing, tile_priority
-from globeview.render.tile_mesh import FLOATS_PER_VERTEX, TileMesh, build_tile_mesh
-from globeview.render.tile_normals import DataLevelNormals
+from globeview.render.tile_mesh import FLOATS_PER_VERTEX, TileMesh
 from globeview.render.tile_pool import IndexPool, TilePool, key_codes
+from globeview.render.tile_workers import ProcessBuilder, TerrainRecipe, default_loader
 from globeview.terrain.compose.stack import TerrainStack
-from globeview.terrain.quadtree import tile_bounds, tile_bounds_arrays
+from globeview.terrain.quadtree import tile_bounds
 
 
 @dataclass
@@ -76,7 +76,7 @@ class GlobeRenderer:
         self.indices = IndexPool(ctx, self.size)
         self.indices.on_realloc = self._build_vao
         self._terrain_version = terrain.version
-        self._data_normals = DataLevelNormals(terrain)
+        self.builder = TileBuilder(terrain)
         self._hook: DisplacementHook | None = None
         # imagery, hillshade, fog, tilt, wireframe (TERRAIN_FEATURES)
         self._features = (False, False, True, False, False)
@@ -97,14 +97,15 @@ class GlobeRenderer:
         # finished tile up to this many, so a view completes in few frames (it was 12, which
         # made a 355-tile view wait ~30 frames after its tiles were built).
         self.upload_budget = 256
-        # One background build thread: the build is GIL-bound (one thread built 355 tiles in
-        # 0.47 s, two in 0.92 s), and in the window two also took GIL time from the frames
-        # (White Mountains Go to -> complete 0.90-0.98 s with one, 1.05-1.33 s with two;
-        # benchmarks/bench_goto.py --workers, load 2.2-2.6).
-        self.load_workers = 1
-        # Tiles per background build call (`build_meshes`: one metadata call per batch);
-        # small, so the nearest tiles come back first.
-        self.load_batch = 4
+        # Background builds (`default_loader`): on 2 cores one thread (the build is
+        # GIL-bound: one thread built 355 tiles in 0.47 s, two in 0.92 s, and two also took
+        # GIL time from the frames: White Mountains Go to -> complete 0.90-0.98 s with one,
+        # 1.05-1.33 s with two; benchmarks/bench_goto.py --workers, load 2.2-2.6); with more
+        # cores worker processes, all but two cores (render/tile_workers.py).
+        self.load_kind, self.load_workers = default_loader()
+        # Tiles per background build call (one metadata call and one vectorised pass per
+        # batch); small, so the nearest tiles come back first.
+        self.load_batch = 4 if self.load_kind == "thread" else 8
         self.loader: TileLoader | None = None
         #: Called on a worker thread when a background tile finished (the window schedules a
         #: frame through it); None: nothing is told.
@@ -214,96 +215,38 @@ class GlobeRenderer:
         self.custom_ibo.write(data)
 
     # -- tile loading ----------------------------------------------------------------------
+    # Building tiles is `TileBuilder`'s (render/tile_build.py, no GL): these are its entries.
     def build_mesh(self, key: tuple[int, int, int]) -> TileMesh:
-        """Build one tile's mesh (the background loader's entry; thread-safe)."""
-        key = (int(key[0]), int(key[1]), int(key[2]))
-        return self._build_one(key, self._skirt_depth(key))
-
-    # Skirt depths for the loader's one-tile builds: one metadata call cost ~0.2 ms a tile
-    # (a fifth of a build), a call for the tile's aligned 4 x 4 block ~0.3 ms, and the loader
-    # asks for neighbouring tiles together. {key: depth} for one terrain version; bounded.
-    _skirt_cache: dict[tuple[int, int, int], float] | None = None
-    _skirt_version = -1
-    _skirt_lock = threading.Lock()
-
-    def _skirt_depth(self, key: tuple[int, int, int]) -> float:
-        """`skirt_depths` of one tile, computed with its aligned 4 x 4 block and cached."""
-        version = self.terrain.version
-        with self._skirt_lock:
-            if self._skirt_cache is None or self._skirt_version != version:
-                self._skirt_cache, self._skirt_version = {}, version
-            hit = self._skirt_cache.get(key)
-        if hit is not None:
-            return hit
-        level, x, y = key
-        xs = (x & ~3) + np.arange(4)
-        ys = (y & ~3) + np.arange(4)
-        xs, ys = xs[xs < (2 << level)], ys[ys < (1 << level)]
-        block = np.stack(
-            [np.full(len(xs) * len(ys), level), np.tile(xs, len(ys)), np.repeat(ys, len(xs))],
-            axis=1,
-        )
-        depths = self.skirt_depths(block)
-        with self._skirt_lock:
-            if self._skirt_version == version:
-                if len(self._skirt_cache) > 1 << 16:
-                    self._skirt_cache.clear()
-                for k, d in zip(block.tolist(), depths.tolist(), strict=True):
-                    self._skirt_cache[(k[0], k[1], k[2])] = d
-        row = np.nonzero((block[:, 1] == x) & (block[:, 2] == y))[0]
-        if not len(row):  # a key off the level's grid: as the batch path computes it
-            return float(self.skirt_depths(np.array([key]))[0])
-        return float(depths[int(row[0])])
-
-    def _build_one(self, key: tuple[int, int, int], skirt: float) -> TileMesh:
-        # A tile finer than its data shades with its data level's normals, interpolated
-        # (tile_normals.py: its own would draw the bilinear surface's creases, a lattice).
-        # Otherwise the apron (one node of the same-level neighbours around the tile) makes
-        # edge normals equal on both sides of a tile edge: no shading seams (issue #16).
-        normals = self._data_normals.normals(key)
-        return build_tile_mesh(
-            tile_bounds_tuple(key),
-            self.terrain.heights(key),
-            skirt,
-            apron=None if normals is not None else self.terrain.heights_apron(key),
-            normals=normals,
-        )
+        """Build one tile's mesh (thread-safe)."""
+        return self.builder.mesh(key)
 
     def skirt_depths(self, keys: np.ndarray) -> np.ndarray:
-        """(N,) metres the skirts of tiles ``keys`` (N, 3) hang below their edges, from one
-        vectorised metadata call per level (per tile it cost ~0.5 ms, more than the mesh)."""
-        keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
-        out = np.empty(len(keys))
-        for level in np.unique(keys[:, 0]):
-            rows = np.nonzero(keys[:, 0] == level)[0]
-            meta = self.terrain.metadata(int(level), keys[rows, 1], keys[rows, 2])
-            west, _, east, _ = tile_bounds_arrays(int(level), keys[rows, 1], keys[rows, 2])
-            edge_m = np.radians(east - west) * WGS84.a
-            # Skirts must reach below any neighbour drawn at another level or stride: a few
-            # times this tile's coarsest height error plus a little of its size.
-            out[rows] = 3.0 * np.nanmax(meta.stride_error, axis=1) + 0.01 * edge_m + 10.0
-        return out
+        """(N,) metres the skirts of tiles ``keys`` (N, 3) hang below their edges."""
+        return self.builder.skirt_depths(keys)
 
     def build_meshes(self, keys: np.ndarray) -> dict[tuple[int, int, int], TileMesh]:
-        """Meshes of tiles ``keys`` (N, 3), by key tuple: the per-tile metadata in one call per
-        level, then heights, apron and mesh per tile."""
-        keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
-        skirts = self.skirt_depths(keys)
+        """Meshes of tiles ``keys`` (N, 3), by key tuple, built in one batch."""
+        return self.builder.meshes(keys)
 
-        # In the calling thread: a build thread pool gained nothing measurable (2 threads on
-        # 2 cores, big-DEM flight: load 98 vs 93.5 ms a frame): a tile's numpy operations are
-        # on ~4k elements, so the GIL-held Python between them dominates.
-        out: dict[tuple[int, int, int], TileMesh] = {}
-        for k, skirt in zip(keys.tolist(), skirts.tolist(), strict=True):
-            key = (k[0], k[1], k[2])
-            out[key] = self._build_one(key, skirt)
-        return out
+    # The background threads' builds: meshes with their texels baked there, off the render
+    # thread (through build_mesh/build_meshes, which tests may slow down).
+    def _build_ready(self, key: tuple[int, int, int]) -> ReadyTile:
+        return ReadyTile.from_mesh(self.build_mesh(key))
+
+    def _build_ready_many(self, keys: np.ndarray) -> dict[tuple[int, int, int], ReadyTile]:
+        meshes = self.build_meshes(keys)
+        return dict(zip(meshes, bake(list(meshes.values())), strict=True))
 
     def _check_terrain_version(self) -> None:
         if self.terrain.version != self._terrain_version:
             self.pool.invalidate()
             if self.loader is not None:
-                self.loader.cancel_all()
+                if self.loader.processes is not None:
+                    # The workers opened the old layers: new ones for the new recipe.
+                    self.loader.shutdown()
+                    self.loader = None
+                else:
+                    self.loader.cancel_all()
             self._terrain_version = self.terrain.version
 
     def ensure_resident(self, keys: np.ndarray) -> int:
@@ -313,7 +256,7 @@ class GlobeRenderer:
         missing = np.unique(keys[self.pool.slots_of(keys) < 0], axis=0)
         if not len(missing):
             return 0
-        return self.pool.load(keys, self.build_meshes(missing).__getitem__)
+        return self.pool.load(keys, self._build_ready_many(missing).__getitem__)
 
     def _tile_ready(self) -> None:
         callback = self.on_tile_ready
@@ -324,13 +267,28 @@ class GlobeRenderer:
         if self.loader is None:
             # Batches through `build_meshes` where the renderer has it (one metadata call per
             # level for the batch instead of one per tile).
-            self.loader = TileLoader(
-                self.build_mesh,
-                workers=self.load_workers,
-                on_ready=self._tile_ready,
-                build_many=getattr(self, "build_meshes", None),
-                batch=self.load_batch,
-            )
+            if self.load_kind == "process":
+                procs = ProcessBuilder(
+                    TerrainRecipe.of(self.terrain),
+                    self.load_workers,
+                    fallback=self._build_ready_many,  # workers that cannot open the terrain
+                )
+                self.loader = TileLoader(
+                    procs.build,
+                    workers=self.load_workers,
+                    on_ready=self._tile_ready,
+                    build_many=procs.build_many,
+                    batch=self.load_batch,
+                    processes=procs,
+                )
+            else:
+                self.loader = TileLoader(
+                    self._build_ready,
+                    workers=self.load_workers,
+                    on_ready=self._tile_ready,
+                    build_many=self._build_ready_many,
+                    batch=self.load_batch,
+                )
         return self.loader
 
     def _load_async(
@@ -339,11 +297,13 @@ class GlobeRenderer:
         """Upload the finished tiles (up to ``upload_budget``), stand in ancestors for the
         missing ones and queue them nearest the eye first (see tile_loader.py). Returns the
         render set to draw, tiles uploaded, tiles loading; ``extra`` (the frame's
-        ``FrameStats.extra``) gets ``tiles_missing`` (tiles of the set not resident),
+        ``FrameStats.extra``) gets ``upload_ms`` (wall milliseconds of the uploads),
+        ``tiles_missing`` (tiles of the set not resident),
         ``tiles_standin`` (ancestors drawn for them) and ``tiles_failed`` (missing tiles whose
         build failed: they stay stood in until the layers change)."""
         self._check_terrain_version()
         loader = self._ensure_loader()
+        t_upload = time.perf_counter()
         ready = loader.take_ready(self.upload_budget)
         if ready:
             meshes = dict(ready)
@@ -351,6 +311,7 @@ class GlobeRenderer:
             # partial: near the pool's capacity, finished tiles that do not fit wait (they
             # are requested again) rather than failing the frame.
             self.pool.load(ready_keys, meshes.__getitem__, protect=render_set.keys, partial=True)
+        upload_ms = (time.perf_counter() - t_upload) * 1e3
         drawn, missing = substitute_missing(render_set, lambda k: self.pool.slots_of(k) >= 0)
         # Nearest first, from the last frame's eye (this frame's view is made after loading);
         # the first frame has none: coarse first.
@@ -384,6 +345,7 @@ class GlobeRenderer:
             warm(missing_keys[order])
         n_failed = len(bad)
         if extra is not None:
+            extra["upload_ms"] = upload_ms
             extra["tiles_missing"] = len(missing)
             # Stand-ins: drawn tiles the provider did not ask for (ancestors).
             asked = key_codes(render_set.keys)

@@ -7,11 +7,13 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import moderngl
+import numpy as np
 
 from globeview.errors import StoreError
 from globeview.lod.render_set import RenderSet
 from globeview.lod.view_state import ViewState
 from globeview.model.camera import Camera
+from globeview.model.display import DisplaySettings
 from globeview.render.frame_pipeline import FramePipeline, FrameResult, FrameTool
 from globeview.render.picking import Pick, pick
 from globeview.render.renderer import GlobeRenderer
@@ -75,7 +77,7 @@ class GlobeScene:
         self._tau_px = check_tau(value)
 
     @property
-    def settings(self):
+    def settings(self) -> DisplaySettings:
         return self.renderer.settings
 
     # -- the FrameHost the pipeline reads ------------------------------------------------------
@@ -111,7 +113,12 @@ class GlobeScene:
         self.last = self.pipeline.run(fbo, viewport, now_s)
         return self.last
 
-    def pick(self, x_px: float, y_px: float, to_true=None) -> Pick | None:
+    def pick(
+        self,
+        x_px: float,
+        y_px: float,
+        to_true: Callable[[np.ndarray], np.ndarray] | None = None,
+    ) -> Pick | None:
         """The terrain point under a pixel of the last rendered frame (``to_true``: drawn ->
         true ECEF points of a displacing tool, see `picking.refine_on_terrain`)."""
         if self.last is None or self.last.target is None:

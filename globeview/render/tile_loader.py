@@ -2,12 +2,15 @@
 
 Building a tile (reading its heights, meshing, averaging normals) takes milliseconds; a fast
 camera move can ask for a hundred new tiles in one frame. In the window the renderer therefore
-builds tiles off the UI thread (one worker thread: the build is mostly GIL-bound numpy on
-small arrays, and a second thread took time from the frames without building faster; the
-loader itself takes any number of workers), uploads the finished ones at the next frame,
-and until a tile is ready draws its nearest resident ancestor instead — never a hole, never
-an overlap (the ancestor replaces every requested tile below it). Headless renders load
-synchronously so every image is complete.
+builds tiles off the UI thread, uploads the finished ones at the next frame, and until a tile
+is ready draws its nearest resident ancestor instead — never a hole, never an overlap (the
+ancestor replaces every requested tile below it). Headless renders load synchronously so
+every image is complete.
+
+Two kinds of workers (issue #27): threads that call the build themselves (the build is
+mostly GIL-bound numpy on small arrays, so one thread is all a 2-core machine should give
+it), or threads that hand batches to worker processes (`tile_workers.ProcessBuilder`, given
+as ``processes``) and wait for them with the GIL released: the builds then use every core.
 
 Scheduling (issue #17: "Go to" -> complete view): the queue is a priority list, not a FIFO.
 
@@ -34,17 +37,21 @@ import logging
 import threading
 import time
 from collections.abc import Callable
+from typing import Protocol, TypeAlias
 
 import numpy as np
 
 from globeview.geodesy import lonlat_to_ecef
 from globeview.lod.render_set import RenderSet
 from globeview.lod.tile_indices import IndexVariant
+from globeview.render.tile_build import ReadyTile
 from globeview.render.tile_mesh import TileMesh
 
 log = logging.getLogger("globeview.render")
 
 Key = tuple[int, int, int]
+#: What a build gives: a mesh (its texels baked at upload) or a tile ready for upload.
+Built: TypeAlias = TileMesh | ReadyTile
 
 #: Mean Earth radius (m), for the tiles' ground radius in `tile_priority`.
 _EARTH_R_M = 6.371e6
@@ -87,27 +94,31 @@ class TileLoader:
     """Builds tile meshes on worker threads; the render thread collects finished ones.
 
     Args:
-        build: ``build(key) -> TileMesh`` (called on the workers; must be thread-safe).
+        build: ``build(key) -> TileMesh | ReadyTile`` (called on the workers; must be thread-safe).
         workers: worker threads.
         on_ready: called on a worker thread after each batch of tiles finished (built or
             failed); must be cheap and thread-safe (e.g. emit a Qt signal).
-        build_many: optional ``build_many(keys (N, 3)) -> {key: TileMesh}`` that builds
+        build_many: optional ``build_many(keys (N, 3)) -> {key: TileMesh | ReadyTile}`` that builds
             several tiles in one call (vectorised metadata, fewer hand-overs of the GIL); a
             worker then takes up to ``batch`` tiles at once, in load order. A batch that
             raises is built again tile by tile with ``build`` so only the bad tile fails.
         batch: most tiles per ``build_many`` call.
         retry_failed_s: a failed tile is kept in `failed` (and not built again) for this
             many seconds; the next request or prefetch after that tries it again.
+        processes: the worker processes ``build`` and ``build_many`` hand work to (a
+            `tile_workers.ProcessBuilder`): `describe`, `cpu_seconds` and `shutdown`
+            include them (`shutdown` kills them first, so no thread waits on a build).
     """
 
     def __init__(
         self,
-        build: Callable[[Key], TileMesh],
+        build: Callable[[Key], Built],
         workers: int = 2,
         on_ready: Callable[[], None] | None = None,
-        build_many: Callable[[np.ndarray], dict[Key, TileMesh]] | None = None,
+        build_many: Callable[[np.ndarray], dict[Key, Built]] | None = None,
         batch: int = 8,
         retry_failed_s: float = RETRY_FAILED_S,
+        processes: ProcessPart | None = None,
     ) -> None:
         if workers < 1:
             raise ValueError(f"tile loader workers must be at least 1, got {workers}")
@@ -120,16 +131,20 @@ class TileLoader:
         self._build_many = build_many
         self._batch = batch if build_many is not None else 1
         self.on_ready = on_ready
+        self.processes = processes
         self._cv = threading.Condition()
         # Wanted, not started: dicts kept in load order (a dict is an ordered set here).
         self._prefetch: dict[Key, None] = {}
         self._queue: dict[Key, None] = {}
         self._running: set[Key] = set()
-        self._ready: dict[Key, TileMesh] = {}
+        self._ready: dict[Key, Built] = {}
         self.failed: dict[Key, BaseException] = {}
         self._failed_at: dict[Key, float] = {}  # time.monotonic() of each failure
         # Bumped by cancel_all: a build that started before it is discarded when it ends.
         self._generation = 0
+        #: Tiles built (or failed) by the workers since the loader started, results
+        #: discarded by `cancel_all` included: what `cpu_seconds` was spent on.
+        self.tiles_built = 0
         self._stop = False
         self._threads = [
             threading.Thread(target=self._work, name=f"gv-tiles-{i}", daemon=True)
@@ -165,6 +180,20 @@ class TileLoader:
         with self._cv:
             return len(self._ready)
 
+    def describe(self) -> str:
+        """The loader's kind and size for reports, e.g. ``thread x1``, ``process x14``."""
+        if self.processes is not None:
+            return self.processes.describe()
+        return f"thread x{len(self._threads)}"
+
+    def cpu_seconds(self) -> float:
+        """CPU time (s) the workers have used so far: the worker threads' own clocks (the
+        builds, or handing batches to the processes and taking their results), plus the
+        worker processes' (not the render thread's share of the GIL hand-overs); for
+        benchmarks."""
+        own = sum(_thread_cpu_s(t) for t in self._threads)
+        return own + (self.processes.cpu_seconds() if self.processes is not None else 0.0)
+
     # -- asking ----------------------------------------------------------------------------
     def request(self, keys: np.ndarray, priority: np.ndarray | None = None) -> None:
         """This frame's missing tiles ``keys`` (N, 3), ``priority`` ascending (e.g.
@@ -195,9 +224,9 @@ class TileLoader:
             if self._prefetch:
                 self._cv.notify_all()
 
-    def take_ready(self, limit: int) -> list[tuple[Key, TileMesh]]:
-        """Up to ``limit`` finished meshes, in the order they finished (removed here)."""
-        out: list[tuple[Key, TileMesh]] = []
+    def take_ready(self, limit: int) -> list[tuple[Key, Built]]:
+        """Up to ``limit`` finished tiles, in the order they finished (removed here)."""
+        out: list[tuple[Key, Built]] = []
         with self._cv:
             while self._ready and len(out) < limit:
                 key = next(iter(self._ready))
@@ -227,6 +256,8 @@ class TileLoader:
             self._prefetch.clear()
             self._queue.clear()
             self._cv.notify_all()
+        if self.processes is not None:
+            self.processes.shutdown()  # builds under way fail at once: nothing to wait for
         me = threading.current_thread()
         for t in self._threads:
             if t is not me and t.is_alive():
@@ -267,7 +298,7 @@ class TileLoader:
             self._cv.wait()
         return None
 
-    def _build_keys(self, keys: list[Key]) -> dict[Key, TileMesh | BaseException]:
+    def _build_keys(self, keys: list[Key]) -> dict[Key, Built | BaseException]:
         """Build ``keys``: in one ``build_many`` call when there is one and several keys,
         else (or when the batch raised) one by one, each failure kept as its exception."""
         if self._build_many is not None and len(keys) > 1:
@@ -276,8 +307,11 @@ class TileLoader:
                 return {k: meshes[k] for k in keys}
             except Exception:  # noqa: BLE001  find the bad tile below, one by one
                 pass
-        out: dict[Key, TileMesh | BaseException] = {}
+        out: dict[Key, Built | BaseException] = {}
         for key in keys:
+            if self._stop:  # shutting down: the rest are dropped with the batch
+                out[key] = RuntimeError("tile loader shut down")
+                continue
             try:
                 out[key] = self._build(key)
             except Exception as exc:  # noqa: BLE001  a failed tile is counted, others load
@@ -294,6 +328,7 @@ class TileLoader:
                 generation = self._generation
             results = self._build_keys(keys)
             with self._cv:
+                self.tiles_built += len(results)
                 if generation != self._generation:
                     continue  # cancelled meanwhile (new layers): the results are stale
                 for key, res in results.items():
@@ -312,6 +347,26 @@ class TileLoader:
                     callback()
                 except Exception:  # a broken listener must not stop loading
                     log.exception("tile loader: on_ready failed")
+
+
+class ProcessPart(Protocol):
+    """The worker processes a loader hands builds to (`tile_workers.ProcessBuilder`)."""
+
+    def describe(self) -> str: ...
+    def cpu_seconds(self) -> float: ...
+    def shutdown(self) -> None: ...
+
+
+def _thread_cpu_s(thread: threading.Thread) -> float:
+    """CPU seconds a live thread has used (its POSIX CPU clock); 0 for a thread that ended
+    or where the platform has no per-thread clock."""
+    ident = thread.ident
+    if ident is None or not thread.is_alive():
+        return 0.0
+    try:
+        return time.clock_gettime(time.pthread_getcpuclockid(ident))
+    except (AttributeError, OSError):
+        return 0.0
 
 
 def substitute_missing(

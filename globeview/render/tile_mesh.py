@@ -19,12 +19,12 @@ A tile of ``size = 2^n + 1`` nodes per side becomes:
 from __future__ import annotations
 
 import functools
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from globeview.geodesy import WGS84, lonlat_to_ecef
-from globeview.lod.tile_indices import node_lonlat
+from globeview.geodesy import WGS84, geodetic_to_ecef
 
 FLOATS_PER_VERTEX = 6
 
@@ -53,25 +53,29 @@ class _Axes:
     sines instead of 67^2) and combining them by broadcasting performs, node by node, the same
     float64 operations in the same order as `lonlat_to_ecef` on the meshgrid, hence the same
     numbers, at a fraction of the cost.
+
+    ``lon`` (..., C) and ``lat`` (..., R) degrees: one grid, or a batch of B grids with a
+    leading axis (the factors are then (B, 1, C) and (B, R, 1)); element by element the same
+    operations either way, so a tile built in a batch has the bits it has built alone.
     """
 
     def __init__(self, lon: np.ndarray, lat: np.ndarray) -> None:
         lon_r = np.radians(lon)
         lat_r = np.radians(lat)
-        self.cos_lon = np.cos(lon_r)[None, :]  # (1, C)
-        self.sin_lon = np.sin(lon_r)[None, :]
+        self.cos_lon = np.cos(lon_r)[..., None, :]  # (..., 1, C)
+        self.sin_lon = np.sin(lon_r)[..., None, :]
         sin_lat = np.sin(lat_r)
         cos_lat = np.cos(lat_r)
         # Prime-vertical radius of curvature N(lat), as geodetic_to_ecef writes it.
         n = WGS84.a / np.sqrt(1.0 - WGS84.e2 * sin_lat * sin_lat)
-        self.sin_lat = sin_lat[:, None]  # (R, 1)
-        self.cos_lat = cos_lat[:, None]
-        self.n = n[:, None]
-        self.n_polar = (n * (1.0 - WGS84.e2))[:, None]
+        self.sin_lat = sin_lat[..., :, None]  # (..., R, 1)
+        self.cos_lat = cos_lat[..., :, None]
+        self.n = n[..., :, None]
+        self.n_polar = (n * (1.0 - WGS84.e2))[..., :, None]
 
     def ecef(self, h: np.ndarray | float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """ECEF x, y, z (each (R, C) float64, metres) of the nodes at heights ``h`` (metres,
-        (R, C) or a scalar)."""
+        """ECEF x, y, z (each (..., R, C) float64, metres) of the nodes at heights ``h``
+        (metres, (..., R, C) or a scalar)."""
         rho = (self.n + h) * self.cos_lat
         x = rho * self.cos_lon
         y = rho * self.sin_lon
@@ -86,7 +90,7 @@ def build_tile_mesh(
     apron: np.ndarray | None = None,
     normals: np.ndarray | None = None,
 ) -> TileMesh:
-    """Build a tile's vertices and normals.
+    """Build a tile's vertices and normals (`build_tile_meshes` on a batch of one).
 
     Args:
         bounds: (west, south, east, north) in degrees.
@@ -97,60 +101,140 @@ def build_tile_mesh(
         normals: optional (size, size, 3) unit ECEF normals to use as they are (a tile finer
             than its data shades with its data's, `tile_normals`); ``apron`` is then unused.
     """
-    size = heights.shape[0]
-    lon, lat = node_lonlat(bounds, size)
+    (mesh,) = build_tile_meshes(
+        np.asarray(bounds, dtype=np.float64)[None],
+        np.asarray(heights)[None],
+        np.array([skirt_depth], dtype=np.float64),
+        apron=None if apron is None else np.asarray(apron)[None],
+        normals=[normals],
+    )
+    return mesh
+
+
+def build_tile_meshes(
+    bounds: np.ndarray,
+    heights: np.ndarray,
+    skirt_depth: np.ndarray,
+    apron: np.ndarray | None = None,
+    normals: Sequence[np.ndarray | None] | None = None,
+) -> list[TileMesh]:
+    """Build the vertices and normals of B tiles at once (issue #27: a tile's build is a few
+    hundred numpy calls on 65 x 65 arrays, each paying its dispatch; on a batch it pays it
+    once for B tiles). Element by element the operations of a tile built alone, in the same
+    order: the same bits (tests/render/test_tile_build.py).
+
+    Args:
+        bounds: (B, 4) (west, south, east, north) degrees.
+        heights: (B, size, size) float32 metres, row 0 at the north edge; no NaN.
+        skirt_depth: (B,) metres the skirts hang below the edge nodes.
+        apron: optional (B, size + 2, size + 2) heights with one node beyond each edge (see
+            `build_tile_mesh`); rows of tiles given their ``normals`` are not read.
+        normals: optional B entries, each None or (size, size, 3) unit ECEF normals used as
+            they are.
+    Returns:
+        The B meshes, in order (their arrays are views of the batch's).
+    """
+    b, size = heights.shape[0], heights.shape[1]
+    bounds = np.asarray(bounds, dtype=np.float64).reshape(b, 4)
+    skirt = np.asarray(skirt_depth, dtype=np.float64).reshape(b)
+    west, south, east, north = bounds.T
+    # np.linspace on arrays: per tile the same operations as on the tile's scalars.
+    lon = np.linspace(west, east, size, axis=-1)  # (B, C)
+    lat = np.linspace(north, south, size, axis=-1)  # (B, R)
     axes = _Axes(lon, lat)
-    bx, by, bz = axes.ecef(0.0)  # the nodes on the ellipsoid, (size, size) each
-    mid_lon = 0.5 * (bounds[0] + bounds[2])
-    mid_lat = 0.5 * (bounds[1] + bounds[3])
-    center = np.asarray(lonlat_to_ecef(mid_lon, mid_lat, 0.0), dtype=np.float64).reshape(3)
+    bx, by, bz = axes.ecef(0.0)  # the nodes on the ellipsoid, (B, size, size) each
+    center = np.stack(
+        geodetic_to_ecef(0.5 * (west + east), 0.5 * (south + north), 0.0), axis=-1
+    )  # (B, 3)
+    nrm = _batch_normals(bounds, heights, axes, (lon, lat), apron, normals)
+    vertices = _batch_vertices(heights, skirt, axes, (bx, by, bz), center)
+    h32 = heights.astype(np.float32)
+    return [
+        TileMesh(
+            center=center[i],
+            vertices=vertices[i],
+            normals=nrm[i],
+            heights=h32[i],
+            skirt_depth=float(skirt[i]),
+        )
+        for i in range(b)
+    ]
 
-    if normals is not None:
-        normals = np.asarray(normals, dtype=np.float32)
-    elif apron is not None:
-        normals = _vertex_normals_apron(bounds, apron)
-    else:
-        normals = _normals_of(*axes.ecef(heights.astype(np.float64)))
 
+def _batch_normals(
+    bounds: np.ndarray,
+    heights: np.ndarray,
+    axes: _Axes,
+    lonlat: tuple[np.ndarray, np.ndarray],
+    apron: np.ndarray | None,
+    given: Sequence[np.ndarray | None] | None,
+) -> np.ndarray:
+    """(B, size, size, 3) float32 normals of a batch: the given ones where a tile has them,
+    else from its apron (when there is one), else from its own heights (``axes``: the
+    batch's, on ``lonlat`` = its node longitudes (B, C) and latitudes (B, R))."""
+    b, size = heights.shape[0], heights.shape[1]
+    given = list(given) if given is not None else [None] * b
+    rows = np.array([i for i in range(b) if given[i] is None], dtype=np.int64)
+    out = np.empty((b, size, size, 3), dtype=np.float32)
+    if apron is not None and len(rows):
+        out[rows] = apron_normals_batch(bounds[rows], apron[rows])[:, 1:-1, 1:-1]
+    elif len(rows) == b:
+        out[:] = _normals_of(*axes.ecef(heights.astype(np.float64)))
+    elif len(rows):
+        sub = _Axes(lonlat[0][rows], lonlat[1][rows])
+        out[rows] = _normals_of(*sub.ecef(heights[rows].astype(np.float64)))
+    for i, n in enumerate(given):
+        if n is not None:
+            out[i] = np.asarray(n, dtype=np.float32)
+    return out
+
+
+def _batch_vertices(
+    heights: np.ndarray,
+    skirt: np.ndarray,
+    axes: _Axes,
+    base: tuple[np.ndarray, np.ndarray, np.ndarray],
+    center: np.ndarray,
+) -> np.ndarray:
+    """(B, V, 6) float32 vertices of a batch: grid nodes row-major, then the four skirts."""
+    b, size = heights.shape[0], heights.shape[1]
+    bx, by, bz = base
     # One float32 buffer written in place: grid nodes row-major, then the four skirts.
     nn = size * size
-    vertices = np.empty((vertices_per_tile(size), FLOATS_PER_VERTEX), dtype=np.float32)
-    rel = (bx - center[0], by - center[1], bz - center[2])  # float64 relative to the centre
+    vertices = np.empty((b, vertices_per_tile(size), FLOATS_PER_VERTEX), dtype=np.float32)
+    c = center[:, :, None, None]  # (B, 3, 1, 1)
+    rel = (bx - c[:, 0], by - c[:, 1], bz - c[:, 2])  # float64 relative to the centre
     h64 = heights.astype(np.float64)
     tex = (np.arange(size) + 0.5) / size
-    grid = vertices[:nn].reshape(size, size, FLOATS_PER_VERTEX)
+    grid = vertices[:, :nn].reshape(b, size, size, FLOATS_PER_VERTEX)
     for k in range(3):
-        grid[:, :, k] = rel[k]
-    grid[:, :, 3] = h64
-    grid[:, :, 4] = tex[None, :]
-    grid[:, :, 5] = tex[:, None]
+        grid[..., k] = rel[k]
+    grid[..., 3] = h64
+    grid[..., 4] = tex[None, :]
+    grid[..., 5] = tex[:, None]
     # Skirts: north, south, west, east edges (the order tile_indices.py expects).
     # Skirts slant outward as well as down (45 degrees): a vertical skirt is edge-on when seen
     # from straight above, and there the curved edge of a finer neighbour and the straight
     # chord of a coarser one leave a sliver only an outward-leaning skirt can fill.
     # Outward directions are the ENU basis vectors of `enu_basis` at the edge nodes: north
     # edge +N, south edge -N, west edge -E, east edge +E.
-    sl, cl = axes.sin_lon[0], axes.cos_lon[0]  # (size,) along a row
-    sp, cp = axes.sin_lat[:, 0], axes.cos_lat[:, 0]  # (size,) down a column
-    out_dir = np.empty((3, 4, size))
-    out_dir[0, 0], out_dir[1, 0], out_dir[2, 0] = -sp[0] * cl, -sp[0] * sl, cp[0]  # N: +N
-    out_dir[0, 1], out_dir[1, 1], out_dir[2, 1] = sp[-1] * cl, sp[-1] * sl, -cp[-1]  # S: -N
-    out_dir[0, 2], out_dir[1, 2], out_dir[2, 2] = sl[0], -cl[0], -0.0  # west edge: -E
-    out_dir[0, 3], out_dir[1, 3], out_dir[2, 3] = -sl[-1], cl[-1], 0.0  # east edge: +E
+    sl, cl = axes.sin_lon[:, 0], axes.cos_lon[:, 0]  # (B, size) along a row
+    sp, cp = axes.sin_lat[:, :, 0], axes.cos_lat[:, :, 0]  # (B, size) down a column
+    out_dir = np.empty((3, b, 4, size))
+    n0, s0 = sp[:, :1], sp[:, -1:]
+    out_dir[0, :, 0], out_dir[1, :, 0], out_dir[2, :, 0] = -n0 * cl, -n0 * sl, cp[:, :1]  # +N
+    out_dir[0, :, 1], out_dir[1, :, 1], out_dir[2, :, 1] = s0 * cl, s0 * sl, -cp[:, -1:]  # -N
+    out_dir[0, :, 2], out_dir[1, :, 2], out_dir[2, :, 2] = sl[:, :1], -cl[:, :1], -0.0  # -E
+    out_dir[0, :, 3], out_dir[1, :, 3], out_dir[2, :, 3] = -sl[:, -1:], cl[:, -1:], 0.0  # +E
     er, ec = _edge_nodes(size)
-    skirts = vertices[nn:]
+    skirts = vertices[:, nn:]
+    depth = skirt[:, None]
     for k in range(3):
-        skirts[:, k] = rel[k][er, ec] + out_dir[k].ravel() * skirt_depth
-    skirts[:, 3] = h64[er, ec] - skirt_depth
-    skirts[:, 4] = tex[ec]
-    skirts[:, 5] = tex[er]
-    return TileMesh(
-        center=center,
-        vertices=vertices,
-        normals=normals,
-        heights=heights.astype(np.float32),
-        skirt_depth=float(skirt_depth),
-    )
+        skirts[..., k] = rel[k][:, er, ec] + out_dir[k].reshape(b, -1) * depth
+    skirts[..., 3] = h64[:, er, ec] - depth
+    skirts[..., 4] = tex[ec]
+    skirts[..., 5] = tex[er]
+    return vertices
 
 
 @functools.lru_cache(maxsize=8)
@@ -195,44 +279,48 @@ def _cross(
 
 
 def _normals_of(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """(R, C, 3) float32 unit normals of the (R, C) ECEF grid (x, y, z) float64 metres, row 0
-    north, averaged from the eight triangles (two per cell) around each node (edge nodes: the
-    triangles they have).
+    """(..., R, C, 3) float32 unit normals of the (..., R, C) ECEF grids (x, y, z) float64
+    metres, row 0 north (one grid, or B with a leading axis), averaged from the eight
+    triangles (two per cell) around each node (edge nodes: the triangles they have).
 
     Why it looks like this (issue #17: the normals were a third of a tile's build): one
     component at a time (np.cross and np.linalg.norm on a trailing axis of 3 are several
-    times slower), and on the grid flattened row-major, where a node's east neighbour is the
+    times slower), and on each grid flattened row-major, where a node's east neighbour is the
     next element and its south neighbour C elements on, so every operand is a contiguous
-    1-D slice (strided 2-D slices ran at half the speed). Cell i (its north-west node) is
-    then a cell for every i but the last column's, whose "cells" straddle two rows: they are
-    computed and zeroed before accumulating. The arithmetic per node is the reference's
-    (tests/render/test_tile_build.py), in the same order: the same bits.
+    slice along the last axis (strided 2-D slices ran at half the speed). Cell i (its
+    north-west node) is then a cell for every i but the last column's, whose "cells" straddle
+    two rows: they are computed and zeroed before accumulating. The arithmetic per node is
+    the reference's (tests/render/test_tile_build.py), in the same order: the same bits, a
+    grid alone or in a batch.
     """
-    r, c = x.shape
+    lead = x.shape[:-2]
+    r, c = x.shape[-2:]
+    b = int(np.prod(lead, dtype=np.int64))
     n = r * c
     cells = (r - 1) * c - 1  # flat cell indices 0 .. cells - 1 (north-west nodes)
-    # Relative to the middle node: small numbers, so the cross products keep their digits.
-    p = [(v - v[r // 2, c // 2]).ravel() for v in (x, y, z)]
-    east = [v[1:] - v[:-1] for v in p]  # node i -> i + 1
-    south = [v[c:] - v[:-c] for v in p]  # node i -> i + C
+    # Relative to each grid's middle node: small numbers, so the cross products keep their
+    # digits.
+    p = [(v - v[..., r // 2, c // 2, None, None]).reshape(b, n) for v in (x, y, z)]
+    east = [v[:, 1:] - v[:, :-1] for v in p]  # node i -> i + 1
+    south = [v[:, c:] - v[:, :-c] for v in p]  # node i -> i + C
     # Cell corners a = i, b = i + 1 (east), c = i + C (south), d = i + C + 1.
-    ca = [v[:cells] for v in south]
-    ba = [v[:cells] for v in east]
-    db = [v[1 : cells + 1] for v in south]
-    dc = [v[c : c + cells] for v in east]
+    ca = [v[:, :cells] for v in south]
+    ba = [v[:, :cells] for v in east]
+    db = [v[:, 1 : cells + 1] for v in south]
+    dc = [v[:, c : c + cells] for v in east]
     # Rows run south and columns east, so cross(south, east) points up (outward).
     n1 = _cross(*ca, *ba)  # triangle a, c, b
     n2 = _cross(*db, *dc)  # triangle b, c, d
-    acc = np.zeros((3, n))
+    acc = np.zeros((3, b, n))
     for k in range(3):
         cell = n1[k]
         cell += n2[k]
-        cell[c - 1 :: c] = 0.0  # the last column's wrap-around "cells"
+        cell[:, c - 1 :: c] = 0.0  # the last column's wrap-around "cells"
         a = acc[k]
-        a[:cells] += cell  # the cell's north-west node
-        a[1 : cells + 1] += cell  # north-east
-        a[c : c + cells] += cell  # south-west
-        a[c + 1 :] += cell  # south-east
+        a[:, :cells] += cell  # the cell's north-west node
+        a[:, 1 : cells + 1] += cell  # north-east
+        a[:, c : c + cells] += cell  # south-west
+        a[:, c + 1 :] += cell  # south-east
     norm = acc[0] * acc[0]
     sq = acc[1] * acc[1]
     norm += sq
@@ -240,18 +328,18 @@ def _normals_of(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
     norm += sq
     np.sqrt(norm, out=norm)
     safe = np.maximum(norm, 1e-30)
-    out = np.empty((n, 3), dtype=np.float32)
+    out = np.empty((b, n, 3), dtype=np.float32)
     ok = norm > 1e-12
     if ok.all():
         for k in range(3):
-            np.divide(acc[k], safe, out=out[:, k])  # float64 quotient, rounded to float32
-        return out.reshape(r, c, 3)
+            np.divide(acc[k], safe, out=out[:, :, k])  # float64 quotient, rounded to float32
+        return out.reshape(*lead, r, c, 3)
     # A pole row collapses to one point: its cells are degenerate; fall back to the radial up.
-    xf, yf, zf = x.ravel(), y.ravel(), z.ravel()
+    xf, yf, zf = (v.reshape(b, n) for v in (x, y, z))
     rad = np.sqrt(xf * xf + yf * yf + zf * zf)
     for k, comp in enumerate((xf, yf, zf)):
-        out[:, k] = np.where(ok, acc[k] / safe, comp / rad)
-    return out.reshape(r, c, 3)
+        out[:, :, k] = np.where(ok, acc[k] / safe, comp / rad)
+    return out.reshape(*lead, r, c, 3)
 
 
 def _vertex_normals_apron(
@@ -267,10 +355,17 @@ def apron_normals(bounds: tuple[float, float, float, float], apron: np.ndarray) 
     metres, one node beyond each edge of the tile of ``bounds``, degrees): the tile's nodes as
     `build_tile_mesh` computes them, and the ring's from the triangles the apron has (one
     side: what `tile_normals` needs of them, a cubic's outer support)."""
-    size = apron.shape[0] - 2
-    west, south, east, north = bounds
+    return apron_normals_batch(np.asarray(bounds, dtype=np.float64)[None], apron[None])[0]
+
+
+def apron_normals_batch(bounds: np.ndarray, apron: np.ndarray) -> np.ndarray:
+    """`apron_normals` of B tiles: ``bounds`` (B, 4) degrees, ``apron`` (B, size + 2, size +
+    2) metres; returns (B, size + 2, size + 2, 3) float32 (the same bits as one at a time)."""
+    size = apron.shape[-1] - 2
+    west, south, east, north = np.asarray(bounds, dtype=np.float64).reshape(-1, 4).T
     step_lon = (east - west) / (size - 1)
     step_lat = (north - south) / (size - 1)
-    lon = west + step_lon * np.arange(-1, size + 1)
-    lat = np.clip(north - step_lat * np.arange(-1, size + 1), -90.0, 90.0)
+    t = np.arange(-1, size + 1)
+    lon = west[:, None] + step_lon[:, None] * t
+    lat = np.clip(north[:, None] - step_lat[:, None] * t, -90.0, 90.0)
     return _normals_of(*_Axes(lon, lat).ecef(apron.astype(np.float64)))

@@ -13,8 +13,8 @@ import moderngl
 import numpy as np
 
 from globeview.lod.tile_indices import IndexVariant, grid_indices
-from globeview.render.colour_ramp import tile_texels
 from globeview.render.gpu_objects import gpu_objects
+from globeview.render.tile_build import ReadyTile
 from globeview.render.tile_mesh import FLOATS_PER_VERTEX, TileMesh, vertices_per_tile
 
 KeyArray = np.ndarray  # (N, 3) int64: level, x, y
@@ -131,7 +131,7 @@ class TilePool:
     def load(
         self,
         keys: KeyArray,
-        build: Callable[[tuple[int, int, int]], TileMesh],
+        build: Callable[[tuple[int, int, int]], TileMesh | ReadyTile],
         protect: KeyArray | None = None,
         partial: bool = False,
     ) -> int:
@@ -177,16 +177,15 @@ class TilePool:
         self._sorted_codes = self.codes[live][order]
         self._sorted_slots = live[order]
 
-    def _upload(self, slot: int, mesh: TileMesh) -> None:
+    def _upload(self, slot: int, tile: TileMesh | ReadyTile) -> None:
+        """Write a tile into ``slot``: a `ReadyTile` as it is (its texels baked where it was
+        built), a bare `TileMesh` with its texels baked here."""
+        ready = tile if isinstance(tile, ReadyTile) else ReadyTile.from_mesh(tile)
         stride = self.verts_per_tile * FLOATS_PER_VERTEX * 4
-        self.vbo.write(mesh.vertices.tobytes(), offset=slot * stride)
+        self.vbo.write(ready.vertices, offset=slot * stride)
         s = self.size
-        albedo, coast, coast_scale = tile_texels(mesh.heights)
-        self.albedo_tex.write(albedo.tobytes(), viewport=(0, 0, slot, s, s, 1))
-        nrm8 = np.empty((s, s, 4), dtype=np.uint8)
-        nrm8[:, :, :3] = np.rint(mesh.normals * 127.5 + 127.5)  # unit normals: 0..255
-        nrm8[:, :, 3] = coast
-        self.normal_tex.write(nrm8.tobytes(), viewport=(0, 0, slot, s, s, 1))
-        self.centers[slot] = mesh.center
-        self.coast_scale[slot] = coast_scale
+        self.albedo_tex.write(ready.albedo, viewport=(0, 0, slot, s, s, 1))
+        self.normal_tex.write(ready.normal, viewport=(0, 0, slot, s, s, 1))
+        self.centers[slot] = ready.center
+        self.coast_scale[slot] = ready.coast_scale
         self.generation[slot] += 1

@@ -453,7 +453,7 @@ class GlobeWidget(QOpenGLWidget):
             buttons=buttons,
             modifiers=modifiers,
             wheel_delta=float(wheel_delta),
-            picked=None if hit is None else tuple(float(v) for v in hit.ecef),
+            picked=None if hit is None else tuple(float(v) for v in hit.ecef),  # type: ignore[arg-type]
             lonlat=None if hit is None else (hit.lon, hit.lat, hit.height),
         )
 

@@ -71,6 +71,12 @@ class MainWindow(QMainWindow):
         camera: the initial camera (default: the whole globe).
         embedded_overlays: open the embedded overlays (country borders shown, Blue Marble
             imagery listed but hidden).
+        model: the `Globe` to show (its ``terrain`` must be ``terrain``): the window shows
+            and edits this very model, e.g. a `globeview.Globe`'s from a script
+            (`globeview.show`); its camera, tau and display settings are kept, not
+            restored from ``settings``. Default: a new one.
+        overlay_host: the `OverlayHost` opening overlays onto ``model`` (default: a new one
+            on ``registry``).
 
     Its parts: ``view_bar`` (`ViewToolbar`), ``files`` (`FileOpening`), ``tools``
     (`WindowTools`), ``layer_panel``, ``plugin_panel``, ``plot_dock``, ``status``,
@@ -85,6 +91,8 @@ class MainWindow(QMainWindow):
         show_error=None,
         camera: Camera | None = None,
         embedded_overlays: bool = False,
+        model: Globe | None = None,
+        overlay_host: OverlayHost | None = None,
     ) -> None:
         super().__init__()
         self.setWindowTitle("globeview")
@@ -94,11 +102,18 @@ class MainWindow(QMainWindow):
         self.errors = ErrorReporter(show_error, self)
         #: The globe shown, as data (camera, layers, overlays, LOD provider, tool, tau,
         #: display settings); every widget below shows it and edits it.
-        self.model = Globe(
-            terrain,
-            camera or Camera.from_lonlat(*HOME_POSE),
-            tau_px=_tau_setting(self.qsettings.value("view/tau")),
-        )
+        self._own_model = model is None
+        if model is None:
+            model = Globe(
+                terrain,
+                camera or Camera.from_lonlat(*HOME_POSE),
+                tau_px=_tau_setting(self.qsettings.value("view/tau")),
+            )
+        elif model.terrain is not terrain:
+            raise ValueError("MainWindow: terrain is not the model's terrain")
+        elif camera is not None:
+            model.camera = camera
+        self.model = model
         #: Every model subscription of the window and its children (they are handed this
         #: one): cleared in one go when the window closes.
         self.subscriptions = Subscriptions()
@@ -120,7 +135,11 @@ class MainWindow(QMainWindow):
 
         #: Opens overlay files onto the model through the layer types, with or without GL
         #: (the session draws what it opened).
-        self.overlay_host = OverlayHost(self.model, registry)
+        if overlay_host is not None and (
+            overlay_host.globe is not self.model or overlay_host.registry is not registry
+        ):
+            raise ValueError("MainWindow: overlay_host is not for this model and registry")
+        self.overlay_host = overlay_host or OverlayHost(self.model, registry)
         self.globe = GlobeWidget(
             self.model, registry, self, self.subscriptions, overlays=self.overlay_host
         )
@@ -247,12 +266,16 @@ class MainWindow(QMainWindow):
         state = s.value("window/state")
         if state is not None:
             self.restoreState(state)
+        if self._own_model:  # a model handed in keeps its own display settings
+            self._restore_display(s)
+        self.view_bar.show_display()
+        self.ellipsoidal_action.setChecked(s.value(HEIGHT_REFERENCE_KEY) == ELLIPSOIDAL)
+
+    def _restore_display(self, s: QSettings) -> None:
         display = self.model.display
         display.exaggeration = _exaggeration_setting(s.value("view/exaggeration"))
         display.wireframe = _bool(s.value("view/wireframe"), False)
         display.hillshade = _bool(s.value("view/hillshade"), False)
-        self.view_bar.show_display()
-        self.ellipsoidal_action.setChecked(s.value(HEIGHT_REFERENCE_KEY) == ELLIPSOIDAL)
 
     def save_settings(self) -> None:
         s = self.qsettings

@@ -9,79 +9,41 @@ loader (`DemLoader`), whose failure is one line in a dialog.
 
 from __future__ import annotations
 
-from PyQt6.QtWidgets import (
-    QDialog,
-    QDialogButtonBox,
-    QLabel,
-    QLineEdit,
-    QVBoxLayout,
-    QWidget,
-)
+from PyQt6.QtWidgets import QDialog, QWidget
 
-from globeview.errors import GlobeviewError
 from globeview.terrain.sources import check_store_url
+from globeview.ui.checked_text_dialog import CheckedTextDialog
 
 __all__ = ["UrlDialog", "ask_store_url"]
 
 
-class UrlDialog(QDialog):
+class UrlDialog(CheckedTextDialog):
     """Asks for a store URL; `url` is the checked URL once accepted.
 
-    Attributes:
-        edit: the URL field; problem: the one-line reason the text is not a store URL yet
-            ("" when it is); url: the checked URL (`check_store_url`) after OK, else None.
+    Attributes (beyond `CheckedTextDialog`'s): url: the checked URL (`check_store_url`)
+    after OK, else None.
     """
 
     def __init__(self, parent: QWidget | None = None, initial: str = "") -> None:
-        super().__init__(parent)
-        self.setWindowTitle("Open URL")
         self.url: str | None = None
-        self.edit = QLineEdit(initial)
-        self.edit.setPlaceholderText("https://host/path/store")
-        self.edit.setToolTip(
-            "The URL of a globeview tile store folder served over HTTP(S) (the folder that "
-            "holds manifest.json); tiles are streamed with range requests and cached on disk"
+        super().__init__(
+            parent,
+            title="Open URL",
+            intro="URL of a tile store:",
+            placeholder="https://host/path/store",
+            tooltip="The URL of a globeview tile store folder served over HTTP(S) (the folder "
+            "that holds manifest.json); tiles are streamed with range requests and cached on "
+            "disk",
+            width=460,
+            initial=initial,
         )
-        self.edit.setMinimumWidth(460)
-        self.problem = QLabel("")
-        self.problem.setWordWrap(False)
-        self.problem.setStyleSheet("color: #b00020")
-        self.buttons = QDialogButtonBox(
-            QDialogButtonBox.StandardButton.Ok | QDialogButtonBox.StandardButton.Cancel
-        )
-        self.buttons.accepted.connect(self.accept)
-        self.buttons.rejected.connect(self.reject)
-        layout = QVBoxLayout(self)
-        layout.addWidget(QLabel("URL of a tile store:"))
-        layout.addWidget(self.edit)
-        layout.addWidget(self.problem)
-        layout.addWidget(self.buttons)
-        self.edit.textChanged.connect(self._check)
-        self._check(initial)
 
-    def _check(self, text: str) -> bool:
-        """Say what is wrong with ``text`` (nothing while the field is empty) and enable OK
-        only for a URL that passes `check_store_url`."""
-        ok = False
-        if not text.strip():
-            self.problem.setText("")
-        else:
-            try:
-                check_store_url(text)
-            except GlobeviewError as exc:
-                self.problem.setText(" ".join(str(exc).split()))
-            else:
-                self.problem.setText("")
-                ok = True
-        self.buttons.button(QDialogButtonBox.StandardButton.Ok).setEnabled(ok)
-        return ok
+    def checked(self, text: str) -> str:
+        """The URL `check_store_url` makes of ``text`` (spaces in the path encoded)."""
+        return check_store_url(text)
 
-    def accept(self) -> None:
-        """OK: close with the checked URL, or stay open saying what is wrong."""
-        if not self._check(self.edit.text()):
-            return  # stays open, saying why
-        self.url = check_store_url(self.edit.text())
-        super().accept()
+    def accepted_value(self, value: str) -> None:
+        self.url = value
 
 
 def ask_store_url(parent: QWidget | None, initial: str = "") -> str | None:

@@ -133,7 +133,7 @@ class SettingEditor(QWidget):
                 # Within the box's range (a stored 1e20 for an unbounded int must not
                 # overflow the C int behind a QSpinBox).
                 v = min(max(float(value), self.spin.minimum()), self.spin.maximum())
-                self.spin.setValue(int(v) if self.spec.type == "int" else v)
+                self.spin.setValue(int(v) if self.spec.type == "int" else v)  # type: ignore[arg-type]
                 self._sync_slider()
         finally:
             self._quiet = False

@@ -37,18 +37,22 @@ def test_moving_camera_rows_per_provider(monkeypatch, capsys) -> None:
     assert len(rows) == 4  # 2 providers x 2 motions
     for row in rows:
         cells = [c.strip() for c in row.strip("|").split("|")]
-        assert cells[0] in ("quadtree-clod", "wavelet") and cells[2] in ("turn", "move")
-        assert int(cells[3]) > 0  # tiles selected
-        assert float(cells[4]) > 0.0 and float(cells[7]) > 0.0  # lod_ms warm, cold
+        # provider | view | size | motion | tiles | lod_ms | max | thread_ms | calls a frame
+        # | lod_ms cold | clod reused | target
+        assert cells[0] in ("quadtree-clod", "wavelet") and cells[3] in ("turn", "move")
+        assert cells[2] == "320x180"
+        assert int(cells[4]) > 0  # tiles selected
+        assert float(cells[5]) > 0.0 and float(cells[9]) > 0.0  # lod_ms warm, cold
+        assert int(cells[8]) > 0  # Python-level calls of a select
     clod = {
-        c[2]: c
+        c[3]: c
         for c in ([x.strip() for x in r.strip("|").split("|")] for r in rows)
         if c[0] == "quadtree-clod"
     }
     # The 0.01 degree turn stays under clod's reuse limit (each frame after the first
     # reuses the meshes); the move goes past it (every frame rebuilds).
-    assert int(clod["turn"][8].split("/")[0]) >= 2 and clod["move"][8] == "0/3"
-    assert "<= 10 ms" in clod["move"][9]  # the clod rebuild target is named
+    assert int(clod["turn"][10].split("/")[0]) >= 2 and clod["move"][10] == "0/3"
+    assert "<= 10 ms" in clod["move"][11]  # the clod rebuild target is named
 
 
 def test_move_poses_turn_past_clods_reuse_limit() -> None:

@@ -39,6 +39,7 @@ def test_gui_help_names_the_options_and_overlays(tmp_path: Path) -> None:
     assert "overlay files" in text and "GeoJSON" in text
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("args", "message"),
     [
@@ -59,6 +60,7 @@ def test_bad_options_are_one_line_exit_2_as_in_render(tmp_path: Path, args, mess
     assert not out.exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "argv",
     [

@@ -54,6 +54,7 @@ DAMAGE: dict[str, tuple[Callable[[Path], None], str]] = {
 }
 
 
+@pytest.mark.slow
 def test_an_intact_store_is_described(store: Path, tmp_path: Path) -> None:
     res = globeview("info", str(store), cache=tmp_path / "c")
     assert res.returncode == 0, res.stderr
@@ -78,6 +79,7 @@ def test_verify_finds_what_the_size_check_cannot(store: Path, tmp_path: Path) ->
     assert "chunks/06/" in line and "checksum mismatch" in line, line
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("damage", list(DAMAGE))
 def test_a_damaged_store_is_one_line(store: Path, tmp_path: Path, damage: str) -> None:
     harm, name = DAMAGE[damage]

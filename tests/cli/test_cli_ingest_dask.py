@@ -25,6 +25,7 @@ def closed_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_unreachable_scheduler_is_one_line(tmp_path: Path) -> None:
     from globeview.terrain.ingest.driver import ingest
 
@@ -53,6 +54,7 @@ def _levels(store: Path) -> dict[str, bytes]:
     return {p.name: p.read_bytes() for p in sorted(store.iterdir()) if p.name.startswith("level_")}
 
 
+@pytest.mark.slow
 def test_workers_1_and_2_write_the_same_store(tmp_path: Path) -> None:
     stores = []
     for n, extra in (("1", ()), ("2", ()), ("2p", ("--scheduler", "processes"))):
@@ -74,6 +76,7 @@ def test_workers_1_and_2_write_the_same_store(tmp_path: Path) -> None:
     assert res.returncode == 0 and "up to date" in res.stdout, res.stdout + res.stderr
 
 
+@pytest.mark.slow
 def test_an_incremental_update_says_how_many_chunks_it_rebuilt(tmp_path: Path) -> None:
     import numpy as np
     import rasterio

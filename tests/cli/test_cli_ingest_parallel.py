@@ -14,6 +14,7 @@ DATA = Path(__file__).resolve().parents[2] / "data"
 SMALL_DEM = DATA / "topobathy_vancouver.tif"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("args", "needle"),
     [

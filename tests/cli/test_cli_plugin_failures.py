@@ -150,6 +150,7 @@ def error_line(proc: subprocess.CompletedProcess) -> str:
         ("gvt-pointsfail", "RuntimeError: points went wrong"),
     ],
 )
+@pytest.mark.slow
 def test_tool_csv_of_a_failed_tool_says_it_failed_exit_3(
     site: PluginSite, tmp_path: Path, tool: str, why: str, strict: bool
 ) -> None:
@@ -165,6 +166,7 @@ def test_tool_csv_of_a_failed_tool_says_it_failed_exit_3(
 
 
 # -- item 9: a layer type that fails --------------------------------------------------------
+@pytest.mark.slow
 @pytest.mark.parametrize("strict", [False, True])
 def test_a_layer_type_that_crashes_in_open_exits_3(
     site: PluginSite, tmp_path: Path, strict: bool
@@ -179,6 +181,7 @@ def test_a_layer_type_that_crashes_in_open_exits_3(
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_a_crashed_sniff_is_named_disabled_and_strict_exits_3(
     site: PluginSite, tmp_path: Path
 ) -> None:
@@ -197,6 +200,7 @@ def test_a_crashed_sniff_is_named_disabled_and_strict_exits_3(
     assert "gvt-crashsniff (its sniff failed" in line and not out.exists()
 
 
+@pytest.mark.slow
 def test_strict_counts_a_crashed_sniff_when_another_type_took_the_file(
     site: PluginSite, tmp_path: Path
 ) -> None:
@@ -215,6 +219,7 @@ def test_strict_counts_a_crashed_sniff_when_another_type_took_the_file(
 
 
 # -- item 10: --set of a layer type the render does not use ---------------------------------
+@pytest.mark.slow
 def test_set_of_a_layer_type_not_used_warns(site: PluginSite, tmp_path: Path) -> None:
     proc, out = render(site, tmp_path, "--set", "gvt-tinted.width_px=4")
     assert proc.returncode == 0 and out.exists(), proc.stderr

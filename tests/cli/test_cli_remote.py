@@ -24,6 +24,7 @@ def closed_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command", ["render", "info"])
 @pytest.mark.parametrize(
     ("url", "needle"),
@@ -68,6 +69,7 @@ def served(tmp_path_factory):
         yield server, root
 
 
+@pytest.mark.slow
 def test_render_url_writes_the_local_stores_png(served, tmp_path: Path) -> None:
     server, root = served
     server.clear_faults()
@@ -86,6 +88,7 @@ def test_render_url_writes_the_local_stores_png(served, tmp_path: Path) -> None:
     assert (tmp_path / "s.png").read_bytes() == (tmp_path / "l.png").read_bytes()
 
 
+@pytest.mark.slow
 def test_info_url_describes_the_store(served, tmp_path: Path) -> None:
     import json
 
@@ -115,6 +118,7 @@ def test_info_url_describes_the_store(served, tmp_path: Path) -> None:
         ("huge", "too large"),
     ],
 )
+@pytest.mark.slow
 def test_unreadable_stores_are_one_line(served, tmp_path: Path, command, where, needle) -> None:
     server, _ = served
     server.clear_faults()
@@ -130,6 +134,7 @@ def test_unreadable_stores_are_one_line(served, tmp_path: Path, command, where, 
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_tiles_a_server_fails_are_stood_in_and_counted(served, tmp_path: Path) -> None:
     """500s for the finest level's chunks: the picture is drawn from coarser tiles, the
     'wrote' line and the stats count the failed tiles; with --strict nothing is written."""
@@ -160,6 +165,7 @@ def test_tiles_a_server_fails_are_stood_in_and_counted(served, tmp_path: Path) -
         server.clear_faults()
 
 
+@pytest.mark.slow
 def test_a_server_failing_every_chunk_is_one_line_and_writes_nothing(served, tmp_path):
     """Every chunk answers 503 (the manifest still arrives): not one tile can be drawn, so
     the render is an error naming the first failure, not an empty globe with exit 0."""
@@ -178,6 +184,7 @@ def test_a_server_failing_every_chunk_is_one_line_and_writes_nothing(served, tmp
         server.clear_faults()
 
 
+@pytest.mark.slow
 def test_ctrl_c_during_a_remote_render_is_one_line_and_quick(served, tmp_path: Path) -> None:
     import signal
     import time

@@ -45,6 +45,7 @@ class Sight(Tool):
 """
 
 
+@pytest.mark.slow
 def test_tool_csv_writes_every_series(plugin_site: PluginSite, tmp_path: Path) -> None:
     manifest = plugin_manifest("gvt-sight", "gvt_sight", "tool", "Sight").replace(
         'api_version = "1.0"', 'api_version = "1.2"'

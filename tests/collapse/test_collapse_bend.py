@@ -36,6 +36,7 @@ def _random_frame(rng: np.random.Generator) -> CollapseFrame:
             continue
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", range(6))
 def test_bound_covers_the_exact_bend_everywhere(seed: int) -> None:
     rng = np.random.default_rng(seed)

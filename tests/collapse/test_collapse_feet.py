@@ -6,6 +6,7 @@ result as moving them afresh."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from globeview.geodesy import ecef_foot_points as foot_points
 from globeview.geodesy import ecef_to_lonlat, lonlat_to_ecef
@@ -81,6 +82,7 @@ def test_the_overlay_is_made_once_per_frame() -> None:
     assert tool.overlay(None) == []
 
 
+@pytest.mark.slow
 def test_the_bend_grows_with_the_collapse() -> None:
     """What the animation's bend relies on: for random tiles (levels 1-12, straddling the folds
     too) and random pairs, the exact bend at any ratio between r and 1 is at most the bound

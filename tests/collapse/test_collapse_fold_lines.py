@@ -59,6 +59,7 @@ def fold_pixels(session, target, primitives) -> int:
     return int((np.abs(rgb - FOLD_RGB).max(axis=2) < 40).sum())
 
 
+@pytest.mark.slow
 def test_fold_lines_stay_visible_over_the_relief(session) -> None:
     session, target = session
     tool = session.tools()["collapse"]

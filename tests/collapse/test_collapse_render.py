@@ -59,6 +59,7 @@ def draw(session, gl, camera: Camera, collapse=None):
     return gl[1].read_rgb(), result
 
 
+@pytest.mark.slow
 def test_ratio_one_renders_pixel_identical(session, gl, monkeypatch) -> None:
     # The terrain alone: the frame also draws the tool's markers and fold lines (its
     # overlay), which are not part of what r = 1 must leave unchanged.
@@ -79,6 +80,7 @@ def pixel_ground_m(view, point: np.ndarray) -> float:
     return dist * 2.0 * math.tan(math.radians(view.fovy_deg) / 2.0) / view.viewport[1]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("a", "b", "ratio", "cam"),
     [
@@ -140,6 +142,7 @@ def ellipsoid_mask(view) -> np.ndarray:
     return core
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("cam", "pair", "ratio"),
     [
@@ -166,6 +169,7 @@ def test_no_cracks_with_the_collapse_for_every_lod_provider(session, gl, cam, pa
         session.settings.background = (0.0, 0.0, 0.0)
 
 
+@pytest.mark.slow
 def test_session_view_carries_the_collapse_bend_hook(session, gl) -> None:
     """With the collapse active the view carries its bend bound and displacement key (LOD
     providers use them); the bound covers the exact measure; without a tool, neither."""

@@ -21,6 +21,7 @@ _heights = st.floats(-11_000.0, 1_000_000.0)
 _offsets = st.floats(-1e6, 1e6)
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None)
 @given(lon=_lons, lat=_lats)
 def test_basis_is_orthonormal_and_right_handed(lon: float, lat: float) -> None:
@@ -32,6 +33,7 @@ def test_basis_is_orthonormal_and_right_handed(lon: float, lat: float) -> None:
     assert np.linalg.det(r) == pytest.approx(1.0, abs=1e-14)
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None)
 @given(lon=_lons, lat=_lats)
 def test_up_equals_surface_normal(lon: float, lat: float) -> None:
@@ -39,6 +41,7 @@ def test_up_equals_surface_normal(lon: float, lat: float) -> None:
     np.testing.assert_allclose(surface_normal(lonlat_to_ecef(lon, lat)), up, atol=1e-12)
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None)
 @given(lon=_lons, lat=_lats, h=_heights, e=_offsets, n=_offsets, u=_offsets)
 def test_enu_round_trip(lon: float, lat: float, h: float, e: float, n: float, u: float) -> None:
@@ -47,6 +50,7 @@ def test_enu_round_trip(lon: float, lat: float, h: float, e: float, n: float, u:
     np.testing.assert_allclose(ecef_to_enu(xyz, lon, lat, h), enu, atol=1e-6)
 
 
+@pytest.mark.slow
 @settings(max_examples=100, deadline=None)
 @given(lon=st.floats(-179.0, 179.0), lat=st.floats(-89.0, 89.0), h=_heights)
 def test_directions_mean_east_north_up(lon: float, lat: float, h: float) -> None:

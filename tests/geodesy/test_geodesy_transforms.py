@@ -146,6 +146,7 @@ _lats = st.floats(-90.0, 90.0)
 _heights = st.floats(-11_000.0, 2_000_000.0)
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(lon=_lons, lat=_lats, h=_heights)
 def test_property_round_trip(lon: float, lat: float, h: float) -> None:

@@ -8,10 +8,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parents[1]
 
 
+@pytest.mark.slow
 def test_geoid_checks_run_without_the_shared_folder(tmp_path: Path) -> None:
     # The module copied to <tmp>/parent/clone/tests/geodesy: its ../shared is <tmp>/parent/shared,
     # which does not exist, as beside a fresh `git clone`.

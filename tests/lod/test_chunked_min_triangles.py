@@ -128,6 +128,7 @@ def _ladder_violations(
     return worse, cases
 
 
+@pytest.mark.slow
 def test_triangles_never_grow_with_tau_over_random_views(globeview_terrain) -> None:
     worse, cases = _ladder_violations(globeview_terrain, _views())
     # At exaggeration 1 and the default budget every view of the test draws the cut.
@@ -138,6 +139,7 @@ def test_triangles_never_grow_with_tau_over_random_views(globeview_terrain) -> N
 @pytest.mark.parametrize(
     ("exaggeration", "max_tiles"), [(5.0, 600), (30.0, 600), (1.0, 16), (30.0, 100)]
 )
+@pytest.mark.slow
 def test_triangles_never_grow_with_tau_with_exaggeration_and_budgets(
     globeview_terrain, exaggeration, max_tiles
 ) -> None:
@@ -151,6 +153,7 @@ def test_triangles_never_grow_with_tau_with_exaggeration_and_budgets(
     assert not worse, f"{len(worse)} views draw more triangles at a larger tau: {worse[:3]}"
 
 
+@pytest.mark.slow
 def test_old_crater_lake_view_is_monotone(globeview_terrain) -> None:
     """The view of the issue: 3 158 / 2 500 / 10 928 / 9 850 / 9 382 triangles at tau
     0.5..8 with the plain walk (one level-10 tile drawn whole at stride 1 at tau 2)."""
@@ -166,6 +169,7 @@ def test_old_crater_lake_view_is_monotone(globeview_terrain) -> None:
     assert counts == sorted(counts, reverse=True), counts
 
 
+@pytest.mark.slow
 def test_chunked_sse_draws_the_cheapest_cut_by_default(globeview_terrain) -> None:
     provider = ChunkedSseProvider()
     assert provider.values["min_triangles"] is True
@@ -243,6 +247,7 @@ def test_min_triangles_setting_is_validated(bad) -> None:
     assert isinstance(provider.values["min_triangles"], bool)
 
 
+@pytest.mark.slow
 def test_a_view_tau_cannot_meet_within_the_budget_falls_back_to_the_plain_walk(
     globeview_terrain,
 ) -> None:

@@ -260,6 +260,7 @@ def _assert_same(got: RenderSet, want: RenderSet, label: str) -> None:
 
 
 # -- tests ----
+@pytest.mark.slow
 @pytest.mark.parametrize("exaggeration", [1.0, 3.0])
 @pytest.mark.parametrize("name", sorted(VIEWS))
 def test_views_match_reference(terrain, name, exaggeration) -> None:
@@ -271,6 +272,7 @@ def test_views_match_reference(terrain, name, exaggeration) -> None:
         _assert_same(select_tiles(view, terrain), want, f"{name} x{exaggeration} call {i}")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("displace", [_rotate_z, _fold], ids=["rotate-z", "fold"])
 @pytest.mark.parametrize("name", ["alps-oblique", "white-mountains", "global", "antimeridian"])
 def test_displaced_views_match_reference(terrain, name, displace) -> None:
@@ -310,6 +312,7 @@ def test_displacement_change_invalidates_displaced_cache(terrain) -> None:
             _assert_same(select_tiles(view, terrain), want, f"step {i} call {j}")
 
 
+@pytest.mark.slow
 def test_moving_camera_matches_reference(terrain) -> None:
     """A flight with changing exaggeration and settings: the caches see hits, misses,
     invalidation (exaggeration changes) and views revisited."""
@@ -332,6 +335,7 @@ def test_moving_camera_matches_reference(terrain) -> None:
         )
 
 
+@pytest.mark.slow
 def test_terrain_change_invalidates_cache(terrain) -> None:
     """Hiding a layer bumps TerrainStack.version: the selection follows the new terrain."""
     view = _view(*VIEWS["white-mountains"])
@@ -361,11 +365,12 @@ def test_cache_is_bounded(terrain, monkeypatch) -> None:
     # The global view walks few tiles: after the White Mountains filled the cache past the
     # cap, it was dropped and holds only what the global view needed.
     assert sizes[1] < sizes[0]
-    tile_cache.tile_cache_for(terrain).levels = {}  # a cold cache
+    tile_cache.tile_cache_for(terrain).clear()  # a cold cache
     select_tiles(_view(*VIEWS["global"]), terrain)
     assert held() == sizes[1]
 
 
+@pytest.mark.slow
 def test_prefilters_agree_with_exact_tests(terrain) -> None:
     """The conservative frustum / horizon prefilters never contradict the exact tests, on
     random tiles of many levels seen from random eyes (low to very high, any direction)."""

@@ -124,6 +124,7 @@ def test_stitched_edges_have_no_t_junction_and_cover_the_tile(stride, edges) -> 
     assert np.all(tc[tr == 0] % edges[0] == 0) and np.all(tr[tc == 0] % edges[2] == 0)
 
 
+@pytest.mark.slow
 def test_point_coverage_of_stitched_tile() -> None:
     """Each cell centre lies in exactly one triangle (no overlaps, no holes)."""
     tris = _tris(IndexVariant(1, skirts=False, edge_strides=(4, 2, 8, 1)))
@@ -169,6 +170,7 @@ def _triangles(rs) -> int:
     return int(sum(per[i] for i in rs.variant_ids))
 
 
+@pytest.mark.slow
 def test_rings_cut_off_and_stats(terrain) -> None:
     v = make_view(-71.3, 44.15, 9000.0, 0.0, -30.0, viewport=(320, 240))
     rs = traverse(v, terrain, RishePolicy())
@@ -190,6 +192,7 @@ def test_rings_cut_off_and_stats(terrain) -> None:
     assert down.stats["tiles_ring2"] == 0 and down.stats["tiles_ring3"] == 0
 
 
+@pytest.mark.slow
 def test_larger_hr_ratio_refines_monotonically(terrain) -> None:
     v = make_view(-71.3, 44.15, 9000.0, 0.0, -30.0, viewport=(320, 240))
     counts = [

@@ -196,6 +196,7 @@ def test_tile_caches_are_per_terrain(globeview_terrain, headless_view) -> None:
     assert gone() is None
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_the_policy_plugin_draws_a_frame(depth_registry, rendered) -> None:
     frame = rendered("depth", camera=(-71.3, 44.27, 2.0e6), size=(96, 64))

@@ -33,6 +33,7 @@ def _fresh(rs) -> bool:
     return "lod_cached" not in rs.stats and rs.stats["lod_ms"] > 0.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("cls", [ChunkedSseProvider, DistanceRegionsProvider, WaveletProvider])
 def test_an_unchanged_view_reuses_the_last_selection(cls, stack) -> None:
     provider = cls()
@@ -47,6 +48,7 @@ def test_an_unchanged_view_reuses_the_last_selection(cls, stack) -> None:
     assert _fresh(provider.select(view, stack))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("cls", [ChunkedSseProvider, DistanceRegionsProvider, WaveletProvider])
 def test_a_change_selects_afresh(cls, stack) -> None:
     provider = cls()
@@ -75,6 +77,7 @@ def test_a_change_selects_afresh(cls, stack) -> None:
     assert _fresh(provider.select(bent, other))
 
 
+@pytest.mark.slow
 def test_regions_reselects_for_another_speed(stack) -> None:
     """Rishe's speed factor coarsens the regions: the speed is part of what is reused under."""
     provider = DistanceRegionsProvider()

@@ -91,6 +91,7 @@ def grid_triangles(indices: np.ndarray, size: int) -> np.ndarray:
 
 
 # -- the thesis' invariants on real tiles ----------------------------------------------------
+@pytest.mark.slow
 def test_every_enabled_vertex_has_its_dependencies(wm_frame) -> None:
     rs, frame = wm_frame
     assert len(rs) > 20 and frame.enabled.sum() > 1000
@@ -162,6 +163,7 @@ def test_fans_tile_every_tile_exactly(wm_frame, terrain) -> None:
         assert len(en_r) > 0
 
 
+@pytest.mark.slow
 def test_triangle_count_is_monotonic_in_tau(terrain) -> None:
     counts = []
     for tau in (0.5, 1.0, 2.0, 4.0, 8.0, 16.0):
@@ -175,6 +177,7 @@ def test_triangle_count_is_monotonic_in_tau(terrain) -> None:
     assert counts[0] > 2 * counts[-1]
 
 
+@pytest.mark.slow
 def test_exaggeration_multiplies_errors(terrain) -> None:
     view1 = make_view(*VIEWS["white_mountains"], viewport=(640, 360))
     view3 = make_view(*VIEWS["white_mountains"], viewport=(640, 360), exaggeration=3.0)
@@ -196,6 +199,7 @@ def test_unchanged_view_reuses_the_meshes(terrain) -> None:
     assert p.select(view, terrain).stats["clod_reused"] == 0
 
 
+@pytest.mark.slow
 def test_registry_loads_and_runs_it(globeview_registry) -> None:
     from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
@@ -252,6 +256,7 @@ def erode(mask: np.ndarray, k: int) -> np.ndarray:
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 @pytest.mark.parametrize(
     ("view_name", "exaggeration"),

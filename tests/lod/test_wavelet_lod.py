@@ -41,6 +41,7 @@ def _triangles(rs, size: int = 65) -> int:
 WM = (-71.3, 44.15, 9000.0, 0.0, -30.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("m", [2, 3, 4])
 def test_larger_tau_draws_no_more_triangles(terrain, m: int) -> None:
     v = make_view(*WM, viewport=(320, 240))
@@ -57,6 +58,7 @@ def test_larger_tau_draws_no_more_triangles(terrain, m: int) -> None:
     assert {"lod_ms", "tiles_culled_frustum", "tiles_culled_horizon"} <= set(rs.stats)
 
 
+@pytest.mark.slow
 def test_flat_tile_is_coarser_than_a_rough_one(terrain) -> None:
     """Same altitude and view, over the flat Atlantic vs the White Mountains: the flat tile
     under the camera is drawn at a coarser level or stride."""
@@ -111,6 +113,7 @@ VIEWS = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 @pytest.mark.parametrize("name", list(VIEWS))
 def test_renders_without_cracks(gl_session, name: str) -> None:

@@ -37,6 +37,7 @@ def _render(session, overlay, sprite_max_px, monkeypatch):
     return session.target.read_rgb()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("camera", "scale_m"),
     [
@@ -78,6 +79,7 @@ def test_sprites_look_like_meshes(session, camera, scale_m, monkeypatch) -> None
     assert differ.sum() <= max(0.03 * green.sum(), 4), (differ.sum(), green.sum())
 
 
+@pytest.mark.slow
 def test_sprite_classes(session) -> None:
     """Behind the eye or off the view's sides: neither; straddling an edge, near the eye or
     large: a mesh; small and inside: a sprite."""
@@ -121,6 +123,7 @@ def test_sprite_classes(session) -> None:
     assert not sprite.any() and not mesh.any()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "camera", [(10.0, 46.0, 4.0e6, 0.0, -90.0), (9.0, 44.0, 4.0e5, 30.0, -35.0)]
 )
@@ -151,6 +154,7 @@ def test_placemark_sprites_look_like_billboards(session, camera, monkeypatch) ->
     assert differ.sum() <= max(0.01 * red.sum(), 4), (differ.sum(), red.sum())
 
 
+@pytest.mark.slow
 def test_cones_out_of_view_are_culled_without_changing_the_image(session, monkeypatch) -> None:
     """Cones are drawn only where they may be seen: the same image as drawing every resident
     cone (the classes patched to keep all), with fewer instances drawn."""

@@ -116,6 +116,7 @@ def opened(result):
 
 
 # -- imagery drape ----------------------------------------------------------------------------
+@pytest.mark.slow
 def test_thematic_cells_land_where_they_are(clean, tmp_path) -> None:
     """A checkerboard of 15-degree classes (45 x 45 cells of the etopo20 DEM's 1/3-degree grid,
     so its boundaries are DEM cell boundaries, some of them tile edges) draws each class where
@@ -157,6 +158,7 @@ def test_thematic_cells_land_where_they_are(clean, tmp_path) -> None:
     [(0.0, 0.0, 2.0e7, 0.0, -90.0), (180.0, 45.0, 1.5e6, 30.0, -70.0)],
     ids=["globe", "antimeridian-tile-corner"],
 )
+@pytest.mark.slow
 def test_uniform_imagery_shows_no_seams(clean, tmp_path, cam) -> None:
     """A uniform-colour raster drapes uniformly: its colour ratio holds on every globe pixel,
     across tile borders (including the antimeridian and a level-1 tile corner), so no
@@ -179,6 +181,7 @@ def test_uniform_imagery_shows_no_seams(clean, tmp_path, cam) -> None:
     assert np.all(np.abs(g_r - 0.5) < 0.04) and np.all(np.abs(b_r - 0.25) < 0.04)
 
 
+@pytest.mark.slow
 def test_hillshade_drape_from_the_dem(clean) -> None:
     """The hillshade layer computed from the DEM shades Crater Lake's caldera (30 m DEM) in
     grey: lit north-west slopes bright, south-east slopes dark."""
@@ -200,6 +203,7 @@ def test_hillshade_drape_from_the_dem(clean) -> None:
 MAGENTA = (1.0, 0.0, 1.0, 1.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("lod", ["chunked-sse", "quadtree-clod"])
 def test_borders_stay_visible_on_the_alps_at_every_lod(clean, lod) -> None:
     """Country borders across the Alps, seen obliquely: the line pixels neither vanish into
@@ -225,6 +229,7 @@ def test_borders_stay_visible_on_the_alps_at_every_lod(clean, lod) -> None:
 
 
 # -- point objects -----------------------------------------------------------------------------
+@pytest.mark.slow
 def test_ten_thousand_instanced_boxes(clean, capsys) -> None:
     """10 000 boxes in one instanced draw; only those in drawn tiles are resident."""
     from globeview.render.overlay_points import PointOverlay, PointStyle
@@ -263,6 +268,7 @@ def test_ten_thousand_instanced_boxes(clean, capsys) -> None:
         )
 
 
+@pytest.mark.slow
 def test_labelled_placemarks(clean) -> None:
     """City placemarks with labels: red discs and white label text appear over Europe."""
     from globeview.plugins.builtin.layers.types import PointsLayerType

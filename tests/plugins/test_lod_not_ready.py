@@ -35,6 +35,7 @@ def remote_wm(tmp_path):
         store.close()
 
 
+@pytest.mark.slow
 def test_a_provider_reading_late_tiles_is_not_failed(remote_wm, monkeypatch, tmp_path):
     from globeview.app.session import GlobeSession
     from globeview.model.camera import Camera

@@ -120,6 +120,7 @@ def test_malformed_series_are_refused_in_one_line(series, words) -> None:
 
 
 # -- triangles of a candidate selection ------------------------------------------------------
+@pytest.mark.slow
 def test_triangle_count_is_the_frames_count(rendered) -> None:
     from globeview.plugins.api import triangle_count
 
@@ -153,6 +154,7 @@ def test_triangle_count_of_a_selection(globeview_terrain, headless_view) -> None
 
 
 # -- the fixtures ---------------------------------------------------------------------------
+@pytest.mark.slow
 def test_rendered_frame_session_picks_the_terrain(rendered) -> None:
     from globeview.plugins.api import sample_terrain
 

@@ -29,14 +29,14 @@ def _press(lonlat, button="left", kind="press") -> PointerEvent:
 
 
 # -- the version ---------------------------------------------------------------------------
-def test_api_version_is_1_3_and_older_minors_load(plugin_site: PluginSite) -> None:
+def test_api_version_is_1_4_and_older_minors_load(plugin_site: PluginSite) -> None:
     from globeview.plugins.api import API_VERSION
     from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.settings import MemorySettings
 
-    assert API_VERSION == "1.3"
+    assert API_VERSION == "1.4"  # 1.4: the flat selection (tests/plugins/test_plugin_api_1_4.py)
     impl = "from globeview.plugins.api import Tool\nclass T(Tool):\n    pass\n"
-    versions = ("1.0", "1.1", "1.2", "1.3")
+    versions = ("1.0", "1.1", "1.2", "1.3", "1.4")
     for version in versions:
         pkg = f"gvt_w{version.replace('.', '_')}"
         manifest = plugin_manifest(f"gvt-w{version}", pkg, "tool", "T").replace(

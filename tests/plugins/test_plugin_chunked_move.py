@@ -15,6 +15,7 @@ pytestmark = pytest.mark.gl
 VIEWS = [(0.0, 20.0, 2.0e7, 0.0, -90.0), (-71.3, 44.15, 9000.0, 0.0, -30.0)]
 
 
+@pytest.mark.slow
 def test_chunked_sse_plugin_renders_pixel_identical_to_the_direct_selection() -> None:
     from globeview.app.session import GlobeSession
     from globeview.lod.sse_policy import ScreenSpaceErrorPolicy

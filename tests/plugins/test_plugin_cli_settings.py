@@ -79,6 +79,7 @@ def stored(config: Path) -> dict:
     ]
 
 
+@pytest.mark.slow
 def test_set_stores_checked_values_and_get_reads_them(site: PluginSite, tmp_path: Path) -> None:
     config = tmp_path / "config"
     proc = run(site, config, "plugins", "get", "gvt-setpins")
@@ -112,6 +113,7 @@ def test_set_stores_checked_values_and_get_reads_them(site: PluginSite, tmp_path
     assert run(site, config, "plugins", "get", "gvt-setpins.count").stdout == "3\n"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("args", "message"),
     [
@@ -139,6 +141,7 @@ def test_bad_settings_are_one_line_and_leave_the_file_alone(
     assert (config / "settings.json").read_bytes() == before
 
 
+@pytest.mark.slow
 def test_a_failed_write_leaves_the_settings_file_whole(site: PluginSite, tmp_path: Path) -> None:
     config = tmp_path / "config"
     assert run(site, config, "plugins", "set", "gvt-setpins.count", "5").returncode == 0
@@ -153,6 +156,7 @@ def test_a_failed_write_leaves_the_settings_file_whole(site: PluginSite, tmp_pat
     assert left == ["settings.json", "settings.json.lock"]  # no temporaries
 
 
+@pytest.mark.slow
 def test_a_corrupt_settings_file_is_kept_aside_not_lost(site: PluginSite, tmp_path: Path) -> None:
     config = tmp_path / "config"
     config.mkdir()
@@ -166,6 +170,7 @@ def test_a_corrupt_settings_file_is_kept_aside_not_lost(site: PluginSite, tmp_pa
     assert "kept as" in proc.stderr and proc.stderr.count("\n") == 1  # one warning line
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_stored_setting_is_what_the_next_render_uses(site: PluginSite, tmp_path: Path) -> None:
     config = tmp_path / "config"
@@ -219,6 +224,7 @@ class Provider(LodProvider):
 """
 
 
+@pytest.mark.slow
 def test_validate_import_says_what_it_imported(site: PluginSite, tmp_path: Path) -> None:
     config = tmp_path / "config"
     plain = run(site, config, "plugins", "validate", "gvt-setpins")
@@ -235,6 +241,7 @@ def test_validate_import_says_what_it_imported(site: PluginSite, tmp_path: Path)
     )
 
 
+@pytest.mark.slow
 def test_validate_import_names_the_contribution_that_fails(
     site: PluginSite, tmp_path: Path
 ) -> None:
@@ -252,6 +259,7 @@ def test_validate_import_names_the_contribution_that_fails(
     )
 
 
+@pytest.mark.slow
 def test_a_config_dir_that_is_a_file_is_one_line(site: PluginSite, tmp_path: Path) -> None:
     not_a_folder = tmp_path / "config"
     not_a_folder.write_text("mine\n")
@@ -263,6 +271,7 @@ def test_a_config_dir_that_is_a_file_is_one_line(site: PluginSite, tmp_path: Pat
     assert not_a_folder.read_text() == "mine\n"
 
 
+@pytest.mark.slow
 def test_get_says_when_a_stored_value_is_not_used_as_stored(
     site: PluginSite, tmp_path: Path
 ) -> None:
@@ -293,6 +302,7 @@ for j in range(15):
 """
 
 
+@pytest.mark.slow
 def test_concurrent_writers_lose_no_update(tmp_path: Path) -> None:
     """Six processes setting different keys at once (a `plugins set` beside a render, two
     windows): every key is there afterwards (without the lock about 40% were lost)."""
@@ -317,6 +327,7 @@ class Sloppy(Tool):
 """
 
 
+@pytest.mark.slow
 def test_validate_import_checks_settings_declarations(site: PluginSite, tmp_path: Path) -> None:
     site.add("gvt_sloppy", plugin_manifest("gvt-sloppy", "gvt_sloppy", "tool", "Sloppy"),
              {"impl": BAD_SETTINGS})  # fmt: skip

@@ -8,6 +8,7 @@ import json
 import math
 
 import numpy as np
+import pytest
 
 from globeview.lod.render_set import (
     MAX_PROVIDER_STATS,
@@ -92,6 +93,7 @@ def test_as_dict_namespaces_provider_stats_and_levels() -> None:
     assert level_histogram(np.empty((0, 3), np.int64)) == {}
 
 
+@pytest.mark.slow
 def test_only_a_bounded_prefix_is_examined() -> None:
     """A provider handing over 10^6 garbage entries each frame must not make the host walk
     them all: entries past the first `MAX_STATS_EXAMINED` are dropped unexamined."""

@@ -254,6 +254,7 @@ def globeview(site: PluginSite, config: Path, *args: str) -> subprocess.Complete
     )
 
 
+@pytest.mark.slow
 def test_plugins_list_check_names_the_failed_contribution(
     plugin_site: PluginSite, tmp_path: Path
 ) -> None:
@@ -289,6 +290,7 @@ def gl():
     ctx.release()
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_session_falls_back_from_the_broken_provider_and_keeps_the_tool(
     plugin_site: PluginSite, gl

@@ -49,6 +49,7 @@ def test_unknown_name_is_an_attribute_error() -> None:
     assert not hasattr(api, "select_tiles")  # an internal of a built-in is not API
 
 
+@pytest.mark.slow
 def test_reading_the_api_loads_no_renderer_or_terrain() -> None:
     """Manifests import the API module (API_VERSION): discovery must stay light."""
     code = (
@@ -119,6 +120,7 @@ def _status(report: str, contract: str) -> str:
     return "KEPT" if " KEPT" in line else "BROKEN"
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not LINT_IMPORTS.exists(), reason="import-linter not installed")
 def test_contracts_kept_here_and_broken_by_planted_imports(tmp_path: Path) -> None:
     clean = _copy_tree(tmp_path / "clean")

@@ -57,6 +57,7 @@ def terrain():
     return TerrainStack.from_stores(embedded_stores())
 
 
+@pytest.mark.slow
 def test_wrapper_gets_chunked_sse_result(plugin_site, globeview_config_dir, terrain, headless_view):
     _add_wrapper(plugin_site, "wrap-sse", "chunked-sse")
     reg = PluginRegistry().discover()

@@ -140,6 +140,7 @@ def test_a_provider_gets_real_terrain(
     assert len(rs) == 2 and rs.stats["terrain_max_level"] == globeview_terrain.max_level
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_rendered_draws_the_provider_with_real_terrain(
     plugin_site: PluginSite, globeview_registry, rendered
@@ -167,6 +168,7 @@ def test_rendered_draws_the_provider_with_real_terrain(
     assert not np.array_equal(frame.image[0, 0], frame.image[32, 48])
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_rendered_tool_overlay_and_settings(
     plugin_site: PluginSite, globeview_registry, rendered
@@ -188,6 +190,7 @@ def test_rendered_tool_overlay_and_settings(
         rendered("chunked-sse", settings={"nope": {}})
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_rendered_gives_a_tool_its_points(
     plugin_site: PluginSite, globeview_registry, rendered
@@ -204,6 +207,7 @@ def test_rendered_gives_a_tool_its_points(
     assert dots[28:36, 44:52].any() and dots[:, 56:].any() and not dots[:, :40].any()
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_rendered_reports_a_fallback(plugin_site: PluginSite, globeview_registry, rendered) -> None:
     add_probe(plugin_site)
@@ -244,6 +248,7 @@ OUTSIDER_TESTS = """
     """
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_a_plugin_project_uses_the_fixtures_with_no_conftest(
     plugin_site: PluginSite, tmp_path: Path

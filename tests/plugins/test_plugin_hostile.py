@@ -211,6 +211,7 @@ GARBAGE = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 @pytest.mark.parametrize("case", sorted(GARBAGE))
 def test_garbage_render_set_fails_the_provider_and_the_frame_falls_back(
@@ -235,6 +236,7 @@ def test_garbage_render_set_fails_the_provider_and_the_frame_falls_back(
     assert len(lines) == 1 and "garbage" in lines[0] and "\n" not in lines[0], lines
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_valid_render_sets_of_the_builtin_providers_pass_validation(gl) -> None:
     from globeview.model.camera import Camera
@@ -252,6 +254,7 @@ def test_valid_render_sets_of_the_builtin_providers_pass_validation(gl) -> None:
 
 
 # -- the time budget --------------------------------------------------------------------------
+@pytest.mark.slow
 @pytest.mark.gl
 def test_slow_provider_is_disabled_after_n_overruns(plugin_site: PluginSite, gl) -> None:
     add_lod(plugin_site, "slow", "time.sleep(0.5)\nreturn RenderSet.empty()", "import time")
@@ -289,6 +292,7 @@ def test_budget_overruns_must_be_consecutive(plugin_site: PluginSite, headless_v
     assert reg.get("sometimes").status == "ok"
 
 
+@pytest.mark.slow
 def test_headless_budget_policy_warns_once_and_keeps_the_plugin(
     plugin_site: PluginSite, headless_view, caplog: pytest.LogCaptureFixture
 ) -> None:
@@ -331,6 +335,7 @@ class BadTool(Tool):
 """
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 @pytest.mark.parametrize(
     ("body", "reason"),
@@ -370,6 +375,7 @@ def _geojson_lines(path: Path) -> Path:
     return path
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 @pytest.mark.parametrize(
     ("open_body", "reason"),
@@ -476,6 +482,7 @@ def test_a_distribution_with_unreadable_metadata_hides_no_other_plugin(
     assert reg.get("garbled").status == "failed"  # its manifest is not in 'json'
 
 
+@pytest.mark.slow
 def test_requested_provider_of_a_failed_plugin_is_named_in_the_error(
     plugin_site: PluginSite, gl
 ) -> None:
@@ -525,6 +532,7 @@ def test_render_set_subclass_whose_attributes_raise_fails_the_plugin(
     assert reg.get("sneaky").error == "SystemExit: gotcha"
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_unknown_provider_name_error_is_short(gl) -> None:
     with pytest.raises(GlobeviewError) as info:

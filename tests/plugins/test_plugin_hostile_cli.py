@@ -77,6 +77,7 @@ def reference_png(tmp_path_factory: pytest.TempPathFactory) -> np.ndarray:
         ("nothing", "return None", "returned NoneType"),
     ],
 )
+@pytest.mark.slow
 def test_render_with_a_broken_provider_completes_with_the_fallback(
     plugin_site: PluginSite,
     tmp_path: Path,
@@ -102,6 +103,7 @@ def test_render_with_a_broken_provider_completes_with_the_fallback(
         assert "Traceback (most recent call last)" in entry and "impl.py" in entry
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_a_real_ctrl_c_during_select_interrupts_the_render(
     plugin_site: PluginSite, tmp_path: Path
@@ -140,6 +142,7 @@ class Layer:
 """
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_render_imports_only_the_plugins_it_uses(plugin_site: PluginSite, tmp_path: Path) -> None:
     markers = {}
@@ -200,6 +203,7 @@ def test_render_imports_only_the_plugins_it_uses(plugin_site: PluginSite, tmp_pa
     assert not unwanted & imported
 
 
+@pytest.mark.slow
 def test_plugins_validate_other_is_quiet_about_broken_plugins(
     plugin_site: PluginSite, tmp_path: Path
 ) -> None:
@@ -220,6 +224,7 @@ def test_plugins_validate_other_is_quiet_about_broken_plugins(
     assert "failed" in row and "SystemExit: 1" in row
 
 
+@pytest.mark.slow
 def test_plugins_validate_hostile_manifest_files(plugin_site: PluginSite, tmp_path: Path) -> None:
     fifo = tmp_path / "fifo.toml"
     os.mkfifo(fifo)  # opening it for reading would block forever
@@ -241,6 +246,7 @@ def test_plugins_validate_hostile_manifest_files(plugin_site: PluginSite, tmp_pa
         assert len(lines) == 1 and lines[0].startswith("invalid: ") and reason in lines[0], lines
 
 
+@pytest.mark.slow
 def test_plugins_list_check_stays_json_and_validate_import_is_one_line(
     plugin_site: PluginSite, tmp_path: Path
 ) -> None:

@@ -63,6 +63,7 @@ def test_layer_objects_and_junk_results() -> None:
     assert [p.kind for p in layer.parts] == ["vector", "points"]
 
 
+@pytest.mark.slow
 def test_a_tiny_segment_length_is_coarsened_not_obeyed() -> None:
     """A plugin asking for 1 mm pieces round the equator would ask for 40 billion vertices."""
     ring = np.array([[-180.0, 0.0], [-60.0, 0.0], [60.0, 0.0], [180.0, 0.0]])

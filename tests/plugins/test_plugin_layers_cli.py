@@ -44,6 +44,7 @@ def _magenta(path: Path) -> int:
     return int(((rgb[..., 0] > 200) & (rgb[..., 1] < 80) & (rgb[..., 2] > 200)).sum())
 
 
+@pytest.mark.slow
 def test_render_layer_with_a_plugin_format(site, tmp_path) -> None:
     f = tmp_path / "grid.stripes"
     f.write_text("rhumb -60 30 60 30 1 0 1\nrhumb -60 0 60 0 1 0 1\n")
@@ -55,6 +56,7 @@ def test_render_layer_with_a_plugin_format(site, tmp_path) -> None:
     assert _magenta(out) > 100 and _magenta(plain) == 0
 
 
+@pytest.mark.slow
 def test_render_unknown_file_names_the_installed_types(site, tmp_path) -> None:
     f = tmp_path / "notes.xyz"
     f.write_bytes(b"\x00\x01 nothing anyone reads")
@@ -67,6 +69,7 @@ def test_render_unknown_file_names_the_installed_types(site, tmp_path) -> None:
     assert "stripes (.stripes)" in lines[0] and "vector (.geojson .json)" in lines[0]
 
 
+@pytest.mark.slow
 def test_render_explicit_layer_type(site, tmp_path) -> None:
     lines = tmp_path / "lines.geojson"
     lines.write_text('{"type": "LineString", "coordinates": [[0, 0], [10, 10]]}')
@@ -88,6 +91,7 @@ def test_render_explicit_layer_type(site, tmp_path) -> None:
     assert proc.returncode == 0, proc.stderr
 
 
+@pytest.mark.slow
 def test_infinite_point_coordinates_are_the_users_error(site, tmp_path) -> None:
     """1e400 parses as infinity: the built-in points type refuses the file in one line and
     stays enabled (it used to hand the host garbage and be disabled for it)."""

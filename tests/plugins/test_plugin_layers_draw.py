@@ -165,6 +165,7 @@ def _near(mask: np.ndarray, view, lon: float, lat: float, r: int = 2) -> bool:
     return bool(mask[max(row - r, 0) : row + r + 1, max(col - r, 0) : col + r + 1].any())
 
 
+@pytest.mark.slow
 def test_external_plugin_drawables_land_where_they_lie(session, tmp_path) -> None:
     f = tmp_path / "world.stripes"
     f.write_text(
@@ -208,6 +209,7 @@ def test_external_plugin_drawables_land_where_they_lie(session, tmp_path) -> Non
     assert session.overlay_layers == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("content", "needle"),
     [
@@ -231,6 +233,7 @@ def test_garbage_drawables_fail_the_layer_type_in_one_line(session, tmp_path, co
     assert session.registry.get("stripes").status == "failed"
 
 
+@pytest.mark.slow
 def test_bad_user_file_keeps_the_plugin(session, tmp_path) -> None:
     f = tmp_path / "typo.stripes"
     f.write_text("rhumbb 0 0 1 1 1 1 1\n")
@@ -239,6 +242,7 @@ def test_bad_user_file_keeps_the_plugin(session, tmp_path) -> None:
     assert session.registry.get("stripes").status == "ok" and session.overlay_layers == []
 
 
+@pytest.mark.slow
 def test_builtins_go_the_same_path(session) -> None:
     """The embedded borders come through the built-in vector type's drawables."""
     from globeview.model.overlay_layers import VectorLayer
@@ -252,6 +256,7 @@ def test_builtins_go_the_same_path(session) -> None:
     )
 
 
+@pytest.mark.slow
 def test_an_api_1_0_layer_object_is_called_only_under_isolation(session, tmp_path) -> None:
     f = tmp_path / "old.stripes"
     f.write_text("legacy\n")

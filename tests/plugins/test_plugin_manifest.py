@@ -174,6 +174,7 @@ def test_locate_manifest_errors() -> None:
         locate_manifest("globeview.plugins.builtin:absent.toml")
 
 
+@pytest.mark.slow
 def test_locating_and_reading_imports_no_plugin_code() -> None:
     """In a fresh interpreter: reading every manifest leaves the plugins' modules unimported."""
     code = (

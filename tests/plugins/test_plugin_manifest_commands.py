@@ -137,6 +137,7 @@ def test_commands_belong_to_tools_and_are_bounded() -> None:
         parse_manifest(data)
 
 
+@pytest.mark.slow
 def test_plugins_validate_reports_a_bad_shortcut_in_one_line(tmp_path: Path) -> None:
     path = tmp_path / "globeview.toml"
     path.write_text(TOOL.replace('"shift+ctrl+x"', '"Ctrl+Banana"'), encoding="utf-8")

@@ -97,6 +97,7 @@ def test_profile_samples_lie_on_the_geodesic(measure) -> None:
     assert np.all(np.isfinite(m.profile_h_m)) and np.all(np.abs(m.profile_h_m) < 120.0)
 
 
+@pytest.mark.slow
 def test_profile_across_white_mountains_equals_globeview_height(
     globeview_registry: PluginRegistry, srtm_stack, srtm_cache: Path
 ) -> None:

@@ -38,6 +38,7 @@ def gv(env: dict[str, str], *args: str) -> subprocess.CompletedProcess[str]:
     )  # fmt: skip
 
 
+@pytest.mark.slow
 def test_render_measure_writes_png_status_and_profile(env, tmp_path: Path) -> None:
     png, prof = tmp_path / "m.png", tmp_path / "m.csv"
     r = gv(env, "render", str(SRTM), "--tool", "measure", "--points", POINTS,
@@ -60,6 +61,7 @@ def test_render_measure_writes_png_status_and_profile(env, tmp_path: Path) -> No
     np.testing.assert_allclose(table[:, 3], want, atol=1e-6)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("points", "words"),
     [

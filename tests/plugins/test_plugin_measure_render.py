@@ -54,6 +54,7 @@ def line_mask(rgb: np.ndarray) -> np.ndarray:
     return np.abs(rgb.astype(int) - LINE_RGB).max(axis=2) < 30
 
 
+@pytest.mark.slow
 def test_place_points_draws_the_geodesic_where_it_projects(session, gl) -> None:
     session.activate_tool(None)
     plain, _, _ = draw(session, gl)
@@ -79,6 +80,7 @@ def test_place_points_draws_the_geodesic_where_it_projects(session, gl) -> None:
     assert session.registry.get("measure").status == "ok"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("points", [[A, B, A], [(0.0, 95.0), B], [(float("nan"), 0.0), B]])
 def test_refused_points_are_a_user_error(session, points) -> None:
     session.activate_tool("measure")

@@ -113,6 +113,7 @@ def _blue(rgb):
     return (rgb[..., 2] > 200) & (rgb[..., 0] < 60) & (rgb[..., 1] < 60)
 
 
+@pytest.mark.slow
 def test_placemarks_in_their_own_size_and_colour(session, tmp_path) -> None:
     f = tmp_path / "two.dots"
     f.write_text("placemark\n-25 10 8 1 0 0\n25 10 30 0 0 1\n")
@@ -133,6 +134,7 @@ def test_placemarks_in_their_own_size_and_colour(session, tmp_path) -> None:
     assert left > 5 and abs(left - right) <= 0.2 * max(left, right)
 
 
+@pytest.mark.slow
 def test_boxes_in_their_own_colour_and_scale(session, tmp_path) -> None:
     f = tmp_path / "boxes.dots"
     f.write_text("box\n-25 10 400000 0 1 0\n25 10 150000 1 1 0\n")
@@ -145,6 +147,7 @@ def test_boxes_in_their_own_colour_and_scale(session, tmp_path) -> None:
     assert _count(yellow, view, -25, 10, 60) == 0 and _count(green, view, 25, 10, 60) == 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("kind", "needle"),
     [

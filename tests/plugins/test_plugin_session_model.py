@@ -19,6 +19,7 @@ def session(globeview_gl, globeview_terrain, globeview_registry):
     s.release_gl()
 
 
+@pytest.mark.slow
 def test_session_state_is_the_globe(session) -> None:
     g = session.globe
     seen: list = []
@@ -35,6 +36,7 @@ def test_session_state_is_the_globe(session) -> None:
     assert session.overlay_layers is g.overlays
 
 
+@pytest.mark.slow
 def test_session_takes_a_globe_made_before_gl(globeview_gl, globeview_terrain, globeview_registry):
     from globeview.app.session import GlobeSession
 
@@ -50,6 +52,7 @@ def test_session_takes_a_globe_made_before_gl(globeview_gl, globeview_terrain, g
         s.release_gl()
 
 
+@pytest.mark.slow
 def test_unknown_lod_changes_nothing(session) -> None:
     from globeview.errors import GlobeviewError
 
@@ -60,6 +63,7 @@ def test_unknown_lod_changes_nothing(session) -> None:
     assert session.lod_name == "chunked-sse" and seen == []
 
 
+@pytest.mark.slow
 def test_a_refused_lod_name_at_construction_leaves_no_gl_objects(
     globeview_gl, globeview_terrain, globeview_registry
 ) -> None:
@@ -74,6 +78,7 @@ def test_a_refused_lod_name_at_construction_leaves_no_gl_objects(
     assert tracker.counts() == before
 
 
+@pytest.mark.slow
 def test_release_gl_disconnects_the_session_from_the_globe(
     globeview_gl, globeview_terrain, globeview_registry
 ) -> None:

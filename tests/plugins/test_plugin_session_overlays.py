@@ -34,6 +34,7 @@ def _frame(s):
     return s.render(s.target.fbo, SIZE)
 
 
+@pytest.mark.slow
 def test_model_changes_make_no_gl_objects_until_a_frame(session) -> None:
     tracker = gpu_objects(session.ctx)
     before = tracker.counts()
@@ -60,6 +61,7 @@ def test_model_changes_make_no_gl_objects_until_a_frame(session) -> None:
     assert tracker.counts() == before
 
 
+@pytest.mark.slow
 def test_a_restyled_layer_is_rebuilt_once(session) -> None:
     tracker = gpu_objects(session.ctx)
     layer = session.add_overlay("data/ne_110m_countries.geojson", layer_type="vector")
@@ -78,6 +80,7 @@ def test_a_restyled_layer_is_rebuilt_once(session) -> None:
     session.remove_overlay(layer)
 
 
+@pytest.mark.slow
 def test_a_file_opened_twice_is_two_rows_and_removing_one_keeps_the_other(session) -> None:
     # Layers compare by identity: the dataclass __eq__ compared their numpy arrays, so
     # removing one of two equal layers raised "truth value of an array is ambiguous".
@@ -98,6 +101,7 @@ def test_a_file_opened_twice_is_two_rows_and_removing_one_keeps_the_other(sessio
     session.remove_overlay(second)
 
 
+@pytest.mark.slow
 def test_hiding_a_layer_from_code_is_one_event_and_the_next_frame_shows_it(session) -> None:
     # What a plugin or script does: call the layer's setter; the globe announces it.
     cities = session.add_overlay("data/ne_cities.geojson", layer_type="points")
@@ -115,6 +119,7 @@ def test_hiding_a_layer_from_code_is_one_event_and_the_next_frame_shows_it(sessi
     session.remove_overlay(cities)
 
 
+@pytest.mark.slow
 def test_a_layer_the_gpu_side_refuses_is_dropped_with_one_line(session) -> None:
     from globeview.model.overlay_layers import PointsLayer
 
@@ -180,6 +185,7 @@ class OldType:
 """
 
 
+@pytest.mark.slow
 def test_api_1_0_layer_objects_are_called_at_frame_time(
     globeview_gl, globeview_terrain, plugin_site, tmp_path
 ) -> None:
@@ -220,6 +226,7 @@ def test_api_1_0_layer_objects_are_called_at_frame_time(
         target.release()
 
 
+@pytest.mark.slow
 def test_overlays_open_before_any_session_and_are_drawn_by_it(
     globeview_gl, globeview_terrain, globeview_registry
 ) -> None:

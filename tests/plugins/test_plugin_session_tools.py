@@ -55,6 +55,7 @@ def _session(ctx, terrain, reg):
     return GlobeSession(ctx, terrain, Camera.from_lonlat(-71.3, 44.27, 4e4), reg)
 
 
+@pytest.mark.slow
 def test_activation_is_model_only_and_compiles_at_the_next_frame(
     plugin_site, globeview_gl, globeview_terrain, target
 ) -> None:
@@ -81,6 +82,7 @@ def test_activation_is_model_only_and_compiles_at_the_next_frame(
         s.release_gl()
 
 
+@pytest.mark.slow
 def test_a_hook_that_does_not_compile_fails_the_tool_at_the_frame(
     plugin_site, globeview_gl, globeview_terrain, target
 ) -> None:
@@ -102,6 +104,7 @@ def test_a_hook_that_does_not_compile_fails_the_tool_at_the_frame(
         s.release_gl()
 
 
+@pytest.mark.slow
 def test_setting_the_globe_tool_directly_is_followed(
     plugin_site, globeview_gl, globeview_terrain, target
 ) -> None:
@@ -119,6 +122,7 @@ def test_setting_the_globe_tool_directly_is_followed(
         s.release_gl()
 
 
+@pytest.mark.slow
 def test_an_unavailable_tool_name_ends_as_none_for_every_listener(
     globeview_gl, globeview_terrain, globeview_registry
 ) -> None:
@@ -144,6 +148,7 @@ class Warp(Tool):
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("body", "fails"),
     [
@@ -180,6 +185,7 @@ def test_uniforms_never_recompile_the_terrain_shader_per_frame(
         s.release_gl()
 
 
+@pytest.mark.slow
 def test_a_tool_without_uniforms_keeps_its_hook(
     plugin_site, globeview_gl, globeview_terrain, target
 ) -> None:

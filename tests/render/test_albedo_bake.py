@@ -6,6 +6,7 @@ coasts), and are what the tile pool uploads for a real tile."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from globeview.render.colour_ramp import (
     COAST_MIN_M,
@@ -134,6 +135,7 @@ def test_coast_uniforms_reproduce_the_sampled_blend() -> None:
     assert np.allclose(np.array(u["coast_jump"]) * 255.0, step, atol=1.0)
 
 
+@pytest.mark.slow
 def test_the_pool_uploads_baked_albedo_and_normals(gl_ctx, terrain) -> None:
     """What the shader samples for a real tile: albedo RGB = the baked ramp, albedo alpha =
     the coast blend, normal RGB = n * 0.5 + 0.5, normal alpha = the height over the tile's

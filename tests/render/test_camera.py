@@ -315,6 +315,7 @@ def test_view_state_refuses_bad_tau_and_exaggeration(kw: dict, needle: str) -> N
         ViewState.from_camera(cam, VIEWPORT, **kw)
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 @pytest.mark.parametrize("tau", [0.0, -1.0, math.nan, math.inf])
 def test_scene_tau_setter_refuses_bad_values(scene, tau: float) -> None:

@@ -80,6 +80,7 @@ def recording_scene(gl_ctx, terrain):
     target.release()
 
 
+@pytest.mark.slow
 def test_one_frame_runs_its_steps_in_order_on_one_view(recording_scene) -> None:
     scene, target = recording_scene
     result = scene.render(target.fbo, SIZE, now_s=5.0)
@@ -96,6 +97,7 @@ def test_one_frame_runs_its_steps_in_order_on_one_view(recording_scene) -> None:
     assert result.stats.triangles > 0 and result.stats.tiles_drawn == len(result.render_set)
 
 
+@pytest.mark.slow
 def test_a_failed_tool_frame_draws_without_its_displacement(recording_scene) -> None:
     scene, target = recording_scene
     scene.tool.uniforms = lambda view: None  # the host says: the tool failed this frame
@@ -108,6 +110,7 @@ def test_a_failed_tool_frame_draws_without_its_displacement(recording_scene) -> 
     assert scene.renderer.last_view is result.view
 
 
+@pytest.mark.slow
 def test_speed_comes_from_camera_history_and_time_stamps(recording_scene) -> None:
     scene, target = recording_scene
     first = scene.render(target.fbo, SIZE, now_s=100.0)
@@ -129,6 +132,7 @@ def test_speed_comes_from_camera_history_and_time_stamps(recording_scene) -> Non
     assert scene.render(target.fbo, SIZE).view.speed_mps == pytest.approx(200.0, rel=1e-6)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf, "1.0", True, None, [1.0]])
 def test_a_bad_time_stamp_is_refused_in_one_line(recording_scene, bad) -> None:
     scene, target = recording_scene
@@ -162,6 +166,7 @@ def test_camera_motion_rules() -> None:
     assert check_time(np.float32(2.5)) == 2.5 and check_time(3) == 3.0
 
 
+@pytest.mark.slow
 def test_session_frame_with_a_tool_builds_one_view(globeview_gl, terrain) -> None:
     """The real collapse plugin through the registry: the provider's view is the frame's,
     it carries the collapse's displacement, and the frame drew the fold lines itself."""
@@ -216,6 +221,7 @@ class Hostile(Tool):
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("broken", ["animate", "overlay"])
 def test_a_hostile_tool_fails_alone_and_the_frame_is_drawn(
     plugin_site, globeview_gl, terrain, broken

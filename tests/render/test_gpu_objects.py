@@ -32,6 +32,7 @@ def test_tracker_counts_live_objects(globeview_gl) -> None:
     assert len(tracker.live) == before
 
 
+@pytest.mark.slow
 def test_leaked_since_finds_only_dropped_unreleased_objects(globeview_gl) -> None:
     tracker = gpu_objects(globeview_gl)
     mark = tracker.mark
@@ -45,6 +46,7 @@ def test_leaked_since_finds_only_dropped_unreleased_objects(globeview_gl) -> Non
     kept.release()
 
 
+@pytest.mark.slow
 def test_a_session_releases_every_gl_object_it_made(
     globeview_gl, globeview_terrain, globeview_registry
 ) -> None:
@@ -80,6 +82,7 @@ LEAKY_TEST = """
 """
 
 
+@pytest.mark.slow
 def test_the_gl_fixture_fails_a_test_that_leaks(tmp_path) -> None:
     (tmp_path / "test_leaky.py").write_text(textwrap.dedent(LEAKY_TEST))
     env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1")

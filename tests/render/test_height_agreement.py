@@ -56,6 +56,7 @@ def _picks(session, collapse=None, camera=WHITE_MOUNTAINS):
     return [p for p in picks if p is not None and p.on_terrain]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("camera", "collapse", "layer"),
     [

@@ -32,14 +32,23 @@ def test_substitution_replaces_missing_tiles_by_their_resident_ancestor() -> Non
     assert len(out.variant_ids) == len(out.keys) == len(out.error_px)
 
 
-def test_async_frames_converge_to_the_synchronous_image(scene, targets) -> None:
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["thread", "process"])
+def test_async_frames_converge_to_the_synchronous_image(scene, targets, kind) -> None:
     """Render a view synchronously, then with background loading from an empty pool: frames
     come back at once while tiles load, and once loading is done the image is exactly the
-    synchronous one."""
+    synchronous one, with tiles built on a loader thread or in worker processes (issue #27:
+    texels baked there, uploaded as they come)."""
     size = (256, 192)
     target = targets(size)
     scene.camera = Camera.from_lonlat(-71.3, 44.2, 60000.0, 0.0, -50.0)
     scene.renderer.settings.background = (1.0, 0.0, 1.0)
+    renderer = scene.renderer
+    saved = renderer.load_kind, renderer.load_workers, renderer.load_batch
+    if renderer.loader is not None:
+        renderer.loader.shutdown()
+        renderer.loader = None
+    renderer.load_kind, renderer.load_workers, renderer.load_batch = kind, 2, 8
     try:
         scene.render(target.fbo, size)
         reference = target.read_rgb()
@@ -58,11 +67,17 @@ def test_async_frames_converge_to_the_synchronous_image(scene, targets) -> None:
             time.sleep(0.02)
         assert loading_seen
         assert np.array_equal(img, reference)
+        assert renderer.loader is not None and renderer.loader.describe() == f"{kind} x2"
     finally:
+        if renderer.loader is not None:
+            renderer.loader.shutdown()
+            renderer.loader = None
+        renderer.load_kind, renderer.load_workers, renderer.load_batch = saved
         scene.renderer.async_loading = False
         scene.renderer.settings.background = (0.0, 0.0, 0.0)
 
 
+@pytest.mark.slow
 def test_async_frames_count_missing_stand_in_and_failed_tiles(scene, targets) -> None:
     """A tile that cannot be built (here: its heights raise, as an unreadable store window
     would) is counted in the frame's ``tiles_failed``, stays stood in by an ancestor, and

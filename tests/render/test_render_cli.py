@@ -36,6 +36,7 @@ def globeview(*args: str) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.slow
 def test_render_writes_png_and_stats(tmp_path: Path) -> None:
     out, stats = tmp_path / "globe.png", tmp_path / "stats.json"
     res = globeview(
@@ -66,6 +67,7 @@ def test_render_writes_png_and_stats(tmp_path: Path) -> None:
     assert not list(tmp_path.glob("*.tmp"))
 
 
+@pytest.mark.slow
 def test_render_camera_and_tau_change_the_frame(tmp_path: Path) -> None:
     def stats_for(*extra: str) -> dict:
         s = tmp_path / "s.json"
@@ -82,6 +84,7 @@ def test_render_camera_and_tau_change_the_frame(tmp_path: Path) -> None:
     assert finer["triangles"] > oblique["triangles"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "args",
     [

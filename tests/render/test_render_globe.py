@@ -25,6 +25,7 @@ def magenta_render(scene, targets, gv, camera, size=SIZE, exaggeration: float = 
 
 
 # -- the globe is where it should be ---------------------------------------------------------
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("cam_args", "size"),
     [
@@ -70,6 +71,7 @@ def pixel_at(rgb: np.ndarray, view, lon: float, lat: float, h: float = 0.0) -> n
     return rgb[int(y), int(x)].astype(np.float64)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("lon", "lat", "water"),
     [
@@ -100,6 +102,7 @@ def test_colour_at_known_places_follows_the_ramp(
     assert np.abs(candidates - chromaticity(px)).max(axis=1).min() < 0.03
 
 
+@pytest.mark.slow
 def test_wireframe_draws_edges_over_the_surface(scene, targets, gv) -> None:
     cam = Camera.from_lonlat(-71.3, 44.2, 4.0e4, 0.0, -60.0)
     plain, _ = gv.render(scene, targets, cam, SIZE)
@@ -140,6 +143,7 @@ def crack_params() -> list:
     ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("name", "exaggeration"), crack_params())
 def test_no_cracks(scene, targets, gv, name: str, exaggeration: float) -> None:
     cam = Camera.from_lonlat(*CRACK_VIEWS[name])
@@ -157,6 +161,7 @@ def test_no_cracks(scene, targets, gv, name: str, exaggeration: float) -> None:
     assert not holes.any(), f"{holes.sum()} crack pixels, e.g. {np.argwhere(holes)[:5].tolist()}"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("exaggeration", [1.0, 3.0])
 @pytest.mark.parametrize(("agl", "pitch"), [(5000.0, -5.0), (8000.0, -12.0)])
 def test_no_cracks_low_oblique_toward_the_horizon(
@@ -173,6 +178,7 @@ def test_no_cracks_low_oblique_toward_the_horizon(
 
 
 # -- precision: no jitter close to the ground ------------------------------------------------------
+@pytest.mark.slow
 def test_no_jitter_when_the_camera_moves_a_centimetre(scene, targets, gv, terrain) -> None:
     cam = gv.camera_above_ground(terrain, -71.3, 44.27, 200.0, 60.0, -25.0)
     size = SIZE
@@ -196,6 +202,7 @@ def test_no_jitter_when_the_camera_moves_a_centimetre(scene, targets, gv, terrai
     assert (diff_far > 0).mean() > 0.3 and (diff_far > 2).mean() > 0.02
 
 
+@pytest.mark.slow
 def test_image_changes_smoothly_as_the_camera_creeps(scene, targets, gv, terrain) -> None:
     """Steps of 5 cm change the image by similar small amounts: rounding of positions to
     float32 far from the origin would freeze it for several steps and then jump."""
@@ -211,6 +218,7 @@ def test_image_changes_smoothly_as_the_camera_creeps(scene, targets, gv, terrain
 
 
 # -- statistics --------------------------------------------------------------------------------
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "cam_args",
     [(0.0, 20.0, 2.0e7, 0.0, -90.0), (-71.3, 44.2, 6000.0, 0.0, -10.0)],

@@ -71,6 +71,7 @@ def _around(mask: np.ndarray, rc: tuple[int, int], r: int = 3) -> int:
     return int(mask[max(row - r, 0) : row + r + 1, max(col - r, 0) : col + r + 1].sum())
 
 
+@pytest.mark.slow
 def test_london_new_york_chord_is_hidden_by_the_globe(session) -> None:
     a, b = _ecef(*LONDON), _ecef(*NEW_YORK)
     chord = np.stack([a, b])
@@ -110,6 +111,7 @@ def test_marker_labels_are_drawn_beside_the_marker(session) -> None:
     assert session.tools_renderer.labels_drawn == 0  # the last draw had no label
 
 
+@pytest.mark.slow
 def test_labels_beyond_the_horizon_are_not_drawn(session) -> None:
     far = _ecef(140.0, -50.0)  # the other side of the globe
     _, rgb, _ = _draw(session, [Marker(tuple(far), label="Antipodes")])

@@ -87,6 +87,7 @@ def lattice_amplitudes(
     return np.array([np.sum(g * np.exp(2j * np.pi * c / p)) for p in periods]) / g.sum()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("cam", VIEWS)
 def test_no_lattice_at_the_data_spacing(chunked_scene, targets, gv, terrain, cam):
     rgb, result = gv.render(chunked_scene, targets, Camera.from_lonlat(*cam), SIZE)

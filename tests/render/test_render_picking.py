@@ -43,6 +43,7 @@ def check_pick(scene, gv, terrain, x: int, y: int, level: int, height: bool = Tr
 GLOBE_PIXELS = [(160, 120), (130, 100), (200, 150), (110, 140)]
 
 
+@pytest.mark.slow
 def test_pick_on_the_whole_globe(scene, targets, gv, terrain) -> None:
     _, result = gv.render(scene, targets, Camera.from_lonlat(0.0, 20.0, 2.0e7), SIZE)
     view = result.view
@@ -63,6 +64,7 @@ def test_picked_height_on_the_whole_globe(scene, targets, gv, terrain) -> None:
         check_pick(scene, gv, terrain, x, y, level=3)
 
 
+@pytest.mark.slow
 def test_pick_a_known_place(scene, targets, gv, terrain) -> None:
     _, result = gv.render(scene, targets, Camera.from_lonlat(-71.3, 44.2, 3.0e4, 0.0, -90.0), SIZE)
     h = gv.ground_height(terrain, -71.25, 44.26)
@@ -74,6 +76,7 @@ def test_pick_a_known_place(scene, targets, gv, terrain) -> None:
     assert p.height == pytest.approx(h, abs=60.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("agl", "pitch"), [(6000.0, -10.0), (800.0, -20.0)])
 def test_pick_on_a_low_oblique_view(scene, targets, gv, terrain, agl: float, pitch: float) -> None:
     cam = gv.camera_above_ground(terrain, -71.3, 44.2, agl, 10.0, pitch)
@@ -102,6 +105,7 @@ def test_pick_in_space_and_outside_the_image(scene, targets, gv) -> None:
     assert scene.pick(100, 240) is None
 
 
+@pytest.mark.slow
 def test_every_pixel_on_the_globe_picks_terrain(scene, targets, gv) -> None:
     _, result = gv.render(scene, targets, Camera.from_lonlat(0.0, 0.0, 4.0e5, 0.0, -20.0), SIZE)
     mask = gv.erode(gv.ellipsoid_mask(result.view), 3)
@@ -116,6 +120,7 @@ def test_every_pixel_on_the_globe_picks_terrain(scene, targets, gv) -> None:
         assert scene.pick(int(xs[k]), int(ys[k])) is None
 
 
+@pytest.mark.slow
 def test_read_depth_is_one_value_per_pixel(scene, targets, gv) -> None:
     _, result = gv.render(scene, targets, Camera.from_lonlat(0.0, 20.0, 2.0e7), SIZE)
     depth = targets(SIZE).read_depth()

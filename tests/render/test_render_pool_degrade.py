@@ -100,6 +100,7 @@ def test_parents_at_the_poles_get_pole_fans() -> None:
     assert {fitted.variants[i].pole for i in fitted.variant_ids} == {"both"}
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_renderer_with_a_small_pool_draws_a_degraded_frame(gl_ctx, terrain, targets) -> None:
     from globeview.lod.sse_policy import ScreenSpaceErrorPolicy

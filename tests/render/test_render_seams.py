@@ -69,11 +69,13 @@ def assert_no_seams(scene, targets, gv, terrain, cam) -> None:
     assert edge <= 1.15 * rest, (edge, rest)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("cam", NADIR)
 def test_no_shading_seams_at_tile_edges(scene, targets, gv, terrain, cam):
     assert_no_seams(scene, targets, gv, terrain, cam)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("cam", ISSUE_NADIR)
 def test_no_shading_seams_past_the_data(chunked_scene, targets, gv, terrain, cam):
     """Tiles finer than the data, of two or three levels side by side (issue #29, item 6): the

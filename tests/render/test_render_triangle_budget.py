@@ -14,6 +14,7 @@ pytestmark = pytest.mark.gl
 SIZE = (1280, 720)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("name", "pose", "budget"),
     [

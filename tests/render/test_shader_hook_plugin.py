@@ -34,6 +34,7 @@ def hook_tool(request: pytest.FixtureRequest, plugin_site: PluginSite) -> str:
     return "hook-tool"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("hook_tool", [IDENTITY], indirect=True)
 def test_an_identity_hook_changes_no_pixel(hook_tool: str, rendered) -> None:
     plain = rendered("chunked-sse").image
@@ -44,6 +45,7 @@ def test_an_identity_hook_changes_no_pixel(hook_tool: str, rendered) -> None:
     assert np.array_equal(hooked.image, plain)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("hook_tool", "reason"),
     [

@@ -51,6 +51,7 @@ def collapse_glsl() -> str:
     return glsl
 
 
+@pytest.mark.slow
 def test_every_vertex_fragment_pair_compiles(egl_ctx) -> None:
     stems = sorted(p.stem for p in SHADER_DIR.glob("*.vert"))
     assert stems == sorted(p.stem for p in SHADER_DIR.glob("*.frag"))
@@ -70,6 +71,7 @@ def test_every_vertex_fragment_pair_compiles(egl_ctx) -> None:
         compile_pair(egl_ctx, load_shader(f"{stem}.vert"), load_shader(f"{stem}.frag"))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("hook", [False, True], ids=["plain", "collapse-hook"])
 def test_every_terrain_variant_compiles(egl_ctx, hook: bool) -> None:
     """Each shaded variant (imagery, hillshade, fog, tilt on or off) and the wireframe pass's
@@ -97,6 +99,7 @@ def test_every_terrain_variant_compiles(egl_ctx, hook: bool) -> None:
             program.release()
 
 
+@pytest.mark.slow
 def test_compile_messages_point_into_the_hook_text(egl_ctx) -> None:
     """A hook with an error on its 3rd line: the message cites line K * 10000 + 3, where K
     is the piece the legend names as the replaced displace.glsl."""
@@ -120,6 +123,7 @@ def test_compile_messages_point_into_the_hook_text(egl_ctx) -> None:
     assert f"{k} = <replace displace.glsl>" in legend and "fragment 0 = terrain.frag" in legend
 
 
+@pytest.mark.slow
 def test_renderer_hook_errors_name_the_pieces(gl_ctx, terrain) -> None:
     """GlobeRenderer.set_displacement_hook: a hook that does not compile raises
     moderngl.Error naming the pieces, and the renderer keeps drawing with its old program."""

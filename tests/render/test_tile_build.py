@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 
 from globeview.geodesy import WGS84, enu_basis, lonlat_to_ecef
+from globeview.lod.tile_indices import node_lonlat
 from globeview.render.renderer import tile_bounds_tuple
-from globeview.render.tile_mesh import FLOATS_PER_VERTEX, build_tile_mesh, node_lonlat
+from globeview.render.tile_mesh import FLOATS_PER_VERTEX, build_tile_mesh
 from globeview.terrain.quadtree import key_for_lonlat
 
 
@@ -102,6 +103,7 @@ MESH_KEYS = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("key", MESH_KEYS)
 @pytest.mark.parametrize("apron", [False, True])
 def test_mesh_matches_the_reference_builder(stack, key, apron):
@@ -119,6 +121,87 @@ def test_mesh_matches_the_reference_builder(stack, key, apron):
     np.testing.assert_array_equal(mesh.heights, h)
 
 
+def _bits(a: np.ndarray) -> bytes:
+    return np.ascontiguousarray(a).tobytes()
+
+
+# Tiles where every path of the build runs: poles, the antimeridian, rough relief with its
+# apron, tiles finer than their data (data-level normals), below sea level.
+BATCH_KEYS = [
+    *MESH_KEYS,
+    _key(14, -122.1, 42.94),  # finer than Crater Lake's data: data-level normals
+    _key(13, -71.3, 44.15),  # finer than N44W072's: data-level normals
+    (1, 3, 1),
+]
+
+
+@pytest.mark.parametrize("apron", [False, True])
+def test_a_batch_builds_each_tile_bit_for_bit_as_alone(stack, apron):
+    """Issue #27: the batch (one numpy pass over B tiles) performs each tile's operations;
+    vertices, normals, centres and heights are the same bits as the tile built alone, with
+    given normals on some tiles and not on others."""
+    from globeview.render.tile_mesh import build_tile_meshes
+
+    keys = BATCH_KEYS
+    heights = np.stack([stack.heights(k) for k in keys])
+    aprons = np.stack([stack.heights_apron(k) for k in keys]) if apron else None
+    bounds = np.array([tile_bounds_tuple(k) for k in keys])
+    skirts = np.linspace(12.5, 700.0, len(keys))
+    given = [None] * len(keys)
+    given[2] = build_tile_mesh(tuple(bounds[5]), heights[5], 1.0).normals  # any unit normals
+    batch = build_tile_meshes(bounds, heights, skirts, apron=aprons, normals=given)
+    for i, mesh in enumerate(batch):
+        one = build_tile_mesh(
+            tuple(bounds[i]),
+            heights[i],
+            float(skirts[i]),
+            apron=None if aprons is None else aprons[i],
+            normals=given[i],
+        )
+        for name in ("center", "vertices", "normals", "heights"):
+            assert _bits(getattr(mesh, name)) == _bits(getattr(one, name)), (keys[i], name)
+        assert mesh.skirt_depth == one.skirt_depth
+
+
+def test_the_builder_bakes_what_an_upload_of_the_mesh_bakes(stack):
+    """`TileBuilder.ready` (the loader's batch: meshes and texels of the whole batch) gives
+    each tile the bits of its mesh built alone and baked alone (`tile_texels`), and the
+    renderer's one-tile and batch builds are the builder's."""
+    from globeview.render.colour_ramp import tile_texels
+    from globeview.render.tile_build import ReadyTile, TileBuilder
+
+    builder = TileBuilder(stack)
+    keys = np.array(BATCH_KEYS, dtype=np.int64)
+    ready = builder.ready(keys)
+    assert list(ready) == [tuple(int(v) for v in k) for k in keys]
+    for key, tile in ready.items():
+        mesh = builder.mesh(key)
+        alone = ReadyTile.from_mesh(mesh)
+        albedo, coast, scale = tile_texels(mesh.heights)
+        assert _bits(tile.albedo) == _bits(alone.albedo) == _bits(albedo)
+        assert _bits(tile.normal[..., 3]) == _bits(coast)
+        assert _bits(tile.normal) == _bits(alone.normal)
+        assert tile.coast_scale == alone.coast_scale == scale
+        assert _bits(tile.vertices) == _bits(mesh.vertices)
+        assert _bits(tile.center) == _bits(mesh.center)
+
+
+def test_batched_texels_equal_per_tile_at_coasts() -> None:
+    """Coast scales per tile in a batch: a tile without a coast, one with a low and one with a
+    cliff coast, one under water."""
+    from globeview.render.colour_ramp import tile_texels, tile_texels_batch
+
+    rng = np.random.default_rng(7)
+    base = rng.normal(0.0, 1.0, (65, 65)).cumsum(axis=1).astype(np.float32)
+    tiles = np.stack([base + 500.0, base * 3.0, base * 80.0 - 40.0, base - 3000.0])
+    albedo, coast, scale = tile_texels_batch(tiles)
+    for i, h in enumerate(tiles):
+        a, c, s = tile_texels(h)
+        assert _bits(albedo[i]) == _bits(a) and _bits(coast[i]) == _bits(c)
+        assert scale[i] == s
+
+
+@pytest.mark.slow
 def test_batched_skirt_depths_equal_per_tile(stack):
     from globeview.render.offscreen import create_headless_context
     from globeview.render.renderer import GlobeRenderer
@@ -148,13 +231,13 @@ def test_batched_skirt_depths_equal_per_tile(stack):
         # The loader's one-tile builds take skirt depths computed per 4 x 4 block and cached:
         # the same numbers, at the grid's edges too, and none kept across a layer change.
         for k in [(0, 0, 0), (0, 3, 0), (1, 3, 1), (lv, x + 3, y - 5), (lv, x, y)]:
-            assert r._skirt_depth(k) == r.skirt_depths(np.array([k]))[0]
+            assert r.builder.skirt_depth(k) == r.skirt_depths(np.array([k]))[0]
         name = next(ly.name for ly in stack.layers[1:] if ly.store.has_tile(lv, x, y))
-        before = r._skirt_depth((lv, x, y))
+        before = r.builder.skirt_depth((lv, x, y))
         stack.set_visible(name, False)
         try:
-            assert r._skirt_depth((lv, x, y)) == r.skirt_depths(np.array([(lv, x, y)]))[0]
-            assert r._skirt_depth((lv, x, y)) != before  # the detail layer's errors are gone
+            assert r.builder.skirt_depth((lv, x, y)) == r.skirt_depths(np.array([(lv, x, y)]))[0]
+            assert r.builder.skirt_depth((lv, x, y)) != before  # the detail layer's errors are gone
         finally:
             stack.set_visible(name, True)
         r.release()
@@ -200,6 +283,7 @@ def _plain_read(st, key):
         return ds.read(1, window=Window(ix * n, iy * n, size, size)).astype(np.float32)
 
 
+@pytest.mark.slow
 def test_store_padded_window_is_the_neighbours_nodes(stack):
     """Exact, NaN included: inside, at a regional layer's extent edges (tiles just outside
     it serve NaN), and across the antimeridian on the global base."""
@@ -260,6 +344,7 @@ def unblended_stack():
     return st
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("blend", [True, False])
 @pytest.mark.parametrize(
     "keys",
@@ -305,6 +390,7 @@ def antimeridian_stack(tmp_path_factory):
     return TerrainStack.from_stores(stores)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("level", [10, 11])
 @pytest.mark.parametrize("lat", [10.5, 20.5])
 def test_apron_ring_at_a_layer_edge_on_the_antimeridian(antimeridian_stack, level, lat):

@@ -208,6 +208,7 @@ def test_batches_go_through_build_many_in_load_order_and_a_bad_tile_fails_alone(
     assert got[(6, 4, 0)] == ("one", (6, 4, 0))  # its batch was rebuilt tile by tile
 
 
+@pytest.mark.slow
 def test_shutdown_waits_for_the_build_under_way_and_frees_the_build() -> None:
     """A closed window's renderer must be garbage at once: after shutdown no worker is
     alive (a worker's frame holds the loader and so the build callables)."""

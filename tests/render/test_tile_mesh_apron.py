@@ -31,6 +31,7 @@ def _normals(stack, key, apron: bool) -> np.ndarray:
 
 
 # White Mountains (SRTM N44W072): rough terrain at a level finer than the base.
+@pytest.mark.slow
 @pytest.mark.parametrize("level", [9, 11])
 def test_shared_edge_normals_agree_with_apron(stack, level):
     west, east = _pair(level, -71.3, 44.25)

@@ -41,6 +41,7 @@ def test_catmull_rom_weights_are_exact_for_quadratics(f, d):
     assert not w.flags.writeable
 
 
+@pytest.mark.slow
 def test_data_level_is_the_finest_layer_here(stack):
     assert data_level(stack, _key(14)) == 12  # SRTM3's store ends at level 12
     assert data_level(stack, _key(9)) == 9  # within the data: the tile's own
@@ -50,6 +51,7 @@ def test_data_level_is_the_finest_layer_here(stack):
     assert normals.normals(_key(14)).shape == (65, 65, 3)
 
 
+@pytest.mark.slow
 def test_no_creases_at_the_data_node_lines(stack):
     """The tile's own triangles put nearly all of the normals' change across a data node line
     in the two cells beside it (the bilinear surface's crease); interpolated, it is spread."""
@@ -72,6 +74,7 @@ def test_no_creases_at_the_data_node_lines(stack):
     assert angle.mean() < 2.0 and angle.max() < 10.0
 
 
+@pytest.mark.slow
 def test_edges_agree_across_ancestors(stack):
     """Two level-14 tiles on either side of a level-12 tile's edge (different ancestors)."""
     level, x, y = _key(14)
@@ -81,6 +84,7 @@ def test_edges_agree_across_ancestors(stack):
     np.testing.assert_allclose(west[:, -1], east[:, 0], atol=2e-6)
 
 
+@pytest.mark.slow
 def test_edges_agree_across_levels(stack):
     """A level-12 tile (its own normals, which the texture interpolates linearly) and the
     level-13 and -14 tiles east of it agree on their shared edge's nodes."""
@@ -107,6 +111,7 @@ def test_edges_agree_across_levels(stack):
             assert np.degrees(np.arccos(np.clip((fine * lin).sum(-1), -1, 1))).max() < 2.0
 
 
+@pytest.mark.slow
 def test_normals_follow_the_terrain_version(stack):
     normals = DataLevelNormals(stack)
     key = _key(14)

@@ -141,6 +141,7 @@ def _ragged_plane(shape: tuple[int, int]) -> np.ndarray:
     return np.where(inside, z, -9999.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("crs", ["EPSG:4326", "EPSG:32632"])
 def test_a_plane_is_followed_up_to_its_last_samples_on_every_side(tmp_path: Path, crs: str) -> None:
     # A geographic source (0.001 deg pixels at 10 E, 46 N) and a projected one (100 m UTM
@@ -172,6 +173,7 @@ def test_a_plane_is_followed_up_to_its_last_samples_on_every_side(tmp_path: Path
     assert set(answering_layers(stack, lon, lat)) == {"plane.tif"}
 
 
+@pytest.mark.slow
 def test_past_the_data_the_surface_goes_down_to_the_ellipsoid_and_says_so(
     tmp_path: Path,
 ) -> None:
@@ -208,6 +210,7 @@ def test_past_the_data_the_surface_goes_down_to_the_ellipsoid_and_says_so(
     assert (h[kind == 2] == 0.0).all()
 
 
+@pytest.mark.slow
 def test_a_tiles_data_wins_over_its_neighbours_continued_edge(tmp_path: Path) -> None:
     # Two tiles of one curved surface side by side (a folder of tiles, issue #18): each one's
     # edge is continued a node into the other's data, where the other's own data must stay
@@ -249,6 +252,7 @@ def crater_lake(tmp_path_factory: pytest.TempPathFactory) -> TerrainStack:
     return _alone(tmp_path_factory.mktemp("crater"), CRATER_LAKE)
 
 
+@pytest.mark.slow
 def test_issue_point_is_the_dems_own_bilinear_value(crater_lake: TerrainStack) -> None:
     lon, lat = np.array([ISSUE_POINT[0]]), np.array([ISSUE_POINT[1]])
     want = _dem_bilinear(CRATER_LAKE, lon, lat)[0]  # 1864.10 m + N -21.45 m = 1842.65 m

@@ -61,6 +61,7 @@ def stack(tmp_path_factory: pytest.TempPathFactory) -> TerrainStack:
     return TerrainStack.from_stores(stores, ["base", "top"])
 
 
+@pytest.mark.slow
 def test_equals_the_composed_tile_nodes_at_the_finest_level(stack: TerrainStack) -> None:
     # At the nodes of the finest-level tiles the query must return the node values the mesh
     # is built from, exactly (float32 -> float64): the surface the LOD converges to.
@@ -77,6 +78,7 @@ def test_equals_the_composed_tile_nodes_at_the_finest_level(stack: TerrainStack)
         np.testing.assert_allclose(got, grid[r.ravel(), c.ravel()], atol=1e-6)
 
 
+@pytest.mark.slow
 def test_vectorised_query_matches_the_scalar_stack_lookup(stack: TerrainStack) -> None:
     rng = np.random.default_rng(16)
     lon = rng.uniform(10.0, 11.0, 300)

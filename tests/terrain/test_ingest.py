@@ -68,6 +68,7 @@ def _write_tif(
     return path
 
 
+@pytest.mark.slow
 def test_levels_are_valid_geotiffs(etopo_store: Path) -> None:
     """Each level is a VRT (what gdalinfo / QGIS open) over chunk files that are valid
     GeoTIFFs on their own, at their place on the level's global chunk grid (store format 7:
@@ -180,6 +181,7 @@ def _brute_force_errors(store: TileStore) -> list[tuple[float, float]]:
     return pairs
 
 
+@pytest.mark.slow
 def test_recorded_error_is_exact(vancouver_store: Path) -> None:
     st = TileStore.open(vancouver_store)
     pairs = _brute_force_errors(st)
@@ -238,6 +240,7 @@ def test_coarse_levels_are_the_wavelet_approximation(vancouver_store: Path) -> N
     assert checked > 1000
 
 
+@pytest.mark.slow
 def test_global_plus_regional(tmp_path: Path) -> None:
     out = tmp_path / "combo"
     van, eto = _data("topobathy_vancouver.tif"), _data("etopo20.tif")
@@ -260,6 +263,7 @@ def test_global_plus_regional(tmp_path: Path) -> None:
     assert np.isfinite(st.heights(TileKey(0, 0, 0))).all()
 
 
+@pytest.mark.slow
 def test_antimeridian_and_non_square_pixels(tmp_path: Path) -> None:
     # 170E .. 190E (= -170) in plain EPSG:4326 longitudes beyond 180; 0.05 x 0.1 deg pixels.
     lon = 170.0 + 0.05 * (np.arange(400) + 0.5)
@@ -307,6 +311,7 @@ def test_pole_reaching_region(tmp_path: Path) -> None:
         assert np.isfinite(row).any() and np.all(row[np.isfinite(row)] == np.float32(north))
 
 
+@pytest.mark.slow
 def test_reingest_is_a_noop_and_force_rebuilds(tmp_path: Path) -> None:
     out = tmp_path / "s"
     src = _data("topobathy_vancouver.tif")
@@ -324,6 +329,7 @@ def _leftovers(parent: Path, name: str) -> list[str]:
     return [p.name for p in parent.iterdir() if p.name.startswith(f".{name}.")]
 
 
+@pytest.mark.slow
 def test_failure_leaves_old_store_intact(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     out = tmp_path / "s"
     src = _data("topobathy_vancouver.tif")

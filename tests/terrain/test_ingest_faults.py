@@ -74,6 +74,7 @@ def _one_error_line(r: subprocess.CompletedProcess) -> str:
 # -- kill -9 -----------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("point", ["1", "4", "9", "manifest", "commit"])
 def test_kill9_at_a_point_then_reingest_is_clean(
     tmp_path: Path, clean_errors: list, point: str
@@ -94,6 +95,7 @@ def test_kill9_at_a_point_then_reingest_is_clean(
     assert _errors(out) == clean_errors
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_kill9_at_a_random_time_then_reingest_is_clean(
     tmp_path: Path, clean_errors: list, seed: int
@@ -119,6 +121,7 @@ def test_kill9_at_a_random_time_then_reingest_is_clean(
     assert _errors(out) == clean_errors
 
 
+@pytest.mark.slow
 def test_a_live_build_is_never_cleaned(tmp_path: Path) -> None:
     # This process holds a build folder (and its lock) while another process cleans.
     with build_folder(tmp_path, "s") as (building, _tok):
@@ -151,6 +154,7 @@ def test_leftovers_of_older_versions_and_foreign_folders(tmp_path: Path) -> None
 # -- disk full, read-only, interrupt ------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("at", ["1", "6", "manifest", "commit"])
 def test_injected_disk_full_is_one_line_and_leaves_nothing(tmp_path: Path, at: str) -> None:
     out = tmp_path / "s"
@@ -168,6 +172,7 @@ def test_injected_disk_full_is_one_line_and_leaves_nothing(tmp_path: Path, at: s
         assert _files(out) == old
 
 
+@pytest.mark.slow
 def test_injected_read_only_is_one_line(tmp_path: Path) -> None:
     r = _cli("ingest", str(SMALL), "--out", str(tmp_path / "s"), env={FAULT_ENV: "EROFS@2"})
     assert "read-only file system" in _one_error_line(r)
@@ -177,12 +182,14 @@ def test_injected_read_only_is_one_line(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("fault", "needle"), [("EIO@2", "Input/output error"), ("EACCES@manifest", "permission denied")]
 )
+@pytest.mark.slow
 def test_other_os_errors_are_one_line(tmp_path: Path, fault: str, needle: str) -> None:
     r = _cli("ingest", str(SMALL), "--out", str(tmp_path / "s"), env={FAULT_ENV: fault})
     assert needle in _one_error_line(r)
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_interrupt_during_build_leaves_nothing(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -202,6 +209,7 @@ def _mount(target: Path, opts: str) -> None:
     subprocess.run(["mount", "-t", "tmpfs", "-o", opts, "tmpfs", str(target)], check=True)
 
 
+@pytest.mark.slow
 @needs_root
 def test_real_disk_full_tmpfs(tmp_path: Path) -> None:
     """A store that cannot fit on a real 1 MB file system is refused before anything is
@@ -219,6 +227,7 @@ def test_real_disk_full_tmpfs(tmp_path: Path) -> None:
         subprocess.run(["umount", str(mnt)], check=True)
 
 
+@pytest.mark.slow
 @needs_root
 def test_real_read_only_tmpfs(tmp_path: Path) -> None:
     mnt = tmp_path / "ro"
@@ -233,6 +242,7 @@ def test_real_read_only_tmpfs(tmp_path: Path) -> None:
 # -- a raster far too large --------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_huge_vrt_is_refused_up_front_within_the_memory_bound(tmp_path: Path) -> None:
     # 2,000,000 x 1,000,000 pixels of a real little GeoTIFF placed in a global grid.
     vrt = tmp_path / "huge.vrt"

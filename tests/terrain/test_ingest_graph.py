@@ -60,6 +60,7 @@ def cluster():
         yield c
 
 
+@pytest.mark.slow
 def test_the_reference_store_has_several_chunks_a_row(reference: dict[str, bytes]) -> None:
     man = json.loads(reference[MANIFEST_NAME])
     fine = man["levels"][-1]
@@ -71,6 +72,7 @@ def test_the_reference_store_has_several_chunks_a_row(reference: dict[str, bytes
     assert fine["chunks"] == 2 and man["pole_heights"]["south"] is not None
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("workers", "scheduler"), [(2, None), (2, "threads"), (2, "processes")])
 def test_local_schedulers_give_the_same_store_bit_for_bit(
     reference: dict[str, bytes], tmp_path: Path, workers: int, scheduler: str | None
@@ -80,6 +82,7 @@ def test_local_schedulers_give_the_same_store_bit_for_bit(
     assert _files(out) == reference  # every chunk file, VRT and the manifest, byte for byte
 
 
+@pytest.mark.slow
 def test_a_distributed_cluster_gives_the_same_store_bit_for_bit(
     reference: dict[str, bytes], tmp_path: Path, cluster
 ) -> None:
@@ -90,6 +93,7 @@ def test_a_distributed_cluster_gives_the_same_store_bit_for_bit(
         st.verify()
 
 
+@pytest.mark.slow
 def test_progress_counts_every_chunk_and_error_task(tmp_path: Path) -> None:
     calls: list[tuple[int, int]] = []
     ingest([ETOPO], tmp_path / "s", workers=2, on_progress=lambda d, t: calls.append((d, t)))
@@ -105,6 +109,7 @@ def test_progress_counts_every_chunk_and_error_task(tmp_path: Path) -> None:
     assert {t for _, t in calls} == {total}
 
 
+@pytest.mark.slow
 def test_a_cancel_from_progress_stops_the_graph_and_leaves_nothing(tmp_path: Path) -> None:
     class Cancel(Exception):
         pass
@@ -165,6 +170,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_a_scheduler_that_does_not_answer_is_one_line_within_seconds(tmp_path: Path) -> None:
     out = tmp_path / "s"
     ingest([ETOPO], out, workers=1, **ETOPO_KW)
@@ -178,6 +184,7 @@ def test_a_scheduler_that_does_not_answer_is_one_line_within_seconds(tmp_path: P
     assert _files(out) == before and _leftovers(tmp_path) == []
 
 
+@pytest.mark.slow
 def test_a_port_that_accepts_but_never_answers_is_one_line_within_seconds(
     tmp_path: Path,
 ) -> None:
@@ -195,12 +202,14 @@ def test_a_port_that_accepts_but_never_answers_is_one_line_within_seconds(
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_a_worker_address_is_not_a_scheduler(tmp_path: Path, cluster) -> None:
     worker = next(iter(cluster.workers.values())).worker_address
     with pytest.raises(StoreError, match="is not a dask scheduler"):
         ingest([ETOPO], tmp_path / "s", scheduler=worker)
 
 
+@pytest.mark.slow
 def test_a_failing_task_on_the_cluster_is_one_line_and_leaves_the_old_store(
     tmp_path: Path, cluster
 ) -> None:
@@ -221,6 +230,7 @@ def test_a_failing_task_on_the_cluster_is_one_line_and_leaves_the_old_store(
     assert _files(out) == before and _leftovers(tmp_path) == []
 
 
+@pytest.mark.slow
 def test_a_worker_that_dies_is_one_line_and_leaves_nothing(tmp_path: Path) -> None:
     """kill -9 of the worker running a chunk (every time it is retried): one StoreError line,
     no store, no building folder (the tasks still running elsewhere finish first)."""

@@ -62,6 +62,7 @@ def manifest_arrays(store: Path) -> dict:
     return out
 
 
+@pytest.mark.slow
 def test_a_folder_of_tiles_ingests_as_its_files(tmp_path: Path) -> None:
     tiles = split_into_tiles(SRTM, tmp_path / "tiles")
     # What a download holds beside the tiles: none of it is a DEM to read.
@@ -96,6 +97,7 @@ def test_a_folder_of_tiles_ingests_as_its_files(tmp_path: Path) -> None:
     assert expand_sources([tmp_path / "tiles", tiles[0]]) == tiles
 
 
+@pytest.mark.slow
 def test_a_tile_changed_in_place_updates_the_store_as_a_full_build_would(tmp_path: Path):
     tiles = split_into_tiles(SRTM, tmp_path / "tiles")
     ingest([tmp_path / "tiles"], tmp_path / "s", vdatum="egm96")
@@ -111,6 +113,7 @@ def test_a_tile_changed_in_place_updates_the_store_as_a_full_build_would(tmp_pat
     assert manifest_arrays(tmp_path / "s") == manifest_arrays(tmp_path / "fresh")
 
 
+@pytest.mark.slow
 def test_an_empty_folder_or_a_store_folder_is_one_line(tmp_path: Path) -> None:
     (tmp_path / "empty").mkdir()
     (tmp_path / "empty" / "notes.txt").write_text("no DEM here")

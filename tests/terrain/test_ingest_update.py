@@ -75,6 +75,7 @@ def updated(tmp_path_factory: pytest.TempPathFactory):
     return store, before, result, full
 
 
+@pytest.mark.slow
 def test_the_update_equals_a_full_rebuild_bit_for_bit(updated) -> None:
     store, _, result, full = updated
     assert not result.up_to_date
@@ -83,6 +84,7 @@ def test_the_update_equals_a_full_rebuild_bit_for_bit(updated) -> None:
         st.verify()
 
 
+@pytest.mark.slow
 def test_only_the_chunks_that_read_the_changed_source_are_rebuilt(updated) -> None:
     store, before, result, _ = updated
     man = json.loads((store / MANIFEST_NAME).read_text())
@@ -102,6 +104,7 @@ def test_only_the_chunks_that_read_the_changed_source_are_rebuilt(updated) -> No
     assert all(after[n] != before.get(n) for n in after if n.endswith(".tif") and n not in kept)
 
 
+@pytest.mark.slow
 def test_an_unchanged_store_is_still_up_to_date(updated, tmp_path: Path) -> None:
     store, _, _, _ = updated
     src = json.loads((store / MANIFEST_NAME).read_text())["sources"]
@@ -109,6 +112,7 @@ def test_an_unchanged_store_is_still_up_to_date(updated, tmp_path: Path) -> None
     assert again.up_to_date
 
 
+@pytest.mark.slow
 def test_a_damaged_sidecar_means_a_full_rebuild_not_a_wrong_store(tmp_path: Path) -> None:
     a = _tile(tmp_path / "a.tif", 10.0)
     b = _tile(tmp_path / "b.tif", 11.0)

@@ -56,6 +56,7 @@ def test_chunk_is_zstd_hashed_as_written_content_named_and_a_new_inode(tmp_path:
         write_chunk(tmp_path, level, tile_n, 0, 1, values, "1", EXTRA_ROW)
 
 
+@pytest.mark.slow
 def test_a_store_of_deflate_chunks_reads_the_same_heights(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -46,6 +46,7 @@ def test_grid_edges() -> None:
     assert y.tolist() == [7, 0, 4, 7]
 
 
+@pytest.mark.slow
 @given(
     st.integers(0, 18),
     st.floats(-180, 180, allow_nan=False),

@@ -176,6 +176,7 @@ def test_a_rebuilt_file_never_reads_stale_pages(tmp_path: Path, files: Path, ser
     assert new.read(0, 13) == b"new contents "
 
 
+@pytest.mark.slow
 def test_the_disk_cache_stays_under_its_bound(tmp_path: Path, files: Path, server) -> None:
     opts = _opts(tmp_path, cache_mb=0.1)  # 104857 bytes: 6 pages of 16 KB with headers
     blob = (files / "blob.bin").read_bytes()
@@ -284,6 +285,7 @@ def _together(n: int, fn) -> list[object]:
     return out
 
 
+@pytest.mark.slow
 def test_threads_wanting_the_same_page_share_one_request(
     tmp_path: Path, files: Path, server
 ) -> None:
@@ -511,6 +513,7 @@ def _level12_by_chunk(st: TileStore) -> dict[tuple[int, int], list[TileKey]]:
     return out
 
 
+@pytest.mark.slow
 def test_remote_heights_equal_local_heights(store_root: Path, served, tmp_path: Path) -> None:
     local = TileStore.open(store_root / "n44")
     with TileStore.open(f"{served.url}/n44", remote_options=_opts(tmp_path)) as st:
@@ -539,6 +542,7 @@ def test_remote_heights_equal_local_heights(store_root: Path, served, tmp_path: 
     local.close()
 
 
+@pytest.mark.slow
 def test_a_cold_cache_uses_range_requests_and_a_warm_one_none(
     store_root: Path, tmp_path: Path
 ) -> None:
@@ -571,6 +575,7 @@ def test_a_cold_cache_uses_range_requests_and_a_warm_one_none(
     assert on_disk <= opts.cache_mb * (1 << 20)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("status", [500, 404])
 def test_one_failing_chunk_fails_only_its_tiles(
     store_root: Path, served, tmp_path: Path, status: int
@@ -605,6 +610,7 @@ def test_one_failing_chunk_fails_only_its_tiles(
             st.heights(k)
 
 
+@pytest.mark.slow
 def test_a_failed_chunk_fails_fast_for_a_while(store_root: Path, served, tmp_path: Path) -> None:
     """After a chunk's read failed (retries spent), its other tiles fail at once for
     fail_fast_s (the window shows them failed in seconds), then the server is asked again."""
@@ -678,6 +684,7 @@ if where != "close":
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("where", ["read", "seek", "tell", "open", "close"])
 def test_ctrl_c_inside_a_gdal_callback_is_a_keyboard_interrupt(
     store_root: Path, served, tmp_path: Path, where: str
@@ -728,6 +735,7 @@ def test_a_slow_server_fails_a_tile_within_the_timeouts(
         assert "\n" not in str(err.value) and name in str(err.value)
 
 
+@pytest.mark.slow
 def test_a_server_ignoring_range_still_serves_the_store(
     store_root: Path, served, tmp_path: Path
 ) -> None:
@@ -752,6 +760,7 @@ def test_prefetch_keeps_requests_in_flight_under_the_bound(
     assert 1 <= served.max_in_flight <= 2
 
 
+@pytest.mark.slow
 def test_a_thread_forbidden_the_network_never_waits(
     store_root: Path, served, tmp_path: Path
 ) -> None:
@@ -777,6 +786,7 @@ def test_a_thread_forbidden_the_network_never_waits(
     assert len(served.requests(f"*/{_chunk12(store_root, (1, 1))}")) <= 4
 
 
+@pytest.mark.slow
 def test_prefetch_bytes_fetches_a_frames_blocks_concurrently(
     store_root: Path, served, tmp_path: Path
 ) -> None:
@@ -879,6 +889,7 @@ def test_an_unreachable_server_is_one_line(tmp_path: Path, files: Path) -> None:
     assert "\n" not in str(err.value)
 
 
+@pytest.mark.slow
 def test_a_remote_store_renders_as_the_local_one(store_root: Path, served, tmp_path: Path) -> None:
     """The real pipeline (the harness's headless session, the window's FramePipeline) draws
     the same image from the store over HTTP as from its folder."""
@@ -914,6 +925,7 @@ def _self_signed(tmp_path: Path) -> tuple[Path, Path]:
     return cert, key
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(shutil.which("openssl") is None, reason="needs the openssl command")
 def test_https_stores(store_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Over HTTPS: an untrusted certificate is one line at once (no retries); trusted (here
@@ -954,6 +966,7 @@ def test_a_chunk_replaced_on_the_server_is_one_line_not_mixed_bytes(
         assert "\n" not in str(err.value)
 
 
+@pytest.mark.slow
 def test_remote_datasets_never_crash_the_garbage_collector(
     store_root: Path, tmp_path: Path
 ) -> None:

@@ -76,6 +76,7 @@ CASES = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("name", "level", "offset", "nodes"), CASES)
 def test_read_grid_parts_is_gdals_warp_on_real_data(
     monkeypatch: pytest.MonkeyPatch,

@@ -50,6 +50,7 @@ def _tif(path: Path, crs: str | None) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_a_dem_is_ingested_once_and_its_store_opens_as_a_store(cache: Path) -> None:
     with open_source(SMALL) as st:
         folder = st.path

@@ -108,12 +108,14 @@ def _border_and_relief(stores, name, level, blend=True):
     return jumps(grid, border), relief
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("name", "level"), CASES)
 def test_no_cliff_at_the_regional_layer_border(stores, name, level):
     jump, relief = _border_and_relief(stores, name, level)
     assert jump <= relief, f"{name}: {jump:.1f} m jump at the border > {relief:.1f} m relief"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("name", "level"), CLIFF_CASES)
 def test_without_the_band_the_border_is_a_cliff(stores, name, level):
     # The same measurement with the blend switched off (the composition before issue #16):
@@ -137,6 +139,7 @@ ERROR_CASES = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("name", "level"), ERROR_CASES)
 def test_recorded_errors_bound_the_blended_surface(stores, name, level):
     """Measured max |tile surface at stride s - finest composed surface| <= recorded error at
@@ -186,6 +189,7 @@ def test_recorded_errors_bound_the_blended_surface(stores, name, level):
     assert len(xs) > 0
 
 
+@pytest.mark.slow
 def test_the_blend_adds_error_only_in_the_band(stores):
     # Deep inside the regional layer (and outside it) the recorded errors are the layers'
     # own: the blend costs triangles only along the border.
@@ -246,6 +250,7 @@ def test_weight_interpolation_error_is_its_max_between_nodes(stores, m):
         assert w_err > 0.0
 
 
+@pytest.mark.slow
 def test_a_layer_across_the_antimeridian_feathers_on_both_sides(tmp_path):
     """A regional layer over 179.5 E .. 179.5 W: its band lies inside both its edges (east of
     +-180 too), so neither edge is a cliff and the weight is symmetric."""

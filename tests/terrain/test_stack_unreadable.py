@@ -62,6 +62,7 @@ def _band_tiles(st: TileStore, level: int) -> tuple[np.ndarray, np.ndarray]:
     return xs[keep], ys[keep]
 
 
+@pytest.mark.slow
 def test_unreadable_band_tiles_are_bounded_then_measured(vancouver_store, monkeypatch):
     ref_stack, top = _stack(vancouver_store, set())
     level = top.max_level
@@ -83,6 +84,7 @@ def test_unreadable_band_tiles_are_bounded_then_measured(vancouver_store, monkey
     np.testing.assert_array_equal(stack.metadata(level, xs, ys).stride_error, ref)
 
 
+@pytest.mark.slow
 def test_unreadable_ancestors_of_virtual_tiles_keep_the_ancestor_bound(vancouver_store):
     ref_stack, top = _stack(vancouver_store, set())
     lm = top.max_level

@@ -182,6 +182,7 @@ def test_the_built_ins_are_entry_points() -> None:
     assert find_backend("./nowhere") is None  # no folder with a manifest there: a DEM path
 
 
+@pytest.mark.slow
 def test_a_pip_installed_backend_is_found_and_used(installed, store: Path, caplog) -> None:
     caplog.set_level(logging.WARNING, logger="globeview.terrain.store")
     order = [name for name, _ in store_backends()]
@@ -229,6 +230,7 @@ def test_without_the_package_its_scheme_is_refused_in_one_line(store: Path) -> N
         open_source(f"demo://{store}")
 
 
+@pytest.mark.slow
 def test_the_command_line_opens_through_the_installed_backend(site: Path, store: Path) -> None:
     env = {**os.environ, "PYTHONPATH": str(site)}
     res = subprocess.run(

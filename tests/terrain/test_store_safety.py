@@ -75,6 +75,7 @@ def _copy(store: Path, tmp_path: Path) -> Path:
         '["format", "globeview-tile-store"]',
     ],
 )
+@pytest.mark.slow
 def test_foreign_folder_with_a_manifest_is_refused(tmp_path: Path, manifest: str) -> None:
     mine = tmp_path / "mine"
     (mine / "sub").mkdir(parents=True)
@@ -93,6 +94,7 @@ def test_foreign_folder_with_a_manifest_is_refused(tmp_path: Path, manifest: str
         TileStore.open(mine)
 
 
+@pytest.mark.slow
 def test_store_holding_a_user_file_is_not_replaced(store: Path, tmp_path: Path) -> None:
     s = _copy(store, tmp_path)
     (s / "notes.txt").write_text("mine")
@@ -111,6 +113,7 @@ def _legacy(s: Path) -> None:
     (s / "manifest.json").write_text(json.dumps(man))
 
 
+@pytest.mark.slow
 def test_older_store_needs_force_then_is_rebuilt(store: Path, tmp_path: Path) -> None:
     s = _copy(store, tmp_path)
     _legacy(s)
@@ -128,6 +131,7 @@ def test_older_store_needs_force_then_is_rebuilt(store: Path, tmp_path: Path) ->
     assert [p.name for p in tmp_path.iterdir()] == ["copy"]
 
 
+@pytest.mark.slow
 def test_newer_store_is_refused_without_force(store: Path, tmp_path: Path) -> None:
     s = _copy(store, tmp_path)
     man = json.loads((s / "manifest.json").read_text())
@@ -152,6 +156,7 @@ def test_a_version_that_is_not_this_format_number_is_refused(
     assert len(str(err.value).splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_cached_store_of_another_version_is_rebuilt_silently(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -189,6 +194,7 @@ def _dem(path: Path, height: float) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_two_dems_with_one_file_name_get_two_stores(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -311,6 +317,7 @@ def _mutations(man: dict) -> list[tuple[str, dict]]:
     return out
 
 
+@pytest.mark.slow
 def test_fuzzed_manifest_is_always_one_store_error(store: Path, tmp_path: Path) -> None:
     s = _copy(store, tmp_path)
     man = json.loads((store / "manifest.json").read_text())
@@ -341,6 +348,7 @@ def test_fuzzed_manifest_is_always_one_store_error(store: Path, tmp_path: Path) 
         assert ok, name
 
 
+@pytest.mark.slow
 def test_stem_keyed_cache_store_of_format_2_is_dropped(
     store: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -358,6 +366,7 @@ def test_stem_keyed_cache_store_of_format_2_is_dropped(
     assert (foreign / "manifest.json").read_text() == "{}"
 
 
+@pytest.mark.slow
 def test_reingest_rebuilds_a_damaged_store_instead_of_calling_it_up_to_date(
     store: Path, tmp_path: Path
 ) -> None:

@@ -118,6 +118,7 @@ def store(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+@pytest.mark.slow
 def test_store_written_by_ingest_reads_back_to_the_same_bytes(store: Path) -> None:
     with TileStore.open(store) as ts:
         assert _text(ts.manifest) == (store / MANIFEST_NAME).read_text()
@@ -180,6 +181,7 @@ def test_malformed_or_other_version_is_one_store_error(
     assert needle in msg and "\n" not in msg and len(msg) < 400, msg
 
 
+@pytest.mark.slow
 def test_deeply_nested_json_is_one_error() -> None:
     raw = json.loads(_text(_manifest()))
     deep: list = []
@@ -205,6 +207,7 @@ _json = st.recursive(
     ),
     value=_json,
 )
+@pytest.mark.slow
 def test_any_json_anywhere_is_refused_only_by_manifest_error(path: list, value: object) -> None:
     """Put an arbitrary JSON value at an arbitrary place: from_json accepts it or raises
     ManifestError, never anything else."""

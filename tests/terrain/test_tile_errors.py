@@ -89,6 +89,7 @@ def _reference_stats(arr: np.ndarray, s_n: int):
     return per_tile(cell_min(arr), np.fmin), per_tile(cell_max(arr), np.fmax), deltas
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(
     seed=st.integers(0, 2**32 - 1),
@@ -108,6 +109,7 @@ def test_upsample_window_is_upsample_nodes(seed, f, h, w, dtype, inf) -> None:
     _assert_identical(got, ref)
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(seed=st.integers(0, 2**32 - 1), f=st.sampled_from([2, 4, 32, 256]), n=st.integers(1, 90))
 def test_lerp_rows_zero_sign_free_differs_only_in_zero_signs(seed, f, n) -> None:
@@ -123,6 +125,7 @@ def test_lerp_rows_zero_sign_free_differs_only_in_zero_signs(seed, f, n) -> None
     _assert_identical(fast[nonzero], exact[nonzero])
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(
     seed=st.integers(0, 2**32 - 1),
@@ -215,6 +218,7 @@ def _terrain_case(
     return coarse, fine.astype(np.float32), r_off, c_off
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(
     seed=st.integers(0, 2**32 - 1),
@@ -290,6 +294,7 @@ def test_pruned_error_tiles_skip_what_cannot_be_the_maximum(monkeypatch) -> None
         _assert_identical(pruned_error_tiles(coarse, error_window(fine), *args)[2], ref[2])
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(
     seed=st.integers(0, 2**32 - 1),
@@ -313,6 +318,7 @@ def test_block_node_extrema_are_reduced_cell_extrema(seed, b, m, n, nan) -> None
     np.testing.assert_array_equal(block_node_min(d, b), per_block(cell_min(d), np.fmin))
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(
     seed=st.integers(0, 2**32 - 1),

@@ -75,6 +75,7 @@ def srtm_stores(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     return base / "egm96", base / "ell"
 
 
+@pytest.mark.slow
 def test_srtm_store_holds_samples_plus_geoid(srtm_stores: tuple[Path, Path]) -> None:
     conv, _ = srtm_stores
     z, lons, lats = _finest(conv)
@@ -89,6 +90,7 @@ def test_srtm_store_holds_samples_plus_geoid(srtm_stores: tuple[Path, Path]) -> 
     assert -28.5 < float(np.mean((z - H)[ok])) < -26.5
 
 
+@pytest.mark.slow
 def test_ellipsoid_declared_stores_samples_unchanged(srtm_stores: tuple[Path, Path]) -> None:
     conv, ell = srtm_stores
     zc, lons, lats = _finest(conv)
@@ -101,6 +103,7 @@ def test_ellipsoid_declared_stores_samples_unchanged(srtm_stores: tuple[Path, Pa
     np.testing.assert_allclose(ze[ok], H[ok], atol=1e-3)
 
 
+@pytest.mark.slow
 def test_mount_washington_done_when_figure(srtm_stores: tuple[Path, Path]) -> None:
     """h - H at Mount Washington is N there, about -27.5 m."""
     conv, ell = srtm_stores
@@ -129,6 +132,7 @@ def _grid(tmp_path: Path, crs: str) -> Path:
     return _tif(tmp_path / "g.tif", z, crs, Affine(0.01, 0, 10.0, 0, -0.01, 47.0))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("crs", "datum", "converted"),
     [("EPSG:4979", "ellipsoid", False), ("EPSG:4326+5773", "egm96", True)],
@@ -202,6 +206,7 @@ def test_vdatum_names() -> None:
     assert float(back[0]) == pytest.approx(100.0)
 
 
+@pytest.mark.slow
 def test_egm2008_refused_in_one_line_everywhere(tmp_path: Path) -> None:
     for args in (
         ["ingest", str(SRTM), "--out", str(tmp_path / "s"), "--vdatum", "egm2008"],
@@ -215,6 +220,7 @@ def test_egm2008_refused_in_one_line_everywhere(tmp_path: Path) -> None:
     assert not (tmp_path / "s").exists() and not (tmp_path / "x.png").exists()
 
 
+@pytest.mark.slow
 def test_info_says_the_datum_and_where_it_came_from(tmp_path: Path) -> None:
     r = _cli("info", str(SRTM), cache=tmp_path)
     assert r.returncode == 0, r.stderr
@@ -232,6 +238,7 @@ def _as_version_3(store: Path) -> None:
     (store / "manifest.json").write_text(json.dumps(man))
 
 
+@pytest.mark.slow
 def test_store_built_before_vdatums_is_refused_in_one_line(
     srtm_stores: tuple[Path, Path], tmp_path: Path
 ) -> None:

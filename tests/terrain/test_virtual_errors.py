@@ -103,6 +103,7 @@ def test_nodata_is_not_measured() -> None:
     assert np.isnan(b[0]).any() and np.all(b[1] == 0.0)
 
 
+@pytest.mark.slow
 def test_flat_vancouver_tile_is_no_longer_given_its_ancestors_error(stack) -> None:
     """Tile (8, 76, 56) lies below the Vancouver layer's finest level (7) in its border band,
     on nearly flat ground; its ancestor (7, 38, 28) is rugged (563.7 m at stride 2). The old
@@ -116,6 +117,7 @@ def test_flat_vancouver_tile_is_no_longer_given_its_ancestors_error(stack) -> No
     assert np.all(md.stride_error[0, 1:] <= anc.stride_error[0, :-1])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("lon", "lat", "layer"),
     [(-122.10, 42.94, 2), (-71.30, 44.27, 1), (-123.20, 49.25, 3)],
@@ -143,6 +145,7 @@ def test_stack_errors_bound_the_drawn_surface(stack, lon, lat, layer) -> None:
         assert np.all(bound >= real - 1e-2), ((level, x, y), bound, real)
 
 
+@pytest.mark.slow
 def test_ancestor_tables_are_kept_within_a_byte_budget_least_recently_used_first(
     monkeypatch,
 ) -> None:

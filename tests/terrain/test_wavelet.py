@@ -231,6 +231,7 @@ def _whole_array_nan_filter(fine: np.ndarray, taps: np.ndarray, step: int) -> np
     return out.astype(np.float32)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("wavelet", ["bior2.2", "bior4.4"])
 @pytest.mark.parametrize("step", [2, 3])
 @pytest.mark.parametrize("block", [(32, 256), (3, 5), (1, 1)])

@@ -132,7 +132,9 @@ class BlendMask:
         inside = (cols >= 0) & (cols <= nx - 1) & (rows >= 0) & (rows <= ny - 1)
         return np.where(inside, bilinear(self.w, rows, cols), 0.0)
 
-    def sample_grid(self, west: float, south: float, east: float, north: float, size: int):
+    def sample_grid(
+        self, west: float, south: float, east: float, north: float, size: int
+    ) -> np.ndarray:
         """(size, size) w at a tile's nodes (bounds in degrees, row 0 north): `sample` on a
         regular grid, done as two small matrix products over the raster rows and columns
         the tile spans (bilinear is separable)."""
@@ -155,7 +157,9 @@ class BlendMask:
         inside_r = (rows >= 0) & (rows <= ny - 1)
         return np.where(inside_r[:, None] & inside_c[None, :], out, 0.0)
 
-    def touches_band(self, tw, ts, te, tn) -> np.ndarray:
+    def touches_band(
+        self, tw: np.ndarray, ts: np.ndarray, te: np.ndarray, tn: np.ndarray
+    ) -> np.ndarray:
         """Whether tiles (bounds arrays, degrees) may hold nodes with w < 1: conservatively,
         any raster node with w < 1 within one raster step of them."""
         ny, nx = self.w.shape

@@ -19,7 +19,9 @@ undulation N (-N would read as an elevation "a.s.l." of the ellipsoid).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -28,6 +30,9 @@ from globeview.terrain.compose.stack import TerrainStack
 from globeview.terrain.dem.vdatum import egm96
 from globeview.terrain.interpolate import bilinear
 from globeview.terrain.quadtree import key_for_lonlat, tile_bounds_arrays
+
+if TYPE_CHECKING:
+    from globeview.terrain.store.tile_store import TileStore
 
 #: What the `layer` field says where no layer has data.
 NO_LAYER = "none (ellipsoid)"
@@ -89,7 +94,9 @@ def check_lonlat(lon: np.ndarray, lat: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return wrapped, lat
 
 
-def _node_positions(level: int, kx: np.ndarray, ky: np.ndarray, lon, lat, size: int):
+def _node_positions(
+    level: int, kx: np.ndarray, ky: np.ndarray, lon: np.ndarray, lat: np.ndarray, size: int
+) -> tuple[np.ndarray, np.ndarray]:
     """Fractional (row, col) node positions of the points inside their tiles."""
     w, s, e, n = tile_bounds_arrays(level, kx, ky)
     cols = (lon - w) / (e - w) * (size - 1)
@@ -97,7 +104,7 @@ def _node_positions(level: int, kx: np.ndarray, ky: np.ndarray, lon, lat, size: 
     return rows, cols
 
 
-def _by_tile(kx: np.ndarray, ky: np.ndarray):
+def _by_tile(kx: np.ndarray, ky: np.ndarray) -> Iterator[tuple[int, int, np.ndarray]]:
     """(x, y, indices) of each distinct tile among the points' keys."""
     pairs = np.stack([kx, ky], axis=1)
     uniq, inverse = np.unique(pairs, axis=0, return_inverse=True)
@@ -190,7 +197,7 @@ def _name_edges(
         open_ = open_[~hit]
 
 
-def _data_weight(st, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
+def _data_weight(st: TileStore, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
     """Per point, the sum of the bilinear weights of the nodes with data among the four around
     it in the store's finest tile (0 where the tile has no data)."""
     lm = st.max_level
@@ -223,7 +230,7 @@ def geoid_undulation(lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
     return np.asarray(egm96().undulation(lon, lat), dtype=np.float64).reshape(np.shape(lon))
 
 
-def query_heights(stack: TerrainStack, lon, lat) -> list[HeightAnswer]:
+def query_heights(stack: TerrainStack, lon: np.ndarray, lat: np.ndarray) -> list[HeightAnswer]:
     """h, N, H = h - N and the answering layer at each point (see the module docstring); no
     h and H (None) where no layer answered."""
     lon, lat = check_lonlat(lon, lat)

@@ -23,7 +23,7 @@ if TYPE_CHECKING:  # type hints only: the stack imports its parts, never the oth
 __all__ = ["TileComposer"]
 
 #: "Not read yet" for `TileComposer.paste`'s ``own`` (None means "read: no data").
-_UNREAD = object()
+_UNREAD: object = object()
 
 
 class TileComposer:

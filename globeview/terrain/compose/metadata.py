@@ -22,6 +22,7 @@ from globeview.terrain.store.tile_store import TileStore
 
 if TYPE_CHECKING:  # type hints only: the stack imports its parts, never the other way round
     from globeview.terrain.compose.stack import TerrainStack
+    from globeview.terrain.levels import LevelGrid
 
 __all__ = ["N_STRIDES", "VIRTUAL_CACHE_BYTES", "StackMetadata", "TileMetadata"]
 
@@ -125,7 +126,13 @@ class StackMetadata:
         return TileMetadata(err, hmin, hmax, has_finer, covered)
 
     def _virtual_errors(
-        self, st: TileStore, level: int, x: np.ndarray, y: np.ndarray, ok: np.ndarray, rows
+        self,
+        st: TileStore,
+        level: int,
+        x: np.ndarray,
+        y: np.ndarray,
+        ok: np.ndarray,
+        rows: np.ndarray,
     ) -> np.ndarray:
         """(N, N_STRIDES) metres: stride errors of tiles (level, x, y) finer than layer
         ``st``'s data, where ``ok``; ``rows`` their ancestors' `_layer_table` rows.
@@ -224,7 +231,7 @@ class StackMetadata:
             gone, _ = self._virtual.popitem(last=False)
             self._virtual_bytes -= self._virtual_sizes.pop(gone)
 
-    def _layer_table(self, st: TileStore, level: int):
+    def _layer_table(self, st: TileStore, level: int) -> tuple[LevelGrid, np.ndarray]:
         """A layer's per-tile facts at a level as one dense (ny, nx, 3 + N_STRIDES) table:
         [has data, hmin, hmax, stride errors...] (built once, then looked up per frame)."""
         key = (st, level)

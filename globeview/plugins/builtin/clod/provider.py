@@ -48,8 +48,10 @@ from globeview.plugins.api import (
     TEXEL_SIZE,
     TILE_BUDGET,
     LodProvider,
+    PluginContext,
     RenderSet,
     ScreenSpaceErrorPolicy,
+    SelectionState,
     Setting,
     TerrainStack,
     ViewState,
@@ -110,13 +112,19 @@ class QuadtreeClodProvider(LodProvider):
         ),
     )
 
-    def __init__(self, context=None) -> None:
+    def __init__(self, context: PluginContext | None = None) -> None:
         super().__init__(context)
         self._tiles = ClodTiles(TILE_CACHE)
         self._terrain_id: tuple[int, int] | None = None
         self._last: dict | None = None
         self.cache_hits = 0
         self.last_frame: ClodFrame | None = None
+        # The base traversal's flat-walk state (the tiles chosen as chunked-sse's plain walk
+        # would, from last frame's candidate tree).
+        self._lod_state = SelectionState()
+
+    def reset(self) -> None:
+        self._lod_state.reset()
 
     # -- tile data -------------------------------------------------------------------------
     def _slots(
@@ -161,6 +169,7 @@ class QuadtreeClodProvider(LodProvider):
             view,
             terrain,
             ScreenSpaceErrorPolicy(tau_px=tau, texel_px=v["texel_px"], max_tiles=v["max_tiles"]),
+            state=self._lod_state,
         )
         keys = base.keys
         exag = float(view.exaggeration)
@@ -180,6 +189,8 @@ class QuadtreeClodProvider(LodProvider):
                 keys, base.variant_ids, base.variants, reused.custom_indices, reused.error_px
             )
             rs.stats.update(reused.stats)
+            # This frame's tile selection, not the reused one's.
+            rs.stats.update({k: v for k, v in base.stats.items() if k.startswith("lod_")})
             self.cache_hits += 1
             rs.stats["clod_cache_hits"] = self.cache_hits
             rs.stats["clod_reused"] = 1

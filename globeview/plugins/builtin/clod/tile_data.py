@@ -68,7 +68,7 @@ class ClodTiles:
         n_levels = n_block_levels(size)
         keep = self.n_used if size == self.size else 0
 
-        def grown(old: np.ndarray, shape: tuple, fill=None) -> np.ndarray:
+        def grown(old: np.ndarray, shape: tuple[int, ...], fill: int | None = None) -> np.ndarray:
             # Data slots are written before they are read: no fill (pages untouched).
             out = np.empty((cap, *shape), dtype=old.dtype)
             if fill is not None:

@@ -99,7 +99,7 @@ class FootMemo:
     def __init__(self) -> None:
         self._sets: OrderedDict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = OrderedDict()
 
-    def get(self, p: np.ndarray, mtn: np.ndarray):
+    def get(self, p: np.ndarray, mtn: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(xyz, h, psi) of points ``p`` (N, 3): the foot points' coordinates on the axes
         ``mtn`` (3, 3) (rows m, t, n), the heights and the along-axis angles."""
         key = (p.shape, p.tobytes())

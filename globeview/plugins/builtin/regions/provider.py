@@ -149,7 +149,9 @@ def node_spacing_m(level: int | np.ndarray, size: int) -> np.ndarray:
     return 180.0 / 2.0 ** np.asarray(level, dtype=np.float64) / (size - 1) * M_PER_DEG
 
 
-def level_and_stride(res_m: np.ndarray | float, size: int, max_level: int = MAX_LEVEL):
+def level_and_stride(
+    res_m: np.ndarray | float, size: int, max_level: int = MAX_LEVEL
+) -> tuple[np.ndarray, np.ndarray]:
     """The (level, stride) drawing cells of at most ``res_m`` metres with the fewest tiles:
     the coarsest level whose node spacing is within res_m, stride 1 (a coarser level drawn
     at stride 1 always beats a finer level at stride 2 on tile count)."""

@@ -1,0 +1,254 @@
+"""The loader on every core (render/tile_workers.py, issue #27 item 2): tiles built in worker
+processes (real ones, forkserver, the embedded terrain opened from its recipe) are the bits of
+the same tiles built in this process one at a time; a tile whose build raises fails alone and
+the loader goes on; a killed worker is replaced; shutting down while tiles load returns at
+once. No GL."""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from globeview.render.tile_build import ReadyTile, TileBuilder
+from globeview.render.tile_loader import TileLoader
+from globeview.render.tile_workers import (
+    ProcessBuilder,
+    TerrainRecipe,
+    WorkerLost,
+    default_loader,
+)
+from globeview.terrain.quadtree import key_for_lonlat
+
+
+@pytest.fixture(scope="module")
+def stack():
+    from globeview.terrain.compose.stack import TerrainStack
+    from globeview.terrain.embedded import embedded_stores
+
+    return TerrainStack.from_stores(embedded_stores())
+
+
+def _key(level: int, lon: float, lat: float) -> tuple[int, int, int]:
+    kx, ky = key_for_lonlat(level, np.array([lon]), np.array([lat]))
+    return level, int(np.ravel(kx)[0]), int(np.ravel(ky)[0])
+
+
+def _keys() -> list[tuple[int, int, int]]:
+    """Neighbouring tiles over White Mountains' detail layer and Crater Lake (data-level
+    normals below its data), a pole tile and the antimeridian: every path of the build."""
+    lv, x, y = _key(11, -71.3, 44.2)
+    keys = [(lv, x + i, y + j) for j in range(3) for i in range(4)]
+    return [*keys, _key(14, -122.1, 42.94), (3, 0, 0), (2, 15, 3), (5, 0, 20)]
+
+
+def _same(a: ReadyTile, b: ReadyTile) -> bool:
+    return (
+        all(
+            np.ascontiguousarray(getattr(a, f)).tobytes()
+            == np.ascontiguousarray(getattr(b, f)).tobytes()
+            for f in ("center", "vertices", "albedo", "normal")
+        )
+        and a.coast_scale == b.coast_scale
+    )
+
+
+def _wait_for(cond, timeout: float = 120.0) -> None:
+    end = time.monotonic() + timeout
+    while not cond():
+        assert time.monotonic() < end, "timed out"
+        time.sleep(0.01)
+
+
+def test_default_loader_keeps_two_cores_for_the_frames() -> None:
+    assert default_loader(1) == ("thread", 1)
+    assert default_loader(2) == ("thread", 1)
+    assert default_loader(3) == ("process", 1)
+    assert default_loader(16) == ("process", 14)
+
+
+def test_tiles_built_in_processes_equal_serial_builds(stack) -> None:
+    keys = _keys()
+    serial = TileBuilder(stack)
+    alone = {k: serial.ready(np.array([k]))[k] for k in keys}
+    procs = ProcessBuilder(TerrainRecipe.of(stack), workers=2)
+    try:
+        assert procs.start(wait_s=120.0)
+        procs.warm(np.array(keys[:4]), facts_only=True)  # (a benchmark's warm-up)
+        procs.warm(np.array(keys[-2:]))
+        # Two threads hand over batches of 4 at once, as the loader's threads do.
+        batches = [keys[i : i + 4] for i in range(0, len(keys), 4)]
+        got: dict = {}
+        errors: list[BaseException] = []
+
+        def run(part):
+            try:
+                for b in part:
+                    got.update(procs.build_many(np.array(b)))
+            except BaseException as exc:  # noqa: BLE001  reported below
+                errors.append(exc)
+
+        threads = [threading.Thread(target=run, args=(batches[i::2],)) for i in range(2)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(300.0)
+        assert not errors, errors
+        assert sorted(got) == sorted(keys)
+        for k in keys:
+            assert _same(got[k], alone[k]), k
+        assert procs.cpu_seconds() > 0.0
+        assert procs.describe() == "process x2"
+    finally:
+        procs.shutdown()
+
+
+def test_a_tile_that_raises_in_a_worker_fails_alone_and_loading_goes_on(stack) -> None:
+    procs = ProcessBuilder(TerrainRecipe.of(stack), workers=1)
+    loader = TileLoader(
+        procs.build, workers=1, build_many=procs.build_many, batch=8, processes=procs
+    )
+    try:
+        good = _keys()[:6]
+        bad = (31, 0, 0)  # past the quadtree's deepest level: the build raises ValueError
+        loader.request(np.array([*good[:3], bad, *good[3:]]))
+        _wait_for(lambda: loader.ready + len(loader.failed) == 7 and loader.building == 0)
+        assert set(loader.failed) == {bad}
+        assert isinstance(loader.failed[bad], ValueError)
+        # The loader keeps building: the next request's tiles arrive.
+        more = _keys()[6:9]
+        loader.request(np.array(more))
+        _wait_for(lambda: loader.ready == 9)
+        built = dict(loader.take_ready(100))
+        assert set(built) == set(good) | set(more)
+        assert all(isinstance(t, ReadyTile) for t in built.values())
+    finally:
+        loader.shutdown()
+
+
+def test_a_killed_worker_is_replaced_and_its_tiles_built_again(stack) -> None:
+    procs = ProcessBuilder(TerrainRecipe.of(stack), workers=1)
+    loader = TileLoader(
+        procs.build, workers=1, build_many=procs.build_many, batch=4, processes=procs
+    )
+    try:
+        first = _keys()[:4]
+        loader.request(np.array(first))
+        _wait_for(lambda: loader.ready == 4)
+        (pid,) = procs.pids()
+        os.kill(pid, signal.SIGKILL)
+        _wait_for(lambda: not _alive(pid), 30.0)
+        later = _keys()[4:8]
+        loader.request(np.array(later))
+        _wait_for(lambda: loader.ready == 8 and loader.building == 0)
+        assert not loader.failed
+        assert procs.started == 2 and procs.pids() and pid not in procs.pids()
+    finally:
+        loader.shutdown()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return os.waitpid(pid, os.WNOHANG) == (0, 0)
+    except ChildProcessError:
+        return False
+
+
+def test_shutdown_while_tiles_load_returns_promptly_and_ends_the_workers(stack) -> None:
+    procs = ProcessBuilder(TerrainRecipe.of(stack), workers=2)
+    loader = TileLoader(
+        procs.build, workers=2, build_many=procs.build_many, batch=8, processes=procs
+    )
+    lv, x, y = _key(12, -71.3, 44.2)
+    many = np.array([(lv, x + i, y + j) for j in range(12) for i in range(12)])
+    loader.request(many)
+    _wait_for(lambda: bool(procs.pids()) and loader.building < len(many))
+    pids = procs.pids()
+    done = threading.Event()
+
+    def stop():
+        loader.shutdown()
+        done.set()
+
+    t0 = time.monotonic()
+    threading.Thread(target=stop, daemon=True).start()
+    assert done.wait(30.0), "shutdown hung"
+    assert time.monotonic() - t0 < 30.0
+    assert not any(_alive(p) for p in pids)
+    assert all(not t.is_alive() for t in loader._threads)
+    with pytest.raises(WorkerLost):
+        procs.build_many(many[:1])
+
+
+def test_workers_that_cannot_open_the_terrain_fall_back_to_this_process(
+    stack, tmp_path, caplog
+) -> None:
+    """A recipe whose store the workers cannot open (moved, deleted, unreachable): one
+    warning line, then the tiles are built here, the same bits; without a fallback each build
+    says why in one line."""
+    import dataclasses
+
+    from globeview.render.tile_workers import WorkerStartError
+
+    recipe = TerrainRecipe.of(stack)
+    gone = dataclasses.replace(recipe.layers[0], location=str(tmp_path / "no-store"))
+    bad = dataclasses.replace(recipe, layers=(gone, *recipe.layers[1:]))
+    keys = np.array(_keys()[:3])
+    here = TileBuilder(stack)
+    procs = ProcessBuilder(bad, workers=1, fallback=here.ready)
+    try:
+        with caplog.at_level("WARNING", logger="globeview.render"):
+            got = procs.build_many(keys)
+            again = procs.build_many(keys)
+        assert set(got) == set(again) == {tuple(k) for k in keys.tolist()}
+        for k, tile in got.items():
+            assert _same(tile, here.ready(np.array([k]))[k])
+        warnings = [r.getMessage() for r in caplog.records]
+        assert len(warnings) == 1 and "no-store" in warnings[0] and "\n" not in warnings[0]
+        assert procs.describe() == "process x1 (not started: in-process)"
+        assert not procs.pids()
+    finally:
+        procs.shutdown()
+    strict = ProcessBuilder(bad, workers=1)
+    try:
+        with pytest.raises(WorkerStartError, match=r"could not open the terrain: .*no-store"):
+            strict.build_many(keys)
+    finally:
+        strict.shutdown()
+
+
+EXIT_SCRIPT = """
+import time
+import numpy as np
+from globeview.render.tile_loader import TileLoader
+from globeview.render.tile_workers import ProcessBuilder, TerrainRecipe
+from globeview.terrain.embedded import embedded_stores
+from globeview.terrain.compose.stack import TerrainStack
+
+stack = TerrainStack.from_stores(embedded_stores())
+procs = ProcessBuilder(TerrainRecipe.of(stack), workers=2)
+loader = TileLoader(procs.build, 2, build_many=procs.build_many, batch=8, processes=procs)
+keys = np.array([(12, 1230 + i, 700 + j) for j in range(16) for i in range(16)])
+loader.request(keys)
+while loader.ready < 24:
+    time.sleep(0.005)
+loader.shutdown()
+print("shut down with", loader.building, "tiles left", flush=True)
+"""
+
+
+def test_a_process_that_shut_its_loader_down_mid_load_exits(tmp_path) -> None:
+    """The whole process ends after a shutdown in the middle of loading: no thread of the
+    worker pool is left waiting (the interpreter's exit waits for them)."""
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "-c", EXIT_SCRIPT], capture_output=True, text=True, timeout=240
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "shut down with" in done.stdout
