@@ -65,7 +65,7 @@ from globeview.terrain.dem.reader import Dem, check_dem_path, open_dem
 from globeview.terrain.dem.vdatum import GEOID_FILE, egm96_sha256, parse_vdatum
 from globeview.terrain.ingest import cost
 from globeview.terrain.ingest.footprints import DATUMS, FootprintTable, table_from_bounds
-from globeview.terrain.ingest.plan import ChunkPlan, plan_chunks
+from globeview.terrain.ingest.plan import ChunkPlan, chunks_at_least, plan_chunks
 from globeview.terrain.ingest.safety import (
     build_folder,
     check_target,
@@ -109,6 +109,7 @@ from globeview.terrain.store.layout import (
     chunk_code,
     chunk_file_name,
     chunk_grid_shape,
+    chunk_levels_c0,
     chunk_nodes,
     chunk_tiles,
     shard_roots,
@@ -701,7 +702,9 @@ def ingest(
             for p, (size, sha256), dem in zip(src_paths, contents, dems, strict=True)
         ]
         l_max = _clamp_levels(srcs, max_level)
-        plan = plan_chunks(_footprint_table(srcs), tile_n, max_level)
+        table = _footprint_table(srcs)
+        _check_size_early(table, srcs, out_path.parent, max_level, tile_n)
+        plan = plan_chunks(table, tile_n, max_level)
         _check_size(plan, srcs, out_path.parent, max_level)
         builder = _plan_build(srcs, tile_n, l_max, wavelet, out_path.parent, plan)
         _build_and_commit(builder, stack, out_path, params, where, previous, progress, on_progress)
@@ -833,6 +836,23 @@ def _footprint_table(srcs: Sequence[_Source]) -> FootprintTable:
     )
 
 
+def _check_size_early(
+    table: FootprintTable,
+    srcs: Sequence[_Source],
+    parent: Path,
+    max_level: int | None,
+    tile_n: int,
+) -> None:
+    """`_check_size` on a lower bound of the chunks (`plan.chunks_at_least`: no chunk set
+    built), so a build far past the disk is one line at once, not after minutes of planning;
+    the exact check follows the plan."""
+    at_least = chunks_at_least(table, tile_n, max_level)
+    full = chunk_nodes(tile_n) ** 2 * cost.BYTES_PER_NODE + cost.META_BYTES_PER_CHUNK
+    c0 = chunk_levels_c0(tile_n)  # levels above it are one small chunk: counted as none
+    need = [n * full if lv >= c0 else 0.0 for lv, n in enumerate(at_least)]
+    _refuse_if_over(need, sum(at_least), srcs, parent, max_level, at_least=True)
+
+
 def _check_size(
     plan: ChunkPlan, srcs: Sequence[_Source], parent: Path, max_level: int | None
 ) -> None:
@@ -845,6 +865,20 @@ def _check_size(
         + plan.levels[lv].chunks * cost.META_BYTES_PER_CHUNK
         for lv in range(plan.max_level + 1)
     ]
+    _refuse_if_over(need, plan.chunks, srcs, parent, max_level, at_least=False)
+
+
+def _refuse_if_over(
+    need: Sequence[float],
+    chunks: int,
+    srcs: Sequence[_Source],
+    parent: Path,
+    max_level: int | None,
+    *,
+    at_least: bool,
+) -> None:
+    """StoreError (one line) when ``need`` (bytes per level 0..L_max) is more than the free
+    space where ``parent`` is, naming the finest level that fits."""
     where = parent
     while not where.exists() and where != where.parent:
         where = where.parent
@@ -855,16 +889,18 @@ def _check_size(
     total = sum(need)
     if total <= free:
         return
-    fit = max((lv for lv in range(plan.max_level + 1) if sum(need[: lv + 1]) <= free), default=0)
+    l_max = len(need) - 1
+    fit = max((lv for lv in range(l_max + 1) if sum(need[: lv + 1]) <= free), default=0)
     src = min(srcs, key=lambda s: s.res)
     what = (
-        f"--max-level {plan.max_level}"
+        f"--max-level {l_max}"
         if max_level is not None
         else f"{src.path} is {src.dem.info.width}x{src.dem.info.height} pixels: its finest "
-        f"level {plan.max_level}"
+        f"level {l_max}"
     )
+    count = f"at least {chunks:,}" if at_least else f"{chunks:,}"
     raise StoreError(
-        f"{what} would have {plan.chunks:,} chunk files, about {_size_text(total)}; the limit "
+        f"{what} would have {count} chunk files, about {_size_text(total)}; the limit "
         f"is the free space in {where}: {_size_text(free)}; use --max-level {fit}"
     )
 

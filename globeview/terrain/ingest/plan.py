@@ -52,6 +52,7 @@ __all__ = [
     "PLAN_MAX_CHUNKS",
     "ChunkPlan",
     "LevelPlan",
+    "chunks_at_least",
     "clamp_levels",
     "estimated_files",
     "plan_chunks",
@@ -299,6 +300,20 @@ def _level(
         codes.size, np.concatenate([pos_own, pos_c]), np.concatenate([src_own, src_c]), rank, len(t)
     )
     return LevelPlan(level, codes, ptr, idx)
+
+
+def chunks_at_least(t: FootprintTable, tile_n: int, max_level: int | None = None) -> list[int]:
+    """A lower bound of each level's planned chunks (levels 0..L_max): the most chunks one
+    source reaches there, its own or finer (`_ranges`: one rectangle each, no chunk set
+    built). A build far too large for its disk (a --max-level 22 of a regional DEM plans
+    ~10^7 chunks a level) is refused from these before `plan_chunks` spends minutes."""
+    levels, l_max = clamp_levels(t.levels(tile_n), max_level)
+    out: list[int] = []
+    for lv in range(l_max + 1):
+        makers = np.flatnonzero(levels >= lv)
+        _, ny, _, nx = _ranges(t, makers, lv, tile_n)
+        out.append(int((ny * nx).max()) if makers.size else 0)
+    return out
 
 
 def plan_chunks(t: FootprintTable, tile_n: int, max_level: int | None = None) -> ChunkPlan:
