@@ -84,11 +84,13 @@ from globeview.terrain.ingest.schedule import (
     run_graph,
 )
 from globeview.terrain.ingest.sources import expand_sources
+from globeview.terrain.ingest.stored_ranges import tile_ranges
 from globeview.terrain.ingest.tasks import (
     FAULT_ENV,
     GDAL_CACHE_MB,
     STRIDES,
     BuildPlan,
+    ChunkResult,
     SourceSpec,
     close_thread_sources,
     pole_task,
@@ -383,12 +385,14 @@ class _Builder:
         ran = run_graph(graph, self.where, done)
         results = {**graph.known, **ran}
         self.pole = results["pole"]
+        ranges = self._stored_ranges([results[key] for key in graph.chunk_keys])
         for key in graph.chunk_keys:
             r = results[key]
+            hmin, hmax = ranges.get((r.level, r.cy, r.cx), (r.hmin, r.hmax))
             self.stats[(r.level, r.cy, r.cx)] = _ChunkStats(
-                hmin=r.hmin,
-                hmax=r.hmax,
-                error=np.where(np.isfinite(r.hmin), 0.0, np.nan),
+                hmin=hmin,
+                hmax=hmax,
+                error=np.where(np.isfinite(hmin), 0.0, np.nan),
                 stride_delta=r.stride_delta,
                 sha256=r.sha256,
                 bytes=r.bytes,
@@ -423,6 +427,22 @@ class _Builder:
                 _has(self.stats[_indices(key)]) or any(len(e[1]) for e in errors)
             ):
                 write_facts(self.out_dir, results[key], errors, levels)
+
+    def _stored_ranges(
+        self, results: Sequence[ChunkResult]
+    ) -> dict[tuple[int, int, int], tuple[np.ndarray, np.ndarray]]:
+        """Each chunk's per-tile (hmin, hmax) over the nodes the store holds (its own file's
+        and its south, east and south-east neighbours' first row, column and node: a tile's
+        closing row and column are stored there), `stored_ranges.tile_ranges`."""
+        plan = self.plan_
+
+        def east_of(lv: int, cy: int, cx: int) -> int | None:
+            if cx + 1 < plan.chunk_shape(lv)[1]:
+                return cx + 1
+            return 0 if plan.grids[lv].global_lon else None
+
+        own = {(r.level, r.cy, r.cx): r.stored for r in results if r.stored is not None}
+        return tile_ranges(own, east_of)
 
     def _fold_errors(
         self, lv: int, iy: np.ndarray, ix: np.ndarray, red: np.ndarray, k: int

@@ -35,6 +35,7 @@ from rasterio.windows import Window
 
 from globeview.terrain.dem.reader import Dem
 from globeview.terrain.dem.vdatum import egm96
+from globeview.terrain.ingest.stored_ranges import stored_part_facts
 from globeview.terrain.ingest.tile_errors import (
     error_window,
     pruned_error_tiles,
@@ -201,6 +202,10 @@ class ChunkResult:
     first_col: np.ndarray | None = None
     bytes: int = 0
     flags: int = 0  # `layout.EXTRA_ROW` | `EXTRA_COL`: the file holds its closing row/column
+    #: (hmin, hmax, packed edge facts) over the nodes the chunk's file stores
+    #: (`stored_ranges.stored_part_facts`): the tiles' ranges as stored, once folded with
+    #: the neighbours' (`stored_ranges.tile_ranges`); None: hmin and hmax are those.
+    stored: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -523,7 +528,8 @@ def chunk_task(
         )
     sha, size = written if written is not None else (None, 0)
     keep_first = first_col if grid.global_lon and bx == 0 and bx + ktx < grid.nx else None
-    return ChunkResult(lv, cy, cx, hmin, hmax, delta, sha, keep_first, size, extra)
+    stored = stored_part_facts(arr, hh, ww, s_n)  # all NaN without a file
+    return ChunkResult(lv, cy, cx, hmin, hmax, delta, sha, keep_first, size, extra, stored)
 
 
 def _tile_table(results: Sequence[ChunkResult], plan: BuildPlan, lv: int) -> dict:

@@ -49,7 +49,8 @@ from globeview.terrain.store.schema import StoreManifest
 __all__ = ["Update", "facts_name", "plan_update", "write_facts"]
 
 # Sidecar format (a pickle-free npz): bump when its arrays change meaning.
-_FACTS_VERSION = 2  # 2: store format 7 (global chunk grid, the chunk file's size)
+_FACTS_VERSION = 3  # 2: store format 7 (global chunk grid, the chunk file's size); 3: the
+# ranges over the stored nodes (`ChunkResult.stored`)
 
 
 def facts_name(lv: int, cy: int, cx: int) -> str:
@@ -77,6 +78,8 @@ def write_facts(
         "flags": np.array(chunk.flags, dtype=np.int64),
         "first_col": chunk.first_col if chunk.first_col is not None else np.zeros(0, np.float32),
         "has_first": np.array(chunk.first_col is not None),
+        "has_stored": np.array(chunk.stored is not None),
+        **_stored_arrays(chunk),
         "err_level": cat(lvs, np.int64),
         "err_iy": cat([e[1] for e in errors], np.int64),
         "err_ix": cat([e[2] for e in errors], np.int64),
@@ -93,6 +96,13 @@ def write_facts(
             info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
             with zf.open(info, "w", force_zip64=True) as f:
                 np.lib.format.write_array(f, np.asanyarray(a), allow_pickle=False)
+
+
+def _stored_arrays(chunk: ChunkResult) -> dict[str, np.ndarray]:
+    """The facts' arrays of ``chunk.stored`` (empty when None)."""
+    empty = np.zeros(0, np.float32)
+    lo, hi, edges = chunk.stored if chunk.stored is not None else (empty, empty, empty)
+    return {"stored_hmin": lo, "stored_hmax": hi, "stored_edges": edges}
 
 
 def _read_facts(
@@ -122,6 +132,9 @@ def _read_facts(
             z["first_col"] if bool(z["has_first"]) else None,
             int(z["bytes"]),
             int(z["flags"]),
+            (z["stored_hmin"], z["stored_hmax"], z["stored_edges"])
+            if bool(z["has_stored"])
+            else None,
         )
         levels, iy, ix, red = z["err_level"], z["err_iy"], z["err_ix"], z["err_max"]
         errors = [
