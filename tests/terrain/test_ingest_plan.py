@@ -305,7 +305,7 @@ def test_a_store_built_with_plan_py_is_the_former_planners_bit_for_bit(
         sets = _plan_v1(opened, tile_n, p.max_level)
         assert sets == p.chunk_sets()  # the two planners agree here too
         return SimpleNamespace(
-            max_level=p.max_level, chunks=p.chunks, level_nodes=p.level_nodes,
+            max_level=p.max_level, chunks=p.chunks, level_nodes=p.level_nodes, levels=p.levels,
             chunk_sets=lambda: sets,
         )  # fmt: skip
 
