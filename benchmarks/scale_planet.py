@@ -1,16 +1,18 @@
-"""The planet in globeview's pyramid: levels, tiles, chunk files and manifest size of SRTM 1"
-(60 N - 56 S, land), and the cost of building it from per-node figures measured by
-benchmarks/bench_ingest.py (the arithmetic behind docs/scale.md).
+"""The planet in globeview's pyramid: levels, tiles, chunk files and metadata shards of SRTM 1"
+(60 N - 56 S, land) in store format 7, and the cost of building it from per-node figures
+measured by benchmarks/bench_ingest.py (the arithmetic behind docs/scale.md; `ingest --plan`
+and benchmarks/bench_plan.py plan the same from the tiles' names, exactly).
 
 Land: the 1 x 1 degree cells between 56 S and 60 N holding any sample above 0 m in a global
 DEM (default the embedded ETOPO 20', data/etopo20.tif; ``--land-dem`` another, e.g. ETOPO5);
 SRTM 1" has 14 277 such tiles of 3601^2 samples (the count the script compares with). Tiles
-and chunk files are counted where their footprint meets a land cell, at the finest level and
-summed over every level; the manifest holds metadata for each level's *bounding extent*
-(every tile of the rectangle, sea included), which is what `ingest.MAX_TILES` bounds.
+and chunk files (store format 7's global chunk grid, `terrain/store/layout.py`: chunks only
+where there is data) are counted where their footprint meets a land cell, at the finest level
+and summed over every level; the metadata shards are those whose root chunk meets land (plus
+the top shard); the manifest is O(levels) whatever the extent.
 
     python benchmarks/scale_planet.py [--level 13] [--cpu-ns-per-node 500]
-        [--bytes-per-node 3.0] [--manifest-bytes-per-tile 71] [--hours 8]
+        [--bytes-per-node 3.0] [--hours 8]
 """
 
 from __future__ import annotations
@@ -91,16 +93,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--land-dem", default=str(ROOT / "data" / "etopo20.tif"))
     ap.add_argument("--cpu-ns-per-node", type=float, help="measured CPU a finest-level node")
     ap.add_argument("--bytes-per-node", type=float, help="measured store bytes a finest node")
-    ap.add_argument("--manifest-bytes-per-tile", type=float, help="measured manifest bytes")
     ap.add_argument("--hours", type=float, default=8.0, help="wall-clock budget of the build")
     try:
         args = ap.parse_args(argv)
-        from globeview.terrain.ingest.driver import MAX_TILES, _natural_level
+        from globeview.terrain.ingest.driver import _natural_level
 
         level = _natural_level(1.0 / 3600.0, args.tile_n) if args.level is None else args.level
         if not (0 <= level <= 20 and 4 <= args.tile_n <= 9):
             raise BenchError(f"--level must be 0..20 and --tile-n 4..9: {level}, {args.tile_n}")
-        for name in ("cpu_ns_per_node", "bytes_per_node", "manifest_bytes_per_tile", "hours"):
+        for name in ("cpu_ns_per_node", "bytes_per_node", "hours"):
             v = getattr(args, name)
             if v is not None and not (0 < v < 1e12):  # NaN too
                 raise BenchError(f"--{name.replace('_', '-')} must be a positive number: {v}")
@@ -109,9 +110,11 @@ def main(argv: list[str] | None = None) -> int:
     except BenchError as exc:
         print(f"scale_planet: error: {exc}", file=sys.stderr)
         return 2
+    from globeview.terrain.store.layout import chunk_grid_shape, chunk_tiles, shard_roots
+
     cells = land_cells(Path(args.land_dem))
     n = 1 << args.tile_n
-    chunk_tiles = max(1, 1024 // n)  # the ingest window = one chunk file (store format 5)
+    k_chunk = chunk_tiles(args.tile_n)  # a chunk file: k x k tiles of the global chunk grid
     d_arcsec = 180.0 / (1 << level) / n * 3600.0
     print(
         f"land cells (1 x 1 deg, {SOUTH}..{NORTH} deg, any sample > 0 m in "
@@ -119,47 +122,44 @@ def main(argv: list[str] | None = None) -> int:
         f"{SRTM_TILES * SRTM_SAMPLES:.3g} samples)"
     )
     print(f'finest level {level}: node spacing {d_arcsec:.3f}" (SRTM 1" = 1")')
-    tiles_land = chunks_land = tiles_all = chunks_all = manifest_tiles = 0
-    chunk_tasks = error_tasks = 0
+    tiles_land = chunks_land = tiles_all = chunks_all = 0
+    roots = set(shard_roots(level, args.tile_n))
+    shards = 1  # the top shard
     for lv in range(level + 1):
-        t, tx, ty = _touching(cells, lv, 1)
-        c, cx, cy = _touching(cells, lv, chunk_tiles)
+        t, _, _ = _touching(cells, lv, 1)
+        c, _, _ = _touching(cells, lv, k_chunk)
         tiles_all += t
         chunks_all += c
-        manifest_tiles += tx * ty
-        # The ingest graph (ingest.schedule.build_graph) has a chunk task for every chunk of the
-        # level's bounding extent, sea included, and an error task for each above level 0.
-        chunk_tasks += cx * cy
-        error_tasks += cx * cy if lv > 0 else 0
+        if lv in roots:
+            shards += c  # a shard for each root chunk with data below it
         if lv == level:
             tiles_land, chunks_land = t, c
-            fine_extent = tx * ty
     # The land mask misses SRTM tiles with little land (islands, coasts): scale the counts by
     # SRTM's tile count over the mask's cells (a tile's share of tiles is the same).
     k = SRTM_TILES / max(int(cells.sum()), 1)
     tiles_land, chunks_land = round(tiles_land * k), round(chunks_land * k)
     tiles_all, chunks_all = round(tiles_all * k), round(chunks_all * k)
+    shards = round(shards * k)
     nodes = tiles_land * n * n  # nodes of the finest level over land (shared edges once)
+    rows, cols = chunk_grid_shape(level, args.tile_n)
     print(f"counts over land scaled by {SRTM_TILES} / {int(cells.sum())} = {k:.3f}")
     print(
         f"finest level over land: {tiles_land:,} tiles, {chunks_land:,} chunk files "
-        f"({chunk_tiles}x{chunk_tiles} tiles), {nodes:.3g} nodes"
+        f"({k_chunk}x{k_chunk} tiles), {nodes:.3g} nodes"
+    )
+    print(
+        f"finest level's global chunk grid: {rows:,} x {cols:,} = {rows * cols:,} chunks "
+        f"({chunks_land / (rows * cols):.1%} with land: only those are files)"
     )
     print(f"every level over land: {tiles_all:,} tiles, {chunks_all:,} chunk files")
     print(
-        f"manifest (bounding extents, sea included): {manifest_tiles:,} tiles "
-        f"({fine_extent:,} at the finest); ingest.MAX_TILES = {MAX_TILES:,}: "
-        f"{'fits' if manifest_tiles <= MAX_TILES else f'{manifest_tiles / MAX_TILES:.0f}x over'}"
+        f"metadata: {shards:,} shards (the top one and a shard for each root chunk with land, "
+        f"roots at levels {sorted(roots)}); the manifest is O(levels)"
     )
     print(
-        f"Dask graph: {chunk_tasks:,} chunk tasks + {error_tasks:,} error tasks + 1 pole task "
-        "(every chunk of the bounding extents)"
+        f"Dask graph: {chunks_all:,} chunk tasks + {chunks_all:,} error+metadata tasks "
+        "(chunks with land only)"
     )
-    if args.manifest_bytes_per_tile:
-        print(
-            f"manifest.json at {args.manifest_bytes_per_tile:g} bytes a tile: "
-            f"{manifest_tiles * args.manifest_bytes_per_tile / 1e9:.1f} GB"
-        )
     if args.bytes_per_node:
         print(
             f"store at {args.bytes_per_node:g} bytes a finest-level node: "

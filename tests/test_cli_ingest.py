@@ -131,7 +131,10 @@ def test_max_level_past_the_natural_level(tmp_path: Path) -> None:
         st.verify()
     r = _cli(str(DATA / "topobathy_vancouver.tif"), "--out", str(out), "--max-level", "22")
     assert r.returncode == 2 and len(r.stderr.splitlines()) == 1
+    # No tile count caps a store (format 7): the planned chunk files need more than this disk
+    # holds, refused up front (nothing written), naming the level that fits.
     assert "--max-level 22 would have" in r.stderr and "the limit is" in r.stderr
+    assert not out.with_name(".s.building").exists()
 
 
 @pytest.mark.slow

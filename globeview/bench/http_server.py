@@ -8,7 +8,7 @@ single-range ``Range: bytes=a-b`` / ``a-`` / ``-n`` requests answered 206 with
 served (``..`` and symlinks out are 404).
 
 Faults are set per path with `StaticServer.fault` (an `fnmatch` pattern on the URL path, e.g.
-``"*/level_03_*"``; the last matching rule wins) and cleared with `clear_faults`:
+``"*/chunks/03/*"``; the last matching rule wins) and cleared with `clear_faults`:
 
 - ``delay_s``: sleep before the status line (a slow server);
 - ``stall_s``: send half the body, then sleep (slow *within* the body);

@@ -23,6 +23,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--embedded", action="store_true", help="describe the DEMs shipped in data/"
     )
+    parser.add_argument(
+        "--verify",
+        action="store_true",
+        help="check every chunk file of a store against its sha256 (reads all data; "
+        "without it, only their sizes are checked)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -39,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     infos = []
     for p in paths:
         if source_kind(p) == "store":  # (a URL no backend reads, a plain folder: one line)
-            infos.append(store_info(p))
+            infos.append(store_info(p, full=args.verify))
             continue
         with open_dem(p, crs=args.crs, vdatum=args.vdatum) as dem:
             infos.append(dem.info)
@@ -53,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
 class StoreInfo:
     """What `globeview info` says about a tile store (from its manifest alone)."""
 
-    def __init__(self, where: str, store) -> None:
+    def __init__(self, where: str, store, checked: int | None = None) -> None:
         m = store.manifest
         self.where = where
         self.format_version = m.header.format_version
@@ -65,14 +71,17 @@ class StoreInfo:
         self.sources = [
             {"path": s.path, "crs": s.crs, "vertical_datum": s.vertical_datum} for s in m.sources
         ]
+        self.checked = checked
+        self.shards = int(m.shards.count)
         self.levels = []
         for lv in m.levels:
-            chunks = getattr(lv, "chunks", None)
             self.levels.append(
                 {
                     "level": int(lv.level),
                     "file": lv.file,
-                    "chunk_files": None if chunks is None else len(chunks),
+                    "chunk_files": int(lv.chunks),
+                    "tiles": int(lv.tiles),
+                    "bytes": int(lv.bytes),
                     "node_spacing_deg": float(lv.node_spacing_deg),
                     "max_error_m": None if lv.level_error is None else float(lv.level_error),
                 }
@@ -89,6 +98,8 @@ class StoreInfo:
             "bounds": list(self.bounds),
             "sources": self.sources,
             "levels": self.levels,
+            "shards": self.shards,
+            "chunk_files_checked": self.checked,
         }
 
     def summary(self) -> str:
@@ -103,7 +114,11 @@ class StoreInfo:
             f"  bounds: {w:.6f}..{e:.6f} E, {s:.6f}..{n:.6f} N",
         ]
         if chunks:
-            lines.append(f"  chunk files: {sum(chunks)} over {len(chunks)} levels")
+            size = sum(int(lv["bytes"]) for lv in self.levels)
+            lines.append(
+                f"  chunk files: {sum(chunks)} over {len(chunks)} levels ({size / 1e6:.1f} MB), "
+                f"metadata shards: {self.shards}"
+            )
         if finest is not None:
             lines.append(
                 f"  finest level {finest['level']}: node spacing "
@@ -114,20 +129,22 @@ class StoreInfo:
         return "\n".join(lines)
 
 
-def store_info(text: str) -> StoreInfo:
+def store_info(text: str, full: bool = False) -> StoreInfo:
     """Open a store (`open_source`) and describe it: a remote one from its manifest only; a
-    local one after checking every level file against its sha256 in the manifest
-    (`TileStore.verify`, a StoreError line naming the first damaged one)."""
+    local one after checking every chunk file's size against its shard record (``full``:
+    its sha256 too, reading all data; `TileStore.verify`, a StoreError line naming the first
+    damaged one)."""
     from globeview.terrain.sources import check_source, open_source
 
     where = check_source(text)  # a URL as it is requested
     store = open_source(where)
     try:
-        if not store.is_remote:
-            # Opening checks the level VRTs and that each chunk file exists; a chunk truncated
-            # or swapped with another level's opens fine and fails only when a tile is read,
-            # so a folder is read whole (seconds a GB) before it is described as usable.
-            store.verify()
-        return StoreInfo(where, store)
+        checked = None
+        if not store.is_remote or full:
+            # Opening checks the manifest, the top shard and the level VRTs; a chunk truncated
+            # or missing fails only when a tile is read, so every chunk's size is checked
+            # (one stat each) and, with --verify, its sha256 (seconds a GB).
+            checked = store.verify(full=full)
+        return StoreInfo(where, store, checked)
     finally:
         store.close()

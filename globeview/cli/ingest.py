@@ -31,10 +31,36 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "sources",
         nargs="+",
         metavar="SRC",
-        help="DEM rasters (any GDAL format), or folders of DEM tiles (the .tif/.hgt/... files "
-        "directly in them; subfolders are not searched)",
+        help="DEM rasters (any GDAL format), folders of DEM tiles (the .tif/.hgt/... files "
+        "directly in them; subfolders are not searched), quoted globs ('srtm/*.hgt', "
+        "'copdem/**/*_DEM.tif') or @LIST (a text file naming one source a line)",
     )
-    parser.add_argument("--out", required=True, metavar="STORE", help="store directory to write")
+    parser.add_argument(
+        "--out", default=None, metavar="STORE", help="store directory to write (not with --plan)"
+    )
+    parser.add_argument(
+        "--plan",
+        action="store_true",
+        help="print what the build would do (sources, chunks and source reads per level, "
+        "tasks, bytes, estimated core-hours) without building or writing anything",
+    )
+    parser.add_argument(
+        "--footprints",
+        choices=("auto", "name", "header"),
+        default="auto",
+        help="where --plan takes a source's footprint from: its SRTM (N44W072.hgt) or "
+        "Copernicus (Copernicus_DSM_COG_10_N44_00_W072_00_DEM.tif) name, else its header "
+        "(auto, the default: no file opened for named tiles); name; or header (every file "
+        "opened)",
+    )
+    parser.add_argument(
+        "--geoid-grid",
+        action="append",
+        default=[],
+        metavar="[egm2008=]PATH",
+        help="a geoid grid globeview does not ship, for sources on that datum (Copernicus "
+        "DEM heights are EGM2008: us_nga_egm08_25.tif from https://cdn.proj.org); repeatable",
+    )
     parser.add_argument(
         "--tile-n", type=int, default=6, help="tiles have 2^N+1 samples a side (default 6: 65)"
     )
@@ -117,8 +143,38 @@ def parallel_kwargs(args: argparse.Namespace, ingest_fn: Callable[..., object]) 
     return given
 
 
+def run_plan(args: argparse.Namespace) -> int:
+    """``--plan``: print the plan (nothing written). Errors are GlobeviewErrors (exit 2)."""
+    from globeview.cli.dem_options import check_dem_options
+    from globeview.terrain.dem.vdatum import parse_geoid_grids
+    from globeview.terrain.ingest.report import format_plan, make_plan
+
+    check_dem_options(args)
+    report = make_plan(
+        args.sources,
+        tile_n=args.tile_n,
+        max_level=args.max_level,
+        crs=args.crs,
+        vdatum=args.vdatum,
+        how=args.footprints,
+        geoid_grids=parse_geoid_grids(args.geoid_grid),
+        progress=not args.quiet and sys.stderr.isatty(),
+    )
+    print(format_plan(report))
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     """Build the store; prints a one-line summary. Errors are GlobeviewErrors (exit 2)."""
+    from globeview.errors import GlobeviewError
+
+    if args.plan:  # --out may be given (the build's command line with --plan): not written
+        return run_plan(args)
+    if args.out is None:
+        raise GlobeviewError("the following arguments are required: --out (or --plan)")
+    if args.geoid_grid or args.footprints != "auto":
+        # The format-7 build (issue #25) consumes them; today's build would ignore them.
+        raise GlobeviewError("--geoid-grid and --footprints are for --plan in this version")
     from globeview.terrain.ingest.driver import ingest
 
     parallel = parallel_kwargs(args, ingest)  # checked before any source is read

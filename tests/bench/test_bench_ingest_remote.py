@@ -83,14 +83,17 @@ def test_tiny_ingest_run_prints_every_row_and_each_target(tmp_path: Path) -> Non
         cells = [c.strip().split(" (")[0] for c in r.split("|")[2:7]]
         assert all(float(c) > 0 for c in cells), r
     # The checkout's stores (1 worker, N threads, N processes) hold the same errors; the
-    # baseline commit's differs from them at the data edges only (store format 6, issue #29).
+    # baseline commit's differs from them at the data edges (store format 6, issue #29) and,
+    # since issue #25's window-independent kernel, inside the data where a window reached past
+    # the DEM (the 512^2 DEM's levels up to 10: every window there does).
     assert re.search(r"per-tile errors and height ranges equal to dask1's: daskN, daskP\n", out)
     assert "DIFFER" not in out
     if (ROOT / ".git").exists():
         assert re.search(
             r"commit a46750e's store \(today\) against dask1's: (per-tile errors and height "
             r"ranges equal|differs at the data edges only \(\d+ tiles .*\), by design since "
-            r"store format 6 \(issue #29\))\n",
+            r"store format 6 \(issue #29\)|differs at \d+ tiles, \d+ of them inside the data, "
+            r".* by design since issue #25 where a window reached past the DEM .*)\n",
             out,
         )
     assert re.search(r"pyramid: levels 0\.\.\d+, tiles of 65\^2 nodes", out)
@@ -102,9 +105,11 @@ def test_tiny_ingest_run_prints_every_row_and_each_target(tmp_path: Path) -> Non
 
 
 def _store(path: Path, levels: list[tuple[int, int, list[list[float]]]]) -> Path:
-    """A folder with a manifest of ``levels``: (nx, ny, the tiles' errors by row)."""
+    """A folder with a format-6 manifest of ``levels``: (nx, ny, the tiles' errors by row)
+    (what the frozen baseline commit writes; this checkout writes format 7)."""
     path.mkdir()
     manifest = {
+        "format_version": 6,
         "levels": [
             {
                 "extent": {"x0": 0, "y0": 0, "nx": nx, "ny": ny},
@@ -114,7 +119,7 @@ def _store(path: Path, levels: list[tuple[int, int, list[list[float]]]]) -> Path
                 "stride_error": [[[0.0] * 6] * nx for _ in range(ny)],
             }
             for nx, ny, err in levels
-        ]
+        ],
     }
     (path / "manifest.json").write_text(json.dumps(manifest))
     return path
@@ -125,12 +130,13 @@ def test_stores_are_compared_tile_by_tile_and_the_baseline_at_the_data_edges(
 ) -> None:
     bench_ingest = _module("bench_ingest")
     grid = [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]]
-    ref = _store(tmp_path / "ref", [(1, 1, [[9.0]]), (3, 3, grid)])
-    same = _store(tmp_path / "same", [(1, 1, [[9.0]]), (3, 3, grid)])
-    rim = _store(tmp_path / "rim", [(1, 1, [[8.0]]), (3, 3, [[0.0, *grid[0][1:]], *grid[1:]])])
-    inner = _store(
-        tmp_path / "inner", [(1, 1, [[9.0]]), (3, 3, [grid[0], [4.0, 0.0, 6.0], grid[2]])]
+    top = [(1, 1, [[9.0]]), (1, 1, [[9.0]])]  # levels 0 and 1; level 2 holds the 3 x 3 tiles
+    ref = _store(tmp_path / "ref", [*top, (3, 3, grid)])
+    same = _store(tmp_path / "same", [*top, (3, 3, grid)])
+    rim = _store(
+        tmp_path / "rim", [(1, 1, [[8.0]]), top[1], (3, 3, [[0.0, *grid[0][1:]], *grid[1:]])]
     )
+    inner = _store(tmp_path / "inner", [*top, (3, 3, [grid[0], [4.0, 0.0, 6.0], grid[2]])])
     other = _store(tmp_path / "other", [(1, 1, [[9.0]])])
     assert bench_ingest._same_errors(ref, same)
     # Any tile of this checkout's stores that differs is a difference (a DIFFER in the run).
@@ -146,6 +152,42 @@ def test_stores_are_compared_tile_by_tile_and_the_baseline_at_the_data_edges(
     assert "a different pyramid" in verdict(other, ref, "dask1")
 
 
+def test_a_format_7_store_is_read_through_its_shards(tmp_path: Path) -> None:
+    """The benchmark reads a store this checkout writes (format 7: no per-tile arrays in the
+    manifest) through the store's reader: the same tiles and figures as its lookups."""
+    import numpy as np
+    import rasterio
+    from affine import Affine
+
+    from globeview.terrain.ingest.driver import ingest
+    from globeview.terrain.store.tile_store import TileStore
+
+    bench_ingest = _module("bench_ingest")
+    dem = tmp_path / "dem.tif"
+    yy, xx = np.mgrid[0:201, 0:301]
+    z = (500.0 + 300.0 * np.sin(xx / 17.0) * np.cos(yy / 23.0)).astype(np.float32)
+    prof = dict(driver="GTiff", width=301, height=201, count=1, dtype="float32", crs="EPSG:4326")
+    with rasterio.open(dem, "w", **prof, transform=Affine(0.01, 0, 7.0, 0, -0.01, 46.0)) as dst:
+        dst.write(z, 1)
+    store = tmp_path / "store"
+    ingest([dem], store, vdatum="egm96")
+    table = bench_ingest._tile_table(store)
+    facts = bench_ingest._store_facts(store)
+    with TileStore.open(store) as st:
+        assert len(table) == st.max_level + 1 == facts["max_level"] + 1
+        assert facts["format"] == 7 and facts["chunks"] > 0
+        assert [len(t) for t in table] == [lv.tiles for lv in st.manifest.levels]
+        for lv, tiles in enumerate(table):
+            x, y = (np.array(a) for a in zip(*tiles))
+            got = np.array([tiles[k][:3] for k in zip(x.tolist(), y.tolist())], dtype=float)
+            lo, hi = st.tile_hrange(lv, x, y)
+            np.testing.assert_array_equal(got[:, 0], st.tile_error(lv, x, y))
+            np.testing.assert_array_equal(got[:, 1], lo)
+            np.testing.assert_array_equal(got[:, 2], hi)
+    assert bench_ingest._same_errors(store, store)
+    assert bench_ingest._differing_tiles(store, store) == (0, 0)
+
+
 def test_planet_arithmetic_is_consistent() -> None:
     proc = _script("scale_planet.py", "--level", "9", "--cpu-ns-per-node", "1000", "--hours", "8")
     assert proc.returncode == 0, proc.stderr
@@ -155,12 +197,17 @@ def test_planet_arithmetic_is_consistent() -> None:
     nodes = float(re.search(r"finest level over land: .* ([\d.e+]+) nodes", out).group(1))
     core_h = float(re.search(r"([\d,]+) core-hours", out).group(1).replace(",", ""))
     assert core_h == pytest.approx(nodes * 1e-6 / 3600, rel=0.01, abs=1)
-    # Level 9 of 65-node tiles: 1024 x 512 tiles; the band 56 S..60 N is rows 128.....
-    fine_extent = int(re.search(r"\(([\d,]+) at the finest\)", out).group(1).replace(",", ""))
-    rows = fine_extent // 1024
-    assert fine_extent == rows * 1024 and 116 / 180 * 512 <= rows <= 116 / 180 * 512 + 2
+    # Level 9 of 65-node tiles: 1024 x 512 tiles, chunks of 16 x 16 tiles: a 32 x 64 grid of
+    # which only the chunks meeting land (56 S..60 N) are files.
+    grid = re.search(r"global chunk grid: ([\d,]+) x ([\d,]+) = ([\d,]+) chunks", out)
+    assert grid is not None, out
+    assert [int(g.replace(",", "")) for g in grid.groups()] == [32, 64, 2048]
+    chunks = int(re.search(r"finest level over land: [\d,]+ tiles, ([\d,]+) chunk", out).group(1))
+    assert 0 < chunks < 2048 * 116 / 180
     tiles = int(re.search(r"finest level over land: ([\d,]+) tiles", out).group(1).replace(",", ""))
-    assert tiles < fine_extent  # land only
+    assert chunks < tiles < 1024 * 512 * 116 / 180  # land only
+    shards = int(re.search(r"metadata: ([\d,]+) shards", out).group(1).replace(",", ""))
+    assert 1 < shards < chunks
 
 
 def test_remote_traffic_counts_requests_and_body_bytes(tmp_path: Path) -> None:

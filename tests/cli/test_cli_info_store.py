@@ -29,18 +29,27 @@ def store(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return base / "s"
 
 
-def _truncate(p: Path) -> None:
-    p.write_bytes(p.read_bytes()[: p.stat().st_size // 2])
+def _truncate(p: Path, keep: int | None = None) -> None:
+    """Cut a file to ``keep`` bytes (default: half). A chunk keeps its header only: its data
+    all lie in its first blocks (the tile spans 23 of its 1024 rows), which half keeps."""
+    p.write_bytes(p.read_bytes()[: p.stat().st_size // 2 if keep is None else keep])
+
+
+def _one(s: Path, pattern: str) -> Path:
+    """The last file matching (level 6: the chunk with data, its shard)."""
+    return sorted(s.glob(pattern))[-1]
+
+
+def _swap_chunk(s: Path) -> None:
+    shutil.copyfile(_one(s, "chunks/05/*/*.tif"), _one(s, "chunks/06/*/*.tif"))
 
 
 #: name -> (how the store is damaged, the file the message must name)
 DAMAGE: dict[str, tuple[Callable[[Path], None], str]] = {
-    "truncated chunk": (lambda s: _truncate(s / "level_06_r0000_c0000.tif"), "level_06_r0000"),
-    "deleted chunk": (lambda s: (s / "level_05_r0000_c0000.tif").unlink(), "level_05_r0000"),
-    "swapped chunk": (
-        lambda s: shutil.copyfile(s / "level_05_r0000_c0000.tif", s / "level_06_r0000_c0000.tif"),
-        "level_06_r0000",
-    ),
+    "truncated chunk": (lambda s: _truncate(_one(s, "chunks/06/*/*.tif"), 400), "chunks/06/"),
+    "deleted chunk": (lambda s: _one(s, "chunks/06/*/*.tif").unlink(), "chunks/06/"),
+    "swapped chunk": (_swap_chunk, "chunks/06/"),
+    "truncated shard": (lambda s: _truncate(_one(s, "meta/06/*/*.gvm")), "meta/06/"),
     "swapped level vrt": (
         lambda s: shutil.copyfile(s / "level_05.vrt", s / "level_06.vrt"),
         "level_06.vrt",
@@ -52,7 +61,25 @@ DAMAGE: dict[str, tuple[Callable[[Path], None], str]] = {
 def test_an_intact_store_is_described(store: Path, tmp_path: Path) -> None:
     res = globeview("info", str(store), cache=tmp_path / "c")
     assert res.returncode == 0, res.stderr
-    assert "tile store, format" in res.stdout and "levels 0..6" in res.stdout
+    assert "tile store, format 7" in res.stdout and "levels 0..6" in res.stdout
+    # The top shard and two rooted at level 6: the tile spans a chunk row edge (45 N).
+    assert "metadata shards: 3" in res.stdout
+    full = globeview("info", "--verify", "--json", str(store), cache=tmp_path / "c")
+    assert full.returncode == 0, full.stderr
+    assert '"chunk_files_checked": 6' in full.stdout
+
+
+def test_verify_finds_what_the_size_check_cannot(store: Path, tmp_path: Path) -> None:
+    """A chunk with one byte changed keeps its size: only --verify (sha256) sees it."""
+    copy = tmp_path / "s"
+    shutil.copytree(store, copy)
+    p = _one(copy, "chunks/06/*/*.tif")
+    data = bytearray(p.read_bytes())
+    data[-1] ^= 0xFF
+    p.write_bytes(bytes(data))
+    assert globeview("info", str(copy), cache=tmp_path / "c").returncode == 0
+    line = one_error_line(globeview("info", "--verify", str(copy), cache=tmp_path / "c"))
+    assert "chunks/06/" in line and "checksum mismatch" in line, line
 
 
 @pytest.mark.slow

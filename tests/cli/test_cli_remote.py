@@ -81,7 +81,7 @@ def test_render_url_writes_the_local_stores_png(served, tmp_path: Path) -> None:
                        "--stats", str(tmp_path / "r.json"), cache=tmp_path / "c2")  # fmt: skip
     assert local.returncode == 0 and remote.returncode == 0, local.stderr + remote.stderr
     assert (tmp_path / "l.png").read_bytes() == (tmp_path / "r.png").read_bytes()
-    assert server.requests("*/store/level_*"), "the tiles came over HTTP"
+    assert server.requests("*/store/chunks/*"), "the tiles came over HTTP"
     # A name with a space, typed as is: sent percent-encoded, the same picture.
     spaced = globeview("render", f"{server.url}/a store", "-o", str(tmp_path / "s.png"), *view,
                        cache=tmp_path / "c3")  # fmt: skip
@@ -101,8 +101,11 @@ def test_info_url_describes_the_store(served, tmp_path: Path) -> None:
     res = globeview("info", "--json", f"{server.url}/store", str(root / "store"), cache=tmp_path)
     remote, local = json.loads(res.stdout)
     assert remote["store"] == f"{server.url}/store"
-    assert {k: v for k, v in remote.items() if k != "store"} == {
-        k: v for k, v in local.items() if k != "store"
+    # A folder's chunk files are checked (a stat each); a URL's only with --verify.
+    assert remote["chunk_files_checked"] is None and local["chunk_files_checked"] > 0
+    same = ("store", "chunk_files_checked")
+    assert {k: v for k, v in remote.items() if k not in same} == {
+        k: v for k, v in local.items() if k not in same
     }
 
 
@@ -140,7 +143,7 @@ def test_tiles_a_server_fails_are_stood_in_and_counted(served, tmp_path: Path) -
 
     server, _ = served
     server.clear_faults()
-    server.fault("*/store/level_07_*", status=500)
+    server.fault("*/store/chunks/07/*", status=500)
     view = ["--size", "320x240", "--camera", "-123.2,49.2,60000,20,-50"]
     try:
         out, stats = tmp_path / "x.png", tmp_path / "x.json"
@@ -169,7 +172,7 @@ def test_a_server_failing_every_chunk_is_one_line_and_writes_nothing(served, tmp
     the render is an error naming the first failure, not an empty globe with exit 0."""
     server, _ = served
     server.clear_faults()
-    server.fault("*/store/level_*", status=503)
+    server.fault("*/store/chunks/*", status=503)
     try:
         out = tmp_path / "x.png"
         res = globeview("render", f"{server.url}/store", "-o", str(out), "--size", "64x48",
@@ -190,7 +193,7 @@ def test_ctrl_c_during_a_remote_render_is_one_line_and_quick(served, tmp_path: P
     server, _ = served
     server.clear_faults()
     server.reset_log()  # the requests of this render only
-    server.fault("*/store/level_*", delay_s=3.0)  # every chunk read waits
+    server.fault("*/store/chunks/*", delay_s=3.0)  # every chunk read waits
     try:
         out = tmp_path / "x.png"
         env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(tmp_path / "c")}
@@ -200,9 +203,9 @@ def test_ctrl_c_during_a_remote_render_is_one_line_and_quick(served, tmp_path: P
             stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
         )  # fmt: skip
         deadline = time.monotonic() + 60
-        while not server.requests("*/store/level_*") and time.monotonic() < deadline:
+        while not server.requests("*/store/chunks/*") and time.monotonic() < deadline:
             time.sleep(0.05)  # the render is waiting on a chunk now
-        assert server.requests("*/store/level_*")
+        assert server.requests("*/store/chunks/*")
         proc.send_signal(signal.SIGINT)
         t0 = time.monotonic()
         _, err = proc.communicate(timeout=60)

@@ -167,9 +167,12 @@ def centred_transform(crs: str, lon: float, lat: float, w: int, h: int, px: floa
 # Hand-written files
 
 
-def write_netcdf_cf(path: Path, lons: np.ndarray, lats: np.ndarray, z: np.ndarray) -> Path:
+def write_netcdf_cf(
+    path: Path, lons: np.ndarray, lats: np.ndarray, z: np.ndarray, *, geographic: bool = True
+) -> Path:
     """A classic (CDF-1) netCDF file with CF ``lat``/``lon`` coordinate variables and a float
-    ``elevation(lat, lon)`` variable, and no grid mapping or CRS attribute at all.
+    ``elevation(lat, lon)`` variable, and no grid mapping or CRS attribute at all
+    (``geographic=False``: ``y``/``x`` axes in metres instead, so nothing says lon/lat).
 
     Written by hand: GDAL's netCDF driver writes x/y axes without a CRS and adds a grid
     mapping with one, and neither is the case to test (scipy, the usual writer, is not a
@@ -191,15 +194,22 @@ def write_netcdf_cf(path: Path, lons: np.ndarray, lats: np.ndarray, z: np.ndarra
     lat_b = np.asarray(lats, ">f8").tobytes()
     lon_b = np.asarray(lons, ">f8").tobytes()
     z_b = np.asarray(z, ">f4").tobytes()
+    lat_n, lon_n = ("lat", "lon") if geographic else ("y", "x")
+    if geographic:
+        lat_atts = [att_text("units", "degrees_north"), att_text("standard_name", "latitude")]
+        lon_atts = [att_text("units", "degrees_east"), att_text("standard_name", "longitude")]
+    else:
+        lat_atts = [att_text("units", "m"), att_text("standard_name", "projection_y_coordinate")]
+        lon_atts = [att_text("units", "m"), att_text("standard_name", "projection_x_coordinate")]
     variables = [
-        ("lat", [0], [att_text("units", "degrees_north"), att_text("standard_name", "latitude")]),
-        ("lon", [1], [att_text("units", "degrees_east"), att_text("standard_name", "longitude")]),
+        (lat_n, [0], lat_atts),
+        (lon_n, [1], lon_atts),
         ("elevation", [0, 1], [att_text("units", "m"), att_text("long_name", "elevation")]),
     ]
     types = [nc_double, nc_double, nc_float]
     blobs = [lat_b, lon_b, z_b]
-    dims = struct.pack(">ii", 0x0A, 2) + name("lat") + struct.pack(">i", len(lats))
-    dims += name("lon") + struct.pack(">i", len(lons))
+    dims = struct.pack(">ii", 0x0A, 2) + name(lat_n) + struct.pack(">i", len(lats))
+    dims += name(lon_n) + struct.pack(">i", len(lons))
     gatts = att_list([att_text("Conventions", "CF-1.6")])
 
     def var_list(begins: list[int]) -> bytes:

@@ -73,4 +73,4 @@ def test_a_provider_reading_late_tiles_is_not_failed(remote_wm, monkeypatch, tmp
     assert ready, "the tiles the provider reads arrived in the background"
     result = session.render(target.fbo, (320, 240))
     assert result.stats.triangles > 0 and registry.failure_of("quadtree-clod") is None
-    assert server.requests("*/wm/level_1[0-2]_*")
+    assert server.requests("*/wm/chunks/1[0-2]/*")

@@ -257,7 +257,11 @@ def test_issue_point_is_the_dems_own_bilinear_value(crater_lake: TerrainStack) -
     lon, lat = np.array([ISSUE_POINT[0]]), np.array([ISSUE_POINT[1]])
     want = _dem_bilinear(CRATER_LAKE, lon, lat)[0]  # 1864.10 m + N -21.45 m = 1842.65 m
     got = composed_heights(crater_lake, lon, lat)[0]  # before: 1729.22 m, 113 m below
-    assert abs(got - want) < 0.5, (got, want)
+    # The finest level's nodes are 1.27 source pixels apart: GDAL's downsampling kernel (a
+    # triangle that wide) smooths them, as everywhere in the DEM (0.37 m median, 3.9 m p99
+    # against the DEM's own bilinear surface at 3 000 random points inside). 0.74 m here:
+    # the kernel no longer narrows where a window reaches past the DEM (issue #25).
+    assert abs(got - want) < 1.0, (got, want)
     assert answering_layers(crater_lake, lon, lat) == [CRATER_LAKE.name]
     # The mesh is built from the same composed nodes (`TerrainStack.heights`, what
     # `build_tile_mesh` takes): the four around the point are the DEM's, none at the ellipsoid.

@@ -71,9 +71,11 @@ def _write_tif(
 @pytest.mark.slow
 def test_levels_are_valid_geotiffs(etopo_store: Path) -> None:
     """Each level is a VRT (what gdalinfo / QGIS open) over chunk files that are valid
-    GeoTIFFs on their own, at their place in the level (store format 5)."""
+    GeoTIFFs on their own, at their place on the level's global chunk grid (store format 7:
+    ``chunks/LL/<cy>/<cx>-<h16>.tif``, named by content)."""
     st = TileStore.open(etopo_store)
     n = 2**st.tile_n
+    vrts = {}
     for lv in range(st.max_level + 1):
         rec = st.manifest.levels[lv]
         assert rec.file == f"level_{lv:02d}.vrt"
@@ -85,27 +87,32 @@ def test_levels_are_valid_geotiffs(etopo_store: Path) -> None:
             # Pixel (0, 0) centre is the node at (-180, 90).
             assert ds.xy(0, 0) == pytest.approx((-180.0, 90.0))
             assert np.isnan(ds.nodata)
-            data = ds.read(1)
-            assert np.isfinite(data).all()
-        assert len(rec.chunks) == len(rec.chunk_sha256) > 0
-        c = rec.chunk_nodes
-        for (cy, cx), name in zip(rec.chunks, rec.chunk_files()):
-            assert name == f"level_{lv:02d}_r{cy:04d}_c{cx:04d}.tif"
-            with rasterio.open(etopo_store / name) as ch:
-                assert ch.driver == "GTiff" and ch.crs.to_epsg() == 4326
-                assert ch.block_shapes[0] == (256, 256) or max(ch.shape) < 256
-                assert ch.tags()["AREA_OR_POINT"] == "Point" and np.isnan(ch.nodata)
-                assert ch.xy(0, 0) == pytest.approx(
-                    (
-                        -180.0 + cx * c * 360.0 / (ds.width - 1),
-                        90.0 - cy * c * 180.0 / (ds.height - 1),
-                    )
-                )
-                r1 = ds.height if (cy + 1) * c >= ds.height - 1 else (cy + 1) * c
-                c1 = ds.width if (cx + 1) * c >= ds.width - 1 else (cx + 1) * c
-                np.testing.assert_array_equal(ch.read(1), data[cy * c : r1, cx * c : c1])
+            data = vrts[lv] = ds.read(1)
+            assert np.isfinite(data).all()  # column W (lon 180) repeats column 0
+            np.testing.assert_array_equal(data[:, -1], data[:, 0])
+        assert rec.chunks > 0
+    c = 1024
+    seen = 0
+    for lv, cy, cx, facts in st._meta.iter_chunks():
+        assert facts.file is not None and facts.file.startswith(f"chunks/{lv:02d}/{cy}/{cx}-")
+        assert facts.sha256.startswith(facts.file.rsplit("-", 1)[1][:16])
+        data = vrts[lv]
+        with rasterio.open(etopo_store / facts.file) as ch:
+            assert ch.driver == "GTiff" and ch.crs.to_epsg() == 4326
+            assert ch.block_shapes[0] == (256, 256) or max(ch.shape) < 256
+            assert ch.tags()["AREA_OR_POINT"] == "Point" and np.isnan(ch.nodata)
+            d = 180.0 / (data.shape[0] - 1)
+            assert ch.xy(0, 0) == pytest.approx((-180.0 + cx * c * d, 90.0 - cy * c * d))
+            assert ch.width == data.shape[1] - 1  # column W is never stored
+            h, w = ch.shape
+            np.testing.assert_array_equal(
+                ch.read(1), data[cy * c : cy * c + h, cx * c : cx * c + w]
+            )
+        seen += 1
+    assert seen == sum(rec.chunks for rec in st.manifest.levels)
     man = json.loads((etopo_store / "manifest.json").read_text())
-    assert man["levels"][0]["extent"] == {"x0": 0, "y0": 0, "nx": 2, "ny": 1}
+    assert man["levels"][0]["bbox"] == {"x0": 0, "y0": 0, "nx": 2, "ny": 1}
+    assert man["format_version"] == 7 and "error" not in man["levels"][0]
 
 
 def test_shared_edges_and_poles(etopo_store: Path) -> None:
@@ -327,7 +334,11 @@ def test_failure_leaves_old_store_intact(tmp_path: Path, monkeypatch: pytest.Mon
     out = tmp_path / "s"
     src = _data("topobathy_vancouver.tif")
     ingest([src], out)
-    snapshot = {p.name: p.read_bytes() for p in out.iterdir()}
+
+    def files() -> dict[str, bytes]:
+        return {str(p.relative_to(out)): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+
+    snapshot = files()
 
     def boom(*args: object) -> None:
         raise RuntimeError("simulated crash in the error pass")
@@ -335,7 +346,7 @@ def test_failure_leaves_old_store_intact(tmp_path: Path, monkeypatch: pytest.Mon
     monkeypatch.setattr(ingest_graph, "error_task", boom)  # a task of the graph crashes
     with pytest.raises(RuntimeError):
         ingest([src], out, force=True)
-    assert {p.name: p.read_bytes() for p in out.iterdir()} == snapshot
+    assert files() == snapshot
     assert _leftovers(tmp_path, "s") == []
     fresh = tmp_path / "fresh"
     with pytest.raises(RuntimeError):

@@ -4,7 +4,6 @@ the next ingest cleans what a killed one left, never what a live one is building
 
 from __future__ import annotations
 
-import json
 import os
 import random
 import signal
@@ -13,6 +12,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from globeview.terrain.ingest.driver import FAULT_ENV, ingest
@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "data"
 GLOBEVIEW = Path(sys.executable).parent / "globeview"
 SMALL = DATA / "craterlake-elev-16bit-30m.tif"  # 14 levels, ~20 window writes, < 1 s
-BIG = DATA / "N44W072.hgt"  # 3601 x 3601: a few MB of levels
+BIG = DATA / "N44W072.hgt"  # SRTM3, 1201 x 1201: a few MB of levels
 
 
 def _cli(*args: str, env: dict | None = None, **kw) -> subprocess.CompletedProcess:
@@ -38,8 +38,22 @@ def _leftovers(parent: Path) -> list[str]:
 
 
 def _errors(store: Path) -> list:
-    man = json.loads((store / "manifest.json").read_text())
-    return [(lv["error"], lv["hmin"], lv["stride_error"]) for lv in man["levels"]]
+    """Every chunk's tile errors (stride errors too) and hmin (store format 7's shards; NaN
+    as -1e30 so that equal stores compare equal), in order."""
+    with TileStore.open(store) as st:
+        return sorted(
+            (lv, cy, cx, *(np.nan_to_num(a, nan=-1e30).tolist() for a in (f.errors, f.hmin)))
+            for lv, cy, cx, f in st.iter_chunks()
+        )
+
+
+def _files(store: Path) -> dict[str, bytes]:
+    """Every file of a store (chunks and shards in their folders) with its bytes."""
+    return {
+        p.relative_to(store).as_posix(): p.read_bytes()
+        for p in sorted(store.rglob("*"))
+        if p.is_file()
+    }
 
 
 @pytest.fixture(scope="module")
@@ -147,7 +161,7 @@ def test_injected_disk_full_is_one_line_and_leaves_nothing(tmp_path: Path, at: s
     old = None
     if at == "commit":
         ingest([SMALL], out, tile_n=5)
-        old = {p.name: p.read_bytes() for p in out.iterdir()}
+        old = _files(out)
     r = _cli("ingest", str(SMALL), "--out", str(out), env={FAULT_ENV: f"ENOSPC@{at}"})
     line = _one_error_line(r)
     assert f"disk full writing {out} (needs about " in line and " MB)" in line
@@ -155,7 +169,7 @@ def test_injected_disk_full_is_one_line_and_leaves_nothing(tmp_path: Path, at: s
     if old is None:
         assert not out.exists()
     else:  # the store that was there is intact, byte for byte
-        assert {p.name: p.read_bytes() for p in out.iterdir()} == old
+        assert _files(out) == old
 
 
 @pytest.mark.slow
@@ -198,12 +212,16 @@ def _mount(target: Path, opts: str) -> None:
 @pytest.mark.slow
 @needs_root
 def test_real_disk_full_tmpfs(tmp_path: Path) -> None:
+    """A store that cannot fit on a real 1 MB file system is refused before anything is
+    written (store format 7 plans its chunks first: an upper bound of their bytes); a disk
+    that fills up during the writes is the injected ENOSPC above."""
     mnt = tmp_path / "small"
     _mount(mnt, "size=1m")
     try:
         r = _cli("ingest", str(BIG), "--out", str(mnt / "s"))
         line = _one_error_line(r)  # not 37 lines of _tiffWriteProc chatter
-        assert f"disk full writing {mnt / 's'} (needs about " in line
+        assert f"{BIG} is 1201x1201 pixels: its finest level " in line
+        assert f"the limit is the free space in {mnt}: " in line and "--max-level" in line
         assert list(mnt.iterdir()) == []
     finally:
         subprocess.run(["umount", str(mnt)], check=True)

@@ -31,7 +31,12 @@ ETOPO_KW = {"max_level": 4}
 
 
 def _files(store: Path) -> dict[str, bytes]:
-    return {p.name: p.read_bytes() for p in sorted(store.iterdir())}
+    """Every file of a store (chunks, shards and facts in their folders) with its bytes."""
+    return {
+        p.relative_to(store).as_posix(): p.read_bytes()
+        for p in sorted(store.rglob("*"))
+        if p.is_file()
+    }
 
 
 def _leftovers(parent: Path) -> list[str]:
@@ -59,8 +64,12 @@ def cluster():
 def test_the_reference_store_has_several_chunks_a_row(reference: dict[str, bytes]) -> None:
     man = json.loads(reference[MANIFEST_NAME])
     fine = man["levels"][-1]
-    assert [c[1] for c in fine["chunks"]] == [0, 1]  # the east-edge copy crosses chunks
-    assert len(fine["chunk_sha256"]) == 2 and man["pole_heights"]["south"] is not None
+    lv = fine["level"]
+    cols = sorted(
+        int(n.split("/")[3].split("-")[0]) for n in reference if n.startswith(f"chunks/{lv:02d}/")
+    )
+    assert cols == [0, 1]  # the east-edge copy crosses chunks
+    assert fine["chunks"] == 2 and man["pole_heights"]["south"] is not None
 
 
 @pytest.mark.slow
@@ -89,9 +98,10 @@ def test_progress_counts_every_chunk_and_error_task(tmp_path: Path) -> None:
     calls: list[tuple[int, int]] = []
     ingest([ETOPO], tmp_path / "s", workers=2, on_progress=lambda d, t: calls.append((d, t)))
     man = json.loads((tmp_path / "s" / MANIFEST_NAME).read_text())
-    # One task per chunk window of every level, one error task per window of levels 1..L.
+    # One task per planned chunk of every level (global: all of them), one error task per
+    # chunk of levels 1..L.
     windows = [
-        -(-lv["extent"]["ny"] * 64 // 1024) * -(-lv["extent"]["nx"] * 64 // 1024)
+        -(-lv["bbox"]["ny"] * 64 // 1024) * -(-lv["bbox"]["nx"] * 64 // 1024)
         for lv in man["levels"]
     ]
     total = sum(windows) + sum(windows[1:])

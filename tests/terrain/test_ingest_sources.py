@@ -47,11 +47,19 @@ def split_into_tiles(src: Path, folder: Path) -> list[Path]:
 
 
 def manifest_arrays(store: Path) -> dict:
-    m = json.loads((store / "manifest.json").read_text())
-    return {
-        lv["level"]: (lv["error"], lv["hmin"], lv["hmax"], lv["stride_error"], lv["chunk_sha256"])
-        for lv in m["levels"]
-    }
+    """Every chunk's sha256 and its tiles' facts (errors, hmin, hmax; NaN as None), by
+    (level, cy, cx): equal for stores with the same contents (store format 7's shards)."""
+    from globeview.terrain.store.tile_store import TileStore
+
+    st = TileStore.open(store)
+    out = {}
+    try:
+        for lv, cy, cx, f in st._meta.iter_chunks():
+            arrays = (f.errors, f.hmin, f.hmax)
+            out[(lv, cy, cx)] = (f.sha256, *(np.nan_to_num(a, nan=-1e30).tolist() for a in arrays))
+    finally:
+        st.close()
+    return out
 
 
 @pytest.mark.slow
@@ -128,3 +136,58 @@ def test_an_empty_folder_or_a_store_folder_is_one_line(tmp_path: Path) -> None:
         " are not searched)"
     ]
     assert not (tmp_path / "s3").exists()
+
+
+# -- globs and lists (issue #25: datasets as users get them) ----------------------------------
+
+
+def _tree(root: Path) -> list[Path]:
+    """Copernicus-style per-tile folders: root/<tile>/DEM/<tile>_DEM.tif (empty files: only
+    names are expanded here)."""
+    out = []
+    for name in ("B_N45_00_E009_00", "A_N44_00_W072_00"):
+        d = root / name / "DEM"
+        d.mkdir(parents=True)
+        out.append(d / f"{name}_DEM.tif")
+        out[-1].write_bytes(b"x")
+        (d.parent / "INFO").mkdir()
+        (d.parent / "INFO" / "x.xml").write_text("<x/>")
+    return sorted(out)
+
+
+def test_a_glob_expands_to_its_files_sorted_recursively(tmp_path: Path) -> None:
+    files = _tree(tmp_path / "copdem")
+    assert expand_sources([str(tmp_path / "copdem" / "**" / "*_DEM.tif")]) == files
+    # A glob matching folders too keeps only the files, and duplicates are read once.
+    got = expand_sources([str(tmp_path / "copdem" / "*" / "DEM" / "*"), str(files[0])])
+    assert got == files
+
+
+def test_a_list_names_paths_relative_to_itself_with_comments(tmp_path: Path) -> None:
+    files = _tree(tmp_path / "copdem")
+    lst = tmp_path / "lists" / "tiles.txt"
+    lst.parent.mkdir()
+    lst.write_text(
+        "# two tiles, one relative to this list, one absolute\n\n"
+        f"../copdem/{files[1].relative_to(tmp_path / 'copdem')}\n  {files[0]}  \n"
+    )
+    assert expand_sources([f"@{lst}"]) == [files[1], files[0]]
+    # A list may name a glob too.
+    lst.write_text("../copdem/**/*_DEM.tif\n")
+    assert expand_sources([f"@{lst}"]) == files
+
+
+def test_empty_globs_and_lists_are_one_line(tmp_path: Path) -> None:
+    with pytest.raises(DemError, match=r"nothing\*.hgt matches no files \(a glob: quote it"):
+        expand_sources([str(tmp_path / "nothing*.hgt")])
+    (tmp_path / "d1").mkdir()
+    with pytest.raises(DemError, match="matches only folders"):
+        expand_sources([str(tmp_path / "d*")])
+    with pytest.raises(DemError, match=r"list of sources not found: .*missing\.txt"):
+        expand_sources([f"@{tmp_path / 'missing.txt'}"])
+    (tmp_path / "empty.txt").write_text("# nothing\n\n")
+    with pytest.raises(DemError, match=r"empty\.txt names no file"):
+        expand_sources([f"@{tmp_path / 'empty.txt'}"])
+    (tmp_path / "bin.txt").write_bytes(b"\xff\xfe\x00")
+    with pytest.raises(DemError, match=r"cannot read the list of sources .*: not UTF-8 text"):
+        expand_sources([f"@{tmp_path / 'bin.txt'}"])

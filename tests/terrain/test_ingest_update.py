@@ -44,11 +44,18 @@ def _tile(path: Path, west: float, bump: float = 0.0) -> Path:
 
 
 def _files(store: Path) -> dict[str, bytes]:
-    return {p.name: p.read_bytes() for p in sorted(store.iterdir())}
+    """Every file of a store (chunks, shards, facts in their folders) with its bytes."""
+    return {
+        p.relative_to(store).as_posix(): p.read_bytes()
+        for p in sorted(store.rglob("*"))
+        if p.is_file()
+    }
 
 
 def _inodes(store: Path) -> dict[str, int]:
-    return {p.name: p.stat().st_ino for p in store.iterdir()}
+    return {
+        p.relative_to(store).as_posix(): p.stat().st_ino for p in store.rglob("*") if p.is_file()
+    }
 
 
 @pytest.fixture(scope="module")
@@ -81,16 +88,20 @@ def test_the_update_equals_a_full_rebuild_bit_for_bit(updated) -> None:
 def test_only_the_chunks_that_read_the_changed_source_are_rebuilt(updated) -> None:
     store, before, result, _ = updated
     man = json.loads((store / MANIFEST_NAME).read_text())
-    assert man["levels"][-1]["level"] == 12 and len(man["levels"][-1]["chunks"]) == 6
-    # Level 12 is 2 x 3 chunks over a.tif (10..11 E) and b.tif (11..12 E); its chunk column
-    # 0 ends before 10.75 E, more than a node away from b.tif: kept, linked from the old store
-    # (same inodes). Every other chunk's window (halo included) reaches b.tif: level 11's
-    # first column already spans 10..11.4 E, and so on up the pyramid.
-    kept = {f"level_12_r{cy:04d}_c0000.tif" for cy in range(2)}
+    assert man["levels"][-1]["level"] == 12 and man["levels"][-1]["chunks"] == 12
+    # Level 12 is 3 x 4 chunks of the global grid over a.tif (10..11 E) and b.tif (11..12 E);
+    # its westmost chunk column (9.84..10.55 E) ends more than a node away from b.tif: kept,
+    # linked from the old store (same names, same inodes). Every other chunk's window (halo
+    # included) reaches b.tif: level 11's first column already spans 9.84..11.25 E, and so on
+    # up the pyramid.
+    fine = sorted(n for n in _inodes(store) if n.startswith("chunks/12/"))
+    west = min(int(n.split("/")[3].split("-")[0]) for n in fine)
+    kept = {n for n in fine if n.split("/")[3].startswith(f"{west}-")}
+    assert len(kept) == 3
     assert result.chunks_total - result.chunks_rebuilt == len(kept)
     after = _inodes(store)
     assert all(after[k] == before[k] for k in kept)
-    assert all(after[n] != before[n] for n in after if n.endswith(".tif") and n not in kept)
+    assert all(after[n] != before.get(n) for n in after if n.endswith(".tif") and n not in kept)
 
 
 @pytest.mark.slow
@@ -107,7 +118,7 @@ def test_a_damaged_sidecar_means_a_full_rebuild_not_a_wrong_store(tmp_path: Path
     b = _tile(tmp_path / "b.tif", 11.0)
     store = tmp_path / "s"
     ingest([a, b], store, workers=2)
-    (store / "level_12_r0000_c0000.npz").write_bytes(b"not a zip")
+    sorted(store.glob("facts/12/*/*.npz"))[0].write_bytes(b"not a zip")
     _tile(b, 11.0, bump=100.0)
     result = ingest([a, b], store, workers=2)
     assert result.chunks_rebuilt == result.chunks_total

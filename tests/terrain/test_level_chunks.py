@@ -12,32 +12,30 @@ import pytest
 import rasterio
 
 from globeview.terrain.ingest.driver import ingest
-from globeview.terrain.levels import LevelGrid
 from globeview.terrain.quadtree import TileKey, key_for_lonlat
 from globeview.terrain.store import level_chunks
-from globeview.terrain.store.level_chunks import chunk_window, write_chunk
-from globeview.terrain.store.schema import chunk_file_name
+from globeview.terrain.store.layout import EXTRA_ROW, chunk_file_name, chunk_window
+from globeview.terrain.store.level_chunks import write_chunk
 from globeview.terrain.store.tile_store import TileStore
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 
 
-def _grid() -> LevelGrid:
-    return LevelGrid(level=3, tile_n=6, x0=2, y0=1, nx=5, ny=3)
-
-
-def test_chunk_is_zstd_hashed_as_written_and_a_new_inode(tmp_path: Path) -> None:
-    """The file is a tiled ZSTD GeoTIFF with the floating-point predictor; its values (NaN
-    included) read back bit for bit; the sha256 returned is the file's; a chunk written again
-    is a new file, leaving a hard link to the old one (an incremental update's) intact."""
-    grid = _grid()
-    _, _, h, w = chunk_window(grid, 128, 0, 1)
+def test_chunk_is_zstd_hashed_as_written_content_named_and_a_new_inode(tmp_path: Path) -> None:
+    """The file is a tiled ZSTD GeoTIFF with the floating-point predictor, named by its
+    content (store format 7); its values (NaN included) read back bit for bit; the sha256
+    returned is the file's; a chunk written again is a new file, leaving a hard link to the
+    old one (an incremental update's) intact; no temporary file is left."""
+    level, tile_n = 7, 6
+    _, _, h, w = chunk_window(level, tile_n, 0, 1)
+    assert (h, w) == (1024, 1024)
     rng = np.random.default_rng(3)
     values = (rng.normal(size=(h, w)) * 400.0 + 1200.0).astype(np.float32)
     values[:7, :9] = np.nan
-    sha = write_chunk(tmp_path, grid, 128, 0, 1, values, "1")
-    path = tmp_path / chunk_file_name(grid.level, 0, 1)
-    assert sha == hashlib.sha256(path.read_bytes()).hexdigest()
+    sha, size = write_chunk(tmp_path, level, tile_n, 0, 1, values, "1")
+    path = tmp_path / chunk_file_name(level, 0, 1, sha)
+    assert path.parent == tmp_path / "chunks" / "07" / "0"
+    assert sha == hashlib.sha256(path.read_bytes()).hexdigest() and size == path.stat().st_size
     with rasterio.open(path) as ds:
         assert ds.profile["compress"].lower() == "zstd"
         assert ds.tags(ns="IMAGE_STRUCTURE").get("PREDICTOR") == "3"
@@ -46,12 +44,16 @@ def test_chunk_is_zstd_hashed_as_written_and_a_new_inode(tmp_path: Path) -> None
     np.testing.assert_array_equal(back.view(np.int32), values.view(np.int32))
     old = tmp_path / "kept.tif"
     os.link(path, old)
-    write_chunk(tmp_path, grid, 128, 0, 1, values + np.float32(1.0), "1")
+    assert write_chunk(tmp_path, level, tile_n, 0, 1, values, "1") == (sha, size)
     assert hashlib.sha256(old.read_bytes()).hexdigest() == sha
     assert os.stat(old).st_ino != os.stat(path).st_ino
-    _, _, h2, w2 = chunk_window(grid, 128, 0, 2)
-    assert write_chunk(tmp_path, grid, 128, 0, 2, np.full((h2, w2), np.nan, np.float32)) is None
-    assert not (tmp_path / chunk_file_name(grid.level, 0, 2)).exists()
+    assert write_chunk(tmp_path, level, tile_n, 0, 2, np.full((h, w), np.nan, np.float32)) is None
+    assert sorted(p.name for p in path.parent.iterdir()) == [path.name]
+    # A chunk whose neighbours below and east have no data stores its closing row and column.
+    _, _, h2, w2 = chunk_window(level, tile_n, 0, 1, extra_row=True, extra_col=True)
+    assert (h2, w2) == (1025, 1025)
+    with pytest.raises(ValueError, match="shape"):
+        write_chunk(tmp_path, level, tile_n, 0, 1, values, "1", EXTRA_ROW)
 
 
 @pytest.mark.slow
@@ -71,7 +73,7 @@ def test_a_store_of_deflate_chunks_reads_the_same_heights(
     with monkeypatch.context() as mp:
         mp.setattr(level_chunks, "_profile", deflate)
         ingest([src], tmp_path / "before", max_level=9)
-    chunk = next((tmp_path / "before").glob("level_09_*.tif"))
+    chunk = next((tmp_path / "before").glob("chunks/09/*/*.tif"))
     with rasterio.open(chunk) as ds:
         assert ds.profile["compress"].lower() == "deflate"
     with TileStore.open(tmp_path / "now") as now, TileStore.open(tmp_path / "before") as before:

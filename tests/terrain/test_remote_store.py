@@ -483,14 +483,33 @@ def _keys(st: TileStore) -> list[TileKey]:
     return keys
 
 
+def _level12_files(st: TileStore) -> dict[tuple[int, int], str]:
+    """Level 12's chunk files (store format 7: chunks/12/cy/cx-<sha>.tif) by their (row,
+    column) among the level's chunks with a file, (0, 0) the first; the SRTM3 tile's are
+    2 x 3 chunks of the global grid."""
+    found = {(cy, cx): f.file for lv, cy, cx, f in st.iter_chunks() if lv == 12 and f.file}
+    cy0, cx0 = min(cy for cy, _ in found), min(cx for _, cx in found)
+    return {(cy - cy0, cx - cx0): name for (cy, cx), name in found.items()}
+
+
+def _chunk12(store_root: Path, where: tuple[int, int]) -> str:
+    """The file name (relative to the store) of level 12's chunk ``where`` (`_level12_files`)."""
+    with TileStore.open(store_root / "n44") as st:
+        return _level12_files(st)[where]
+
+
 def _level12_by_chunk(st: TileStore) -> dict[tuple[int, int], list[TileKey]]:
-    """Level 12's tiles by the chunk file their nodes come from (interior rows/columns)."""
+    """Level 12's tiles with data by the chunk file their nodes come from (keys as
+    `_level12_files`), row by row."""
     g = st.level_grid(12)
-    c = st.manifest.levels[12].chunk_nodes // g.tile_nodes  # tiles per chunk side
+    k = st.manifest.chunk_tiles
+    files = {(cy, cx) for lv, cy, cx, f in st.iter_chunks() if lv == 12 and f.file}
+    cy0, cx0 = min(cy for cy, _ in files), min(cx for _, cx in files)
     out: dict[tuple[int, int], list[TileKey]] = {}
-    for iy in range(g.ny):
-        for ix in range(g.nx):
-            out.setdefault((iy // c, ix // c), []).append(TileKey(12, g.x0 + ix, g.y0 + iy))
+    for y in range(g.y0, g.y0 + g.ny):
+        for x in range(g.x0, g.x0 + g.nx):
+            if (y // k, x // k) in files and st.has_tile(12, x, y):
+                out.setdefault((y // k - cy0, x // k - cx0), []).append(TileKey(12, x, y))
     return out
 
 
@@ -533,7 +552,7 @@ def test_a_cold_cache_uses_range_requests_and_a_warm_one_none(
         with TileStore.open(f"{srv.url}/n44", remote_options=opts) as st:
             keys = _keys(st)
             cold = [st.heights(k) for k in keys]
-        chunks = srv.requests("/n44/level_*.tif")
+        chunks = srv.requests("/n44/chunks/*.tif")
         assert chunks and all(r.range and r.status == 206 for r in chunks)
         assert not srv.requests("*.vrt")  # the chunk files are read directly
         warm = TileStore.open(f"{srv.url}/n44", remote_options=opts)
@@ -562,10 +581,11 @@ def test_one_failing_chunk_fails_only_its_tiles(
     store_root: Path, served, tmp_path: Path, status: int
 ) -> None:
     opts = _opts(tmp_path, retries=1, fail_fast_s=0.5)
-    served.fault("/n44/level_12_r0000_c0001.tif", status=status)
+    name = _chunk12(store_root, (0, 0))
+    served.fault(f"/n44/{name}", status=status)
     with TileStore.open(f"{served.url}/n44", remote_options=opts) as st:
         by_chunk = _level12_by_chunk(st)
-        assert len(by_chunk) == 4
+        assert len(by_chunk) == 6
         failed, loaded = set(), set()
         for keys in by_chunk.values():
             for k in keys:
@@ -575,12 +595,12 @@ def test_one_failing_chunk_fails_only_its_tiles(
                 except StoreError as exc:
                     msg = str(exc)
                     assert "\n" not in msg and f"HTTP {status}" in msg
-                    assert f"{served.url}/n44/level_12_r0000_c0001.tif" in msg
+                    assert f"{served.url}/n44/{name}" in msg
                     failed.add(k)
         # The failing chunk's tiles fail; tiles of the other chunks load, except those whose
         # ring or last row/column reaches into the failing chunk.
-        assert set(by_chunk[(0, 1)]) <= failed
-        assert set(by_chunk[(1, 0)]) - failed and set(by_chunk[(0, 0)]) - failed
+        assert set(by_chunk[(0, 0)]) <= failed
+        assert set(by_chunk[(1, 1)]) - failed and set(by_chunk[(0, 1)]) - failed
         assert len(loaded) > len(failed)
         # The server recovers: the failed tiles load (no handle or cache kept the failure
         # past fail_fast_s).
@@ -595,12 +615,13 @@ def test_a_failed_chunk_fails_fast_for_a_while(store_root: Path, served, tmp_pat
     """After a chunk's read failed (retries spent), its other tiles fail at once for
     fail_fast_s (the window shows them failed in seconds), then the server is asked again."""
     opts = _opts(tmp_path, retries=2, backoff_s=0.2, fail_fast_s=2.0)
-    served.fault("/n44/level_12_r0001_c0000.tif", status=503)
+    name = _chunk12(store_root, (1, 0))
+    served.fault(f"/n44/{name}", status=503)
     with TileStore.open(f"{served.url}/n44", remote_options=opts) as st:
         keys = _level12_by_chunk(st)[(1, 0)]
         with pytest.raises(StoreError, match="HTTP 503"):
             st.heights(keys[0])
-        asked = len(served.requests("*/level_12_r0001_c0000.tif"))
+        asked = len(served.requests(f"*/{name}"))
         assert asked == 3
         t = time.monotonic()
         for k in keys[1:20]:
@@ -608,7 +629,7 @@ def test_a_failed_chunk_fails_fast_for_a_while(store_root: Path, served, tmp_pat
                 st.heights(k)
             assert "\n" not in str(err.value)
         assert time.monotonic() - t < 1.0  # 19 tiles, not 19 rounds of retries (0.6 s each)
-        assert len(served.requests("*/level_12_r0001_c0000.tif")) == asked
+        assert len(served.requests(f"*/{name}")) == asked
         served.clear_faults()
         time.sleep(2.0)
         assert st.heights(keys[1]).shape == (st.tile_size, st.tile_size)
@@ -640,7 +661,7 @@ where, url, cache = sys.argv[1:4]
 assert install_sigint_marker()
 st = TileStore.open(url, remote_options=RemoteOptions(cache_dir=Path(cache)))
 g = st.level_grid(12)
-key = (12, g.x0 + 3, g.y0 + 3)
+key = (12, g.x0 + g.nx // 2, g.y0 + g.ny // 2)  # in the data (the bbox's chunks reach past it)
 if where == "close":
     st.heights(key)  # its chunk file open, to be closed
 cls = remote._Opener if where == "open" else remote._RemoteFile
@@ -689,12 +710,13 @@ def test_ctrl_c_inside_a_gdal_callback_is_a_keyboard_interrupt(
 def test_dropped_connections_are_retried_for_tiles(
     store_root: Path, served, tmp_path: Path
 ) -> None:
-    served.fault("/n44/level_12_r0001_c0001.tif", flaky=2)
+    name = _chunk12(store_root, (1, 1))
+    served.fault(f"/n44/{name}", flaky=2)
     local = TileStore.open(store_root / "n44")
     with TileStore.open(f"{served.url}/n44", remote_options=_opts(tmp_path, retries=3)) as st:
         for k in _level12_by_chunk(st)[(1, 1)]:
             assert np.array_equal(st.heights(k), local.heights(k), equal_nan=True)
-    assert [r.status for r in served.requests("/n44/level_12_r0001_c0001.tif")][:3] == [0, 0, 206]
+    assert [r.status for r in served.requests(f"/n44/{name}")][:3] == [0, 0, 206]
     local.close()
 
 
@@ -709,7 +731,8 @@ def test_a_slow_server_fails_a_tile_within_the_timeouts(
         with pytest.raises(StoreError, match="timed out") as err:
             st.heights(key)
         assert time.monotonic() - t <= opts.worst_case_s + 1.0
-        assert "\n" not in str(err.value) and "level_12_r0000_c0000.tif" in str(err.value)
+        name = _chunk12(store_root, (0, 0))
+        assert "\n" not in str(err.value) and name in str(err.value)
 
 
 @pytest.mark.slow
@@ -743,8 +766,8 @@ def test_a_thread_forbidden_the_network_never_waits(
 ) -> None:
     served.fault("*.tif", delay_s=0.5)
     with TileStore.open(f"{served.url}/n44", remote_options=_opts(tmp_path)) as st:
+        key = _level12_by_chunk(st)[(1, 1)][3]  # (its shards read: the tile's bytes are not)
         st.forbid_network_on(threading.get_ident())
-        key = _level12_by_chunk(st)[(1, 1)][3]
         t = time.monotonic()
         with pytest.raises(TileNotReady):
             st.heights(key)
@@ -760,7 +783,7 @@ def test_a_thread_forbidden_the_network_never_waits(
         time.sleep(0.1)
         assert not st._prefetch.loading
     # One load of the tile's pages, not one per ask.
-    assert len(served.requests("*/level_12_r0001_c0001.tif")) <= 4
+    assert len(served.requests(f"*/{_chunk12(store_root, (1, 1))}")) <= 4
 
 
 @pytest.mark.slow
@@ -888,7 +911,7 @@ def test_a_remote_store_renders_as_the_local_one(store_root: Path, served, tmp_p
             st.close()
     assert images[0].std() > 5  # a real picture, not a blank frame
     assert np.array_equal(images[0], images[1])
-    assert served.requests("/n44/level_*.tif")
+    assert served.requests("/n44/chunks/*.tif")
 
 
 def _self_signed(tmp_path: Path) -> tuple[Path, Path]:
@@ -934,7 +957,7 @@ def test_a_chunk_replaced_on_the_server_is_one_line_not_mixed_bytes(
     with StaticServer(www) as srv, TileStore.open(f"{srv.url}/n44", remote_options=opts) as st:
         keys = _level12_by_chunk(st)[(1, 1)]
         st.heights(keys[0])  # the chunk's header and first blocks are read
-        chunk = www / "n44" / "level_12_r0001_c0001.tif"
+        chunk = www / "n44" / _chunk12(store_root, (1, 1))
         chunk.write_bytes(chunk.read_bytes() + b"\0" * 70_000)  # rebuilt: another size
         remote.clear_memory()
         with pytest.raises(StoreError, match="changed on the server") as err:  # noqa: PT012
@@ -961,17 +984,20 @@ srv = StaticServer({str(store_root)!r}).start()
 opts = RemoteOptions(cache_dir=Path({str(tmp_path / "c")!r}))
 st = TileStore.open(srv.url + "/n44", remote_options=opts)
 g = st.level_grid(12)
+# The rows with data (the bbox's chunks reach past the tile's).
+rows = [y for y in range(g.y0, g.y0 + g.ny) if st.has_tile(12, g.x0 + g.nx // 2, y)]
+y0, ny = rows[0], len(rows)
 def work(i):
     for k in range(6):
-        st.heights((12, g.x0 + (i * 7 + k) % g.nx, g.y0 + (i * 3 + k) % g.ny))
+        st.heights((12, g.x0 + (i * 7 + k) % g.nx, y0 + (i * 3 + k) % ny))
 ts = [threading.Thread(target=work, args=(i,)) for i in range(4)]
 [t.start() for t in ts]; [t.join() for t in ts]
-for f in st.prefetch([(12, g.x0 + i, g.y0 + 5) for i in range(8)]):
+for f in st.prefetch([(12, g.x0 + i, y0 + 5) for i in range(8)]):
     f.result()
 del st, ts
 gc.collect()
 st2 = TileStore.open(srv.url + "/n44", remote_options=opts)
-st2.heights((12, g.x0, g.y0))
+st2.heights((12, g.x0, y0))
 st2.close()
 assert remote.open_datasets() > 0  # the first store's, closed at exit
 gc.collect()
@@ -980,3 +1006,52 @@ print("OK")
 """
     r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and r.stdout.strip().endswith("OK"), r.stderr[-2000:]
+
+
+def test_opening_by_url_reads_the_manifest_and_the_top_shard_only(
+    store_root: Path, served, tmp_path: Path
+) -> None:
+    """Store format 7: opening a store over HTTP asks for two small files (the manifest and
+    the top metadata shard); the first frame's level-0 tiles add one chunk file: at most 3
+    files before the first frame, whatever the store's size. Deeper shards come when a tile
+    under them is asked about, once (then from the disk cache, keyed by their sha256)."""
+    served.reset_log()
+    opts = _opts(tmp_path)
+    with TileStore.open(f"{served.url}/n44", remote_options=opts) as st:
+        opened = sorted({r.path for r in served.log})
+        assert opened[0] == "/n44/manifest.json" and len(opened) == 2, opened
+        assert opened[1].startswith("/n44/meta/top-") and st.shards_loaded == 1
+        for x in (0, 1):
+            st.heights(TileKey(0, x, 0))
+        assert len({r.path for r in served.log}) <= 3
+        g = st.level_grid(12)
+        # Level 12's facts: its shard (rooted at level 10) and the one naming it (at 6).
+        assert st.has_data(12, g.x0 + 20, g.y0 + 20)
+        shards = {r.path for r in served.log if "/meta/" in r.path}
+        assert len(shards) == 3 and st.shards_loaded == 3
+    served.reset_log()
+    remote.clear_memory()
+    with TileStore.open(f"{served.url}/n44", remote_options=opts) as again:
+        assert again.has_data(12, g.x0 + 20, g.y0 + 20)
+    assert not [r for r in served.log if "/meta/" in r.path]  # from the disk cache
+
+
+def test_a_shard_asked_for_on_a_thread_that_must_not_wait_loads_in_the_background(
+    store_root: Path, served, tmp_path: Path
+) -> None:
+    """A window's thread asking about tiles under a shard not fetched yet: TileNotReady at
+    once, the shard fetched in the background, then the answer."""
+    with TileStore.open(f"{served.url}/n44", remote_options=_opts(tmp_path, cache_mb=0)) as st:
+        g = st.level_grid(12)
+        st.forbid_network_on(threading.get_ident())
+        with pytest.raises(TileNotReady):
+            st.has_data(12, g.x0 + 20, g.y0 + 20)
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            try:
+                assert st.has_data(12, g.x0 + 20, g.y0 + 20)
+                break
+            except TileNotReady:
+                time.sleep(0.05)  # the parent shard first, then level 12's
+        else:
+            pytest.fail("the shard never arrived")

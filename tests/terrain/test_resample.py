@@ -8,6 +8,11 @@ few 1e-16 of the sum of |terms| (<= the window's largest |height|), so after the
 values differ by at most 1 ulp of float32 of the value, plus ~1e-15 of the largest |height|
 where the terms cancel (a value near 0 m between hills and sea). Tested with 1e-12 for that
 second term: still below 1e-8 m at 9 km. NaN (no value) must be exactly where GDAL's is.
+
+GDAL is called with the kernel scales ours takes from the grids (its XSCALE / YSCALE warp
+options, as `Dem._warp` passes them to the general path): plain GDAL takes them from each
+warp piece's source window, so one node gets different heights from different windows
+(the window-independence tests at the end).
 """
 
 from __future__ import annotations
@@ -24,14 +29,27 @@ from rasterio.warp import reproject
 
 from globeview.terrain.dem import reader as dem_module
 from globeview.terrain.dem.reader import open_dem
-from globeview.terrain.dem.resample import resample_bilinear, warp_chunks
+from globeview.terrain.dem.resample import grid_scales, resample_bilinear, warp_chunks
 from globeview.terrain.quadtree import node_spacing
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 
 
-def _gdal(arr: np.ndarray, src_t: Affine, dst_t: Affine, shape: tuple[int, int]) -> np.ndarray:
-    """GDAL's bilinear warp, as `Dem._warp` called it for lon/lat sources."""
+def _gdal(
+    arr: np.ndarray,
+    src_t: Affine,
+    dst_t: Affine,
+    shape: tuple[int, int],
+    scales: tuple[float, float] | None = None,
+    *,
+    window_scales: bool = False,
+) -> np.ndarray:
+    """GDAL's bilinear warp, as `Dem._warp` calls it on its general path: with XSCALE /
+    YSCALE = ``scales`` (default: `grid_scales` of the transforms); ``window_scales``: plain
+    GDAL, each warp piece's scale from its own source window."""
+    if scales is None:
+        scales = grid_scales((src_t.a, src_t.e), (dst_t.a, dst_t.e))
+    options = {} if window_scales else {"XSCALE": repr(scales[0]), "YSCALE": repr(scales[1])}
     dst = np.full(shape, np.nan, dtype=np.float32)
     reproject(
         arr,
@@ -43,6 +61,7 @@ def _gdal(arr: np.ndarray, src_t: Affine, dst_t: Affine, shape: tuple[int, int])
         resampling=Resampling.bilinear,
         src_nodata=np.nan,
         dst_nodata=np.nan,
+        **options,
     )
     return dst
 
@@ -120,12 +139,6 @@ def _raster(rng: np.random.Generator, h: int, w: int, holes: str) -> np.ndarray:
     return a
 
 
-def _off_the_snap(ratio: float) -> bool:
-    """GDAL snaps a kernel whose reciprocal scale is within 0.05 of an integer; exactly at
-    0.05 its own rounding of the window decides (the one documented exception)."""
-    return abs(abs(ratio - round(ratio)) - 0.05) > 1e-6
-
-
 @settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     seed=st.integers(0, 2**32 - 1),
@@ -139,10 +152,8 @@ def _off_the_snap(ratio: float) -> bool:
 def test_resample_bilinear_is_gdals_warp(seed, ratio, aspect, holes, past) -> None:
     """Upsampling and downsampling (GDAL's 4-sample formula and its general kernel, snapped
     scales), NaN holes and data edges, destinations inside the raster and reaching past it
-    (where GDAL narrows the kernel and cuts the warp into pieces)."""
+    (where GDAL cuts the warp into pieces), GDAL given the grids' scales."""
     ratio_y = ratio * aspect
-    if not (_off_the_snap(ratio) and _off_the_snap(ratio_y)):
-        return
     rng = np.random.default_rng(seed)
     h, w = (int(v) for v in rng.integers(20, 160, 2))
     arr = _raster(rng, h, w, holes)
@@ -189,3 +200,146 @@ def test_resample_bilinear_refuses_rotated_grids() -> None:
     arr = np.zeros((4, 4), dtype=np.float32)
     with pytest.raises(ValueError, match="north-up"):
         resample_bilinear(arr, Affine(1, 0.1, 0, 0, -1, 0), Affine(1, 0, 0, 0, -1, 0), (2, 2))
+
+
+# ---- window independence: a node's height does not depend on the window that read it ----
+
+
+@pytest.mark.slow
+def test_a_node_shared_by_two_chunks_gets_one_height_from_either_window() -> None:
+    """N44W072 at level 11 spans two ingest chunks (1025 nodes a side, the closing row and
+    column shared with the next chunk): the shared nodes read through either chunk's window
+    agree to the last bit of float32 (their pixel coordinates are formed in each window's
+    frame, as GDAL's transformer does). Plain GDAL, whose kernel narrows where a warp piece
+    reaches past the raster, gives them heights over a metre apart there."""
+    level, c = 11, 1024
+    d = node_spacing(level, 6)
+    with open_dem(DATA / "N44W072.hgt") as dem:
+        west, _, east, north = dem.info.bounds_lonlat
+        cy, cx = int((90.0 - north) / d) // c, int((west + 180.0) / d) // c
+        assert int((east + 180.0) / d) // c == cx + 1  # the data spans chunks cx and cx + 1
+
+        def window(col: int) -> np.ndarray:
+            return dem.read_grid_parts(
+                -180.0 + col * c * d, 90.0 - cy * c * d, d, d, c + 1, c + 1
+            ).data
+
+        left, right = window(cx)[:, -1], window(cx + 1)[:, 0]
+        ok = np.isfinite(left) & np.isfinite(right)
+        assert ok.sum() > 300
+        spacing = np.spacing(np.abs(left[ok])).astype(np.float64)
+        assert (np.abs(left[ok].astype(np.float64) - right[ok]) <= spacing).all()
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(
+                dem_module,
+                "resample_bilinear",
+                lambda a, s, t, shape, _scales: _gdal(a, s, t, shape, window_scales=True),
+            )
+            gdal_left, gdal_right = window(cx)[:, -1], window(cx + 1)[:, 0]
+        assert np.nanmax(np.abs(gdal_left - gdal_right)) > 1.0
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    ratio=st.floats(0.3, 4.0),
+    holes=st.sampled_from(["none", "speckle", "edge"]),
+)
+def test_overlapping_windows_give_the_same_heights(seed, ratio, holes) -> None:
+    """Two destination windows of one node grid, each reaching past a different side of the
+    raster (GDAL's pieces and their own window scales differ): the nodes they share get the
+    same heights (within the last bit of float32) and NaN at the same nodes."""
+    rng = np.random.default_rng(seed)
+    h, w = (int(v) for v in rng.integers(40, 160, 2))
+    arr = _raster(rng, h, w, holes)
+    px = rng.uniform(1e-4, 0.05)
+    src_t = Affine(px, 0.0, 10.0, 0.0, -px, 50.0)
+    step = px * ratio
+    cols, rows = int(w / ratio) + 20, int(h / ratio) + 20
+    # The node grid's origin, off the raster's pixel edges (a node exactly on the raster's
+    # edge is on or off it by the rounding of its pixel coordinate in each window's frame).
+    west = src_t.c - (10 + rng.uniform(0.05, 0.95)) * step
+    north = src_t.f + (10 + rng.uniform(0.05, 0.95)) * step
+    # Window A: nodes (0..ra, 0..ca); window B: nodes (rb.., cb..) to the grid's end.
+    ra, ca = int(rng.integers(rows // 3, rows)), int(rng.integers(cols // 3, cols))
+    rb, cb = int(rng.integers(0, ra)), int(rng.integers(0, ca))
+
+    def window(r0: int, c0: int, nr: int, nc: int) -> np.ndarray:
+        t = Affine(step, 0.0, west + (c0 - 0.5) * step, 0.0, -step, north - (r0 - 0.5) * step)
+        return resample_bilinear(arr, src_t, t, (nr, nc))
+
+    a = window(0, 0, ra, ca)[rb:, cb:]
+    b = window(rb, cb, rows - rb, cols - cb)[: ra - rb, : ca - cb]
+    np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+    ok = ~np.isnan(a)
+    spacing = np.spacing(np.abs(a[ok])).astype(np.float64)
+    assert (np.abs(a[ok].astype(np.float64) - b[ok]) <= spacing).all()
+
+
+def _utm_copy(path: Path) -> Path:
+    """N44W072 warped into UTM zone 19N at 90 m (a projected source: `Dem._warp`'s general
+    path, GDAL's warp given XSCALE / YSCALE)."""
+    import rasterio
+    from rasterio.warp import calculate_default_transform
+
+    with rasterio.open(DATA / "N44W072.hgt") as src:
+        t, w, h = calculate_default_transform(
+            src.crs, "EPSG:32619", src.width, src.height, *src.bounds, resolution=90.0
+        )
+        arr = np.full((h, w), np.nan, dtype=np.float32)
+        reproject(
+            src.read(1).astype(np.float32),
+            arr,
+            src_transform=src.transform,
+            src_crs=src.crs,
+            dst_transform=t,
+            dst_crs="EPSG:32619",
+            resampling=Resampling.bilinear,
+            src_nodata=-32768.0,
+            dst_nodata=np.nan,
+        )
+    profile = {"driver": "GTiff", "dtype": "float32", "nodata": np.nan}
+    with rasterio.open(
+        path, "w", width=w, height=h, count=1, crs="EPSG:32619", transform=t, **profile
+    ) as out:
+        out.write(arr, 1)
+    return path
+
+
+@pytest.mark.slow
+def test_a_projected_source_gives_a_shared_node_one_height(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The general path (a UTM source, GDAL's warp) with XSCALE / YSCALE from the grids: the
+    nodes two level-11 chunks share get the same heights from either chunk's window (within
+    the last bit of float32); plain GDAL (the scale of each piece's window) gives them
+    heights 1.9 m apart there."""
+    level, c = 11, 1024
+    d = node_spacing(level, 6)
+    with open_dem(_utm_copy(tmp_path / "utm.tif")) as dem:
+        west, south, east, north = dem.info.bounds_lonlat
+        cy = int((90.0 - (north + south) / 2.0) / d) // c  # the chunk row of the data's middle
+        cx = int((west + 180.0) / d) // c
+        assert int((east + 180.0) / d) // c == cx + 1
+
+        def shared() -> tuple[np.ndarray, np.ndarray]:
+            def window(col: int) -> np.ndarray:
+                lon = -180.0 + col * c * d
+                return dem.read_grid_parts(lon, 90.0 - cy * c * d, d, d, c + 1, c + 1).data
+
+            return window(cx)[:, -1], window(cx + 1)[:, 0]
+
+        left, right = shared()
+        ok = np.isfinite(left) & np.isfinite(right)
+        assert ok.sum() > 300
+        spacing = np.spacing(np.abs(left[ok])).astype(np.float64)
+        assert (np.abs(left[ok].astype(np.float64) - right[ok]) <= spacing).all()
+        plain = dem_module.rasterio.warp.reproject
+
+        def without_scales(*args: object, **kw: object) -> object:
+            kw.pop("XSCALE"), kw.pop("YSCALE")
+            return plain(*args, **kw)
+
+        monkeypatch.setattr(dem_module.rasterio.warp, "reproject", without_scales)
+        gl, gr = shared()
+    assert np.nanmax(np.abs(gl - gr)) > 1.0

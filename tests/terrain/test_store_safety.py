@@ -230,10 +230,12 @@ def test_level_file_swapped_for_another_valid_geotiff(store: Path, tmp_path: Pat
 @pytest.mark.parametrize("damage", ["truncated", "garbage", "missing", "empty", "folder"])
 def test_damaged_level_file_is_a_store_error(store: Path, tmp_path: Path, damage: str) -> None:
     s = _copy(store, tmp_path)
-    f = s / "level_06_r0000_c0000.tif"  # the level's one chunk file (format 5)
+    f = sorted(s.glob("chunks/06/*/*.tif"))[0]  # a chunk file of level 6 (format 7)
     data = f.read_bytes()
     if damage == "truncated":
-        f.write_bytes(data[: len(data) // 2])
+        # The data's blocks come first (a global-grid chunk is mostly NaN blocks, a few bytes
+        # each, after them): cut into the data, keeping the header.
+        f.write_bytes(data[:600])
     elif damage == "garbage":
         f.write_bytes(os.urandom(len(data)))
     elif damage == "missing":
@@ -249,7 +251,7 @@ def test_damaged_level_file_is_a_store_error(store: Path, tmp_path: Path, damage
             for x in range(2**7):
                 if st.has_data(6, x, y):
                     st.heights(TileKey(6, x, y))
-    assert "level_06" in str(exc.value) and "\n" not in str(exc.value)
+    assert "chunks/06/" in str(exc.value) and "\n" not in str(exc.value)
 
 
 def test_damage_after_open_is_a_store_error(store: Path, tmp_path: Path) -> None:
@@ -257,8 +259,8 @@ def test_damage_after_open_is_a_store_error(store: Path, tmp_path: Path) -> None
     with TileStore.open(s) as st:
         lv = st.max_level
         g = st.level_grid(lv)
-        # Tiles are read from the chunk files (format 5), not through the level's VRT.
-        name = st.manifest.levels[lv].chunk_files()[0]
+        # Tiles are read from the chunk files, not through the level's VRT.
+        name = next(f.file for lvl, _, _, f in st.iter_chunks() if lvl == lv and f.file)
         f = s / name
         size = f.stat().st_size
         with f.open("r+b") as fh:  # in place: the same inode, now half gone
@@ -294,18 +296,16 @@ def _mutations(man: dict) -> list[tuple[str, dict]]:
             m = json.loads(json.dumps(man))
             m["levels"][-1][key] = v
             out.append((f"levels[-1].{key}={v!r}", m))
-    for key in level["extent"]:
+    for key in level["bbox"]:
         for v in [None, -5, 10**12, 2.5, "1", math.nan]:
             m = json.loads(json.dumps(man))
-            m["levels"][-1]["extent"][key] = v
-            out.append((f"extent.{key}={v!r}", m))
-    for field in ("error", "hmin", "stride_error"):
-        m = json.loads(json.dumps(man))
-        m["levels"][-1][field] = m["levels"][-1][field][:-1]  # one row short
-        out.append((f"{field} short", m))
-        m = json.loads(json.dumps(man))
-        m["levels"][-1][field][0][0] = "high"
-        out.append((f"{field} string cell", m))
+            m["levels"][-1]["bbox"][key] = v
+            out.append((f"bbox.{key}={v!r}", m))
+    for key in man["shards"]["top"]:
+        for v in [None, -5, 10**15, 2.5, "1", "meta/top-0000000000000000.gvm", "0" * 64]:
+            m = json.loads(json.dumps(man))
+            m["shards"]["top"][key] = v
+            out.append((f"shards.top.{key}={v!r}", m))
     m = json.loads(json.dumps(man))
     m["levels"][-1]["file"] = "../../../etc/passwd"
     out.append(("file outside", m))
@@ -317,8 +317,9 @@ def test_fuzzed_manifest_is_always_one_store_error(store: Path, tmp_path: Path) 
     s = _copy(store, tmp_path)
     man = json.loads((store / "manifest.json").read_text())
     # Fields the reader does not use may be anything; every other mutation must be refused.
-    unused = {"created_by", "sources", "params", "tile_size", "wavelet", "finest_extent"}
-    unused |= {f"levels[-1].{k}" for k in ("node_spacing_deg", "sha256")}
+    unused = {"created_by", "sources", "params", "tile_size", "wavelet"}
+    unused |= {f"levels[-1].{k}" for k in ("node_spacing_deg", "sha256", "chunks", "tiles")}
+    unused |= {"levels[-1].bytes", "shards.count"}
     nullable = {"pole_heights", "levels[-1].pole_heights", "levels[-1].level_error"}
     accepted = []
     for name, m in _mutations(man):
@@ -375,8 +376,9 @@ def test_reingest_rebuilds_a_damaged_store_instead_of_calling_it_up_to_date(
 def test_verify_names_a_level_file_removed_after_open(store: Path, tmp_path: Path) -> None:
     s = _copy(store, tmp_path)
     with TileStore.open(s) as st:
-        (s / "level_06_r0000_c0000.tif").unlink()
-        with pytest.raises(StoreError, match=r"level_06_r0000_c0000\.tif"):
+        f = sorted(s.glob("chunks/06/*/*.tif"))[0]
+        f.unlink()
+        with pytest.raises(StoreError, match=f.name):
             st.verify()
 
 

@@ -20,12 +20,13 @@ from globeview.terrain.store.identify import MANIFEST_NAME
 from globeview.terrain.store.schema import (
     FORMAT_VERSION,
     STORE_FORMAT,
-    ChunkArray,
     Extent,
+    FileRef,
     IngestParams,
     LevelRecord,
     ManifestError,
     PoleHeights,
+    ShardsRecord,
     SourceRecord,
     StoreHeader,
     StoreManifest,
@@ -37,25 +38,17 @@ SMALL = DATA / "craterlake-elev-16bit-30m.tif"
 
 
 def _level(level: int, nx: int, ny: int, rng: np.random.Generator) -> LevelRecord:
-    """A level record over the whole level (tile_n 2), some tiles without data (NaN)."""
-    hmin = rng.uniform(-100.0, 100.0, (ny, nx))
-    hmin[0, 0] = np.nan
-    err = np.where(np.isfinite(hmin), rng.uniform(0.0, 5.0, (ny, nx)), np.nan)
-    stride = err[..., None] + np.arange(len(STRIDES))
+    """A level summary over the whole level."""
     return LevelRecord(
         level=level,
-        file=f"level_{level:02d}.vrt",
-        extent=Extent(0, 0, nx, ny),
         node_spacing_deg=180.0 / 2**level / 4,
-        error=err,
-        hmin=hmin,
-        hmax=hmin + 50.0,
-        stride_error=stride,
+        file=f"level_{level:02d}.vrt",
         sha256="ab" * 32,
-        chunk_nodes=4,
-        chunks=ChunkArray(np.array([[0, 0]] if level == 0 else [[0, 1], [1, 0]], np.int64)),
-        chunk_sha256=("ef" * 32,) * (1 if level == 0 else 2),
-        level_error=float(np.nanmax(err)),
+        chunks=1 + level,
+        tiles=nx * ny - 1,
+        bytes=int(rng.integers(1000, 5000)),
+        bbox=Extent(0, 0, nx, ny),
+        level_error=float(rng.uniform(0.0, 5.0)),
         pole_heights=PoleHeights(north=12.5, south=None),
     )
 
@@ -80,12 +73,15 @@ def _manifest() -> StoreManifest:
         params=IngestParams(tile_n=2, max_level=None, wavelet="bior2.2", crs=None, vdatum=None),
         tile_n=2,
         tile_size=5,
+        chunk_tiles=256,
         wavelet="bior2.2",
         max_level=1,
         strides=STRIDES,
         bounds=(-180.0, -90.0, 180.0, 90.0),
-        finest_extent=levels[-1].extent,
         levels=levels,
+        shards=ShardsRecord(
+            roots=(), count=1, top=FileRef("meta/top-" + "12" * 8 + ".gvm", "12" * 32, 99)
+        ),
         pole_heights=PoleHeights(north=12.5, south=None),
     )
 
@@ -102,17 +98,7 @@ def test_round_trip_is_exact() -> None:
     back = StoreManifest.from_json(json.loads(text))
     assert _text(back) == text
     assert back.header == m.header and back.sources == m.sources and back.params == m.params
-    for a, b in zip(m.levels, back.levels):
-        for name in ("error", "hmin", "hmax", "stride_error"):
-            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))  # NaN too
-        assert (a.extent, a.level_error, a.pole_heights) == (
-            b.extent,
-            b.level_error,
-            b.pole_heights,
-        )
-        np.testing.assert_array_equal(a.chunks, b.chunks)
-        assert b.chunks.dtype == np.int64
-        assert (a.chunk_nodes, a.chunk_sha256) == (b.chunk_nodes, b.chunk_sha256)
+    assert back.levels == m.levels and back.shards == m.shards
 
 
 def test_json_keys_are_the_field_names() -> None:
@@ -123,7 +109,6 @@ def test_json_keys_are_the_field_names() -> None:
     assert set(raw["levels"][0]) == {f.name for f in fields(LevelRecord)}
     assert set(raw["sources"][0]) == {f.name for f in fields(SourceRecord)}
     assert raw["format"] == STORE_FORMAT and raw["format_version"] == FORMAT_VERSION
-    assert raw["levels"][0]["hmin"][0][0] is None  # NaN is null
 
 
 @pytest.fixture(scope="module")
@@ -166,21 +151,24 @@ def _rewrite(store: Path, tmp_path: Path, change) -> Path:
             f"format_version {float(FORMAT_VERSION)} is not supported",
         ),
         (lambda m: m.update(format_version=3), "built before vertical datums"),
-        (lambda m: m["levels"][0]["extent"].pop("nx"), "levels[0].extent.nx is missing"),
+        (lambda m: m["levels"][0]["bbox"].pop("nx"), "levels[0].bbox.nx is missing"),
+        (lambda m: m["levels"][0]["bbox"].update(nx=3), "levels[0].bbox.nx must be in 1..2"),
         (lambda m: m["levels"][1].update(level_error="x"), "levels[1].level_error must be a"),
         (lambda m: m["sources"][0].update(size=1.5), "sources[0].size must be an integer"),
         (lambda m: m["sources"][0].update(vertical_datum="egm2008"), "vertical_datum 'egm2008'"),
         (lambda m: m["params"].pop("vdatum"), "params.vdatum is missing"),
         (lambda m: m.update(tile_size=66), "tile_size 66 is not 2^tile_n + 1"),
-        (lambda m: m["finest_extent"].update(nx=1), "finest_extent is not the extent"),
+        (lambda m: m.update(chunk_tiles=8), "chunk_tiles 8 is not 16"),
+        (lambda m: m["shards"].update(roots=[5]), "shards.roots"),
+        (lambda m: m["shards"]["top"].update(file="../../etc/passwd"), "not a store file name"),
+        (lambda m: m["shards"]["top"].update(sha256="x"), "shards.top.sha256"),
+        (lambda m: m["levels"][2].update(chunks=-1), "levels[2].chunks must be in"),
         (lambda m: m.update(bounds=[0, 0, 1]), "bounds must be 4 numbers"),
-        (lambda m: m["levels"][2].update(hmax=[[1e400]]), "levels[2].hmax"),
+        (lambda m: m["levels"][2].update(level_error=-1.0), "levels[2]: negative"),
         (lambda m: m["levels"][2].update(file="../x.tif"), "is not its level file"),
         (lambda m: m.update(levels=[[[[[[[]]]]]]]), "levels[0] must be an object"),
-        (lambda m: m["levels"][-1].update(chunks=[[0, 99]]), "chunk outside the level"),
-        (lambda m: m["levels"][-1].update(chunks=[[0, 0.5]]), "integer pairs"),
-        (lambda m: m["levels"][-1].update(chunk_sha256=[]), "one sha256 per chunk"),
-        (lambda m: m["levels"][-1].update(chunk_nodes=65), "not a multiple of 2^tile_n"),
+        (lambda m: m.update(format_version=6), "format version 6 (dense levels"),
+        (lambda m: m.update(format_version=5), "rebuild it with globeview ingest --force"),
     ],
 )
 def test_malformed_or_other_version_is_one_store_error(
@@ -199,7 +187,7 @@ def test_deeply_nested_json_is_one_error() -> None:
     deep: list = []
     for _ in range(50_000):
         deep = [deep]
-    raw["levels"][0]["error"] = deep
+    raw["levels"][0]["bbox"] = deep
     with pytest.raises(ManifestError) as exc:
         StoreManifest.from_json(raw)
     assert "\n" not in str(exc.value)
@@ -214,7 +202,9 @@ _json = st.recursive(
 
 @settings(max_examples=200, deadline=None)
 @given(
-    path=st.lists(st.sampled_from(["levels", 0, 1, "extent", "sources", "params", "x0"])),
+    path=st.lists(
+        st.sampled_from(["levels", 0, 1, "bbox", "sources", "params", "x0", "shards", "top"])
+    ),
     value=_json,
 )
 @pytest.mark.slow

@@ -147,7 +147,9 @@ def test_datum_from_the_crs(tmp_path: Path, crs: str, datum: str, converted: boo
     assert ok.sum() > 100
     n = egm96().undulation(lons[None, :], lats[:, None]) if converted else 0.0
     np.testing.assert_allclose(z[ok], (H + n)[ok], atol=0.01)
-    assert not converted or float(np.min(np.abs(n))) > 40  # the Alps: N ~ 48 m
+    # The Alps: N ~ 48 m on the DEM's nodes (format 7's level grid is the bbox of its chunks,
+    # whole 1024-node windows reaching well past the DEM, where N is smaller).
+    assert not converted or float(np.min(np.abs(np.broadcast_to(n, z.shape)[ok]))) > 40
 
 
 def test_defaults_per_source(tmp_path: Path) -> None:
@@ -284,3 +286,70 @@ def test_unreadable_geoid_is_one_line_and_no_store(
     assert "\n" not in str(err.value)
     assert not (tmp_path / "s").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["egm96_15.tif", "g.tif"]  # no build
+
+
+# -- geoid grids not shipped (issue #25: Copernicus heights are EGM2008) ----------------------
+
+
+def test_geoid_grids_from_the_option_the_environment_and_proj(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from globeview.terrain.dem import vdatum
+    from tests.terrain.planet_tiles import write_geotiff
+
+    grid = write_geotiff(tmp_path / "g.tif", -180.0, 90.0, 2.0, 90)
+    assert vdatum.parse_geoid_grids([str(grid)]) == {"egm2008": grid}
+    assert vdatum.parse_geoid_grids([f"EGM2008={grid}"]) == {"egm2008": grid}
+    with pytest.raises(DemError, match=r"unknown geoid 'egm84' \(known: egm2008\)"):
+        vdatum.parse_geoid_grids([f"egm84={grid}"])
+    (tmp_path / "text.tif").write_text("no grid")
+    with pytest.raises(DemError, match=r"text\.tif: not a geoid grid GDAL can read"):
+        vdatum.parse_geoid_grids([str(tmp_path / "text.tif")])
+    projected = write_geotiff(tmp_path / "utm.tif", 500000.0, 5e6, 1000.0, 10, crs="EPSG:32618")
+    with pytest.raises(DemError, match="a geoid grid must be on lon/lat"):
+        vdatum.parse_geoid_grids([str(projected)])
+    # Nowhere: None (PROJ's folders looked in are empty ones here).
+    monkeypatch.setattr(vdatum, "_proj_dirs", lambda: [tmp_path / "proj"])
+    monkeypatch.delenv(vdatum.GEOID_GRIDS_ENV, raising=False)
+    assert vdatum.find_geoid_grid("egm2008") is None
+    monkeypatch.setenv(vdatum.GEOID_GRIDS_ENV, f"egm2008={grid}")
+    assert vdatum.find_geoid_grid("egm2008") == grid
+    monkeypatch.setenv(vdatum.GEOID_GRIDS_ENV, f"egm2008={tmp_path / 'gone.tif'}")
+    with pytest.raises(DemError, match=r"\$GLOBEVIEW_GEOID_GRIDS egm2008=.*gone.tif: no such file"):
+        vdatum.find_geoid_grid("egm2008")
+    monkeypatch.delenv(vdatum.GEOID_GRIDS_ENV)
+    (tmp_path / "proj").mkdir()
+    (tmp_path / "proj" / "us_nga_egm08_25.tif").write_bytes(grid.read_bytes())
+    assert vdatum.find_geoid_grid("egm2008") == tmp_path / "proj" / "us_nga_egm08_25.tif"
+    # --geoid-grid wins over both.
+    assert vdatum.find_geoid_grid("egm2008", {"egm2008": grid}) == grid
+
+
+@pytest.mark.parametrize(
+    ("west", "south", "east", "north"),
+    [
+        (-72.3, 44.1, -71.2, 45.4),  # a chunk over N44W072
+        (-0.01, -0.02, 0.01, 0.01),  # inside one grid cell
+        (178.5, -17.5, -178.7, -16.2),  # across the antimeridian
+        (170.0, 80.0, 180.0, 90.0),  # the north pole and lon 180
+        (-180.0, -90.0, -179.0, -88.5),  # the south pole and the grid's first column
+    ],
+)
+def test_a_geoid_window_interpolates_as_the_whole_grid(
+    west: float, south: float, east: float, north: float
+) -> None:
+    """`grid_window` reads a few rows and columns of a grid file; N on a window's nodes is
+    the whole grid's (the shipped EGM96 grid standing in for EGM2008's)."""
+    from globeview.terrain.dem import vdatum
+
+    span = (east - west) % 360.0
+    lons = west + np.linspace(0.0, span, 37)
+    lats = np.linspace(north, south, 29)
+    win = vdatum.grid_window(vdatum.geoid_path(), west, south, east, north)
+    whole = vdatum.egm96()
+    np.testing.assert_allclose(
+        win.undulation_grid(lons, lats), whole.undulation_grid(lons, lats), rtol=0, atol=1e-9
+    )
+    if span < 10:  # a few rows (across the grid's seam: whole rows), not the grid
+        assert win.grid.shape[0] < whole.grid.shape[0] / 20
+        assert win.grid.shape[1] < whole.grid.shape[1] / 20 or win.wraps

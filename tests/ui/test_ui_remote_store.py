@@ -78,7 +78,7 @@ def test_open_url_draws_the_remote_store(make_window, served, qtbot, errors_show
     assert st.tiles_drawn > 0 and st.triangles > 0
     assert int(st.extra.get("tiles_failed", 0)) == 0
     assert win.status.loading.text() == ""
-    assert served.requests("*/store/level_*"), "tiles were read over HTTP"
+    assert served.requests("*/store/chunks/*"), "tiles were read over HTTP"
     win.layer_panel.select("store")
     item = win.layer_panel.list.currentItem()
     assert item.toolTip().startswith(f"{served.url}/store")  # the URL, not a local path
@@ -101,7 +101,7 @@ def test_chunks_answered_500_are_counted_and_the_window_keeps_drawing(
 
     monkeypatch.setattr(TileStore, "open", classmethod(open_without_retries))
     served.clear_faults()
-    served.fault("*/wm/level_12_*", status=500)
+    served.fault("*/wm/chunks/12/*", status=500)
     try:
         win = make_window()
         _open(win, qtbot, f"{served.url}/wm", "wm")
@@ -122,7 +122,7 @@ def test_chunks_answered_500_are_counted_and_the_window_keeps_drawing(
         st = win.globe.last_stats
         failed = int(st.extra["tiles_failed"])
         assert win.status.loading.text() == f"{failed} tiles failed"
-        assert served.requests("*/wm/level_12_*")
+        assert served.requests("*/wm/chunks/12/*")
         assert st.tiles_drawn > 0 and st.triangles > 0  # coarser tiles stand in
         assert int(st.extra["tiles_standin"]) > 0
         assert errors_shown == []  # failed tiles are counted, not dialogs
@@ -141,7 +141,7 @@ def test_a_slow_server_never_freezes_the_window(make_window, served, qtbot, erro
     served.reset_log()
     # Every chunk request waits SLOW_S, as a distant or overloaded server would (the manifest
     # and the blend mask's tiles too: they are read on the loader thread).
-    served.fault("*/wm/level_*", delay_s=SLOW_S)
+    served.fault("*/wm/chunks/*", delay_s=SLOW_S)
     win = make_window()
     g = win.globe
     ticks: list[float] = []
@@ -178,7 +178,7 @@ def test_a_slow_server_never_freezes_the_window(make_window, served, qtbot, erro
         qtbot.waitUntil(lambda: len(picks) >= 2, timeout=5000)
     finally:
         served.clear_faults()
-    slow_reads = [r for r in served.requests("*/wm/level_1[0-2]_*")]
+    slow_reads = [r for r in served.requests("*/wm/chunks/1[0-2]/*")]
     assert slow_reads, "finest tiles were fetched (slowly) while the UI was measured"
     assert len(ticks) > 100
     gaps = [b - a for a, b in itertools.pairwise(ticks)]

@@ -57,7 +57,7 @@ from globeview.terrain.dem.edge import (
     continue_surface,
     edge_candidates,
 )
-from globeview.terrain.dem.resample import resample_bilinear
+from globeview.terrain.dem.resample import grid_scales, resample_bilinear
 from globeview.terrain.dem.value_scan import native_scan_applies, scan_block
 from globeview.terrain.dem.vdatum import parse_vdatum
 from globeview.terrain.interpolate import bilinear
@@ -488,10 +488,16 @@ class Dem:
     """
 
     def __init__(
-        self, path: Path, crs_override: str | None = None, vdatum: str | None = None
+        self,
+        path: Path,
+        crs_override: str | None = None,
+        vdatum: str | None = None,
+        *,
+        scan: bool = True,
     ) -> None:
         self.path = path
         self._vdatum_override = vdatum
+        self._scan = scan
         check_dem_path(path)
         try:
             with warnings.catch_warnings():
@@ -554,7 +560,9 @@ class Dem:
         self.height_scale_m = unit_m
         self._scale = float(ds.scales[0] if ds.scales else 1.0) * unit_m
         self._offset = float(ds.offsets[0] if ds.offsets else 0.0) * unit_m
-        scan = self._scan_values()
+        # Header only (planning from footprints, issue #25): no pass over the pixels; the
+        # value range is then unknown (NaN) and no fill or masked samples are counted.
+        scan = self._scan_values() if self._scan else ((), 0, 0, math.nan, math.nan, False)
         self.fill_values, self.fill_samples, self.masked_samples = scan[:3]
         self.fill_value = self.fill_values[0] if self.fill_values else None
         self.vmin, self.vmax, self.range_exact = scan[3:]
@@ -1011,10 +1019,13 @@ class Dem:
         # Shift the destination into the source's longitude frame (0..360 sources etc.).
         if lon_shift:
             dst_t = Affine.translation(lon_shift, 0.0) @ dst_t
+        # The kernel's scales from the grids, not from the window: every window of a level
+        # gives a node the same value (terrain/dem/resample.py).
+        scales = self._kernel_scales(src_t, dst_t)
         if self._geo_fast and rs == Resampling.bilinear:
             # GDAL's bilinear warp between two lon/lat grids as two separable passes: its
             # values within 1 ulp of float32, 3-4x less CPU (terrain/dem/resample.py).
-            return resample_bilinear(arr, src_t, dst_t, shape)
+            return resample_bilinear(arr, src_t, dst_t, shape, scales)
         dst = np.full(shape, np.nan, dtype=np.float32)
         src_crs = self.crs
         dst_crs = self.crs if self._geo_fast else WGS84
@@ -1030,8 +1041,48 @@ class Dem:
             resampling=rs,
             src_nodata=np.nan,
             dst_nodata=np.nan,
+            # GDAL's warp options (rasterio passes extra keywords as such): one resampling
+            # factor for every warp piece of every window (GDAL otherwise derives it from
+            # each piece's own source window).
+            XSCALE=repr(scales[0]),
+            YSCALE=repr(scales[1]),
         )
         return dst
+
+    def _kernel_scales(self, src_t: Affine, dst_t: Affine) -> tuple[float, float]:
+        """The warp kernel's scales (x, y) for destination cells of ``dst_t`` (degrees): the
+        source's pixel size over the node spacing (`resample.grid_scales`), the same for
+        every window of a level. Lon/lat sources: the source's pixel times the read
+        decimation (`_decimation`: a function of the spacing). Others: the window's pixel
+        over the node spacing mapped into the source CRS at the source's centre (one point
+        per source, so no window moves it)."""
+        dlon, dlat = dst_t.a, -dst_t.e
+        if self._geo_fast:
+            t = self.transform
+            f = self._decimation(dlon, dlat, t.a, -t.e)
+            return grid_scales((f * t.a, f * t.e), (dlon, dlat))
+        step_x, step_y = self._projected_steps(dlon, dlat)
+        pixel = (math.hypot(src_t.a, src_t.d), math.hypot(src_t.b, src_t.e))
+        return grid_scales(pixel, (step_x, step_y))
+
+    def _projected_steps(self, dlon: float, dlat: float) -> tuple[float, float]:
+        """Lengths (source CRS units) of a step of ``dlon`` east and of ``dlat`` south at the
+        centre of the source's raster; cached per spacing."""
+        cache: dict[tuple[float, float], tuple[float, float]] = self.__dict__.setdefault(
+            "_steps", {}
+        )
+        if (dlon, dlat) not in cache:
+            ds = self._ds
+            cx, cy = self.transform @ (ds.width / 2.0, ds.height / 2.0)
+            (lon,), (lat,) = rasterio.warp.transform(self.crs, WGS84, [cx], [cy])
+            lat = min(max(lat, -89.0), 89.0)
+            xs, ys = rasterio.warp.transform(
+                WGS84, self.crs, [lon, lon + dlon, lon], [lat, lat, lat - dlat]
+            )
+            east = math.hypot(xs[1] - xs[0], ys[1] - ys[0])
+            south = math.hypot(xs[2] - xs[0], ys[2] - ys[0])
+            cache[(dlon, dlat)] = (east, south)
+        return cache[(dlon, dlat)]
 
     def _decimation(self, dlon_src: float, dlat_src: float, dx: float, dy: float) -> int:
         """Integer read decimation when the request is much coarser than the source."""
@@ -1239,10 +1290,14 @@ def _wrap_lon(lon: float) -> float:
     return ((lon + 180.0) % 360.0) - 180.0
 
 
-def open_dem(path: str | Path, crs: str | None = None, vdatum: str | None = None) -> Dem:
+def open_dem(
+    path: str | Path, crs: str | None = None, vdatum: str | None = None, *, scan: bool = True
+) -> Dem:
     """Open a DEM raster (band 1 = elevation); `crs` overrides or supplies its CRS, `vdatum`
-    ("ellipsoid" or "egm96") its vertical datum.
+    ("ellipsoid" or "egm96") its vertical datum. ``scan=False`` reads the header only (no
+    pass over the pixels: ``info`` then has a NaN value range and no fill counts), for
+    planning from footprints.
 
     Raises DemError with a one-line message for anything that cannot be used as a DEM.
     """
-    return Dem(Path(path), crs, vdatum)
+    return Dem(Path(path), crs, vdatum, scan=scan)

@@ -20,26 +20,35 @@ weight sum within 1e-5 of 1 undivided); a destination pixel gets no value (NaN) 
 centre is off the raster or the source pixel under it is invalid. The double result is rounded
 to float32.
 
-GDAL takes s from each warp piece's own source window, not from the grids: the window is
-clipped at the raster's end, and GDAL cuts a destination that is mostly off the raster into
-pieces (halving it while under half of the source window it needs is on the raster), so near
-a raster's end the kernel is narrower, piece by piece (`warp_chunks`). That is reproduced
-here, as are the pixel coordinates GDAL's transformers form (`_DstToSrc`): the grids' own
-ratio instead would move nodes of the windows reaching past a raster by up to 0.8 m on the
-4096^2 benchmark DEM, and at Crater Lake (a small DEM, every window reaching past it) by
-9.5 m at level 13.
+The one departure from plain GDAL: the scale s. GDAL takes it from each warp piece's own
+source window, which is clipped at the raster's end (and GDAL cuts a destination mostly off
+the raster into pieces, `warp_chunks`), so near a raster's end the kernel narrows, piece by
+piece: two ingest chunks sharing a row of nodes (each chunk stores its closing row and
+column) gave that row different heights, by up to 23.6 m at level 10 (52 m at level 9) on
+the 512^2 benchmark DEM (benchmarks/cache/big_dem_512.tif), 1.6 m on N44W072 at level 11.
+Here s comes from the grids instead (`grid_scales`: the source's pixel size over the node
+spacing, constant for a source and a level), for every piece of every window: a node gets
+the same height from any window (to the last bit of float32, its pixel coordinate being
+formed in each window's frame; tests/terrain/test_resample.py). GDAL computes exactly this
+when given the scales as its XSCALE / YSCALE warp options (documented as a fixed resampling
+factor for output reproducible across processing chunks), which `Dem._warp` passes on its
+general (projected) path too. The pieces still decide where GDAL gives no value and where its
+approximate transformer is exact. Against plain GDAL, measured on `Dem.read_grid_parts`
+windows: nodes whose window lies inside the raster are unchanged (N44W072 at level 12, an
+ingest chunk over the whole tile: at most 1 ulp; ETOPO 20', Crater Lake at levels 12 and 14,
+Vancouver); where a window reaches past the raster, the nodes near its end move by up to
+7.5 m (N44W072, level 10, 3.3x downsampled), 10.2 m (Crater Lake, level 13) and 45 m (the
+512^2 benchmark DEM's level-9 and -10 chunks): there plain GDAL's kernel was narrower than
+the one the same node got from a window inside the raster.
 
 Here: the same weights (formed as GDAL forms them), the sums in float64, the renormalisation
 as num / den (num: the passes over the values, 0 where invalid; den: over the validity; the
 2-D renormalisation exactly, as the weights are products), rounded once to float32. A value
-differs from GDAL's only by the order of the float64 sums before that rounding: at most 1 ulp
-of float32 (0.49 mm below 8 192 m, 0.98 mm up to 16 384 m) plus ~1e-15 of the window's
-largest |height| where a sum cancels (tests/terrain/test_resample.py, on real data and on
-synthetic rasters with NaN holes and edges). The one exception is a scale whose reciprocal
-is exactly n +- 0.05 (GDAL's own rounding of its window's extent decides the snap there).
-Measured on whole stores: the 8192^2 benchmark DEM's, ETOPO 20', Crater Lake's and the
-Vancouver topo-bathymetry's are byte-identical to GDAL's; N44W072's differs in 2 of 3.1 M
-nodes, by 1 ulp (3e-5 m).
+differs from GDAL's (given the same XSCALE / YSCALE) only by the order of the float64 sums
+before that rounding: at most 1 ulp of float32 (0.49 mm below 8 192 m, 0.98 mm up to
+16 384 m) plus ~1e-15 of the window's largest |height| where a sum cancels
+(tests/terrain/test_resample.py, on real data and on synthetic rasters with NaN holes and
+edges, every ratio).
 """
 
 from __future__ import annotations
@@ -54,6 +63,7 @@ __all__ = [
     "AxisTaps",
     "WarpChunk",
     "axis_taps",
+    "grid_scales",
     "kernel_scales",
     "resample_bilinear",
     "warp_chunks",
@@ -142,8 +152,9 @@ def warp_chunks(
     warp memory, or while less than half of the source window it would need (padded by the
     kernel) is on the raster and the destination is over 100 pixels on a side. Each piece
     then gets its own scale from its own source window, clipped at the raster's end: where
-    a piece reaches past the raster, its kernel is narrower (`WarpChunk.scales`). The values
-    of `resample_bilinear` follow these pieces, as GDAL's do.
+    a piece reaches past the raster, its kernel is narrower (`WarpChunk.scales`: plain
+    GDAL's). `resample_bilinear` keeps the pieces (where there is no value, where the
+    approximate transformer is exact) but not their scales (the module docstring says why).
     """
     out: list[WarpChunk] = []
     h, w = src_shape
@@ -285,24 +296,42 @@ class _DstToSrc:
         return (x0, self.dst.a / self.src.a), (y0, self.dst.e / self.src.e)
 
 
+def grid_scales(pixel: tuple[float, float], spacing: tuple[float, float]) -> tuple[float, float]:
+    """The kernel scales (sx, sy) of a warp from the grids alone: the source's pixel size
+    ``pixel`` over the destination's ``spacing`` (x, y; the same units, e.g. degrees), through
+    GDAL's clamp, snap and 4-sample rule (`kernel_scales`). Constant for a source and a level,
+    whatever the window: what GDAL's XSCALE / YSCALE warp options take."""
+    return kernel_scales(abs(pixel[0] / spacing[0]), abs(pixel[1] / spacing[1]))
+
+
 def resample_bilinear(
-    arr: np.ndarray, src_transform: Affine, dst_transform: Affine, shape: tuple[int, int]
+    arr: np.ndarray,
+    src_transform: Affine,
+    dst_transform: Affine,
+    shape: tuple[int, int],
+    scales: tuple[float, float] | None = None,
 ) -> np.ndarray:
     """GDAL's bilinear warp of ``arr`` (float32 heights, NaN = no data; pixel-is-area cells of
     ``src_transform``) onto the destination pixels of ``dst_transform`` (``shape`` = (rows,
-    cols)), both north-up grids in the same lon/lat frame (degrees): float32, NaN where GDAL
-    gives no value. See the module docstring for the rule and how close to GDAL it is."""
+    cols)), both north-up grids in the same lon/lat frame (degrees), with the kernel scales
+    ``scales`` (default: `grid_scales` of the two transforms) for every pixel, as GDAL's warp
+    given them as XSCALE / YSCALE: float32, NaN where GDAL gives no value. See the module
+    docstring for the rule and how close to GDAL it is."""
     for t in (src_transform, dst_transform):
         if t.b != 0.0 or t.d != 0.0 or not (t.a > 0.0 and t.e < 0.0):
             raise ValueError(f"resample_bilinear needs north-up grids, not {tuple(t)[:6]}")
+    if scales is None:
+        scales = grid_scales((src_transform.a, src_transform.e), (dst_transform.a, dst_transform.e))
     to_src = _DstToSrc(src_transform, dst_transform)
+    # GDAL's pieces still decide which pixels get no value (a piece without source) and
+    # where its approximate transformer is exact; the kernel is the same in all of them.
     chunks = warp_chunks(*to_src.edges(), shape, arr.shape)
     valid = ~np.isnan(arr)
     result = np.full(shape, np.nan, dtype=np.float32)
     for c in chunks:
         if c.scales is not None:
             y, x = to_src.rows(c.row0, c.row1), to_src.columns(c.col0, c.col1)
-            result[c.row0 : c.row1, c.col0 : c.col1] = _warp_block(arr, valid, y, x, c.scales)
+            result[c.row0 : c.row1, c.col0 : c.col1] = _warp_block(arr, valid, y, x, scales)
     return result
 
 

@@ -9,8 +9,12 @@ NGA grid by scripts/make_geoid_tif.py). Tile stores hold h.
 from __future__ import annotations
 
 import enum
+import functools
 import hashlib
+import math
+import os
 import threading
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -122,3 +126,140 @@ def _load(path: Path) -> Geoid:
         raise DemError(f"cannot read the EGM96 geoid {path}: {exc}") from None
     dlon, dlat = float(t.a), float(-t.e)
     return Geoid(grid, t.c + dlon / 2, t.f - dlat / 2, dlon, dlat)
+
+
+# -- geoid grids that are not shipped (issue #25: sources on several datums in one build) ----
+
+#: Geoid models globeview knows by name whose grids the user supplies: name -> the file
+#: PROJ distributes (the 2.5' EGM2008 grid, ~80 MB) and where to get it.
+EXTERNAL_GRIDS: dict[str, tuple[str, str]] = {
+    "egm2008": ("us_nga_egm08_25.tif", "https://cdn.proj.org/us_nga_egm08_25.tif"),
+}
+#: ``NAME=PATH`` pairs separated by the OS path separator, read after ``--geoid-grid``.
+GEOID_GRIDS_ENV = "GLOBEVIEW_GEOID_GRIDS"
+
+
+def parse_geoid_grids(texts: Sequence[str]) -> dict[str, Path]:
+    """``--geoid-grid`` values (``egm2008=PATH``, or a bare ``PATH`` for EGM2008) -> name ->
+    path, each checked (`check_geoid_grid`); DemError (one line) for an unknown model."""
+    out: dict[str, Path] = {}
+    for text in texts:
+        name, sep, path = text.partition("=")
+        if not sep:
+            name, path = "egm2008", text
+        key = name.strip().lower()
+        if key not in EXTERNAL_GRIDS:
+            known = ", ".join(EXTERNAL_GRIDS)
+            raise DemError(f"--geoid-grid {text!r:.80}: unknown geoid {name!r} (known: {known})")
+        out[key] = check_geoid_grid(Path(path.strip()), f"--geoid-grid {key}=")
+    return out
+
+
+def check_geoid_grid(path: Path, where: str) -> Path:
+    """``path`` when it is a raster GDAL opens on a geographic CRS; DemError (one line,
+    ``where`` saying who named it) otherwise."""
+    if not path.is_file():
+        raise DemError(f"{where}{path}: no such file")
+    try:
+        with rasterio.open(path) as ds:
+            geographic = ds.crs is not None and ds.crs.is_geographic
+    except (rasterio.errors.RasterioError, OSError) as exc:
+        raise DemError(f"{where}{path}: not a geoid grid GDAL can read ({exc})") from None
+    if not geographic:
+        raise DemError(f"{where}{path}: a geoid grid must be on lon/lat (a geographic CRS)")
+    return path
+
+
+def _env_grids() -> dict[str, Path]:
+    out: dict[str, Path] = {}
+    for item in os.environ.get(GEOID_GRIDS_ENV, "").split(os.pathsep):
+        name, sep, path = item.partition("=")
+        if sep and name.strip().lower() in EXTERNAL_GRIDS:
+            out[name.strip().lower()] = Path(path.strip())
+    return out
+
+
+def _proj_dirs() -> list[Path]:
+    """PROJ's data folders (where projsync and PROJ-data packages put grids)."""
+    import pyproj.datadir  # deferred: only asked when a grid is looked for
+
+    dirs = [pyproj.datadir.get_data_dir(), pyproj.datadir.get_user_data_dir()]
+    return [Path(p) for d in dirs for p in d.split(os.pathsep) if p]
+
+
+def find_geoid_grid(name: str, given: Mapping[str, Path] | None = None) -> Path | None:
+    """The grid of geoid ``name`` on this machine: ``given`` (``--geoid-grid``), then
+    `GEOID_GRIDS_ENV`, then PROJ's data folders (its file name); None when nowhere."""
+    if given and name in given:
+        return given[name]
+    env = _env_grids()
+    if name in env:
+        return check_geoid_grid(env[name], f"${GEOID_GRIDS_ENV} {name}=")
+    file_name = EXTERNAL_GRIDS[name][0]
+    for folder in _proj_dirs():
+        if (folder / file_name).is_file():
+            return folder / file_name
+    return None
+
+
+def missing_grid_line(name: str, source: str, why: str) -> str:
+    """The one line saying that ``source``'s heights are on geoid ``name`` and its grid is
+    not on this machine, and how to point at one."""
+    file_name, url = EXTERNAL_GRIDS[name]
+    return (
+        f"{source}: heights are on {name.upper()} ({why}) and no {name.upper()} grid is on this "
+        f"machine; get {file_name} ({url}) and pass --geoid-grid {name}=PATH, or --vdatum "
+        "egm96 to approximate (about 1 m)"
+    )
+
+
+# -- windows of a large geoid grid (the build's per-chunk read, §4.6) -------------------------
+
+#: Windows of external grids kept per process (a chunk task's sources share one or two).
+GRID_WINDOW_CACHE = 8
+
+
+@functools.lru_cache(maxsize=32)
+def _grid_header(path: str) -> tuple[int, int, float, float, float, float]:
+    """(rows, cols, west node lon, north node lat, dlon, dlat) of a node-registered grid
+    (its GDAL transform puts the first node half a cell inside the corner, as `_load`)."""
+    try:
+        with rasterio.open(path) as ds:
+            t, rows, cols = ds.transform, ds.height, ds.width
+    except (rasterio.errors.RasterioError, OSError) as exc:
+        raise DemError(f"cannot read the geoid grid {path}: {exc}") from None
+    dlon, dlat = float(t.a), float(-t.e)
+    return rows, cols, t.c + dlon / 2, t.f - dlat / 2, dlon, dlat
+
+
+@functools.lru_cache(maxsize=GRID_WINDOW_CACHE)
+def _read_window(path: str, i0: int, i1: int, j0: int, j1: int) -> np.ndarray:
+    from rasterio.windows import Window
+
+    try:
+        with rasterio.open(path) as ds:
+            return ds.read(1, window=Window(j0, i0, j1 - j0 + 1, i1 - i0 + 1)).astype(np.float64)
+    except (rasterio.errors.RasterioError, OSError) as exc:
+        raise DemError(f"cannot read the geoid grid {path}: {exc}") from None
+
+
+def grid_window(path: Path, west: float, south: float, east: float, north: float) -> Geoid:
+    """The part of the geoid grid file ``path`` that N on lon west..east, lat south..north
+    (degrees; west > east: across the antimeridian) interpolates from, as a `Geoid` with the
+    same values there as the whole grid's: only those rows (and columns, unless the window
+    crosses the grid's seam) are read, a node of margin each side; the last
+    `GRID_WINDOW_CACHE` windows are kept. The 2.5' EGM2008 grid is ~150 MB in memory whole;
+    a chunk's window is a few KB."""
+    rows, cols, lon0, lat0, dlon, dlat = _grid_header(str(path))
+    i0 = max(0, math.floor((lat0 - north) / dlat) - 1)
+    i1 = min(rows - 1, math.ceil((lat0 - south) / dlat) + 1)
+    i1 = max(i1, min(rows - 1, i0 + 1))
+    wraps = abs(cols * dlon - 360.0) < 1e-9
+    span = (east - west) % 360.0
+    j0 = math.floor(((west - lon0) % 360.0 if wraps else west - lon0) / dlon) - 1
+    j1 = j0 + math.ceil(span / dlon) + 3
+    if wraps and (j0 < 0 or j1 > cols - 1):  # across the grid's seam: every column
+        j0, j1 = 0, cols - 1
+    j0, j1 = max(0, j0), min(cols - 1, max(j1, j0 + 1))
+    grid = _read_window(str(path), i0, i1, j0, j1)
+    return Geoid(grid, lon0 + j0 * dlon, lat0 - i0 * dlat, dlon, dlat)

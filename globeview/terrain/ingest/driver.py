@@ -50,10 +50,11 @@ import contextlib
 import hashlib
 import math
 import os
+import shutil
 import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -62,6 +63,9 @@ import rasterio
 from globeview.errors import DemError, StoreError
 from globeview.terrain.dem.reader import Dem, check_dem_path, open_dem
 from globeview.terrain.dem.vdatum import GEOID_FILE, egm96_sha256, parse_vdatum
+from globeview.terrain.ingest import cost
+from globeview.terrain.ingest.footprints import DATUMS, FootprintTable, table_from_bounds
+from globeview.terrain.ingest.plan import ChunkPlan, chunks_at_least, plan_chunks
 from globeview.terrain.ingest.safety import (
     build_folder,
     check_target,
@@ -80,17 +84,18 @@ from globeview.terrain.ingest.schedule import (
     run_graph,
 )
 from globeview.terrain.ingest.sources import expand_sources
+from globeview.terrain.ingest.stored_ranges import tile_ranges
 from globeview.terrain.ingest.tasks import (
     FAULT_ENV,
     GDAL_CACHE_MB,
     STRIDES,
     BuildPlan,
+    ChunkResult,
     SourceSpec,
     close_thread_sources,
     pole_task,
 )
 from globeview.terrain.ingest.tasks import fault_point as _fault_point
-from globeview.terrain.ingest.tile_errors import round_sig_down, round_sig_up
 from globeview.terrain.ingest.update import Update, plan_update, write_facts
 from globeview.terrain.ingest.wavelet import DEFAULT_WAVELET, kernel_halo, lowpass_kernel
 from globeview.terrain.levels import LevelGrid
@@ -102,22 +107,33 @@ from globeview.terrain.quadtree import (
 )
 from globeview.terrain.store.backend import RASTER_ERRORS
 from globeview.terrain.store.identify import MANIFEST_NAME, StoreIdentity
+from globeview.terrain.store.layout import (
+    chunk_code,
+    chunk_file_name,
+    chunk_grid_shape,
+    chunk_levels_c0,
+    chunk_nodes,
+    chunk_tiles,
+    shard_roots,
+)
 from globeview.terrain.store.level_chunks import write_level_vrt
 from globeview.terrain.store.schema import (
-    CHUNK_TARGET_NODES,
     FORMAT_VERSION,
     MAX_LEVEL_LIMIT,
     TILE_N_RANGE,
-    ChunkArray,
     Extent,
+    FileRef,
     IngestParams,
     LevelRecord,
     PoleHeights,
+    ShardsRecord,
     SourceRecord,
     StoreHeader,
     StoreManifest,
-    chunk_nodes_for,
+    level_file_name,
 )
+from globeview.terrain.store.shards import ChunkRecord, write_tree
+from globeview.terrain.store.shards import f16_up as shards_f16_up
 from globeview.terrain.store.tile_store import TileStore
 
 __all__ = [
@@ -129,10 +145,6 @@ __all__ = [
     "ingest",
 ]
 
-# A window is about this many nodes a side: big enough that per-window Python overhead is
-# negligible, small enough that a window and its temporaries stay in tens of MB.
-# The windows are the store's chunks (format 5): one file each.
-_WINDOW_NODES = CHUNK_TARGET_NODES
 # GDAL block cache during the build (see tasks.GDAL_CACHE_MB).
 _GDAL_CACHE_MB = GDAL_CACHE_MB
 
@@ -169,17 +181,17 @@ class _Source:
 
 
 @dataclass
-class _LevelStats:
-    """Per-tile metadata of one level, arrays (ny, nx); NaN where a tile has no data."""
+class _ChunkStats:
+    """Per-tile facts of one chunk's tiles, arrays (kty, ktx) (metres, float64); NaN where a
+    tile has no data."""
 
     hmin: np.ndarray
     hmax: np.ndarray
     error: np.ndarray
-    stride_delta: np.ndarray  # (ny, nx, len(STRIDES)): max |S_s - S_1| per tile, see below
-    pole: dict[str, float | None] = field(default_factory=dict)
-    sha256: str = ""  # of the level's VRT
-    chunks: list[tuple[int, int]] = field(default_factory=list)  # (cy, cx) written, row-major
-    chunk_sha256: list[str] = field(default_factory=list)
+    stride_delta: np.ndarray  # (kty, ktx, len(STRIDES)): max |S_s - S_1| per tile, see below
+    sha256: str | None = None
+    bytes: int = 0
+    flags: int = 0  # `layout.EXTRA_ROW` | `EXTRA_COL`
 
 
 # What a failed build raises (disk full, read-only, a GDAL write error): one StoreError line.
@@ -274,6 +286,7 @@ class _Builder:
         wavelet: str,
         out_dir: Path,
         tick: Callable[[int], None],
+        planned: list[set[tuple[int, int]]],
     ) -> None:
         self.sources = sources
         self.tile_n = tile_n
@@ -282,8 +295,15 @@ class _Builder:
         self.halo = kernel_halo(wavelet)
         self.out_dir = out_dir
         self.tick = tick
-        self.grids = self._plan_extents()
-        self.stats: dict[int, _LevelStats] = {}
+        # Every level is the whole globe's node grid; only the planned chunks are computed.
+        self.grids = {
+            lv: LevelGrid(lv, tile_n, 0, 0, *level_shape(lv)) for lv in range(max_level + 1)
+        }
+        # The chunks (cy, cx) of each level that may hold data (`plan.plan_chunks`): every
+        # other chunk has no data, no task, no file.
+        self.planned = planned
+        self.stats: dict[tuple[int, int, int], _ChunkStats] = {}
+        self.level_files: dict[int, str] = {}  # level -> its VRT's sha256
         self.pole: dict[str, float | None] = {"north": None, "south": None}
         # input_order[i]: index in `sources` (finest first) of the i-th source as given.
         self.input_order: list[int] = list(range(len(sources)))
@@ -291,27 +311,6 @@ class _Builder:
         self.writes = 0  # window writes so far (the fault-injection points)
 
     # -- planning ---------------------------------------------------------------------------
-
-    def _plan_extents(self) -> dict[int, LevelGrid]:
-        grids: dict[int, LevelGrid] = {}
-        finer: LevelGrid | None = None
-        for lv in range(self.max_level, -1, -1):
-            ncols, _ = level_shape(lv)
-            mask = np.zeros(ncols, dtype=bool)
-            y_lo, y_hi = 1 << 62, -1
-            for s in self.sources:
-                if s.level >= lv:
-                    m, a, b = _column_mask(lv, s.bounds, s.wraps)
-                    mask |= m
-                    y_lo, y_hi = min(y_lo, a), max(y_hi, b)
-            if finer is not None:
-                px = (finer.x0 + np.arange(finer.nx)) % finer.ncols // 2
-                mask[px] = True
-                y_lo = min(y_lo, finer.y0 // 2)
-                y_hi = max(y_hi, (finer.y0 + finer.ny - 1) // 2)
-            x0, nx = _extent_from_mask(mask)
-            finer = grids[lv] = LevelGrid(lv, self.tile_n, x0, y_lo, nx, y_hi - y_lo + 1)
-        return grids
 
     # -- run --------------------------------------------------------------------------------
 
@@ -326,7 +325,7 @@ class _Builder:
             wavelet=self.wavelet,
             halo=self.halo,
             grids=tuple(self.grids[lv] for lv in range(self.max_level + 1)),
-            k=max(1, _WINDOW_NODES // (1 << self.tile_n)),
+            k=chunk_tiles(self.tile_n),
             gdal_threads=gdal_threads,
             keep_open=keep_open,
         )
@@ -351,7 +350,7 @@ class _Builder:
         # One writer compresses with every core; many writers each with one thread.
         threads = "ALL_CPUS" if where.kind != "distributed" and where.workers == 1 else "1"
         plan, specs = self.plan(token, threads, keep_open=where.kind != "distributed")
-        graph = build_graph(plan, specs)
+        graph = build_graph(plan, specs, self.planned)
         self.graph, self.plan_, self.where = graph, plan, where
         self.update = None
         if previous is not None:
@@ -377,7 +376,7 @@ class _Builder:
 
     def build(self) -> None:
         """Run the ingest graph (chunk files and per-tile statistics), then write the level
-        VRTs and the chunks' sidecars: everything but the manifest."""
+        VRTs, the metadata shards and the chunks' build facts: everything but the manifest."""
         graph, plan = self.graph, self.plan_
 
         def done(key: str) -> None:
@@ -386,78 +385,145 @@ class _Builder:
         ran = run_graph(graph, self.where, done)
         results = {**graph.known, **ran}
         self.pole = results["pole"]
-        k = plan.k
-        for lv in range(self.max_level, -1, -1):
-            g = self.grids[lv]
-            self.stats[lv] = _LevelStats(
-                hmin=np.full((g.ny, g.nx), np.nan),
-                hmax=np.full((g.ny, g.nx), np.nan),
-                error=np.full((g.ny, g.nx), np.nan),
-                stride_delta=np.zeros((g.ny, g.nx, len(STRIDES))),
-            )
-        for key in graph.chunk_keys:  # row-major within each level
+        ranges = self._stored_ranges([results[key] for key in graph.chunk_keys])
+        for key in graph.chunk_keys:
             r = results[key]
-            st = self.stats[r.level]
-            sl = np.s_[r.cy * k : r.cy * k + r.hmin.shape[0], r.cx * k : r.cx * k + r.hmin.shape[1]]
-            st.hmin[sl], st.hmax[sl], st.stride_delta[sl] = r.hmin, r.hmax, r.stride_delta
-            if r.sha256 is not None:
-                st.chunks.append((r.cy, r.cx))
-                st.chunk_sha256.append(r.sha256)
-        for lv, st in self.stats.items():
-            g = self.grids[lv]
-            st.pole = {n: (v if self._pole_row_in(g, n) else None) for n, v in self.pole.items()}
-            st.sha256 = write_level_vrt(self.out_dir / g.file_name, g, plan.chunk_nodes, st.chunks)
+            hmin, hmax = ranges.get((r.level, r.cy, r.cx), (r.hmin, r.hmax))
+            self.stats[(r.level, r.cy, r.cx)] = _ChunkStats(
+                hmin=hmin,
+                hmax=hmax,
+                error=np.where(np.isfinite(hmin), 0.0, np.nan),
+                stride_delta=r.stride_delta,
+                sha256=r.sha256,
+                bytes=r.bytes,
+                flags=r.flags,
+            )
         if not any(np.isfinite(st.hmin).any() for st in self.stats.values()):
             names = ", ".join(str(s.path) for s in self.sources)
             raise DemError(f"no valid heights in {names}: every sample is nodata")
         # Exact tile errors: max |bilinear tile - finest data| at the finest nodes, each
         # error task's per-tile maxima folded with fmax (order-free: the result is exact).
-        for st in self.stats.values():
-            st.error = np.where(np.isfinite(st.hmin), 0.0, np.nan)
+        k = plan.k
         for key in graph.error_keys:
             for lv, iy, ix, red in results[key]:
-                err = self.stats[lv].error
-                err[iy, ix] = np.fmax(err[iy, ix], red)
+                self._fold_errors(lv, iy, ix, red, k)
+        for lv in range(self.max_level + 1):
+            g = self._bbox_grid(lv)
+            files = sorted(
+                (cy, cx, chunk_file_name(lv, cy, cx, st.sha256), st.flags)
+                for (lv_, cy, cx), st in self.stats.items()
+                if lv_ == lv and st.sha256 is not None
+            )
+            self.level_files[lv] = write_level_vrt(self.out_dir / level_file_name(lv), g, files)
+        self.top, self.shard_count = self._write_shards()
         # Build facts of the chunks (or error windows) computed now; the others were linked.
         levels = [self.sources[j].level for j in self.input_order]
         for key in graph.chunk_keys:
             error_key = key.replace("chunk-", "error-", 1)
-            if key in ran or error_key in ran:
-                write_facts(self.out_dir, results[key], results.get(error_key, []), levels)
+            errors = results.get(error_key, [])
+            # A chunk without data and without error maxima has no facts file (an update
+            # reads a missing one as that: `update._read_facts`).
+            if (key in ran or error_key in ran) and (
+                _has(self.stats[_indices(key)]) or any(len(e[1]) for e in errors)
+            ):
+                write_facts(self.out_dir, results[key], errors, levels)
 
-    @staticmethod
-    def _pole_row_in(grid: LevelGrid, which: str) -> bool:
-        return grid.y0 == 0 if which == "north" else grid.y0 + grid.ny == grid.nrows
+    def _stored_ranges(
+        self, results: Sequence[ChunkResult]
+    ) -> dict[tuple[int, int, int], tuple[np.ndarray, np.ndarray]]:
+        """Each chunk's per-tile (hmin, hmax) over the nodes the store holds (its own file's
+        and its south, east and south-east neighbours' first row, column and node: a tile's
+        closing row and column are stored there), `stored_ranges.tile_ranges`."""
+        plan = self.plan_
 
-    def manifest(self, params: IngestParams, sources: Sequence[SourceRecord]) -> StoreManifest:
-        """The store's manifest: per-tile errors rounded up (hmin down), so the bounds the
-        LOD reads from it stay bounds."""
-        levels = []
-        for lv in range(self.max_level + 1):
-            g, st = self.grids[lv], self.stats[lv]
+        def east_of(lv: int, cy: int, cx: int) -> int | None:
+            if cx + 1 < plan.chunk_shape(lv)[1]:
+                return cx + 1
+            return 0 if plan.grids[lv].global_lon else None
+
+        own = {(r.level, r.cy, r.cx): r.stored for r in results if r.stored is not None}
+        return tile_ranges(own, east_of)
+
+    def _fold_errors(
+        self, lv: int, iy: np.ndarray, ix: np.ndarray, red: np.ndarray, k: int
+    ) -> None:
+        """fmax the per-tile maxima ``red`` at tiles (ix, iy) of level lv into their chunks."""
+        cy, cx = iy // k, ix // k
+        codes = chunk_code(cy, cx)
+        for code in np.unique(codes):
+            sel = codes == code
+            st = self.stats.get((lv, int(code) >> 32, int(code) & 0xFFFFFFFF))
+            if st is None:
+                continue  # a chunk not planned has no data: its tiles take no error
+            ty, tx = iy[sel] % k, ix[sel] % k
+            st.error[ty, tx] = np.fmax(st.error[ty, tx], red[sel])
+
+    def _bbox_grid(self, lv: int) -> LevelGrid:
+        """The tile bbox of level lv's planned chunks (shortest circular column run): they
+        nest, so a level's bbox holds the parents of the next finer one's."""
+        k = self.plan_.k
+        cols, rows = level_shape(lv)
+        keys = sorted(self.planned[lv])
+        if not keys:
+            return LevelGrid(lv, self.tile_n, 0, 0, 1, 1)
+        cy = np.array([a for a, _ in keys])
+        mask = np.zeros(-(-cols // k), dtype=bool)
+        mask[[b for _, b in keys]] = True
+        x0, nx = _extent_from_mask(mask)
+        y0 = int(cy.min()) * k
+        y1 = min(rows, (int(cy.max()) + 1) * k)
+        return LevelGrid(lv, self.tile_n, x0 * k, y0, min(nx * k, cols), y1 - y0)
+
+    def _write_shards(self) -> tuple[FileRef, int]:
+        """Write the metadata shards (per-tile errors rounded up, heights outward, so the
+        bounds the LOD reads stay bounds); the top shard's file and the count."""
+        k = self.plan_.k
+        ns = len(STRIDES)
+        records: dict[tuple[int, int, int], ChunkRecord] = {}
+        for (lv, cy, cx), st in self.stats.items():
+            if not _has(st):
+                continue
+            kty, ktx = st.hmin.shape
             has = np.isfinite(st.hmin)
-            err = np.where(has, round_sig_up(np.nan_to_num(st.error, nan=0.0)), np.nan)
+            err = np.where(has, np.nan_to_num(st.error, nan=0.0), np.nan)
             # The subsampled and full surfaces both stay within [hmin, hmax] (bilinear
             # interpolation of nodes in that range), which caps the chained sum.
             span = (st.hmax - st.hmin)[:, :, None]
             stride = err[:, :, None] + np.minimum(st.stride_delta, span)
-            stride = np.where(has[:, :, None], round_sig_up(stride), np.nan)
+            errors = np.full((k, k, ns + 1), np.nan)
+            errors[:kty, :ktx, 0] = err
+            errors[:kty, :ktx, 1:] = np.where(has[:, :, None], stride, np.nan)
+            hmin = np.full((k, k), np.nan)
+            hmax = np.full((k, k), np.nan)
+            hmin[:kty, :ktx], hmax[:kty, :ktx] = st.hmin, st.hmax
+            records[(lv, cy, cx)] = ChunkRecord(
+                st.sha256 or "", st.bytes, errors, hmin, hmax, st.flags if st.sha256 else 0
+            )
+        self.records = records
+        name, sha, size, count = write_tree(self.out_dir, self.tile_n, self.max_level, ns, records)
+        return FileRef(name, sha, size), count
+
+    def manifest(self, params: IngestParams, sources: Sequence[SourceRecord]) -> StoreManifest:
+        """The store's manifest (format 7: level summaries, the top shard, the sources)."""
+        levels = []
+        for lv in range(self.max_level + 1):
+            recs = [r for (l_, _, _), r in self.records.items() if l_ == lv]
+            tiles = sum(int(np.isfinite(r.hmin).sum()) for r in recs)
+            errs = [float(np.nanmax(r.errors[..., 0])) for r in recs if np.isfinite(r.hmin).any()]
+            level_error = float(shards_f16_up(np.array(max(errs)))) if errs else None
+            g = self._bbox_grid(lv)
             levels.append(
                 LevelRecord(
                     level=lv,
-                    file=g.file_name,
-                    extent=Extent.of(g),
                     node_spacing_deg=g.d,
-                    error=err,
-                    hmin=np.where(has, round_sig_down(st.hmin), np.nan),
-                    hmax=np.where(has, round_sig_up(st.hmax), np.nan),
-                    stride_error=stride,
-                    level_error=float(np.nanmax(err)) if has.any() else None,
-                    pole_heights=PoleHeights(**st.pole),
-                    sha256=st.sha256,
-                    chunk_nodes=chunk_nodes_for(self.tile_n),
-                    chunks=ChunkArray(np.array(st.chunks, dtype=np.int64).reshape(-1, 2)),
-                    chunk_sha256=tuple(st.chunk_sha256),
+                    file=level_file_name(lv),
+                    sha256=self.level_files[lv],
+                    chunks=sum(1 for r in recs if r.sha256),
+                    tiles=tiles,
+                    bytes=sum(r.bytes for r in recs),
+                    bbox=Extent.of(g) if self.planned[lv] else None,
+                    level_error=level_error,
+                    pole_heights=PoleHeights(**self._level_pole(lv)),
                 )
             )
         w, s, e, n = _union_bounds(self.sources)
@@ -467,14 +533,47 @@ class _Builder:
             params=params,
             tile_n=self.tile_n,
             tile_size=(1 << self.tile_n) + 1,
+            chunk_tiles=chunk_tiles(self.tile_n),
             wavelet=self.wavelet,
             max_level=self.max_level,
             strides=STRIDES,
             bounds=(w, s, e, n),
-            finest_extent=Extent.of(self.grids[self.max_level]),
-            pole_heights=PoleHeights(**self.pole),
             levels=tuple(levels),
+            shards=ShardsRecord(
+                roots=shard_roots(self.max_level, self.tile_n),
+                count=self.shard_count,
+                top=self.top,
+            ),
+            pole_heights=PoleHeights(**self.pole),
         )
+
+    def _level_pole(self, lv: int) -> dict[str, float | None]:
+        """The pole heights a level holds: where one of its chunks with data holds the row."""
+        rows, _ = chunk_grid_shape(lv, self.tile_n)
+        at = {"north": 0, "south": rows - 1}
+        return {
+            name: (v if any(l_ == lv and cy == at[name] for (l_, cy, _) in self.records) else None)
+            for name, v in self.pole.items()
+        }
+
+    def store_megabytes(self) -> int:
+        """Uncompressed size of the planned chunks, MB (an upper bound of what the store
+        needs)."""
+        c = chunk_nodes(self.tile_n)
+        n = sum(len(p) for p in self.planned)
+        return max(1, math.ceil(n * (c + 1) ** 2 * 4 / 1e6))
+
+
+def _indices(key: str) -> tuple[int, int, int]:
+    """(level, cy, cx) of a graph key "chunk-L-CY-CX"."""
+    _, lv, cy, cx = key.split("-")
+    return int(lv), int(cy), int(cx)
+
+
+def _has(st: _ChunkStats) -> bool:
+    """Whether a chunk has data: a file, or tiles whose closed windows reach a neighbour's
+    finite nodes."""
+    return st.sha256 is not None or bool(np.isfinite(st.hmin).any())
 
 
 def _union_bounds(sources: Sequence[_Source]) -> list[float]:
@@ -504,44 +603,6 @@ def _union_bounds(sources: Sequence[_Source]) -> list[float]:
     if east == -180.0 and west + best[1] > west:
         east = 180.0
     return [west, s, east, n]
-
-
-# Per-tile metadata: hmin/hmax/error/6 stride floats, float64 arrays during the build (~72
-# bytes a tile, ~250 more for the rounding temporaries of the manifest, which is streamed to
-# its file row by row). Opening a store parses the manifest into Python lists first: ~600
-# bytes a tile (1 Mi tiles: 610 MB measured). 512 Ki tiles keep both under the stated ~512 MB
-# with the 96 MB GDAL cache.
-MAX_TILES = 1 << 19
-_BYTES_PER_TILE = 600
-
-
-def _check_size(grids: dict[int, LevelGrid], sources: Sequence[_Source], chosen: bool) -> None:
-    """Refuse up front (one line) a pyramid whose tile metadata would not fit the bound."""
-    total = sum(g.nx * g.ny for g in grids.values())
-    if total <= MAX_TILES:
-        return
-    l_max = max(grids)
-    fit = max(
-        (
-            lv
-            for lv in range(l_max + 1)
-            if sum(grids[k].nx * grids[k].ny for k in range(lv + 1)) <= MAX_TILES
-        ),
-        default=0,
-    )
-    fine = grids[l_max]
-    src = min(sources, key=lambda s: s.res)
-    info = src.dem.info
-    gb = total * _BYTES_PER_TILE / 1e9
-    what = (
-        f"--max-level {l_max}"
-        if chosen
-        else f"{src.path} is {info.width}x{info.height} pixels: its finest level {l_max}"
-    )
-    raise StoreError(
-        f"{what} would have {fine.nx * fine.ny} tiles ({total} in all, about {gb:.1f} GB of "
-        f"metadata); the limit is {MAX_TILES} tiles: use --max-level {fit} or a larger --tile-n"
-    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -661,7 +722,11 @@ def ingest(
             for p, (size, sha256), dem in zip(src_paths, contents, dems, strict=True)
         ]
         l_max = _clamp_levels(srcs, max_level)
-        builder = _plan_build(srcs, tile_n, l_max, wavelet, out_path.parent, max_level is not None)
+        table = _footprint_table(srcs)
+        _check_size_early(table, srcs, out_path.parent, max_level, tile_n)
+        plan = plan_chunks(table, tile_n, max_level)
+        _check_size(plan, srcs, out_path.parent, max_level)
+        builder = _plan_build(srcs, tile_n, l_max, wavelet, out_path.parent, plan)
         _build_and_commit(builder, stack, out_path, params, where, previous, progress, on_progress)
     return IngestResult(
         out_path,
@@ -730,7 +795,7 @@ def _source_contents(
     """The DEM files the sources stand for (a folder: the DEM files in it, `ingest.sources`),
     each checked, and their content identity (size, sha256): the same content elsewhere is
     the same source."""
-    src_paths = expand_sources([Path(p).absolute() for p in sources])
+    src_paths = [p.absolute() for p in expand_sources(sources)]
     _check_sources(src_paths)
     # Hashed on a few threads (hashlib releases the GIL): a folder of thousands of tiles is
     # read at disk speed rather than one file at a time.
@@ -779,17 +844,107 @@ def _clamp_levels(srcs: Sequence[_Source], max_level: int | None) -> int:
     return l_max
 
 
+def _footprint_table(srcs: Sequence[_Source]) -> FootprintTable:
+    """The planner's table of the opened sources: their footprints, finer pixel sizes (also
+    the reach `tasks.fill_reads_source` grows a footprint by) and datums."""
+    return table_from_bounds(
+        [str(s.path) for s in srcs],
+        [s.bounds for s in srcs],
+        [s.res for s in srcs],
+        [s.res for s in srcs],
+        [s.wraps for s in srcs],
+        [s.datum if s.datum in DATUMS else "ellipsoid" for s in srcs],
+    )
+
+
+def _check_size_early(
+    table: FootprintTable,
+    srcs: Sequence[_Source],
+    parent: Path,
+    max_level: int | None,
+    tile_n: int,
+) -> None:
+    """`_check_size` on a lower bound of the chunks (`plan.chunks_at_least`: no chunk set
+    built), so a build far past the disk is one line at once, not after minutes of planning;
+    the exact check follows the plan."""
+    at_least = chunks_at_least(table, tile_n, max_level)
+    full = chunk_nodes(tile_n) ** 2 * cost.BYTES_PER_NODE + cost.META_BYTES_PER_CHUNK
+    c0 = chunk_levels_c0(tile_n)  # levels above it are one small chunk: counted as none
+    need = [n * full if lv >= c0 else 0.0 for lv, n in enumerate(at_least)]
+    _refuse_if_over(need, sum(at_least), srcs, parent, max_level, at_least=True)
+
+
+def _check_size(
+    plan: ChunkPlan, srcs: Sequence[_Source], parent: Path, max_level: int | None
+) -> None:
+    """StoreError (one line, before anything is written) when the planned chunks would not
+    fit on the disk the store goes to: their nodes at `cost.BYTES_PER_NODE` (an upper bound:
+    NaN nodes compress to almost nothing) and their metadata. No tile count caps a build
+    (store format 7); the disk does, and `plan.PLAN_MAX_CHUNKS` the plan's memory."""
+    need = [
+        plan.level_nodes(lv) * cost.BYTES_PER_NODE
+        + plan.levels[lv].chunks * cost.META_BYTES_PER_CHUNK
+        for lv in range(plan.max_level + 1)
+    ]
+    _refuse_if_over(need, plan.chunks, srcs, parent, max_level, at_least=False)
+
+
+def _refuse_if_over(
+    need: Sequence[float],
+    chunks: int,
+    srcs: Sequence[_Source],
+    parent: Path,
+    max_level: int | None,
+    *,
+    at_least: bool,
+) -> None:
+    """StoreError (one line) when ``need`` (bytes per level 0..L_max) is more than the free
+    space where ``parent`` is, naming the finest level that fits."""
+    where = parent
+    while not where.exists() and where != where.parent:
+        where = where.parent
+    try:
+        free = shutil.disk_usage(where).free
+    except OSError:
+        return  # the output checks say what is wrong with the location
+    total = sum(need)
+    if total <= free:
+        return
+    l_max = len(need) - 1
+    fit = max((lv for lv in range(l_max + 1) if sum(need[: lv + 1]) <= free), default=0)
+    src = min(srcs, key=lambda s: s.res)
+    what = (
+        f"--max-level {l_max}"
+        if max_level is not None
+        else f"{src.path} is {src.dem.info.width}x{src.dem.info.height} pixels: its finest "
+        f"level {l_max}"
+    )
+    count = f"at least {chunks:,}" if at_least else f"{chunks:,}"
+    raise StoreError(
+        f"{what} would have {count} chunk files, about {_size_text(total)}; the limit "
+        f"is the free space in {where}: {_size_text(free)}; use --max-level {fit}"
+    )
+
+
+def _size_text(n: float) -> str:
+    """Bytes for people: 3.2 GB, 51 TB."""
+    for unit, f in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6)):
+        if n >= f:
+            return f"{n / f:.3g} {unit}"
+    return f"{n / 1e3:.3g} kB"
+
+
 def _plan_build(
-    srcs: Sequence[_Source], tile_n: int, l_max: int, wavelet: str, parent: Path, chosen: bool
+    srcs: Sequence[_Source], tile_n: int, l_max: int, wavelet: str, parent: Path, plan: ChunkPlan
 ) -> _Builder:
     """The builder of the pyramid: its sources finest first (the finest wins where it has
-    data), the order they were given kept for the manifest; a pyramid over the memory bound
-    refused (``chosen``: L_max came from --max-level)."""
+    data), the order they were given kept for the manifest, and the chunks ``plan`` holds
+    (`plan.plan_chunks` of the same sources: the one planner of `ingest --plan` and the
+    build)."""
     ordered = sorted(srcs, key=lambda s: s.res)  # (a stable sort: ties keep input order)
-    builder = _Builder(ordered, tile_n, l_max, wavelet, parent, _no_tick)
+    builder = _Builder(ordered, tile_n, l_max, wavelet, parent, _no_tick, plan.chunk_sets())
     sorted_at = {id(t): j for j, t in enumerate(ordered)}  # not a search per source: 10^4 tiles
     builder.input_order = [sorted_at[id(s)] for s in srcs]
-    _check_size(builder.grids, ordered, chosen=chosen)
     return builder
 
 
@@ -836,7 +991,7 @@ def _build_and_commit(
         os.replace(part, tmp / MANIFEST_NAME)
         commit(tmp, out, tok)
     except _BUILD_ERRORS as exc:
-        raise write_error(exc, dropped, out, parent, builder.grids) from None
+        raise write_error(exc, dropped, out, parent, builder.store_megabytes()) from None
 
 
 @dataclass(frozen=True)

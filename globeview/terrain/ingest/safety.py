@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import math
 import os
 import re
 import shutil
@@ -33,9 +32,14 @@ from globeview.errors import StoreError
 from globeview.fileio import describe_os_error
 from globeview.paths import cache_dir
 from globeview.terrain.ingest.tasks import fault_point
-from globeview.terrain.levels import LevelGrid
 from globeview.terrain.store.backend import RASTER_ERRORS
-from globeview.terrain.store.identify import StoreIdentity, identify, is_store_file
+from globeview.terrain.store.identify import (
+    StoreIdentity,
+    identify,
+    is_store_entry,
+    store_files,
+)
+from globeview.terrain.store.layout import STORE_DIRS
 from globeview.terrain.store.schema import FORMAT_VERSION, built_before_vdatums
 
 __all__ = [
@@ -46,7 +50,6 @@ __all__ = [
     "commit",
     "gdal_quiet",
     "remove_store_dir",
-    "store_megabytes",
     "tty_stderr",
     "write_error",
 ]
@@ -108,7 +111,9 @@ def _leftover_path(parent: Path, name: str, kind: str, tok: str) -> Path:
 
 def _only_store_files(d: Path) -> bool:
     try:
-        return all(is_store_file(e.name) and e.is_file() for e in d.iterdir())
+        return all(
+            is_store_entry(d, e.name) and (e.is_file() or e.name in STORE_DIRS) for e in d.iterdir()
+        )
     except OSError:
         return False
 
@@ -117,12 +122,24 @@ def remove_store_dir(d: Path) -> None:
     """Remove a store folder file by file, only the files globeview writes; a folder that
     holds anything else is left as it is (never a user's file lost, even in a race)."""
     try:
-        for e in d.iterdir():
-            if is_store_file(e.name) and e.is_file():
-                e.unlink()
+        for f in store_files(d):
+            f.unlink()
+        _remove_empty_dirs(d)
         d.rmdir()
     except OSError:
         pass
+
+
+def _remove_empty_dirs(d: Path) -> None:
+    """Remove the (now empty) folders of a store's subtrees, deepest first; a folder still
+    holding something (not ours) stays."""
+    for name in STORE_DIRS:
+        top = d / name
+        if not top.is_dir() or top.is_symlink():
+            continue
+        for sub, _dirs, _files in sorted(os.walk(top), key=lambda t: -len(t[0])):
+            with contextlib.suppress(OSError):
+                os.rmdir(sub)
 
 
 def _try_lock(path: Path) -> int | None:
@@ -294,20 +311,15 @@ def _disk_full(dropped: list[str], where: Path) -> bool:
         return False
 
 
-def store_megabytes(grids: dict[int, LevelGrid]) -> int:
-    """Uncompressed size of the level rasters, MB (an upper bound of what the store needs)."""
-    return max(1, math.ceil(sum(g.width * g.height * 4 for g in grids.values()) / 1e6))
-
-
 def clear_folder(folder: Path) -> None:
     """Remove the store files in a building folder (links of a refused update)."""
-    for e in folder.iterdir():
-        if is_store_file(e.name):
-            e.unlink(missing_ok=True)
+    for f in store_files(folder):
+        f.unlink(missing_ok=True)
+    _remove_empty_dirs(folder)
 
 
 def write_error(
-    exc: BaseException, dropped: list[str], out: Path, parent: Path, grids: dict[int, LevelGrid]
+    exc: BaseException, dropped: list[str], out: Path, parent: Path, megabytes: int
 ) -> StoreError:
     """One line for a failed build (the building folder is removed by `build_folder`)."""
     if isinstance(exc, StoreError):
@@ -316,7 +328,7 @@ def write_error(
     if code in (errno.ENOSPC, errno.EDQUOT) or (
         isinstance(exc, RASTER_ERRORS) and _disk_full(dropped, parent)
     ):
-        return StoreError(f"disk full writing {out} (needs about {store_megabytes(grids)} MB)")
+        return StoreError(f"disk full writing {out} (needs about {megabytes} MB)")
     if code == errno.EROFS or any("Read-only file system" in line for line in dropped):
         return StoreError(f"cannot write the store {out}: {parent} is on a read-only file system")
     if isinstance(exc, OSError) and not isinstance(exc, RASTER_ERRORS) and exc.errno:

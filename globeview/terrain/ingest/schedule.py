@@ -35,6 +35,7 @@ import re
 import threading
 import time
 from collections.abc import Callable, Hashable, Sequence
+from collections.abc import Set as AbstractSet
 from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
@@ -49,6 +50,7 @@ from globeview.terrain.ingest.tasks import (
     error_task,
     pole_task,
 )
+from globeview.terrain.store.layout import EXTRA_COL, EXTRA_ROW
 
 __all__ = [
     "CONNECT_TIMEOUT_S",
@@ -180,19 +182,25 @@ def _chunks_of_rows(rr: np.ndarray, c: int, n: int) -> np.ndarray:
 
 
 def _level_chunks(
-    plan: BuildPlan, lv: int, gr: np.ndarray, gc: np.ndarray
+    plan: BuildPlan, lv: int, gr: np.ndarray, gc: np.ndarray, planned: AbstractSet[tuple[int, int]]
 ) -> list[tuple[int, int]]:
-    """The chunks of level lv holding any node of rows ``gr`` x columns ``gc`` (global,
-    unwrapped node indices, as `levels.read_level_nodes` reads them)."""
+    """The planned chunks of level lv holding any node of rows ``gr`` x columns ``gc``
+    (global, unwrapped node indices, as `levels.read_level_nodes` reads them)."""
     g = plan.grids[lv]
     rows, cols = plan.chunk_shape(lv)
     cys = _chunks_of_rows(g.raster_rows(gr), plan.chunk_nodes, rows)
     cxs = _chunks_of_rows(g.raster_cols(gc), plan.chunk_nodes, cols)
-    return [(int(a), int(b)) for a in cys for b in cxs]
+    return [(int(a), int(b)) for a in cys for b in cxs if (int(a), int(b)) in planned]
 
 
-def build_graph(plan: BuildPlan, sources: Sequence[SourceSpec]) -> Graph:
-    """The ingest graph of a planned build (see the module docstring)."""
+def build_graph(
+    plan: BuildPlan,
+    sources: Sequence[SourceSpec],
+    planned: Sequence[AbstractSet[tuple[int, int]]],
+) -> Graph:
+    """The ingest graph of a planned build (see the module docstring): tasks only for the
+    chunks ``planned[level]`` ((cy, cx) of the global chunk grid, `store.layout`); every
+    other chunk has no data."""
     dsk: dict[Hashable, Any] = {"plan": plan, "sources": tuple(sources)}
     dsk["pole"] = (pole_task, "plan", "sources")
     chunk_keys: list[str] = []
@@ -202,72 +210,97 @@ def build_graph(plan: BuildPlan, sources: Sequence[SourceSpec]) -> Graph:
     for lv in range(plan.max_level, -1, -1):
         grid = plan.grids[lv]
         s_n = grid.tile_nodes
-        rows, cols = plan.chunk_shape(lv)
-        for cy in range(rows):
-            for cx in range(cols):
-                by, bx, kty, ktx = plan.window(lv, cy, cx)
-                h, w = kty * s_n + 1, ktx * s_n + 1
-                gr0, gc0 = grid.gr0 + by * s_n, grid.gc0 + bx * s_n
-                fine: list[str] = []
-                if lv < plan.max_level:
-                    fine = [
-                        _chunk_key(lv + 1, a, b)
-                        for a, b in _level_chunks(
-                            plan,
-                            lv + 1,
-                            2 * gr0 - hl + np.arange(2 * h - 1 + 2 * hl),
-                            2 * gc0 - hl + np.arange(2 * w - 1 + 2 * hl),
-                        )
-                    ]
-                south_row = grid.nrows * s_n - gr0
-                pole = "pole" if gr0 == 0 or 0 <= south_row < h else None
-                first = None
-                if grid.global_lon and cx == cols - 1 and cx > 0:
-                    first = _chunk_key(lv, cy, 0)
-                write_no += 1
-                key = _chunk_key(lv, cy, cx)
-                dsk[key] = (chunk_task, "plan", "sources", lv, cy, cx, write_no, pole, fine, first)
-                chunk_keys.append(key)
-                deps_of[key] = [*fine, *([first] if first else []), *([pole] if pole else [])]
+        _, cols = plan.chunk_shape(lv)
+        for cy, cx in sorted(planned[lv]):
+            by, bx, kty, ktx = plan.window(lv, cy, cx)
+            h, w = kty * s_n + 1, ktx * s_n + 1
+            gr0, gc0 = grid.gr0 + by * s_n, grid.gc0 + bx * s_n
+            fine: list[str] = []
+            if lv < plan.max_level:
+                fine = [
+                    _chunk_key(lv + 1, a, b)
+                    for a, b in _level_chunks(
+                        plan,
+                        lv + 1,
+                        2 * gr0 - hl + np.arange(2 * h - 1 + 2 * hl),
+                        2 * gc0 - hl + np.arange(2 * w - 1 + 2 * hl),
+                        planned[lv + 1],
+                    )
+                ]
+            south_row = grid.nrows * s_n - gr0
+            pole = "pole" if gr0 == 0 or 0 <= south_row < h else None
+            first = None
+            if grid.global_lon and cx == cols - 1 and cx > 0 and (cy, 0) in planned[lv]:
+                first = _chunk_key(lv, cy, 0)
+            write_no += 1
+            key = _chunk_key(lv, cy, cx)
+            # A chunk whose neighbour below / east is not planned (no data) stores its
+            # closing row / column too (`layout.chunk_window`).
+            extra = (EXTRA_ROW if (cy + 1, cx) not in planned[lv] else 0) | (
+                EXTRA_COL if (cy, cx + 1) not in planned[lv] else 0
+            )
+            dsk[key] = (
+                chunk_task,
+                "plan",
+                "sources",
+                lv,
+                cy,
+                cx,
+                write_no,
+                pole,
+                fine,
+                first,
+                extra,
+            )
+            chunk_keys.append(key)
+            deps_of[key] = [*fine, *([first] if first else []), *([pole] if pole else [])]
     error_keys: list[str] = []
     for lf in range(plan.max_level, 0, -1):
         gf = plan.grids[lf]
         s_n = gf.tile_nodes
-        rows, cols = plan.chunk_shape(lf)
-        for cy in range(rows):
-            for cx in range(cols):
-                by, bx, kty, ktx = plan.window(lf, cy, cx)
-                h, w = kty * s_n + 1, ktx * s_n + 1
-                gr0, gc0 = gf.gr0 + by * s_n, gf.gc0 + bx * s_n
-                deps = {
-                    _chunk_key(lf, a, b)
-                    for a, b in _level_chunks(plan, lf, gr0 + np.arange(h), gc0 + np.arange(w))
+        for cy, cx in sorted(planned[lf]):
+            by, bx, kty, ktx = plan.window(lf, cy, cx)
+            h, w = kty * s_n + 1, ktx * s_n + 1
+            gr0, gc0 = gf.gr0 + by * s_n, gf.gc0 + bx * s_n
+            deps = {
+                _chunk_key(lf, a, b)
+                for a, b in _level_chunks(
+                    plan, lf, gr0 + np.arange(h), gc0 + np.arange(w), planned[lf]
+                )
+            }
+            if lf < plan.max_level:
+                block = s_n // 2
+                ty = gr0 // block + np.arange((h - 1) // block)
+                tx = gc0 // block + np.arange((w - 1) // block)
+                g1 = plan.grids[lf + 1]
+                iy, ix, inside = g1.tile_slots(ty[:, None], tx[None, :])
+                iy, ix, inside = np.broadcast_arrays(iy, ix, inside)
+                pairs = np.unique(
+                    np.stack([iy[inside] // plan.k, ix[inside] // plan.k], axis=1), axis=0
+                )
+                deps |= {
+                    _chunk_key(lf + 1, int(a), int(b))
+                    for a, b in pairs
+                    if (int(a), int(b)) in planned[lf + 1]
                 }
-                if lf < plan.max_level:
-                    block = s_n // 2
-                    ty = gr0 // block + np.arange((h - 1) // block)
-                    tx = gc0 // block + np.arange((w - 1) // block)
-                    g1 = plan.grids[lf + 1]
-                    iy, ix, inside = g1.tile_slots(ty[:, None], tx[None, :])
-                    iy, ix, inside = np.broadcast_arrays(iy, ix, inside)
-                    pairs = np.unique(
-                        np.stack([iy[inside] // plan.k, ix[inside] // plan.k], axis=1), axis=0
+            for lv in range(lf):
+                f = 1 << (lf - lv)
+                r0, c0 = gr0 // f, gc0 // f
+                r1, c1 = -(-(gr0 + h - 1) // f), -(-(gc0 + w - 1) // f)
+                deps |= {
+                    _chunk_key(lv, a, b)
+                    for a, b in _level_chunks(
+                        plan,
+                        lv,
+                        r0 + np.arange(r1 - r0 + 1),
+                        c0 + np.arange(c1 - c0 + 1),
+                        planned[lv],
                     )
-                    deps |= {_chunk_key(lf + 1, int(a), int(b)) for a, b in pairs}
-                for lv in range(lf):
-                    f = 1 << (lf - lv)
-                    r0, c0 = gr0 // f, gc0 // f
-                    r1, c1 = -(-(gr0 + h - 1) // f), -(-(gc0 + w - 1) // f)
-                    deps |= {
-                        _chunk_key(lv, a, b)
-                        for a, b in _level_chunks(
-                            plan, lv, r0 + np.arange(r1 - r0 + 1), c0 + np.arange(c1 - c0 + 1)
-                        )
-                    }
-                key = f"error-{lf}-{cy}-{cx}"
-                dsk[key] = (error_task, "plan", lf, cy, cx, sorted(deps))
-                error_keys.append(key)
-                deps_of[key] = sorted(deps)
+                }
+            key = f"error-{lf}-{cy}-{cx}"
+            dsk[key] = (error_task, "plan", lf, cy, cx, sorted(deps))
+            error_keys.append(key)
+            deps_of[key] = sorted(deps)
     return Graph(dsk, chunk_keys, error_keys, deps_of)
 
 

@@ -8,7 +8,7 @@ task reads the finer level's chunk files it needs (wavelet halo included) and wr
 chunk file; it returns only per-tile statistics (a few KB). The store folder must therefore
 be on a filesystem every worker shares.
 
-Memory per task is bounded by the chunk size (`schema.CHUNK_TARGET_NODES` nodes a side:
+Memory per task is bounded by the chunk size (`layout.CHUNK_TARGET_NODES` nodes a side:
 a window, its halo and temporaries, tens of MB) and GDAL's block cache (`GDAL_CACHE_MB`).
 
 The numerics are those of the serial ingest they replace (same reads, same order of
@@ -35,6 +35,7 @@ from rasterio.windows import Window
 
 from globeview.terrain.dem.reader import Dem
 from globeview.terrain.dem.vdatum import egm96
+from globeview.terrain.ingest.stored_ranges import stored_part_facts
 from globeview.terrain.ingest.tile_errors import (
     error_window,
     pruned_error_tiles,
@@ -43,8 +44,14 @@ from globeview.terrain.ingest.tile_errors import (
 )
 from globeview.terrain.ingest.wavelet import approximate_window
 from globeview.terrain.levels import LevelGrid, read_level_nodes
-from globeview.terrain.store.level_chunks import chunk_window, write_chunk
-from globeview.terrain.store.schema import chunk_file_name, chunk_grid_shape
+from globeview.terrain.store.layout import (
+    EXTRA_COL,
+    EXTRA_ROW,
+    chunk_file_name,
+    chunk_grid_shape,
+    chunk_window,
+)
+from globeview.terrain.store.level_chunks import write_chunk
 
 __all__ = [
     "FAULT_ENV",
@@ -102,7 +109,8 @@ class BuildPlan:
     """Everything a task needs to know about the build (small, picklable).
 
     folder: the building folder (chunk files are read and written there); grids: level ->
-    raster geometry; k: tiles per chunk side (chunk_nodes = k * 2^tile_n); halo: the
+    raster geometry (the whole globe: store format 7's chunks are fixed by the quadtree,
+    `store.layout`); k: tiles per chunk side (chunk_nodes = k * 2^tile_n); halo: the
     wavelet's halo in fine nodes; gdal_threads: GDAL's compression threads per chunk write.
     """
 
@@ -129,7 +137,7 @@ class BuildPlan:
         return by, bx, min(self.k, g.ny - by), min(self.k, g.nx - bx)
 
     def chunk_shape(self, lv: int) -> tuple[int, int]:
-        return chunk_grid_shape(self.grids[lv], self.chunk_nodes)
+        return chunk_grid_shape(lv, self.tile_n)
 
 
 # Per-thread open Dems, by `SourceSpec.token`: GDAL datasets are not thread-safe, so each
@@ -181,9 +189,8 @@ def close_thread_sources() -> None:
 class ChunkResult:
     """What a chunk task returns: the per-tile statistics of its tile block (hmin, hmax
     (kty, ktx) metres, NaN without data; stride_delta (kty, ktx, len(STRIDES)) metres),
-    the chunk file's sha256 (None: all NaN, no file) and, for chunk column 0 of a level
-    that goes all the way round, its closed window's first node column (the east edge of
-    the row's last chunk)."""
+    the chunk file's sha256 (None: all NaN, no file) and size in bytes and, for chunk column
+    0, its closed window's first node column (the east edge of the row's last chunk)."""
 
     level: int
     cy: int
@@ -193,6 +200,12 @@ class ChunkResult:
     stride_delta: np.ndarray
     sha256: str | None
     first_col: np.ndarray | None = None
+    bytes: int = 0
+    flags: int = 0  # `layout.EXTRA_ROW` | `EXTRA_COL`: the file holds its closing row/column
+    #: (hmin, hmax, packed edge facts) over the nodes the chunk's file stores
+    #: (`stored_ranges.stored_part_facts`): the tiles' ranges as stored, once folded with
+    #: the neighbours' (`stored_ranges.tile_ranges`); None: hmin and hmax are those.
+    stored: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -223,9 +236,11 @@ def _open_chunk(path: Path, sha256: str) -> rasterio.DatasetReader:
 class ChunkReader:
     """A level raster read from its chunk files in the building folder (what
     `read_level_nodes` needs of a dataset: ``read(1, window=...)``). ``present``: the chunks
-    that have a file, with their sha256 (the others are all NaN)."""
+    that have a file, with their sha256 and flags (the others are all NaN)."""
 
-    def __init__(self, plan: BuildPlan, lv: int, present: dict[tuple[int, int], str]) -> None:
+    def __init__(
+        self, plan: BuildPlan, lv: int, present: dict[tuple[int, int], tuple[str, int]]
+    ) -> None:
         self.plan = plan
         self.grid = plan.grids[lv]
         self.present = present
@@ -236,24 +251,36 @@ class ChunkReader:
         r_a, c_a = int(window.row_off), int(window.col_off)
         h, w = int(window.height), int(window.width)
         out = np.full((h, w), np.nan, dtype=np.float32)
-        for cy in range(min(r_a // c, rows - 1), min((r_a + h - 1) // c, rows - 1) + 1):
-            for cx in range(min(c_a // c, cols - 1), min((c_a + w - 1) // c, cols - 1) + 1):
-                sha = self.present.get((cy, cx))
-                if sha is None:
+        # From the chunk above / west too: it may store its closing row / column.
+        for cy in range(max(0, (r_a - 1) // c), min((r_a + h - 1) // c, rows - 1) + 1):
+            for cx in range(max(0, (c_a - 1) // c), min((c_a + w - 1) // c, cols - 1) + 1):
+                hit = self.present.get((cy, cx))
+                if hit is None:
                     continue
-                r0, c0, ch, cw = chunk_window(self.grid, c, cy, cx)
+                sha, flags = hit
+                r0, c0, ch, cw = chunk_window(
+                    self.grid.level,
+                    self.plan.tile_n,
+                    cy,
+                    cx,
+                    bool(flags & EXTRA_ROW),
+                    bool(flags & EXTRA_COL),
+                )
                 ra, rb = max(r_a, r0), min(r_a + h, r0 + ch)
                 ca, cb = max(c_a, c0), min(c_a + w, c0 + cw)
                 if ra >= rb or ca >= cb:
                     continue
-                path = Path(self.plan.folder) / chunk_file_name(self.grid.level, cy, cx)
+                path = Path(self.plan.folder) / chunk_file_name(self.grid.level, cy, cx, sha)
                 win = Window(ca - c0, ra - r0, cb - ca, rb - ra)
                 dst = out[ra - r_a : rb - r_a, ca - c_a : cb - c_a]
                 if self.plan.keep_open:
-                    dst[...] = _open_chunk(path, sha).read(band, window=win)
+                    got = _open_chunk(path, sha).read(band, window=win)
                 else:
                     with rasterio.open(path) as ds:
-                        dst[...] = ds.read(band, window=win)
+                        got = ds.read(band, window=win)
+                # A node both chunks hold (an owner's first row and its neighbour's closing
+                # row): the owner's (read last: row-major) wins where it has a value.
+                np.copyto(dst, got, where=np.isnan(dst) | np.isfinite(got))
         return out
 
     def __enter__(self) -> ChunkReader:
@@ -268,8 +295,10 @@ class ChunkReader:
         pass
 
 
-def _present(results: Sequence[ChunkResult], lv: int) -> dict[tuple[int, int], str]:
-    return {(r.cy, r.cx): r.sha256 for r in results if r.level == lv and r.sha256 is not None}
+def _present(results: Sequence[ChunkResult], lv: int) -> dict[tuple[int, int], tuple[str, int]]:
+    return {
+        (r.cy, r.cx): (r.sha256, r.flags) for r in results if r.level == lv and r.sha256 is not None
+    }
 
 
 # ---------------------------------------------------------------------------------------------
@@ -385,6 +414,10 @@ def pole_task(plan: BuildPlan, sources: Sequence[SourceSpec]) -> dict[str, float
         for name, grow in (("north", 0), ("south", g.nrows * g.tile_nodes)):
             if g.raster_rows(np.array([grow]))[0] < 0:
                 continue
+            # The row goes all the way round (format 7's levels are global): read it only
+            # when a source reaches it.
+            if not any(fill_reads_source(g, grow, 0, 1, 2, s.bounds, True, s.res) for s in sources):
+                continue
             # One node row across the extent: small (a few MB even for a global level 12).
             row = np.full((1, g.width), np.nan, dtype=np.float32)
             fill_from_sources(sources, row, g, grow, g.gc0, plan.max_level)
@@ -445,6 +478,7 @@ def chunk_task(
     pole: dict[str, float | None] | None,
     fine: Sequence[ChunkResult],
     first: ChunkResult | None,
+    extra: int = 0,
 ) -> ChunkResult:
     """Compute, write and summarise chunk (cy, cx) of level lv.
 
@@ -453,7 +487,8 @@ def chunk_task(
     files are in the building folder); ``first``: for the last chunk of a row of a level
     that goes all the way round, chunk (cy, 0)'s result (its first column becomes this
     chunk's east edge: lon 180 is lon -180). ``write_no``: the window's number in the serial
-    order (fault injection).
+    order (fault injection). ``extra``: `layout.EXTRA_ROW` / `EXTRA_COL` when the chunk
+    below / east of it has no data, so this one stores its closing row / column.
     """
     grid = plan.grids[lv]
     s_n = grid.tile_nodes
@@ -474,25 +509,27 @@ def chunk_task(
             first_col = arr[:, 0].copy()
         if bx + ktx == grid.nx:
             edge = first_col if bx == 0 else (first.first_col if first is not None else None)
-            if edge is None:
-                raise RuntimeError(f"chunk {lv}/{cy}/{cx}: the row's first column is missing")
-            arr[:, -1] = edge
+            # No first chunk in the row (no data there): its column reads as NaN.
+            arr[:, -1] = np.nan if edge is None else edge
     hmin, hmax = tile_min_max(arr, s_n)
     # Stride deltas: delta_s = max |S_s - S_1| over the tile, where S_s is the bilinear
     # surface on every s-th node and S_1 the tile's own (exact at the nodes; a running max
     # over the strides keeps the bounds monotone): see tile_errors.stride_deltas.
     delta = stride_deltas(arr, s_n, STRIDES)
-    # The chunk is the window's half-open part; the last row/column of chunks also holds the
-    # raster's edge.
-    hh = h if by + kty == grid.ny else h - 1
-    ww = w if bx + ktx == grid.nx else w - 1
+    # The chunk is the window's half-open part; the last row of chunks also holds the south
+    # pole row (column W, one turn east, is column 0: never stored, `layout.chunk_window`).
+    _, _, hh, ww = chunk_window(
+        lv, plan.tile_n, cy, cx, bool(extra & EXTRA_ROW), bool(extra & EXTRA_COL)
+    )
     fault_point(write_no)
     with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB * 1024 * 1024):
-        sha = write_chunk(
-            Path(plan.folder), grid, plan.chunk_nodes, cy, cx, arr[:hh, :ww], plan.gdal_threads
+        written = write_chunk(
+            Path(plan.folder), lv, plan.tile_n, cy, cx, arr[:hh, :ww], plan.gdal_threads, extra
         )
+    sha, size = written if written is not None else (None, 0)
     keep_first = first_col if grid.global_lon and bx == 0 and bx + ktx < grid.nx else None
-    return ChunkResult(lv, cy, cx, hmin, hmax, delta, sha, keep_first)
+    stored = stored_part_facts(arr, hh, ww, s_n)  # all NaN without a file
+    return ChunkResult(lv, cy, cx, hmin, hmax, delta, sha, keep_first, size, extra, stored)
 
 
 def _tile_table(results: Sequence[ChunkResult], plan: BuildPlan, lv: int) -> dict:

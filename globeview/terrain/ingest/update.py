@@ -15,7 +15,7 @@ content changed (size or sha256), only these tasks of the ingest graph run again
 Every other chunk file is hard-linked (copied where links fail) from the old store into the
 building folder, after its sha256 is checked against the old manifest, and its per-tile
 statistics, and the per-tile maxima of its error window, come from its sidecar
-``level_LL_rRRRR_cCCCC.npz`` (exact float64, which the manifest's rounded values are not).
+``facts/LL/<cy>/<cx>.npz`` (exact float64, which the manifest's rounded values are not).
 The tasks are deterministic, so the result equals a full rebuild bit for bit.
 
 A change the update cannot follow (other levels or extents, another chunk size, a source
@@ -37,22 +37,25 @@ import numpy as np
 
 from globeview.terrain.ingest.schedule import Graph
 from globeview.terrain.ingest.tasks import (
+    STRIDES,
     BuildPlan,
     ChunkResult,
     SourceSpec,
     fill_reads_source,
 )
-from globeview.terrain.store.schema import StoreManifest, chunk_file_name
+from globeview.terrain.store.layout import chunk_file_name, chunk_tiles, facts_file_name
+from globeview.terrain.store.schema import StoreManifest
 
 __all__ = ["Update", "facts_name", "plan_update", "write_facts"]
 
 # Sidecar format (a pickle-free npz): bump when its arrays change meaning.
-_FACTS_VERSION = 1
+_FACTS_VERSION = 3  # 2: store format 7 (global chunk grid, the chunk file's size); 3: the
+# ranges over the stored nodes (`ChunkResult.stored`)
 
 
 def facts_name(lv: int, cy: int, cx: int) -> str:
-    """The sidecar of chunk (cy, cx) of level lv."""
-    return chunk_file_name(lv, cy, cx).removesuffix(".tif") + ".npz"
+    """The sidecar of chunk (cy, cx) of level lv (`layout.facts_file_name`)."""
+    return facts_file_name(lv, cy, cx)
 
 
 def write_facts(
@@ -71,8 +74,12 @@ def write_facts(
         "hmax": chunk.hmax,
         "stride_delta": chunk.stride_delta,
         "sha256": np.array(chunk.sha256 or ""),
+        "bytes": np.array(chunk.bytes, dtype=np.int64),
+        "flags": np.array(chunk.flags, dtype=np.int64),
         "first_col": chunk.first_col if chunk.first_col is not None else np.zeros(0, np.float32),
         "has_first": np.array(chunk.first_col is not None),
+        "has_stored": np.array(chunk.stored is not None),
+        **_stored_arrays(chunk),
         "err_level": cat(lvs, np.int64),
         "err_iy": cat([e[1] for e in errors], np.int64),
         "err_ix": cat([e[2] for e in errors], np.int64),
@@ -80,6 +87,7 @@ def write_facts(
         "source_levels": np.array(list(source_levels), dtype=np.int64),
     }
     path = folder / facts_name(chunk.level, chunk.cy, chunk.cx)
+    path.parent.mkdir(parents=True, exist_ok=True)
     path.unlink(missing_ok=True)  # a new inode (never write into a linked old sidecar)
     # np.savez stamps each member with the time; fixed stamps make the same facts the same
     # bytes (a rebuilt store equals an updated one file for file).
@@ -90,10 +98,26 @@ def write_facts(
                 np.lib.format.write_array(f, np.asanyarray(a), allow_pickle=False)
 
 
+def _stored_arrays(chunk: ChunkResult) -> dict[str, np.ndarray]:
+    """The facts' arrays of ``chunk.stored`` (empty when None)."""
+    empty = np.zeros(0, np.float32)
+    lo, hi, edges = chunk.stored if chunk.stored is not None else (empty, empty, empty)
+    return {"stored_hmin": lo, "stored_hmax": hi, "stored_edges": edges}
+
+
 def _read_facts(
-    folder: Path, lv: int, cy: int, cx: int
-) -> tuple[ChunkResult, list[tuple[int, np.ndarray, np.ndarray, np.ndarray]], np.ndarray]:
-    with np.load(folder / facts_name(lv, cy, cx), allow_pickle=False) as z:
+    folder: Path, lv: int, cy: int, cx: int, plan: BuildPlan | None = None
+) -> tuple[ChunkResult, list[tuple[int, np.ndarray, np.ndarray, np.ndarray]], np.ndarray | None]:
+    """A chunk's facts; with ``plan``, a chunk without a facts file is one without data or
+    error maxima (none is written for those: a store over a large extent holds few), its
+    levels unknown (None)."""
+    path = folder / facts_name(lv, cy, cx)
+    if plan is not None and not path.exists():
+        _, _, kty, ktx = plan.window(lv, cy, cx)
+        nan = np.full((kty, ktx), np.nan)
+        empty = ChunkResult(lv, cy, cx, nan, nan.copy(), np.zeros((kty, ktx, len(STRIDES))), None)
+        return empty, [], None
+    with np.load(path, allow_pickle=False) as z:
         if int(z["version"]) != _FACTS_VERSION:
             raise ValueError("sidecar of another version")
         sha = str(z["sha256"])
@@ -106,6 +130,11 @@ def _read_facts(
             z["stride_delta"],
             sha or None,
             z["first_col"] if bool(z["has_first"]) else None,
+            int(z["bytes"]),
+            int(z["flags"]),
+            (z["stored_hmin"], z["stored_hmax"], z["stored_edges"])
+            if bool(z["has_stored"])
+            else None,
         )
         levels, iy, ix, red = z["err_level"], z["err_iy"], z["err_ix"], z["err_max"]
         errors = [
@@ -141,6 +170,7 @@ def _sha256(path: Path) -> str:
 
 def _link(src: Path, dst: Path) -> None:
     """Hard link (the files of a store are never modified in place), else a copy."""
+    dst.parent.mkdir(parents=True, exist_ok=True)
     try:
         os.link(src, dst)
     except OSError:
@@ -166,7 +196,7 @@ def plan_update(
     """
     if not _same_layout(manifest, plan):
         return None
-    read = _old_facts(old, graph, input_order)
+    read = _old_facts(old, graph, input_order, plan)
     if read is None:
         return None
     facts, old_levels = read
@@ -192,31 +222,27 @@ def plan_update(
 
 
 def _same_layout(manifest: StoreManifest, plan: BuildPlan) -> bool:
-    """Whether the old store's levels have the new plan's extents and chunk size."""
-    if len(manifest.levels) != plan.max_level + 1:
-        return False
-    for lv, rec in enumerate(manifest.levels):
-        g = plan.grids[lv]
-        e = rec.extent
-        if (e.x0, e.y0, e.nx, e.ny) != (g.x0, g.y0, g.nx, g.ny):
-            return False
-        if rec.chunk_nodes != plan.chunk_nodes:
-            return False
-    return True
+    """Whether the old store has the new plan's levels and chunk size (format 7's chunk grid
+    is global: the same chunk is the same place; which chunks exist is the facts' business)."""
+    return (
+        len(manifest.levels) == plan.max_level + 1
+        and manifest.tile_n == plan.tile_n
+        and manifest.chunk_tiles == chunk_tiles(plan.tile_n)
+    )
 
 
 def _old_facts(
-    old: Path, graph: Graph, input_order: Sequence[int]
+    old: Path, graph: Graph, input_order: Sequence[int], plan: BuildPlan
 ) -> tuple[dict[str, tuple[ChunkResult, list]], np.ndarray] | None:
     """The facts of every chunk of the old store (small), and the levels its sources had;
-    None when a sidecar is missing or damaged, or the sources were not as many."""
+    None when a sidecar is damaged, none is readable, or the sources were not as many."""
     facts: dict[str, tuple[ChunkResult, list]] = {}
     old_levels: np.ndarray | None = None
     try:
         for key in graph.chunk_keys:
-            chunk, errors, levels = _read_facts(old, *_indices(key))
+            chunk, errors, levels = _read_facts(old, *_indices(key), plan)
             facts[key] = (chunk, errors)
-            old_levels = levels
+            old_levels = levels if levels is not None else old_levels
     except (OSError, ValueError, KeyError, zipfile.BadZipFile):
         return None
     if old_levels is None or len(old_levels) != len(input_order):
@@ -278,11 +304,6 @@ def _keep_clean(
     tasks read its neighbours); their results by graph key. None when a kept file does not
     match (the old store is damaged) or cannot be linked."""
     known: dict[str, Any] = {}
-    shas = {
-        (level, int(a), int(b)): h
-        for level, record in enumerate(manifest.levels)
-        for (a, b), h in zip(record.chunks, record.chunk_sha256)
-    }
     try:
         for key in graph.chunk_keys:
             if key in dirty:
@@ -290,11 +311,12 @@ def _keep_clean(
             kept = facts[key][0]
             at = (kept.level, kept.cy, kept.cx)
             if kept.sha256 is not None:
-                name = chunk_file_name(*at)
-                if shas.get(at) != kept.sha256 or _sha256(old / name) != kept.sha256:
+                name = chunk_file_name(*at, kept.sha256)
+                if _sha256(old / name) != kept.sha256:
                     return None
                 _link(old / name, folder / name)
-            _link(old / facts_name(*at), folder / facts_name(*at))
+            if (old / facts_name(*at)).exists():
+                _link(old / facts_name(*at), folder / facts_name(*at))
             known[key] = kept
     except OSError:
         return None

@@ -121,6 +121,25 @@ class StoreFiles:
 
     # -- with defaults ---------------------------------------------------------------------
 
+    def read_small(self, name: str, sha256: str, size: int) -> bytes:
+        """The whole bytes of a small store file (a metadata shard) whose sha256 and size the
+        store records (a remote backend caches it by its sha256; the caller checks the
+        digest). StoreError naming it when missing or unreadable.
+
+        Default: `read_manifest` of that name (backends read any file of the store with it);
+        override it to cache by sha256 or to say more when the file is missing."""
+        try:
+            return self.read_manifest(name)
+        except StoreError:
+            raise StoreError(
+                f"{self.describe(name)}: cannot read this file of the store; re-run globeview "
+                "ingest --force"
+            ) from None
+
+    def size(self, name: str) -> int:
+        """The size in bytes of a file of the store (`TileStore.verify`'s quick check)."""
+        return len(self.read_small(name, "", 0))
+
     def exists(self, name: str) -> bool:
         """Whether a file of the store is there (asked only when `check_on_open`)."""
         return True

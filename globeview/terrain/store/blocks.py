@@ -1,7 +1,7 @@
-"""Reading a store's heights: a tile's padded window of its level raster, assembled chunk by
-chunk from whole GDAL blocks kept decoded in a small LRU (a view's tiles share blocks: each
-256 x 256 block is read and inflated once), and which blocks a tile needs (what a remote
-store's byte prefetch asks for)."""
+"""Reading a store's heights: a tile's padded window of its level's global node grid,
+assembled chunk by chunk (`layout.chunk_spans`) from whole GDAL blocks kept decoded in a
+small LRU (a view's tiles share blocks: each 256 x 256 block is read and inflated once), and
+which blocks a tile needs (what a remote store's byte prefetch asks for)."""
 
 from __future__ import annotations
 
@@ -21,6 +21,13 @@ from globeview.terrain.store.backend import (
     take_error,
 )
 from globeview.terrain.store.handles import ChunkHandles, short_error
+from globeview.terrain.store.layout import (
+    EXTRA_COL,
+    EXTRA_ROW,
+    ChunkSpan,
+    chunk_nodes,
+    chunk_spans,
+)
 from globeview.terrain.store.level_chunks import BLOCK
 from globeview.terrain.store.metadata import StoreMetadata
 
@@ -31,7 +38,7 @@ BLOCK_CACHE = 64
 # Reading a window of a level file damaged after the store was opened.
 _READ_ERRORS: tuple[type[BaseException], ...] = (*RASTER_ERRORS, ValueError)
 
-#: A decoded block's key: (level, chunk index, block row, block column).
+#: A decoded block's key: (level, chunk code `layout.chunk_code`, block row, block column).
 BlockKey = tuple[int, int, int, int]
 
 
@@ -63,117 +70,84 @@ class BlockReader:
 
     def read_padded(self, key: TileKey) -> np.ndarray:
         """A tile's nodes with one node beyond each edge: (tile_size + 2)^2 float32, NaN = no
-        data. The interior is the tile (all NaN outside the level's extent, as `heights`
-        serves it); the ring is the raster's next node on each side, which is the
-        same-level neighbour's (neighbouring tiles share their edge nodes), wrapping across
-        the antimeridian on a level that goes all the way round, NaN beyond the data."""
+        data. The ring is the level's next node on each side (the same-level neighbour's:
+        neighbouring tiles share their edge nodes), wrapping across the antimeridian, NaN
+        beyond the poles and where no chunk file holds data."""
         meta = self._meta
         size = self.tile_size
         out = np.full((size + 2, size + 2), np.nan, dtype=np.float32)
         if not (0 <= key.level <= meta.max_level) or not 0 <= key.x < meta.ncols[key.level]:
             return out  # no such tile (`heights` serves NaN, as it always did)
-        grid = meta.grids[key.level]
-        n = grid.tile_nodes
-        ncols = meta.ncols[key.level]
-        iy = key.y - grid.y0
-        ix = (key.x - grid.x0) % ncols
-        if not grid.global_lon and ix == ncols - 1 and grid.nx < ncols:
-            ix = -1  # the tile just west of the extent: its east ring is the raster's column 1
-        r0, c0 = iy * n - 1, ix * n - 1  # raster row/column of the padded window's corner
-        r_lo, r_hi = max(r0, 0), min(r0 + size + 2, grid.height)
-        c_lo, c_hi = max(c0, 0), min(c0 + size + 2, grid.width)
-        if r_lo >= r_hi or c_lo >= c_hi:
+        if not 0 <= key.y < 1 << key.level:
             return out
+        n = 1 << meta.tile_n
         try:
-            self.read_into(key.level, r_lo, c_lo, out[r_lo - r0 : r_hi - r0, c_lo - c0 : c_hi - c0])
-            if grid.global_lon:
-                # Column -1 is the raster's column turn - 1, column turn + 1 its column 1
-                # (column turn repeats column 0: -180 = +180).
-                turn = ncols * n
-                rows = slice(r_lo - r0, r_hi - r0)
-                if c0 < 0:
-                    self.read_into(key.level, r_lo, turn - 1, out[rows, :1])
-                if c0 + size + 2 > grid.width:
-                    self.read_into(key.level, r_lo, 1, out[rows, -1:])
+            self.read_into(key.level, key.y * n - 1, key.x * n - 1, out)
         except TileNotReady:
             raise
         except StoreError as exc:
             # A chunk file damaged (truncated, rewritten) after the store was opened, or a
             # remote one that could not be fetched (the message names its URL and status).
             raise StoreError(f"cannot read tile {tuple(key)}: {exc}") from None
-        # A node on the extent's edge belongs to the tile outside it too, which serves NaN:
-        # blank each part of the window whose tile lies outside the extent.
-        for dy, rows_ in ((-1, slice(0, 1)), (0, slice(1, size + 1)), (1, slice(size + 1, None))):
-            for dx, cols_ in (
-                (-1, slice(0, 1)),
-                (0, slice(1, size + 1)),
-                (1, slice(size + 1, None)),
-            ):
-                jx = ix + dx
-                if grid.global_lon:
-                    jx %= ncols
-                if not (0 <= iy + dy < grid.ny and 0 <= jx < grid.nx):
-                    out[rows_, cols_] = np.nan
         return out
 
     def tile_blocks(self, key: tuple[int, int, int]) -> list[BlockKey]:
-        """(level, chunk index, block row, block column) of the chunk blocks a tile's padded
-        window touches (the antimeridian wrap of a global level aside: its ring column is
-        read by the loader itself)."""
+        """(level, chunk code, block row, block column) of the chunk blocks a tile's padded
+        window touches."""
         meta = self._meta
         level, x, y = key
-        if not (0 <= level <= meta.max_level):
+        if not (0 <= level <= meta.max_level) or not (0 <= x < meta.ncols[level]):
             return []
-        grid = meta.grids[level]
-        n = grid.tile_nodes
-        iy, ix = y - grid.y0, (x - grid.x0) % meta.ncols[level]
-        if not (0 <= iy < grid.ny and 0 <= ix < grid.nx):
+        if not 0 <= y < 1 << level:
             return []
-        c_n = meta.levels[level].chunk_nodes
-        rows_c, cols_c = meta.chunk_grid_shape(level)
-        r_lo, r_hi = max(iy * n - 1, 0), min(iy * n + n + 2, grid.height)
-        c_lo, c_hi = max(ix * n - 1, 0), min(ix * n + n + 2, grid.width)
+        n = 1 << meta.tile_n
         out = []
-        for cy in range(min(r_lo // c_n, rows_c - 1), min((r_hi - 1) // c_n, rows_c - 1) + 1):
-            for cx in range(min(c_lo // c_n, cols_c - 1), min((c_hi - 1) // c_n, cols_c - 1) + 1):
-                index = meta.chunk_index(level, cy, cx)
-                if index is None:
+        for rs in chunk_spans(level, meta.tile_n, y * n - 1, n + 3, 0):
+            for cs in chunk_spans(level, meta.tile_n, x * n - 1, n + 3, 1):
+                if not meta.has_file(level, rs.chunk, cs.chunk):
                     continue
-                bh, bw = self._handles.block_shapes.get((level, index), (BLOCK, BLOCK))
-                ra, rb = max(r_lo - cy * c_n, 0), r_hi - cy * c_n
-                ca, cb = max(c_lo - cx * c_n, 0), c_hi - cx * c_n
+                code = (rs.chunk << 32) | cs.chunk
+                bh, bw = self._handles.block_shapes.get((level, code), (BLOCK, BLOCK))
                 out += [
-                    (level, index, bi, bj)
-                    for bi in range(ra // bh, (rb - 1) // bh + 1)
-                    for bj in range(ca // bw, (cb - 1) // bw + 1)
+                    (level, code, bi, bj)
+                    for bi in range(rs.offset // bh, (rs.offset + rs.n - 1) // bh + 1)
+                    for bj in range(cs.offset // bw, (cs.offset + cs.n - 1) // bw + 1)
                 ]
         return out
 
     # -- raster windows ------------------------------------------------------------------------
 
     def read_into(self, level: int, row: int, col: int, out: np.ndarray) -> None:
-        """Fill ``out`` with the level raster's nodes from (row, col) on, chunk by chunk (a
-        tile's padded window touches up to 4 chunks: its last row/column and its ring may
-        lie in the next ones); a chunk without a file (all NaN) reads as NaN."""
+        """Fill ``out`` with the level's global nodes from (row, col) on (columns folded
+        modulo one turn), chunk by chunk (a tile's padded window touches up to 4 chunks); a
+        chunk without a file, and rows past the poles, read as NaN, but for its first row /
+        column when the chunk above / west of it stores them (`layout.chunk_window`)."""
         meta = self._meta
-        grid = meta.grids[level]
-        c_n = meta.levels[level].chunk_nodes
-        rows_c, cols_c = meta.chunk_grid_shape(level)
         h, w = out.shape
-        for cy in range(min(row // c_n, rows_c - 1), min((row + h - 1) // c_n, rows_c - 1) + 1):
-            cr0 = cy * c_n
-            cr1 = grid.height if cy == rows_c - 1 else cr0 + c_n
-            r_a, r_b = max(row, cr0), min(row + h, cr1)
-            for cx in range(min(col // c_n, cols_c - 1), min((col + w - 1) // c_n, cols_c - 1) + 1):
-                cc0 = cx * c_n
-                cc1 = grid.width if cx == cols_c - 1 else cc0 + c_n
-                c_a, c_b = max(col, cc0), min(col + w, cc1)
-                part = out[r_a - row : r_b - row, c_a - col : c_b - col]
-                index = meta.chunk_index(level, cy, cx)
-                if index is None:
-                    part[...] = np.nan
-                else:
-                    self._read_chunk(level, index, r_a - cr0, c_a - cc0, part)
+        out[...] = np.nan
+        for rs in chunk_spans(level, meta.tile_n, row, h, 0):
+            for cs in chunk_spans(level, meta.tile_n, col, w, 1):
+                part = out[rs.out : rs.out + rs.n, cs.out : cs.out + cs.n]
+                if meta.has_file(level, rs.chunk, cs.chunk):
+                    code = (rs.chunk << 32) | cs.chunk
+                    self._read_chunk(level, code, rs.offset, cs.offset, part)
+                elif rs.offset == 0 or cs.offset == 0:
+                    self._borrow_edges(level, rs, cs, part)
+
+    def _borrow_edges(self, level: int, rs: ChunkSpan, cs: ChunkSpan, part: np.ndarray) -> None:
+        """The first row / column / corner node of a chunk without a file, from the chunks
+        above / west / north-west of it that store their closing row / column."""
+        meta = self._meta
+        c = chunk_nodes(meta.tile_n)
+        up, left = rs.chunk - 1, cs.chunk - 1
+        if rs.offset == 0 and up >= 0 and meta.chunk_flags(level, up, cs.chunk) & EXTRA_ROW:
+            self._read_chunk(level, (up << 32) | cs.chunk, c, cs.offset, part[:1, :])
+        if cs.offset == 0 and left >= 0 and meta.chunk_flags(level, rs.chunk, left) & EXTRA_COL:
+            self._read_chunk(level, (rs.chunk << 32) | left, rs.offset, c, part[:, :1])
+        if rs.offset == 0 and cs.offset == 0 and up >= 0 and left >= 0:
+            both = EXTRA_ROW | EXTRA_COL
+            if meta.chunk_flags(level, up, left) & both == both:
+                self._read_chunk(level, (up << 32) | left, c, c, part[:1, :1])
 
     def _read_chunk(self, level: int, index: int, row: int, col: int, out: np.ndarray) -> None:
         """Fill ``out`` with chunk ``index``'s nodes from (row, col) of the chunk on, from

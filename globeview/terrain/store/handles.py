@@ -20,7 +20,7 @@ from globeview.terrain.store.backend import (
     raise_interrupt,
     take_error,
 )
-from globeview.terrain.store.level_chunks import chunk_window
+from globeview.terrain.store.layout import EXTRA_COL, EXTRA_ROW, chunk_window
 from globeview.terrain.store.metadata import StoreMetadata
 
 __all__ = ["HANDLES_PER_THREAD", "ChunkHandles", "short_error"]
@@ -121,19 +121,25 @@ class ChunkHandles:
         self._local = threading.local()
 
     def _open(self, level: int, index: int) -> rasterio.DatasetReader:
-        """Open chunk ``index`` of a level through the backend, checked against the manifest;
-        StoreError naming the file (a remote one: its URL and the HTTP status)."""
-        lv = self._meta.levels[level]
-        cy, cx = self._meta.chunk_position(level, index)
+        """Open chunk ``index`` (its code, `layout.chunk_code`) of a level through the backend,
+        checked against the store's geometry; StoreError naming the file (a remote one: its
+        URL and the HTTP status)."""
         name = self._meta.chunk_name(level, index)
+        sha = self._meta.chunk_sha256(level, index)
         where = self._files.describe(name)
-        grid = self._meta.grids[level]
+        tile_n = self._meta.tile_n
+        grid = LevelGrid(level, tile_n, 0, 0, 1 << (level + 1), 1 << level)
+        cy, cx = index >> 32, index & 0xFFFFFFFF
+        flags = self._meta.chunk_flags(level, cy, cx)
+        gr0, gc0, h, w = chunk_window(
+            level, tile_n, cy, cx, bool(flags & EXTRA_ROW), bool(flags & EXTRA_COL)
+        )
         take_error()
         # A Ctrl-C while GDAL opens the file (through Python callbacks, for a remote one) is
         # raised when it returns, in place of its result or its error.
         with deferred_sigint():
             try:
-                ds = self._files.open_raster(name, lv.chunk_sha256[index])
+                ds = self._files.open_raster(name, sha)
             except RASTER_ERRORS as exc:
                 err = take_error()
                 if err is not None:
@@ -141,7 +147,7 @@ class ChunkHandles:
                 raise StoreError(f"{where} is damaged: {short_error(exc)}") from None
             try:
                 raise_interrupt()
-                _check_chunk(where, ds, grid, chunk_window(grid, lv.chunk_nodes, cy, cx))
+                _check_chunk(where, ds, grid, (gr0, gc0, h, w))
             except BaseException:
                 ds.close()
                 raise

@@ -588,6 +588,33 @@ class RemoteSource(StoreFiles):
         cache.put(key, body)
         return body
 
+    def read_small(self, name: str, sha256: str, size: int) -> bytes:
+        """A small store file (a metadata shard) in one GET, kept in the disk cache under its
+        sha256 (content-named, so never stale); a thread that must not wait on the network
+        gets `TileNotReady` for one not cached. StoreError (one line, URL and status)."""
+        cache = self.options.cache()
+        key = f"file-{sha256}" if _SHA256.match(sha256) else None
+        if key is not None:
+            hit = cache.get(key)
+            if hit is not None and len(hit) == size:
+                return hit
+        if threading.get_ident() in self._no_network:
+            raise TileNotReady(f"{self.describe(name)}: not loaded yet")
+        try:
+            body = fetch(self.url(name), self.options, None, max(size, 1) + 1, self._cancel).body
+        except RemoteError as exc:
+            raise StoreError(str(exc)) from None
+        if key is not None and len(body) == size:
+            cache.put(key, body)
+        return body
+
+    def size(self, name: str) -> int:
+        """A store file's size from the server (a one-byte range request)."""
+        try:
+            return _RemoteBytes(self.url(name), None, self.options, cancel=self._cancel).size
+        except RemoteError as exc:
+            raise StoreError(str(exc)) from None
+
     def warm(self, name: str, offset: int, size: int) -> None:
         """Fetch bytes [offset, offset + size) of a file opened before (`open_raster`) into
         the caches, without decoding anything (`TileStore.prefetch_bytes`)."""

@@ -12,26 +12,64 @@ refuses it.
 from __future__ import annotations
 
 import json
+import os
 import re
 from pathlib import Path
 
+from globeview.terrain.store.layout import STORE_DIRS, is_store_path
 from globeview.terrain.store.schema import FORMAT_VERSION, STORE_FORMAT, StoreHeader
 
-__all__ = ["MANIFEST_NAME", "StoreIdentity", "identify", "is_store_file", "read_manifest"]
+__all__ = [
+    "MANIFEST_NAME",
+    "StoreIdentity",
+    "identify",
+    "is_store_entry",
+    "is_store_file",
+    "read_manifest",
+    "store_files",
+]
 
 MANIFEST_NAME = "manifest.json"
 
 # Files globeview writes in a store (GDAL may add a .aux.xml next to a level).
 # (Format 5: level_LL.vrt mosaics chunk files level_LL_rRRRR_cCCCC.tif; .npz sidecars hold
 # per-chunk build facts; level_LL.tif is format 4's one file per level.)
+# (Format 7: the folders `layout.STORE_DIRS` and sources-<h16>.json, see `layout`.)
 _STORE_FILE = re.compile(
-    r"^(manifest\.json(\.part)?|level_\d\d(_r\d{4,}_c\d{4,})?\.(tif|vrt|npz)(\.aux\.xml)?)$"
+    r"^(manifest\.json(\.part)?|sources-[0-9a-f]{16}\.json"
+    r"|level_\d\d(_r\d{4,}_c\d{4,})?\.(tif|vrt|npz)(\.aux\.xml)?)$"
 )
 
 
 def is_store_file(name: str) -> bool:
-    """Whether ``name`` is a file name globeview writes inside a store."""
+    """Whether ``name`` is a file name globeview writes at the top of a store."""
     return bool(_STORE_FILE.match(name))
+
+
+def is_store_entry(folder: Path, name: str) -> bool:
+    """Whether entry ``name`` of a store folder is globeview's: a store file, or one of the
+    folders of format 7 (`layout.STORE_DIRS`: not walked here, so `identify` stays one
+    listing whatever the store's size; `store_files` walks them)."""
+    if name in STORE_DIRS:
+        p = folder / name
+        return p.is_dir() and not p.is_symlink()
+    return is_store_file(name)
+
+
+def store_files(folder: Path) -> list[Path]:
+    """Every file globeview wrote in a store folder, its subfolders walked (chunks, shards,
+    facts): what removing a store removes. Nothing else is listed (a user's file stays)."""
+    out: list[Path] = []
+    for e in folder.iterdir():
+        if e.name in STORE_DIRS and e.is_dir() and not e.is_symlink():
+            for sub, _dirs, names in os.walk(e):
+                for n in names:
+                    p = Path(sub) / n
+                    if is_store_path(p.relative_to(folder).as_posix()) or ".tmp-" in n:
+                        out.append(p)
+        elif is_store_file(e.name) and e.is_file():
+            out.append(e)
+    return out
 
 
 class StoreIdentity:
@@ -81,7 +119,7 @@ def identify(path: str | Path) -> StoreIdentity:
         return StoreIdentity("foreign")
     if not names:
         return StoreIdentity("empty")
-    extra = next((n for n in names if not is_store_file(n)), None)
+    extra = next((n for n in names if not is_store_entry(p, n)), None)
     man = read_manifest(p)
     if man is None:
         return StoreIdentity("foreign", extra=extra)

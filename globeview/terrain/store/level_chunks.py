@@ -1,12 +1,14 @@
-"""Writing a level's chunk files and the GDAL VRT that mosaics them (store format 5).
+"""Writing a level's chunk files and the GDAL VRT that mosaics them (store format 7).
 
-A level raster (see `globeview.terrain.levels`) is split into chunks of C x C node intervals
-(C = `schema.chunk_nodes_for`): chunk (cy, cx) holds raster rows [cy*C, (cy+1)*C) and
-columns [cx*C, (cx+1)*C), clipped to the raster, and the last chunk row/column also holds
-the raster's last row/column. Each chunk is a tiled GeoTIFF at its own position (readable
-alone by GDAL, range-readable over HTTP); ``level_LL.vrt`` places them with relative paths,
-so ``gdalinfo store/level_05.vrt`` and QGIS open the whole level, and areas without a chunk
-(all-NaN chunks are not written) read as NaN (the VRT's NoDataValue).
+A level's global node grid (see `globeview.terrain.store.layout`) is split into chunks of
+C x C node intervals fixed by the quadtree: chunk (cy, cx) stores global node rows
+[cy*C, (cy+1)*C) and columns [cx*C, (cx+1)*C) (`layout.chunk_window`: the last chunk row also
+the south pole row; column W, one turn east, is column 0 and never stored). Each chunk is a
+tiled GeoTIFF at its own position (readable alone by GDAL, range-readable over HTTP), named by
+its content (``chunks/LL/<cy>/<cx>-<h16>.tif``) and written atomically (a temporary name in its
+folder, then `os.replace`); ``level_LL.vrt`` places them over the level's bbox with relative
+paths, so ``gdalinfo store/level_05.vrt`` and QGIS open the whole level, and areas without a
+chunk (no data) read as NaN (the VRT's NoDataValue).
 
 The VRT text is built here, not by GDAL: it is deterministic (its sha256 is in the
 manifest), names its sources relative to itself, and records each source's size and block
@@ -16,6 +18,8 @@ shape so opening the VRT opens no chunk file.
 from __future__ import annotations
 
 import hashlib
+import os
+import uuid
 from collections.abc import Sequence
 from pathlib import Path
 from xml.sax.saxutils import escape
@@ -25,20 +29,11 @@ from affine import Affine
 from rasterio.io import MemoryFile
 
 from globeview.terrain.levels import LevelGrid
-from globeview.terrain.store.schema import chunk_file_name, chunk_grid_shape
+from globeview.terrain.store.layout import EXTRA_COL, EXTRA_ROW, chunk_file_name, chunk_window
 
-__all__ = ["chunk_window", "file_sha256", "write_chunk", "write_level_vrt"]
+__all__ = ["file_sha256", "write_atomic", "write_chunk", "write_level_vrt"]
 
 BLOCK = 256  # GeoTIFF block side of chunk files (and of the VRT band)
-
-
-def chunk_window(grid: LevelGrid, chunk_nodes: int, cy: int, cx: int) -> tuple[int, int, int, int]:
-    """(row0, col0, height, width) in raster nodes of chunk (cy, cx)."""
-    rows, cols = chunk_grid_shape(grid, chunk_nodes)
-    r0, c0 = cy * chunk_nodes, cx * chunk_nodes
-    r1 = grid.height if cy == rows - 1 else r0 + chunk_nodes
-    c1 = grid.width if cx == cols - 1 else c0 + chunk_nodes
-    return r0, c0, r1 - r0, c1 - c0
 
 
 def file_sha256(path: Path) -> str:
@@ -78,47 +73,68 @@ def _profile(width: int, height: int, transform: Affine, threads: str) -> dict:
 
 def write_chunk(
     folder: Path,
-    grid: LevelGrid,
-    chunk_nodes: int,
+    level: int,
+    tile_n: int,
     cy: int,
     cx: int,
     values: np.ndarray,
     threads: str = "ALL_CPUS",
-) -> str | None:
-    """Write chunk (cy, cx) of a level (``values``: its nodes, float32, the shape of
-    `chunk_window`); returns its sha256, or None (no file) when every node is NaN.
+    flags: int = 0,
+) -> tuple[str, int] | None:
+    """Write chunk (cy, cx) of a level (``values``: its stored nodes, float32, the shape of
+    `layout.chunk_window`) under its content name; returns (sha256, bytes), or None (no
+    file) when every node is NaN.
 
     ``threads``: GDAL's compression threads ("ALL_CPUS" for one writer; "1" where many
-    tasks write at once).
+    tasks write at once); ``flags``: `layout.EXTRA_ROW` / `EXTRA_COL` (it stores its closing
+    row / column).
     """
-    r0, c0, h, w = chunk_window(grid, chunk_nodes, cy, cx)
+    gr0, gc0, h, w = chunk_window(
+        level, tile_n, cy, cx, bool(flags & EXTRA_ROW), bool(flags & EXTRA_COL)
+    )
     if values.shape != (h, w):
-        raise ValueError(f"chunk {cy},{cx} of level {grid.level}: shape {values.shape} != {h, w}")
+        raise ValueError(f"chunk {level}/{cy}/{cx}: shape {values.shape} != {h, w}")
     if np.isnan(values).all():
         return None
-    path = folder / chunk_file_name(grid.level, cy, cx)
-    transform = grid.transform @ Affine.translation(c0, r0)
+    grid = LevelGrid(level, tile_n, 0, 0, 1 << (level + 1), 1 << level)
+    transform = grid.transform @ Affine.translation(gc0, gr0)
     # Encoded in memory and hashed there, then written: the sha256 of the bytes written,
     # without reading the file back.
     with MemoryFile() as mem:
         with mem.open(**_profile(w, h, transform, threads)) as dst:
             dst.update_tags(AREA_OR_POINT="Point")
-            dst.update_tags(1, LEVEL=str(grid.level), TILE_N=str(grid.tile_n))
+            dst.update_tags(1, LEVEL=str(level), TILE_N=str(tile_n))
             dst.write(values, 1)
         data = mem.read()
-    # A new inode, never a rewrite in place: an incremental update hard-links the chunks it
-    # keeps from the old store, whose files must not change.
-    path.unlink(missing_ok=True)
-    with path.open("xb") as f:
-        f.write(data)
-    return hashlib.sha256(data).hexdigest()
+    sha = hashlib.sha256(data).hexdigest()
+    write_atomic(folder / chunk_file_name(level, cy, cx, sha), data)
+    return sha, len(data)
+
+
+def write_atomic(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary name in its folder and `os.replace`: a
+    reader never sees a half-written file, and a content-named file rewritten by a retried
+    task (the same bytes) replaces its twin harmlessly (always a new inode: an incremental
+    update hard-links the files it keeps from the old store, which must not change)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f"{path.name}.tmp-{uuid.uuid4().hex[:12]}")
+    try:
+        with tmp.open("xb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def write_level_vrt(
-    path: Path, grid: LevelGrid, chunk_nodes: int, chunks: Sequence[tuple[int, int]]
+    path: Path, grid: LevelGrid, chunks: Sequence[tuple[int, int, str, int]]
 ) -> str:
-    """Write the VRT of a level whose chunk files ``chunks`` ((cy, cx), row-major) exist
-    next to it; returns the VRT's sha256."""
+    """Write the VRT of a level over ``grid`` (its bbox) whose chunk files ``chunks``
+    ((cy, cx, file name relative to the store, `layout.EXTRA_ROW` | `EXTRA_COL` flags),
+    row-major) exist beside it; returns the
+    VRT's sha256. On a bbox all the way round, the chunks of column 0 are placed again as
+    the raster's last column (lon +180)."""
     t = grid.transform
     gt = ", ".join(repr(float(v)) for v in (t.c, t.a, t.b, t.f, t.d, t.e))
     parts = [
@@ -131,19 +147,28 @@ def write_level_vrt(
         f'    <Metadata><MDI key="LEVEL">{grid.level}</MDI>'
         f'<MDI key="TILE_N">{grid.tile_n}</MDI></Metadata>',
     ]
-    for cy, cx in chunks:
-        r0, c0, h, w = chunk_window(grid, chunk_nodes, cy, cx)
-        name = escape(chunk_file_name(grid.level, cy, cx))
-        parts += [
-            "    <SimpleSource>",
-            f'      <SourceFilename relativeToVRT="1">{name}</SourceFilename>',
-            "      <SourceBand>1</SourceBand>",
-            f'      <SourceProperties RasterXSize="{w}" RasterYSize="{h}" DataType="Float32" '
-            f'BlockXSize="{BLOCK}" BlockYSize="{BLOCK}" />',
-            f'      <SrcRect xOff="0" yOff="0" xSize="{w}" ySize="{h}" />',
-            f'      <DstRect xOff="{c0}" yOff="{r0}" xSize="{w}" ySize="{h}" />',
-            "    </SimpleSource>",
-        ]
+    turn = grid.ncols * grid.tile_nodes
+    for cy, cx, name, flags in chunks:
+        gr0, gc0, h, w = chunk_window(
+            grid.level, grid.tile_n, cy, cx, bool(flags & EXTRA_ROW), bool(flags & EXTRA_COL)
+        )
+        r0, c0 = gr0 - grid.gr0, (gc0 - grid.gc0) % turn
+        places = [(c0, 0, w)]
+        if grid.global_lon and gc0 == 0:
+            places.append((turn, 0, 1))  # column W repeats column 0
+        for dst_c, src_c, width in places:
+            if r0 < 0 or r0 + h > grid.height or dst_c + width > grid.width:
+                continue  # outside the bbox (never, for a bbox of the level's chunks)
+            parts += [
+                "    <SimpleSource>",
+                f'      <SourceFilename relativeToVRT="1">{escape(name)}</SourceFilename>',
+                "      <SourceBand>1</SourceBand>",
+                f'      <SourceProperties RasterXSize="{w}" RasterYSize="{h}" DataType="Float32" '
+                f'BlockXSize="{BLOCK}" BlockYSize="{BLOCK}" />',
+                f'      <SrcRect xOff="{src_c}" yOff="0" xSize="{width}" ySize="{h}" />',
+                f'      <DstRect xOff="{dst_c}" yOff="{r0}" xSize="{width}" ySize="{h}" />',
+                "    </SimpleSource>",
+            ]
     parts += ["  </VRTRasterBand>", "</VRTDataset>", ""]
-    path.write_text("\n".join(parts), encoding="utf-8")
+    write_atomic(path, "\n".join(parts).encode("utf-8"))
     return file_sha256(path)

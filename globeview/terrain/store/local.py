@@ -62,6 +62,26 @@ class LocalFiles(StoreFiles):
             raise StoreError(f"{path}: level file is missing; re-run globeview ingest --force")
         return rasterio.open(path)
 
+    def read_small(self, name: str, sha256: str, size: int) -> bytes:
+        """A small store file's bytes (a metadata shard); StoreError naming it when missing
+        or unreadable."""
+        path = self.folder / name
+        try:
+            return path.read_bytes()
+        except FileNotFoundError:
+            raise StoreError(f"{path} is missing; re-run globeview ingest --force") from None
+        except OSError as exc:
+            raise StoreError(f"cannot read {path}: {exc.strerror}") from None
+
+    def size(self, name: str) -> int:
+        """A store file's size in bytes (StoreError naming it when missing)."""
+        try:
+            return (self.folder / name).stat().st_size
+        except OSError:
+            raise StoreError(
+                f"{self.folder / name} is missing; re-run globeview ingest --force"
+            ) from None
+
     def sha256(self, name: str) -> str:
         """The sha256 of a store file (StoreError naming it when unreadable)."""
         h = hashlib.sha256()

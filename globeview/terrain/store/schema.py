@@ -12,19 +12,17 @@ level file names, non-negative errors); anything wrong is a `ManifestError` whos
 one line naming the field (``levels[3].extent.nx must be ...``).
 
 Units and frames: heights and tile errors are metres above the WGS84 ellipsoid (since
-format 4), angles are degrees (EPSG:4326 lon/lat), tile extents are quadtree tile indices
-of their level (see `globeview.terrain.levels`). Per-tile arrays are (ny, nx) over the
-level's extent, NaN (JSON ``null``) where a tile has no data.
+format 4), angles are degrees (EPSG:4326 lon/lat), bboxes are quadtree tile indices of their
+level (see `globeview.terrain.levels`).
 
-Versions: 6 holds, at the nodes just past a source's data edge that a grid cell meeting its
-data needs as corners, the source's surface continued (issue #29: 5's levels ramped toward
-the ellipsoid over the data's last node spacing; the files are laid out as 5's); 5 splits each
-level into chunk files (``level_LL_rRRRR_cCCCC.tif``, one per ingest window, so many writers
-can fill a level and HTTP serves it in pieces) mosaicked by a GDAL VRT ``level_LL.vrt``; 4
-heights are ellipsoidal (each source's vertical datum recorded); 3 added the
-``format`` marker (heights were the sources' own); 2 had no marker. Only `FORMAT_VERSION` is
-read; older stores are rebuilt (`built_before_vdatums` says which must be), newer ones are
-refused.
+Versions: 7 (issue #25) lays every level on the global chunk grid (`layout`): chunk files
+exist only where there is data, the per-tile metadata lives in binary shards (`shards`) and
+the manifest is O(levels), so no tile count caps a store; 6 and 5 were dense (one extent per
+level, per-tile arrays in the manifest; 6 continued the surface past data edges, issue #29):
+they are not read any more, `TileStore.open` says to rebuild them
+(`DENSE_FORMAT_VERSIONS`); 4 heights are ellipsoidal (each source's vertical datum
+recorded); 3 added the ``format`` marker; 2 had no marker. Only `FORMAT_VERSION` is read;
+older stores are rebuilt (`built_before_vdatums` says which must be), newer ones are refused.
 """
 
 from __future__ import annotations
@@ -45,32 +43,35 @@ from globeview import __version__
 from globeview.terrain.dem.vdatum import VDATUM_CHOICES
 from globeview.terrain.levels import LevelGrid
 from globeview.terrain.quadtree import level_shape
+from globeview.terrain.store.layout import chunk_tiles, is_store_path, shard_roots
 
 __all__ = [
+    "DENSE_FORMAT_VERSIONS",
     "FORMAT_VERSION",
     "MAX_LEVEL_LIMIT",
     "STORE_FORMAT",
     "TILE_N_RANGE",
     "VDATUM_FORMAT_VERSION",
-    "ChunkArray",
     "Extent",
+    "FileRef",
     "IngestParams",
     "LevelRecord",
     "ManifestError",
     "PoleHeights",
+    "ShardsRecord",
     "SourceRecord",
     "StoreHeader",
     "StoreManifest",
     "built_before_vdatums",
-    "chunk_file_name",
-    "chunk_grid_shape",
-    "chunk_nodes_for",
     "level_file_name",
     "write_json_array",
 ]
 
 STORE_FORMAT = "globeview-tile-store"
-FORMAT_VERSION = 6
+FORMAT_VERSION = 7
+#: Format versions of the dense layout (one extent per level, per-tile arrays in the manifest):
+#: not read any more, rebuilt (`TileStore.open` says how).
+DENSE_FORMAT_VERSIONS = (5, 6)
 # The first version whose heights are ellipsoidal: older stores must never be mixed with newer.
 VDATUM_FORMAT_VERSION = 4
 MAX_LEVEL_LIMIT = 22  # 180/2^22/64 degrees ~ 7 mm at the equator: far past any DEM
@@ -81,38 +82,12 @@ MAX_STRIDE = 1 << 20
 # A field whose own fields sit in the enclosing JSON object instead of a nested one.
 _INLINE = "inline"
 
-#: A level chunk is about this many nodes a side (the ingest window): big enough that the
-#: per-chunk overhead (a task, a file, a GDAL open) is small, small enough that a chunk and its
-#: temporaries stay in tens of MB (bounded memory per ingest task).
-CHUNK_TARGET_NODES = 1024
-#: An (m, 2) integer array of (chunk row, chunk column) pairs (a distinct annotation: decoded
-#: as integers, not as the float64 per-tile arrays).
-ChunkArray = typing.NewType("ChunkArray", np.ndarray)
 _SHA256 = re.compile(r"^[0-9a-f]{64}$")
-
-
-def chunk_nodes_for(tile_n: int) -> int:
-    """Chunk side C in node intervals: k * 2^tile_n with k = max(1, 1024 // 2^tile_n)."""
-    return max(1, CHUNK_TARGET_NODES >> tile_n) << tile_n
 
 
 def level_file_name(level: int) -> str:
     """The VRT that mosaics a level's chunk files (what ``gdalinfo`` / QGIS open)."""
     return f"level_{level:02d}.vrt"
-
-
-def chunk_file_name(level: int, cy: int, cx: int) -> str:
-    """Chunk (cy, cx) of a level: raster rows [cy*C, (cy+1)*C), columns [cx*C, (cx+1)*C)
-    (the last chunk row/column also holds the raster's last row/column)."""
-    return f"level_{level:02d}_r{cy:04d}_c{cx:04d}.tif"
-
-
-def chunk_grid_shape(grid: LevelGrid, chunk_nodes: int) -> tuple[int, int]:
-    """(chunk rows, chunk columns) of a level raster."""
-    return (
-        -(-(grid.height - 1) // chunk_nodes),
-        -(-(grid.width - 1) // chunk_nodes),
-    )
 
 
 class ManifestError(ValueError):
@@ -211,99 +186,90 @@ class SourceRecord:
     heights: str
 
 
-@dataclass(frozen=True, eq=False)
-class LevelRecord:
-    """One pyramid level: its raster file, extent and per-tile metadata (metres).
+@dataclass(frozen=True)
+class FileRef:
+    """A file of the store named by its content: ``file`` (relative to the store, a name
+    `layout.is_store_path` accepts), its sha256 (hex) and size in bytes."""
 
-    error: (ny, nx) max |tile bilinear surface - finest data| over each tile; hmin, hmax:
-    (ny, nx) sample range; stride_error: (ny, nx, len(strides)) bounds on the error of the
-    tile drawn every s-th sample; level_error: max of error (None for a level without data);
-    sha256: of the level file, the VRT (`TileStore.verify`); chunk_nodes: chunk side C in
-    node intervals; chunks: (m, 2) (chunk row, chunk column) of the chunk files present,
-    row-major (a chunk whose nodes are all NaN has no file); chunk_sha256: their sha256s.
+    file: str
+    sha256: str
+    bytes: int
+
+    def check(self, where: str) -> None:
+        if not is_store_path(self.file):
+            raise ManifestError(f"{where}.file {self.file[:60]!r} is not a store file name")
+        if not _SHA256.match(self.sha256):
+            raise ManifestError(f"{where}.sha256 is not a sha256 hex digest")
+        _in_range(self.bytes, f"{where}.bytes", 0, 1 << 40)
+
+
+@dataclass(frozen=True)
+class LevelRecord:
+    """One pyramid level's summary (its per-tile metadata lives in the shards).
+
+    bbox: the tile bbox (x0, y0, nx, ny) of the level's chunks with data (columns modulo
+    2^(L+1): the shortest circular interval), None when the level has none; chunks: chunk
+    files; tiles: tiles with data; bytes: of the chunk files; level_error: max tile error
+    (metres, None without data); file / sha256: the level's VRT (sizing `gdalinfo` views).
     """
 
     level: int
-    file: str
-    extent: Extent
     node_spacing_deg: float
-    error: np.ndarray
-    hmin: np.ndarray
-    hmax: np.ndarray
-    stride_error: np.ndarray
+    file: str
     sha256: str
-    chunk_nodes: int
-    chunks: ChunkArray
-    chunk_sha256: tuple[str, ...]
+    chunks: int
+    tiles: int
+    bytes: int
+    bbox: Extent | None = None
     level_error: float | None = None
     pole_heights: PoleHeights | None = None
 
     def grid(self, tile_n: int) -> LevelGrid:
-        """The level's raster geometry."""
-        e = self.extent
+        """The raster geometry of the level's bbox (a 1 x 1 tile grid at 0, 0 without one)."""
+        e = self.bbox or Extent(0, 0, 1, 1)
         return LevelGrid(self.level, tile_n, e.x0, e.y0, e.nx, e.ny)
 
-    def check(self, index: int, tile_n: int, n_strides: int) -> None:
+    def check(self, index: int) -> None:
         """ManifestError unless this is a sound record of level ``index``."""
         where = f"levels[{index}]"
         if self.level != index:
             raise ManifestError(f"{where}.level is {self.level}, expected {index}")
         ncols, nrows = level_shape(index)
-        e = self.extent
-        _in_range(e.x0, f"{where}.extent.x0", 0, ncols - 1)
-        _in_range(e.y0, f"{where}.extent.y0", 0, nrows - 1)
-        _in_range(e.nx, f"{where}.extent.nx", 1, ncols)
-        _in_range(e.ny, f"{where}.extent.ny", 1, nrows - e.y0)
-        # Only the name globeview writes: a manifest must not point outside its store.
+        e = self.bbox
+        if e is not None:
+            _in_range(e.x0, f"{where}.bbox.x0", 0, ncols - 1)
+            _in_range(e.y0, f"{where}.bbox.y0", 0, nrows - 1)
+            _in_range(e.nx, f"{where}.bbox.nx", 1, ncols)
+            _in_range(e.ny, f"{where}.bbox.ny", 1, nrows - e.y0)
         want = level_file_name(index)
         if self.file != want:
             raise ManifestError(f"{where}.file {self.file[:60]!r} is not its level file {want}")
-        shape = (e.ny, e.nx)
-        for name, a, want_shape in (
-            ("error", self.error, shape),
-            ("hmin", self.hmin, shape),
-            ("hmax", self.hmax, shape),
-            ("stride_error", self.stride_error, (*shape, n_strides)),
-        ):
-            if a.shape != want_shape:
-                raise ManifestError(f"{where}.{name} has shape {a.shape}, expected {want_shape}")
-            if np.isinf(a).any():
-                raise ManifestError(f"{where}.{name} holds infinite values")
-        if (self.level_error is not None and self.level_error < 0) or (
-            (self.error < 0).any() or (self.stride_error < 0).any()
-        ):
+        if not _SHA256.match(self.sha256):
+            raise ManifestError(f"{where}.sha256 is not a sha256 hex digest")
+        for name in ("chunks", "tiles", "bytes"):
+            _in_range(getattr(self, name), f"{where}.{name}", 0, 1 << 50)
+        if self.level_error is not None and self.level_error < 0:
             raise ManifestError(f"{where}: negative tile errors")
-        self._check_chunks(where, tile_n)
 
-    def _check_chunks(self, where: str, tile_n: int) -> None:
-        s_n = 1 << tile_n
-        _in_range(self.chunk_nodes, f"{where}.chunk_nodes", s_n, 1 << 20)
-        if self.chunk_nodes % s_n:
-            raise ManifestError(f"{where}.chunk_nodes is not a multiple of 2^tile_n")
-        c = self.chunks
-        if c.ndim != 2 or c.shape[1] != 2:
-            raise ManifestError(f"{where}.chunks has shape {c.shape}, expected (m, 2)")
-        rows, cols = chunk_grid_shape(self.grid(tile_n), self.chunk_nodes)
-        if ((c[:, 0] < 0) | (c[:, 0] >= rows) | (c[:, 1] < 0) | (c[:, 1] >= cols)).any():
-            raise ManifestError(f"{where}.chunks holds a chunk outside the level")
-        key = c[:, 0] * cols + c[:, 1]
-        if (np.diff(key) <= 0).any():
-            raise ManifestError(f"{where}.chunks is not in row-major order without repeats")
-        if len(self.chunk_sha256) != len(c) or not all(_SHA256.match(h) for h in self.chunk_sha256):
-            raise ManifestError(f"{where}.chunk_sha256 must hold one sha256 per chunk")
 
-    def chunk_files(self) -> list[str]:
-        """The names of the level's chunk files, in `chunks` order."""
-        return [chunk_file_name(self.level, int(cy), int(cx)) for cy, cx in self.chunks]
+@dataclass(frozen=True)
+class ShardsRecord:
+    """The metadata shards: their root levels (`layout.shard_roots`), how many there are and
+    the top shard (the others are named by their parents' child tables)."""
+
+    roots: tuple[int, ...]
+    count: int
+    top: FileRef
 
 
 @dataclass(frozen=True, eq=False)
 class StoreManifest:
-    """The whole manifest. ``header`` is inline: its fields are top-level JSON keys.
+    """The whole manifest (format 7: O(levels) in size, whatever the data's extent).
+    ``header`` is inline: its fields are top-level JSON keys.
 
     bounds: data footprint (west, south, east, north), degrees, west > east across the
-    antimeridian; strides: the sample strides of `LevelRecord.stride_error`; finest_extent:
-    the extent of level max_level; tile_size: samples per tile side, 2^tile_n + 1.
+    antimeridian; strides: the sample strides of the shards' stride errors; chunk_tiles: k
+    (`layout.chunk_tiles`); tile_size: samples per tile side, 2^tile_n + 1.
     """
 
     header: StoreHeader = field(metadata={_INLINE: True})
@@ -311,12 +277,13 @@ class StoreManifest:
     params: IngestParams
     tile_n: int
     tile_size: int
+    chunk_tiles: int
     wavelet: str
     max_level: int
     strides: tuple[int, ...]
     bounds: tuple[float, ...]
-    finest_extent: Extent
     levels: tuple[LevelRecord, ...]
+    shards: ShardsRecord
     pole_heights: PoleHeights | None = None
 
     @classmethod
@@ -342,6 +309,8 @@ class StoreManifest:
         _in_range(self.tile_n, "tile_n", *TILE_N_RANGE)
         if self.tile_size != (1 << self.tile_n) + 1:
             raise ManifestError(f"tile_size {self.tile_size} is not 2^tile_n + 1")
+        if self.chunk_tiles != chunk_tiles(self.tile_n):
+            raise ManifestError(f"chunk_tiles {self.chunk_tiles} is not {chunk_tiles(self.tile_n)}")
         _in_range(self.max_level, "max_level", 0, MAX_LEVEL_LIMIT)
         if not 0 < len(self.strides) <= MAX_STRIDES:
             raise ManifestError(f"strides must hold 1..{MAX_STRIDES} strides")
@@ -352,9 +321,13 @@ class StoreManifest:
         if len(self.levels) != self.max_level + 1:
             raise ManifestError(f"{len(self.levels)} levels do not match max_level")
         for i, lv in enumerate(self.levels):
-            lv.check(i, self.tile_n, len(self.strides))
-        if self.finest_extent != self.levels[-1].extent:
-            raise ManifestError("finest_extent is not the extent of the finest level")
+            lv.check(i)
+        if self.shards.roots != shard_roots(self.max_level, self.tile_n):
+            raise ManifestError("shards.roots are not this store's shard levels")
+        _in_range(self.shards.count, "shards.count", 1, 1 << 40)
+        self.shards.top.check("shards.top")
+        if not self.shards.top.file.startswith("meta/top-"):
+            raise ManifestError("shards.top.file is not a top shard")
         for i, src in enumerate(self.sources):
             where = f"sources[{i}]"
             if src.size < 0 or len(src.bounds) != 4 or len(src.res_deg) != 2:
@@ -363,8 +336,7 @@ class StoreManifest:
                 raise ManifestError(f"{where}.vertical_datum {src.vertical_datum[:20]!r} unknown")
 
     def write(self, f: TextIO) -> None:
-        """Write as compact JSON; the per-tile arrays are streamed row by row (see
-        `write_json_array`), so the peak memory is one row, not the whole level as lists."""
+        """Write as compact JSON."""
         slots = _ArraySlots()
         slots.write(_encode(self, slots), f)
 
@@ -415,8 +387,6 @@ def _decode(tp: Any, value: object, where: str) -> object:
         if not isinstance(value, str):
             raise ManifestError(f"{where} must be a string, got {str(value)[:40]}")
         return value
-    if tp is ChunkArray:
-        return _decode_chunks(value, where)
     if tp is np.ndarray:
         return _decode_array(value, where)
     if is_dataclass(tp) and isinstance(tp, type):
@@ -454,18 +424,6 @@ def _decode_array(value: object, where: str) -> np.ndarray:
     except (ValueError, TypeError, OverflowError) as exc:
         raise ManifestError(f"{where} is not an array of numbers ({type(exc).__name__})") from None
     return a
-
-
-def _decode_chunks(value: object, where: str) -> np.ndarray:
-    """An (m, 2) int64 array of chunk indices from nested lists of integers."""
-    if not isinstance(value, list) or not all(
-        isinstance(r, list)
-        and len(r) == 2
-        and all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v < 1 << 31 for v in r)
-        for r in value
-    ):
-        raise ManifestError(f"{where} must be a list of [row, column] integer pairs")
-    return np.array(value, dtype=np.int64).reshape(len(value), 2)
 
 
 # ---------------------------------------------------------------------------------------------

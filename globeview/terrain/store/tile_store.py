@@ -1,10 +1,11 @@
 """Read access to a tile-pyramid store written by `globeview.terrain.ingest.driver`.
 
-A store is a directory with ``manifest.json`` and, per level, one grid-registered raster
-(EPSG:4326, float32, NaN = no data) split into chunk files ``level_LL_rRRRR_cCCCC.tif``
-mosaicked by ``level_LL.vrt`` (since format 5, `globeview.terrain.store.level_chunks`). Tile
-(L, x, y) is the (2^n+1) x (2^n+1) window of level L's raster starting at row (y - y0)*2^n
-and column ((x - x0) mod 2^(L+1))*2^n, where (x0, y0, nx, ny) is the level's tile extent.
+A store (format 7, `globeview.terrain.store.layout`) is a directory with ``manifest.json``,
+per level a grid-registered raster of the whole globe (EPSG:4326, float32, NaN = no data)
+stored as chunk files ``chunks/LL/<cy>/<cx>-<h16>.tif`` on the global chunk grid, only where
+there is data, mosaicked over the level's bbox by ``level_LL.vrt``, and metadata shards
+``meta/...gvm`` with the per-tile facts (`metadata.StoreMetadata`). Tile (L, x, y) is the
+(2^n+1) x (2^n+1) window of level L's global nodes at row y*2^n, column x*2^n.
 
 Heights are metres; tile metadata (``error``, ``hmin``, ``hmax``, stride errors) are metres.
 
@@ -12,7 +13,7 @@ Where the files are is a store backend's business (`globeview.terrain.store.back
 folder (`local.LocalFiles`), a URL served by any static HTTP server (``http(s)://host/path/
 store``, `http.RemoteSource`: a remote chunk's bytes come by HTTP range requests through a
 disk cache), or what an installed backend reads. Tiles are read from the level's chunk files
-(``level_LL_rRRRR_cCCCC.tif``) directly, the same way for every backend: only the chunks a
+directly, the same way for every backend: only the chunks a
 tile's window touches are opened. A tile that cannot be read is one `StoreError` line naming
 the file (a remote one: its URL and the HTTP status).
 
@@ -28,11 +29,12 @@ tile, so a damaged store is one `StoreError` line, never a traceback.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import threading
 from collections import OrderedDict
-from collections.abc import Iterable
-from concurrent.futures import Future
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -54,9 +56,10 @@ from globeview.terrain.store.blocks import BlockReader
 from globeview.terrain.store.handles import ChunkHandles, short_error
 from globeview.terrain.store.identify import MANIFEST_NAME
 from globeview.terrain.store.local import LocalFiles
-from globeview.terrain.store.metadata import StoreMetadata
+from globeview.terrain.store.metadata import ChunkFacts, StoreMetadata
 from globeview.terrain.store.prefetch import Prefetcher
 from globeview.terrain.store.schema import (
+    DENSE_FORMAT_VERSIONS,
     FORMAT_VERSION,
     ManifestError,
     PoleHeights,
@@ -71,7 +74,8 @@ DEFAULT_CACHE_TILES = 256
 
 
 def _check_level_file(path: str, ds: rasterio.DatasetReader, grid: LevelGrid) -> None:
-    """StoreError unless ``ds`` is the raster the manifest describes for ``grid``."""
+    """StoreError unless ``ds`` is the level VRT the manifest describes for ``grid`` (the
+    level's bbox)."""
     want = grid.transform
     if (
         (ds.width, ds.height) != (grid.width, grid.height)
@@ -122,6 +126,11 @@ def _checked_manifest(where: str, raw: dict[str, object]) -> StoreManifest:
         raise StoreError(
             f"{where}: store built before vertical datums (format version {version}, heights"
             " not ellipsoidal); rebuild it with globeview ingest --force"
+        )
+    if version in DENSE_FORMAT_VERSIONS and type(version) is int:
+        raise StoreError(
+            f"{where}: store of format version {version} (dense levels, an older globeview; "
+            f"this one reads {FORMAT_VERSION}); rebuild it with globeview ingest --force"
         )
     if version != FORMAT_VERSION:  # a bool (0/1) is never the current version
         raise StoreError(
@@ -176,8 +185,11 @@ class TileStore:
         self.bounds: tuple[float, float, float, float] = (w, s, e, n)
         self.pole_heights = (manifest.pole_heights or PoleHeights()).as_dict()
         self.tile_size = (1 << self.tile_n) + 1
-        self._meta = StoreMetadata(manifest)
-        if files.check_on_open:  # a local store checks its files now (cheap); others on use
+        self._meta = StoreMetadata(manifest, files.read_small, files.describe)
+        self._meta_pool: ThreadPoolExecutor | None = None
+        self._meta.background = self._fetch_shard
+        self._meta.load_top()  # the top shard: levels 0..c0+1 and where the others are
+        if files.check_on_open:  # a local store checks its level VRTs now (cheap)
             for level in range(self.max_level + 1):
                 self._check_level_files(level)
         self._handles = ChunkHandles(files, self._meta)
@@ -246,24 +258,60 @@ class TileStore:
         loaded in the background (a later call finds it cached). No effect on a local store."""
         self._files.forbid_network_on(thread_ident)
 
-    def verify(self) -> None:
-        """Check every level file (the VRT and each chunk file) against its sha256 in the
-        manifest (reads all data).
+    def verify(self, full: bool = True) -> int:
+        """Check every store file the manifest and shards record (level VRTs, shards as they
+        load, each chunk file): its size, and with ``full`` its sha256 (reads all data).
+        Returns the number of chunk files checked.
 
         Raises StoreError naming the first file that does not match.
         """
+        checked = 0
         for lv in self._meta.levels:
-            for name, want in ((lv.file, lv.sha256), *zip(lv.chunk_files(), lv.chunk_sha256)):
-                if self._files.sha256(name) != want:
-                    raise StoreError(
-                        f"{self._files.describe(name)} is damaged (checksum mismatch); re-run "
-                        "globeview ingest --force"
-                    )
+            self._check_file(lv.file, lv.sha256, None, full)
+        for _lv, _cy, _cx, facts in self.iter_chunks():
+            if facts.file is not None:
+                self._check_file(facts.file, facts.sha256, facts.bytes, full)
+                checked += 1
+        return checked
+
+    def _check_file(self, name: str, sha256: str, size: int | None, full: bool) -> None:
+        if size is not None and self._files.size(name) != size:
+            raise StoreError(
+                f"{self._files.describe(name)} is damaged (size mismatch); re-run globeview "
+                "ingest --force"
+            )
+        if full and self._files.sha256(name) != sha256:
+            raise StoreError(
+                f"{self._files.describe(name)} is damaged (checksum mismatch); re-run "
+                "globeview ingest --force"
+            )
+
+    def iter_chunks(self) -> Iterator[tuple[int, int, int, ChunkFacts]]:
+        """(level, cy, cx, facts) of every chunk record of the store, shard by shard from the
+        top (reads every shard): the per-tile facts a whole-store comparison or report needs.
+        ``facts.errors[j, i]`` etc. are tile (cx * k + i, cy * k + j) of the level, k =
+        ``manifest.chunk_tiles``; NaN where a tile has no data."""
+        return self._meta.iter_chunks()
+
+    def _fetch_shard(self, job: Callable[[], None]) -> None:
+        """Run a metadata shard's fetch on the store's shard thread (a remote store read on a
+        thread that must not wait)."""
+        if getattr(self, "_closed", False):
+            return
+        if self._meta_pool is None:
+            self._meta_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="shards")
+        with contextlib.suppress(RuntimeError):  # shut down: the store is closing
+            self._meta_pool.submit(job)
+
+    @property
+    def shards_loaded(self) -> int:
+        """Metadata shards read so far (the top one at open)."""
+        return self._meta.shards_loaded
 
     # -- metadata (the manifest's lookups, `StoreMetadata`) -----------------------------------
 
     def level_grid(self, level: int) -> LevelGrid:
-        """Extent and raster geometry of a level."""
+        """The level's bbox (the tiles of its chunks with data) as a raster geometry."""
         return self._meta.level_grid(level)
 
     def level_error(self, level: int) -> float | None:
@@ -307,12 +355,10 @@ class TileStore:
         """Check that a level's files are there and its raster (the VRT) is the one the
         manifest describes (StoreError naming the file)."""
         files, lv = self._files, self._meta.levels[level]
-        for name in (lv.file, *lv.chunk_files()):
-            if not files.exists(name):
-                raise StoreError(
-                    f"{files.describe(name)}: level file is missing; re-run globeview ingest "
-                    "--force"
-                )
+        if not files.exists(lv.file):
+            raise StoreError(
+                f"{files.describe(lv.file)}: level file is missing; re-run globeview ingest --force"
+            )
         where = files.describe(lv.file)
         try:
             ds = files.open_raster(lv.file, lv.sha256)
@@ -388,6 +434,8 @@ class TileStore:
         self._closed = True
         self._prefetch.closed = self._handles.closed = True  # nothing new from here on
         self._files.close()
+        if self._meta_pool is not None:
+            self._meta_pool.shutdown(wait=True, cancel_futures=True)
         self._prefetch.close()
         self._handles.close()
         with self._lock:

@@ -1,0 +1,125 @@
+"""Store format 7's metadata shards (terrain/store/shards.py): round trips, directed rounding,
+deterministic bytes, and hostile bytes as one ShardError line."""
+
+from __future__ import annotations
+
+import struct
+import zlib
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from globeview.terrain.store import shards as S
+from globeview.terrain.store.layout import ShardRef, shard_chunks
+
+TILE_N = 6
+NS = 6
+REF = ShardRef(6, 3, 5, 4)
+
+
+def _shard(n_present: int = 3, seed: int = 0) -> S.Shard:
+    rng = np.random.default_rng(seed)
+    slots = shard_chunks(REF, TILE_N)
+    present = np.zeros(len(slots), bool)
+    present[rng.choice(len(slots), n_present, replace=False)] = True
+    kk = 256
+    errors = rng.uniform(0, 900, (n_present, kk, NS + 1))
+    hmin = rng.uniform(-400, 4000, (n_present, kk)).astype(np.float32)
+    hmin[:, :10] = np.nan
+    errors[:, :10] = np.nan
+    return S.Shard(
+        REF,
+        TILE_N,
+        NS,
+        present,
+        tuple(("%064x" % (i + 1)) if i else "" for i in range(n_present)),
+        np.arange(n_present, dtype=np.int64) * 1000,
+        errors,
+        hmin,
+        hmin + np.float32(5),
+        (
+            S.ChildRef(3 << 4, 5 << 4, "ab" * 32, 1234),
+            S.ChildRef(3 << 4, (5 << 4) + 1, "cd" * 32, 9),
+        ),
+    )
+
+
+def test_round_trip_and_determinism() -> None:
+    sh = _shard()
+    data = S.encode(sh)
+    assert data == S.encode(_shard())  # the same shard, the same bytes
+    back = S.decode(data, REF, TILE_N, NS)
+    assert (back.present == sh.present).all()
+    assert back.chunk_sha256 == sh.chunk_sha256
+    assert back.children == sh.children
+    np.testing.assert_array_equal(back.hmin, sh.hmin)
+    np.testing.assert_array_equal(back.hmax, sh.hmax)
+    ok = np.isfinite(sh.errors)
+    assert (back.errors[ok] >= sh.errors[ok]).all()  # errors rounded up: still bounds
+    assert np.isnan(back.errors[~ok]).all()
+    assert (back.errors[ok] <= sh.errors[ok] * (1 + 2**-10) + 1e-6).all()
+
+
+@given(arrays(np.float64, 50, elements=st.floats(0, 60000)))
+@settings(max_examples=100, deadline=None)
+def test_directed_rounding(x: np.ndarray) -> None:
+    assert (S.f16_up(x).astype(np.float64) >= x).all()
+    assert (S.f32_down(x * 1.0001 - 500).astype(np.float64) <= x * 1.0001 - 500).all()
+    assert (S.f32_up(x * 1.0001 - 500).astype(np.float64) >= x * 1.0001 - 500).all()
+
+
+def _with_body(data: bytes, raw: bytes) -> bytes:
+    head = bytearray(data[:64])
+    z = zlib.compress(raw)
+    struct.pack_into("<II", head, 28, len(z), len(raw))
+    return bytes(head) + z
+
+
+def _hostile() -> list[tuple[str, bytes, str]]:
+    good = S.encode(_shard())
+    raw = zlib.decompress(good[64:])
+    bad_bits = bytearray(raw)
+    bad_bits[0] ^= 0xFF  # availability no longer matches n_chunks
+    neg = bytearray(raw)
+    # Tile 20's error (finite) in the high byte plane (shuffled float16): make it negative.
+    n = 3
+    err_start = len(raw) - n * 256 * 8 - n * 256 * (NS + 1) * 2  # (after the chunk records)
+    neg[err_start + n * 256 * (NS + 1) + 20 * (NS + 1)] |= 0x80
+    lie = bytearray(good)
+    struct.pack_into("<I", lie, 32, S.MAX_SHARD_BYTES + 1)
+    return [
+        ("empty", b"", "truncated"),
+        ("truncated", good[:-7], "truncated"),
+        ("magic", b"XXXX" + good[4:], "bad magic"),
+        ("size lie", bytes(lie), "sizes do not add up"),
+        ("garbage body", good[:64] + b"\x00" * (len(good) - 64), "damaged body"),
+        ("bits", _with_body(good, bytes(bad_bits)), "availability"),
+        ("negative", _with_body(good, bytes(neg)), "negative or infinite"),
+    ]
+
+
+@pytest.mark.parametrize(("name", "data", "words"), _hostile(), ids=lambda v: str(v)[:12])
+def test_hostile_bytes_are_one_line(name: str, data: bytes, words: str) -> None:
+    with pytest.raises(S.ShardError) as err:
+        S.decode(data, REF, TILE_N, NS)
+    assert words in str(err.value) and "\n" not in str(err.value)
+
+
+def test_other_subtree_or_parameters_refused() -> None:
+    data = S.encode(_shard())
+    with pytest.raises(S.ShardError, match="subtree"):
+        S.decode(data, ShardRef(6, 3, 6, 4), TILE_N, NS)
+    with pytest.raises(S.ShardError, match="tile_n"):
+        S.decode(data, REF, TILE_N, NS + 1)
+
+
+def test_a_zip_bomb_is_not_inflated() -> None:
+    good = S.encode(_shard(1))
+    bomb = zlib.compress(b"\x00" * (64 << 20))
+    head = bytearray(good[:64])
+    struct.pack_into("<II", head, 28, len(bomb), len(zlib.decompress(good[64:])))
+    with pytest.raises(S.ShardError, match="damaged body"):
+        S.decode(bytes(head) + bomb, REF, TILE_N, NS)
