@@ -109,3 +109,30 @@ def test_line_behind_the_mountain_stays_hidden(clean, tmp_path) -> None:
     assert inside.sum() > 50 and 0.15 < seen.mean() < 0.7, (int(inside.sum()), seen.mean())
     through = coarse & ~grown
     assert through.sum() <= 10, (int(through.sum()), int(coarse.sum()), int(dense.sum()))
+
+
+def test_chord_sag_is_the_meshs_rise_over_the_chord() -> None:
+    """A 1 000 m ridge along one node column of a tile: a segment across it carries 1 000 m,
+    one on flat ground or across a trench 0, one with an undrawn end's samples 0."""
+    from globeview.render.overlay_vectors import chord_sag
+    from globeview.terrain.vectors import Polylines
+
+    grid = np.zeros((65, 65))
+    grid[:, 32] = 1000.0  # lon 11.25 in tile (3, 8, 3): lon 0..22.5, lat 0..22.5
+    trench = -grid
+
+    lines = Polylines(
+        np.array([5.0, 17.5, 1.0, 4.0]), np.array([10.0, 10.0, 10.0, 10.0]), np.array([0, 2, 4])
+    )
+    a, b = np.array([0, 2]), np.array([1, 3])
+    keys, strides = np.array([[3, 8, 3]]), np.array([1])
+    zero = np.zeros(2)
+    sag = chord_sag(lambda k: grid, keys, strides, lines, a, b, zero, zero)
+    np.testing.assert_allclose(sag, [1000.0, 0.0])
+    sag = chord_sag(lambda k: trench, keys, strides, lines, a, b, zero, zero)
+    np.testing.assert_allclose(sag, [0.0, 0.0])
+    # Ends at 400 and 1 000 m: the chord is at 700 m mid-way, the ridge 300 m above it.
+    sag = chord_sag(
+        lambda k: grid, keys, strides, lines, a, b, np.array([400.0, 0]), np.array([1000.0, 0])
+    )
+    np.testing.assert_allclose(sag, [300.0, 0.0])
