@@ -9,7 +9,11 @@ densified vertices, and where a provider triangulates differently from the bilin
 (stitched edges, quadtree-clod's own triangles), the line and the mesh may differ by a fraction
 of the tile's geometric error; a small depth bias (a fixed fraction of the view distance in the
 logarithmic depth, i.e. the same relative pull at every distance) hides that while terrain in
-front of the line still occludes it. Positions are sent as float32 hi/lo pairs of absolute ECEF
+front of the line still occludes it. Where the mesh rises over a segment's chord (a ridge
+between two vertices kilometres apart), each segment also carries that rise (`chord_sag`,
+sampled on the drawn mesh when the heights are redone) and the shader pulls its depth toward
+the eye by it over the cosine of the incidence, so the line does not break there.
+Positions are sent as float32 hi/lo pairs of absolute ECEF
 (emulated double precision), the eye likewise, so no re-upload is needed while the camera moves.
 
 Only segments whose two ends lie in drawn tiles are uploaded (vectors paged by tile), each
@@ -22,6 +26,7 @@ while a displacement is active.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import moderngl
@@ -40,6 +45,8 @@ SEGMENT_PX = 6.0
 BAND_STEP = 0.05
 #: Depth pull toward the eye, as a fraction of the view distance.
 DEPTH_BIAS_FRACTION = 0.004
+#: Fractions along each segment where the terrain's rise over the chord is sampled.
+SAG_FRACTIONS = (0.25, 0.5, 0.75)
 
 
 def render_set_strides(render_set: RenderSet) -> np.ndarray:
@@ -58,6 +65,36 @@ def render_set_signature(render_set: RenderSet, exaggeration: float) -> tuple:
     """A hashable stand-in for 'the same mesh': keys, strides and exaggeration."""
     keys = np.ascontiguousarray(render_set.keys, np.int64)
     return (keys.tobytes(), render_set_strides(render_set).tobytes(), float(exaggeration))
+
+
+def chord_sag(
+    heights: Callable[[tuple[int, int, int]], np.ndarray],
+    keys: np.ndarray,
+    strides: np.ndarray,
+    lines: Polylines,
+    a: np.ndarray,
+    b: np.ndarray,
+    h_a: np.ndarray,
+    h_b: np.ndarray,
+) -> np.ndarray:
+    """(S,) metres the drawn mesh rises above each segment's chord (0 where it does not).
+
+    Sampled at `SAG_FRACTIONS` of each segment (lon/lat linear: segments are short) on the
+    drawn mesh, against the chord's height there (linear between the draped ends ``h_a``,
+    ``h_b``, metres; the chord's own sag below the ellipsoid is millimetres at kilometres).
+    The line shader pulls each segment's depth toward the eye by it, so a straight line seen
+    from above stays visible over a ridge between its vertices (issue #26 review)."""
+    n = len(a)
+    if n == 0:
+        return np.zeros(0)
+    t = np.asarray(SAG_FRACTIONS, np.float64)
+    dlon = (lines.lon[b] - lines.lon[a] + 180.0) % 360.0 - 180.0  # across the antimeridian
+    lon = (lines.lon[a, None] + dlon[:, None] * t).ravel()
+    lat = (lines.lat[a, None] + (lines.lat[b] - lines.lat[a])[:, None] * t).ravel()
+    h, drawn, _ = drape_heights(heights, keys, strides, lon, lat)
+    chord = (h_a[:, None] * (1.0 - t) + h_b[:, None] * t).ravel()
+    rise = np.where(drawn, h - chord, 0.0).reshape(n, len(t))
+    return np.maximum(rise.max(axis=1), 0.0)
 
 
 def split_hi_lo(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -109,7 +146,7 @@ class VectorOverlay:
         ctx: moderngl context; lines: densified polylines (lon/lat degrees); style: LineStyle.
     """
 
-    FLOATS = 15  # A hi, A lo, B hi, B lo (3 each), along A, along B (m), spare
+    FLOATS = 15  # A hi, A lo, B hi, B lo (3 each), along A, along B (m), sag (m)
 
     def __init__(
         self,
@@ -139,13 +176,14 @@ class VectorOverlay:
             [
                 (
                     self.buffer,
-                    "3f 3f 3f 3f 1f 1f 1x4/i",
+                    "3f 3f 3f 3f 1f 1f 1f/i",
                     "in_a_hi",
                     "in_a_lo",
                     "in_b_hi",
                     "in_b_lo",
                     "in_along_a",
                     "in_along_b",
+                    "in_sag",
                 )
             ],
         )
@@ -232,6 +270,7 @@ class VectorOverlay:
             ia, ib = np.searchsorted(idx, a), np.searchsorted(idx, b)
             keep = drawn[ia] & drawn[ib]
             ia, ib, a, b = ia[keep], ib[keep], a[keep], b[keep]
+            sag = chord_sag(terrain.heights, keys, strides, lines, a, b, h[ia], h[ib])
             hi, lo = split_hi_lo(pts)
             rows.append(
                 np.concatenate(
@@ -242,7 +281,7 @@ class VectorOverlay:
                         lo[ib],
                         along[a, None],
                         along[b, None],
-                        np.zeros((len(a), 1)),
+                        sag[:, None] * exaggeration,
                     ],
                     axis=1,
                 ).astype(np.float32)

@@ -16,6 +16,7 @@ in vec3 in_b_hi;
 in vec3 in_b_lo;
 in float in_along_a;         // metres along the polyline
 in float in_along_b;
+in float in_sag;             // metres the drawn terrain rises above this segment's chord
 
 out float v_along;
 
@@ -49,6 +50,13 @@ void main() {
     // Half a width each side, plus half a pixel along the segment to close joints.
     vec2 off = (nrm * side * 0.5 * u_width + dir * (at_b ? 0.5 : -0.5)) * 2.0 / u_viewport;
     gl_Position = vec4(c.xy + off * c.w, 0.0, c.w);
-    gl_Position.z = (gv_log_depth(w) - 2.0 * u_depth_bias) * c.w;
+    // The chord between two draped vertices passes under a ridge between them: pull its depth
+    // toward the eye by the terrain's rise over the chord (in_sag), divided by the cosine of
+    // the incidence (the ray meets the hump that far before the chord), capped at 4 x and at
+    // half the view depth, so terrain farther in front (a mountain) still hides the line.
+    vec3 up = normalize(in_a_hi);
+    float cos_i = abs(dot(up, normalize(gv_rel_to_eye(in_a_hi, in_a_lo))));
+    float pull = min(in_sag / max(cos_i, 0.25), 0.5 * w);
+    gl_Position.z = (gv_log_depth(w - pull) - 2.0 * u_depth_bias) * c.w;
     v_along = at_b ? in_along_b : in_along_a;
 }
