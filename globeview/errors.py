@@ -10,6 +10,11 @@ class GlobeviewError(Exception):
     """An error caused by the user's input or environment, explained in one line."""
 
 
+class SettingError(GlobeviewError, ValueError):
+    """A setting given a value outside its range (a display setting such as exaggeration):
+    one line naming it and the range. Also a ValueError, as `globeview.validate` raises."""
+
+
 class DemError(GlobeviewError):
     """A raster cannot be used as a DEM (unreadable, no CRS, all nodata, ...)."""
 

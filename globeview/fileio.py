@@ -53,7 +53,10 @@ def describe_os_error(exc: OSError, path: str | os.PathLike) -> str:
     if code in (errno.EACCES, errno.EPERM):
         return f"cannot write {path}: permission denied"
     if code == errno.ENOENT:
-        return f"cannot write {path}: folder {Path(path).parent} does not exist"
+        folder = Path(path).parent
+        if folder.is_dir():  # e.g. /proc: there, but no file can be made in it
+            return f"cannot write {path}: folder {folder} is not writable ({exc.strerror})"
+        return f"cannot write {path}: folder {folder} does not exist"
     if code == errno.EISDIR:
         return f"cannot write {path}: it is a directory"
     if code == errno.ENAMETOOLONG:

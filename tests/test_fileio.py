@@ -101,3 +101,16 @@ def test_describe_os_error_is_one_line_per_cause() -> None:
     ]:
         text = describe_os_error(OSError(code, os.strerror(code)), "/a/x.png")
         assert needle in text and "/a/x.png" in text and "\n" not in text
+
+
+def test_a_folder_that_is_there_but_takes_no_files_is_not_writable(tmp_path: Path) -> None:
+    """ENOENT creating a file in a folder that exists (/proc, where root passes os.access)
+    is a folder that is not writable, not one that "does not exist"."""
+    target = tmp_path / "x.mp4"
+    text = describe_os_error(FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT)), target)
+    assert f"folder {tmp_path} is not writable" in text and "does not exist" not in text
+    if Path("/proc").is_dir():  # the reviewer's case, a real error from the kernel
+        with pytest.raises((FileNotFoundError, PermissionError)) as info:
+            open("/proc/.globeview-test.tmp", "w").close()
+        text = describe_os_error(info.value, "/proc/x.mp4")
+        assert "does not exist" not in text and "\n" not in text

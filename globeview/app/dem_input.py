@@ -152,12 +152,16 @@ def _affine(transform: Any) -> Any:
 
 
 def _crs_wkt(crs: Any) -> str:
-    """``crs`` (anything rasterio's CRS takes: 'EPSG:4326', WKT, a CRS object) as WKT."""
+    """``crs`` (anything rasterio's CRS takes: 'EPSG:4326', WKT, a CRS object) as WKT.
+    Parsed inside a rasterio environment, as `globeview.terrain.dem.reader.parse_crs` does,
+    so PROJ's own "ERROR 1: ..." goes to logging, not stderr: the DemError's line is all."""
+    import rasterio
     from rasterio.crs import CRS
     from rasterio.errors import CRSError
 
     try:
-        return str(CRS.from_user_input(crs).to_wkt())
+        with rasterio.Env():
+            return str(CRS.from_user_input(crs).to_wkt())
     except (CRSError, TypeError, ValueError) as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise DemError(f"add_dem: crs {crs!r:.60} is not a CRS ({first[:120]})") from None

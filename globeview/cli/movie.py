@@ -33,7 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="a tour file (.json or .toml, saved by the window or globeview.Tour), a project "
         "(PROJECT.toml with a tour: its own layers, camera and display are filmed), or cameras "
         "'LON,LAT,HEIGHT[,HEADING,PITCH[,ROLL]];...' (degrees, metres above WGS84) flown "
-        "--seconds apart; put -- before a list that starts with '-'",
+        "--seconds apart (one camera: held for --seconds); put -- before a list that starts "
+        "with '-'",
     )
     parser.add_argument(
         "sources",
@@ -49,7 +50,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--seconds",
         type=float,
         default=DEFAULT_LEG_S,
-        help=f"seconds between CAMERAS (default {DEFAULT_LEG_S:g}); a tour file has its own",
+        help=f"seconds between CAMERAS, or that one camera is held (default "
+        f"{DEFAULT_LEG_S:g}); a tour file has its own",
     )
     parser.add_argument("--fov", type=float, default=45.0, help="vertical field of view, deg")
     parser.add_argument("--tau", type=float, default=2.0, help="screen-space error, pixels")
@@ -79,7 +81,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def parse_tour(text: str, seconds: float) -> Tour:
-    """A tour file's tour, or the ';'-separated cameras each ``seconds`` after the last."""
+    """A tour file's tour, or the ';'-separated cameras each ``seconds`` after the last; one
+    camera is held for ``seconds`` (the first keyframe's seconds are a hold, `Keyframe`), so
+    the movie has ``fps * seconds`` frames of that view."""
     from pathlib import Path
 
     from globeview.cli.view_options import parse_floats
@@ -99,7 +103,7 @@ def parse_tour(text: str, seconds: float) -> Tour:
         vals = parse_floats(cam.strip(), "CAMERAS", (3, 5, 6))
         vals += [0.0, -90.0, 0.0][len(vals) - 3 :]
         pose = checked(f"CAMERAS: camera {i + 1}", check_lonlat_hpr, *vals)
-        tour.add(Keyframe.from_pose(pose, leg if i else 0.0))
+        tour.add(Keyframe.from_pose(pose, leg if i or len(cameras) == 1 else 0.0))
     if tour.duration == 0.0 and len(cameras) > 1:
         raise GlobeviewError("--seconds 0 gives the cameras no time to fly between them")
     return tour

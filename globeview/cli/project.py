@@ -96,6 +96,19 @@ def check_gui_project(args: argparse.Namespace) -> str | None:
     return path
 
 
+def left_out(problems: list[str]) -> str:
+    """The render summary's words for `Globe.project_problems`: layers, tours and a tool
+    that were not opened are counted apart (``1 layer(s) missing, 1 tour left out``); a
+    tour or tool line starts with ``tour `` or ``tool `` (`globeview.app.project`)."""
+    tours = sum(line.startswith("tour ") for line in problems)
+    tools = sum(line.startswith("tool ") for line in problems)
+    layers = len(problems) - tours - tools
+    said = [f"{layers} layer(s) missing"] if layers else []
+    said += [f"{tours} tour{'s' if tours > 1 else ''} left out"] if tours else []
+    said += ["the tool left out"] if tools else []
+    return ", ".join(said)
+
+
 def render_project(args: argparse.Namespace, path: str) -> int:
     """``globeview render PROJECT.toml -o out.png [--size WxH] [--strict]``."""
     from globeview.app.globe import Globe
@@ -114,16 +127,14 @@ def render_project(args: argparse.Namespace, path: str) -> int:
     try:
         missing = globe.project_problems
         if missing and args.strict:
-            raise GlobeviewError(
-                f"{len(missing)} layer(s) of {path} could not be opened; nothing written (--strict)"
-            )
+            raise GlobeviewError(f"{path}: {left_out(missing)}; nothing written (--strict)")
         globe.save(out, size)
         stats = globe.session.last.stats if globe.session and globe.session.last else None
     finally:
         globe.close()
     said = f"{len(globe.dems)} DEM(s), {len(globe.overlays)} overlay(s)"
     if missing:
-        said += f", {len(missing)} layer(s) missing"
+        said += f", {left_out(missing)}"
     drawn = f": {stats.triangles} triangles, {stats.tiles_drawn} tiles" if stats else ""
     print(f"wrote {out} ({size[0]}x{size[1]}; project {path}: {said}){drawn}")
     return 0

@@ -8,6 +8,7 @@ from typing import Any
 
 from psygnal import evented
 
+from globeview.errors import SettingError
 from globeview.validate import check_exaggeration
 
 #: The colour of space behind the globe (linear RGB, 0..1).
@@ -20,9 +21,10 @@ class DisplaySettings:
     """Live display settings; all take effect on the next frame.
 
     exaggeration: vertical exaggeration factor (1 = true heights); refused where it is set
-    (`globeview.validate.check_exaggeration`: ValueError, one line with the range,
-    nothing changes, no event), so no frame trips over a NaN; background and wire_color: RGB,
-    each 0..1. ``settings.events.<field>.connect(callback)`` subscribes to one field,
+    (`globeview.validate.check_exaggeration`: `SettingError`, a `GlobeviewError` and a
+    ValueError, one line with the range, nothing changes, no event), so no frame trips over
+    a NaN; background and wire_color: RGB, each 0..1.
+    ``settings.events.<field>.connect(callback)`` subscribes to one field,
     ``settings.events.connect(callback)`` to all (psygnal).
     """
 
@@ -37,5 +39,8 @@ class DisplaySettings:
         # psygnal's evented setter wraps this one and emits only after it returned, so a
         # refused value raises before anything changes or any listener hears of it.
         if name == "exaggeration":
-            value = check_exaggeration(value)
+            try:
+                value = check_exaggeration(value)
+            except ValueError as exc:
+                raise SettingError(str(exc)) from None
         super().__setattr__(name, value)

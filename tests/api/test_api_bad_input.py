@@ -51,7 +51,9 @@ def cache_files(api_cache: str) -> list[str]:
         (np.ones((50, 50)), {"crs": GEO, "nodata": "x"}, "nodata must be a number"),
     ],
 )
-def test_bad_arrays_are_one_line_and_add_nothing(globe, api_cache, data, kwargs, words):
+def test_bad_arrays_are_one_line_and_add_nothing(globe, api_cache, data, kwargs, words, capfd):
+    """The DemError's line is all: GDAL/PROJ print nothing of their own (an unknown EPSG
+    code made PROJ write ``ERROR 1: PROJ: ...`` to the process's stderr)."""
     kwargs = dict(kwargs)
     kwargs.setdefault("transform", transform_for(*data.shape[-2:]) if data.ndim >= 2 else None)
     if data.ndim < 2 and "transform" in kwargs and kwargs["transform"] is None:
@@ -63,6 +65,7 @@ def test_bad_arrays_are_one_line_and_add_nothing(globe, api_cache, data, kwargs,
     assert words in message and "\n" not in message, message
     assert globe.dems == []
     assert cache_files(api_cache) == before
+    assert capfd.readouterr().err == ""
 
 
 def test_a_single_band_3d_array_is_taken(globe, api_cache):

@@ -72,6 +72,15 @@ def test_camera_refuses_bad_values_in_one_line(wm_globe):
     assert wm_globe.camera == before
 
 
+@pytest.mark.parametrize("value", [math.inf, math.nan, -1.0, "x"])
+def test_display_settings_refuse_bad_values_in_one_line(wm_globe, value):
+    before = wm_globe.display.exaggeration
+    with pytest.raises(GlobeviewError, match="exaggeration") as exc:
+        wm_globe.display.exaggeration = value
+    assert "\n" not in str(exc.value) and isinstance(exc.value, ValueError)
+    assert wm_globe.display.exaggeration == before
+
+
 def test_measure_profile_crosses_mount_washington(wm_globe):
     profile = wm_globe.measure((-71.40, 44.2705), (-71.20, 44.2705), samples=201)
     assert profile.s_m.shape == profile.height_m.shape == (201,)

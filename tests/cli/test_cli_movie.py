@@ -72,6 +72,21 @@ def test_mp4_has_the_frames_and_the_stills_of_render(cache: Path, tmp_path: Path
     assert sorted(p.name for p in tmp_path.iterdir()) == ["first.png", "last.png", "m.mp4"]
 
 
+def test_one_camera_is_held_for_the_seconds(cache: Path, tmp_path: Path) -> None:
+    """A single camera with --seconds is a hold (the first keyframe's seconds, as
+    docs/python_api.md says): fps * seconds frames of that view, not one frame of 0 s."""
+    out = tmp_path / "held.mp4"
+    res = globeview(
+        "movie", "-o", str(out), "--size", "96x64", "--fps", "4", "--seconds", "2",
+        "--", FIRST, DEM, cache=cache,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.startswith(f"wrote {out} (96x64, 8 frames, 2 s of tour at 4 fps)")
+    size, frames = decoded(out)
+    assert size == (96, 64) and len(frames) == 8
+    assert mean_diff(frames[0], frames[-1]) < CODEC_TOLERANCE
+
+
 def test_gif_from_a_json_tour(cache: Path, tmp_path: Path) -> None:
     tour = {
         "format": "globeview-tour",

@@ -105,7 +105,7 @@ def test_missing_layers_are_warnings_and_strict_refuses(project, tmp_path):
     assert "1 DEM(s), 0 overlay(s), 1 layer(s) missing" in res.stdout and out.is_file()
     strict = tmp_path / "strict.png"
     res = gv("render", str(moved), "-o", str(strict), "--strict", cache=cache)
-    assert "could not be opened; nothing written (--strict)" in res.stderr.splitlines()[-1]
+    assert "1 layer(s) missing; nothing written (--strict)" in res.stderr.splitlines()[-1]
     assert res.returncode == 2 and not strict.exists()
 
 
@@ -145,3 +145,27 @@ def test_a_project_is_opened_alone_and_without_view_options(project, tmp_path):
     assert "--camera does not apply to a project" in one_error_line(res)
     res = gv("render", str(path), str(path), "-o", str(tmp_path / "x.png"), cache=cache)
     assert "a project opens alone" in one_error_line(res)
+
+
+def test_the_render_summary_counts_tours_apart_from_layers():
+    from globeview.cli.project import left_out
+
+    tour = "tour 'bad': keyframe 2: lat 95.0 is not within [-90, 90]"
+    assert left_out([tour]) == "1 tour left out"
+    assert left_out(["DEM layer 'gone': no such file", tour, tour]) == (
+        "1 layer(s) missing, 2 tours left out"
+    )
+
+
+@pytest.mark.gl
+@pytest.mark.slow
+def test_a_bad_tour_is_not_counted_as_a_missing_layer(project, tmp_path):
+    path, _, cache = project
+    doc = tomllib.loads(path.read_text())
+    doc["tours"] = [{"name": "bad", "keyframes": [{"lon": 1.0, "lat": 95.0, "height": 3e3}]}]
+    moved = path.parent / "badtour.toml"
+    moved.write_text(tomli_w.dumps(doc))
+    out = tmp_path / "out.png"
+    res = gv("render", str(moved), "-o", str(out), "--size", "64x48", cache=cache)
+    assert res.returncode == 0, res.stderr
+    assert "1 DEM(s), 0 overlay(s), 1 tour left out)" in res.stdout and out.is_file()
