@@ -16,7 +16,7 @@ from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING
 
 from globeview.cli.dem_options import add_dem_options, check_dem_options
-from globeview.cli.view_options import checked
+from globeview.cli.view_options import add_scene_options, checked
 
 if TYPE_CHECKING:
     from globeview.app.globe import Globe
@@ -53,29 +53,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"seconds between CAMERAS, or that one camera is held (default "
         f"{DEFAULT_LEG_S:g}); a tour file has its own",
     )
-    parser.add_argument("--fov", type=float, default=45.0, help="vertical field of view, deg")
-    parser.add_argument("--tau", type=float, default=2.0, help="screen-space error, pixels")
-    parser.add_argument("--exaggeration", type=float, default=1.0, help="vertical exaggeration")
-    parser.add_argument("--hillshade", action="store_true", help="light from the north-west")
-    parser.add_argument("--no-fog", action="store_true", help="no haze toward the horizon")
-    parser.add_argument(
-        "--imagery", action="store_true", help="drape the embedded Blue Marble imagery"
-    )
-    parser.add_argument(
-        "--no-borders", action="store_true", help="hide the embedded country borders"
-    )
+    # --fov, --tau, --exaggeration, display flags, --layer: as `globeview render`'s.
+    add_scene_options(parser)
     parser.add_argument(
         "--lod", default="chunked-sse", help="LOD provider plugin (see `globeview plugins list`)"
     )
-    parser.add_argument(
-        "--layer",
-        action="append",
-        default=[],
-        metavar="[TYPE:]FILE",
-        help="overlay a file with the layer type that opens it (as `globeview render "
-        "--layer`); repeatable",
-    )
-    parser.add_argument("--background", help="R,G,B background colour in 0..1")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     add_dem_options(parser)
 

@@ -7,6 +7,7 @@ import sys
 
 from globeview.cli.dem_options import add_dem_options, check_dem_options
 from globeview.cli.view_options import (
+    add_scene_options,
     add_view_options,
     check_plugin_options,
     checked,
@@ -29,31 +30,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--size", default="1280x720", help="WIDTHxHEIGHT in pixels")
     # --camera, --lod, --tool, --set: shared with `globeview gui` (cli/view_options.py).
     add_view_options(parser)
-    parser.add_argument("--fov", type=float, default=45.0, help="vertical field of view, deg")
-    parser.add_argument("--tau", type=float, default=2.0, help="screen-space error, pixels")
-    parser.add_argument("--exaggeration", type=float, default=1.0, help="vertical exaggeration")
+    # --fov, --tau, --exaggeration, display flags, --layer: shared with `globeview movie`.
+    add_scene_options(parser)
     parser.add_argument("--wireframe", action="store_true", help="overlay the triangle edges")
-    parser.add_argument("--hillshade", action="store_true", help="light from the north-west")
-    parser.add_argument("--no-fog", action="store_true", help="no haze toward the horizon")
-    parser.add_argument("--background", help="R,G,B background colour in 0..1")
     parser.add_argument("--stats", help="write the frame's figures as JSON to this file")
     add_dem_options(parser)
-    parser.add_argument(
-        "--layer",
-        action="append",
-        default=[],
-        metavar="[TYPE:]FILE[::LAYER]",
-        help="overlay a file with the layer type that opens it (by extension, then content; "
-        "TYPE:FILE chooses one, e.g. thematic:x.tif; see `globeview plugins list`); "
-        "FILE::LAYER opens one layer of a multi-layer file, e.g. roads.gpkg::highways; "
-        "repeatable",
-    )
-    parser.add_argument(
-        "--imagery", action="store_true", help="drape the embedded Blue Marble imagery"
-    )
-    parser.add_argument(
-        "--no-borders", action="store_true", help="hide the embedded country borders"
-    )
     parser.add_argument(
         "--points",
         metavar="LON,LAT[;LON,LAT...]",

@@ -1,6 +1,7 @@
 """The view and plugin options `globeview render` and `globeview gui` share: ``--camera``,
 ``--lod``, ``--tool``, ``--set``, defined once and checked the same way, before any work
-(bad input is one `GlobeviewError` line, exit 2).
+(bad input is one `GlobeviewError` line, exit 2); and the scene options `render` and `movie`
+share (``--fov``, ``--tau``, ``--exaggeration``, the display flags, ``--layer``).
 
 Like the subcommand modules, this imports only argparse at top level; the checks import the
 model and the plugin registry when they run (no GL, no Qt).
@@ -48,6 +49,34 @@ def add_view_options(parser: argparse.ArgumentParser, *, window: bool = False) -
         + ("session" if window else "render")
         + " only, checked against its type and range (e.g. collapse.ratio=0.3); repeatable; "
         "`globeview plugins set` stores one",
+    )
+
+
+def add_scene_options(parser: argparse.ArgumentParser) -> None:
+    """Add what a picture of the globe is drawn with, `render`'s and `movie`'s alike: the
+    field of view (degrees), the screen-space error (pixels), the vertical exaggeration, the
+    display flags, the background and the overlay files (``--layer``)."""
+    parser.add_argument("--fov", type=float, default=45.0, help="vertical field of view, deg")
+    parser.add_argument("--tau", type=float, default=2.0, help="screen-space error, pixels")
+    parser.add_argument("--exaggeration", type=float, default=1.0, help="vertical exaggeration")
+    parser.add_argument("--hillshade", action="store_true", help="light from the north-west")
+    parser.add_argument("--no-fog", action="store_true", help="no haze toward the horizon")
+    parser.add_argument("--background", help="R,G,B background colour in 0..1")
+    parser.add_argument(
+        "--layer",
+        action="append",
+        default=[],
+        metavar="[TYPE:]FILE[::LAYER]",
+        help="overlay a file with the layer type that opens it (by extension, then content; "
+        "TYPE:FILE chooses one, e.g. thematic:x.tif; see `globeview plugins list`); "
+        "FILE::LAYER opens one layer of a multi-layer file, e.g. roads.gpkg::highways; "
+        "repeatable",
+    )
+    parser.add_argument(
+        "--imagery", action="store_true", help="drape the embedded Blue Marble imagery"
+    )
+    parser.add_argument(
+        "--no-borders", action="store_true", help="hide the embedded country borders"
     )
 
 
