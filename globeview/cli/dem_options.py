@@ -14,8 +14,9 @@ CRS_HELP = (
 )
 #: What ``--vdatum`` means, in every command's help.
 VDATUM_HELP = (
-    "vertical datum of the DEM files: ellipsoid or egm96 (default: from the CRS, SRTM .hgt and "
-    "mean-sea-level DEMs EGM96, else assumed EGM96); stores hold ellipsoidal heights"
+    "vertical datum of the DEM files: ellipsoid, egm96 or egm2008 (default: from the CRS, SRTM "
+    ".hgt and mean-sea-level DEMs EGM96, Copernicus DEM tiles EGM2008, else assumed EGM96; "
+    "EGM2008 needs its grid: see ingest --geoid-grid); stores hold ellipsoidal heights"
 )
 
 
@@ -27,7 +28,7 @@ def add_dem_options(parser: argparse.ArgumentParser) -> None:
 
 
 def check_dem_options(args: argparse.Namespace) -> None:
-    """A bad ``--vdatum`` ("egm2008", a typo) as one line before any work; ``--crs`` is parsed
+    """A bad ``--vdatum`` (a typo) as one line before any work; ``--crs`` is parsed
     where a DEM is opened (`globeview.terrain.dem.reader.open_dem`: one line for an unknown CRS)."""
     if args.vdatum is not None:
         from globeview.terrain.dem.vdatum import parse_vdatum

@@ -59,7 +59,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=[],
         metavar="[egm2008=]PATH",
         help="a geoid grid globeview does not ship, for sources on that datum (Copernicus "
-        "DEM heights are EGM2008: us_nga_egm08_25.tif from https://cdn.proj.org); repeatable",
+        "DEM heights are EGM2008: us_nga_egm08_25.tif from https://cdn.proj.org); the build "
+        "converts each source's heights with its own datum's grid; repeatable (default: "
+        "$GLOBEVIEW_GEOID_GRIDS, then PROJ's data folders)",
     )
     parser.add_argument(
         "--tile-n", type=int, default=6, help="tiles have 2^N+1 samples a side (default 6: 65)"
@@ -172,10 +174,13 @@ def run(args: argparse.Namespace) -> int:
         return run_plan(args)
     if args.out is None:
         raise GlobeviewError("the following arguments are required: --out (or --plan)")
-    if args.geoid_grid or args.footprints != "auto":
-        # The format-7 build (issue #25) consumes them; today's build would ignore them.
-        raise GlobeviewError("--geoid-grid and --footprints are for --plan in this version")
+    if args.footprints != "auto":
+        # The build reads every source's header anyway (and checks named tiles against it).
+        raise GlobeviewError("--footprints is for --plan")
+    from globeview.terrain.dem.vdatum import parse_geoid_grids
     from globeview.terrain.ingest.driver import ingest
+
+    grids = parse_geoid_grids(args.geoid_grid)  # one line for a bad grid, before any work
 
     parallel = parallel_kwargs(args, ingest)  # checked before any source is read
     result = ingest(
@@ -187,6 +192,7 @@ def run(args: argparse.Namespace) -> int:
         crs=args.crs,
         vdatum=args.vdatum,
         force=args.force,
+        geoid_grids=grids,
         # A bar only on a terminal: piped or logged, tqdm's redraws would be many lines.
         progress=not args.quiet and sys.stderr.isatty(),
         **parallel,

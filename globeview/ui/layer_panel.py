@@ -49,7 +49,7 @@ VDATUM_CHOICES: tuple[tuple[str, str | None], ...] = (
     ("heights above the EGM96 geoid", "egm96"),
     ("heights above the WGS84 ellipsoid", "ellipsoid"),
 )
-_DATUM_NAMES = {"egm96": "EGM96 geoid", "ellipsoid": "WGS84 ellipsoid"}
+_DATUM_NAMES = {"egm96": "EGM96 geoid", "egm2008": "EGM2008 geoid", "ellipsoid": "WGS84 ellipsoid"}
 
 
 def datum_text(store: TileStore) -> str:

@@ -85,3 +85,33 @@ def write_netcdf(path: Path, *, cf_axes: bool, n: int = 90) -> Path:
         with mf.open() as src:
             rasterio.shutil.copy(src, path, driver="netCDF")
     return path
+
+
+def geoid_n(lons: np.ndarray, lats: np.ndarray) -> np.ndarray:
+    """The synthetic geoid of `write_geoid_grid` at nodes (degrees, broadcast): a tilt and a
+    wave, -40..60 m, nothing like EGM96 (so a source converted with the wrong geoid shows)."""
+    lons, lats = np.asarray(lons, dtype=np.float64), np.asarray(lats, dtype=np.float64)
+    wave = np.sin(np.radians(lons * 7.0)) * np.cos(np.radians(lats * 5.0))
+    return 10.0 + 0.05 * lons - 0.3 * lats + 3.0 * wave
+
+
+def write_geoid_grid(path: Path, step: float = 1.0, *, closed: bool = True) -> Path:
+    """A global node-registered geoid grid GeoTIFF as PROJ's us_nga_egm08_25.tif is laid out
+    (float32, nodes from -180 to +180 and +90 to -90, pixel-is-point, EPSG:4326), holding
+    `geoid_n` at ``step``-degree nodes: (360/step + 1) x (180/step + 1) samples. Not
+    ``closed``: the +180 column left out (the columns wrap, as the shipped EGM96 grid's)."""
+    lons = -180.0 + step * np.arange(round(360 / step) + (1 if closed else 0))
+    lats = 90.0 - step * np.arange(round(180 / step) + 1)
+    prof = {
+        "driver": "GTiff",
+        "width": lons.size,
+        "height": lats.size,
+        "count": 1,
+        "dtype": "float32",
+        "crs": "EPSG:4326",
+        "transform": Affine(step, 0.0, -180.0 - step / 2, 0.0, -step, 90.0 + step / 2),
+    }
+    with rasterio.open(path, "w", **prof) as ds:
+        ds.write(geoid_n(lons[None, :], lats[:, None]).astype(np.float32), 1)
+        ds.update_tags(AREA_OR_POINT="Point")
+    return path

@@ -155,7 +155,7 @@ def _rewrite(store: Path, tmp_path: Path, change) -> Path:
         (lambda m: m["levels"][0]["bbox"].update(nx=3), "levels[0].bbox.nx must be in 1..2"),
         (lambda m: m["levels"][1].update(level_error="x"), "levels[1].level_error must be a"),
         (lambda m: m["sources"][0].update(size=1.5), "sources[0].size must be an integer"),
-        (lambda m: m["sources"][0].update(vertical_datum="egm2008"), "vertical_datum 'egm2008'"),
+        (lambda m: m["sources"][0].update(vertical_datum="egm84"), "vertical_datum 'egm84'"),
         (lambda m: m["params"].pop("vdatum"), "params.vdatum is missing"),
         (lambda m: m.update(tile_size=66), "tile_size 66 is not 2^tile_n + 1"),
         (lambda m: m.update(chunk_tiles=8), "chunk_tiles 8 is not 16"),

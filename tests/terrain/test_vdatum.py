@@ -193,8 +193,7 @@ def test_height_limits_apply_before_conversion(tmp_path: Path) -> None:
 def test_vdatum_names() -> None:
     assert parse_vdatum("EGM96") is VerticalDatum.EGM96
     assert parse_vdatum("ellipsoid") is VerticalDatum.ELLIPSOID
-    with pytest.raises(DemError, match="not available"):
-        parse_vdatum("egm2008")
+    assert parse_vdatum("EGM2008") is VerticalDatum.EGM2008
     with pytest.raises(DemError, match="unknown vertical datum"):
         parse_vdatum("navd88x")
     h = VerticalDatum.EGM96.to_ellipsoidal(np.array([100.0]), -71.3033, 44.2705)
@@ -204,17 +203,27 @@ def test_vdatum_names() -> None:
 
 
 @pytest.mark.slow
-def test_egm2008_refused_in_one_line_everywhere(tmp_path: Path) -> None:
+def test_egm2008_without_its_grid_is_one_line_everywhere(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """--vdatum egm2008 is known (issue #25); where no EGM2008 grid is on the machine, ingest
+    and render (which ingests into the cache) say so in one line; info names the datum."""
+    from globeview.terrain.dem import vdatum
+
+    monkeypatch.delenv(vdatum.GEOID_GRIDS_ENV, raising=False)
+    monkeypatch.setattr(vdatum, "_proj_dirs", lambda: [tmp_path / "no-proj"])
     for args in (
         ["ingest", str(SRTM), "--out", str(tmp_path / "s"), "--vdatum", "egm2008"],
-        ["info", str(SRTM), "--vdatum", "egm2008"],
         ["render", str(SRTM), "--out", str(tmp_path / "x.png"), "--vdatum", "egm2008"],
     ):
         r = _cli(*args, cache=tmp_path / "cache")
         assert r.returncode == 2, (args, r.stderr)
         assert r.stderr.startswith("globeview: error: ") and len(r.stderr.splitlines()) == 1
-        assert "egm2008" in r.stderr and "not available" in r.stderr
+        assert "heights are on EGM2008 (--vdatum) and no EGM2008 grid" in r.stderr
     assert not (tmp_path / "s").exists() and not (tmp_path / "x.png").exists()
+    r = _cli("info", str(SRTM), "--vdatum", "egm2008", cache=tmp_path / "cache")
+    assert r.returncode == 0, r.stderr
+    assert "vdatum      EGM2008 geoid (--vdatum)" in r.stdout
 
 
 @pytest.mark.slow
@@ -295,10 +304,13 @@ def test_geoid_grids_from_the_option_the_environment_and_proj(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     from globeview.terrain.dem import vdatum
-    from tests.terrain.planet_tiles import write_geotiff
+    from tests.terrain.planet_tiles import write_geoid_grid, write_geotiff
 
-    grid = write_geotiff(tmp_path / "g.tif", -180.0, 90.0, 2.0, 90)
+    grid = write_geoid_grid(tmp_path / "g.tif", 2.0)
     assert vdatum.parse_geoid_grids([str(grid)]) == {"egm2008": grid}
+    half = write_geotiff(tmp_path / "half.tif", -180.0, 90.0, 2.0, 90)
+    with pytest.raises(DemError, match=r"half\.tif: a geoid grid must cover the globe; this one "):
+        vdatum.parse_geoid_grids([str(half)])
     assert vdatum.parse_geoid_grids([f"EGM2008={grid}"]) == {"egm2008": grid}
     with pytest.raises(DemError, match=r"unknown geoid 'egm84' \(known: egm2008\)"):
         vdatum.parse_geoid_grids([f"egm84={grid}"])

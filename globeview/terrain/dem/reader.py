@@ -59,7 +59,7 @@ from globeview.terrain.dem.edge import (
 )
 from globeview.terrain.dem.resample import grid_scales, resample_bilinear
 from globeview.terrain.dem.value_scan import native_scan_applies, scan_block
-from globeview.terrain.dem.vdatum import parse_vdatum
+from globeview.terrain.dem.vdatum import DATUM_LABELS, parse_vdatum
 from globeview.terrain.interpolate import bilinear
 
 WGS84 = CRS.from_epsg(4326)
@@ -186,9 +186,9 @@ class DemInfo:
     height_scale_m: float = 1.0  # metres per unit of the stored heights (0.3048 for feet)
     # Pixel size in the raster's projected CRS, in metres (None for geographic CRSs).
     res_crs_m: tuple[float, float] | None = None
-    # What the heights are measured from: "egm96" (orthometric, above the geoid) or "ellipsoid"
-    # (above WGS84), and where that came from, e.g. "from the CRS EPSG:5773", "SRTM .hgt
-    # default", "assumed", "--vdatum" (see `_vertical_datum`).
+    # What the heights are measured from: "egm96" or "egm2008" (orthometric, above that geoid)
+    # or "ellipsoid" (above WGS84), and where that came from, e.g. "from the CRS EPSG:5773",
+    # "SRTM .hgt default", "Copernicus DEM default", "assumed", "--vdatum" (`_vertical_datum`).
     vertical_datum: str = "egm96"
     vertical_datum_source: str = "assumed"
 
@@ -232,7 +232,7 @@ class DemInfo:
             about = "" if self.range_exact else "~"  # counted in the decimated read
             lines.append(f"  masked      {about}{self.masked_samples} samples ({_LIMITS_TEXT})")
         lines.append(f"  heights     {self.vmin:.6g} .. {self.vmax:.6g} {units}{approx}")
-        datum = "WGS84 ellipsoid" if self.vertical_datum == "ellipsoid" else "EGM96 geoid"
+        datum = DATUM_LABELS.get(self.vertical_datum, self.vertical_datum)
         lines.append(f"  vdatum      {datum} ({self.vertical_datum_source})")
         if self.band_count > 1:
             lines.append(f"  bands       {self.band_count}; band 1 is used as elevation")
@@ -363,8 +363,15 @@ def _unit_factor(ds: rasterio.io.DatasetReader, crs: CRS) -> tuple[str | None, f
     return None, 1.0
 
 
-# Vertical CRSs that are EGM96 heights (EPSG:5773 "EGM96 height").
+# Vertical CRSs that are EGM96 heights (EPSG:5773 "EGM96 height") and EGM2008 heights
+# (EPSG:3855 "EGM2008 height").
 _EGM96_VERTICAL_EPSG = {5773}
+_EGM2008_VERTICAL_EPSG = {3855}
+#: Copernicus DEM COG names (GLO-30: _10_, GLO-90: _30_), e.g.
+#: Copernicus_DSM_COG_10_N44_00_W072_00_DEM.tif: heights on EGM2008 (the COG's CRS is 2D).
+COPERNICUS_NAME = re.compile(
+    r"^Copernicus_DSM_COG_(10|30)_([NS])(\d\d)_00_([EW])(\d{3})_00_DEM\.tif$"
+)
 
 
 def _vertical_datum(
@@ -374,7 +381,8 @@ def _vertical_datum(
 
     Order: an explicit --vdatum; the CRS when it says (a geographic 3D CRS such as EPSG:4979
     has ellipsoidal heights; a compound CRS names its vertical CRS); a default per recognised
-    source. Unknown DEMs are taken as EGM96: osgEarth defaults to the ellipsoid, but almost
+    source (SRTM .hgt: EGM96; a Copernicus DEM tile name: EGM2008, whose grid the ingest
+    needs). Unknown DEMs are taken as EGM96: osgEarth defaults to the ellipsoid, but almost
     every DEM a user has (SRTM, ETOPO, GEBCO, national DEMs) is orthometric, "above sea
     level", and EGM96 is the best approximation of that we ship, within a metre or two of
     national datums; taking them as ellipsoidal would leave them 20..100 m off.
@@ -391,6 +399,8 @@ def _vertical_datum(
             return found
     if ds.driver == "SRTMHGT" or path.suffix.lower() == ".hgt":
         return "egm96", "SRTM .hgt default"
+    if COPERNICUS_NAME.match(path.name):
+        return "egm2008", "Copernicus DEM default"
     text = " ".join([path.name, *map(str, ds.tags().values())]).lower()
     if "etopo" in text or "sea level" in text or "msl" in text.split():
         return "egm96", "mean sea level, taken as EGM96"
@@ -406,7 +416,9 @@ def _datum_from_crs(pc: pyproj.CRS) -> tuple[str, str] | None:
                 label = f"EPSG:{code}" if code else repr(sub.name)
                 if code in _EGM96_VERTICAL_EPSG or "egm96" in sub.name.lower():
                     return "egm96", f"from the CRS {label}"
-                # Another geoid or national datum (EGM2008, NAVD88, ...): EGM96 is the closest
+                if code in _EGM2008_VERTICAL_EPSG or "egm2008" in sub.name.lower():
+                    return "egm2008", f"from the CRS {label}"
+                # Another geoid or national datum (NAVD88, EVRF2007, ...): EGM96 is the closest
                 # surface we ship (they differ by a metre or two, not the geoid's tens).
                 return "egm96", f"from the CRS {label} {sub.name}, approximated by EGM96"
         return None
@@ -1294,7 +1306,7 @@ def open_dem(
     path: str | Path, crs: str | None = None, vdatum: str | None = None, *, scan: bool = True
 ) -> Dem:
     """Open a DEM raster (band 1 = elevation); `crs` overrides or supplies its CRS, `vdatum`
-    ("ellipsoid" or "egm96") its vertical datum. ``scan=False`` reads the header only (no
+    ("ellipsoid", "egm96" or "egm2008") its vertical datum. ``scan=False`` reads the header only (no
     pass over the pixels: ``info`` then has a NaN value range and no fill counts), for
     planning from footprints.
 

@@ -1,9 +1,11 @@
-"""Vertical datums: which surface a DEM's heights are measured from, and the EGM96 geoid that
-converts between them.
+"""Vertical datums: which surface a DEM's heights are measured from, and the geoids that
+convert between them.
 
 h (ellipsoidal, above the WGS84 ellipsoid) = H (orthometric, above the geoid) + N, where N is
-the geoid undulation, read from the EGM96 15' grid shipped in data/egm96_15.tif (made from the
-NGA grid by scripts/make_geoid_tif.py). Tile stores hold h.
+the geoid undulation. EGM96's comes from the 15' grid shipped in data/egm96_15.tif (made from
+the NGA grid by scripts/make_geoid_tif.py); EGM2008's (Copernicus DEM heights) from a grid
+the user has (PROJ's us_nga_egm08_25.tif, `find_geoid_grid`), read a window at a time
+(`grid_window`, `undulation_on_grid`). Tile stores hold h.
 """
 
 from __future__ import annotations
@@ -32,28 +34,38 @@ class VerticalDatum(enum.Enum):
 
     ELLIPSOID = "ellipsoid"
     EGM96 = "egm96"
+    EGM2008 = "egm2008"  # its grid is the user's (`find_geoid_grid`), not shipped
 
     @property
     def label(self) -> str:
         """How `info` names it."""
-        return "WGS84 ellipsoid" if self is VerticalDatum.ELLIPSOID else "EGM96 geoid"
+        return DATUM_LABELS[self.value]
 
     def to_ellipsoidal(self, heights: np.ndarray, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
-        """Heights on this datum (m) at lon/lat (degrees) -> ellipsoidal heights h (m)."""
+        """Heights on this datum (m) at lon/lat (degrees) -> ellipsoidal heights h (m).
+        EGM2008: DemError (one line) when its grid is not on this machine."""
         if self is VerticalDatum.ELLIPSOID:
             return np.asarray(heights, dtype=np.float64)
-        return np.asarray(heights, dtype=np.float64) + egm96().undulation(lon, lat)
+        return np.asarray(heights, dtype=np.float64) + self._undulation(lon, lat)
 
     def from_ellipsoidal(self, h: np.ndarray, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
         """Ellipsoidal heights h (m) at lon/lat (degrees) -> heights on this datum (m)."""
         if self is VerticalDatum.ELLIPSOID:
             return np.asarray(h, dtype=np.float64)
-        return np.asarray(h, dtype=np.float64) - egm96().undulation(lon, lat)
+        return np.asarray(h, dtype=np.float64) - self._undulation(lon, lat)
+
+    def _undulation(self, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
+        if self is VerticalDatum.EGM96:
+            return egm96().undulation(lon, lat)
+        path = find_geoid_grid(self.value)
+        if path is None:
+            raise DemError(missing_grid_line(self.value, "these heights", "as given"))
+        return _external_geoid(str(path)).undulation(lon, lat)
 
 
 VDATUM_CHOICES = tuple(d.value for d in VerticalDatum)
-# Datums people ask for that globeview knows of but does not ship a grid for.
-_NOT_SHIPPED = {"egm2008": "its grid is not shipped with globeview"}
+#: How people read a datum (`info`, the layer panel).
+DATUM_LABELS = {"ellipsoid": "WGS84 ellipsoid", "egm96": "EGM96 geoid", "egm2008": "EGM2008 geoid"}
 
 
 def parse_vdatum(name: str) -> VerticalDatum:
@@ -63,11 +75,6 @@ def parse_vdatum(name: str) -> VerticalDatum:
         return VerticalDatum(key)
     except ValueError:
         pass
-    if key in _NOT_SHIPPED:
-        raise DemError(
-            f"vertical datum {name!r} is not available ({_NOT_SHIPPED[key]}); "
-            f"use one of {', '.join(VDATUM_CHOICES)}"
-        )
     raise DemError(f"unknown vertical datum {name!r}: use one of {', '.join(VDATUM_CHOICES)}")
 
 
@@ -163,10 +170,19 @@ def check_geoid_grid(path: Path, where: str) -> Path:
     try:
         with rasterio.open(path) as ds:
             geographic = ds.crs is not None and ds.crs.is_geographic
+            b = ds.bounds
     except (rasterio.errors.RasterioError, OSError) as exc:
         raise DemError(f"{where}{path}: not a geoid grid GDAL can read ({exc})") from None
     if not geographic:
         raise DemError(f"{where}{path}: a geoid grid must be on lon/lat (a geographic CRS)")
+    # Its cells' outer edges: a node-registered global grid reaches half a cell past the
+    # poles (and past +-180, or a cell short of +180 when its columns wrap).
+    tol = 1e-6
+    if b.top < 90 - tol or b.bottom > -90 + tol or b.right - b.left < 360 - tol:
+        raise DemError(
+            f"{where}{path}: a geoid grid must cover the globe; this one covers "
+            f"{b.left:.6g}..{b.right:.6g} E, {b.bottom:.6g}..{b.top:.6g} N"
+        )
     return path
 
 
@@ -263,3 +279,70 @@ def grid_window(path: Path, west: float, south: float, east: float, north: float
     j0, j1 = max(0, j0), min(cols - 1, max(j1, j0 + 1))
     grid = _read_window(str(path), i0, i1, j0, j1)
     return Geoid(grid, lon0 + j0 * dlon, lat0 - i0 * dlat, dlon, dlat)
+
+
+def _undulation_in_grid_lons(
+    path: str, lons: np.ndarray, lats: np.ndarray, lon0: float
+) -> np.ndarray:
+    """`undulation_on_grid` for one external grid whose first column is at ``lon0``: the
+    window's longitudes are taken into [lon0, lon0 + 360) and read in runs that do not
+    cross the grid's seam, each run from its own `grid_window` (a few KB)."""
+    lons_in = lon0 + np.mod(lons - lon0, 360.0)
+    cuts = np.flatnonzero(np.diff(lons_in) < 0) + 1
+    out = np.empty((lats.size, lons.size))
+    south, north = float(lats.min()), float(lats.max())
+    for run in np.split(np.arange(lons.size), cuts):
+        part = lons_in[run]
+        win = grid_window(Path(path), float(part[0]), south, float(part[-1]), north)
+        out[:, run] = win.undulation_grid(part, lats)
+    return out
+
+
+def undulation_on_grid(
+    datum: str, grid: str | None, lons: np.ndarray, lats: np.ndarray
+) -> np.ndarray:
+    """N (m, float64, shape (len(lats), len(lons))) of geoid ``datum`` on the nodes lats x
+    lons (1-D, degrees; longitudes increasing, any range): EGM96 from the shipped grid,
+    EGM2008 from the grid file ``grid`` (`find_geoid_grid`), only the window these nodes
+    need being read; zeros for the ellipsoid."""
+    lons = np.asarray(lons, dtype=np.float64).reshape(-1)
+    lats = np.asarray(lats, dtype=np.float64).reshape(-1)
+    if datum == VerticalDatum.ELLIPSOID.value:
+        return np.zeros((lats.size, lons.size))
+    if datum == VerticalDatum.EGM96.value:
+        return egm96().undulation_grid(lons, lats)
+    if grid is None:
+        raise DemError(f"no {datum.upper()} grid given to convert heights with")
+    lon0 = _grid_header(grid)[2]
+    return _undulation_in_grid_lons(grid, lons, lats, lon0)
+
+
+@functools.lru_cache(maxsize=1)
+def _external_geoid(path: str) -> Geoid:
+    """A whole external grid (for point queries, `VerticalDatum.to_ellipsoidal`; the build
+    reads windows)."""
+    rows, cols, lon0, lat0, dlon, dlat = _grid_header(path)
+    return Geoid(_read_window(path, 0, rows - 1, 0, cols - 1), lon0, lat0, dlon, dlat)
+
+
+_sha_cache: dict[tuple[str, int, int], str] = {}
+
+
+def grid_sha256(path: Path) -> str:
+    """sha256 of a geoid grid file (recorded in the store's manifest), remembered per path,
+    size and modification time in this process (the 2.5' EGM2008 grid is ~80 MB)."""
+    try:
+        st = path.stat()
+        key = (str(path), st.st_size, st.st_mtime_ns)
+        with _lock:
+            if key in _sha_cache:
+                return _sha_cache[key]
+        h = hashlib.sha256()
+        with path.open("rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+    except OSError as exc:
+        raise DemError(f"cannot read the geoid grid {path}: {exc.strerror or exc}") from None
+    with _lock:
+        _sha_cache[key] = h.hexdigest()
+    return _sha_cache[key]

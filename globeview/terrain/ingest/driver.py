@@ -32,11 +32,17 @@ The graph runs on dask's local threaded scheduler (``workers`` threads), a proce
 an existing dask.distributed cluster (``scheduler="tcp://HOST:PORT"``); the store is the same
 bit for bit whatever runs it.
 
-Heights: stores hold ellipsoidal heights h (above WGS84). A source on the EGM96 geoid (its
-vertical datum from its CRS, a per-source default or ``vdatum``, see `Dem`) is converted
-h = H + N as it is read on a level grid, after nodata masking and the impossible-height limits
-(which apply to the source's own heights): N is sampled once per window on the window's
-regular lon/lat nodes (`Geoid.undulation_grid`). The manifest records each source's datum.
+Heights: stores hold ellipsoidal heights h (above WGS84). A source on a geoid (its vertical
+datum from its CRS, a per-source default or ``vdatum``, see `Dem`: EGM96 for SRTM .hgt,
+EGM2008 for Copernicus DEM tiles) is converted h = H + N with its own geoid as it is read on a
+level grid, after nodata masking and the impossible-height limits (which apply to the
+source's own heights): N is sampled once per window and geoid on the window's regular lon/lat
+nodes (`Geoid.undulation_grid`). EGM96's grid is shipped; EGM2008's is the user's
+(``geoid_grids``, `$GLOBEVIEW_GEOID_GRIDS` or PROJ's data folders: `vdatum.find_geoid_grid`),
+of which a task reads only its window's part. A build whose sources need a grid that is not
+on the machine is one line before anything is written. So one build may mix SRTM (EGM96),
+Copernicus (EGM2008) and ellipsoidal sources. The manifest records each source's datum and the
+grid (file name and sha256) it was converted with; another grid makes the store out of date.
 
 Poles: the pole row of a level (lat = +-90) is a single point on the globe. When a level's
 pole row holds data, its finite nodes are all set to the mean of the finest level's pole row
@@ -52,7 +58,7 @@ import math
 import os
 import shutil
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -61,8 +67,16 @@ import numpy as np
 import rasterio
 
 from globeview.errors import DemError, StoreError
-from globeview.terrain.dem.reader import Dem, check_dem_path, open_dem
-from globeview.terrain.dem.vdatum import GEOID_FILE, egm96_sha256, parse_vdatum
+from globeview.terrain.dem.reader import COPERNICUS_NAME, Dem, check_dem_path, open_dem
+from globeview.terrain.dem.vdatum import (
+    EXTERNAL_GRIDS,
+    GEOID_FILE,
+    egm96_sha256,
+    find_geoid_grid,
+    grid_sha256,
+    missing_grid_line,
+    parse_vdatum,
+)
 from globeview.terrain.ingest import cost
 from globeview.terrain.ingest.footprints import DATUMS, FootprintTable, table_from_bounds
 from globeview.terrain.ingest.plan import ChunkPlan, chunks_at_least, plan_chunks
@@ -177,7 +191,8 @@ class _Source:
     bounds: tuple[float, float, float, float]
     wraps: bool
     record: SourceRecord
-    datum: str = "ellipsoid"  # "egm96": converted h = H + N when read
+    datum: str = "ellipsoid"  # a geoid ("egm96", "egm2008"): converted h = H + N when read
+    grid: Path | None = None  # the geoid grid file of an external datum (EGM2008)
 
 
 @dataclass
@@ -205,10 +220,16 @@ def _no_tick(n: int = 1) -> None:
     """The builder's progress callback before the real one is set."""
 
 
-def _heights_note(datum: str) -> str:
-    """The manifest's account of what ingest did with a source's heights (for people)."""
+def _heights_note(datum: str, grid: Path | None = None) -> str:
+    """The manifest's account of what ingest did with a source's heights (for people; also
+    how a rebuild tells that another geoid grid is given: `_same_grids`)."""
     if datum == "egm96":
         return f"converted to ellipsoidal heights with EGM96 ({GEOID_FILE} sha256 {egm96_sha256()})"
+    if grid is not None:
+        return (
+            f"converted to ellipsoidal heights with {datum.upper()} ({grid.name} sha256 "
+            f"{grid_sha256(grid)})"
+        )
     return "ellipsoidal heights, stored unchanged"
 
 
@@ -339,6 +360,7 @@ class _Builder:
                 wraps=s.wraps,
                 datum=s.datum,
                 res=float(max(s.record.res_deg)),
+                grid=None if s.grid is None else str(s.grid),
             )
             for i, s in enumerate(self.sources)
         ]
@@ -661,6 +683,7 @@ def ingest(
     on_progress: Callable[[int, int], None] | None = None,
     workers: int | None = None,
     scheduler: str | None = None,
+    geoid_grids: Mapping[str, Path] | None = None,
 ) -> IngestResult:
     """Build (or refresh) the tile store ``out`` from DEM rasters.
 
@@ -675,8 +698,9 @@ def ingest(
         max_level: finest level (default: from the finest source's resolution).
         wavelet: PyWavelets name of the low-pass used for coarser levels.
         crs: CRS for every source (overrides or supplies a missing one).
-        vdatum: vertical datum of every source ("ellipsoid" or "egm96"), overriding what the
-            CRS or the source's kind says. Stored heights are always ellipsoidal.
+        vdatum: vertical datum of every source ("ellipsoid", "egm96" or "egm2008"),
+            overriding what the CRS or the source's kind says. Stored heights are always
+            ellipsoidal; each source is converted with its own datum's geoid.
         force: rebuild even if the store is up to date (or of another format version).
         progress: show a tqdm bar with ETA on stderr.
         on_progress: called as ``on_progress(done, total)`` after each task of the graph (a
@@ -688,6 +712,9 @@ def ingest(
             "threads", "processes", or "tcp://HOST:PORT": an existing dask.distributed
             scheduler, whose workers must see ``out``'s folder (a shared filesystem). The
             store is the same, bit for bit, whatever runs it.
+        geoid_grids: geoid name -> grid file for the geoids globeview does not ship
+            (``--geoid-grid egm2008=PATH``, `vdatum.parse_geoid_grids`); else
+            `$GLOBEVIEW_GEOID_GRIDS`, then PROJ's data folders (`vdatum.find_geoid_grid`).
 
     Raises:
         DemError: a source cannot be used (unreadable, no CRS, all nodata, ...).
@@ -698,15 +725,20 @@ def ingest(
     where = _check_parameters(sources, tile_n, max_level, wavelet, workers, scheduler)
     out_path = Path(out).absolute()
     ident = _check_output(out_path, force)
-    src_paths, contents = _source_contents(sources, where)
     if vdatum is not None:
-        vdatum = parse_vdatum(vdatum).value  # one line for "egm2008" or a typo, before any work
+        vdatum = parse_vdatum(vdatum).value  # one line for a typo, before any work
+    src_paths = _source_paths(sources)
+    grids = dict(geoid_grids or {})
+    _check_named_grids(src_paths, vdatum, grids)  # a missing grid: one line before hashing
+    contents = _source_contents(src_paths, where)
     params = IngestParams(
         tile_n=tile_n, max_level=max_level, wavelet=wavelet, crs=crs, vdatum=vdatum
     )
     previous: _Previous | None = None
     if ident.is_current and not force:
         existing = _usable(out_path)
+        if existing is not None and not _same_grids(existing, grids):
+            existing = None  # converted with another geoid grid (or its grid is gone): rebuild
         if existing is not None and _same_inputs(existing, contents, params):
             return IngestResult(out_path, True, existing.max_level, 0.0)
         if existing is not None:
@@ -717,8 +749,9 @@ def ingest(
         stack.enter_context(rasterio.Env(GDAL_CACHEMAX=_GDAL_CACHE_MB * 1024 * 1024))
         threads = _pool_size(src_paths, where)
         dems = _open_sources(src_paths, crs, vdatum, threads, stack)
+        found = _source_grids(dems, grids)  # one line for a grid not on this machine
         srcs = [
-            _source(p, size, sha256, dem, tile_n)
+            _source(p, size, sha256, dem, tile_n, found)
             for p, (size, sha256), dem in zip(src_paths, contents, dems, strict=True)
         ]
         l_max = _clamp_levels(srcs, max_level)
@@ -789,24 +822,30 @@ def _pool_size(paths: Sequence[Path], where: SchedulerChoice) -> int:
     return min(len(paths), where.workers or os.cpu_count() or 1, 16)
 
 
-def _source_contents(
-    sources: Sequence[str | os.PathLike[str]], where: SchedulerChoice
-) -> tuple[list[Path], list[tuple[int, str]]]:
+def _source_paths(sources: Sequence[str | os.PathLike[str]]) -> list[Path]:
     """The DEM files the sources stand for (a folder: the DEM files in it, `ingest.sources`),
-    each checked, and their content identity (size, sha256): the same content elsewhere is
-    the same source."""
+    each checked."""
     src_paths = [p.absolute() for p in expand_sources(sources)]
     _check_sources(src_paths)
+    return src_paths
+
+
+def _source_contents(src_paths: Sequence[Path], where: SchedulerChoice) -> list[tuple[int, str]]:
+    """The sources' content identity (size, sha256): the same content elsewhere is the same
+    source."""
     # Hashed on a few threads (hashlib releases the GIL): a folder of thousands of tiles is
     # read at disk speed rather than one file at a time.
     with ThreadPoolExecutor(max_workers=max(1, _pool_size(src_paths, where))) as pool:
-        contents = list(pool.map(lambda p: (p.stat().st_size, _sha256(p)), src_paths))
-    return src_paths, contents
+        return list(pool.map(lambda p: (p.stat().st_size, _sha256(p)), src_paths))
 
 
-def _source(path: Path, size: int, sha256: str, dem: Dem, tile_n: int) -> _Source:
-    """An opened source with its natural finest level and its manifest record."""
+def _source(
+    path: Path, size: int, sha256: str, dem: Dem, tile_n: int, grids: Mapping[str, Path]
+) -> _Source:
+    """An opened source with its natural finest level, its geoid grid (``grids``: name ->
+    file, `_source_grids`) and its manifest record."""
     info = dem.info
+    grid = grids.get(info.vertical_datum)
     res = float(min(info.res_deg))
     if not (res > 0 and math.isfinite(res)):
         raise DemError(f"{path} has no usable pixel size ({info.res_deg})")
@@ -819,7 +858,7 @@ def _source(path: Path, size: int, sha256: str, dem: Dem, tile_n: int) -> _Sourc
         res_deg=tuple(info.res_deg),
         vertical_datum=info.vertical_datum,
         vertical_datum_source=info.vertical_datum_source,
-        heights=_heights_note(info.vertical_datum),
+        heights=_heights_note(info.vertical_datum, grid),
     )
     return _Source(
         path,
@@ -830,7 +869,56 @@ def _source(path: Path, size: int, sha256: str, dem: Dem, tile_n: int) -> _Sourc
         bool(info.wraps_longitude),
         rec,
         info.vertical_datum,
+        grid,
     )
+
+
+def _grid_or_refuse(name: str, given: Mapping[str, Path], source: Path, why: str) -> Path:
+    """The grid of external geoid ``name`` (`find_geoid_grid`), or DemError with the one line
+    `missing_grid_line` naming ``source``."""
+    path = find_geoid_grid(name, given)
+    if path is None:
+        raise DemError(missing_grid_line(name, source.name, why))
+    return path
+
+
+def _check_named_grids(paths: Sequence[Path], vdatum: str | None, given: dict[str, Path]) -> None:
+    """The grids the sources need by ``--vdatum`` or by their names (Copernicus tiles:
+    EGM2008) looked up before any source is opened and scanned: a missing one is one line
+    at once. Found grids are added to ``given``."""
+    if vdatum is not None:
+        if vdatum in EXTERNAL_GRIDS and paths:
+            given[vdatum] = _grid_or_refuse(vdatum, given, paths[0], "--vdatum")
+        return
+    first = next((p for p in paths if COPERNICUS_NAME.match(p.name)), None)
+    if first is not None:
+        given["egm2008"] = _grid_or_refuse("egm2008", given, first, "Copernicus DEM default")
+
+
+def _source_grids(dems: Sequence[Dem], given: Mapping[str, Path]) -> dict[str, Path]:
+    """name -> grid file of every external geoid the opened sources are on (their CRS may
+    declare one: EPSG:3855); DemError (one line) for the first source whose grid is not on
+    this machine."""
+    out: dict[str, Path] = {}
+    for dem in dems:
+        name = dem.info.vertical_datum
+        if name in EXTERNAL_GRIDS and name not in out:
+            why = dem.info.vertical_datum_source
+            out[name] = _grid_or_refuse(name, given, dem.path, why)
+    return out
+
+
+def _same_grids(manifest: StoreManifest, given: Mapping[str, Path]) -> bool:
+    """Whether every source of the store on an external geoid was converted with the grid
+    this build would use (file name and sha256, as its heights note says); False when that
+    grid is not on this machine now (the build then says so)."""
+    for src in manifest.sources:
+        if src.vertical_datum not in EXTERNAL_GRIDS:
+            continue
+        path = find_geoid_grid(src.vertical_datum, given)
+        if path is None or src.heights != _heights_note(src.vertical_datum, path):
+            return False
+    return True
 
 
 def _clamp_levels(srcs: Sequence[_Source], max_level: int | None) -> int:

@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from globeview.errors import DemError
-from globeview.terrain.dem.reader import check_dem_path, open_dem
+from globeview.terrain.dem.reader import COPERNICUS_NAME, check_dem_path, open_dem
 from globeview.terrain.dem.vdatum import parse_vdatum
 from globeview.terrain.store.schema import MAX_LEVEL_LIMIT
 
@@ -71,11 +71,6 @@ FOOTPRINT_MODES = ("auto", "name", "header")
 
 #: SRTM tile names (NASA's and USGS's downloads), e.g. N44W072.hgt.
 SRTM_NAME = re.compile(r"^([NS])(\d\d)([EW])(\d{3})\.hgt$", re.IGNORECASE)
-#: Copernicus DEM COG names (GLO-30: _10_, GLO-90: _30_), e.g.
-#: Copernicus_DSM_COG_10_N44_00_W072_00_DEM.tif.
-COPERNICUS_NAME = re.compile(
-    r"^Copernicus_DSM_COG_(10|30)_([NS])(\d\d)_00_([EW])(\d{3})_00_DEM\.tif$"
-)
 #: .hgt file size (bytes) -> pixel size (degrees): 3601^2 and 1201^2 int16 samples.
 SRTM_SIZES = {3601 * 3601 * 2: 1.0 / 3600.0, 1201 * 1201 * 2: 3.0 / 3600.0}
 #: Copernicus DEM longitude pixel widening by |latitude| band (upper bound of the band,

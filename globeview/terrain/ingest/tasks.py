@@ -34,7 +34,7 @@ import rasterio
 from rasterio.windows import Window
 
 from globeview.terrain.dem.reader import Dem
-from globeview.terrain.dem.vdatum import egm96
+from globeview.terrain.dem.vdatum import undulation_on_grid
 from globeview.terrain.ingest.stored_ranges import stored_part_facts
 from globeview.terrain.ingest.tile_errors import (
     error_window,
@@ -149,8 +149,9 @@ _MAX_OPEN_DEMS = 32
 @dataclass(frozen=True)
 class SourceSpec:
     """A source as a task sees it: its `Dem`'s pickled state (reopened per thread without
-    the value scan), its natural level, footprint (degrees), vertical datum and pixel size
-    (degrees, the larger axis)."""
+    the value scan), its natural level, footprint (degrees), vertical datum, pixel size
+    (degrees, the larger axis) and the geoid grid file its datum converts with (None: the
+    shipped EGM96 grid, or none for ellipsoidal heights; a cluster's workers must see it)."""
 
     token: str  # unique per build and source
     dem_state: dict
@@ -160,6 +161,7 @@ class SourceSpec:
     wraps: bool
     datum: str
     res: float
+    grid: str | None = None
 
     def dem(self) -> Dem:
         """This thread's open `Dem` of the source."""
@@ -305,11 +307,15 @@ def _present(results: Sequence[ChunkResult], lv: int) -> dict[tuple[int, int], t
 # Sources
 
 
-def _window_undulation(west: float, north: float, d: float, w: int, h: int) -> np.ndarray:
-    """EGM96 N (m, float32) on a window's nodes: lon west + j*d, lat north - i*d (degrees)."""
+def _window_undulation(
+    datum: str, grid: str | None, west: float, north: float, d: float, w: int, h: int
+) -> np.ndarray:
+    """N (m, float32) of geoid ``datum`` on a window's nodes: lon west + j*d, lat
+    north - i*d (degrees). EGM96 from the shipped grid; EGM2008 from ``grid``, of which only
+    the window's part is read (`vdatum.undulation_on_grid`)."""
     lons = west + d * np.arange(w)
     lats = north - d * np.arange(h)
-    return egm96().undulation_grid(lons, lats).astype(np.float32)
+    return undulation_on_grid(datum, grid, lons, lats).astype(np.float32)
 
 
 def _lon_overlaps(a0: float, a1: float, b: tuple[float, float, float, float], wraps: bool) -> bool:
@@ -368,7 +374,7 @@ def fill_from_sources(
     west = -180.0 + gc0 * d
     north = 90.0 - gr0 * d
     west_n = (west + 180.0) % 360.0 - 180.0
-    undulation: np.ndarray | None = None  # N on this window's nodes, when a source needs it
+    undulations: dict[tuple[str, str | None], np.ndarray] = {}  # N on the nodes, per geoid
     rings: list[np.ndarray] = []  # the edge rings of the level being filled
     level = None
     for s in sources:
@@ -386,10 +392,12 @@ def fill_from_sources(
             return
         parts = s.dem().read_grid_parts(west_n, north, d, d, w, h)
         data, edge = parts.data, parts.edge
-        if s.datum == "egm96":
-            if undulation is None:
-                undulation = _window_undulation(west, north, d, w, h)
-            data, edge = data + undulation, edge + undulation  # NaN (nodata) stays NaN
+        if s.datum != "ellipsoid":  # each source with its own datum's geoid
+            geoid = (s.datum, s.grid)
+            if geoid not in undulations:
+                undulations[geoid] = _window_undulation(s.datum, s.grid, west, north, d, w, h)
+            n = undulations[geoid]
+            data, edge = data + n, edge + n  # NaN (nodata) stays NaN
         np.copyto(out, data, where=np.isnan(out))
         rings.append(edge)
     _fill_nan(out, rings)
