@@ -197,6 +197,8 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.quiet and sys.stderr.isatty(),
         **parallel,
     )
+    for dropped, kept in result.duplicates:  # said even with --quiet: a source left out
+        print(f"{dropped}: the same data as {kept}: using the first")
     if result.up_to_date:
         print(f"{result.path}: store is up to date")
     elif not args.quiet:

@@ -407,6 +407,28 @@ def _vertical_datum(
     return "egm96", "assumed"
 
 
+#: SRTM tile names (N44W072.hgt) and the sizes of their files (3601^2 and 1201^2 int16).
+_SRTM_NAME = re.compile(r"^[NS]\d\d[EW]\d{3}\.hgt$", re.IGNORECASE)
+_SRTM_SIZES = {3601 * 3601 * 2: '1"', 1201 * 1201 * 2: '3"'}
+
+
+def _hgt_size_line(path: Path) -> str | None:
+    """Why GDAL cannot open an SRTM-named .hgt, when its size is no SRTM tile's (cut short,
+    or another file renamed): the one line saying so; None otherwise."""
+    if not _SRTM_NAME.match(path.name):
+        return None
+    try:
+        size = path.stat().st_size
+    except OSError:
+        return None
+    if size in _SRTM_SIZES:
+        return None
+    return (
+        f"{path}: {size} bytes is not an SRTM tile's size (25934402 for 1\", 2884802 for "
+        '3"): the file is cut short or not an SRTM .hgt, so its name cannot place it'
+    )
+
+
 def _datum_from_crs(pc: pyproj.CRS) -> tuple[str, str] | None:
     """The vertical datum a CRS declares, or None when it declares none (2D)."""
     if pc.is_compound:
@@ -517,7 +539,9 @@ class Dem:
                 warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
                 self._ds = rasterio.open(path)
         except rasterio.errors.RasterioIOError as exc:
-            raise DemError(f"cannot read {path} as a raster: {_short(exc)}") from None
+            raise DemError(
+                _hgt_size_line(path) or f"cannot read {path} as a raster: {_short(exc)}"
+            ) from None
         try:
             self._setup(crs_override)
         except BaseException:
@@ -602,23 +626,29 @@ class Dem:
                     raise DemError(f"{self.path} refers to {f}, which does not exist")
 
     def _check_latitudes(self) -> None:
-        """Sample centres of a geographic raster must lie within +-90 degrees of latitude.
+        """Sample centres of a geographic raster must lie within +-90 degrees of latitude
+        (and +-540 of longitude).
 
         GDAL's edges of a node grid that has rows on the poles (netCDF GEBCO/ETOPO) stick out
         half a cell past +-90: that is fine, the centres are on the poles. Centres beyond mean
         the georeferencing is not lon/lat degrees at all, so the raster is refused rather than
         clipped (clipping would silently place its rows at wrong latitudes).
+
+        Longitudes are taken modulo 360 (a 0..360 grid is common), but centres beyond +-540
+        (the overlays' limit too) are no longitude any grid uses: refused the same way.
         """
         ds, t = self._ds, self._ds.transform
-        lats = [(t @ (c, r))[1] for c in (0.5, ds.width - 0.5) for r in (0.5, ds.height - 0.5)]
+        corners = [t @ (c, r) for c in (0.5, ds.width - 0.5) for r in (0.5, ds.height - 0.5)]
         tol = max(1e-9, 1e-6 * math.hypot(t.d, t.e))
-        worst = max(lats, key=abs)
-        if abs(worst) > 90.0 + tol:
-            raise DemError(
-                f"{self.path} places samples at latitude {worst:.6g}, beyond +-90 degrees: its"
-                f" georeferencing is not lon/lat degrees (wrong CRS {_crs_label(self.crs)}?"
-                " supply one with --crs)"
-            )
+        worst = max((y for _, y in corners), key=abs)
+        far = max((x for x, _ in corners), key=abs)
+        for what, value, limit in (("latitude", worst, 90), ("longitude", far, 540)):
+            if not abs(value) <= limit + tol:  # NaN too
+                raise DemError(
+                    f"{self.path} places samples at {what} {value:.6g}, beyond +-{limit} "
+                    f"degrees: its georeferencing is not lon/lat degrees (wrong CRS "
+                    f"{_crs_label(self.crs)}? supply one with --crs)"
+                )
 
     def _blocks(self) -> Iterator[Window]:
         rows = max(1, _SCAN_BLOCK_PIXELS // self._ds.width)

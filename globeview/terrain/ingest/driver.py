@@ -60,7 +60,7 @@ import shutil
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -78,8 +78,15 @@ from globeview.terrain.dem.vdatum import (
     parse_vdatum,
 )
 from globeview.terrain.ingest import cost
-from globeview.terrain.ingest.footprints import DATUMS, FootprintTable, table_from_bounds
-from globeview.terrain.ingest.plan import ChunkPlan, chunks_at_least, plan_chunks
+from globeview.terrain.ingest.footprints import (
+    DATUMS,
+    FootprintTable,
+    check_name_footprint,
+    footprints_from_names,
+    is_tile_name,
+    table_from_bounds,
+)
+from globeview.terrain.ingest.plan import ChunkPlan, chunks_at_least, fill_order, plan_chunks
 from globeview.terrain.ingest.safety import (
     build_folder,
     check_target,
@@ -180,6 +187,9 @@ class IngestResult:
     #: incremental update kept the chunks that the changed sources do not touch.
     chunks_rebuilt: int = 0
     chunks_total: int = 0
+    #: Sources left out because they hold the same bytes as one given earlier (a tile
+    #: downloaded twice into two folders): (left out, the one used), in input order.
+    duplicates: list[tuple[Path, Path]] = field(default_factory=list)
 
 
 @dataclass
@@ -731,6 +741,7 @@ def ingest(
     grids = dict(geoid_grids or {})
     _check_named_grids(src_paths, vdatum, grids)  # a missing grid: one line before hashing
     contents = _source_contents(src_paths, where)
+    src_paths, contents, duplicates = _drop_duplicates(src_paths, contents)
     params = IngestParams(
         tile_n=tile_n, max_level=max_level, wavelet=wavelet, crs=crs, vdatum=vdatum
     )
@@ -740,7 +751,7 @@ def ingest(
         if existing is not None and not _same_grids(existing, grids):
             existing = None  # converted with another geoid grid (or its grid is gone): rebuild
         if existing is not None and _same_inputs(existing, contents, params):
-            return IngestResult(out_path, True, existing.max_level, 0.0)
+            return IngestResult(out_path, True, existing.max_level, 0.0, duplicates=duplicates)
         if existing is not None:
             previous = _changed_sources(out_path, existing, src_paths, contents, params)
 
@@ -749,6 +760,7 @@ def ingest(
         stack.enter_context(rasterio.Env(GDAL_CACHEMAX=_GDAL_CACHE_MB * 1024 * 1024))
         threads = _pool_size(src_paths, where)
         dems = _open_sources(src_paths, crs, vdatum, threads, stack)
+        _check_named_footprints(src_paths, contents, dems)  # a misnamed tile: one line
         found = _source_grids(dems, grids)  # one line for a grid not on this machine
         srcs = [
             _source(p, size, sha256, dem, tile_n, found)
@@ -772,6 +784,7 @@ def ingest(
             builder.update.rebuilt if builder.update else len(builder.graph.chunk_keys)
         ),
         chunks_total=len(builder.graph.chunk_keys),
+        duplicates=duplicates,
     )
 
 
@@ -837,6 +850,44 @@ def _source_contents(src_paths: Sequence[Path], where: SchedulerChoice) -> list[
     # read at disk speed rather than one file at a time.
     with ThreadPoolExecutor(max_workers=max(1, _pool_size(src_paths, where))) as pool:
         return list(pool.map(lambda p: (p.stat().st_size, _sha256(p)), src_paths))
+
+
+def _drop_duplicates(
+    paths: Sequence[Path], contents: Sequence[tuple[int, str]]
+) -> tuple[list[Path], list[tuple[int, str]], list[tuple[Path, Path]]]:
+    """The sources without those holding the same bytes (size and sha256) as one given
+    earlier, which is kept; and the (dropped, kept) pairs. The same path twice never gets
+    here (`expand_sources` keeps it once)."""
+    first: dict[tuple[int, str], Path] = {}
+    kept: list[Path] = []
+    kept_contents: list[tuple[int, str]] = []
+    dropped: list[tuple[Path, Path]] = []
+    for p, c in zip(paths, contents, strict=True):
+        if c in first:
+            dropped.append((p, first[c]))
+            continue
+        first[c] = p
+        kept.append(p)
+        kept_contents.append(c)
+    return kept, kept_contents, dropped
+
+
+def _check_named_footprints(
+    paths: Sequence[Path], contents: Sequence[tuple[int, str]], dems: Sequence[Dem]
+) -> None:
+    """A source named as an SRTM or Copernicus tile must lie where its name says (design
+    §4.5): ``ingest --plan`` places such tiles by name, so a tile renamed to another cell would
+    plan one place and build another. DemError (one line, `check_name_footprint`) naming both
+    places otherwise, before anything is written."""
+    named = [
+        i for i, (p, (size, _)) in enumerate(zip(paths, contents, strict=True))
+        if is_tile_name(p.name, size)
+    ]  # fmt: skip
+    if not named:
+        return
+    table = footprints_from_names([str(paths[i]) for i in named], [contents[i][0] for i in named])
+    for j, i in enumerate(named):
+        check_name_footprint(str(paths[i]), dems[i].info.bounds_lonlat, table, j)
 
 
 def _source(
@@ -1029,7 +1080,8 @@ def _plan_build(
     data), the order they were given kept for the manifest, and the chunks ``plan`` holds
     (`plan.plan_chunks` of the same sources: the one planner of `ingest --plan` and the
     build)."""
-    ordered = sorted(srcs, key=lambda s: s.res)  # (a stable sort: ties keep input order)
+    # Finest first; pixel sizes equal to a ppm are ties, kept in input order (`fill_order`).
+    ordered = [srcs[i] for i in fill_order(np.array([s.res for s in srcs])).tolist()]
     builder = _Builder(ordered, tile_n, l_max, wavelet, parent, _no_tick, plan.chunk_sets())
     sorted_at = {id(t): j for j, t in enumerate(ordered)}  # not a search per source: 10^4 tiles
     builder.input_order = [sorted_at[id(s)] for s in srcs]

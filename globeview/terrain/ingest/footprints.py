@@ -58,6 +58,7 @@ __all__ = [
     "check_name_footprint",
     "footprints",
     "footprints_from_names",
+    "is_tile_name",
     "natural_levels",
     "table_from_bounds",
 ]
@@ -208,6 +209,13 @@ def _parse_name(name: str, size: int | None) -> tuple[int, int, int, float, floa
 
 def _valid_cell(lat: int, lon: int) -> bool:
     return -90 <= lat <= 89 and -180 <= lon <= 179
+
+
+def is_tile_name(name: str, size: int | None) -> bool:
+    """Whether a file name (and size, bytes) is an SRTM or Copernicus tile whose footprint
+    the name gives (`footprints_from_names` takes it)."""
+    parsed = _parse_name(name, size)
+    return parsed is not None and _valid_cell(parsed[1], parsed[2])
 
 
 def footprints_from_names(
@@ -475,7 +483,7 @@ def check_name_footprint(
     raise DemError(
         f"{os.path.basename(path)}: its header puts it at {_span(w, e, 'E', 'W')}, "
         f"{_span(s, n, 'N', 'S')}, not where its name says ({_span(tw, te, 'E', 'W')}, "
-        f"{_span(ts, tn, 'N', 'S')}); rename it or pass --footprints header"
+        f"{_span(ts, tn, 'N', 'S')}); rename it (ingest --plan places a named tile by its name)"
     )
 
 

@@ -55,6 +55,7 @@ __all__ = [
     "chunks_at_least",
     "clamp_levels",
     "estimated_files",
+    "fill_order",
     "plan_chunks",
 ]
 
@@ -316,6 +317,26 @@ def chunks_at_least(t: FootprintTable, tile_n: int, max_level: int | None = None
     return out
 
 
+#: Pixel sizes within this relative difference are equal for the fill order: the same
+#: nominal resolution computed from two transforms may differ in its last bits.
+SAME_RES_REL = 1e-6
+
+
+def fill_order(res: np.ndarray) -> np.ndarray:
+    """Indices of sources by pixel size ``res`` (degrees), finest first; sizes within
+    `SAME_RES_REL` of the finest of their run are ties, kept in input order. This is which
+    source wins where tiles overlap: the finer pixels, then the one given first."""
+    r = np.asarray(res, dtype=np.float64).reshape(-1)
+    by_res = np.argsort(r, kind="stable")
+    group = np.zeros(r.size, dtype=np.int64)
+    g, start = 0, float(r[by_res[0]]) if r.size else 0.0
+    for i in by_res.tolist():
+        if r[i] > start * (1.0 + SAME_RES_REL):
+            g, start = g + 1, float(r[i])
+        group[i] = g
+    return np.lexsort((np.arange(r.size), group))
+
+
 def plan_chunks(t: FootprintTable, tile_n: int, max_level: int | None = None) -> ChunkPlan:
     """The chunk sets of a build of the sources ``t`` at ``tile_n`` (levels 0..L_max, L_max
     = ``max_level`` or the finest natural level): see the module docstring. StoreError
@@ -323,7 +344,7 @@ def plan_chunks(t: FootprintTable, tile_n: int, max_level: int | None = None) ->
     if len(t) == 0:
         raise StoreError("no source DEM given")
     levels, l_max = clamp_levels(t.levels(tile_n), max_level)
-    order = np.lexsort((np.arange(len(t)), t.res))  # finest first, ties in input order
+    order = fill_order(t.res)
     rank = np.empty(len(t), dtype=np.int64)
     rank[order] = np.arange(len(t))
     out: list[LevelPlan] = []
