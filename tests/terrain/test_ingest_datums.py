@@ -241,3 +241,16 @@ def test_the_cli_builds_with_geoid_grid_and_refuses_without(
     assert src["vertical_datum"] == "egm2008" and grid.name in src["heights"]
     approx = globeview_here(*args, "--vdatum", "egm96", "--force", cache=tmp_path)
     assert approx.returncode == 0, approx.stderr
+
+
+def test_point_conversions_use_the_grid_found_or_say_it_is_missing(
+    mixed: dict, tmp_path: Path, no_grid: None, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    lon, lat = np.array([-70.3, 12.34]), np.array([44.2, -33.3])
+    with pytest.raises(DemError, match=r"no EGM2008 grid is on this machine"):
+        vdatum.VerticalDatum.EGM2008.to_ellipsoidal(np.zeros(2), lon, lat)
+    monkeypatch.setenv(vdatum.GEOID_GRIDS_ENV, f"egm2008={mixed['grid']}")
+    h = vdatum.VerticalDatum.EGM2008.to_ellipsoidal(np.array([100.0, 0.0]), lon, lat)
+    np.testing.assert_allclose(h, np.array([100.0, 0.0]) + _proj_n(mixed["grid"], lon, lat))
+    back = vdatum.VerticalDatum.EGM2008.from_ellipsoidal(h, lon, lat)
+    np.testing.assert_allclose(back, [100.0, 0.0], atol=1e-9)
