@@ -254,3 +254,20 @@ def test_point_conversions_use_the_grid_found_or_say_it_is_missing(
     np.testing.assert_allclose(h, np.array([100.0, 0.0]) + _proj_n(mixed["grid"], lon, lat))
     back = vdatum.VerticalDatum.EGM2008.from_ellipsoidal(h, lon, lat)
     np.testing.assert_allclose(back, [100.0, 0.0], atol=1e-9)
+
+
+def _chunk_files(store: Path) -> dict[str, bytes]:
+    return {p.relative_to(store).as_posix(): p.read_bytes() for p in store.glob("chunks/**/*.tif")}
+
+
+@pytest.mark.slow
+def test_worker_processes_convert_with_the_grid_as_threads_do(mixed: dict, tmp_path: Path) -> None:
+    """The grid's path travels in each task's source spec; a process pool's workers read their
+    own windows of it and write the same chunk files, byte for byte."""
+    sources, grid = mixed["sources"], {"egm2008": mixed["grid"]}
+    one = ingest(sources[1:], tmp_path / "t", max_level=7, workers=1, geoid_grids=grid)
+    two = ingest(
+        sources[1:], tmp_path / "p", max_level=7, workers=2, scheduler="processes", geoid_grids=grid
+    )
+    files = _chunk_files(one.path)
+    assert len(files) > 3 and files == _chunk_files(two.path)
