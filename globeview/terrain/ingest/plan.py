@@ -8,9 +8,9 @@ level holds
   ((cy << 32) | cx on the global chunk grid of `terrain.store.layout`);
 - ``src_ptr``, ``src_idx``: a CSR of the sources a chunk task fills NaN nodes from: chunk
   ``codes[j]`` reads the rows ``src_idx[src_ptr[j]:src_ptr[j+1]]`` of the `FootprintTable`,
-  already in the build's fill order (finest pixel first, ties in input order: the order
-  ``tasks.fill_from_sources`` walks), and only sources of natural level <= L (finer sources
-  reach level L through the wavelet of level L+1's chunks, as today).
+  already in the build's fill order (`fill_order`: finest pixel first, ties in input order;
+  the order ``tasks.fill_from_sources`` walks), and only sources of natural level <= L
+  (finer sources reach level L through the wavelet of level L+1's chunks, as today).
 
 How a level's set is made, vectorised over sources (no loop per source or chunk):
 
