@@ -43,7 +43,12 @@ from globeview.terrain.ingest.tasks import (
     SourceSpec,
     fill_reads_source,
 )
-from globeview.terrain.store.layout import chunk_file_name, chunk_tiles, facts_file_name
+from globeview.terrain.store.layout import (
+    chunk_file_name,
+    chunk_tiles,
+    facts_file_name,
+    facts_root,
+)
 from globeview.terrain.store.schema import StoreManifest
 
 __all__ = ["Update", "facts_name", "plan_update", "write_facts"]
@@ -196,7 +201,8 @@ def plan_update(
     """
     if not _same_layout(manifest, plan):
         return None
-    read = _old_facts(old, graph, input_order, plan)
+    facts_dir = old / facts_root(manifest.generation)  # this generation's facts
+    read = _old_facts(facts_dir, graph, input_order, plan)
     if read is None:
         return None
     facts, old_levels = read
@@ -210,7 +216,7 @@ def plan_update(
     old_pole = manifest.pole_heights.as_dict() if manifest.pole_heights else {}
     pole_changed = any(old_pole.get(k) != pole.get(k) for k in ("north", "south"))
     dirty = _dirty_keys(plan, graph, feet, pole_changed)
-    kept = _keep_clean(old, Path(plan.folder), manifest, graph, facts, dirty)
+    kept = _keep_clean(old, facts_dir, Path(plan.folder), graph, facts, dirty)
     if kept is None:
         return None  # the old store is damaged (or cannot be linked): build everything
     known: dict[str, Any] = {"pole": pole, **kept}
@@ -293,14 +299,15 @@ def _dirty_keys(
 
 def _keep_clean(
     old: Path,
+    facts_dir: Path,
     folder: Path,
-    manifest: StoreManifest,
     graph: Graph,
     facts: dict[str, tuple[ChunkResult, list]],
     dirty: set[str],
 ) -> dict[str, Any] | None:
     """Keep the chunks that are not dirty: check each kept chunk file against the old
-    manifest, then link it and its sidecar into the building folder (a rebuilt chunk's
+    manifest, then link it and its sidecar (from ``facts_dir``, the store's generation's
+    facts folder) into the building folder (a rebuilt chunk's
     tasks read its neighbours); their results by graph key. None when a kept file does not
     match (the old store is damaged) or cannot be linked."""
     known: dict[str, Any] = {}
@@ -315,8 +322,8 @@ def _keep_clean(
                 if _sha256(old / name) != kept.sha256:
                     return None
                 _link(old / name, folder / name)
-            if (old / facts_name(*at)).exists():
-                _link(old / facts_name(*at), folder / facts_name(*at))
+            if (facts_dir / facts_name(*at)).exists():
+                _link(facts_dir / facts_name(*at), folder / facts_name(*at))
             known[key] = kept
     except OSError:
         return None

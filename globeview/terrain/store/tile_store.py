@@ -55,6 +55,7 @@ from globeview.terrain.store.backend import (
 from globeview.terrain.store.blocks import BlockReader
 from globeview.terrain.store.handles import ChunkHandles, short_error
 from globeview.terrain.store.identify import MANIFEST_NAME
+from globeview.terrain.store.layout import generation_manifest_name
 from globeview.terrain.store.local import LocalFiles
 from globeview.terrain.store.metadata import ChunkFacts, StoreMetadata
 from globeview.terrain.store.prefetch import Prefetcher
@@ -191,7 +192,11 @@ class TileStore:
         self._meta.load_top()  # the top shard: levels 0..c0+1 and where the others are
         if files.check_on_open:  # a local store checks its level VRTs now (cheap)
             for level in range(self.max_level + 1):
-                self._check_level_files(level)
+                try:
+                    self._check_level_files(level)
+                except StoreError:
+                    if not self._vrt_of_next_generation(level):
+                        raise
         self._handles = ChunkHandles(files, self._meta)
         self._blocks = BlockReader(self._handles, self._meta, self.tile_size)
         self._prefetch = Prefetcher(
@@ -267,7 +272,11 @@ class TileStore:
         """
         checked = 0
         for lv in self._meta.levels:
-            self._check_file(lv.file, lv.sha256, None, full)
+            try:
+                self._check_file(lv.file, lv.sha256, None, full)
+            except StoreError:
+                if not self._vrt_of_next_generation(lv.level):
+                    raise
         for _lv, _cy, _cx, facts in self.iter_chunks():
             if facts.file is not None:
                 self._check_file(facts.file, facts.sha256, facts.bytes, full)
@@ -368,6 +377,24 @@ class TileStore:
             _check_level_file(where, ds, self._meta.grids[level])
         finally:
             files.close_raster(ds)
+
+    def _vrt_of_next_generation(self, level: int) -> bool:
+        """Whether a level VRT that does not match this manifest is the next generation's
+        (or gone with it): an update replaces the VRTs just before it switches
+        ``manifest.json`` (`generations.commit_generation`), so a reader opening in between,
+        or a store whose update was killed there, sees them. Tiles are never read through
+        the VRTs, so the store is sound; GDAL's view is one generation ahead."""
+        name = generation_manifest_name(self.manifest.generation + 1)
+        try:
+            nxt = StoreManifest.from_json(json.loads(self._files.read_manifest(name)))
+        except (StoreError, ValueError, ManifestError, RecursionError):
+            return False  # (a JSON or UTF-8 error is a ValueError)
+        if level >= len(nxt.levels):
+            return True
+        try:
+            return self._files.sha256(nxt.levels[level].file) == nxt.levels[level].sha256
+        except StoreError:
+            return False
 
     def heights_padded(self, key: TileKey | tuple[int, int, int]) -> np.ndarray:
         """A tile's heights with one node beyond each edge ((tile_size + 2)^2 float32 metres,
