@@ -117,7 +117,7 @@ from globeview.terrain.store.layout import (
     chunk_tiles,
     shard_roots,
 )
-from globeview.terrain.store.level_chunks import write_level_vrt
+from globeview.terrain.store.level_chunks import file_sha256, write_level_vrt
 from globeview.terrain.store.schema import (
     FORMAT_VERSION,
     MAX_LEVEL_LIMIT,
@@ -710,7 +710,7 @@ def ingest(
     # have it open keep reading theirs: `generations.commit_generation`), --force included.
     existing = _usable(out_path) if ident.is_current else None
     if existing is not None and not force:
-        if _same_inputs(existing, contents, params):
+        if _same_inputs(existing, contents, params) and _vrts_current(out_path, existing):
             return IngestResult(out_path, True, existing.max_level, 0.0)
         previous = _changed_sources(out_path, existing, src_paths, contents, params)
 
@@ -1042,6 +1042,15 @@ def _usable(store: Path) -> StoreManifest | None:
             return st.manifest
     except StoreError:
         return None
+
+
+def _vrts_current(store: Path, manifest: StoreManifest) -> bool:
+    """Whether the store's level VRTs are its manifest's (an update killed between its switch
+    and its VRTs left the previous generation's: then the store is built again)."""
+    try:
+        return all(file_sha256(store / lv.file) == lv.sha256 for lv in manifest.levels)
+    except OSError:
+        return False
 
 
 def _same_inputs(

@@ -4,7 +4,7 @@ garbage (issue #25 item 5, design 2.8 "Atomicity, generations, GC").
 A store's manifest says which *generation* it is (0 for a first build and for every format-7
 store written before generations). Every file a reader reads by name is content-addressed
 (chunks ``chunks/LL/<cy>/<cx>-<h16>.tif``, shards ``meta/...-<h16>.gvm``: `layout`), so an
-update to generation g + 1 (`commit_generation`, under the store's flock ``generations/lock``):
+update to generation g + 1 (`commit_generation`, under the store folder's flock, `store_lock`):
 
 1. moves its new content-named files into the live store beside generation g's (a name that
    is already there holds the same bytes: it is kept), each fsynced, by rename(2) (never a
@@ -12,9 +12,12 @@ update to generation g + 1 (`commit_generation`, under the store's flock ``gener
 2. renames its whole facts folder into place as ``generations/facts-<g+1>/facts/`` (the
    build facts only the next update reads: one rename, so a killed update never leaves one
    generation's manifest with another's facts);
-3. writes ``generations/manifest-<g+1>.json`` (fsync, rename), replaces the level VRTs
-   (``level_LL.vrt``: stable names for GDAL users, each replaced atomically);
-4. replaces ``manifest.json`` (fsync, `os.replace`, fsync of the folder): the switch;
+3. writes ``generations/manifest-<g+1>.json`` (fsync, rename), and ``manifest-<g>.json`` when
+   the store has none yet;
+4. replaces ``manifest.json`` (fsync, `os.replace`, fsync of the folder): the switch (a failure
+   before it takes back what was moved in); then the level VRTs (``level_LL.vrt``: stable
+   names for GDAL users, each replaced atomically; a reader or a store killed in between
+   has the previous generation's, which `TileStore` accepts);
 5. deletes every store file that neither generation g + 1 nor g references (and temporary
    leftovers of killed writes): `collect_garbage`. It also runs before step 1, keeping g and
    g - 1, so what a killed update left is gone before the next one writes.
@@ -61,7 +64,6 @@ from globeview.terrain.store.metadata import StoreMetadata
 from globeview.terrain.store.schema import ManifestError, StoreManifest
 
 __all__ = [
-    "LOCK_NAME",
     "collect_garbage",
     "commit_generation",
     "read_generation",
@@ -71,9 +73,6 @@ __all__ = [
 ]
 
 log = logging.getLogger("globeview.terrain.store")
-
-#: The flock an update holds while it commits and collects garbage (relative to the store).
-LOCK_NAME = "generations/lock"
 
 
 def _fsync_dir(folder: Path) -> None:
@@ -112,12 +111,11 @@ def write_durable(path: Path, data: bytes) -> None:
 
 @contextlib.contextmanager
 def store_lock(folder: Path) -> Iterator[None]:
-    """Hold the store's flock (``generations/lock``, created on first use) for the block:
-    one commit or garbage collection at a time, whatever process runs it. The kernel drops
-    it when its holder dies (kill -9 included)."""
-    path = folder / LOCK_NAME
-    path.parent.mkdir(exist_ok=True)
-    fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
+    """Hold the store's flock for the block: one commit or garbage collection at a time,
+    whatever process runs it. The lock is the store folder's own (flock on a folder: no lock
+    file, so a failed update leaves the store as it was, byte for byte); the kernel drops it
+    when its holder dies (kill -9 included)."""
+    fd = os.open(folder, os.O_RDONLY)
     try:
         if fcntl is not None:
             fcntl.flock(fd, fcntl.LOCK_EX)
@@ -168,7 +166,7 @@ def referenced_files(folder: Path, manifest: StoreManifest) -> set[str]:
 
 def _kept(folder: Path, keep: Sequence[StoreManifest]) -> tuple[set[str], tuple[str, ...]]:
     """(names, folder prefixes) of what generations ``keep`` (the current one first) need."""
-    names = {MANIFEST_NAME, LOCK_NAME}
+    names = {MANIFEST_NAME}
     prefixes: list[str] = []
     for m in keep:
         names |= referenced_files(folder, m)
@@ -287,9 +285,10 @@ def commit_generation(
 ) -> None:
     """Commit the store built in ``building`` as generation ``new.generation`` (= the live
     store's ``old.generation`` + 1) of the store ``out``, beside generation ``old``'s files
-    (steps in the module's docstring); ``fault(point)`` is the ingest's fault injection
-    ("generation-files": new files in, manifest not switched; "generation-switch": just
-    before the switch)."""
+    (steps in the module's docstring). A failure before the switch takes back what this
+    commit moved in (the store as it was); after it, only the garbage stays. ``fault(point)``
+    is the ingest's fault injection: "generation-files" (= "commit") with the new files in,
+    "generation-switch" just before the switch, "generation-vrts" just after it."""
     if new.generation != old.generation + 1:
         raise ValueError("a new generation follows the store's")
     with store_lock(out):
@@ -298,19 +297,28 @@ def commit_generation(
             raise StoreError(f"{out} was changed by another ingest during this one; run it again")
         previous = read_generation(out, old.generation - 1) if old.generation else None
         _gc(out, [old, previous])  # what a killed update left
-        here = out / generation_manifest_name(old.generation)
-        if not here.exists():  # a store of before generations, or of a first build
-            write_durable(here, (out / MANIFEST_NAME).read_bytes())
-        _move_in(building, out)
-        _move_facts(building, out, new.generation)
         data = manifest_bytes(new)
-        write_durable(out / generation_manifest_name(new.generation), data)
-        fault("generation-files")
+        try:
+            _move_in(building, out)
+            _move_facts(building, out, new.generation)
+            write_durable(out / generation_manifest_name(new.generation), data)
+            fault("generation-files")
+            fault("commit")
+            here = out / generation_manifest_name(old.generation)
+            if not here.exists():  # a store of before generations, or of a first build
+                write_durable(here, (out / MANIFEST_NAME).read_bytes())
+            fault("generation-switch")
+            write_durable(out / MANIFEST_NAME, data)
+        except BaseException:
+            _gc(out, [old, previous])  # take back what was moved in (a kill leaves it)
+            raise
+        fault("generation-vrts")
+        # The level VRTs (stable names, for GDAL) after the switch: a reader that opened the
+        # new manifest a moment before them, or a store killed here, has the previous
+        # generation's, which `TileStore` accepts (its tiles never read through them).
         for vrt in sorted(building.glob("level_*.vrt")):
             if is_store_file(vrt.name):
                 _fsync_file(vrt)
                 os.replace(vrt, out / vrt.name)
         _fsync_dir(out)
-        fault("generation-switch")
-        write_durable(out / MANIFEST_NAME, data)
         _gc(out, [new, old])

@@ -37,8 +37,7 @@ File names (relative to the store folder, '/'-separated, integers unpadded decim
 - ``sources-<h16>.json`` (the source records)
 - ``facts/LL/<cy>/<cx>.npz`` (a chunk's exact build facts, for incremental updates; those of
   generation g >= 1 under ``generations/facts-<g>/``)
-- ``generations/manifest-<g>.json`` (the manifest of generation g), ``generations/lock`` (the
-  flock an update holds while it commits and collects garbage; `terrain.store.generations`)
+- ``generations/manifest-<g>.json`` (the manifest of generation g; `terrain.store.generations`)
 
 ``<h16>`` is the first 16 hex digits of the file's sha256 (content-addressed, immutable files).
 """
@@ -334,7 +333,7 @@ _STORE_PATH = re.compile(
     rf"|meta/\d\d/{_INT}/{_INT}-{_H16}\.gvm"
     rf"|chunks/\d\d/{_INT}/{_INT}-{_H16}\.tif"
     rf"|(generations/facts-{_INT}/)?facts/\d\d/{_INT}/{_INT}\.npz"
-    rf"|generations/manifest-{_INT}\.json|generations/lock)$"
+    rf"|generations/manifest-{_INT}\.json)$"
 )
 
 

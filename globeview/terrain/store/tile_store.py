@@ -195,7 +195,7 @@ class TileStore:
                 try:
                     self._check_level_files(level)
                 except StoreError:
-                    if not self._vrt_of_next_generation(level):
+                    if not self._vrt_of_other_generation(level):
                         raise
         self._handles = ChunkHandles(files, self._meta)
         self._blocks = BlockReader(self._handles, self._meta, self.tile_size)
@@ -275,7 +275,7 @@ class TileStore:
             try:
                 self._check_file(lv.file, lv.sha256, None, full)
             except StoreError:
-                if not self._vrt_of_next_generation(lv.level):
+                if not self._vrt_of_other_generation(lv.level):
                     raise
         for _lv, _cy, _cx, facts in self.iter_chunks():
             if facts.file is not None:
@@ -378,23 +378,30 @@ class TileStore:
         finally:
             files.close_raster(ds)
 
-    def _vrt_of_next_generation(self, level: int) -> bool:
-        """Whether a level VRT that does not match this manifest is the next generation's
-        (or gone with it): an update replaces the VRTs just before it switches
-        ``manifest.json`` (`generations.commit_generation`), so a reader opening in between,
-        or a store whose update was killed there, sees them. Tiles are never read through
-        the VRTs, so the store is sound; GDAL's view is one generation ahead."""
-        name = generation_manifest_name(self.manifest.generation + 1)
-        try:
-            nxt = StoreManifest.from_json(json.loads(self._files.read_manifest(name)))
-        except (StoreError, ValueError, ManifestError, RecursionError):
-            return False  # (a JSON or UTF-8 error is a ValueError)
-        if level >= len(nxt.levels):
-            return True
-        try:
-            return self._files.sha256(nxt.levels[level].file) == nxt.levels[level].sha256
-        except StoreError:
-            return False
+    def _vrt_of_other_generation(self, level: int) -> bool:
+        """Whether a level VRT that does not match this manifest is the previous or the next
+        generation's (or not there yet, or gone with it): an update replaces the VRTs just
+        after it switches ``manifest.json`` (`generations.commit_generation`), so a reader
+        opening in between, or a store whose update was killed there, has the previous
+        generation's, and a reader that opened the manifest just before an update's switch
+        may find the next one's. Tiles are never read through the VRTs: the store is sound."""
+        g = self.manifest.generation
+        for other in (g - 1, g + 1):
+            if other < 0:
+                continue
+            try:
+                raw = self._files.read_manifest(generation_manifest_name(other))
+                m = StoreManifest.from_json(json.loads(raw))
+            except (StoreError, ValueError, ManifestError, RecursionError):
+                continue  # (a JSON or UTF-8 error is a ValueError)
+            if level >= len(m.levels):
+                return True
+            try:
+                if self._files.sha256(m.levels[level].file) == m.levels[level].sha256:
+                    return True
+            except StoreError:
+                continue
+        return False
 
     def heights_padded(self, key: TileKey | tuple[int, int, int]) -> np.ndarray:
         """A tile's heights with one node beyond each edge ((tile_size + 2)^2 float32 metres,
