@@ -81,12 +81,15 @@ def test_kill9_at_a_point_then_reingest_is_clean(
 ) -> None:
     out = tmp_path / "s"
     if point == "commit":
-        ingest([SMALL], out, tile_n=5)  # an older store to be replaced: killed mid-commit
+        ingest([SMALL], out, tile_n=5)  # a store to be replaced: killed mid-commit
     r = _cli("ingest", str(SMALL), "--out", str(out), "--quiet", env={FAULT_ENV: f"KILL@{point}"})
     assert r.returncode == -signal.SIGKILL
     assert _leftovers(tmp_path), "the kill should have left a build folder behind"
     if point == "commit":
-        assert not out.exists()  # killed between the two renames: the old store is aside
+        # Killed in the commit of the store's next generation (its new files moved in beside
+        # the old ones, manifest.json not switched): the store is still the one it was.
+        with TileStore.open(out) as st:
+            assert st.tile_n == 5 and st.manifest.generation == 0
     r = _cli("ingest", str(SMALL), "--out", str(out), "--quiet")
     assert r.returncode == 0, r.stderr
     assert _leftovers(tmp_path) == []

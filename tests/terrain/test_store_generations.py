@@ -27,7 +27,7 @@ from globeview.bench.http_server import StaticServer
 from globeview.errors import StoreError
 from globeview.terrain.ingest.driver import ingest
 from globeview.terrain.ingest.tasks import FAULT_ENV
-from globeview.terrain.store.generations import referenced_files
+from globeview.terrain.store.generations import collect_garbage, referenced_files
 from globeview.terrain.store.http import RemoteOptions, clear_memory
 from globeview.terrain.store.identify import MANIFEST_NAME
 from globeview.terrain.store.layout import facts_root, generation_manifest_name
@@ -256,3 +256,23 @@ def test_kill_9_mid_update_leaves_a_whole_generation_and_the_next_ingest_complet
     want |= {MANIFEST_NAME} | {f"level_{lv:02d}.vrt" for lv in range(MAX_LEVEL + 1)}
     assert _files(store) == want  # the leftovers collected
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".s.")]  # no build folder
+
+
+def test_gc_deletes_nothing_it_cannot_account_for(gens: dict, tmp_path: Path) -> None:
+    store = shutil.copytree(gens["store"], tmp_path / "s")
+    cur = StoreManifest.from_json(json.loads((store / MANIFEST_NAME).read_text()))
+    prev = StoreManifest.from_json(json.loads((store / generation_manifest_name(1)).read_text()))
+    stray = store / "chunks" / "06" / "0" / f"0-{'ab' * 8}.tif"  # garbage: no generation's
+    stray.parent.mkdir(parents=True, exist_ok=True)
+    stray.write_bytes(b"old")
+    (store / "notes.txt").write_text("mine")  # not globeview's: never looked at
+    shard = sorted((store / "meta" / "06").rglob("*.gvm"))[0]
+    saved = shard.read_bytes()
+    shard.unlink()  # a kept generation's shard tree cannot be walked: nothing is deleted
+    before = _files(store)
+    with pytest.raises(StoreError, match="missing"):
+        collect_garbage(store, [cur, prev])
+    assert _files(store) == before
+    shard.write_bytes(saved)
+    assert collect_garbage(store, [cur, prev]) == [stray.relative_to(store).as_posix()]
+    assert (store / "notes.txt").read_text() == "mine"

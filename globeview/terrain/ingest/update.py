@@ -15,8 +15,11 @@ content changed (size or sha256), only these tasks of the ingest graph run again
 Every other chunk file is hard-linked (copied where links fail) from the old store into the
 building folder, after its sha256 is checked against the old manifest, and its per-tile
 statistics, and the per-tile maxima of its error window, come from its sidecar
-``facts/LL/<cy>/<cx>.npz`` (exact float64, which the manifest's rounded values are not).
-The tasks are deterministic, so the result equals a full rebuild bit for bit.
+``facts/LL/<cy>/<cx>.npz`` (exact float64, which the manifest's rounded values are not) in
+the store's generation's facts folder (`layout.facts_root`). The tasks are deterministic, so
+the result equals a full rebuild bit for bit. The building folder is then committed as the
+store's next generation, beside the files readers of this one have open
+(`terrain.store.generations.commit_generation`).
 
 A change the update cannot follow (other levels or extents, another chunk size, a source
 whose level changed, a missing or damaged sidecar or chunk) falls back to a full build.

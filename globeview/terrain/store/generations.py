@@ -115,10 +115,12 @@ def store_lock(folder: Path) -> Iterator[None]:
     whatever process runs it. The lock is the store folder's own (flock on a folder: no lock
     file, so a failed update leaves the store as it was, byte for byte); the kernel drops it
     when its holder dies (kill -9 included)."""
+    if fcntl is None:  # pragma: no cover - not POSIX: commits are not serialised
+        yield
+        return
     fd = os.open(folder, os.O_RDONLY)
     try:
-        if fcntl is not None:
-            fcntl.flock(fd, fcntl.LOCK_EX)
+        fcntl.flock(fd, fcntl.LOCK_EX)
         yield
     finally:
         os.close(fd)  # closing drops the flock
@@ -203,7 +205,7 @@ def collect_garbage(folder: Path, keep: Sequence[StoreManifest | None]) -> list[
 
 def _remove_empty_dirs(folder: Path) -> None:
     """Remove the empty folders of the store's folders, deepest first (an old generation's
-    ``facts/`` too: the one holding the lock is never empty)."""
+    ``facts/`` too)."""
     for name in STORE_DIRS:
         top = folder / name
         if not top.is_dir() or top.is_symlink():
@@ -310,7 +312,9 @@ def commit_generation(
             fault("generation-switch")
             write_durable(out / MANIFEST_NAME, data)
         except BaseException:
-            _gc(out, [old, previous])  # take back what was moved in (a kill leaves it)
+            now = _parse(out / MANIFEST_NAME)
+            if now is None or now.generation != new.generation:  # (not switched after all)
+                _gc(out, [old, previous])  # take back what was moved in (a kill leaves it)
             raise
         fault("generation-vrts")
         # The level VRTs (stable names, for GDAL) after the switch: a reader that opened the
