@@ -222,14 +222,14 @@ def _killed_update(store: Path, sources: tuple[Path, Path], fault: str) -> int:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("fault", ["3", "generation-files", "generation-switch", "generation-vrts"])
+@pytest.mark.parametrize("fault", ["3", "generation-switch", "generation-vrts"])
 def test_kill_9_mid_update_leaves_a_whole_generation_and_the_next_ingest_completes(
     tmp_path: Path, fault: str
 ) -> None:
-    # "3": killed while building (3 chunk files written); "generation-files": the new files
-    # moved into the store, the new generation's manifest written; "generation-switch": just
-    # before manifest.json is replaced; "generation-vrts": just after, the level VRTs still
-    # the previous generation's.
+    # "3": killed while building (3 chunk files written); "generation-switch": the new files
+    # moved into the store, both generations' manifests written, just before manifest.json is
+    # replaced; "generation-vrts": just after, the level VRTs still the previous generation's.
+    # (test_ingest_faults kills at "commit": the new files in, no manifest switched.)
     a, b = _dem(tmp_path / "a.tif", 10.0), _dem(tmp_path / "b.tif", 10.5)
     store = tmp_path / "s"
     ingest([a, b], store, workers=1, max_level=MAX_LEVEL)
