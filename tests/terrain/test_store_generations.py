@@ -16,6 +16,7 @@ import shutil
 import signal
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +28,11 @@ from globeview.bench.http_server import StaticServer
 from globeview.errors import StoreError
 from globeview.terrain.ingest.driver import ingest
 from globeview.terrain.ingest.tasks import FAULT_ENV
-from globeview.terrain.store.generations import collect_garbage, referenced_files
+from globeview.terrain.store.generations import (
+    collect_garbage,
+    commit_generation,
+    referenced_files,
+)
 from globeview.terrain.store.http import RemoteOptions, clear_memory
 from globeview.terrain.store.identify import MANIFEST_NAME
 from globeview.terrain.store.layout import facts_root, generation_manifest_name
@@ -276,3 +281,16 @@ def test_gc_deletes_nothing_it_cannot_account_for(gens: dict, tmp_path: Path) ->
     shard.write_bytes(saved)
     assert collect_garbage(store, [cur, prev]) == [stray.relative_to(store).as_posix()]
     assert (store / "notes.txt").read_text() == "mine"
+
+
+def test_a_commit_over_a_store_another_ingest_changed_is_one_line(
+    gens: dict, tmp_path: Path
+) -> None:
+    store = shutil.copytree(gens["store"], tmp_path / "s")
+    stale = StoreManifest.from_json(json.loads((store / generation_manifest_name(1)).read_text()))
+    before = _files(store)
+    building = tmp_path / "building"
+    building.mkdir()
+    with pytest.raises(StoreError, match="changed by another ingest during this one; run it"):
+        commit_generation(building, store, stale, replace(stale, generation=2))
+    assert _files(store) == before
