@@ -63,6 +63,7 @@ class StoreInfo:
         m = store.manifest
         self.where = where
         self.format_version = m.header.format_version
+        self.generation = int(m.generation)
         self.created_by = m.header.created_by
         self.tile_n = store.tile_n
         self.max_level = store.max_level
@@ -91,6 +92,7 @@ class StoreInfo:
         return {
             "store": self.where,
             "format_version": self.format_version,
+            "generation": self.generation,
             "created_by": self.created_by,
             "tile_n": self.tile_n,
             "max_level": self.max_level,
@@ -102,13 +104,20 @@ class StoreInfo:
             "chunk_files_checked": self.checked,
         }
 
+    def _updates(self) -> str:
+        """How the generation came to be, for people."""
+        if self.generation == 0:
+            return "as first built"
+        return "1 update" if self.generation == 1 else f"{self.generation} updates"
+
     def summary(self) -> str:
         w, s, e, n = self.bounds
         chunks = [lv["chunk_files"] for lv in self.levels if lv["chunk_files"] is not None]
         finest = self.levels[-1] if self.levels else None
         lines = [
             f"{self.where}",
-            f"  tile store, format {self.format_version} ({self.created_by})",
+            f"  tile store, format {self.format_version} ({self.created_by}), generation "
+            f"{self.generation} ({self._updates()})",
             f"  levels 0..{self.max_level}, tiles of {(1 << self.tile_n) + 1} samples a side, "
             f"wavelet {self.wavelet}",
             f"  bounds: {w:.6f}..{e:.6f} E, {s:.6f}..{n:.6f} N",

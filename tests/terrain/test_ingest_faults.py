@@ -75,18 +75,26 @@ def _one_error_line(r: subprocess.CompletedProcess) -> str:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("point", ["1", "4", "9", "manifest", "commit"])
+@pytest.mark.parametrize("point", ["1", "4", "9", "manifest", "commit", "commit-swap"])
 def test_kill9_at_a_point_then_reingest_is_clean(
     tmp_path: Path, clean_errors: list, point: str
 ) -> None:
     out = tmp_path / "s"
-    if point == "commit":
-        ingest([SMALL], out, tile_n=5)  # an older store to be replaced: killed mid-commit
-    r = _cli("ingest", str(SMALL), "--out", str(out), "--quiet", env={FAULT_ENV: f"KILL@{point}"})
+    if point.startswith("commit"):
+        ingest([SMALL], out, tile_n=5)  # a store to be replaced: killed mid-commit
+    if point == "commit-swap":  # a store that does not open is replaced whole (two renames)
+        next(out.glob("meta/top-*.gvm")).unlink()
+    fault = point.removesuffix("-swap")
+    r = _cli("ingest", str(SMALL), "--out", str(out), "--quiet", env={FAULT_ENV: f"KILL@{fault}"})
     assert r.returncode == -signal.SIGKILL
     assert _leftovers(tmp_path), "the kill should have left a build folder behind"
-    if point == "commit":
+    if point == "commit-swap":
         assert not out.exists()  # killed between the two renames: the old store is aside
+    elif point == "commit":
+        # Killed in the commit of the store's next generation (its new files moved in beside
+        # the old ones, manifest.json not switched): the store is still the one it was.
+        with TileStore.open(out) as st:
+            assert st.tile_n == 5 and st.manifest.generation == 0
     r = _cli("ingest", str(SMALL), "--out", str(out), "--quiet")
     assert r.returncode == 0, r.stderr
     assert _leftovers(tmp_path) == []

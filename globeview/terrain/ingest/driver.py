@@ -60,7 +60,7 @@ import shutil
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -127,6 +127,7 @@ from globeview.terrain.quadtree import (
     tiles_covering,
 )
 from globeview.terrain.store.backend import RASTER_ERRORS
+from globeview.terrain.store.generations import commit_generation
 from globeview.terrain.store.identify import MANIFEST_NAME, StoreIdentity
 from globeview.terrain.store.layout import (
     chunk_code,
@@ -137,7 +138,7 @@ from globeview.terrain.store.layout import (
     chunk_tiles,
     shard_roots,
 )
-from globeview.terrain.store.level_chunks import write_level_vrt
+from globeview.terrain.store.level_chunks import file_sha256, write_level_vrt
 from globeview.terrain.store.schema import (
     FORMAT_VERSION,
     MAX_LEVEL_LIMIT,
@@ -746,13 +747,19 @@ def ingest(
         tile_n=tile_n, max_level=max_level, wavelet=wavelet, crs=crs, vdatum=vdatum
     )
     previous: _Previous | None = None
-    if ident.is_current and not force:
-        existing = _usable(out_path)
-        if existing is not None and not _same_grids(existing, grids):
-            existing = None  # converted with another geoid grid (or its grid is gone): rebuild
-        if existing is not None and _same_inputs(existing, contents, params):
+    # A store of this format that opens is replaced by its next generation (readers that
+    # have it open keep reading theirs: `generations.commit_generation`), --force included.
+    existing = _usable(out_path) if ident.is_current else None
+    if existing is not None and not force:
+        # Converted with another geoid grid (or its grid is gone): a full rebuild.
+        same_grids = _same_grids(existing, grids)
+        if (
+            same_grids
+            and _same_inputs(existing, contents, params)
+            and _vrts_current(out_path, existing)
+        ):
             return IngestResult(out_path, True, existing.max_level, 0.0, duplicates=duplicates)
-        if existing is not None:
+        if same_grids:
             previous = _changed_sources(out_path, existing, src_paths, contents, params)
 
     with contextlib.ExitStack() as stack:
@@ -772,7 +779,9 @@ def ingest(
         plan = plan_chunks(table, tile_n, max_level)
         _check_size(plan, srcs, out_path.parent, max_level)
         builder = _plan_build(srcs, tile_n, l_max, wavelet, out_path.parent, plan)
-        _build_and_commit(builder, stack, out_path, params, where, previous, progress, on_progress)
+        _build_and_commit(
+            builder, stack, out_path, params, where, (existing, previous), progress, on_progress
+        )
     return IngestResult(
         out_path,
         False,
@@ -1094,13 +1103,17 @@ def _build_and_commit(
     out: Path,
     params: IngestParams,
     where: SchedulerChoice,
-    previous: _Previous | None,
+    start: tuple[StoreManifest | None, _Previous | None],
     progress: bool,
     on_progress: Callable[[int, int], None] | None,
 ) -> None:
     """Run the build in a locked building folder beside ``out`` (GDAL's chatter on fd 2
-    kept back), write the manifest last and commit the store into place; a failed write is
-    one StoreError line (`write_error`), the building folder removed."""
+    kept back), write the manifest last and commit the store into place: a new store is
+    renamed in; ``start``'s existing store (its manifest) gets the build as its next
+    generation, beside the files its readers have open (`commit_generation`); ``start``'s
+    `_Previous`: what an incremental update keeps. A failed write is one StoreError line
+    (`write_error`), the building folder removed."""
+    existing, previous = start
     parent = out.parent
     try:
         tmp, tok = stack.enter_context(build_folder(parent, out.name))
@@ -1123,11 +1136,16 @@ def _build_and_commit(
             bar.refresh()
             builder.build()
         _fault_point("manifest")
+        # Sources in the order given (the builder sorts its own list finest first).
+        given = [builder.sources[j].record for j in builder.input_order]
+        manifest = builder.manifest(params, given)
+        if existing is not None:
+            manifest = replace(manifest, generation=existing.generation + 1)
+            commit_generation(tmp, out, existing, manifest, _fault_point)
+            return
         part = tmp / (MANIFEST_NAME + ".part")
         with part.open("w", encoding="utf-8") as f:
-            # Sources in the order given (the builder sorts its own list finest first).
-            given = [builder.sources[j].record for j in builder.input_order]
-            builder.manifest(params, given).write(f)
+            manifest.write(f)
         os.replace(part, tmp / MANIFEST_NAME)
         commit(tmp, out, tok)
     except _BUILD_ERRORS as exc:
@@ -1169,6 +1187,15 @@ def _usable(store: Path) -> StoreManifest | None:
             return st.manifest
     except StoreError:
         return None
+
+
+def _vrts_current(store: Path, manifest: StoreManifest) -> bool:
+    """Whether the store's level VRTs are its manifest's (an update killed between its switch
+    and its VRTs left the previous generation's: then the store is built again)."""
+    try:
+        return all(file_sha256(store / lv.file) == lv.sha256 for lv in manifest.levels)
+    except OSError:
+        return False
 
 
 def _same_inputs(

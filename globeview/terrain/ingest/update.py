@@ -15,8 +15,11 @@ content changed (size or sha256), only these tasks of the ingest graph run again
 Every other chunk file is hard-linked (copied where links fail) from the old store into the
 building folder, after its sha256 is checked against the old manifest, and its per-tile
 statistics, and the per-tile maxima of its error window, come from its sidecar
-``facts/LL/<cy>/<cx>.npz`` (exact float64, which the manifest's rounded values are not).
-The tasks are deterministic, so the result equals a full rebuild bit for bit.
+``facts/LL/<cy>/<cx>.npz`` (exact float64, which the manifest's rounded values are not) in
+the store's generation's facts folder (`layout.facts_root`). The tasks are deterministic, so
+the result equals a full rebuild bit for bit. The building folder is then committed as the
+store's next generation, beside the files readers of this one have open
+(`terrain.store.generations.commit_generation`).
 
 A change the update cannot follow (other levels or extents, another chunk size, a source
 whose level changed, a missing or damaged sidecar or chunk) falls back to a full build.
@@ -43,7 +46,12 @@ from globeview.terrain.ingest.tasks import (
     SourceSpec,
     fill_reads_source,
 )
-from globeview.terrain.store.layout import chunk_file_name, chunk_tiles, facts_file_name
+from globeview.terrain.store.layout import (
+    chunk_file_name,
+    chunk_tiles,
+    facts_file_name,
+    facts_root,
+)
 from globeview.terrain.store.schema import StoreManifest
 
 __all__ = ["Update", "facts_name", "plan_update", "write_facts"]
@@ -196,7 +204,8 @@ def plan_update(
     """
     if not _same_layout(manifest, plan):
         return None
-    read = _old_facts(old, graph, input_order, plan)
+    facts_dir = old / facts_root(manifest.generation)  # this generation's facts
+    read = _old_facts(facts_dir, graph, input_order, plan)
     if read is None:
         return None
     facts, old_levels = read
@@ -210,7 +219,7 @@ def plan_update(
     old_pole = manifest.pole_heights.as_dict() if manifest.pole_heights else {}
     pole_changed = any(old_pole.get(k) != pole.get(k) for k in ("north", "south"))
     dirty = _dirty_keys(plan, graph, feet, pole_changed)
-    kept = _keep_clean(old, Path(plan.folder), manifest, graph, facts, dirty)
+    kept = _keep_clean(old, facts_dir, Path(plan.folder), graph, facts, dirty)
     if kept is None:
         return None  # the old store is damaged (or cannot be linked): build everything
     known: dict[str, Any] = {"pole": pole, **kept}
@@ -293,14 +302,15 @@ def _dirty_keys(
 
 def _keep_clean(
     old: Path,
+    facts_dir: Path,
     folder: Path,
-    manifest: StoreManifest,
     graph: Graph,
     facts: dict[str, tuple[ChunkResult, list]],
     dirty: set[str],
 ) -> dict[str, Any] | None:
     """Keep the chunks that are not dirty: check each kept chunk file against the old
-    manifest, then link it and its sidecar into the building folder (a rebuilt chunk's
+    manifest, then link it and its sidecar (from ``facts_dir``, the store's generation's
+    facts folder) into the building folder (a rebuilt chunk's
     tasks read its neighbours); their results by graph key. None when a kept file does not
     match (the old store is damaged) or cannot be linked."""
     known: dict[str, Any] = {}
@@ -315,8 +325,8 @@ def _keep_clean(
                 if _sha256(old / name) != kept.sha256:
                     return None
                 _link(old / name, folder / name)
-            if (old / facts_name(*at)).exists():
-                _link(old / facts_name(*at), folder / facts_name(*at))
+            if (facts_dir / facts_name(*at)).exists():
+                _link(facts_dir / facts_name(*at), folder / facts_name(*at))
             known[key] = kept
     except OSError:
         return None

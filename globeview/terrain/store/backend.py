@@ -149,6 +149,12 @@ class StoreFiles:
         then checks its version and every field."""
         return StoreHeader.peek(manifest).format == STORE_FORMAT
 
+    def explain(self, name: str, exc: BaseException) -> BaseException:
+        """The error to raise for a failed read of store file ``name`` (``exc``): a backend
+        that can tell that the store was updated since it was opened (and this reader's
+        generation collected) says so in one line; default: ``exc`` as it is."""
+        return exc
+
     def close_raster(self, ds: rasterio.DatasetReader) -> None:
         """Close a dataset `open_raster` returned, from any thread."""
         ds.close()

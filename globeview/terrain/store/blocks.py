@@ -190,7 +190,7 @@ class BlockReader:
                 self._handles.drop(level, index)
                 err = take_error()
                 if err is not None:
-                    raise err from None
+                    raise self._handles.explain(level, index, err) from None
                 where = self._handles.where(level, index)
                 raise StoreError(f"{where}: {short_error(exc)}") from None
             raise_interrupt()

@@ -76,6 +76,11 @@ class ChunkHandles:
         """The path or URL of chunk ``index`` of a level, for messages."""
         return self._files.describe(self._meta.chunk_name(level, index))
 
+    def explain(self, level: int, index: int, exc: BaseException) -> BaseException:
+        """`StoreFiles.explain` for chunk ``index`` of a level (a remote chunk gone because
+        the store was updated says so)."""
+        return self._files.explain(self._meta.chunk_name(level, index), exc)
+
     def dataset(self, level: int, index: int) -> rasterio.DatasetReader:
         """This thread's handle on chunk ``index`` of a level, opened on first use; a thread
         keeps its HANDLES_PER_THREAD most recently used ones open."""

@@ -101,6 +101,7 @@ from globeview.terrain.store.http_fetch import (
     is_url,
     looks_like_url,
 )
+from globeview.terrain.store.identify import MANIFEST_NAME
 
 __all__ = [
     "GATE",
@@ -521,6 +522,8 @@ class RemoteSource(StoreFiles):
         self._cancel = Cancel()
         #: True when the manifest came from the disk cache (the server unreachable).
         self.from_cache = False
+        #: The manifest's bytes when the store was opened (`explain`: updated since?).
+        self.opened: bytes | None = None
         # Ctrl-C counted, so one that lands in GDAL's callbacks is not lost (it replaces only
         # Python's default handler, by one that behaves the same; main thread only).
         install_sigint_marker()
@@ -579,6 +582,7 @@ class RemoteSource(StoreFiles):
                 kept = cache.get(key)
                 if kept is not None:
                     self.from_cache = True
+                    self.opened = kept if name == MANIFEST_NAME else self.opened
                     return kept
             if exc.status in (404, 410):
                 raise StoreError(
@@ -586,7 +590,25 @@ class RemoteSource(StoreFiles):
                 ) from None
             raise StoreError(f"cannot open {self.label}: {exc}") from None
         cache.put(key, body)
+        if name == MANIFEST_NAME:
+            self.opened = body
         return body
+
+    def explain(self, name: str, exc: BaseException) -> BaseException:
+        """The error for a failed read of store file ``name``: when the server answered 404
+        (410) and its manifest is no longer the one this reader opened, the store was
+        updated and this reader's generation collected (two updates later, see
+        `generations`): one line saying so; else ``exc`` as it is."""
+        if not isinstance(exc, RemoteError) or exc.status not in (404, 410) or not self.opened:
+            return exc
+        limit = int(self.options.max_manifest_mb * (1 << 20))
+        try:
+            now = fetch(self.url(MANIFEST_NAME), self.options, None, limit, self._cancel).body
+        except RemoteError:
+            return exc
+        if now == self.opened:
+            return exc
+        return StoreError(f"{self.describe(name)}: the store was updated on the server; reopen it")
 
     def read_small(self, name: str, sha256: str, size: int) -> bytes:
         """A small store file (a metadata shard) in one GET, kept in the disk cache under its
@@ -603,7 +625,8 @@ class RemoteSource(StoreFiles):
         try:
             body = fetch(self.url(name), self.options, None, max(size, 1) + 1, self._cancel).body
         except RemoteError as exc:
-            raise StoreError(str(exc)) from None
+            err = self.explain(name, exc)
+            raise (StoreError(str(exc)) if err is exc else err) from None
         if key is not None and len(body) == size:
             cache.put(key, body)
         return body
@@ -638,6 +661,8 @@ class RemoteSource(StoreFiles):
                 ds = rasterio.open(url, opener=self._opener, sharing=False)
         except Exception:
             err = take_error()
+            if isinstance(err, RemoteError):
+                raise self.explain(name, err) from None
             if err is not None:
                 raise err from None
             raise

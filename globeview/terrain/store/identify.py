@@ -36,7 +36,7 @@ MANIFEST_NAME = "manifest.json"
 # per-chunk build facts; level_LL.tif is format 4's one file per level.)
 # (Format 7: the folders `layout.STORE_DIRS` and sources-<h16>.json, see `layout`.)
 _STORE_FILE = re.compile(
-    r"^(manifest\.json(\.part)?|sources-[0-9a-f]{16}\.json"
+    r"^(manifest\.json(\.part|\.tmp-[0-9a-f]{12})?|sources-[0-9a-f]{16}\.json"
     r"|level_\d\d(_r\d{4,}_c\d{4,})?\.(tif|vrt|npz)(\.aux\.xml)?)$"
 )
 

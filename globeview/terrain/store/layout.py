@@ -35,7 +35,9 @@ File names (relative to the store folder, '/'-separated, integers unpadded decim
 - ``chunks/LL/<cy>/<cx>-<h16>.tif`` (a chunk GeoTIFF)
 - ``meta/top-<h16>.gvm`` and ``meta/LL/<cy>/<cx>-<h16>.gvm`` (metadata shards)
 - ``sources-<h16>.json`` (the source records)
-- ``facts/LL/<cy>/<cx>.npz`` (a chunk's exact build facts, for incremental updates)
+- ``facts/LL/<cy>/<cx>.npz`` (a chunk's exact build facts, for incremental updates; those of
+  generation g >= 1 under ``generations/facts-<g>/``)
+- ``generations/manifest-<g>.json`` (the manifest of generation g; `terrain.store.generations`)
 
 ``<h16>`` is the first 16 hex digits of the file's sha256 (content-addressed, immutable files).
 """
@@ -67,6 +69,8 @@ __all__ = [
     "chunk_window",
     "decode_chunk_code",
     "facts_file_name",
+    "facts_root",
+    "generation_manifest_name",
     "is_store_path",
     "level_vrt_name",
     "shard_chunks",
@@ -328,7 +332,8 @@ _STORE_PATH = re.compile(
     rf"|meta/top-{_H16}\.gvm"
     rf"|meta/\d\d/{_INT}/{_INT}-{_H16}\.gvm"
     rf"|chunks/\d\d/{_INT}/{_INT}-{_H16}\.tif"
-    rf"|facts/\d\d/{_INT}/{_INT}\.npz)$"
+    rf"|(generations/facts-{_INT}/)?facts/\d\d/{_INT}/{_INT}\.npz"
+    rf"|generations/manifest-{_INT}\.json)$"
 )
 
 
@@ -361,12 +366,25 @@ def sources_file_name(sha256: str) -> str:
 
 
 #: The folders of a format-7 store (everything else is a file at its top).
-STORE_DIRS = ("chunks", "meta", "facts")
+STORE_DIRS = ("chunks", "meta", "facts", "generations")
 
 
 def facts_file_name(level: int, cy: int, cx: int) -> str:
     """``facts/LL/<cy>/<cx>.npz``: chunk (level, cy, cx)'s build facts (incremental updates)."""
     return f"facts/{level:02d}/{cy}/{cx}.npz"
+
+
+def facts_root(generation: int) -> str:
+    """The folder (relative to the store, '' or ending in '/') holding generation
+    ``generation``'s facts files: the store's top for generation 0 (a first build, and every
+    format-7 store written before generations), ``generations/facts-<g>/`` after updates (a
+    whole folder renamed into place, so a killed update never mixes two generations' facts)."""
+    return "" if generation == 0 else f"generations/facts-{generation}/"
+
+
+def generation_manifest_name(generation: int) -> str:
+    """``generations/manifest-<g>.json``: the manifest of generation ``generation``."""
+    return f"generations/manifest-{generation}.json"
 
 
 def is_store_path(rel: str) -> bool:

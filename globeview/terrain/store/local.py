@@ -29,6 +29,26 @@ class LocalFiles(StoreFiles):
     def __init__(self, folder: Path) -> None:
         self.folder = self.path = Path(folder)
         self.location = str(self.folder)
+        #: The manifest's bytes when the store was opened (`gone`: updated since?).
+        self.opened: bytes | None = None
+
+    def updated(self) -> bool:
+        """Whether the store's manifest changed since this reader opened it (an update
+        committed a new generation: `terrain.store.generations`)."""
+        try:
+            return self.opened is not None and (
+                (self.folder / MANIFEST_NAME).read_bytes() != self.opened
+            )
+        except OSError:
+            return False
+
+    def gone(self, path: Path, missing: str = "is missing") -> StoreError:
+        """The one line for a store file that is not there: the store was updated and this
+        reader's generation collected (two updates later), or the store is damaged."""
+        if self.updated():
+            return StoreError(f"{path}: the store was updated; reopen it")
+        sep = "" if missing.startswith(":") else " "
+        return StoreError(f"{path}{sep}{missing}; re-run globeview ingest --force")
 
     def read_manifest(self, name: str) -> bytes:
         """The manifest's bytes; StoreError when the folder or its manifest is missing."""
@@ -38,9 +58,12 @@ class LocalFiles(StoreFiles):
         if not mpath.is_file():
             raise StoreError(f"{self.folder} is not a globeview tile store (no {name})")
         try:
-            return mpath.read_bytes()
+            data = mpath.read_bytes()
         except OSError as exc:
             raise StoreError(f"{mpath}: unreadable manifest ({type(exc).__name__})") from None
+        if name == MANIFEST_NAME:
+            self.opened = data
+        return data
 
     def is_ours(self, manifest: dict[str, Any]) -> bool:
         """The folder's identity (`identify`: a symlink to a store reads as the store); it
@@ -59,7 +82,7 @@ class LocalFiles(StoreFiles):
         damaged)."""
         path = self.folder / name
         if not path.is_file():
-            raise StoreError(f"{path}: level file is missing; re-run globeview ingest --force")
+            raise self.gone(path, ": level file is missing")
         return rasterio.open(path)
 
     def read_small(self, name: str, sha256: str, size: int) -> bytes:
@@ -69,7 +92,7 @@ class LocalFiles(StoreFiles):
         try:
             return path.read_bytes()
         except FileNotFoundError:
-            raise StoreError(f"{path} is missing; re-run globeview ingest --force") from None
+            raise self.gone(path) from None
         except OSError as exc:
             raise StoreError(f"cannot read {path}: {exc.strerror}") from None
 
@@ -78,9 +101,7 @@ class LocalFiles(StoreFiles):
         try:
             return (self.folder / name).stat().st_size
         except OSError:
-            raise StoreError(
-                f"{self.folder / name} is missing; re-run globeview ingest --force"
-            ) from None
+            raise self.gone(self.folder / name) from None
 
     def sha256(self, name: str) -> str:
         """The sha256 of a store file (StoreError naming it when unreadable)."""

@@ -285,6 +285,9 @@ class StoreManifest:
     levels: tuple[LevelRecord, ...]
     shards: ShardsRecord
     pole_heights: PoleHeights | None = None
+    #: How many updates the store has had (0: a first build, and stores written before
+    #: generations, which lack the key); `terrain.store.generations`.
+    generation: int = 0
 
     @classmethod
     def from_json(cls, raw: object) -> StoreManifest:
@@ -325,6 +328,7 @@ class StoreManifest:
         if self.shards.roots != shard_roots(self.max_level, self.tile_n):
             raise ManifestError("shards.roots are not this store's shard levels")
         _in_range(self.shards.count, "shards.count", 1, 1 << 40)
+        _in_range(self.generation, "generation", 0, 1 << 62)
         self.shards.top.check("shards.top")
         if not self.shards.top.file.startswith("meta/top-"):
             raise ManifestError("shards.top.file is not a top shard")

@@ -55,6 +55,7 @@ from globeview.terrain.store.backend import (
 from globeview.terrain.store.blocks import BlockReader
 from globeview.terrain.store.handles import ChunkHandles, short_error
 from globeview.terrain.store.identify import MANIFEST_NAME
+from globeview.terrain.store.layout import generation_manifest_name
 from globeview.terrain.store.local import LocalFiles
 from globeview.terrain.store.metadata import ChunkFacts, StoreMetadata
 from globeview.terrain.store.prefetch import Prefetcher
@@ -191,7 +192,11 @@ class TileStore:
         self._meta.load_top()  # the top shard: levels 0..c0+1 and where the others are
         if files.check_on_open:  # a local store checks its level VRTs now (cheap)
             for level in range(self.max_level + 1):
-                self._check_level_files(level)
+                try:
+                    self._check_level_files(level)
+                except StoreError:
+                    if not self._vrt_of_other_generation(level):
+                        raise
         self._handles = ChunkHandles(files, self._meta)
         self._blocks = BlockReader(self._handles, self._meta, self.tile_size)
         self._prefetch = Prefetcher(
@@ -267,7 +272,11 @@ class TileStore:
         """
         checked = 0
         for lv in self._meta.levels:
-            self._check_file(lv.file, lv.sha256, None, full)
+            try:
+                self._check_file(lv.file, lv.sha256, None, full)
+            except StoreError:
+                if not self._vrt_of_other_generation(lv.level):
+                    raise
         for _lv, _cy, _cx, facts in self.iter_chunks():
             if facts.file is not None:
                 self._check_file(facts.file, facts.sha256, facts.bytes, full)
@@ -368,6 +377,31 @@ class TileStore:
             _check_level_file(where, ds, self._meta.grids[level])
         finally:
             files.close_raster(ds)
+
+    def _vrt_of_other_generation(self, level: int) -> bool:
+        """Whether a level VRT that does not match this manifest is the previous or the next
+        generation's (or not there yet, or gone with it): an update replaces the VRTs just
+        after it switches ``manifest.json`` (`generations.commit_generation`), so a reader
+        opening in between, or a store whose update was killed there, has the previous
+        generation's, and a reader that opened the manifest just before an update's switch
+        may find the next one's. Tiles are never read through the VRTs: the store is sound."""
+        g = self.manifest.generation
+        for other in (g - 1, g + 1):
+            if other < 0:
+                continue
+            try:
+                raw = self._files.read_manifest(generation_manifest_name(other))
+                m = StoreManifest.from_json(json.loads(raw))
+            except (StoreError, ValueError, ManifestError, RecursionError):
+                continue  # (a JSON or UTF-8 error is a ValueError)
+            if level >= len(m.levels):
+                return True
+            try:
+                if self._files.sha256(m.levels[level].file) == m.levels[level].sha256:
+                    return True
+            except StoreError:
+                continue
+        return False
 
     def heights_padded(self, key: TileKey | tuple[int, int, int]) -> np.ndarray:
         """A tile's heights with one node beyond each edge ((tile_size + 2)^2 float32 metres,
