@@ -247,6 +247,12 @@ class TileStore:
         return bool(self._files.is_remote)
 
     @property
+    def max_requests(self) -> int:
+        """Reads the store's backend may have in flight at once (a remote store's
+        `RemoteOptions.max_requests`; 1 for a local one)."""
+        return max(1, int(self._files.max_requests))
+
+    @property
     def offline(self) -> bool:
         """A remote store opened from its cached manifest (the server could not be reached):
         only tiles whose chunk bytes are in the disk cache load."""
