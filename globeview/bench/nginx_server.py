@@ -224,11 +224,12 @@ class NginxServer:
         `reset_log`, from the logged intervals (each shortened by 1 ms at both ends: the
         log's resolution, so back-to-back requests of one client do not count as two)."""
         events: list[tuple[float, int]] = []
-        for r in self.requests(pattern):
+        reqs = self.requests(pattern)
+        for r in reqs:
             a, b = r.start + 0.001, r.end - 0.001
             if b > a:
                 events += [(a, 1), (b, -1)]
-        most = now = 0
+        most, now = min(1, len(reqs)), 0  # a request shorter than 2 ms was one in flight
         for _, step in sorted(events):  # an end sorts before a start at the same time
             now += step
             most = max(most, now)
