@@ -22,7 +22,7 @@ from affine import Affine
 from rasterio.windows import Window
 
 from globeview.bench.nginx_server import NginxError, NginxServer, find_nginx
-from globeview.terrain.quadtree import TileKey
+from globeview.terrain.quadtree import TileKey, key_for_lonlat
 from globeview.terrain.store import http as remote
 from globeview.terrain.store.http import RemoteOptions
 from globeview.terrain.store.tile_store import TileStore
@@ -148,23 +148,52 @@ def test_gdal_reads_a_level_vrt_over_vsicurl(site: Path, nginx: NginxServer) -> 
 def test_opening_by_url_fetches_three_small_files_before_the_first_frame(
     site: Path, nginx: NginxServer, tmp_path: Path
 ) -> None:
-    """Opening by URL reads the manifest and the top metadata shard, nothing else; the first
-    frame's coarsest tiles (level 0 and 1) add their chunk file: three files from nginx
-    before the first frame, each small, whatever the store's size."""
+    """Opening by URL reads the manifest and the top metadata shard, nothing else; as a
+    layer over another its blend mask comes from the top shard's coverage (no chunk of the
+    mask's level), and the first frame's coarsest tiles (levels 0 and 1: no data of a half
+    degree yet) and the first with the store's data add one chunk file: three files from
+    nginx before the first frame, each small."""
     from globeview.terrain.compose.stack import TerrainStack
 
     nginx.reset_log()
-    with TileStore.open(f"{nginx.url}/{STORE}", remote_options=_opts(tmp_path)) as st:
+    with (
+        TileStore.open(site / STORE) as base,
+        TileStore.open(f"{nginx.url}/{STORE}", remote_options=_opts(tmp_path)) as st,
+    ):
         opened = [r.path for r in nginx.requests()]
         assert len(opened) == 2 and opened[0] == f"/{STORE}/manifest.json", opened
         assert opened[1].startswith(f"/{STORE}/meta/top-")
-        stack = TerrainStack.from_stores([st])
+        stack = TerrainStack.from_stores([base, st])
+        mask = stack.blend_mask(st)
+        assert mask.level >= 9 and 0 < mask.w.mean() < 1  # a regional layer's real band
         for key in (TileKey(0, 0, 0), TileKey(1, 0, 0)):
             assert np.isfinite(stack.heights(key)).any()
+            stack.metadata(key.level, np.array([key.x]), np.array([key.y]))
+        # The coarsest tile with the store's data (a node in its half degree: level 3).
+        first = next(
+            TileKey(lv, int(x[()]), int(y[()]))
+            for lv in range(st.max_level + 1)
+            for x, y in [key_for_lonlat(lv, POSE[0], POSE[1])]
+            if st.has_tile(lv, int(x[()]), int(y[()]))
+        )
+        assert first.level <= 5 and np.isfinite(st.heights(first)).any()
         files = {r.path for r in nginx.requests()}
         sizes = [(site / p.lstrip("/")).stat().st_size for p in files]
     assert len(files) <= 3, sorted(files)
-    assert max(sizes) < 64 << 10, sizes  # small files (a page of the level-0 chunk at most)
+    assert max(sizes) < 64 << 10, sizes  # small files
+
+
+def test_the_top_shards_coverage_is_the_mask_levels_data(site: Path) -> None:
+    """The ingest stores the coverage of the blend mask's level in the top shard: the same
+    bits as that level's tiles give (what a store built without one reads)."""
+    from globeview.terrain.store.coverage import coverage_level, read_coverage
+
+    with TileStore.open(site / STORE) as st:
+        level = coverage_level(st.bounds, st.tile_n, st.max_level)
+        stored = st._meta.coverage
+        assert stored is not None and stored.level == level
+        np.testing.assert_array_equal(stored.bits, read_coverage(st, level).bits)
+        assert 0 < stored.bits.mean() < 1
 
 
 # ---------------------------------------------------------------------------------------------

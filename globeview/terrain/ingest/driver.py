@@ -64,6 +64,7 @@ from globeview.errors import DemError, StoreError
 from globeview.terrain.dem.reader import Dem, check_dem_path, open_dem
 from globeview.terrain.dem.vdatum import GEOID_FILE, egm96_sha256, parse_vdatum
 from globeview.terrain.ingest import cost
+from globeview.terrain.ingest.coverage import with_coverage
 from globeview.terrain.ingest.footprints import DATUMS, FootprintTable, table_from_bounds
 from globeview.terrain.ingest.plan import ChunkPlan, chunks_at_least, plan_chunks
 from globeview.terrain.ingest.safety import (
@@ -983,15 +984,24 @@ def _build_and_commit(
             bar.refresh()
             builder.build()
         _fault_point("manifest")
-        part = tmp / (MANIFEST_NAME + ".part")
-        with part.open("w", encoding="utf-8") as f:
-            # Sources in the order given (the builder sorts its own list finest first).
-            given = [builder.sources[j].record for j in builder.input_order]
-            builder.manifest(params, given).write(f)
-        os.replace(part, tmp / MANIFEST_NAME)
+        _write_manifest(tmp, builder, params)
+        # The store's coverage into its top shard (read from the store just written), which
+        # the manifest names: written again.
+        builder.top = with_coverage(tmp)
+        _write_manifest(tmp, builder, params)
         commit(tmp, out, tok)
     except _BUILD_ERRORS as exc:
         raise write_error(exc, dropped, out, parent, builder.store_megabytes()) from None
+
+
+def _write_manifest(tmp: Path, builder: _Builder, params: IngestParams) -> None:
+    """The manifest of the store built in ``tmp``, written atomically."""
+    part = tmp / (MANIFEST_NAME + ".part")
+    with part.open("w", encoding="utf-8") as f:
+        # Sources in the order given (the builder sorts its own list finest first).
+        given = [builder.sources[j].record for j in builder.input_order]
+        builder.manifest(params, given).write(f)
+    os.replace(part, tmp / MANIFEST_NAME)
 
 
 @dataclass(frozen=True)
