@@ -38,6 +38,7 @@ prints figures, not a timed test; wall times on a shared machine vary with its l
 
     python benchmarks/bench_remote.py [--dem PATH | --store FOLDER] [--view NAME]
         [--size 1280x720] [--rounds 3] [--latency-ms 50] [--timeout 180] [--no-nginx]
+        [--runs local,cold,warm,cold-slow,nginx] [--load-workers N]
 """
 
 from __future__ import annotations
@@ -114,6 +115,8 @@ def _child(spec: dict) -> None:
     terrain = TerrainStack.from_stores(embedded)
     bench = Bench(terrain, tuple(spec["size"]))
     bench.session.renderer.async_loading = True
+    if spec.get("load_workers") is not None:  # else chosen for the layers (4 for a remote one)
+        bench.session.renderer.load_workers = int(spec["load_workers"])
     bench.set_pose(VIEWS[spec["view"]], cut=True)
     bench.frame()
     store = None
@@ -235,6 +238,7 @@ def _one_run(kind: str, args: argparse.Namespace, store: Path, server, nginx) ->
         "size": list(args.size),
         "timeout": args.timeout,
         "view": args.view,
+        "load_workers": args.load_workers,
     }
     try:
         r = _run_child(spec)
@@ -409,6 +413,15 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
         help="no run over nginx (by default one more cold run over Debian's nginx answering "
         "--latency-ms late, when nginx and its echo module are installed)",
     )
+    ap.add_argument(
+        "--runs",
+        help="only these runs, comma-separated (local, cold, warm, cold-slow, nginx)",
+    )
+    ap.add_argument(
+        "--load-workers",
+        type=int,
+        help="loader threads (default: chosen for the layers, 4 with a remote one on 2 cores)",
+    )
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child is not None:
@@ -426,6 +439,13 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
         raise BenchError(f"--rounds must be in 1..20, got {args.rounds}")
     if not (0.0 <= args.latency_ms <= 5000.0):
         raise BenchError(f"--latency-ms must be 0..5000, got {args.latency_ms}")
+    if args.load_workers is not None and not 1 <= args.load_workers <= 64:
+        raise BenchError(f"--load-workers must be 1..64, got {args.load_workers}")
+    if args.runs is not None:
+        args.runs = [r.strip() for r in args.runs.split(",") if r.strip()]
+        unknown = [r for r in args.runs if r not in (*RUN_KINDS, "cold-slow", "nginx")]
+        if unknown or not args.runs:
+            raise BenchError(f"--runs: unknown run {(unknown or [''])[0]!r}")
     for name in ("dem", "store"):
         p = getattr(args, name)
         if p is not None:
@@ -512,6 +532,8 @@ def main(argv: list[str] | None = None) -> int:
                 notes.append("nginx with its echo module is not installed: no nginx run")
             else:
                 kinds.append("nginx")
+        if args.runs is not None:
+            kinds = [k for k in kinds if k in args.runs]
         runs: dict[str, list[dict]] = {k: [] for k in kinds}
         with contextlib.ExitStack() as servers:
             server = servers.enter_context(StaticServer(store.parent).start())

@@ -56,6 +56,8 @@ def _module(name: str):
         ("bench_remote.py", ["--rounds", "0"], "--rounds"),
         ("bench_remote.py", ["--latency-ms", "-1"], "--latency-ms"),
         ("bench_remote.py", ["--view", "nowhere"], "--view"),
+        ("bench_remote.py", ["--runs", "cold,hot"], "--runs"),
+        ("bench_remote.py", ["--load-workers", "0"], "--load-workers"),
         ("scale_planet.py", ["--level", "x"], "--level"),
         ("scale_planet.py", ["--hours", "nan"], "--hours"),
         ("scale_planet.py", ["--land-dem", "/no/such.tif"], "--land-dem"),
