@@ -249,8 +249,8 @@ class GlobeRenderer:
         """Background build workers: set by hand, else `default_loader`'s; with threads and
         a visible layer read over a network (`TileStore.is_remote`), `REMOTE_LOAD_WORKERS`
         (at most the store's `max_requests`), so builds overlap their round trips: a build
-        waits ~a round trip for each chunk page it lacks (20 ms on a far server) and holds
-        the GIL for ~1 ms of it."""
+        waits a round trip (20 ms on a far server) for each run of chunk pages it lacks, with
+        the GIL released."""
         if self._workers_set is not None:
             return self._workers_set
         if self.load_kind != "thread":
