@@ -121,7 +121,7 @@ def _child(spec: dict) -> None:
     bench.frame()
     store = None
     try:
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), time.process_time()
         store = TileStore.open(spec["where"])
         t_open = time.perf_counter() - t0
         terrain.add(store, "remote")
@@ -139,6 +139,7 @@ def _child(spec: dict) -> None:
                 break
             time.sleep(0.005)
         t_complete = time.perf_counter() - t0
+        cpu_s = time.process_time() - cpu0  # every thread of the process
         loader = bench.session.renderer.loader
         failed = len(loader.failed) if loader is not None else 0
         first_failure = (
@@ -151,6 +152,7 @@ def _child(spec: dict) -> None:
             "first_s": t_first if t_first is not None else float("nan"),
             "first_epoch": first_epoch,
             "complete_s": t_complete,
+            "cpu_s": cpu_s,
             "complete": complete,
             "frames": frames,
             "tiles": st.tiles_drawn,
@@ -323,7 +325,7 @@ def _report(
         notes.append(
             f"{kind}: answers by status {statuses}; at most "
             f"{max(r['in_flight'] for r in ok)} requests in flight at once; loader "
-            f"{ok[-1]['loader']}"
+            f"{ok[-1]['loader']}; {med('cpu_s'):.1f} CPU s from the open to the complete frame"
         )
     if kind == "warm":
         verdicts.append(
