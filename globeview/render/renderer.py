@@ -265,10 +265,15 @@ class GlobeRenderer:
         if self.terrain.version != self._terrain_version:
             self.pool.invalidate()
             if self.loader is not None:
-                if self.loader.processes is not None or self.loader.workers != self.load_workers:
-                    # Worker processes opened the old layers, or a remote layer came or went
-                    # (`load_workers`): a new loader for the new layers.
+                if self.loader.processes is not None:
+                    # The workers opened the old layers: new ones for the new recipe.
                     self.loader.shutdown()
+                    self.loader = None
+                elif self.loader.workers != self.load_workers:
+                    # A remote layer came, went or was hidden (`load_workers`): a new loader;
+                    # the old threads end after the build under way (its result dropped),
+                    # not waited for here (a build may be waiting on a slow server).
+                    self.loader.shutdown(timeout_s=0.0)
                     self.loader = None
                 else:
                     self.loader.cancel_all()
