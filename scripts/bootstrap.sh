@@ -4,10 +4,15 @@
 set -euo pipefail
 GV_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 
-# Mesa EGL (headless GL), Qt's xcb libraries and Xvfb (a real X display for the window tests).
+# Mesa EGL (headless GL), Qt's xcb libraries and Xvfb (a real X display for the window tests),
+# nginx and its echo module (the real static web server the remote-store tests serve stores
+# with, as a user of the store; echo_sleep adds a far server's latency). The tests start nginx
+# themselves on a free port with their own configuration; the package's own service (port 80)
+# is not used: `systemctl disable --now nginx` on a machine that started it.
 GV_APT_PACKAGES=(
   libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libopengl0
   xvfb xauth
+  nginx libnginx-mod-http-echo
   libxcb-icccm4 libxcb-image0 libxcb-keysyms1 libxcb-render-util0 libxcb-xinerama0
   libxcb-xkb1 libxkbcommon-x11-0 libxkbcommon0 libxcb-shape0 libxcb-randr0 libxcb-cursor0
   libfontconfig1 libdbus-1-3 libglib2.0-0

@@ -43,6 +43,10 @@ from globeview.render.tile_workers import ProcessBuilder, TerrainRecipe, default
 from globeview.terrain.compose.stack import TerrainStack
 from globeview.terrain.quadtree import tile_bounds
 
+#: Loader threads when a visible layer is remote (`GlobeRenderer.load_workers`): four builds
+#: overlap four round trips (issue #25 item 4); at most the store's `max_requests`.
+REMOTE_LOAD_WORKERS = 4
+
 
 @dataclass
 class DisplacementHook:
@@ -102,7 +106,10 @@ class GlobeRenderer:
         # GIL time from the frames: White Mountains Go to -> complete 0.90-0.98 s with one,
         # 1.05-1.33 s with two; benchmarks/bench_goto.py --workers, load 2.2-2.6); with more
         # cores worker processes, all but two cores (render/tile_workers.py).
-        self.load_kind, self.load_workers = default_loader()
+        # A visible remote layer gets `REMOTE_LOAD_WORKERS` threads instead (`load_workers`).
+        self.load_kind, self._base_workers = default_loader()
+        #: Workers set by hand (a benchmark, a test); None: chosen by `load_workers`.
+        self._workers_set: int | None = None
         # Tiles per background build call (one metadata call and one vectorised pass per
         # batch); small, so the nearest tiles come back first.
         self.load_batch = 4 if self.load_kind == "thread" else 8
@@ -237,6 +244,23 @@ class GlobeRenderer:
         meshes = self.build_meshes(keys)
         return dict(zip(meshes, bake(list(meshes.values())), strict=True))
 
+    @property
+    def load_workers(self) -> int:
+        """Background build workers: set by hand, else `default_loader`'s; with threads and
+        a visible layer read over a network (`TileStore.is_remote`), `REMOTE_LOAD_WORKERS`
+        (at most the store's `max_requests`), so builds overlap their round trips: a build
+        waits a round trip (20 ms on a far server) for each run of chunk pages it lacks, with
+        the GIL released."""
+        if self._workers_set is not None:
+            return self._workers_set
+        if self.load_kind != "thread":
+            return self._base_workers
+        return max(self._base_workers, remote_workers(self.terrain))
+
+    @load_workers.setter
+    def load_workers(self, workers: int | None) -> None:
+        self._workers_set = None if workers is None else int(workers)
+
     def _check_terrain_version(self) -> None:
         if self.terrain.version != self._terrain_version:
             self.pool.invalidate()
@@ -244,6 +268,12 @@ class GlobeRenderer:
                 if self.loader.processes is not None:
                     # The workers opened the old layers: new ones for the new recipe.
                     self.loader.shutdown()
+                    self.loader = None
+                elif self.loader.workers != self.load_workers:
+                    # A remote layer came, went or was hidden (`load_workers`): a new loader;
+                    # the old threads end after the build under way (its result dropped),
+                    # not waited for here (a build may be waiting on a slow server).
+                    self.loader.shutdown(timeout_s=0.0)
                     self.loader = None
                 else:
                     self.loader.cancel_all()
@@ -591,6 +621,13 @@ COAST_RAMP = coast_ramp()
 
 #: The terrain shaders' feature defines, in the order of GlobeRenderer's features tuple.
 TERRAIN_FEATURES = ("GV_IMAGERY", "GV_HILLSHADE", "GV_FOG", "GV_TILT", "GV_WIREFRAME")
+
+
+def remote_workers(terrain: TerrainStack) -> int:
+    """Loader threads for the visible remote layers of ``terrain``: `REMOTE_LOAD_WORKERS`,
+    at most the smallest `TileStore.max_requests` of them; 1 without remote layers."""
+    bounds = [ly.store.max_requests for ly in terrain.visible_layers if ly.store.is_remote]
+    return max(1, min([REMOTE_LOAD_WORKERS, *bounds])) if bounds else 1
 
 
 def terrain_defines(features: tuple[bool, ...], hook: bool) -> dict[str, bool]:

@@ -180,6 +180,11 @@ class TileLoader:
         with self._cv:
             return len(self._ready)
 
+    @property
+    def workers(self) -> int:
+        """Worker threads (each builds one batch at a time)."""
+        return len(self._threads)
+
     def describe(self) -> str:
         """The loader's kind and size for reports, e.g. ``thread x1``, ``process x14``."""
         if self.processes is not None:

@@ -86,13 +86,14 @@ def open_store(
 
 def warm_remote_store(store: TileStore) -> None:
     """Fetch, on the calling (loader) thread, what the window's UI thread reads of a remote
-    store before any frame can have fetched it: the tiles of its blend mask (`BlendMask`, a
-    few dozen coarse tiles, read whole the first time the layer is composed or selected).
+    store before any frame can have fetched it: its blend mask (`BlendMask`, made the first
+    time the layer is composed or selected; from the coverage in the top shard the open
+    fetched, or for a store built before it, a few dozen coarse tiles read whole).
     The UI thread never waits for the network (`FileOpening.add_store`), and a mask it could
     not build would fail the LOD selection; later reads (the border band's difference tables,
     tiles finer than the layer's data) are bounded without the tiles until they arrive.
     Raises `StoreError` (one line) when those tiles cannot be read: the layer is not added."""
-    BlendMask(store)  # reads the mask level's tiles into the store's and the disk cache
+    BlendMask(store)  # a store without a coverage: its level's tiles into the caches
 
 
 class _Request(NamedTuple):

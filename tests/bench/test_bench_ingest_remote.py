@@ -8,9 +8,11 @@ from __future__ import annotations
 import http.client
 import importlib.util
 import json
+import os
 import re
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -53,6 +55,9 @@ def _module(name: str):
         ("bench_remote.py", ["--dem", "a", "--store", "b"], "not allowed"),
         ("bench_remote.py", ["--rounds", "0"], "--rounds"),
         ("bench_remote.py", ["--latency-ms", "-1"], "--latency-ms"),
+        ("bench_remote.py", ["--view", "nowhere"], "--view"),
+        ("bench_remote.py", ["--runs", "cold,hot"], "--runs"),
+        ("bench_remote.py", ["--load-workers", "0"], "--load-workers"),
         ("scale_planet.py", ["--level", "x"], "--level"),
         ("scale_planet.py", ["--hours", "nan"], "--hours"),
         ("scale_planet.py", ["--land-dem", "/no/such.tif"], "--land-dem"),
@@ -237,6 +242,41 @@ def test_remote_traffic_counts_requests_and_body_bytes(tmp_path: Path) -> None:
     assert by_status == {200: 1, 206: 3, 404: 1}
 
 
+def test_nginx_traffic_counts_what_came_before_the_first_frame(tmp_path: Path) -> None:
+    """The nginx run's figures from nginx's own access log: requests, body bytes, and the
+    requests and files asked for before the first frame's time."""
+    from globeview.bench.nginx_server import NginxError, NginxServer
+
+    bench_remote = _module("bench_remote")
+    store = tmp_path / "s"
+    (store / "chunks" / "00" / "0").mkdir(parents=True)
+    (store / "manifest.json").write_text("{}")
+    (store / "chunks" / "00" / "0" / "0-ab.tif").write_bytes(bytes(1000))
+    try:
+        server = NginxServer(tmp_path).start()
+    except NginxError as exc:
+        if os.environ.get("GLOBEVIEW_REQUIRE_NGINX") == "1":
+            pytest.fail(str(exc), pytrace=False)
+        pytest.skip(str(exc))
+    with server:
+        host, port = server.url.removeprefix("http://").split(":")
+        conn = http.client.HTTPConnection(host, int(port), timeout=10)
+        for path, rng in (("/s/manifest.json", None), ("/s/chunks/00/0/0-ab.tif", "bytes=0-99")):
+            conn.request("GET", path, headers={"Range": rng} if rng else {})
+            conn.getresponse().read()
+        first = time.time() + 0.01
+        time.sleep(0.02)
+        conn.request("GET", "/s/missing.tif")
+        conn.getresponse().read()
+        conn.close()
+        got = bench_remote._nginx_traffic(server, first)
+    assert (got["requests"], got["manifest"]) == (3, 1) and got["sent"] > 102  # + a 404 page
+    assert got["by_status"] == {200: 1, 206: 1, 404: 1}
+    assert got["early_requests"] == 2 and got["early_bytes"] == 102
+    assert got["early_files"] == ["chunks/00/0/0-ab.tif", "manifest.json"]
+    assert got["in_flight"] == 1
+
+
 def test_tiny_remote_run_reaches_complete_frames_and_a_warm_cache() -> None:
     """The real SRTM3 tile's store over 127.0.0.1: each run draws a complete frame, the cold
     one fetches chunk bytes, the warm one (a new process) only the manifest."""
@@ -260,12 +300,13 @@ def test_tiny_remote_run_reaches_complete_frames_and_a_warm_cache() -> None:
         if r.startswith("| ") and "---" not in r and not r.startswith("| run")
     }
     local, cold, warm = (rows[k] for k in RUN_ROWS)
-    # open s, complete s, frames, tiles, failed, requests, MB sent
-    assert local[5] == "0" and float(local[6]) == 0
-    assert int(cold[5]) > 1 and float(cold[6]) > 0
-    assert warm[5] == "1"  # the manifest alone
-    assert local[3] == cold[3] == warm[3] and int(local[3]) > 0  # the same tiles drawn
-    assert all(r[4] == "0" for r in (local, cold, warm))
+    # open s, first frame s, complete s, frames, tiles, failed, requests, MB sent
+    assert local[6] == "0" and float(local[7]) == 0
+    assert int(cold[6]) > 1 and float(cold[7]) > 0
+    assert warm[6] == "1"  # the manifest alone
+    assert local[4] == cold[4] == warm[4] and int(local[4]) > 0  # the same tiles drawn
+    assert all(r[5] == "0" for r in (local, cold, warm))
+    assert all(0 < float(r[1]) <= float(r[2]) for r in (local, cold, warm))
     assert "NOT MET" not in out and out.count(": met") == 4
 
 

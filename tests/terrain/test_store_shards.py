@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import struct
 import zlib
+from dataclasses import replace as dataclass_replace
 
 import numpy as np
 import pytest
@@ -123,3 +124,50 @@ def test_a_zip_bomb_is_not_inflated() -> None:
     struct.pack_into("<II", head, 28, len(bomb), len(zlib.decompress(good[64:])))
     with pytest.raises(S.ShardError, match="damaged body"):
         S.decode(bytes(head) + bomb, REF, TILE_N, NS)
+
+
+TOP = ShardRef(0, 0, 0, 6)
+
+
+def _top(coverage: S.Coverage | None) -> S.Shard:
+    slots = shard_chunks(TOP, TILE_N)
+    e = np.zeros((0, 256, NS + 1))
+    h = np.zeros((0, 256), np.float32)
+    present = np.zeros(len(slots), bool)
+    return S.Shard(TOP, TILE_N, NS, present, (), np.zeros(0, np.int64), e, h, h, (), None, coverage)
+
+
+def test_the_top_shards_coverage_round_trips_and_a_shard_without_one_keeps_its_bytes() -> None:
+    """The coverage (a top shard's node raster) comes back bit for bit; a shard without one
+    is version 1, byte for byte what it was before coverages (stores built before read on)."""
+    bits = np.random.default_rng(3).random((193, 321)) < 0.3
+    data = S.encode(_top(S.Coverage(9, 1234, 70000, bits)))
+    back = S.decode(data, TOP, TILE_N, NS).coverage
+    assert back is not None and (back.level, back.row0, back.col0) == (9, 1234, 70000)
+    np.testing.assert_array_equal(back.bits, bits)
+    plain = S.encode(_top(None))
+    assert struct.unpack_from("<H", plain, 4)[0] == 1 and plain[36:64] == bytes(28)
+    assert S.decode(plain, TOP, TILE_N, NS).coverage is None
+    assert struct.unpack_from("<H", data, 4)[0] == S.VERSION_COVERAGE
+
+
+def test_hostile_coverages_are_one_line() -> None:
+    good = S.encode(_top(S.Coverage(2, 0, 0, np.ones((257, 513), bool))))
+    inner = S.encode(dataclass_replace(_shard(), coverage=None))
+    as_inner = bytearray(inner)
+    struct.pack_into("<H", as_inner, 4, S.VERSION_COVERAGE)  # only the top shard has one
+    huge = bytearray(good)
+    struct.pack_into("<II", huge, 45, 1 << 20, 1 << 20)  # rows, cols
+    cases = [
+        (good[:-3], "truncated"),
+        (good + b"\x00", "padded"),
+        (bytes(as_inner), "version 2"),
+        (bytes(huge), "out of range"),
+        (good[:64] + good[64:-8] + b"\x00" * 8, "damaged"),
+    ]
+    for data, words in cases:
+        with pytest.raises(S.ShardError) as err:
+            S.decode(data, REF if data is cases[2][0] else TOP, TILE_N, NS)
+        assert words in str(err.value) and "\n" not in str(err.value), (words, err.value)
+    with pytest.raises(ValueError, match="top shard"):
+        S.encode(dataclass_replace(_shard(), coverage=S.Coverage(1, 0, 0, np.ones((2, 2), bool))))

@@ -20,6 +20,7 @@ import numpy as np
 
 from globeview.terrain.interpolate import bilinear, linear_weights
 from globeview.terrain.quadtree import node_spacing, tile_bounds_arrays
+from globeview.terrain.store.coverage import coverage_level
 from globeview.terrain.store.tile_store import TileStore
 
 #: Width of a layer's border band as a fraction of its footprint's shorter side. The band is a
@@ -35,9 +36,8 @@ BLEND_MIN_NODES = 16
 #: ... and at most this fraction of the footprint's shorter side.
 BLEND_MAX_FRACTION = 0.15
 
-#: The coverage mask is read at the coarsest level with at least this many nodes across the
-#: footprint's shorter side (its edge is then exact to ~1 % of the footprint).
-MASK_NODES = 160
+# The coverage is read at `globeview.terrain.store.coverage.coverage_level` (`MASK_NODES`
+# nodes across the footprint's shorter side).
 
 #: Slope bound of smoothstep(t) = t^2 (3 - 2 t) on [0, 1] (at t = 1/2).
 SMOOTHSTEP_SLOPE = 1.5
@@ -80,21 +80,14 @@ class BlendMask:
 
     def __init__(self, st: TileStore) -> None:
         tile_n = int(np.log2(st.tile_size - 1))
-        west, south, east, north = st.bounds
-        short = min((east - west) % 360.0 or 360.0, north - south)
         self.band = blend_band(st.bounds, node_spacing(st.max_level, tile_n))
-        self.level = self._mask_level(st, short)
+        self.level = coverage_level(st.bounds, tile_n, st.max_level)
         lv = self.level
         grid = st.level_grid(lv)
         cells = st.tile_size - 1
-        data = np.zeros((grid.ny * cells + 1, grid.nx * cells + 1), dtype=bool)
-        ys, xs = np.mgrid[grid.y0 : grid.y0 + grid.ny, grid.x0 : grid.x0 + grid.nx]
-        valid = st.has_data(lv, xs % grid.ncols, ys)
-        # Built once per layer (a few dozen tiles at the mask level), never per frame.
-        for j, i in zip(*np.nonzero(valid), strict=True):
-            key = (lv, int(xs[j, i]) % grid.ncols, int(ys[j, i]))
-            sl = (slice(j * cells, j * cells + cells + 1), slice(i * cells, i * cells + cells + 1))
-            data[sl] |= ~np.isnan(st.heights(key))
+        # Built once per layer, never per frame: the top shard's coverage (a store built
+        # before it: a few dozen tiles of the level read).
+        data = st.coverage(lv)
         self.step = (180.0 / 2**lv) / cells
         w0, _, _, n0 = (float(v) for v in tile_bounds_arrays(lv, grid.x0, grid.y0))
         r = max(1, round(self.band / self.step))
@@ -107,14 +100,6 @@ class BlendMask:
         self._partial = part.cumsum(0).cumsum(1)
         #: `interpolation_error` by cell size in raster steps (it depends on w only).
         self.interp_errors: dict[int, float] = {}
-
-    @staticmethod
-    def _mask_level(st: TileStore, short_side_deg: float) -> int:
-        tile_n = int(np.log2(st.tile_size - 1))
-        for cand in range(st.max_level + 1):
-            if short_side_deg / ((180.0 / 2**cand) / 2**tile_n) >= MASK_NODES:
-                return cand
-        return st.max_level
 
     def _east_of_west(self, lon: np.ndarray) -> np.ndarray:
         """Degrees east of the raster's west edge, the longitude taken within 180 degrees of

@@ -78,6 +78,7 @@ from globeview.terrain.dem.vdatum import (
     parse_vdatum,
 )
 from globeview.terrain.ingest import cost
+from globeview.terrain.ingest.coverage import with_coverage
 from globeview.terrain.ingest.footprints import (
     DATUMS,
     FootprintTable,
@@ -1136,20 +1137,30 @@ def _build_and_commit(
             bar.refresh()
             builder.build()
         _fault_point("manifest")
-        # Sources in the order given (the builder sorts its own list finest first).
-        given = [builder.sources[j].record for j in builder.input_order]
-        manifest = builder.manifest(params, given)
+        _write_manifest(tmp, builder, params)
+        # The store's coverage into its top shard (read from the store just written), which
+        # the manifest names: written again.
+        builder.top = with_coverage(tmp)
         if existing is not None:
-            manifest = replace(manifest, generation=existing.generation + 1)
+            # Sources in the order given (the builder sorts its own list finest first).
+            given = [builder.sources[j].record for j in builder.input_order]
+            manifest = replace(builder.manifest(params, given), generation=existing.generation + 1)
             commit_generation(tmp, out, existing, manifest, _fault_point)
             return
-        part = tmp / (MANIFEST_NAME + ".part")
-        with part.open("w", encoding="utf-8") as f:
-            manifest.write(f)
-        os.replace(part, tmp / MANIFEST_NAME)
+        _write_manifest(tmp, builder, params)
         commit(tmp, out, tok)
     except _BUILD_ERRORS as exc:
         raise write_error(exc, dropped, out, parent, builder.store_megabytes()) from None
+
+
+def _write_manifest(tmp: Path, builder: _Builder, params: IngestParams) -> None:
+    """The manifest of the store built in ``tmp``, written atomically."""
+    part = tmp / (MANIFEST_NAME + ".part")
+    with part.open("w", encoding="utf-8") as f:
+        # Sources in the order given (the builder sorts its own list finest first).
+        given = [builder.sources[j].record for j in builder.input_order]
+        builder.manifest(params, given).write(f)
+    os.replace(part, tmp / MANIFEST_NAME)
 
 
 @dataclass(frozen=True)

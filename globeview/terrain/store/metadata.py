@@ -35,7 +35,7 @@ from globeview.terrain.store.layout import (
     shard_of,
 )
 from globeview.terrain.store.schema import LevelRecord, StoreManifest
-from globeview.terrain.store.shards import Shard, ShardError, decode
+from globeview.terrain.store.shards import Coverage, Shard, ShardError, decode
 
 __all__ = ["META_CACHE_SHARDS", "ChunkFacts", "StoreMetadata"]
 
@@ -91,6 +91,8 @@ class StoreMetadata:
         #: Runs a shard fetch in the background (`TileStore` sets it: a thread pool).
         self.background: Callable[[Callable[[], None]], object] | None = None
         self._pending: set[ShardRef] = set()
+        #: The top shard's `Coverage` (None: a store written without one).
+        self.coverage: Coverage | None = None
 
     # -- shards ---------------------------------------------------------------------------
 
@@ -143,6 +145,8 @@ class StoreMetadata:
                     f"{self._describe(name)}: damaged metadata shard ({exc})"
                 ) from None
             self.shards_loaded += 1
+            if ref.is_top:
+                self.coverage = shard.coverage
             chunks = self._index(shard)
             self._children[ref] = {(c.cy, c.cx): (c.sha256, c.bytes) for c in shard.children}
             self._shards[ref] = chunks

@@ -20,6 +20,12 @@ Layout (little-endian, deterministic bytes)::
                    errors    n_chunks x k^2 x (1 + n_strides) float16, byte-shuffled
                    heights   n_chunks x k^2 x 2 (hmin, hmax) float32, byte-shuffled
 
+The top shard may also carry the store's **coverage** (version 2; version 1 has none): which
+nodes of one level hold data over the level's bbox, the raster a layer's blend mask is made
+from (`Coverage`), so a remote store's first frame needs no chunk of that level. The header's
+last 28 bytes then hold u8 level, u32 row0, u32 col0, u32 rows, u32 cols, u32 zlen, and the
+bits (one per node, row-major, little bit order, zlib) follow the body.
+
 `decode` is written for hostile bytes: sizes are checked against the header before anything
 is inflated (no zip bomb: at most `MAX_SHARD_BYTES`), and every count, bit and value after;
 anything wrong is a `ShardError` (one line).
@@ -27,6 +33,7 @@ anything wrong is a `ShardError` (one line).
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import struct
 import zlib
@@ -49,8 +56,10 @@ __all__ = [
     "MAX_SHARD_BYTES",
     "ChildRef",
     "ChunkRecord",
+    "Coverage",
     "Shard",
     "ShardError",
+    "add_coverage",
     "decode",
     "encode",
     "f16_up",
@@ -61,12 +70,17 @@ __all__ = [
 
 MAGIC = b"GVM7"
 VERSION = 1
+#: A top shard with a `Coverage`.
+VERSION_COVERAGE = 2
+#: Most coverage nodes accepted (64 M bits: 8 MB packed).
+MAX_COVERAGE_NODES = 1 << 26
 #: Largest inflated shard body accepted (a planet shard of 85 chunks is ~1 MB raw).
 MAX_SHARD_BYTES = 16 << 20
 _HEADER = struct.Struct("<4sHBBHBBIIIIII28s")
 _CHILD = struct.Struct("<II32sI")
 _CHUNK = struct.Struct("<32sIB")
 _NO_FILE = bytes(32)
+_COVERAGE = struct.Struct("<BIIIII7x")  # in the header's last 28 bytes
 
 
 class ShardError(ValueError):
@@ -81,6 +95,18 @@ class ChildRef:
     cx: int
     sha256: str
     bytes: int
+
+
+@dataclass(frozen=True, eq=False)
+class Coverage:
+    """Which nodes of level ``level`` hold data: ``bits[r, c]`` is global node row
+    ``row0 + r``, column ``(col0 + c) mod`` the level's width (a bool raster over the
+    level's bbox, a blend mask's input: `coverage.read_coverage`)."""
+
+    level: int
+    row0: int
+    col0: int
+    bits: np.ndarray
 
 
 @dataclass(frozen=True, eq=False)
@@ -104,6 +130,7 @@ class Shard:
     hmax: np.ndarray
     children: tuple[ChildRef, ...] = ()
     chunk_flags: np.ndarray | None = None  # (n_chunks,) `layout.EXTRA_ROW` | `EXTRA_COL`
+    coverage: Coverage | None = None  # the top shard's only
 
     def slots(self) -> list[tuple[int, int, int]]:
         """(level, cy, cx) of the present chunks, in record order."""
@@ -188,9 +215,10 @@ def encode(shard: Shard) -> bytes:
         raise ValueError("shard body over MAX_SHARD_BYTES")
     z = zlib.compress(raw, 6)
     ref = shard.ref
+    cov, tail = _encode_coverage(shard)
     head = _HEADER.pack(
         MAGIC,
-        VERSION,
+        VERSION if shard.coverage is None else VERSION_COVERAGE,
         shard.tile_n,
         shard.n_strides,
         k,
@@ -202,9 +230,23 @@ def encode(shard: Shard) -> bytes:
         len(children),
         len(z),
         len(raw),
-        bytes(28),
+        cov,
     )
-    return head + z
+    return head + z + tail
+
+
+def _encode_coverage(shard: Shard) -> tuple[bytes, bytes]:
+    """(the header's last 28 bytes, the bytes after the body) for the shard's coverage."""
+    c = shard.coverage
+    if c is None:
+        return bytes(28), b""
+    if not shard.ref.is_top:
+        raise ValueError("only the top shard carries a coverage")
+    rows, cols = c.bits.shape
+    if rows * cols > MAX_COVERAGE_NODES:
+        raise ValueError("coverage over MAX_COVERAGE_NODES")
+    z = zlib.compress(np.packbits(c.bits.astype(bool).ravel(), bitorder="little").tobytes(), 6)
+    return _COVERAGE.pack(c.level, c.row0, c.col0, rows, cols, len(z)), z
 
 
 # ---------------------------------------------------------------------------------------------
@@ -216,12 +258,14 @@ def decode(data: bytes, ref: ShardRef, tile_n: int, n_strides: int) -> Shard:
     ShardError (one line) unless they are exactly that."""
     if len(data) < _HEADER.size:
         raise ShardError(f"truncated ({len(data)} bytes, no header)")
-    (magic, version, t_n, n_s, k, depth, root, cy, cx, n, n_children, zlen, blen, _) = (
+    (magic, version, t_n, n_s, k, depth, root, cy, cx, n, n_children, zlen, blen, cov) = (
         _HEADER.unpack_from(data)
     )
     if magic != MAGIC:
         raise ShardError("not a globeview metadata shard (bad magic)")
-    if version != VERSION:
+    if version not in (VERSION, VERSION_COVERAGE) or (
+        version == VERSION_COVERAGE and not ref.is_top
+    ):
         raise ShardError(f"shard version {version} is not supported")
     if (t_n, n_s, k) != (tile_n, n_strides, chunk_tiles(tile_n)):
         raise ShardError("tile_n, strides or chunk size do not match the store")
@@ -241,16 +285,38 @@ def decode(data: bytes, ref: ShardRef, tile_n: int, n_strides: int) -> Shard:
     )
     if n > len(slots) or blen != want or blen > MAX_SHARD_BYTES:
         raise ShardError(f"sizes do not add up ({n} chunks, body {blen} bytes)")
-    if len(data) != _HEADER.size + zlen:
-        raise ShardError(f"truncated or padded ({len(data)} bytes, expected {_HEADER.size + zlen})")
+    level, row0, col0, rows, cols, czlen = (
+        _COVERAGE.unpack(cov) if version == VERSION_COVERAGE else (0, 0, 0, 0, 0, 0)
+    )
+    if version == VERSION and cov != bytes(28):
+        raise ShardError("reserved header bytes are not zero")
+    end = _HEADER.size + zlen
+    if len(data) != end + czlen:
+        raise ShardError(f"truncated or padded ({len(data)} bytes, expected {end + czlen})")
+    raw = _inflate(data[_HEADER.size : end], blen, "body")
+    shard = _parse(raw, ref, tile_n, n_strides, slots, n, n_children)
+    if version == VERSION:
+        return shard
+    if rows * cols > MAX_COVERAGE_NODES or not (rows and cols):
+        raise ShardError(f"coverage of {rows} x {cols} nodes is out of range")
+    packed = np.frombuffer(_inflate(data[end:], (rows * cols + 7) // 8, "coverage"), np.uint8)
+    bits = np.unpackbits(packed, bitorder="little")
+    if bits[rows * cols :].any():
+        raise ShardError("coverage padding bits are not zero")
+    coverage = Coverage(level, row0, col0, bits[: rows * cols].astype(bool).reshape(rows, cols))
+    return dataclasses.replace(shard, coverage=coverage)
+
+
+def _inflate(z: bytes, size: int, what: str) -> bytes:
+    """``z`` inflated to exactly ``size`` bytes (ShardError naming ``what`` otherwise)."""
     try:
         d = zlib.decompressobj()
-        raw = d.decompress(data[_HEADER.size :], blen + 1)
+        raw = d.decompress(z, size + 1)
     except zlib.error as exc:
-        raise ShardError(f"damaged body ({exc})") from None
-    if len(raw) != blen or not d.eof:
-        raise ShardError("damaged body (wrong inflated size)")
-    return _parse(raw, ref, tile_n, n_strides, slots, n, n_children)
+        raise ShardError(f"damaged {what} ({exc})") from None
+    if len(raw) != size or not d.eof:
+        raise ShardError(f"damaged {what} (wrong inflated size)")
+    return raw
 
 
 def _parse(
@@ -374,6 +440,21 @@ def write_tree(
         parent = shard_of(ref.level - 1, ref.cy >> 1, ref.cx >> 1, tile_n, max_level)
         children.setdefault(parent, []).append(ChildRef(ref.cy, ref.cx, sha, len(data)))
     raise AssertionError("no top shard")  # pragma: no cover - the top is always in groups
+
+
+def add_coverage(
+    folder: Path, name: str, tile_n: int, max_level: int, n_strides: int, coverage: Coverage
+) -> tuple[str, str, int]:
+    """Write the top shard ``name`` of the store in ``folder`` again with ``coverage``
+    (content-named, atomically; the old file is left to the caller); returns the new file's
+    (name, sha256, bytes)."""
+    ref = shard_of(0, 0, 0, tile_n, max_level)
+    shard = decode((folder / name).read_bytes(), ref, tile_n, n_strides)
+    data = encode(dataclasses.replace(shard, coverage=coverage))
+    sha = hashlib.sha256(data).hexdigest()
+    new = shard_file_name(ref, sha)
+    write_atomic(folder / new, data)
+    return new, sha, len(data)
 
 
 def _shard(

@@ -53,6 +53,7 @@ from globeview.terrain.store.backend import (
     report_failure,
 )
 from globeview.terrain.store.blocks import BlockReader
+from globeview.terrain.store.coverage import read_coverage
 from globeview.terrain.store.handles import ChunkHandles, short_error
 from globeview.terrain.store.identify import MANIFEST_NAME
 from globeview.terrain.store.layout import generation_manifest_name
@@ -252,6 +253,12 @@ class TileStore:
         return bool(self._files.is_remote)
 
     @property
+    def max_requests(self) -> int:
+        """Reads the store's backend may have in flight at once (a remote store's
+        `RemoteOptions.max_requests`; 1 for a local one)."""
+        return max(1, int(self._files.max_requests))
+
+    @property
     def offline(self) -> bool:
         """A remote store opened from its cached manifest (the server could not be reached):
         only tiles whose chunk bytes are in the disk cache load."""
@@ -357,6 +364,22 @@ class TileStore:
         """Whether the tile or any of its 8 same-level neighbours has data (a tile's ring of
         neighbour nodes may hold data when the tile itself has none)."""
         return self._meta.has_data_near(level, x, y)
+
+    def coverage(self, level: int) -> np.ndarray:
+        """Which nodes of ``level`` hold data over the level's bbox (`level_grid`): a bool
+        raster, rows north to south (`coverage.read_coverage`). From the top shard when the
+        ingest stored that level's there (no chunk read: a remote store's first frame needs
+        none), else read from the level's tiles."""
+        stored = self._meta.coverage
+        grid = self._meta.grids[level] if 0 <= level <= self.max_level else None
+        if stored is not None and grid is not None and stored.level == level:
+            cells = self.tile_size - 1
+            shape = (grid.ny * cells + 1, grid.nx * cells + 1)
+            if (stored.row0, stored.col0) == (grid.y0 * cells, grid.x0 * cells) and (
+                stored.bits.shape == shape
+            ):
+                return stored.bits
+        return read_coverage(self, level).bits
 
     # -- heights -------------------------------------------------------------------------------
 
