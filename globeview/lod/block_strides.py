@@ -1,8 +1,8 @@
 """Per-block strides inside a tile (issue #27 item 3, design §5.2): each 8 x 8-cell block of
 a tile drawn at the coarsest stride whose projected error stays within tau.
 
-A block's facts (`BlockFacts`: one row of `N_FACTS` float64 per block, 64 blocks a tile,
-row-major from the north-west block) are what the renderer knows of a loaded tile:
+A tile's block facts ((`N_FACTS`, 64) float32, bounds rounded outward: a column per block,
+blocks row-major from the north-west one) are what the renderer knows of a loaded tile:
 
 - ``ERR``: the block's height error (m, true relief) at strides 2, 4, 8: the tile's level
   error (its stride-1 error from the store) plus the running max over strides of the block's
@@ -31,7 +31,8 @@ from globeview.lod.culling import chord_sag
 from globeview.lod.view_state import ViewState
 from globeview.terrain.quadtree import tile_bounds_arrays
 
-#: Columns of a block's facts row.
+#: Rows of a tile's block facts (`N_FACTS`, 64): fact-major, so that each fact of many
+#: tiles is one contiguous (N, 64) array in the per-frame choice.
 ERR = slice(0, 3)  # height error (m) at strides 2, 4, 8, level error included
 H = slice(3, 5)  # min, max node height (m)
 CENTRE = slice(5, 8)  # ECEF (m) of the block's centre on the ellipsoid
@@ -39,6 +40,9 @@ UP = slice(8, 11)  # geodetic unit normal there
 RADIUS, TURN = 11, 12  # m; radians
 N_FACTS = 13
 N_BLOCKS = BLOCKS * BLOCKS
+#: Metres added to a block's reach for its facts' float32 rounding (ECEF coordinates of
+#: ~6.4e6 m round by up to 0.25 m each; differences of them by twice that per axis).
+FLOAT32_SLACK_M = 4.0
 #: Stride index from which a tile is drawn whole (stride 8 = one block, nothing to gain).
 WHOLE_FROM = N_BLOCK_STRIDES - 1
 
@@ -130,12 +134,25 @@ def block_geometry(keys: np.ndarray) -> np.ndarray:
 
 
 def block_facts(keys: np.ndarray, stats: np.ndarray) -> np.ndarray:
-    """(N, 64, `N_FACTS`) facts of tiles ``keys`` from their `block_height_stats` (N, 64, 5)."""
-    return np.concatenate([np.asarray(stats, np.float64), block_geometry(keys)], axis=2)
+    """(N, `N_FACTS`, 64) facts of tiles ``keys`` from their `block_height_stats` (N, 64, 5)."""
+    both = np.concatenate([np.asarray(stats, np.float64), block_geometry(keys)], axis=2)
+    return as_facts32(both.transpose(0, 2, 1))
+
+
+def as_facts32(facts: np.ndarray) -> np.ndarray:
+    """Block facts (..., `N_FACTS`, 64) float64 as float32 with the errors and radii rounded
+    up (bounds stay bounds) and the min height down."""
+    out = np.asarray(facts, dtype=np.float32).copy()
+    up = np.float32(np.inf)
+    for rows in (ERR, slice(4, 5), slice(RADIUS, TURN + 1)):
+        out[..., rows, :] = np.nextafter(out[..., rows, :], up)
+    out[..., 3, :] = np.nextafter(out[..., 3, :], -up)
+    return out
 
 
 def choose_block_strides(
     facts: np.ndarray,
+    slots: np.ndarray,
     level: np.ndarray,
     stride_idx: np.ndarray,
     view: ViewState,
@@ -143,11 +160,12 @@ def choose_block_strides(
     size: int,
 ) -> np.ndarray:
     """(N, 8, 8) int8 stride index (0..3) of each block of N tiles, or -1 for a tile drawn
-    by its index variant (its stride index is `WHOLE_FROM` or more, its facts are NaN, or no
-    block goes coarser than the tile).
+    by its index variant (its stride index is `WHOLE_FROM` or more, its slot is -1 or its
+    facts are NaN, or no block goes coarser than the tile).
 
     Args:
-        facts: (N, 64, `N_FACTS`) the tiles' block facts (NaN rows: unknown).
+        facts: (S, `N_FACTS`, 64) float32 block facts by slot (NaN: unknown; `as_facts32`).
+        slots: (N,) each tile's row of ``facts`` (-1: none).
         level: (N,) the tiles' quadtree levels.
         stride_idx: (N,) the stride index each tile is drawn at (its error within tau).
         view: the frame's view (eye, exaggeration, ``sse_factor``).
@@ -158,21 +176,31 @@ def choose_block_strides(
     n = len(stride_idx)
     out = np.full((n, BLOCKS, BLOCKS), -1, dtype=np.int8)
     tile_idx = np.asarray(stride_idx, dtype=np.int64)
-    rows = np.flatnonzero((tile_idx < WHOLE_FROM) & np.isfinite(facts[:, 0, 0]))
+    slots = np.asarray(slots, dtype=np.int64)
+    rows = np.flatnonzero(tile_idx < WHOLE_FROM)
+    rows = rows[slots[rows] >= 0]
+    rows = rows[np.isfinite(facts[slots[rows], 0, 0])]
     if not len(rows) or view.displace is not None:
         return out
-    f = facts[rows]
-    e = float(view.exaggeration)
-    hmin, hmax = f[:, :, 3] * e, f[:, :, 4] * e
-    mid, half = 0.5 * (hmin + hmax), 0.5 * (hmax - hmin)
-    centre = f[:, :, CENTRE] + mid[:, :, None] * f[:, :, UP]
-    reach = f[:, :, RADIUS] + half + np.abs(mid) * f[:, :, TURN]
-    dist = np.maximum(np.linalg.norm(centre - view.eye, axis=2) - reach, 1.0)  # (M, 64)
+    # Fact-major rows (M, N_FACTS, 64): every fact below is a contiguous (M, 64) array.
+    f = facts[slots[rows]]
+    e = np.float32(view.exaggeration)
+    mid = (f[:, 3] + f[:, 4]) * (np.float32(0.5) * e)
+    half = (f[:, 4] - f[:, 3]) * (np.float32(0.5) * e)
+    eye = np.asarray(view.eye, dtype=np.float32)
+    d2 = np.zeros_like(mid)
+    for k in range(3):
+        diff = f[:, 5 + k] + mid * f[:, 8 + k] - eye[k]
+        d2 += diff * diff
+    # float32 ECEF (ulp 0.5 m at the Earth's radius): `FLOAT32_SLACK_M` more reach.
+    reach = f[:, RADIUS] + half + np.abs(mid) * f[:, TURN] + np.float32(FLOAT32_SLACK_M)
+    px_per_m = view.sse_factor / np.maximum(np.sqrt(d2) - reach, 1.0)  # (M, 64)
     node_deg = 180.0 / np.exp2(np.asarray(level, dtype=np.float64)[rows]) / (size - 1)
-    sag = chord_sag(node_deg[:, None] * np.array([2.0, 4.0, 8.0]))  # (M, 3)
-    err_px = (f[:, :, ERR] * e + sag[:, None, :]) * (view.sse_factor / dist)[:, :, None]
     # Errors grow with the stride (running max, sag): the coarsest within tau is a count.
-    ok = np.count_nonzero(err_px <= tau_px, axis=2)  # (M, 64): 0..3
+    ok = np.zeros(mid.shape, dtype=np.int64)
+    for k, s in enumerate((2.0, 4.0, 8.0)):
+        sag = chord_sag(node_deg * s)[:, None].astype(np.float32)  # (M, 1)
+        ok += (f[:, k] * e + sag) * px_per_m <= tau_px
     chosen = np.maximum(ok, tile_idx[rows, None])
     coarser = (chosen > tile_idx[rows, None]).any(axis=1)
     out[rows[coarser]] = chosen[coarser].reshape(-1, BLOCKS, BLOCKS).astype(np.int8)

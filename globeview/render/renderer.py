@@ -550,10 +550,14 @@ class GlobeRenderer:
         if render_set.custom_indices:
             stride_idx = stride_idx.copy()
             stride_idx[np.array(list(render_set.custom_indices), dtype=np.int64)] = WHOLE_FROM
-        stride_idx = np.where(slots >= 0, stride_idx, WHOLE_FROM)
-        facts = self.pool.block_facts[np.maximum(slots, 0)]
         out = choose_block_strides(
-            facts, render_set.keys[:, 0], stride_idx, view, float(tau), self.size
+            self.pool.block_facts,
+            slots,
+            render_set.keys[:, 0],
+            stride_idx,
+            view,
+            float(tau),
+            self.size,
         )
         self.last_block_ms = (time.process_time() - t0) * 1e3
         return out

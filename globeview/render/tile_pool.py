@@ -13,7 +13,7 @@ import moderngl
 import numpy as np
 
 from globeview.lod.block_indices import pattern_indices
-from globeview.lod.block_strides import N_BLOCKS, N_FACTS, block_geometry
+from globeview.lod.block_strides import N_BLOCKS, N_FACTS, block_facts
 from globeview.lod.tile_indices import IndexVariant, grid_indices
 from globeview.render.gpu_objects import gpu_objects
 from globeview.render.tile_build import ReadyTile
@@ -151,7 +151,8 @@ class TilePool:
         self.coast_scale = np.ones(capacity, dtype=np.float64)  # metres (see above)
         self.last_used = np.zeros(capacity, dtype=np.int64)
         # Per-slot block facts (`lod.block_strides`; NaN: not measured), for block strides.
-        self.block_facts = np.full((capacity, N_BLOCKS, N_FACTS), np.nan)
+        self.block_facts = np.full((capacity, N_FACTS, N_BLOCKS), np.nan, dtype=np.float32)
+        self._block_stats: dict[int, np.ndarray] = {}  # uploaded, facts not made yet
         self.generation = np.zeros(capacity, dtype=np.int64)
         self._sorted_codes = np.empty(0, dtype=np.int64)
         self._sorted_slots = np.empty(0, dtype=np.int64)
@@ -212,13 +213,19 @@ class TilePool:
             self._upload(int(slot), build((int(key[0]), int(key[1]), int(key[2]))))
             self.codes[slot] = key_codes(key[None, :])[0]
             self.last_used[slot] = self._frame
-        slots = free[: len(missing)]
-        measured = slots[np.isfinite(self.block_facts[slots, 0, 0])]
-        if len(measured):
-            rows = np.isin(slots, measured)
-            self.block_facts[measured, :, 5:] = block_geometry(missing[rows])
+        self._measure_blocks(missing, free[: len(missing)])
         self._reindex()
         return len(missing)
+
+    def _measure_blocks(self, keys: np.ndarray, slots: np.ndarray) -> None:
+        """The block facts of tiles ``keys`` just uploaded into ``slots`` whose tiles came
+        with block stats (`ReadyTile.blocks`), in one batch (`lod.block_strides.block_facts`)."""
+        stats = self._block_stats
+        self._block_stats = {}
+        rows = [i for i, slot in enumerate(slots.tolist()) if slot in stats]
+        if rows:
+            got = np.stack([stats[int(slots[i])] for i in rows])
+            self.block_facts[slots[rows]] = block_facts(keys[rows], got)
 
     def invalidate(self) -> None:
         """Forget every resident tile (e.g. after a layer was hidden or removed)."""
@@ -242,10 +249,9 @@ class TilePool:
         self.normal_tex.write(ready.normal, viewport=(0, 0, slot, s, s, 1))
         self.centers[slot] = ready.center
         self.coast_scale[slot] = ready.coast_scale
-        blocks = ready.blocks
         self.block_facts[slot] = np.nan
-        if blocks is not None and blocks.shape == (N_BLOCKS, 5):
-            self.block_facts[slot, :, :5] = blocks
+        if ready.blocks is not None and ready.blocks.shape == (N_BLOCKS, 5):
+            self._block_stats[slot] = ready.blocks
         if ready.release is not None:
             ready.release()  # its arrays are on the GPU now (a worker's shared slot)
         self.generation[slot] += 1
