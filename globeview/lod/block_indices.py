@@ -163,7 +163,8 @@ def pattern_counts(size: int, patterns: np.ndarray) -> np.ndarray:
     """(M,) int64 indices (3 per triangle) of each block pattern (M, 8, 8) over tiles of
     ``size`` nodes: what `pattern_indices` returns for it, skirts included."""
     _, lens, _ = _segments(size, patterns)
-    return lens.sum(axis=1)
+    counts: np.ndarray = lens.sum(axis=1)
+    return counts
 
 
 def pattern_indices(size: int, patterns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -81,7 +81,8 @@ def _closed_block_max(d: np.ndarray) -> np.ndarray:
     below = d[:, c::c, :-1].reshape(b, BLOCKS, BLOCKS, c).max(axis=3)  # row 8(bi+1)
     right = d[:, :-1, c::c].reshape(b, BLOCKS, c, BLOCKS).max(axis=2)  # col 8(bj+1)
     corner = d[:, c::c, c::c]
-    return np.maximum(np.maximum(inner, below), np.maximum(right, corner))
+    out: np.ndarray = np.maximum(np.maximum(inner, below), np.maximum(right, corner))
+    return out
 
 
 def block_geometry(keys: np.ndarray) -> np.ndarray:

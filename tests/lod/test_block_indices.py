@@ -117,7 +117,7 @@ def test_random_patterns_are_watertight() -> None:
 
 
 def test_bad_stride_index_is_refused() -> None:
-    with pytest.raises(ValueError, match="0..3"):
+    with pytest.raises(ValueError, match=r"0\.\.3"):
         pattern_counts(SIZE, np.full((1, BLOCKS, BLOCKS), 4, dtype=np.int8))
 
 
@@ -137,7 +137,7 @@ def test_render_set_counts_and_validates_block_strides() -> None:
     assert rs.index_counts(SIZE).tolist() == [full, len(grid_indices(SIZE, IndexVariant(8)))]
     bad = blocks.copy()
     bad[1, 0, 0] = -1  # part of a tile
-    with pytest.raises(InvalidRenderSet, match="all -1 or all 0..3"):
+    with pytest.raises(InvalidRenderSet, match=r"all -1 or all 0\.\.3"):
         _set(keys, bad).validate(SIZE)
     with pytest.raises(InvalidRenderSet, match="int8"):
         _set(keys, blocks.astype(np.int64)).validate(SIZE)
