@@ -13,6 +13,7 @@ with numpy. No GL object is created per frame in steady state.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable
@@ -79,6 +80,7 @@ class GlobeRenderer:
         # The last frame's block strides (`block_strides`): CPU ms of the choice, tiles.
         self.last_block_ms = 0.0
         self.last_block_tiles = 0
+        self.last_blocks: np.ndarray | None = None  # the last frame's, when any tile had them
         self._terrain_version = terrain.version
         self.builder = TileBuilder(terrain)
         self._hook: DisplacementHook | None = None
@@ -428,6 +430,7 @@ class GlobeRenderer:
             # Before the variants: room for new patterns may start the index pool afresh.
             p_first, p_count = self.indices.patterns(blocks[patterned])
         self.last_block_tiles = len(patterned)
+        self.last_blocks = blocks if len(patterned) else None
         table = np.array(
             [self.indices.get(v) for v in render_set.variants], dtype=np.int64
         ).reshape(-1, 2)
@@ -565,6 +568,9 @@ class GlobeRenderer:
     def draw_overlays(self, view: ViewState, render_set: RenderSet) -> dict[str, float]:
         """Draw the overlay layers' vectors and point objects, depth-tested against the
         terrain just drawn; returns their figures for ``FrameStats.extra``."""
+        if self.last_blocks is not None and len(self.last_blocks) == len(render_set):
+            # The overlays drape over the mesh drawn: with its block strides.
+            render_set = dataclasses.replace(render_set, block_strides=self.last_blocks)
         return self.overlays.draw(view, render_set, self.terrain, self.settings)
 
     def finish_stats(
