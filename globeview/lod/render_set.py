@@ -16,6 +16,7 @@ from typing import cast
 
 import numpy as np
 
+from globeview.lod.block_indices import BLOCK_CELLS, BLOCKS, N_BLOCK_STRIDES, pattern_counts
 from globeview.lod.tile_indices import IndexVariant, index_count
 
 #: Deepest quadtree level a key may have: the tile pool packs keys into int64 codes with
@@ -52,6 +53,16 @@ class RenderSet:
         error_px: (N,) the screen-space error (pixels) each tile is drawn with, as the
             provider estimated it; the frame's max goes to the stats.
         stats: provider counters for the frame (e.g. tiles culled by frustum / horizon).
+        block_strides: optional (N, 8, 8) int8 stride index (0..3: strides 1, 2, 4, 8) of
+            each 8 x 8-cell block of a 65-node tile (row 0 the northern blocks), or -1 in
+            every block of a row drawn by its variant as before. A row with block strides is
+            drawn with the blocks' triangulation (`globeview.lod.block_indices`: edges
+            between blocks at the larger stride, skirts on all four tile edges at the edge
+            blocks' strides) instead of its variant; pole tiles may not have them.
+        block_tau_px: optional tau (pixels) under which the renderer chooses the block
+            strides of the set's resident tiles itself (`lod.block_strides`, from the blocks'
+            errors it measured when it built them) where ``block_strides`` is None: the
+            default provider's request; None: none chosen (every row drawn by its variant).
 
     What a render set promises, and what the host checks (the plugin contract):
 
@@ -78,6 +89,8 @@ class RenderSet:
     custom_indices: dict[int, np.ndarray] = field(default_factory=dict)
     error_px: np.ndarray | None = None
     stats: dict[str, float] = field(default_factory=dict)
+    block_strides: np.ndarray | None = None
+    block_tau_px: float | None = None
 
     def __post_init__(self) -> None:
         keys = _as_int64(self.keys, "keys")
@@ -106,6 +119,11 @@ class RenderSet:
             [index_count(int(tile_size), v) for v in self.variants], dtype=np.int64
         )
         counts = per_variant[self.variant_ids] if len(self) else np.empty(0, np.int64)
+        if self.block_strides is not None and len(self):
+            rows = np.flatnonzero(self.block_strides[:, 0, 0] >= 0)
+            if len(rows):
+                counts = counts.copy()
+                counts[rows] = pattern_counts(int(tile_size), self.block_strides[rows])
         if self.custom_indices:
             counts = counts.copy()
             for row, idx in self.custom_indices.items():
@@ -127,7 +145,9 @@ class RenderSet:
         ``tile_size - 1`` cells, with a known pole; ``custom_indices`` rows in [0, N) holding
         1-D integer triangle lists (a multiple of 3 long) within the tile's
         ``verts_per_tile`` vertices; ``error_px`` None or (N,) real numbers, not NaN;
-        ``stats`` a dict whose renderer-read entries are finite numbers.
+        ``stats`` a dict whose renderer-read entries are finite numbers; ``block_strides``
+        None or (N, 8, 8) int8 in -1..3 with each row all -1 or all 0..3, none on a pole
+        tile, and tiles of 65 nodes; ``block_tau_px`` None or a positive finite number.
         """
         n_cells = tile_size - 1
         keys, ids = self.keys, self.variant_ids
@@ -171,6 +191,7 @@ class RenderSet:
         for v in variants:
             _check_variant(v, n_cells)
         self._validate_custom(n, verts_per_tile)
+        self._validate_blocks(n, n_cells)
         err = self.error_px
         if err is not None:
             if not isinstance(err, np.ndarray) or err.shape != (n,) or err.dtype.kind not in "iuf":
@@ -183,6 +204,36 @@ class RenderSet:
             stat = self.stats.get(k, 0.0)
             if not isinstance(stat, Real) or isinstance(stat, bool) or not math.isfinite(stat):
                 raise InvalidRenderSet(f"stats[{k!r}] must be a finite number, not {stat!r:.40}")
+
+    def _validate_blocks(self, n: int, n_cells: int) -> None:
+        tau = self.block_tau_px
+        if tau is not None and (
+            not isinstance(tau, Real) or isinstance(tau, bool) or not 0.0 < tau < math.inf
+        ):
+            raise InvalidRenderSet(f"block_tau_px must be a positive number, not {tau!r:.40}")
+        bs = self.block_strides
+        if bs is None:
+            return
+        shape = (n, BLOCKS, BLOCKS)
+        if not isinstance(bs, np.ndarray) or bs.shape != shape or bs.dtype != np.int8:
+            raise InvalidRenderSet(f"block_strides must be {shape} int8, not {_describe(bs)}")
+        if not n:
+            return
+        flat = bs.reshape(n, -1)
+        lo, hi = flat.min(axis=1), flat.max(axis=1)
+        bad = (lo < -1) | (hi >= N_BLOCK_STRIDES) | ((lo < 0) & (hi >= 0))
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise InvalidRenderSet(
+                f"tile {i}: block strides must be all -1 or all 0..{N_BLOCK_STRIDES - 1}"
+            )
+        patterned = hi >= 0
+        if patterned.any() and n_cells != BLOCKS * BLOCK_CELLS:
+            raise InvalidRenderSet(f"block strides need tiles of {BLOCKS * BLOCK_CELLS} cells")
+        y, rows = self.keys[:, 2], np.left_shift(1, self.keys[:, 0].astype(np.int64))
+        pole = patterned & ((y == 0) | (y == rows - 1))
+        if pole.any():
+            raise InvalidRenderSet(f"tile {int(np.argmax(pole))}: a pole tile has block strides")
 
     def _validate_custom(self, n: int, verts_per_tile: int | None) -> None:
         custom = self.custom_indices

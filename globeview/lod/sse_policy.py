@@ -407,6 +407,7 @@ class ScreenSpaceErrorPolicy(LodPolicy):
             return self._render_set_flat(selection)
         self._hidden = int(np.count_nonzero(hidden))
         rs = render_set_by_stride(keys, stride_idx, error_px)
+        rs.block_tau_px = self.tau_px  # the renderer draws blocks coarser where tau allows
         if how == "traded":
             rs.stats["cut_traded"] = 1.0
         return rs
@@ -434,6 +435,7 @@ class ScreenSpaceErrorPolicy(LodPolicy):
             return rs
         self._hidden = int(np.count_nonzero(hidden))
         rs = render_set_by_stride(keys, stride_idx, error_px)
+        rs.block_tau_px = self.tau_px  # the renderer draws blocks coarser where tau allows
         if how == "traded":
             rs.stats["cut_traded"] = 1.0
         return rs

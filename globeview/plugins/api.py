@@ -724,6 +724,8 @@ def _read_only(rs: RenderSet) -> RenderSet:
         custom_indices={r: _frozen(i) for r, i in rs.custom_indices.items()},
         error_px=_frozen(rs.error_px),
         stats=dict(rs.stats),
+        block_strides=_frozen(rs.block_strides),
+        block_tau_px=rs.block_tau_px,
     )
 
 

@@ -50,11 +50,16 @@ SAG_FRACTIONS = (0.25, 0.5, 0.75)
 
 
 def render_set_strides(render_set: RenderSet) -> np.ndarray:
-    """(N,) index stride each drawn tile uses (1 for providers' custom triangulations)."""
+    """(N,) index stride each drawn tile uses (1 for providers' custom triangulations; for a
+    tile drawn with block strides its coarsest block's, the stride of most of its blocks)."""
     if len(render_set.keys) == 0:
         return np.ones(0, np.int64)
     table = np.array([v.stride for v in render_set.variants], dtype=np.int64)
     strides = table[render_set.variant_ids]
+    blocks = render_set.block_strides
+    if blocks is not None:
+        coarsest = blocks.reshape(len(blocks), -1).max(axis=1).astype(np.int64)
+        strides = np.where(coarsest >= 0, np.left_shift(1, np.maximum(coarsest, 0)), strides)
     if render_set.custom_indices:
         strides = strides.copy()
         strides[np.array(sorted(render_set.custom_indices), np.int64)] = 1

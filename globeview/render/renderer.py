@@ -13,6 +13,7 @@ with numpy. No GL object is created per frame in steady state.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable
@@ -22,6 +23,7 @@ import moderngl
 import numpy as np
 
 from globeview.geodesy import WGS84, ecef_to_lonlat
+from globeview.lod.block_strides import WHOLE_FROM, choose_block_strides
 from globeview.lod.render_set import (
     FrameStats,
     RenderSet,
@@ -79,6 +81,10 @@ class GlobeRenderer:
         self.pool = TilePool(ctx, self.size, capacity)
         self.indices = IndexPool(ctx, self.size)
         self.indices.on_realloc = self._build_vao
+        # The last frame's block strides (`block_strides`): CPU ms of the choice, tiles.
+        self.last_block_ms = 0.0
+        self.last_block_tiles = 0
+        self.last_blocks: np.ndarray | None = None  # the last frame's, when any tile had them
         self._terrain_version = terrain.version
         self.builder = TileBuilder(terrain)
         self._hook: DisplacementHook | None = None
@@ -447,12 +453,25 @@ class GlobeRenderer:
         self.pool.touch(slots)
         n = len(slots)
 
+        blocks = self.block_strides(view, render_set, slots)
+        patterned = np.empty(0, np.int64)
+        if blocks is not None:
+            patterned = np.flatnonzero(blocks[:, 0, 0] >= 0)
+            # Before the variants: room for new patterns may start the index pool afresh.
+            p_first, p_count = self.indices.patterns(blocks[patterned])
+        self.last_block_tiles = len(patterned)
+        self.last_blocks = blocks if len(patterned) else None
         table = np.array(
             [self.indices.get(v) for v in render_set.variants], dtype=np.int64
         ).reshape(-1, 2)
         # What each tile draws, counted as the plugin API's `triangle_count` counts it.
         counts = render_set.index_counts(self.size)
         firsts = table[render_set.variant_ids, 0] if n else np.empty(0, np.int64)
+        if len(patterned):
+            counts = counts.copy()
+            counts[patterned] = p_count
+            firsts = firsts.copy()
+            firsts[patterned] = p_first
         custom = np.zeros(n, dtype=bool)
         custom_cmds = None
         if render_set.custom_indices:
@@ -531,9 +550,57 @@ class GlobeRenderer:
         self.ctx.depth_func = "<"
         return int(counts.sum() // 3)
 
+    def block_strides(
+        self, view: ViewState, render_set: RenderSet, slots: np.ndarray | None = None
+    ) -> np.ndarray | None:
+        """(N, 8, 8) int8 block strides the tiles of ``render_set`` are drawn with, or None
+        (all by their variants): the set's own ``block_strides``, or where it asks for them
+        (``block_tau_px``) those `lod.block_strides.choose_block_strides` finds from the
+        resident tiles' block facts (tiles drawn by a plain, unstitched, non-pole variant at
+        a stride under 8, and not by custom indices). ``slots``: the tiles' pool slots.
+        Sets ``last_block_ms`` (CPU time of the choice, ms)."""
+        self.last_block_ms = 0.0
+        if render_set.block_strides is not None:
+            return render_set.block_strides
+        tau = render_set.block_tau_px
+        n = len(render_set)
+        if tau is None or not n:
+            return None
+        t0 = time.process_time()
+        if slots is None:
+            slots = self.pool.slots_of(render_set.keys)
+        # A variant's stride index where blocks may go coarser, else past the blocks' range.
+        var_idx = np.array(
+            [
+                int(v.stride).bit_length() - 1
+                if v.pole is None and v.edge_strides is None and v.skirts
+                else WHOLE_FROM
+                for v in render_set.variants
+            ],
+            dtype=np.int64,
+        )
+        stride_idx = var_idx[render_set.variant_ids]
+        if render_set.custom_indices:
+            stride_idx = stride_idx.copy()
+            stride_idx[np.array(list(render_set.custom_indices), dtype=np.int64)] = WHOLE_FROM
+        out = choose_block_strides(
+            self.pool.block_facts,
+            slots,
+            render_set.keys[:, 0],
+            stride_idx,
+            view,
+            float(tau),
+            self.size,
+        )
+        self.last_block_ms = (time.process_time() - t0) * 1e3
+        return out
+
     def draw_overlays(self, view: ViewState, render_set: RenderSet) -> dict[str, float]:
         """Draw the overlay layers' vectors and point objects, depth-tested against the
         terrain just drawn; returns their figures for ``FrameStats.extra``."""
+        if self.last_blocks is not None and len(self.last_blocks) == len(render_set):
+            # The overlays drape over the mesh drawn: with its block strides.
+            render_set = dataclasses.replace(render_set, block_strides=self.last_blocks)
         return self.overlays.draw(view, render_set, self.terrain, self.settings)
 
     def finish_stats(
@@ -558,6 +625,9 @@ class GlobeRenderer:
         if render_set.error_px is not None:
             finite = render_set.error_px[np.isfinite(render_set.error_px)]
             stats.max_sse_px = float(finite.max()) if len(finite) else 0.0
+        if render_set.block_tau_px is not None or render_set.block_strides is not None:
+            stats.extra["block_ms"] = self.last_block_ms
+            stats.extra["tiles_blocked"] = self.last_block_tiles
         self.last_view = view
         return stats
 
@@ -720,6 +790,11 @@ def _rebuild_render_set(
         for r, idx in render_set.custom_indices.items()
         if new_of_old[int(r)] >= 0
     }
+    blocks = render_set.block_strides
+    if blocks is not None:  # new parents are drawn by their variants
+        kept = np.full((len(keys), 8, 8), -1, dtype=np.int8)
+        kept[old] = blocks[rows[old]]
+        blocks = kept
     return RenderSet(
         keys,
         variant_ids,
@@ -727,6 +802,8 @@ def _rebuild_render_set(
         custom_indices=custom,
         error_px=err if render_set.error_px is not None else None,
         stats=dict(render_set.stats),
+        block_strides=blocks,
+        block_tau_px=render_set.block_tau_px,
     )
 
 

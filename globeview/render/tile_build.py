@@ -20,11 +20,12 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from globeview.geodesy import WGS84
+from globeview.lod.block_strides import block_height_stats
 from globeview.render.colour_ramp import tile_texels_batch
 from globeview.render.heap import keep_freed_heap
 from globeview.render.tile_mesh import TileMesh, build_tile_meshes
@@ -49,6 +50,9 @@ class ReadyTile:
         coast_scale: metres of the coast codes' scale (`colour_ramp.coast_texels`).
         release: frees the memory the arrays live in (a shared-memory slot of a process
             worker) once uploaded; None when they are ordinary arrays.
+        blocks: (64, 5) float64 per 8 x 8-cell block its height error at strides 2, 4, 8
+            and min and max height (m, `lod.block_strides.block_height_stats`), or None
+            (not measured: the tile is drawn by its index variant).
     """
 
     center: np.ndarray
@@ -57,6 +61,7 @@ class ReadyTile:
     normal: np.ndarray
     coast_scale: float
     release: Callable[[], None] | None = field(default=None, repr=False, compare=False)
+    blocks: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @classmethod
     def from_mesh(cls, mesh: TileMesh) -> ReadyTile:
@@ -79,8 +84,17 @@ def bake(meshes: list[TileMesh]) -> list[ReadyTile]:
     nrm8 = np.empty((*heights.shape, 4), dtype=np.uint8)
     nrm8[..., :3] = scaled
     nrm8[..., 3] = coast
+    level_err = np.array([m.level_error for m in meshes])
+    blocks = block_height_stats(heights, level_err) if heights.shape[1] == 65 else None
     return [
-        ReadyTile(m.center, m.vertices, albedo[i], nrm8[i], float(scale[i]))
+        ReadyTile(
+            m.center,
+            m.vertices,
+            albedo[i],
+            nrm8[i],
+            float(scale[i]),
+            blocks=None if blocks is None or not np.isfinite(level_err[i]) else blocks[i],
+        )
         for i, m in enumerate(meshes)
     ]
 
@@ -99,7 +113,7 @@ class TileBuilder:
         self.terrain = terrain
         self._data_normals = DataLevelNormals(terrain)
         # Skirt depths of one-tile builds ({key: depth} for one terrain version; bounded).
-        self._skirt_cache: dict[Key, float] = {}
+        self._skirt_cache: dict[Key, tuple[float, float]] = {}
         self._skirt_version = -1
         self._skirt_lock = threading.Lock()
 
@@ -107,8 +121,14 @@ class TileBuilder:
     def skirt_depths(self, keys: np.ndarray) -> np.ndarray:
         """(N,) metres the skirts of tiles ``keys`` (N, 3) hang below their edges, from one
         vectorised metadata call per level (per tile it cost ~0.5 ms, more than the mesh)."""
+        return self._tile_facts(keys)[0]
+
+    def _tile_facts(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(N,) skirt depths (`skirt_depths`) and (N,) level errors (m: the store's stride-1
+        error of each tile, what its blocks' errors start from) of tiles ``keys``."""
         keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
         out = np.empty(len(keys))
+        level_err = np.empty(len(keys))
         for level in np.unique(keys[:, 0]):
             rows = np.nonzero(keys[:, 0] == level)[0]
             meta = self.terrain.metadata(int(level), keys[rows, 1], keys[rows, 2])
@@ -117,10 +137,14 @@ class TileBuilder:
             # Skirts must reach below any neighbour drawn at another level or stride: a few
             # times this tile's coarsest height error plus a little of its size.
             out[rows] = 3.0 * np.nanmax(meta.stride_error, axis=1) + 0.01 * edge_m + 10.0
-        return out
+            level_err[rows] = meta.stride_error[:, 0]
+        return out, level_err
 
     def skirt_depth(self, key: Key) -> float:
-        """`skirt_depths` of one tile, computed with its aligned 4 x 4 block and cached: one
+        return self._one_tile_facts(key)[0]
+
+    def _one_tile_facts(self, key: Key) -> tuple[float, float]:
+        """`_tile_facts` of one tile, computed with its aligned 4 x 4 block and cached: one
         metadata call cost ~0.2 ms a tile (a fifth of a build), a call for the block ~0.3 ms,
         and one-tile builds come for neighbouring tiles together."""
         version = self.terrain.version
@@ -138,23 +162,25 @@ class TileBuilder:
             [np.full(len(xs) * len(ys), level), np.tile(xs, len(ys)), np.repeat(ys, len(xs))],
             axis=1,
         )
-        depths = self.skirt_depths(block)
+        depths, errs = self._tile_facts(block)
         with self._skirt_lock:
             if self._skirt_version == version:
                 if len(self._skirt_cache) > 1 << 16:
                     self._skirt_cache.clear()
-                for k, d in zip(block.tolist(), depths.tolist(), strict=True):
-                    self._skirt_cache[(k[0], k[1], k[2])] = d
+                for k, d, e in zip(block.tolist(), depths.tolist(), errs.tolist(), strict=True):
+                    self._skirt_cache[(k[0], k[1], k[2])] = (d, e)
         row = np.nonzero((block[:, 1] == x) & (block[:, 2] == y))[0]
         if not len(row):  # a key off the level's grid: as the batch path computes it
-            return float(self.skirt_depths(np.array([key]))[0])
-        return float(depths[int(row[0])])
+            one_d, one_e = self._tile_facts(np.array([key]))
+            return float(one_d[0]), float(one_e[0])
+        return float(depths[int(row[0])]), float(errs[int(row[0])])
 
     # -- meshes --------------------------------------------------------------------------------
     def mesh(self, key: Key) -> TileMesh:
         """One tile's mesh (skirt depth from its cached 4 x 4 block)."""
         key = (int(key[0]), int(key[1]), int(key[2]))
-        return self._meshes([key], np.array([self.skirt_depth(key)]))[0]
+        depth, err = self._one_tile_facts(key)
+        return self._meshes([key], np.array([depth]), np.array([err]))[0]
 
     def meshes(self, keys: np.ndarray) -> dict[Key, TileMesh]:
         """Meshes of tiles ``keys`` (N, 3), by key tuple in the keys' order: the metadata in
@@ -163,15 +189,17 @@ class TileBuilder:
         tuples = [(k[0], k[1], k[2]) for k in keys.tolist()]
         if not tuples:
             return {}
-        return dict(zip(tuples, self._meshes(tuples, self.skirt_depths(keys)), strict=True))
+        depths, errs = self._tile_facts(keys)
+        return dict(zip(tuples, self._meshes(tuples, depths, errs), strict=True))
 
     def ready(self, keys: np.ndarray) -> dict[Key, ReadyTile]:
         """Upload-ready tiles of ``keys`` (N, 3): `meshes` with their texels baked."""
         meshes = self.meshes(keys)
         return dict(zip(meshes, bake(list(meshes.values())), strict=True))
 
-    def _meshes(self, keys: list[Key], skirts: np.ndarray) -> list[TileMesh]:
-        """The meshes of ``keys`` with skirt depths ``skirts`` (m), in one batch.
+    def _meshes(self, keys: list[Key], skirts: np.ndarray, level_err: np.ndarray) -> list[TileMesh]:
+        """The meshes of ``keys`` with skirt depths ``skirts`` (m) and level errors
+        ``level_err`` (m, `_tile_facts`), in one batch.
 
         A tile finer than its data shades with its data level's normals, interpolated
         (`tile_normals`: its own would draw the bilinear surface's creases, a lattice).
@@ -193,4 +221,5 @@ class TileBuilder:
             bounds[rows] = np.stack(
                 tile_bounds_arrays(int(level), karr[rows, 1], karr[rows, 2]), axis=1
             )
-        return build_tile_meshes(bounds, heights, skirts, apron=aprons, normals=normals)
+        meshes = build_tile_meshes(bounds, heights, skirts, apron=aprons, normals=normals)
+        return [replace(m, level_error=float(e)) for m, e in zip(meshes, level_err, strict=True)]

@@ -424,6 +424,9 @@ def substitute_missing(
     if render_set.error_px is not None:
         # A stand-in tile is coarser than asked for: its error is unknown here (inf).
         err = np.concatenate([render_set.error_px[rows], np.full(len(subs), np.inf)])
+    blocks = render_set.block_strides
+    if blocks is not None:  # stand-ins are drawn by their variants
+        blocks = np.concatenate([blocks[rows], np.full((len(subs), 8, 8), -1, np.int8)])
     out = RenderSet(
         np.concatenate([keys[rows], subs]),
         np.concatenate([render_set.variant_ids[rows], sub_ids]),
@@ -431,5 +434,7 @@ def substitute_missing(
         custom_indices=custom,
         error_px=err,
         stats=dict(render_set.stats),
+        block_strides=blocks,
+        block_tau_px=render_set.block_tau_px,
     )
     return out, missing

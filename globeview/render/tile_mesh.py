@@ -19,6 +19,7 @@ A tile of ``size = 2^n + 1`` nodes per side becomes:
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -43,6 +44,7 @@ class TileMesh:
     normals: np.ndarray  # (size, size, 3) float32, ECEF unit vectors
     heights: np.ndarray  # (size, size) float32, metres
     skirt_depth: float
+    level_error: float = math.nan  # metres: the store's stride-1 error of the tile (NaN: unknown)
 
 
 class _Axes:

@@ -12,6 +12,8 @@ from collections.abc import Callable
 import moderngl
 import numpy as np
 
+from globeview.lod.block_indices import pattern_indices
+from globeview.lod.block_strides import N_BLOCKS, N_FACTS, block_facts
 from globeview.lod.tile_indices import IndexVariant, grid_indices
 from globeview.render.gpu_objects import gpu_objects
 from globeview.render.tile_build import ReadyTile
@@ -26,18 +28,63 @@ def key_codes(keys: np.ndarray) -> np.ndarray:
     return (k[:, 0] << 58) | (k[:, 2] << 29) | k[:, 1]
 
 
-class IndexPool:
-    """One element buffer holding every index variant used so far; variants are appended
-    on first use (the buffer grows by doubling, which is rare and not per frame)."""
+#: Most indices the pool holds before it starts afresh (`IndexPool.patterns`): 8 Mi
+#: indices, 32 MB, some thousands of block patterns.
+INDEX_POOL_CAP = 1 << 23
 
-    def __init__(self, ctx: moderngl.Context, size: int, initial_bytes: int = 1 << 22) -> None:
+
+class IndexPool:
+    """One element buffer holding every index variant used so far, and the triangle lists of
+    block patterns (`RenderSet.block_strides`); both are appended on first use (the buffer
+    grows by doubling, which is rare and not per frame). Patterns are cached by their bytes,
+    so a still camera builds none; when they would pass ``cap`` indices the pool forgets
+    everything and starts afresh (variants are rebuilt as they are asked for again)."""
+
+    def __init__(
+        self,
+        ctx: moderngl.Context,
+        size: int,
+        initial_bytes: int = 1 << 22,
+        cap: int = INDEX_POOL_CAP,
+    ) -> None:
         self.ctx = ctx
         self.size = size
+        self.cap = int(cap)
         self.buffer = gpu_objects(ctx).buffer(reserve=initial_bytes, dynamic=True)
         self._used = 0  # indices written
         self._variants: dict[IndexVariant, tuple[int, int]] = {}
+        self._patterns: dict[bytes, tuple[int, int]] = {}
+        self.patterns_built = 0  # block patterns built so far (tests, benchmarks)
         self._custom_first = None
         self.on_realloc: Callable[[], None] | None = None
+
+    def patterns(self, block_strides: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(first index, index count) (M,) each of block patterns (M, 8, 8) int8 in the
+        buffer, building the new ones in one vectorised gather (`pattern_indices`).
+
+        Ask for a frame's patterns before its variants (`get`): making room for them may
+        start the pool afresh, which moves every variant."""
+        bs = np.ascontiguousarray(block_strides, dtype=np.int8).reshape(-1, 64)
+        keys = [row.tobytes() for row in bs]
+        new = sorted({k for k in keys if k not in self._patterns})
+        if new:
+            fresh = np.frombuffer(b"".join(new), dtype=np.int8).reshape(-1, 8, 8)
+            idx, bounds = pattern_indices(self.size, fresh)
+            if self._used + len(idx) > self.cap and self._used:
+                self._restart()
+                return self.patterns(block_strides)
+            first = self._append(idx)
+            for k, lo, hi in zip(new, bounds[:-1].tolist(), bounds[1:].tolist(), strict=True):
+                self._patterns[k] = (first + lo, hi - lo)
+            self.patterns_built += len(new)
+        table = np.array([self._patterns[k] for k in keys], dtype=np.int64).reshape(-1, 2)
+        return table[:, 0], table[:, 1]
+
+    def _restart(self) -> None:
+        """Forget every list (the buffer is kept and overwritten from the start)."""
+        self._used = 0
+        self._variants.clear()
+        self._patterns.clear()
 
     def get(self, variant: IndexVariant) -> tuple[int, int]:
         """(first index, index count) of a variant in the buffer."""
@@ -103,6 +150,9 @@ class TilePool:
         self.centers = np.zeros((capacity, 3), dtype=np.float64)
         self.coast_scale = np.ones(capacity, dtype=np.float64)  # metres (see above)
         self.last_used = np.zeros(capacity, dtype=np.int64)
+        # Per-slot block facts (`lod.block_strides`; NaN: not measured), for block strides.
+        self.block_facts = np.full((capacity, N_FACTS, N_BLOCKS), np.nan, dtype=np.float32)
+        self._block_stats: dict[int, np.ndarray] = {}  # uploaded, facts not made yet
         self.generation = np.zeros(capacity, dtype=np.int64)
         self._sorted_codes = np.empty(0, dtype=np.int64)
         self._sorted_slots = np.empty(0, dtype=np.int64)
@@ -163,8 +213,19 @@ class TilePool:
             self._upload(int(slot), build((int(key[0]), int(key[1]), int(key[2]))))
             self.codes[slot] = key_codes(key[None, :])[0]
             self.last_used[slot] = self._frame
+        self._measure_blocks(missing, free[: len(missing)])
         self._reindex()
         return len(missing)
+
+    def _measure_blocks(self, keys: np.ndarray, slots: np.ndarray) -> None:
+        """The block facts of tiles ``keys`` just uploaded into ``slots`` whose tiles came
+        with block stats (`ReadyTile.blocks`), in one batch (`lod.block_strides.block_facts`)."""
+        stats = self._block_stats
+        self._block_stats = {}
+        rows = [i for i, slot in enumerate(slots.tolist()) if slot in stats]
+        if rows:
+            got = np.stack([stats[int(slots[i])] for i in rows])
+            self.block_facts[slots[rows]] = block_facts(keys[rows], got)
 
     def invalidate(self) -> None:
         """Forget every resident tile (e.g. after a layer was hidden or removed)."""
@@ -188,6 +249,9 @@ class TilePool:
         self.normal_tex.write(ready.normal, viewport=(0, 0, slot, s, s, 1))
         self.centers[slot] = ready.center
         self.coast_scale[slot] = ready.coast_scale
+        self.block_facts[slot] = np.nan
+        if ready.blocks is not None and ready.blocks.shape == (N_BLOCKS, 5):
+            self._block_stats[slot] = ready.blocks
         if ready.release is not None:
             ready.release()  # its arrays are on the GPU now (a worker's shared slot)
         self.generation[slot] += 1

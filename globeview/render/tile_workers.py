@@ -146,12 +146,13 @@ def _build_batch(keys: np.ndarray) -> dict[Key, ReadyTile]:
 
 def _build_batch_shared(
     keys: np.ndarray, spec: SlabSpec, slots: list[int]
-) -> list[tuple[Key, np.ndarray, float]]:
+) -> list[tuple[Key, np.ndarray, float, np.ndarray | None]]:
     """`_build_batch` with the tiles' arrays written into ``slots`` of the slab ``spec``
-    (one per key, in order); returns each tile's (key, centre, coast scale)."""
+    (one per key, in order); returns each tile's (key, centre, coast scale, block stats:
+    ~2.5 KB pickled)."""
     ready = _worker_builder().ready(keys)  # a key given twice is built once
     write_tiles(spec, slots[: len(ready)], list(ready.values()))
-    return [(k, t.center, t.coast_scale) for k, t in ready.items()]
+    return [(k, t.center, t.coast_scale, t.blocks) for k, t in ready.items()]
 
 
 def _warm_facts(keys: np.ndarray) -> None:
@@ -431,15 +432,21 @@ class _Lease:
         if self.slab is not None and self.slots is not None:
             self.slab.free_when_dead(procs, self.slots)
 
-    def tiles(self, got: list[tuple[Key, np.ndarray, float]]) -> dict[Key, ReadyTile]:
-        """The batch's tiles viewing their slots (``got``: the worker's keys, centres and
-        coast scales, in the slots' order)."""
+    def tiles(
+        self, got: list[tuple[Key, np.ndarray, float, np.ndarray | None]]
+    ) -> dict[Key, ReadyTile]:
+        """The batch's tiles viewing their slots (``got``: the worker's keys, centres, coast
+        scales and block stats, in the slots' order)."""
         assert self.slab is not None and self.slots is not None
         slab = self.slab
         if slab.closed:  # shut down while the batch was built
             raise WorkerLost("the tile workers are shut down")
         slab.free(self.slots[len(got) :])  # keys given twice: one tile, one slot
-        return {k: slab.tile(s, c, sc) for (k, c, sc), s in zip(got, self.slots, strict=False)}
+        out = {}
+        for (k, c, sc, blocks), s in zip(got, self.slots, strict=False):
+            tile = out[k] = slab.tile(s, c, sc)
+            tile.blocks = blocks
+        return out
 
 
 def _processes(pool: cf.ProcessPoolExecutor) -> list[multiprocessing.Process]:

@@ -54,6 +54,8 @@ def _same(a: ReadyTile, b: ReadyTile) -> bool:
             for f in ("center", "vertices", "albedo", "normal")
         )
         and a.coast_scale == b.coast_scale
+        and (a.blocks is None) == (b.blocks is None)
+        and (a.blocks is None or np.array_equal(a.blocks, b.blocks))
     )
 
 
@@ -276,6 +278,7 @@ def test_tiles_come_back_through_shared_memory_and_free_their_slots(stack) -> No
         for k in keys:
             assert _same(got[k], serial.ready(np.array([k]))[k]), k
             assert got[k].vertices.base is not None  # a view of the slab, not a copy
+            assert got[k].blocks is not None  # the block stats travel beside the slot
         for k in keys[:3]:
             got[k].release()
             got[k].release()  # idempotent
