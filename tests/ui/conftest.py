@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +33,48 @@ def embedded():
     return embedded_stores()
 
 
+class _BlendWork:
+    """The embedded stack's blend work, done once a session instead of once a window: each
+    window's stack gets the embedded stores' blend masks (`BlendMask`, a function of the
+    store alone, ~0.9 CPU-s at the first frame) and its fresh cache gets the band tables the
+    first window wrote (``band-tables/*.npz``, ~0.5 CPU-s to measure). Both are what the
+    window would compute itself; each test still has a cache folder of its own."""
+
+    def __init__(self, stores: list, folder: Path) -> None:
+        self._stores = set(stores)
+        self._masks: dict = {}
+        self._tables = folder  # band-tables/*.npz as the first windows wrote them
+
+    def prime(self, terrain) -> None:
+        """Before a window: hand its stack the masks and its cache the tables kept so far."""
+        terrain._masks.update(self._masks)  # a private dict: a test-only short cut
+        cache = Path(os.environ["GLOBEVIEW_CACHE_DIR"]) / "band-tables"
+        try:
+            cache.mkdir(parents=True, exist_ok=True)
+            for src in self._tables.iterdir():
+                if not (cache / src.name).exists():
+                    shutil.copyfile(src, cache / src.name)
+        except OSError:
+            pass  # a test's unusable cache stays unusable: the window measures the tables
+
+    def keep(self, terrain) -> None:
+        """After a window's first complete view: keep its embedded masks and tables."""
+        masks = dict(terrain._masks)
+        self._masks.update({st: m for st, m in masks.items() if st in self._stores})
+        cache = Path(os.environ["GLOBEVIEW_CACHE_DIR"]) / "band-tables"
+        if not cache.is_dir():
+            return
+        for src in cache.glob("*.npz"):
+            if not (self._tables / src.name).exists():
+                shutil.copyfile(src, self._tables / src.name)
+
+
+@pytest.fixture(scope="session")
+def blend_work(embedded, tmp_path_factory) -> _BlendWork:
+    """The embedded stack's blend masks and band tables, shared by every window (`_BlendWork`)."""
+    return _BlendWork(embedded, tmp_path_factory.mktemp("band-tables"))
+
+
 @pytest.fixture
 def errors_shown() -> list:
     """Modal error messages the window would have shown (recorded instead of a dialog)."""
@@ -39,7 +82,7 @@ def errors_shown() -> list:
 
 
 @pytest.fixture
-def make_window(qtbot, tmp_path, embedded, errors_shown, monkeypatch):
+def make_window(qtbot, tmp_path, embedded, blend_work, errors_shown, monkeypatch):
     """Build a shown `MainWindow` on the embedded data with settings in tmp_path; waits for
     its first frame. Returns a function taking MainWindow keyword arguments."""
     from PyQt6.QtCore import QSettings
@@ -59,6 +102,7 @@ def make_window(qtbot, tmp_path, embedded, errors_shown, monkeypatch):
         if registry is None:
             registry = PluginRegistry(MemorySettings()).discover()
         terrain = embedded_stack(embedded)  # the stack the app opens with
+        blend_work.prime(terrain)
         win = MainWindow(terrain, settings, registry, show_error=errors_shown.append, **kw)
         qtbot.addWidget(win)
         win.resize(1000, 700)
@@ -70,6 +114,7 @@ def make_window(qtbot, tmp_path, embedded, errors_shown, monkeypatch):
             lambda: win.globe.last_stats is not None and win.globe.last_stats.tiles_loading == 0,
             timeout=30000,
         )
+        blend_work.keep(terrain)
         windows.append(win)
         return win
 
