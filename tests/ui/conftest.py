@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import os
 import shutil
 from pathlib import Path
@@ -121,6 +123,171 @@ def make_window(qtbot, tmp_path, embedded, blend_work, errors_shown, monkeypatch
     yield make
     for win in windows:
         win.files.loader.shutdown()
+
+
+def _view_state(win) -> dict:
+    """What the window tests look at, as plain values: a reused window must equal a fresh one
+    in all of it before the next test (`reused_window`)."""
+    from PyQt6.QtWidgets import QDockWidget
+
+    model = win.model
+    return {
+        "layers": [(ly.name, ly.visible) for ly in win.terrain.layers],
+        "overlays": [(type(o).__name__, getattr(o, "name", "")) for o in model.overlays],
+        "tool": model.tool,
+        "lod": model.lod,
+        "tau_px": model.tau_px,
+        "camera": tuple(round(v, 6) for v in model.camera.lonlat_hpr()),
+        "display": repr(model.display),
+        "docks": sorted((d.objectName(), d.isVisible()) for d in win.findChildren(QDockWidget)),
+        "plugins": [(r.name, r.enabled, r.status, r.error) for r in win.plugins.records()],
+        "errors": len(win.errors.history),
+        "settings": {k: win.qsettings.value(k) for k in win.qsettings.allKeys()},
+        "status": win.statusBar().currentMessage(),
+        "busy": win.files.loader.busy,
+        "flying": win.globe.flight.active,
+        "size": (win.width(), win.height()),
+    }
+
+
+class _ReusedWindow:
+    """One shown `MainWindow` on the embedded data and default plugins, for the tests that
+    look at it but need no window of their own (`reused_window`): building a window, its GL
+    context and first frame costs ~0.5 CPU-s and a few event-loop round trips a test. Each
+    test gets it reset to its fresh `_view_state` and its own error recorder and cache."""
+
+    def __init__(self, build) -> None:
+        self._build = build
+        self.errors: list = []  # the current test's `errors_shown`
+        self.win = None
+        self.fresh: dict = {}
+
+    def get(self):
+        """The window (built at the first call: `settled` must follow once it drew)."""
+        if self.win is None:
+            self.win = self._build(lambda msg: self.errors.append(msg))
+            self.fresh = {}
+        return self.win
+
+    def settled(self) -> None:
+        """The first view of a new window is complete: what every reset must come back to."""
+        if not self.fresh:
+            self.fresh = _view_state(self.win)
+            self._fresh_camera = copy.deepcopy(self.win.model.camera)
+            display = self.win.model.display
+            fields = dataclasses.fields(display)
+            self._fresh_display = {f.name: getattr(display, f.name) for f in fields}
+
+    def reset(self, qtbot) -> None:
+        """Puts back what a test changed: tool, layers, overlays, camera, LOD, tau, display,
+        docks, error history and settings; then waits for a complete frame."""
+        from PyQt6.QtWidgets import QDockWidget
+
+        win, fresh = self.win, self.fresh
+        qtbot.waitUntil(lambda: not win.files.loader.busy, timeout=60000)
+        win.globe.flight.stop()
+        win.model.tool = fresh["tool"]
+        names = [name for name, _ in fresh["layers"]]
+        for ly in list(win.terrain.layers):
+            if ly.name not in names:
+                win.terrain.remove(ly.name)
+        for i, (name, visible) in enumerate(fresh["layers"]):
+            win.terrain.move(name, i)
+            win.terrain.set_visible(name, visible)
+        for overlay in list(win.model.overlays):
+            win.model.remove_overlay(overlay)
+        for key, value in self._fresh_display.items():
+            if getattr(win.model.display, key) != value:
+                setattr(win.model.display, key, value)
+        win.model.lod = fresh["lod"]
+        win.model.tau_px = fresh["tau_px"]
+        win.model.camera = copy.deepcopy(self._fresh_camera)
+        for dock_name, visible in fresh["docks"]:
+            dock = win.findChild(QDockWidget, dock_name)
+            if dock is not None and dock.isVisible() != visible:
+                dock.setVisible(visible)
+        del win.errors.history[fresh["errors"] :]
+        win.qsettings.clear()
+        for key, value in fresh["settings"].items():
+            win.qsettings.setValue(key, value)
+        win.files._update_recent_menu()  # the recent list as the settings now say
+        win.statusBar().showMessage(fresh["status"])
+        win.resize(*fresh["size"])
+        win.activateWindow()
+        win.globe.setFocus()
+        n = win.globe.frames
+        win.globe.request_frame()
+        qtbot.waitUntil(lambda: win.globe.frames > n, timeout=10000)
+        qtbot.waitUntil(
+            lambda: win.globe.last_stats is not None and win.globe.last_stats.tiles_loading == 0,
+            timeout=30000,
+        )
+
+    def discard(self) -> None:
+        if self.win is not None:
+            self.win.files.loader.shutdown()
+            self.win.close()
+            self.win.deleteLater()
+        self.win = None
+
+
+@pytest.fixture(scope="session")
+def _reused(qapp, embedded, blend_work, tmp_path_factory):
+    from PyQt6.QtCore import QSettings
+
+    from globeview.plugins.registry import PluginRegistry
+    from globeview.plugins.settings import MemorySettings
+    from globeview.ui.app import embedded_stack
+    from globeview.ui.main_window import MainWindow
+
+    folder = tmp_path_factory.mktemp("reused-window")
+
+    def build(show_error):
+        settings = QSettings(str(folder / "globeview.ini"), QSettings.Format.IniFormat)
+        registry = PluginRegistry(MemorySettings()).discover()
+        terrain = embedded_stack(embedded)
+        blend_work.prime(terrain)
+        win = MainWindow(terrain, settings, registry, show_error=show_error)
+        win.resize(1000, 700)
+        win.show()
+        return win
+
+    reused = _ReusedWindow(build)
+    yield reused
+    reused.discard()
+
+
+@pytest.fixture
+def reused_window(_reused, qtbot, tmp_path, errors_shown, monkeypatch):
+    """The shared `MainWindow` (see `_ReusedWindow`), as `make_window()` builds one: embedded
+    data, default plugins, 1000 x 700, first view complete; the test's own `errors_shown` and
+    GLOBEVIEW_CACHE_DIR. After the test it is reset, and must then equal a fresh window in
+    everything `_view_state` lists, or the test errors and the window is built anew. For tests
+    that change what a reset cannot put back (settings read at start, plugins failed, the
+    window closed), use `make_window`."""
+    monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(tmp_path / "cache"))
+    _reused.errors = errors_shown
+    fresh = _reused.win is None
+    win = _reused.get()
+    if fresh:
+        qtbot.waitExposed(win)
+    qtbot.waitUntil(lambda: win.globe.frames > 0, timeout=20000)
+    qtbot.waitUntil(
+        lambda: win.globe.last_stats is not None and win.globe.last_stats.tiles_loading == 0,
+        timeout=30000,
+    )
+    _reused.settled()
+    yield win
+    try:
+        _reused.reset(qtbot)
+        left = {k: v for k, v in _view_state(win).items() if v != _reused.fresh[k]}
+    except Exception:
+        _reused.discard()
+        raise
+    if left:
+        want = {k: _reused.fresh[k] for k in left}
+        _reused.discard()
+        pytest.fail(f"the reused window differs from a fresh one after the reset: {left} != {want}")
 
 
 def _frame_rgb(window) -> np.ndarray:

@@ -152,17 +152,17 @@ def _wait_refused(qtbot, win, n_before: int) -> None:
 
 @pytest.mark.parametrize("case", list(BAD_INPUTS))
 def test_bad_input_gives_one_line_and_the_globe_keeps_drawing(
-    case, make_window, errors_shown, wait_frame, qtbot, tmp_path, capfd
+    case, reused_window, errors_shown, wait_frame, qtbot, tmp_path, capfd, monkeypatch
 ):
     inputs = tmp_path / "inputs"
     inputs.mkdir()
     path = BAD_INPUTS[case](inputs)
     user_files = _snapshot(inputs)
-    win = make_window()
+    win = reused_window  # one window refuses every bad input in turn and keeps drawing
     # A file without a CRS makes the window ask for one (tests/ui/test_ui_crs_dialog.py);
     # here the user cancels, and the file's one line is reported as for any bad input.
     asked: list[str] = []
-    win.files.loader.ask_crs = lambda p, _exc: asked.append(p)
+    monkeypatch.setattr(win.files.loader, "ask_crs", lambda p, _exc: asked.append(p))
     capfd.readouterr()  # start of the part under test
     n_msgs, n_frames = len(win.errors.history), win.globe.frames
     layers = [ly.name for ly in win.terrain.layers]
@@ -296,12 +296,12 @@ BAD_OVERLAYS: dict[str, Callable[[Path], Path]] = {
 
 @pytest.mark.parametrize("case", list(BAD_OVERLAYS))
 def test_bad_overlay_gives_one_line_and_the_globe_keeps_drawing(
-    case, make_window, errors_shown, wait_frame, tmp_path, capfd
+    case, reused_window, errors_shown, wait_frame, tmp_path, capfd
 ):
     inputs = tmp_path / "inputs"
     inputs.mkdir()
     path = BAD_OVERLAYS[case](inputs)
-    win = make_window()
+    win = reused_window
     capfd.readouterr()
     n_msgs, overlays = len(win.errors.history), list(win.overlay_layers())
     assert win.files.open_overlays([str(path)]) == []
@@ -317,8 +317,8 @@ def test_bad_overlay_gives_one_line_and_the_globe_keeps_drawing(
     assert "Traceback" not in capfd.readouterr().err
 
 
-def test_export_to_an_unwritable_path_is_one_line(make_window, errors_shown, tmp_path):
-    win = make_window()
+def test_export_to_an_unwritable_path_is_one_line(reused_window, errors_shown, tmp_path):
+    win = reused_window
     folder = tmp_path / "taken.png"
     folder.mkdir()  # a folder where the image should go
     for target in (folder, tmp_path / "no_such_dir" / "x.png"):
