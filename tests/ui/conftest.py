@@ -232,7 +232,7 @@ class _ReusedWindow:
 
 
 @pytest.fixture(scope="session")
-def _reused(qapp, embedded, blend_work, tmp_path_factory):
+def shared_window(qapp, embedded, blend_work, tmp_path_factory):
     from PyQt6.QtCore import QSettings
 
     from globeview.plugins.registry import PluginRegistry
@@ -258,7 +258,7 @@ def _reused(qapp, embedded, blend_work, tmp_path_factory):
 
 
 @pytest.fixture
-def reused_window(_reused, qtbot, tmp_path, errors_shown, monkeypatch):
+def reused_window(shared_window, qtbot, tmp_path, errors_shown, monkeypatch):
     """The shared `MainWindow` (see `_ReusedWindow`), as `make_window()` builds one: embedded
     data, default plugins, 1000 x 700, first view complete; the test's own `errors_shown` and
     GLOBEVIEW_CACHE_DIR. After the test it is reset, and must then equal a fresh window in
@@ -266,9 +266,9 @@ def reused_window(_reused, qtbot, tmp_path, errors_shown, monkeypatch):
     that change what a reset cannot put back (settings read at start, plugins failed, the
     window closed), use `make_window`."""
     monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(tmp_path / "cache"))
-    _reused.errors = errors_shown
-    fresh = _reused.win is None
-    win = _reused.get()
+    shared_window.errors = errors_shown
+    fresh = shared_window.win is None
+    win = shared_window.get()
     if fresh:
         qtbot.waitExposed(win)
     qtbot.waitUntil(lambda: win.globe.frames > 0, timeout=20000)
@@ -276,18 +276,24 @@ def reused_window(_reused, qtbot, tmp_path, errors_shown, monkeypatch):
         lambda: win.globe.last_stats is not None and win.globe.last_stats.tiles_loading == 0,
         timeout=30000,
     )
-    _reused.settled()
+    shared_window.settled()
     yield win
     try:
-        _reused.reset(qtbot)
-        left = {k: v for k, v in _view_state(win).items() if v != _reused.fresh[k]}
+        shared_window.reset(qtbot)
+        left = {k: v for k, v in _view_state(win).items() if v != shared_window.fresh[k]}
     except Exception:
-        _reused.discard()
+        shared_window.discard()
         raise
     if left:
-        want = {k: _reused.fresh[k] for k in left}
-        _reused.discard()
+        want = {k: shared_window.fresh[k] for k in left}
+        shared_window.discard()
         pytest.fail(f"the reused window differs from a fresh one after the reset: {left} != {want}")
+
+
+@pytest.fixture
+def view_state():
+    """A function: window -> what the window tests look at (`_view_state`)."""
+    return _view_state
 
 
 def _frame_rgb(window) -> np.ndarray:

@@ -21,8 +21,8 @@ pytestmark = pytest.mark.gui
 DATA = Path(__file__).resolve().parents[2] / "data"
 
 
-def test_tau_set_on_the_model_moves_the_slider(make_window, wait_frame) -> None:
-    win = make_window()
+def test_tau_set_on_the_model_moves_the_slider(reused_window, wait_frame) -> None:
+    win = reused_window
     panel = win.plugin_panel
     win.model.tau_px = 7.3  # PluginPanel subscribes to model.events.tau_px
     assert panel.tau_slider.value() == 73 and panel.tau_label.text() == "7.3 px"
@@ -45,8 +45,8 @@ def test_tau_set_on_the_model_moves_the_slider(make_window, wait_frame) -> None:
     assert win.model.tau_px == pytest.approx(4.5) and win.globe.scene.tau_px == pytest.approx(4.5)
 
 
-def test_tool_set_on_the_model_checks_its_action(make_window, wait_frame) -> None:
-    win = make_window()
+def test_tool_set_on_the_model_checks_its_action(reused_window, wait_frame) -> None:
+    win = reused_window
     act = win.tools.actions["measure"]
     assert not act.isChecked() and win.tools.options.tool_name is None
     win.model.tool = "measure"  # the window subscribes to model.events.tool
@@ -69,8 +69,8 @@ def test_tool_set_on_the_model_checks_its_action(make_window, wait_frame) -> Non
     assert win.globe.last_stats.triangles > 0
 
 
-def test_overlays_changed_on_the_model_are_listed(make_window, wait_frame) -> None:
-    win = make_window()
+def test_overlays_changed_on_the_model_are_listed(reused_window, wait_frame) -> None:
+    win = reused_window
     panel = win.layer_panel.overlays
     assert panel.names() == []
     layers = win.globe.scene.add_embedded_overlays(imagery=True)  # models: no GL context
