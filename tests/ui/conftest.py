@@ -140,6 +140,7 @@ def _view_state(win) -> dict:
         "camera": tuple(round(v, 6) for v in model.camera.lonlat_hpr()),
         "display": repr(model.display),
         "docks": sorted((d.objectName(), d.isVisible()) for d in win.findChildren(QDockWidget)),
+        "plot": win.plot_dock.plot,
         "plugins": [(r.name, r.enabled, r.status, r.error) for r in win.plugins.records()],
         "errors": len(win.errors.history),
         "settings": {k: win.qsettings.value(k) for k in win.qsettings.allKeys()},
@@ -181,7 +182,7 @@ class _ReusedWindow:
     def reset(self, qtbot) -> None:
         """Puts back what a test changed: tool, layers, overlays, camera, LOD, tau, display,
         docks, error history and settings; then waits for a complete frame."""
-        from PyQt6.QtWidgets import QDockWidget
+        from PyQt6.QtWidgets import QApplication, QDockWidget
 
         win, fresh = self.win, self.fresh
         qtbot.waitUntil(lambda: not win.files.loader.busy, timeout=60000)
@@ -212,7 +213,10 @@ class _ReusedWindow:
             win.qsettings.setValue(key, value)
         win.files._update_recent_menu()  # the recent list as the settings now say
         win.statusBar().showMessage(fresh["status"])
+        # Docks shrink back once their contents went (a legend, a plot): then the window can.
+        QApplication.processEvents()
         win.resize(*fresh["size"])
+        qtbot.waitUntil(lambda: (win.width(), win.height()) == fresh["size"], timeout=5000)
         win.activateWindow()
         win.globe.setFocus()
         n = win.globe.frames
@@ -288,6 +292,19 @@ def reused_window(shared_window, qtbot, tmp_path, errors_shown, monkeypatch):
         want = {k: shared_window.fresh[k] for k in left}
         shared_window.discard()
         pytest.fail(f"the reused window differs from a fresh one after the reset: {left} != {want}")
+
+
+@pytest.fixture
+def reused_window_at(reused_window, wait_frame):
+    """A function: camera -> the reused window (`reused_window`) looking through it, its view
+    complete (as `make_window(camera=...)` starts)."""
+
+    def at(camera):
+        reused_window.model.camera = camera
+        wait_frame(reused_window)
+        return reused_window
+
+    return at
 
 
 @pytest.fixture
