@@ -141,6 +141,9 @@ def _view_state(win) -> dict:
         "display": repr(model.display),
         "docks": sorted((d.objectName(), d.isVisible()) for d in win.findChildren(QDockWidget)),
         "plot": win.plot_dock.plot,
+        "tour": (repr(win.tour_panel.tour), win.tour_panel.seconds.value()),
+        "tour_playing": win.tour_panel.playing,
+        "bookmarks": model.bookmarks.names,
         "plugins": [(r.name, r.enabled, r.status, r.error) for r in win.plugins.records()],
         "errors": len(win.errors.history),
         "settings": {k: win.qsettings.value(k) for k in win.qsettings.allKeys()},
@@ -184,10 +187,16 @@ class _ReusedWindow:
         docks, error history and settings; then waits for a complete frame."""
         from PyQt6.QtWidgets import QApplication, QDockWidget
 
+        from globeview.model.tour import Tour
+
         win, fresh = self.win, self.fresh
         qtbot.waitUntil(lambda: not win.files.loader.busy, timeout=60000)
         win.globe.flight.stop()
         win.model.tool = fresh["tool"]
+        win.tour_panel.stop()
+        win.tour_panel.tour = Tour()
+        win.tour_panel.refresh()
+        win.tour_panel.seconds.setValue(fresh["tour"][1])
         names = [name for name, _ in fresh["layers"]]
         for ly in list(win.terrain.layers):
             if ly.name not in names:

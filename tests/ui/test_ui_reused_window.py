@@ -17,7 +17,7 @@ def test_a_reset_window_reads_and_draws_as_a_fresh_one(
 ) -> None:
     win = reused_window
     # What tests change: a tool, tau, display, a layer's visibility and order, a new layer,
-    # overlays, recent files, the camera, a dock, the error history.
+    # overlays, recent files, the camera, a tour, a dock, the error history.
     win.model.tool = "measure"
     win.model.tau_px = 9.0
     win.model.display.wireframe = True
@@ -29,6 +29,8 @@ def test_a_reset_window_reads_and_draws_as_a_fresh_one(
     qtbot.waitUntil(lambda: "hill" in [ly.name for ly in win.terrain.layers], timeout=60000)
     win.globe.scene.add_embedded_overlays(imagery=True)
     win.model.camera = Camera.from_lonlat(-71.3, 44.15, 9000.0)
+    win.tour_panel.add_view()
+    win.tour_panel.seconds.setValue(2.5)
     win.plugin_dock.hide()
     win.errors.notify("a notice")
     wait_frame(win)
