@@ -222,10 +222,14 @@ class _ReusedWindow:
             win.qsettings.setValue(key, value)
         win.files._update_recent_menu()  # the recent list as the settings now say
         win.statusBar().showMessage(fresh["status"])
+
         # Docks shrink back once their contents went (a legend, a plot): then the window can.
-        QApplication.processEvents()
-        win.resize(*fresh["size"])
-        qtbot.waitUntil(lambda: (win.width(), win.height()) == fresh["size"], timeout=5000)
+        def resized() -> bool:
+            QApplication.processEvents()
+            win.resize(*fresh["size"])
+            return (win.width(), win.height()) == fresh["size"]
+
+        qtbot.waitUntil(resized, timeout=5000)
         win.activateWindow()
         win.globe.setFocus()
         n = win.globe.frames
