@@ -54,12 +54,12 @@ def _when_the_dialog_shows(act) -> None:
 
 
 def test_a_dem_without_crs_asks_for_one_and_opens_with_it(
-    make_window, qtbot, tmp_path, errors_shown
+    reused_window, qtbot, tmp_path, errors_shown
 ):
     from globeview.terrain.sources import store_path_for
 
     path = _no_crs_dem(tmp_path / "nocrs_hill.tif")
-    win = make_window()
+    win = reused_window
     seen: dict[str, object] = {}
 
     def answer(dialog) -> None:
@@ -97,10 +97,10 @@ def test_a_dem_without_crs_asks_for_one_and_opens_with_it(
 
 
 def test_cancelling_the_crs_dialog_reports_the_file_in_one_line(
-    make_window, qtbot, tmp_path, errors_shown, wait_frame
+    reused_window, qtbot, tmp_path, errors_shown, wait_frame
 ):
     path = _no_crs_dem(tmp_path / "nocrs_cancel.tif")
-    win = make_window()
+    win = reused_window
     layers = [ly.name for ly in win.terrain.layers]
     n = len(win.errors.history)
     _when_the_dialog_shows(lambda dialog: dialog.reject())

@@ -17,10 +17,10 @@ def magenta_pixels(rgb: np.ndarray) -> int:
     return int(((r > 200) & (g < 90) & (b > 200)).sum())
 
 
-def test_graticule_file_in_the_filter_and_drawn(make_window, frame_rgb, wait_frame, tmp_path):
+def test_graticule_file_in_the_filter_and_drawn(reused_window, frame_rgb, wait_frame, tmp_path):
     from globeview.app.layer_dispatch import overlay_file_filter
 
-    win = make_window()
+    win = reused_window
     assert "*.graticule" in overlay_file_filter(win.plugins.registry)
     wait_frame(win)
     before = magenta_pixels(frame_rgb(win))
@@ -43,8 +43,8 @@ def test_marker_settings_are_window_controls(make_window) -> None:
     assert tool.values["color"] == "cyan" and tool.values["numbered"] is False
 
 
-def test_capped_provider_chosen_in_the_panel_draws(make_window, wait_frame) -> None:
-    win = make_window()
+def test_capped_provider_chosen_in_the_panel_draws(reused_window, wait_frame) -> None:
+    win = reused_window
     panel = win.plugin_panel
     idx = panel.lod_combo.findData("capped-sse")
     assert idx >= 0

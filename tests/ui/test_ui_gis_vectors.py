@@ -61,10 +61,10 @@ def _bands(mask: np.ndarray, half: int = 8) -> tuple[int, int]:
 
 
 def test_geopackage_layer_chosen_in_the_dialog_is_drawn(
-    make_window, frame_rgb, wait_frame, tmp_path
+    reused_window_at, frame_rgb, wait_frame, tmp_path
 ):
     path = _gpkg(tmp_path / "wm.gpkg")
-    win = make_window(camera=Camera.from_lonlat(*VIEW))
+    win = reused_window_at(Camera.from_lonlat(*VIEW))
     asked = []
 
     def ask(parent, name, layers):
@@ -85,9 +85,9 @@ def test_geopackage_layer_chosen_in_the_dialog_is_drawn(
     assert win.layer_panel.overlays.names() == ["wm.gpkg::trails"]
 
 
-def test_colour_by_field_legend_and_width_in_the_layers_dock(make_window, tmp_path):
+def test_colour_by_field_legend_and_width_in_the_layers_dock(reused_window_at, tmp_path):
     path = _gpkg(tmp_path / "wm.gpkg")
-    win = make_window(camera=Camera.from_lonlat(*VIEW))
+    win = reused_window_at(Camera.from_lonlat(*VIEW))
     # The model is the window's: what the API adds (FILE::LAYER, colour by a field) is listed.
     layer = win.files.overlay_host.open(f"{path}::roads", "gis", color_by="kind")
     panel = win.layer_panel.overlays
@@ -105,9 +105,11 @@ def test_colour_by_field_legend_and_width_in_the_layers_dock(make_window, tmp_pa
     assert not panel.legend_label.isVisibleTo(panel) and panel.color_button.isVisibleTo(panel)
 
 
-def test_colour_by_and_label_chosen_in_the_dock_reopen_the_layer_in_its_row(make_window, tmp_path):
+def test_colour_by_and_label_chosen_in_the_dock_reopen_the_layer_in_its_row(
+    reused_window_at, tmp_path
+):
     path = _gpkg(tmp_path / "wm.gpkg")
-    win = make_window(camera=Camera.from_lonlat(*VIEW))
+    win = reused_window_at(Camera.from_lonlat(*VIEW))
     host = win.files.overlay_host
     below = host.open(f"{path}::trails")
     roads = host.open(f"{path}::roads")

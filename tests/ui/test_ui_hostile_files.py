@@ -152,17 +152,17 @@ def _wait_refused(qtbot, win, n_before: int) -> None:
 
 @pytest.mark.parametrize("case", list(BAD_INPUTS))
 def test_bad_input_gives_one_line_and_the_globe_keeps_drawing(
-    case, make_window, errors_shown, wait_frame, qtbot, tmp_path, capfd
+    case, reused_window, errors_shown, wait_frame, qtbot, tmp_path, capfd, monkeypatch
 ):
     inputs = tmp_path / "inputs"
     inputs.mkdir()
     path = BAD_INPUTS[case](inputs)
     user_files = _snapshot(inputs)
-    win = make_window()
+    win = reused_window  # one window refuses every bad input in turn and keeps drawing
     # A file without a CRS makes the window ask for one (tests/ui/test_ui_crs_dialog.py);
     # here the user cancels, and the file's one line is reported as for any bad input.
     asked: list[str] = []
-    win.files.loader.ask_crs = lambda p, _exc: asked.append(p)
+    monkeypatch.setattr(win.files.loader, "ask_crs", lambda p, _exc: asked.append(p))
     capfd.readouterr()  # start of the part under test
     n_msgs, n_frames = len(win.errors.history), win.globe.frames
     layers = [ly.name for ly in win.terrain.layers]
@@ -192,9 +192,9 @@ def test_bad_input_gives_one_line_and_the_globe_keeps_drawing(
     assert "Traceback" not in err, err
 
 
-def test_unicode_path_dem_opens(make_window, qtbot, tmp_path, errors_shown):
+def test_unicode_path_dem_opens(reused_window, qtbot, tmp_path, errors_shown):
     path = _write_tif(tmp_path / "Zürich_高度_💥.tif", _hill())
-    win = make_window()
+    win = reused_window
     win.files.open_paths([str(path)])
     qtbot.waitUntil(
         lambda: path.stem in [ly.name for ly in win.terrain.layers], timeout=REFUSE_TIMEOUT_MS
@@ -296,12 +296,12 @@ BAD_OVERLAYS: dict[str, Callable[[Path], Path]] = {
 
 @pytest.mark.parametrize("case", list(BAD_OVERLAYS))
 def test_bad_overlay_gives_one_line_and_the_globe_keeps_drawing(
-    case, make_window, errors_shown, wait_frame, tmp_path, capfd
+    case, reused_window, errors_shown, wait_frame, tmp_path, capfd
 ):
     inputs = tmp_path / "inputs"
     inputs.mkdir()
     path = BAD_OVERLAYS[case](inputs)
-    win = make_window()
+    win = reused_window
     capfd.readouterr()
     n_msgs, overlays = len(win.errors.history), list(win.overlay_layers())
     assert win.files.open_overlays([str(path)]) == []
@@ -317,8 +317,8 @@ def test_bad_overlay_gives_one_line_and_the_globe_keeps_drawing(
     assert "Traceback" not in capfd.readouterr().err
 
 
-def test_export_to_an_unwritable_path_is_one_line(make_window, errors_shown, tmp_path):
-    win = make_window()
+def test_export_to_an_unwritable_path_is_one_line(reused_window, errors_shown, tmp_path):
+    win = reused_window
     folder = tmp_path / "taken.png"
     folder.mkdir()  # a folder where the image should go
     for target in (folder, tmp_path / "no_such_dir" / "x.png"):
@@ -352,9 +352,11 @@ def test_huge_overlay_raster_drapes_in_bounded_memory(tmp_path):
     assert proc.returncode == 0 and proc.stdout.strip() == "ok", proc.stderr[-2000:]
 
 
-def test_huge_overlay_in_the_window_keeps_drawing(make_window, errors_shown, wait_frame, tmp_path):
+def test_huge_overlay_in_the_window_keeps_drawing(
+    reused_window, errors_shown, wait_frame, tmp_path
+):
     path = _vrt(tmp_path / "huge_overlay.vrt", 2_000_000, 1_000_000, None)
-    win = make_window()
+    win = reused_window
     n = len(win.errors.history)
     layers = win.files.open_overlays([str(path)])
     assert len(layers) == 1
@@ -365,14 +367,15 @@ def test_huge_overlay_in_the_window_keeps_drawing(make_window, errors_shown, wai
 
 
 def test_a_drop_of_bad_and_good_files_reports_the_bad_and_opens_the_good(
-    make_window, errors_shown, qtbot, tmp_path
+    reused_window, errors_shown, qtbot, tmp_path, monkeypatch
 ):
     bad = _write_tif(tmp_path / "nocrs.tif", _hill(), crs=None)
     good = _write_tif(tmp_path / "good.tif", _hill())
     empty = tmp_path / "empty.tif"
     empty.write_bytes(b"")
-    win = make_window()
-    win.files.loader.ask_crs = lambda _p, _exc: None  # asked for nocrs.tif's CRS, the user cancels
+    win = reused_window
+    # Asked for nocrs.tif's CRS, the user cancels.
+    monkeypatch.setattr(win.files.loader, "ask_crs", lambda _p, _exc: None)
     win.files.open_paths([str(empty), str(bad), str(good)])
     qtbot.waitUntil(lambda: "good" in [ly.name for ly in win.terrain.layers], timeout=60000)
     qtbot.waitUntil(lambda: not win.files.loader.busy, timeout=60000)
@@ -381,9 +384,9 @@ def test_a_drop_of_bad_and_good_files_reports_the_bad_and_opens_the_good(
     assert win.files.recent_files()[0] == str(good)
 
 
-def test_a_recent_file_deleted_since_is_one_line(make_window, errors_shown, qtbot, tmp_path):
+def test_a_recent_file_deleted_since_is_one_line(reused_window, errors_shown, qtbot, tmp_path):
     good = _write_tif(tmp_path / "gone_later.tif", _hill())
-    win = make_window()
+    win = reused_window
     win.files.open_paths([str(good)])
     qtbot.waitUntil(
         lambda: not win.files.loader.busy and bool(win.files.recent_files()), timeout=60000

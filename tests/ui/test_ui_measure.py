@@ -46,8 +46,8 @@ def curve_pixels(dock) -> int:
     return int((np.abs(rgb - np.array(CURVE_RGB)).max(axis=2) < 40).sum())
 
 
-def measured_window(make_window, qtbot, wait_frame):
-    win = make_window(camera=Camera.from_lonlat(*VIEW))
+def measured_window(reused_window_at, qtbot, wait_frame):
+    win = reused_window_at(Camera.from_lonlat(*VIEW))
     g = win.globe
     assert not win.plot_dock.isVisible() and win.plot_dock.plot is None
     win.tools.actions["measure"].trigger()
@@ -60,9 +60,9 @@ def measured_window(make_window, qtbot, wait_frame):
 
 
 def test_two_clicks_show_the_profile_and_export_it(
-    make_window, qtbot, wait_frame, tmp_path: Path, errors_shown
+    reused_window_at, qtbot, wait_frame, tmp_path: Path, errors_shown
 ) -> None:
-    win = measured_window(make_window, qtbot, wait_frame)
+    win = measured_window(reused_window_at, qtbot, wait_frame)
     tool = win.globe.active_tool()
     m = tool.measurement
     # The picks landed where clicked (a pixel at 60 km is tens of metres).
@@ -97,13 +97,13 @@ def test_two_clicks_show_the_profile_and_export_it(
 
 
 def test_export_button_asks_for_a_file_and_writes_it(
-    make_window, qtbot, wait_frame, tmp_path: Path, errors_shown
+    reused_window_at, qtbot, wait_frame, tmp_path: Path, errors_shown
 ) -> None:
     """The real path: the dock's button, Qt's save dialog (answered like a user), the file."""
     from PyQt6.QtCore import QTimer
     from PyQt6.QtWidgets import QApplication, QDialogButtonBox, QFileDialog, QLineEdit
 
-    win = measured_window(make_window, qtbot, wait_frame)
+    win = measured_window(reused_window_at, qtbot, wait_frame)
     target = tmp_path / "via-dialog.csv"
     seen: list[str] = []
 
@@ -124,10 +124,12 @@ def test_export_button_asks_for_a_file_and_writes_it(
     assert header == "distance_m,lon,lat,height_m" and errors_shown == []
 
 
-def test_settings_in_the_tool_options_bar_redraw_the_plot(make_window, qtbot, wait_frame) -> None:
+def test_settings_in_the_tool_options_bar_redraw_the_plot(
+    reused_window_at, qtbot, wait_frame
+) -> None:
     """The measure tool's Settings become controls (the window's generic path); editing
     them changes the published plot, which the dock then shows."""
-    win = measured_window(make_window, qtbot, wait_frame)
+    win = measured_window(reused_window_at, qtbot, wait_frame)
     editors = win.tools.options.editors
     assert set(editors) == {"samples", "units", "show_chord"}
     first = win.plot_dock.plot
@@ -143,9 +145,9 @@ def test_settings_in_the_tool_options_bar_redraw_the_plot(make_window, qtbot, wa
 
 
 def test_failed_export_is_a_one_line_dialog_and_writes_nothing(
-    make_window, qtbot, wait_frame, tmp_path: Path, errors_shown, monkeypatch
+    reused_window_at, qtbot, wait_frame, tmp_path: Path, errors_shown, monkeypatch
 ) -> None:
-    win = measured_window(make_window, qtbot, wait_frame)
+    win = measured_window(reused_window_at, qtbot, wait_frame)
     folder = tmp_path / "out"
     folder.mkdir()
     target = folder / "profile.csv"
@@ -168,7 +170,8 @@ def test_failed_export_is_a_one_line_dialog_and_writes_nothing(
 def test_a_tool_returning_garbage_for_its_plot_is_failed_not_fatal(
     make_window, qtbot, wait_frame, errors_shown
 ) -> None:
-    win = measured_window(make_window, qtbot, wait_frame)
+    # A window of its own: the failed plugin stays failed for the session.
+    win = measured_window(lambda camera: make_window(camera=camera), qtbot, wait_frame)
     tool = win.globe.active_tool()
     tool.plot = lambda: "not a plot"  # a buggy tool (the instance's plot, not the class's)
     wait_frame(win)
@@ -219,13 +222,13 @@ def test_tick_labels(lo: float, hi: float, labels: list[str]) -> None:
 
 
 def test_a_plot_whose_table_raises_is_a_one_line_export_error(
-    make_window, qtbot, wait_frame, tmp_path: Path, errors_shown
+    reused_window_at, qtbot, wait_frame, tmp_path: Path, errors_shown
 ) -> None:
     # A plugin's Plot subclass may override table()/csv_text(): its bug must not reach the
     # window's internal-error handler.
     from globeview.plugins.api import Plot
 
-    win = measured_window(make_window, qtbot, wait_frame)
+    win = measured_window(reused_window_at, qtbot, wait_frame)
 
     class Broken(Plot):
         def csv_text(self) -> str:

@@ -21,8 +21,8 @@ pytestmark = pytest.mark.gui
 DATA = Path(__file__).resolve().parents[2] / "data"
 
 
-def test_tau_set_on_the_model_moves_the_slider(make_window, wait_frame) -> None:
-    win = make_window()
+def test_tau_set_on_the_model_moves_the_slider(reused_window, wait_frame) -> None:
+    win = reused_window
     panel = win.plugin_panel
     win.model.tau_px = 7.3  # PluginPanel subscribes to model.events.tau_px
     assert panel.tau_slider.value() == 73 and panel.tau_label.text() == "7.3 px"
@@ -45,8 +45,8 @@ def test_tau_set_on_the_model_moves_the_slider(make_window, wait_frame) -> None:
     assert win.model.tau_px == pytest.approx(4.5) and win.globe.scene.tau_px == pytest.approx(4.5)
 
 
-def test_tool_set_on_the_model_checks_its_action(make_window, wait_frame) -> None:
-    win = make_window()
+def test_tool_set_on_the_model_checks_its_action(reused_window, wait_frame) -> None:
+    win = reused_window
     act = win.tools.actions["measure"]
     assert not act.isChecked() and win.tools.options.tool_name is None
     win.model.tool = "measure"  # the window subscribes to model.events.tool
@@ -69,8 +69,8 @@ def test_tool_set_on_the_model_checks_its_action(make_window, wait_frame) -> Non
     assert win.globe.last_stats.triangles > 0
 
 
-def test_overlays_changed_on_the_model_are_listed(make_window, wait_frame) -> None:
-    win = make_window()
+def test_overlays_changed_on_the_model_are_listed(reused_window, wait_frame) -> None:
+    win = reused_window
     panel = win.layer_panel.overlays
     assert panel.names() == []
     layers = win.globe.scene.add_embedded_overlays(imagery=True)  # models: no GL context
@@ -86,11 +86,12 @@ def test_overlays_changed_on_the_model_are_listed(make_window, wait_frame) -> No
     assert win.globe.last_stats.triangles > 0
 
 
-def test_overlay_setters_called_from_code_show_in_the_panel(make_window, wait_frame) -> None:
+def test_overlay_setters_called_from_code_show_in_the_panel(reused_window, wait_frame) -> None:
     """A script or plugin calling a layer's setters: the layer announces the change (the
     Globe's overlays event), so the panel follows without anyone announcing by hand; an edit
     in the panel is one event."""
-    win = make_window(embedded_overlays=True)
+    win = reused_window
+    win.files.open_embedded_overlays()  # as embedded_overlays=True opens them
     panel = win.layer_panel.overlays
     borders, marble = panel.layer_at(0), panel.layer_at(1)
     assert panel.list.item(1).checkState() == Qt.CheckState.Unchecked
@@ -113,12 +114,13 @@ def test_overlay_setters_called_from_code_show_in_the_panel(make_window, wait_fr
 
 
 def test_changing_the_model_from_the_window_makes_no_context_current(
-    make_window, wait_frame, monkeypatch
+    reused_window, wait_frame, monkeypatch
 ) -> None:
     """Tools, overlays (open, hide, restyle, reorder, remove), tau, LOD and display settings
     change the model only; GPU objects follow at the next frame, which Qt draws with its
     own context current."""
-    win = make_window(embedded_overlays=True)
+    win = reused_window
+    win.files.open_embedded_overlays()  # as embedded_overlays=True opens them
     calls = []
     real = win.globe.makeCurrent
     monkeypatch.setattr(win.globe, "makeCurrent", lambda: (calls.append(1), real())[1])

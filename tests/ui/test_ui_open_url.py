@@ -46,8 +46,8 @@ def test_dialog_says_what_is_wrong_and_enables_ok_only_for_a_store_url(qtbot):
         ("https://user:secret@127.0.0.1/store", "passwords"),
     ],
 )
-def test_unreadable_urls_are_one_line_and_open_nothing(make_window, errors_shown, url, needle):
-    win = make_window()
+def test_unreadable_urls_are_one_line_and_open_nothing(reused_window, errors_shown, url, needle):
+    win = reused_window
     layers = [ly.name for ly in win.terrain.layers]
     n = len(win.errors.history)
     assert win.files.open_url(url) is False
@@ -60,24 +60,26 @@ def test_unreadable_urls_are_one_line_and_open_nothing(make_window, errors_shown
     assert not any(f == url for f in win.files.recent_files())
 
 
-def test_menu_asks_for_the_url_with_the_last_one_filled_in(make_window, monkeypatch):
-    win = make_window()
+def test_menu_asks_for_the_url_with_the_last_one_filled_in(reused_window, monkeypatch):
+    win = reused_window
     asked: list[str] = []
     opened: list[str] = []
-    win.files.ask_url = lambda parent, initial: asked.append(initial) or None  # cancelled
+    # The user cancels the dialog:
+    monkeypatch.setattr(win.files, "ask_url", lambda _parent, initial: asked.append(initial))
     monkeypatch.setattr(win.files, "open_url", opened.append)
     win.files.open_url_action.trigger()
     assert asked == [""] and opened == []
     win.files.add_recent("https://example.org/a/store")
     win.files.add_recent(__file__)  # a file since: the URL is still the one offered
-    win.files.ask_url = lambda parent, initial: asked.append(initial) or "https://example.org/b"
+    offer = "https://example.org/b"
+    monkeypatch.setattr(win.files, "ask_url", lambda _p, initial: asked.append(initial) or offer)
     win.files.open_url_action.trigger()
     assert asked[-1] == "https://example.org/a/store"
     assert opened == ["https://example.org/b"]
 
 
-def test_recent_urls_are_kept_as_urls_and_reopen_by_url(make_window, monkeypatch):
-    win = make_window()
+def test_recent_urls_are_kept_as_urls_and_reopen_by_url(reused_window, monkeypatch):
+    win = reused_window
     url = "https://example.org/globe%20data/store"
     win.files.add_recent(url)
     assert win.files.recent_files()[0] == url  # not made into a local path

@@ -62,8 +62,9 @@ def test_embedded_borders_drawn_at_start_and_hidden(make_window, frame_rgb, redr
     assert border_pixels(frame_rgb(win)) > 30
 
 
-def test_blue_marble_shows_and_opacity_blends(make_window, frame_rgb, redraw):
-    win = make_window(embedded_overlays=True)
+def test_blue_marble_shows_and_opacity_blends(reused_window, frame_rgb, redraw):
+    win = reused_window
+    win.files.open_embedded_overlays()  # as embedded_overlays=True opens them
     panel = win.layer_panel.overlays
     panel.set_visible(panel.find(BORDERS), False)
     redraw(win)
@@ -88,8 +89,8 @@ def test_blue_marble_shows_and_opacity_blends(make_window, frame_rgb, redraw):
     assert 0.05 * full_to_relief < to_relief < 0.6 * full_to_relief
 
 
-def test_open_cities_adds_points_layer_with_placemarks(make_window, frame_rgb, redraw):
-    win = make_window()
+def test_open_cities_adds_points_layer_with_placemarks(reused_window, frame_rgb, redraw):
+    win = reused_window
     redraw(win)
     before = placemark_pixels(frame_rgb(win))
     added = win.files.open_overlays([str(ROOT / "data" / "ne_cities.geojson")])  # the dialog's path
@@ -107,8 +108,9 @@ def test_open_cities_adds_points_layer_with_placemarks(make_window, frame_rgb, r
     assert placemark_pixels(frame_rgb(win)) > after * 1.5
 
 
-def test_broken_geojson_reports_and_changes_nothing(make_window, errors_shown, tmp_path):
-    win = make_window(embedded_overlays=True)
+def test_broken_geojson_reports_and_changes_nothing(reused_window, errors_shown, tmp_path):
+    win = reused_window
+    win.files.open_embedded_overlays()  # as embedded_overlays=True opens them
     names = win.layer_panel.overlays.names()
     layers = list(win.overlay_layers())
     bad = tmp_path / "broken.geojson"
@@ -126,8 +128,9 @@ def test_broken_geojson_reports_and_changes_nothing(make_window, errors_shown, t
     assert win.globe.frames > 0 and win.last_error() is not None
 
 
-def test_vector_style_order_and_remove(make_window, frame_rgb, redraw):
-    win = make_window(embedded_overlays=True)
+def test_vector_style_order_and_remove(reused_window, frame_rgb, redraw):
+    win = reused_window
+    win.files.open_embedded_overlays()  # as embedded_overlays=True opens them
     panel = win.layer_panel.overlays
     borders = panel.find(BORDERS)
     panel.select(borders)

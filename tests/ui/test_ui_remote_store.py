@@ -210,7 +210,7 @@ def _closed_port() -> int:
     ],
 )
 def test_unreachable_or_bad_stores_are_one_line(
-    make_window, served, qtbot, errors_shown, wait_frame, where, needle
+    reused_window, served, qtbot, errors_shown, wait_frame, where, needle
 ):
     served.clear_faults()
     url = (
@@ -218,7 +218,7 @@ def test_unreachable_or_bad_stores_are_one_line(
         if where == "closed port"
         else f"{served.url}/{where}"
     )
-    win = make_window()
+    win = reused_window
     layers = [ly.name for ly in win.terrain.layers]
     n = len(win.errors.history)
     assert win.files.open_url(url)

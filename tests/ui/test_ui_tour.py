@@ -23,9 +23,9 @@ def frame_count(path) -> tuple[tuple[int, int], int]:
 
 
 @pytest.fixture
-def recorded(make_window):
+def recorded(reused_window):
     """(window, panel) with two keyframes recorded: A, then B reached in 1 s."""
-    win = make_window()
+    win = reused_window
     panel = win.tour_panel
     win.model.camera = Camera.from_lonlat(*A)
     panel.add_view()

@@ -31,8 +31,8 @@ def test_window_opens_with_embedded_globe(make_window, frame_rgb):
     assert "tris" in win.status.triangles.text() and win.status.triangles.text() != "0 tris"
 
 
-def test_hiding_a_layer_changes_stack_and_image(make_window, frame_rgb, wait_frame):
-    win = make_window()
+def test_hiding_a_layer_changes_stack_and_image(reused_window, frame_rgb, wait_frame):
+    win = reused_window
     before = frame_rgb(win)
     win.layer_panel.set_visible("etopo20", False)
     assert not next(ly for ly in win.terrain.layers if ly.name == "etopo20").visible
@@ -43,8 +43,8 @@ def test_hiding_a_layer_changes_stack_and_image(make_window, frame_rgb, wait_fra
     assert next(ly for ly in win.terrain.layers if ly.name == "etopo20").visible
 
 
-def test_layer_order_buttons_move_layers(make_window):
-    win = make_window()
+def test_layer_order_buttons_move_layers(reused_window):
+    win = reused_window
     panel = win.layer_panel
     panel.select("etopo20")
     panel.move_selected(-1)  # up one row: drawn after N44W072
@@ -53,8 +53,8 @@ def test_layer_order_buttons_move_layers(make_window):
     assert panel.names()[-2] == "etopo20"
 
 
-def test_opening_a_file_adds_a_layer_and_flies_there(make_window, small_dem, qtbot):
-    win = make_window()
+def test_opening_a_file_adds_a_layer_and_flies_there(reused_window, small_dem, qtbot):
+    win = reused_window
     win.files.open_paths([str(small_dem)])  # the path File > Open and drag-and-drop take
     qtbot.waitUntil(lambda: "hill" in [ly.name for ly in win.terrain.layers], timeout=60000)
     assert win.layer_panel.names()[0] == "hill"  # new layers go on top
@@ -66,8 +66,8 @@ def test_opening_a_file_adds_a_layer_and_flies_there(make_window, small_dem, qtb
     qtbot.waitUntil(lambda: win.files.load_bar.isHidden(), timeout=5000)
 
 
-def test_left_drag_keeps_the_grabbed_point_under_the_cursor(make_window, qtbot, wait_frame):
-    win = make_window()
+def test_left_drag_keeps_the_grabbed_point_under_the_cursor(reused_window, qtbot, wait_frame):
+    win = reused_window
     g = win.globe
     start = centre(win)
     end = start + QPoint(80, 40)
@@ -85,8 +85,8 @@ def test_left_drag_keeps_the_grabbed_point_under_the_cursor(make_window, qtbot, 
     assert abs(now.lon - grabbed.lon) < 0.5 and abs(now.lat - grabbed.lat) < 0.5
 
 
-def test_wheel_zooms_and_keys_fly(make_window, qtbot):
-    win = make_window()
+def test_wheel_zooms_and_keys_fly(reused_window, qtbot):
+    win = reused_window
     g = win.globe
     h0 = g.camera.height
     qtbot.wait(1)
@@ -114,8 +114,8 @@ def test_status_bar_shows_lonlat_under_the_cursor(make_window, qtbot, frame_rgb,
     assert ((rgb[..., 2] > rgb[..., 0] + 40) & (rgb[..., 2] > rgb[..., 1] + 10)).sum() > 2000
 
 
-def test_go_to_flies_the_camera(make_window, qtbot):
-    win = make_window()
+def test_go_to_flies_the_camera(reused_window, qtbot):
+    win = reused_window
     assert not win.view_bar.go_to("not a place")
     assert "go to" in win.statusBar().currentMessage()
     assert win.view_bar.go_to("-123.1, 49.3, 80000")
@@ -125,8 +125,8 @@ def test_go_to_flies_the_camera(make_window, qtbot):
     assert abs(lon + 123.1) < 1e-6 and abs(lat - 49.3) < 1e-6 and abs(h - 80000) < 1.0
 
 
-def test_go_to_takes_a_heading_and_pitch_and_refuses_bad_ones(make_window, qtbot):
-    win = make_window()
+def test_go_to_takes_a_heading_and_pitch_and_refuses_bad_ones(reused_window, qtbot):
+    win = reused_window
     for bad in ("-71.3, 44.15, 9000, 0", "-71.3, 44.15, 9000, 0, -95", "1, 2, nan", "1, 2, 1e12"):
         assert not win.view_bar.go_to(bad), bad
         assert "go to" in win.statusBar().currentMessage()
@@ -187,9 +187,9 @@ def test_status_bar_says_loading_n_tiles_while_tiles_load_then_clears(make_windo
 
 
 def test_bad_file_shows_an_error_and_the_window_keeps_working(
-    make_window, tmp_path, qtbot, errors_shown, wait_frame
+    reused_window, tmp_path, qtbot, errors_shown, wait_frame
 ):
-    win = make_window()
+    win = reused_window
     bad = tmp_path / "broken.tif"
     bad.write_bytes(b"this is not a GeoTIFF")
     n_layers = len(win.terrain.layers)
@@ -203,8 +203,8 @@ def test_bad_file_shows_an_error_and_the_window_keeps_working(
     assert win.globe.last_stats.triangles > 0
 
 
-def test_display_toggles_and_export(make_window, tmp_path, frame_rgb, wait_frame):
-    win = make_window()
+def test_display_toggles_and_export(reused_window, tmp_path, frame_rgb, wait_frame):
+    win = reused_window
     before = frame_rgb(win)
     win.view_bar.wire_check.setChecked(True)
     assert win.globe.settings.wireframe
