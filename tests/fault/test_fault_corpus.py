@@ -1,6 +1,6 @@
 """Issue #13, fault injection: every corpus input through `globeview info`, `ingest` and
-`render` as real subprocesses; outputs into a foreign folder, full and read-only disks, and
-kill -9 during an ingest.
+`render` as real processes (`contract.run_globeview`); outputs into a foreign folder, full and
+read-only disks, and kill -9 during an ingest.
 
 The contract: the exit status the case expects; on failure exactly one stderr line
 ``globeview: error: ...`` (no traceback, no GDAL/PROJ chatter); no leftovers (``*.tmp``,
@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import zygote
 from PIL import Image
 
 from .contract import (
@@ -457,7 +458,7 @@ def test_ingest_killed_then_rerun(work, seed: int, when: str) -> None:
         extra = ["--force"]
     env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(work.cache)}
     argv = [*globeview_argv(), "ingest", str(src), "--out", str(out), "--quiet", *extra]
-    proc = subprocess.Popen(
+    proc = zygote.popen(
         argv, cwd=work.cwd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
     )
     try:
@@ -488,9 +489,7 @@ def test_ingest_interrupted_by_ctrl_c(work, seed: int) -> None:
     out = work.cwd / "store"
     env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(work.cache)}
     argv = [*globeview_argv(), "ingest", str(DATA / "N44W072.hgt"), "--out", str(out)]
-    proc = subprocess.Popen(
-        argv, cwd=work.cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE
-    )
+    proc = zygote.popen(argv, cwd=work.cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     _wait_for_work_folder(work.cwd, proc)
     time.sleep(random.Random(seed).uniform(0.0, 0.5))
     if proc.poll() is not None:
@@ -517,7 +516,7 @@ def test_render_killed_while_ingesting_then_rerun(work, seed: int) -> None:
     png = work.cwd / "x.png"
     args = ["render", str(DATA / "N44W072.hgt"), "--out", str(png), "--size", SIZE]
     env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(work.cache)}
-    proc = subprocess.Popen(
+    proc = zygote.popen(
         [*globeview_argv(), *args],
         cwd=work.cwd,
         env=env,
