@@ -21,6 +21,8 @@ import zygote
 from fault.corpus import ALPS, plateau, write_raster
 from PIL import Image
 
+from globeview.app.testing import PluginSite, plugin_manifest
+
 pytestmark = pytest.mark.slow  # each case starts a plain `globeview` too (~1 CPU-s)
 
 REPO = Path(__file__).resolve().parent.parent
@@ -146,11 +148,33 @@ def test_what_cannot_be_forked_is_a_plain_subprocess(
     argv = [SCRIPT, "--version"]
     assert zygote.forkable(argv, env)
     assert zygote.forkable(argv, {**env, "GLOBEVIEW_CONFIG_DIR": str(tmp_path)})
-    assert not zygote.forkable(argv, {**env, "PYTHONPATH": str(tmp_path)})  # sys.path
+    assert zygote.forkable(argv, {**env, "PYTHONPATH": str(tmp_path)})  # put on sys.path
     assert not zygote.forkable(argv, {**env, "LC_ALL": "C.UTF-8"})  # the streams' encoding
     assert not zygote.forkable(argv, {**env, "GDAL_DATA": str(tmp_path)})  # read at import
+    assert not zygote.forkable(argv, {**env, "PYTHONSAFEPATH": "1"})  # the start's sys.path
     assert not zygote.forkable([sys.executable, "-c", "pass"], env)
     monkeypatch.setenv(zygote.SWITCH, "0")
     assert not zygote.forkable(argv, {**env, zygote.SWITCH: "0"})
     res = zygote.run(argv, capture_output=True, text=True, env=env)
     assert res.returncode == 0 and res.stdout.startswith("globeview "), res
+
+
+def test_a_plugin_on_pythonpath_is_found_as_by_a_plain_subprocess(
+    tmp_path: Path, plugin_site: PluginSite
+) -> None:
+    """PYTHONPATH's folders go on the forked command's sys.path as a fresh interpreter puts
+    them: an installed plugin there (a dist-info and its entry point) is listed the same."""
+    manifest = plugin_manifest("gvt-zygote-probe", "gvt_zygote_probe")
+    plugin_site.add("gvt_zygote_probe", manifest, {"impl": "class Provider:\n    pass\n"})
+    env = {**_env(tmp_path), "PYTHONPATH": f"{plugin_site.root}{os.pathsep}"}
+    env["GLOBEVIEW_CONFIG_DIR"] = str(tmp_path / "config")
+    argv = [SCRIPT, "plugins", "list"]
+    plain = subprocess.run(argv, capture_output=True, text=True, env=env, cwd=tmp_path)
+    assert zygote.forkable(argv, env)
+    forked = zygote.run(argv, capture_output=True, text=True, env=env, cwd=tmp_path)
+    assert "gvt-zygote-probe" in plain.stdout, plain.stdout + plain.stderr
+    assert (forked.returncode, forked.stdout, forked.stderr) == (
+        plain.returncode,
+        plain.stdout,
+        plain.stderr,
+    )

@@ -46,10 +46,12 @@ SERVER = Path(__file__).with_name("zygote_server.py")
 CONSOLE_SCRIPT = Path(sys.executable).with_name("globeview")
 START_TIMEOUT_S = 120.0
 # Variables a command may see set differently from this process: each read when the command
-# runs (globeview's settings, Qt's and the display's, the home and XDG folders, pytest's
-# bookkeeping), never while the server imports.
+# runs (globeview's settings, the test plugins' GVT_*, Qt's and the display's, the home and XDG
+# folders, pytest's bookkeeping), never while the server imports; and PYTHONPATH where the
+# server has none (the child puts its folders on sys.path as the interpreter's start would).
 _MAY_DIFFER = re.compile(
-    r"(GLOBEVIEW_\w+|DISPLAY|WAYLAND_DISPLAY|QT_QPA_PLATFORM|XDG_\w+|HOME|PYTEST_\w+|COLUMNS)"
+    r"(GLOBEVIEW_\w+|GVT_\w+|DISPLAY|WAYLAND_DISPLAY|QT_QPA_PLATFORM|XDG_\w+|HOME|PYTEST_\w+"
+    r"|COLUMNS)"
 )
 
 _File = int | IO[Any] | None
@@ -127,6 +129,8 @@ def forkable(argv: Sequence[str], env: Mapping[str, str] | None) -> bool:
     base = _server.env if _server is not None else dict(os.environ)
     wanted = dict(os.environ if env is None else env)
     differ = {k for k in base.keys() | wanted.keys() if base.get(k) != wanted.get(k)}
+    if "PYTHONPATH" not in base:
+        differ.discard("PYTHONPATH")
     return all(_MAY_DIFFER.fullmatch(name) for name in differ)
 
 

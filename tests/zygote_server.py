@@ -208,6 +208,7 @@ def become(request: Request, warning_filters: list[Any], root_handlers: list[Any
         os.dup2(fd, target)
         os.close(fd)
     os.chdir(request.cwd)
+    _python_path(request.env.get("PYTHONPATH"))
     os.environ.clear()
     os.environ.update(request.env)
     sys.stdin = _stream(0, sys.stdin)
@@ -222,6 +223,39 @@ def become(request: Request, warning_filters: list[Any], root_handlers: list[Any
     mp_process = sys.modules.get("multiprocessing.process")
     if mp_process is not None:
         mp_process.ORIGINAL_DIR = request.cwd  # type: ignore[attr-defined]
+
+
+def _python_path(value: str | None) -> None:
+    """Put PYTHONPATH's folders where the interpreter's start puts them (after the script's
+    folder, each made absolute, an empty entry the working folder). The client forks only where
+    the server started without one. A folder providing a module this server has imported from
+    elsewhere would shadow it in a fresh process, not here: that ends the command (exit 3)."""
+    import importlib
+
+    if not value:
+        return
+    entries = [os.path.abspath(p) for p in value.split(os.pathsep)]
+    for entry in entries:
+        clash = _shadowed(entry)
+        if clash:
+            sys.stderr.write(f"zygote: {clash} would shadow a loaded module; GV_TEST_ZYGOTE=0\n")
+            os._exit(3)
+    sys.path[1:1] = entries
+    importlib.invalidate_caches()
+
+
+def _shadowed(entry: str) -> str | None:
+    """A path in folder ``entry`` that provides a module already loaded from another place."""
+    names = os.listdir(entry) if os.path.isdir(entry) else []
+    for name in names:
+        module = sys.modules.get(name.split(".")[0])
+        if module is None or name.endswith((".dist-info", ".egg-info", ".pth")):
+            continue
+        path = os.path.join(entry, name)
+        loaded = [*getattr(module, "__path__", []), getattr(module, "__file__", None)]
+        if path not in loaded:
+            return path
+    return None
 
 
 def _stream(fd: int, like: Any) -> Any:
