@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 import random
+import shutil
 import signal
 import subprocess
 import time
@@ -36,6 +37,7 @@ from .contract import (
     globeview_argv,
     leftovers,
     remount_readonly,
+    run_globeview,
     terrain_kind,
     tree_digest,
     valid_looking_stores,
@@ -443,8 +445,20 @@ def _wait_for_work_folder(parent: Path, proc: subprocess.Popen, limit_s: float =
         time.sleep(0.005)
 
 
+@pytest.fixture(scope="module")
+def complete_store(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A complete store of N44W072.hgt, ingested once for the cases that replace one (each
+    works on a copy)."""
+    folder = tmp_path_factory.mktemp("complete")
+    (folder / "cache").mkdir()
+    out = folder / "store"
+    cmd = ["ingest", str(DATA / "N44W072.hgt"), "--out", str(out), "--quiet"]
+    assert_quiet_success(run_globeview(cmd, folder, folder / "cache"))
+    return out
+
+
 @pytest.mark.parametrize(("seed", "when"), KILL_CASES)
-def test_ingest_killed_then_rerun(work, seed: int, when: str) -> None:
+def test_ingest_killed_then_rerun(work, seed: int, when: str, request) -> None:
     """SIGKILL at a seeded random moment of an ingest, then the same ingest again: exit 0, a
     store that opens, and nothing left of the killed run."""
     from globeview.terrain.store.tile_store import TileStore
@@ -454,7 +468,8 @@ def test_ingest_killed_then_rerun(work, seed: int, when: str) -> None:
     rng = random.Random(seed)
     extra = []
     if when == "replace":
-        assert_quiet_success(work.run("ingest", str(src), "--out", str(out), "--quiet"))
+        shutil.copytree(request.getfixturevalue("complete_store"), out, symlinks=True)
+        assert (out / "manifest.json").is_file()
         extra = ["--force"]
     env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(work.cache)}
     argv = [*globeview_argv(), "ingest", str(src), "--out", str(out), "--quiet", *extra]
