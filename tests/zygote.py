@@ -105,6 +105,15 @@ class _Server:
 _server: _Server | None = None
 
 
+def close() -> None:
+    """End this process's server (tests/conftest.py, when the session ends): its own CPU then
+    counts among this process's children."""
+    global _server
+    if _server is not None:
+        _server.close()
+        _server = None
+
+
 def _the_server() -> _Server:
     global _server
     if _server is None:
