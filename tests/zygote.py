@@ -44,7 +44,7 @@ from typing import IO, Any
 SWITCH = "GV_TEST_ZYGOTE"
 SERVER = Path(__file__).with_name("zygote_server.py")
 CONSOLE_SCRIPT = Path(sys.executable).with_name("globeview")
-START_TIMEOUT_S = 120.0
+START_TIMEOUT_S = 300.0  # wall seconds for its imports (~1.4 CPU-s) on a loaded machine
 # Variables a command may see set differently from this process: each read when the command
 # runs (globeview's settings, the test plugins' GVT_*, Qt's and the display's, the home and XDG
 # folders, pytest's bookkeeping), never while the server imports; and PYTHONPATH where the
