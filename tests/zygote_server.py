@@ -214,9 +214,9 @@ def become(request: Request, warning_filters: list[Any], root_handlers: list[Any
     sys.stdin = _stream(0, sys.stdin)
     sys.stdout = _stream(1, sys.stdout)
     sys.stderr = _stream(2, sys.stderr)
-    sys.__stdin__, sys.__stdout__, sys.__stderr__ = sys.stdin, sys.stdout, sys.stderr
+    sys.__stdin__, sys.__stdout__, sys.__stderr__ = sys.stdin, sys.stdout, sys.stderr  # type: ignore[misc]
     signal.signal(signal.SIGINT, signal.default_int_handler)
-    warnings.filters[:] = warning_filters
+    warnings.filters[:] = warning_filters  # type: ignore[index]
     warnings._filters_mutated()  # type: ignore[attr-defined]
     logging.getLogger().handlers[:] = root_handlers
     tempfile.tempdir = None  # chosen again from this environment's TMPDIR
