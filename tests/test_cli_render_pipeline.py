@@ -27,7 +27,11 @@ def test_cli_tool_overlay_is_the_frames_own(
     from globeview.cli import main
 
     monkeypatch.setenv("GLOBEVIEW_CONFIG_DIR", str(tmp_path / "config"))
-    monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(tmp_path / "cache"))
+    # The CLI opens the embedded DEMs from the cache the session's `globeview_terrain` ingested
+    # them into (CACHE/stores/NAME): the same stores as `render_frame`, not a second ingest.
+    cache = globeview_terrain.layers[0].store.path.parents[1]
+    assert (cache / "stores").is_dir()
+    monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(cache))
     out, stats = tmp_path / "m.png", tmp_path / "m.json"
     plain = tmp_path / "plain.png"
     common = ["render", "--no-borders", "--size", f"{SIZE[0]}x{SIZE[1]}"]
