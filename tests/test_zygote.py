@@ -149,9 +149,14 @@ def test_what_cannot_be_forked_is_a_plain_subprocess(
     assert zygote.forkable(argv, env)
     assert zygote.forkable(argv, {**env, "GLOBEVIEW_CONFIG_DIR": str(tmp_path)})
     assert zygote.forkable(argv, {**env, "PYTHONPATH": str(tmp_path)})  # put on sys.path
-    assert not zygote.forkable(argv, {**env, "LC_ALL": "C.UTF-8"})  # the streams' encoding
-    assert not zygote.forkable(argv, {**env, "GDAL_DATA": str(tmp_path)})  # read at import
-    assert not zygote.forkable(argv, {**env, "PYTHONSAFEPATH": "1"})  # the start's sys.path
+    assert zygote.forkable(argv, {**env, "CPL_LOG": os.devnull})  # what main sets itself
+    monkeypatch.setattr(zygote, "_warned", set())
+    with pytest.warns(UserWarning, match="plain subprocess.*LC_ALL"):
+        assert not zygote.forkable(argv, {**env, "LC_ALL": "C.UTF-8"})  # the streams' encoding
+    with pytest.warns(UserWarning, match="GDAL_DATA"):
+        assert not zygote.forkable(argv, {**env, "GDAL_DATA": str(tmp_path)})  # read at import
+    with pytest.warns(UserWarning, match="PYTHONSAFEPATH"):
+        assert not zygote.forkable(argv, {**env, "PYTHONSAFEPATH": "1"})  # the start's sys.path
     assert not zygote.forkable([sys.executable, "-c", "pass"], env)
     monkeypatch.setenv(zygote.SWITCH, "0")
     assert not zygote.forkable(argv, {**env, zygote.SWITCH: "0"})

@@ -37,6 +37,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
@@ -47,15 +48,18 @@ CONSOLE_SCRIPT = Path(sys.executable).with_name("globeview")
 START_TIMEOUT_S = 300.0  # wall seconds for its imports (~1.4 CPU-s) on a loaded machine
 # Variables a command may see set differently from this process: each read when the command
 # runs (globeview's settings, the test plugins' GVT_*, Qt's and the display's, the home and XDG
-# folders, pytest's bookkeeping), never while the server imports; and PYTHONPATH where the
-# server has none (the child puts its folders on sys.path as the interpreter's start would).
+# folders, pytest's bookkeeping), never while the server imports; the three `globeview.cli.main`
+# sets itself before its first GDAL or PROJ call (an in-process CLI test leaves them in this
+# process's environment); and PYTHONPATH where the server has none (the child puts its folders
+# on sys.path as the interpreter's start would).
 _MAY_DIFFER = re.compile(
     r"(GLOBEVIEW_\w+|GVT_\w+|DISPLAY|WAYLAND_DISPLAY|QT_QPA_PLATFORM|XDG_\w+|HOME|PYTEST_\w+"
-    r"|COLUMNS)"
+    r"|COLUMNS|CPL_LOG|CPL_DEBUG|PROJ_DEBUG)"
 )
 
 _File = int | IO[Any] | None
 _cpu_s = 0.0
+_warned: set[tuple[str, ...]] = set()
 
 
 def children_cpu() -> float:
@@ -140,7 +144,15 @@ def forkable(argv: Sequence[str], env: Mapping[str, str] | None) -> bool:
     differ = {k for k in base.keys() | wanted.keys() if base.get(k) != wanted.get(k)}
     if "PYTHONPATH" not in base:
         differ.discard("PYTHONPATH")
-    return all(_MAY_DIFFER.fullmatch(name) for name in differ)
+    read_at_start = sorted(name for name in differ if not _MAY_DIFFER.fullmatch(name))
+    if read_at_start and tuple(read_at_start) not in _warned:
+        _warned.add(tuple(read_at_start))
+        warnings.warn(
+            f"zygote: `globeview` runs as a plain subprocess (slower): its environment differs "
+            f"from the fork server's in {', '.join(read_at_start)}",
+            stacklevel=3,
+        )
+    return not read_at_start
 
 
 def _fd(target: _File, default: int, opened: list[int]) -> tuple[int, int | None]:
@@ -281,6 +293,7 @@ def popen(
             "argv": argv,
             "env": dict(os.environ if env is None else env),
             "cwd": os.path.abspath(cwd if cwd is not None else os.getcwd()),
+            "sigint_ignored": signal.getsignal(signal.SIGINT) == signal.SIG_IGN,
         }
         body = json.dumps(request).encode()
         conn = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)

@@ -63,12 +63,14 @@ _FORBIDDEN_LIBS = ("libEGL", "libGL", "libQt6", "libgbm", "libLLVM")
 @dataclass
 class Request:
     """One command: ``argv`` (the console script's path or ``python -m globeview``, then its
-    arguments), ``env`` (the whole environment), ``cwd`` and the three fds to become 0, 1, 2."""
+    arguments), ``env`` (the whole environment), ``cwd``, the three fds to become 0, 1, 2, and
+    whether the test process ignores SIGINT (a child started from it would inherit that)."""
 
     argv: list[str]
     env: dict[str, str]
     cwd: str
     fds: list[int]
+    sigint_ignored: bool = False
 
 
 def _import_tree(package: str) -> None:
@@ -117,7 +119,9 @@ def _read_request(conn: socket.socket) -> Request:
             raise OSError("zygote: request cut short")
         body += chunk
     fields = json.loads(body)
-    return Request(fields["argv"], fields["env"], fields["cwd"], list(fds))
+    return Request(
+        fields["argv"], fields["env"], fields["cwd"], list(fds), bool(fields["sigint_ignored"])
+    )
 
 
 def _send(conn: socket.socket, message: dict[str, Any]) -> None:
@@ -215,7 +219,10 @@ def become(request: Request, warning_filters: list[Any], root_handlers: list[Any
     sys.stdout = _stream(1, sys.stdout)
     sys.stderr = _stream(2, sys.stderr)
     sys.__stdin__, sys.__stdout__, sys.__stderr__ = sys.stdin, sys.stdout, sys.stderr  # type: ignore[misc]
-    signal.signal(signal.SIGINT, signal.default_int_handler)
+    # A fresh interpreter installs Python's handler, unless it started with SIGINT ignored (a
+    # background job of a shell): an ignored signal stays ignored across exec.
+    ignored = request.sigint_ignored
+    signal.signal(signal.SIGINT, signal.SIG_IGN if ignored else signal.default_int_handler)
     warnings.filters[:] = warning_filters  # type: ignore[index]
     warnings._filters_mutated()  # type: ignore[attr-defined]
     logging.getLogger().handlers[:] = root_handlers
