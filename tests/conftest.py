@@ -23,6 +23,12 @@ def pytest_configure(config: pytest.Config) -> None:
     cpu_durations.configure(config)
 
 
+def pytest_unconfigure(config: pytest.Config) -> None:
+    zygote = sys.modules.get("zygote")  # the CLI tests' fork server, where one was started
+    if zygote is not None:
+        zygote.close()
+
+
 def pytest_sessionstart(session: pytest.Session) -> None:
     if os.environ.get("GLOBEVIEW_REQUIRE_GL") != "1":
         return

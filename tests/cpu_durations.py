@@ -2,14 +2,16 @@
 time there measures the neighbours). `pytest --cpu-durations=FILE` appends one JSON line per
 test phase (setup, call, teardown) to FILE (FILE.gwN under pytest-xdist, one per worker):
 nodeid, phase, `self` (this process's user+sys CPU seconds, all threads) and `children` (user+sys
-of the child processes waited for during the phase: a CLI subprocess, a Qt helper). Fixture
-costs land in the phase that built them (a session fixture in its first user's setup)."""
+of the child processes waited for during the phase: a CLI subprocess, a Qt helper, a command
+forked by tests/zygote.py's server). Fixture costs land in the phase that built them (a session
+fixture in its first user's setup)."""
 
 from __future__ import annotations
 
 import json
 import os
 import resource
+import sys
 import time
 from collections.abc import Generator
 from typing import IO
@@ -18,8 +20,12 @@ import pytest
 
 
 def _children_cpu() -> float:
+    """Waited-for children's CPU seconds, the commands forked by `zygote`'s server included
+    (its children are not this process's until the server ends)."""
     ru = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return ru.ru_utime + ru.ru_stime
+    zygote = sys.modules.get("zygote")
+    forked = zygote.children_cpu() if zygote is not None else 0.0
+    return ru.ru_utime + ru.ru_stime + forked
 
 
 class CpuDurations:

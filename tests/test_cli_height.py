@@ -1,6 +1,7 @@
-"""`globeview height` end to end (issue #16): the first check in a subprocess like a user runs
-it, the rest in this process (`inprocess_cli`: the same output and exit status without a new
-interpreter's start-up each call).
+"""`globeview height` end to end (issue #16): the first check in a process of its own (forked
+by `zygote`; tests/cli/test_entry_points.py starts the console script), the rest in this
+process (`inprocess_cli`: the same output and exit status without a new interpreter's start-up
+each call).
 
 The done-when check of the issue: at a White Mountains point the ellipsoidal height of the
 SRTM tile differs from the SRTM sample (orthometric, EGM96) by the geoid undulation there."""
@@ -16,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rasterio
+import zygote
 from inprocess_cli import run_globeview
 
 from globeview.terrain.dem.vdatum import find_geoid_grid
@@ -35,7 +37,7 @@ def _run(env: dict[str, str], *args: str) -> subprocess.CompletedProcess[str]:
 
 
 def _subprocess(env: dict[str, str], *args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
+    return zygote.run(
         [sys.executable, "-m", "globeview", *args],
         capture_output=True,
         text=True,

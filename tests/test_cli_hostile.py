@@ -2,7 +2,8 @@
 environment ends in exactly one stderr line and exit 2, and leaves nothing behind — no
 half-written PNG, no temporary, no lost file of the user's.
 
-Real subprocesses of the installed `globeview` script, each with its own GLOBEVIEW_CACHE_DIR.
+Real processes of the installed `globeview` script (forked by `zygote`), each with its own
+GLOBEVIEW_CACHE_DIR.
 Full-disk and read-only cases use real tmpfs mounts when running as root, and the injectable
 fault ``GLOBEVIEW_FAULT_WRITE`` (honoured by `globeview.fileio`) everywhere.
 """
@@ -18,6 +19,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+import zygote
 
 GLOBEVIEW = Path(sys.executable).with_name("globeview")
 IS_ROOT = hasattr(os, "geteuid") and os.geteuid() == 0
@@ -30,7 +32,7 @@ def globeview(
     full_env.pop("GLOBEVIEW_DEBUG", None)
     full_env.pop("GLOBEVIEW_FAULT_WRITE", None)
     full_env.update(env)
-    return subprocess.run(
+    return zygote.run(
         [str(GLOBEVIEW), *args],
         capture_output=True,
         text=True,

@@ -1,6 +1,7 @@
-"""`globeview info` end to end: once in a subprocess like a user runs it, the rest in this
-process (`inprocess_cli`: the same output, exit status and stderr, without a new interpreter's
-start-up for each call)."""
+"""`globeview info` end to end: once in a process of its own (forked by `zygote`;
+tests/cli/test_entry_points.py starts the console script), the rest in this process
+(`inprocess_cli`: the same output, exit status and stderr, without a new interpreter's start-up
+for each call)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rasterio
+import zygote
 from affine import Affine
 from inprocess_cli import run_globeview
 
@@ -19,7 +21,7 @@ from globeview.terrain.dem.data import EMBEDDED_DATA_DIR
 
 
 def _subprocess(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
+    return zygote.run(
         [sys.executable, "-m", "globeview", *args], capture_output=True, text=True, timeout=60
     )
 

@@ -23,20 +23,26 @@ POINTS = [(-122.9, 45.6), (-121.7, 46.8)]
 def test_cli_tool_overlay_is_the_frames_own(
     tmp_path, monkeypatch, globeview_gl, globeview_terrain, globeview_registry
 ) -> None:
+    from inprocess_cli import run_globeview
+
     from globeview.app.testing import render_frame
-    from globeview.cli import main
 
     monkeypatch.setenv("GLOBEVIEW_CONFIG_DIR", str(tmp_path / "config"))
-    monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(tmp_path / "cache"))
+    # The CLI opens the embedded DEMs from the cache the session's `globeview_terrain` ingested
+    # them into (CACHE/stores/NAME): the same stores as `render_frame`, not a second ingest.
+    cache = globeview_terrain.layers[0].store.path.parents[1]
+    assert (cache / "stores").is_dir()
+    monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(cache))
     out, stats = tmp_path / "m.png", tmp_path / "m.json"
     plain = tmp_path / "plain.png"
     common = ["render", "--no-borders", "--size", f"{SIZE[0]}x{SIZE[1]}"]
     common += ["--camera", ",".join(str(v) for v in CAMERA)]
     points = ";".join(f"{lon},{lat}" for lon, lat in POINTS)
-    assert main([*common, "--out", str(plain)]) == 0
-    rc = main([*common, "--tool", "measure", "--points", points, "--out", str(out),
-               "--stats", str(stats)])  # fmt: skip
-    assert rc == 0
+    res = run_globeview([*common, "--out", str(plain)])
+    assert res.returncode == 0, res.stderr
+    res = run_globeview([*common, "--tool", "measure", "--points", points, "--out", str(out),
+                         "--stats", str(stats)])  # fmt: skip
+    assert res.returncode == 0, res.stderr
     cli = np.asarray(Image.open(out).convert("RGB"))
     drawn = json.loads(stats.read_text())["tool"]["overlay_drawn"]
     assert drawn > 0

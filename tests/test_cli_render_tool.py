@@ -3,9 +3,9 @@
 are checked against the Setting; provider stats reach --stats namespaced; a provider failure
 says which provider drew, and --strict exits 3 writing nothing.
 
-Real subprocesses of `.venv/bin/globeview`; the "installed" plugins are real distributions
-(package + .dist-info with an entry point) on PYTHONPATH, found by importlib.metadata as a
-pip install is (`globeview.app.testing.PluginSite`).
+Real processes of `.venv/bin/globeview` (forked by `zygote`); the "installed" plugins are real
+distributions (package + .dist-info with an entry point) on PYTHONPATH, found by
+importlib.metadata as a pip install is (`globeview.app.testing.PluginSite`).
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import zygote
 from PIL import Image
 
 from globeview.app.testing import PluginSite, make_view, plugin_manifest
@@ -37,9 +38,7 @@ def globeview(site: PluginSite, tmp: Path, *args: str) -> subprocess.CompletedPr
         "GVT_EVENTS": str(tmp / "events.json"),
     }
     env.pop("GLOBEVIEW_DEBUG", None)
-    return subprocess.run(
-        [str(GLOBEVIEW), *args], capture_output=True, text=True, env=env, timeout=300
-    )
+    return zygote.run([str(GLOBEVIEW), *args], capture_output=True, text=True, env=env, timeout=300)
 
 
 def render(site: PluginSite, tmp: Path, name: str, *args: str):

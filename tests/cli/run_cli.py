@@ -1,4 +1,5 @@
-"""Running the installed `globeview` command in a child process, and reading its one-line
+"""Running the installed `globeview` command in a process of its own (forked from `zygote`'s
+pre-warmed server: a real process without the interpreter start), and reading its one-line
 errors: shared by the CLI tests of this folder."""
 
 from __future__ import annotations
@@ -8,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import zygote
 from inprocess_cli import run_globeview
 
 GLOBEVIEW = Path(sys.executable).with_name("globeview")
@@ -17,7 +19,7 @@ def globeview(*args: str, cache: Path, timeout: float = 300) -> subprocess.Compl
     """``globeview ARGS`` with its own cache folder; stdout and stderr captured as text."""
     env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(cache)}
     env.pop("GLOBEVIEW_DEBUG", None)
-    return subprocess.run(
+    return zygote.run(
         [str(GLOBEVIEW), *args], capture_output=True, text=True, timeout=timeout, env=env
     )
 

@@ -3,11 +3,11 @@
 checked before any window exists, so a bad value is the same one line as `render`'s, exit 2,
 even where no window can open; ``gui --help`` says overlay files open there too.
 
-Real subprocesses of the installed command, with no display: a command line that passes the
-checks ends at "no display" (exit 1), one that does not at its error line (exit 2). The bad
-options' gui-and-render pairs run in this process (`inprocess_cli`, no display either: Qt is
-never imported, and render refuses them before any GL context). The window itself is tested
-in tests/ui/test_ui_gui_start.py.
+Real processes of the installed command (forked by `zygote`), with no display: a command line
+that passes the checks ends at "no display" (exit 1), one that does not at its error line (exit
+2). The bad options' gui-and-render pairs run in this process (`inprocess_cli`, no display
+either: Qt is never imported, and render refuses them before any GL context). The window itself
+is tested in tests/ui/test_ui_gui_start.py.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
+import zygote
 from inprocess_cli import run_globeview
 
 from .run_cli import GLOBEVIEW, one_error_line
@@ -28,9 +29,7 @@ def gv(tmp: Path, *args: str) -> subprocess.CompletedProcess:
     env.pop("GLOBEVIEW_DEBUG", None)
     env["GLOBEVIEW_CONFIG_DIR"] = str(tmp / "config")
     env["GLOBEVIEW_CACHE_DIR"] = str(tmp / "cache")
-    return subprocess.run(
-        [str(GLOBEVIEW), *args], capture_output=True, text=True, env=env, timeout=120
-    )
+    return zygote.run([str(GLOBEVIEW), *args], capture_output=True, text=True, env=env, timeout=120)
 
 
 def gv_here(tmp: Path, *args: str) -> subprocess.CompletedProcess:

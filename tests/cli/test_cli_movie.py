@@ -13,6 +13,7 @@ from pathlib import Path
 import imageio_ffmpeg
 import numpy as np
 import pytest
+import zygote
 from PIL import Image
 
 from .run_cli import globeview, one_error_line
@@ -181,7 +182,7 @@ def test_a_terminal_gets_a_progress_bar_with_eta(cache: Path, tmp_path: Path) ->
     fcntl.ioctl(child, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))
     env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(cache)}
     argv = [str(GLOBEVIEW), "movie", "-o", str(out), "--size", "40x30", "--fps", "3"]
-    with subprocess.Popen(
+    with zygote.popen(
         [*argv, "--", CAMERAS, DEM], stdout=subprocess.PIPE, stderr=child, env=env
     ) as proc:
         os.close(child)

@@ -5,8 +5,8 @@ Exit statuses (cli/__init__.py, docs/plugins.md "When a plugin fails"): 2 is the
 input, 3 a plugin failure with nothing written (any plugin failure under ``--strict``; without
 it only one no fallback covers: a layer type that cannot open a ``--layer`` file, a tool
 whose ``--tool-csv`` plot is asked for). Each error is one line naming the plugin and its
-error. Real subprocesses of the installed command; the plugins are real distributions on
-PYTHONPATH (`PluginSite`).
+error. Real processes of the installed command (forked by `zygote`); the plugins are real
+distributions on PYTHONPATH (`PluginSite`).
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import zygote
 
 from globeview.app.testing import PluginSite
 
@@ -121,7 +122,7 @@ def render(site: PluginSite, tmp: Path, *args: str) -> tuple[subprocess.Complete
         "GLOBEVIEW_CONFIG_DIR": str(tmp / "config"),
     }
     env.pop("GLOBEVIEW_DEBUG", None)
-    proc = subprocess.run(
+    proc = zygote.run(
         [str(GLOBEVIEW), "render", "--no-borders", "--size", "96x64", "--out", str(out), *args],
         capture_output=True,
         text=True,

@@ -3,7 +3,7 @@ project saved from a `globeview.Globe` on a real DEM file (data/N44W072.hgt, thi
 drawn headless by the installed command to the very picture the API draws; missing layers
 are one warning line each while the rest is drawn (``--strict``: nothing written); a file
 that is not a project, a newer schema or a hostile value is one error line, exit 2, before
-any window or GL. Real subprocesses of the installed command."""
+any window or GL. Real processes of the installed command (forked by `zygote`)."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import tomli_w
+import zygote
 from PIL import Image
 
 import globeview
@@ -132,7 +133,7 @@ def test_bad_projects_are_one_line_for_render_and_the_window(tmp_path, text, mes
     env.pop("QT_QPA_PLATFORM", None)
     env.pop("GLOBEVIEW_DEBUG", None)
     env["GLOBEVIEW_CACHE_DIR"] = str(tmp_path / "cache")
-    res = subprocess.run(
+    res = zygote.run(
         [str(GLOBEVIEW), str(path)], capture_output=True, text=True, env=env, timeout=120
     )
     assert message in one_error_line(res)

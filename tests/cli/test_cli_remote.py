@@ -11,6 +11,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
+import zygote
 
 from globeview.terrain.store.schema import FORMAT_VERSION
 
@@ -198,7 +199,7 @@ def test_ctrl_c_during_a_remote_render_is_one_line_and_quick(served, tmp_path: P
         out = tmp_path / "x.png"
         env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(tmp_path / "c")}
         env.pop("GLOBEVIEW_DEBUG", None)
-        proc = subprocess.Popen(
+        proc = zygote.popen(
             [str(GLOBEVIEW), "render", f"{server.url}/store", "-o", str(out)],
             stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
         )  # fmt: skip

@@ -1,17 +1,17 @@
 """`render --tool-csv` writes every curve of the plot a tool publishes (plugin API 1.2,
 issue #29 item 11): the plot's own columns, then each `PlotSeries` (one with its own x as
-two columns, shorter columns padded with empty fields). A real subprocess of the installed
-command; the tool is a real distribution on PYTHONPATH."""
+two columns, shorter columns padded with empty fields). A real process of the installed
+command (forked by `zygote`); the tool is a real distribution on PYTHONPATH."""
 
 from __future__ import annotations
 
 import os
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+import zygote
 
 from globeview.app.testing import PluginSite, plugin_manifest
 from globeview.plugins.api import read_csv_columns
@@ -58,7 +58,7 @@ def test_tool_csv_writes_every_series(plugin_site: PluginSite, tmp_path: Path) -
     }
     env.pop("GLOBEVIEW_DEBUG", None)
     out, csv = tmp_path / "x.png", tmp_path / "p.csv"
-    proc = subprocess.run(
+    proc = zygote.run(
         [str(GLOBEVIEW), "render", "--no-borders", "--size", "96x64", "--out", str(out),
          "--tool", "gvt-sight", "--points", "-3,1;7.5,2;10,-4", "--tool-csv", str(csv)],
         capture_output=True, text=True, env=env, timeout=300,

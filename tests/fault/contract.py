@@ -1,5 +1,7 @@
-"""The issue #13 contract as reusable checks: run `globeview` as a real subprocess, then judge
-its exit status, its stderr, what it left on disk and what it drew."""
+"""The issue #13 contract as reusable checks: run `globeview` as a real process (forked from
+the pre-warmed `zygote` server: its own process, exit status and stderr, without the
+interpreter start; ``GV_TEST_ZYGOTE=0`` makes each a plain subprocess), then judge its exit
+status, its stderr, what it left on disk and what it drew."""
 
 from __future__ import annotations
 
@@ -18,6 +20,7 @@ from functools import cache
 from pathlib import Path
 
 import numpy as np
+import zygote
 
 from .corpus import LAND, WATER, Case, make_corpus
 
@@ -64,7 +67,7 @@ def run_globeview(
     argv = [*globeview_argv(), *args]
     env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(cache_dir)}
     try:
-        p = subprocess.run(argv, cwd=cwd, env=env, capture_output=True, timeout=timeout)
+        p = zygote.run(argv, cwd=cwd, env=env, capture_output=True, timeout=timeout)
     except subprocess.TimeoutExpired as exc:
         err = (exc.stderr or b"").decode("utf-8", "replace")
         raise AssertionError(

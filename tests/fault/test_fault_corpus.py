@@ -1,6 +1,6 @@
 """Issue #13, fault injection: every corpus input through `globeview info`, `ingest` and
-`render` as real subprocesses; outputs into a foreign folder, full and read-only disks, and
-kill -9 during an ingest.
+`render` as real processes (`contract.run_globeview`); outputs into a foreign folder, full and
+read-only disks, and kill -9 during an ingest.
 
 The contract: the exit status the case expects; on failure exactly one stderr line
 ``globeview: error: ...`` (no traceback, no GDAL/PROJ chatter); no leftovers (``*.tmp``,
@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 import random
+import shutil
 import signal
 import subprocess
 import time
@@ -20,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import zygote
 from PIL import Image
 
 from .contract import (
@@ -35,6 +37,7 @@ from .contract import (
     globeview_argv,
     leftovers,
     remount_readonly,
+    run_globeview,
     terrain_kind,
     tree_digest,
     valid_looking_stores,
@@ -442,8 +445,20 @@ def _wait_for_work_folder(parent: Path, proc: subprocess.Popen, limit_s: float =
         time.sleep(0.005)
 
 
+@pytest.fixture(scope="module")
+def complete_store(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A complete store of N44W072.hgt, ingested once for the cases that replace one (each
+    works on a copy)."""
+    folder = tmp_path_factory.mktemp("complete")
+    (folder / "cache").mkdir()
+    out = folder / "store"
+    cmd = ["ingest", str(DATA / "N44W072.hgt"), "--out", str(out), "--quiet"]
+    assert_quiet_success(run_globeview(cmd, folder, folder / "cache"))
+    return out
+
+
 @pytest.mark.parametrize(("seed", "when"), KILL_CASES)
-def test_ingest_killed_then_rerun(work, seed: int, when: str) -> None:
+def test_ingest_killed_then_rerun(work, seed: int, when: str, request) -> None:
     """SIGKILL at a seeded random moment of an ingest, then the same ingest again: exit 0, a
     store that opens, and nothing left of the killed run."""
     from globeview.terrain.store.tile_store import TileStore
@@ -453,11 +468,12 @@ def test_ingest_killed_then_rerun(work, seed: int, when: str) -> None:
     rng = random.Random(seed)
     extra = []
     if when == "replace":
-        assert_quiet_success(work.run("ingest", str(src), "--out", str(out), "--quiet"))
+        shutil.copytree(request.getfixturevalue("complete_store"), out, symlinks=True)
+        assert (out / "manifest.json").is_file()
         extra = ["--force"]
     env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(work.cache)}
     argv = [*globeview_argv(), "ingest", str(src), "--out", str(out), "--quiet", *extra]
-    proc = subprocess.Popen(
+    proc = zygote.popen(
         argv, cwd=work.cwd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
     )
     try:
@@ -488,9 +504,7 @@ def test_ingest_interrupted_by_ctrl_c(work, seed: int) -> None:
     out = work.cwd / "store"
     env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(work.cache)}
     argv = [*globeview_argv(), "ingest", str(DATA / "N44W072.hgt"), "--out", str(out)]
-    proc = subprocess.Popen(
-        argv, cwd=work.cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE
-    )
+    proc = zygote.popen(argv, cwd=work.cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     _wait_for_work_folder(work.cwd, proc)
     time.sleep(random.Random(seed).uniform(0.0, 0.5))
     if proc.poll() is not None:
@@ -517,7 +531,7 @@ def test_render_killed_while_ingesting_then_rerun(work, seed: int) -> None:
     png = work.cwd / "x.png"
     args = ["render", str(DATA / "N44W072.hgt"), "--out", str(png), "--size", SIZE]
     env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(work.cache)}
-    proc = subprocess.Popen(
+    proc = zygote.popen(
         [*globeview_argv(), *args],
         cwd=work.cwd,
         env=env,

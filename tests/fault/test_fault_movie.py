@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
+import zygote
 
 from .contract import (
     assert_one_error_line,
@@ -60,7 +61,7 @@ def test_movie_interrupted_by_ctrl_c(work) -> None:
         *globeview_argv(),
         *movie_args(out, "--size", "64x48", "--fps", "60", "--seconds", "30"),
     ]
-    proc = subprocess.Popen(argv, cwd=work.cwd, env=env, stderr=subprocess.PIPE, text=True)
+    proc = zygote.popen(argv, cwd=work.cwd, env=env, stderr=subprocess.PIPE, text=True)
     try:
         end = time.monotonic() + 120
         while time.monotonic() < end and proc.poll() is None and not leftovers(work.cwd):
