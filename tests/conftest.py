@@ -4,9 +4,12 @@ rendering test. Run plain `pytest` on a machine without EGL and those tests skip
 
 from __future__ import annotations
 
+import fcntl
 import os
+import shutil
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import cpu_durations
@@ -51,3 +54,56 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         mark = _FOLDER_MARKS.get(folder)
         if mark is not None:
             item.add_marker(mark)
+
+
+@pytest.fixture(scope="session")
+def embedded_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A cache folder (for ``GLOBEVIEW_CACHE_DIR``) holding the embedded DEMs' stores, ingested
+    once per run and shared by its pytest-xdist workers: the first worker to need it ingests
+    (~8 CPU-s), the others wait on a lock and find the stores current (re-ingesting an
+    unchanged source is a no-op). A child `globeview render` of the embedded terrain pointed
+    at it reads those stores instead of ingesting them again. The run's temporary folder,
+    never the user's cache. Children may add to it what a cache holds besides stores (band
+    tables, written atomically); a test about the cache itself uses `seed_cache` on a folder
+    of its own."""
+    from globeview.terrain.embedded import embedded_stores
+
+    run_tmp = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        run_tmp = run_tmp.parent  # the folder the workers' own basetemps are made in
+    cache = run_tmp / "globeview-embedded-cache"
+    with open(run_tmp / "globeview-embedded-cache.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        cache.mkdir(exist_ok=True)
+        with pytest.MonkeyPatch.context() as mp:  # session scope: no `monkeypatch` fixture
+            mp.setenv("GLOBEVIEW_CACHE_DIR", str(cache))
+            for store in embedded_stores():
+                store.close()
+    return cache
+
+
+@pytest.fixture(scope="session")
+def globeview_terrain(embedded_cache: Path):
+    """`globeview.app.testing`'s fixture (the embedded terrain as a `TerrainStack`, ingested
+    into a temporary cache), on the run's shared `embedded_cache` instead of a cache of each
+    worker's own."""
+    from globeview.terrain.compose.stack import TerrainStack
+    from globeview.terrain.embedded import embedded_stores
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("GLOBEVIEW_CACHE_DIR", str(embedded_cache))
+        stores = embedded_stores()
+    return TerrainStack.from_stores(stores)
+
+
+@pytest.fixture(scope="session")
+def seed_cache(embedded_cache: Path) -> Callable[[Path], Path]:
+    """``seed_cache(folder) -> folder``: copies the embedded DEMs' stores of `embedded_cache`
+    into the cache folder ``folder`` (a file copy, ~13 MB, instead of an ~8 CPU-s ingest), so
+    a child process given ``GLOBEVIEW_CACHE_DIR=folder`` finds them current."""
+
+    def seed(folder: Path) -> Path:
+        shutil.copytree(embedded_cache / "stores", folder / "stores", dirs_exist_ok=True)
+        return folder
+
+    return seed
