@@ -57,22 +57,25 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 
 @pytest.fixture(scope="session")
-def embedded_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A cache folder (for ``GLOBEVIEW_CACHE_DIR``) holding the embedded DEMs' stores, ingested
-    once per run and shared by its pytest-xdist workers: the first worker to need it ingests
-    (~8 CPU-s), the others wait on a lock and find the stores current (re-ingesting an
-    unchanged source is a no-op). A child `globeview render` of the embedded terrain pointed
-    at it reads those stores instead of ingesting them again. The run's temporary folder,
-    never the user's cache. Children may add to it what a cache holds besides stores (band
-    tables, written atomically); a test about the cache itself uses `seed_cache` on a folder
-    of its own."""
+def embedded_cache() -> Path:
+    """A cache folder (for ``GLOBEVIEW_CACHE_DIR``) holding the embedded DEMs' stores, kept in
+    the system's temporary folder between runs and named by a digest of globeview's terrain
+    code (`band_tables.code_digest`: any change to ingest or composition makes a new one).
+    Each session re-ingests into it, which is a no-op for a current store and rebuilds a stale
+    one; pytest-xdist workers and concurrent runs take turns under a lock, so the stores are
+    built once (~8 CPU-s), not once a worker or a run. Never the user's cache. A child
+    `globeview render` of the embedded terrain pointed at it reads these stores; children may
+    add what a cache holds besides stores (band tables, written atomically). A test about the
+    cache itself uses `seed_cache` on a folder of its own."""
+    import tempfile
+
+    from globeview.terrain.compose.band_tables import code_digest
     from globeview.terrain.embedded import embedded_stores
 
-    run_tmp = tmp_path_factory.getbasetemp()
-    if os.environ.get("PYTEST_XDIST_WORKER"):
-        run_tmp = run_tmp.parent  # the folder the workers' own basetemps are made in
-    cache = run_tmp / "globeview-embedded-cache"
-    with open(run_tmp / "globeview-embedded-cache.lock", "w") as lock:
+    root = Path(tempfile.gettempdir()) / f"globeview-test-cache-{os.getuid()}"
+    root.mkdir(mode=0o700, exist_ok=True)
+    cache = root / f"embedded-{code_digest()[:16]}"
+    with open(root / f"{cache.name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
         cache.mkdir(exist_ok=True)
         with pytest.MonkeyPatch.context() as mp:  # session scope: no `monkeypatch` fixture
@@ -85,8 +88,8 @@ def embedded_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="session")
 def globeview_terrain(embedded_cache: Path):
     """`globeview.app.testing`'s fixture (the embedded terrain as a `TerrainStack`, ingested
-    into a temporary cache), on the run's shared `embedded_cache` instead of a cache of each
-    worker's own."""
+    into a temporary cache), on the shared `embedded_cache` instead of a cache ingested again
+    by each worker."""
     from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
 
