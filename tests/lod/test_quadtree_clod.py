@@ -24,7 +24,7 @@ VIEWS = {
 @pytest.fixture(scope="module")
 def terrain(globeview_terrain):
     """The embedded terrain: the run's one stack (`globeview_terrain`, tests/conftest.py), not
-    one of the module's own (each stack measures its layers' blend masks again, ~7 CPU-s)."""
+    one of the module's own (each stack measures its layers' blend masks again: up to ~7 CPU-s)."""
     return globeview_terrain
 
 

@@ -14,7 +14,7 @@ from globeview.terrain.quadtree import key_for_lonlat
 @pytest.fixture(scope="module")
 def stack(globeview_terrain):
     """The embedded terrain: the run's one stack (`globeview_terrain`, tests/conftest.py), not
-    one of the module's own (each stack measures its layers' blend masks again, ~7 CPU-s)."""
+    one of the module's own (each stack measures its layers' blend masks again: up to ~7 CPU-s)."""
     return globeview_terrain
 
 
