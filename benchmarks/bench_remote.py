@@ -357,6 +357,7 @@ def _build_store(dem: Path) -> Path:
     from globeview.terrain.ingest.driver import ingest
 
     out = CACHE / f"remote_store_{dem.stem}"
+    CACHE.mkdir(parents=True, exist_ok=True)  # a fresh clone has no benchmarks/cache yet
     t = time.perf_counter()
     from globeview.terrain.store.identify import identify
 

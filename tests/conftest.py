@@ -4,9 +4,12 @@ rendering test. Run plain `pytest` on a machine without EGL and those tests skip
 
 from __future__ import annotations
 
+import fcntl
 import os
+import shutil
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import cpu_durations
@@ -57,3 +60,59 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         mark = _FOLDER_MARKS.get(folder)
         if mark is not None:
             item.add_marker(mark)
+
+
+@pytest.fixture(scope="session")
+def embedded_cache() -> Path:
+    """A cache folder (for ``GLOBEVIEW_CACHE_DIR``) holding the embedded DEMs' stores, kept in
+    the system's temporary folder between runs and named by a digest of globeview's terrain
+    code (`band_tables.code_digest`: any change to ingest or composition makes a new one).
+    Each session re-ingests into it, which is a no-op for a current store and rebuilds a stale
+    one; pytest-xdist workers and concurrent runs take turns under a lock, so the stores are
+    built once (~8 CPU-s), not once a worker or a run. Never the user's cache. A child
+    `globeview render` of the embedded terrain pointed at it reads these stores; children may
+    add what a cache holds besides stores (band tables, written atomically). A test about the
+    cache itself uses `seed_cache` on a folder of its own."""
+    import tempfile
+
+    from globeview.terrain.compose.band_tables import code_digest
+    from globeview.terrain.embedded import embedded_stores
+
+    root = Path(tempfile.gettempdir()) / f"globeview-test-cache-{os.getuid()}"
+    root.mkdir(mode=0o700, exist_ok=True)
+    cache = root / f"embedded-{code_digest()[:16]}"
+    with open(root / f"{cache.name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        cache.mkdir(exist_ok=True)
+        with pytest.MonkeyPatch.context() as mp:  # session scope: no `monkeypatch` fixture
+            mp.setenv("GLOBEVIEW_CACHE_DIR", str(cache))
+            for store in embedded_stores():
+                store.close()
+    return cache
+
+
+@pytest.fixture(scope="session")
+def globeview_terrain(embedded_cache: Path):
+    """`globeview.app.testing`'s fixture (the embedded terrain as a `TerrainStack`, ingested
+    into a temporary cache), on the shared `embedded_cache` instead of a cache ingested again
+    by each worker."""
+    from globeview.terrain.compose.stack import TerrainStack
+    from globeview.terrain.embedded import embedded_stores
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("GLOBEVIEW_CACHE_DIR", str(embedded_cache))
+        stores = embedded_stores()
+    return TerrainStack.from_stores(stores)
+
+
+@pytest.fixture(scope="session")
+def seed_cache(embedded_cache: Path) -> Callable[[Path], Path]:
+    """``seed_cache(folder) -> folder``: copies the embedded DEMs' stores of `embedded_cache`
+    into the cache folder ``folder`` (a file copy, ~13 MB, instead of an ~8 CPU-s ingest), so
+    a child process given ``GLOBEVIEW_CACHE_DIR=folder`` finds them current."""
+
+    def seed(folder: Path) -> Path:
+        shutil.copytree(embedded_cache / "stores", folder / "stores", dirs_exist_ok=True)
+        return folder
+
+    return seed

@@ -1,6 +1,7 @@
 """Fixtures for the Python API's tests: the White Mountains DEM (SRTM N44W072, shipped in
 data/) as a numpy array with its transform and CRS, and one headless `globeview.Globe` on it
-for the module (rendering on llvmpipe is slow), with a cache folder of its own."""
+for the module (rendering on llvmpipe is slow), with a cache folder
+of the process's own (`api_cache`)."""
 
 from __future__ import annotations
 
@@ -31,8 +32,13 @@ def white_mountains() -> tuple[np.ndarray, object, str]:
 
 @pytest.fixture(scope="module")
 def api_cache(tmp_path_factory) -> Iterator[str]:
-    """A cache folder of the module's own (GLOBEVIEW_CACHE_DIR) for arrays and stores."""
-    cache = tmp_path_factory.mktemp("api-cache")
+    """The cache folder (GLOBEVIEW_CACHE_DIR, set for the module) for arrays and stores: one
+    for the API modules of this pytest process, never the user's. Arrays are cached by
+    content, so the White Mountains array `wm_globe` adds is ingested once a process, not once
+    a module (~2 CPU-s each); a test about what a call adds to the cache compares the folder
+    before and after."""
+    cache = tmp_path_factory.getbasetemp() / "api-cache"
+    cache.mkdir(exist_ok=True)
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("GLOBEVIEW_CACHE_DIR", str(cache))
         yield str(cache)

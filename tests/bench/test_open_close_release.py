@@ -110,7 +110,9 @@ def test_a_handed_back_headless_context_is_reused_and_draws_the_same(store_paths
     from globeview.terrain.store.tile_store import TileStore
 
     def render(wireframe: bool) -> tuple[object, np.ndarray]:
-        stores = [TileStore.open(p) for p in store_paths]
+        # The global base alone: what is drawn is not the point here, and each new stack of
+        # the regional layers measures their blend masks again (~1.5 CPU-s a render).
+        stores = [TileStore.open(p) for p in store_paths[:1]]
         ctx = create_headless_context()
         target = OffscreenTarget(ctx, (120, 80))
         session = GlobeSession(
@@ -138,6 +140,7 @@ def test_a_handed_back_headless_context_is_reused_and_draws_the_same(store_paths
     new_ctx, new_plain = render(wireframe=False)
     assert new_ctx is not first_ctx
     assert np.array_equal(plain, new_plain)
+    assert len(np.unique(plain.reshape(-1, 3), axis=0)) > 10  # terrain drawn, not a blank
 
 
 def test_bench_soak_cycles_prints_drift_and_verdict(capsys):

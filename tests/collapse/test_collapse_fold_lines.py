@@ -22,19 +22,17 @@ FOLD_RGB = np.array([255, 230, 26])  # the fold lines' colour (1.0, 0.9, 0.1)
 
 
 @pytest.fixture(scope="module")
-def session():
+def session(globeview_terrain):
     from globeview.app.session import GlobeSession
     from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.settings import MemorySettings
     from globeview.render.offscreen import OffscreenTarget, RenderError, create_headless_context
-    from globeview.terrain.compose.stack import TerrainStack
-    from globeview.terrain.embedded import embedded_stores
 
     try:
         ctx = create_headless_context()
     except RenderError as exc:  # pragma: no cover - depends on the machine
         pytest.skip(f"no headless OpenGL: {exc}")
-    terrain = TerrainStack.from_stores(embedded_stores())
+    terrain = globeview_terrain  # the run's one embedded stack (tests/conftest.py)
     reg = PluginRegistry(MemorySettings()).discover()
     camera = Camera.from_lonlat(-121.8, 44.0, 2.5e5, 0.0, -50.0)  # oblique, over the Cascades
     return GlobeSession(ctx, terrain, camera, registry=reg), OffscreenTarget(ctx, SIZE)

@@ -33,14 +33,12 @@ def gl():
 
 
 @pytest.fixture(scope="module")
-def session(gl):
+def session(gl, globeview_terrain):
     from globeview.app.session import GlobeSession
     from globeview.plugins.registry import PluginRegistry
     from globeview.plugins.settings import MemorySettings
-    from globeview.terrain.compose.stack import TerrainStack
-    from globeview.terrain.embedded import embedded_stores
 
-    terrain = TerrainStack.from_stores(embedded_stores())
+    terrain = globeview_terrain  # the run's one embedded stack (tests/conftest.py)
     reg = PluginRegistry(MemorySettings()).discover()
     return GlobeSession(gl[0], terrain, Camera.from_lonlat(-122.25, 45.6, 1.2e6), registry=reg)
 

@@ -225,10 +225,10 @@ def _reference_select_tiles(
 
 # -- fixtures and helpers ----
 @pytest.fixture(scope="module")
-def terrain() -> TerrainStack:
-    from globeview.terrain.embedded import embedded_stores
-
-    return TerrainStack.from_stores(embedded_stores())
+def terrain(globeview_terrain: TerrainStack) -> TerrainStack:
+    """The embedded terrain: the run's one stack (`globeview_terrain`, tests/conftest.py), not
+    one of the module's own (each stack measures its layers' blend masks again: up to ~7 CPU-s)."""
+    return globeview_terrain
 
 
 def _view(lon, lat, h, heading=0.0, pitch=-90.0, exaggeration=1.0) -> ViewState:

@@ -22,11 +22,10 @@ VIEWS = {
 
 
 @pytest.fixture(scope="module")
-def terrain():
-    from globeview.terrain.compose.stack import TerrainStack
-    from globeview.terrain.embedded import embedded_stores
-
-    return TerrainStack.from_stores(embedded_stores())
+def terrain(globeview_terrain):
+    """The embedded terrain: the run's one stack (`globeview_terrain`, tests/conftest.py), not
+    one of the module's own (each stack measures its layers' blend masks again: up to ~7 CPU-s)."""
+    return globeview_terrain
 
 
 def provider(**values) -> QuadtreeClodProvider:

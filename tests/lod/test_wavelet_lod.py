@@ -19,11 +19,10 @@ MAGENTA = (1.0, 0.0, 1.0)
 
 
 @pytest.fixture(scope="module")
-def terrain():
-    from globeview.terrain.compose.stack import TerrainStack
-    from globeview.terrain.embedded import embedded_stores
-
-    return TerrainStack.from_stores(embedded_stores())
+def terrain(globeview_terrain):
+    """The embedded terrain: the run's one stack (`globeview_terrain`, tests/conftest.py), not
+    one of the module's own (each stack measures its layers' blend masks again: up to ~7 CPU-s)."""
+    return globeview_terrain
 
 
 def test_m_band_ladders() -> None:

@@ -36,7 +36,7 @@ def remote_wm(tmp_path):
 
 
 @pytest.mark.slow
-def test_a_provider_reading_late_tiles_is_not_failed(remote_wm, monkeypatch, tmp_path):
+def test_a_provider_reading_late_tiles_is_not_failed(remote_wm, monkeypatch, tmp_path, seed_cache):
     from globeview.app.session import GlobeSession
     from globeview.model.camera import Camera
     from globeview.plugins.registry import PluginRegistry
@@ -44,7 +44,8 @@ def test_a_provider_reading_late_tiles_is_not_failed(remote_wm, monkeypatch, tmp
     from globeview.terrain.compose.stack import TerrainStack
     from globeview.terrain.embedded import embedded_stores
 
-    monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(tmp_path / "cache"))
+    # A cache of the test's own, the embedded stores copied in (etopo20 not ingested again).
+    monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(seed_cache(tmp_path / "cache")))
     server, store = remote_wm
     terrain = TerrainStack.from_stores([embedded_stores()[0], store], ["etopo20", "wm"])
     ctx = create_headless_context()

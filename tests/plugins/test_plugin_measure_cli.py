@@ -23,10 +23,12 @@ CAMERA = "--camera=-71.335,44.27,40000"
 
 
 @pytest.fixture(scope="module")
-def env(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+def env(tmp_path_factory: pytest.TempPathFactory, seed_cache) -> dict[str, str]:
+    """The children's environment: a config folder and a cache of the module's own, the cache
+    seeded with the embedded DEMs' stores (copied, not ingested again by the first child)."""
     return {
         **os.environ,
-        "GLOBEVIEW_CACHE_DIR": str(tmp_path_factory.mktemp("cache")),
+        "GLOBEVIEW_CACHE_DIR": str(seed_cache(tmp_path_factory.mktemp("cache"))),
         "GLOBEVIEW_CONFIG_DIR": str(tmp_path_factory.mktemp("config")),
     }
 

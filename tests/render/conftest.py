@@ -25,11 +25,10 @@ def gl_ctx(globeview_gl):
 
 
 @pytest.fixture(scope="session")
-def terrain():
-    from globeview.terrain.compose.stack import TerrainStack
-    from globeview.terrain.embedded import embedded_stores
-
-    return TerrainStack.from_stores(embedded_stores())
+def terrain(globeview_terrain):
+    """The embedded terrain: the run's one stack (`globeview_terrain`, tests/conftest.py),
+    which the plugin fixtures draw too (a second stack measures its blend masks again)."""
+    return globeview_terrain
 
 
 @pytest.fixture(scope="session")

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from inprocess_cli import run_globeview
 from PIL import Image
 
 pytestmark = pytest.mark.gl
@@ -84,7 +85,6 @@ def test_render_camera_and_tau_change_the_frame(tmp_path: Path) -> None:
     assert finer["triangles"] > oblique["triangles"]
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize(
     "args",
     [
@@ -94,9 +94,19 @@ def test_render_camera_and_tau_change_the_frame(tmp_path: Path) -> None:
         ("--size", "10x10"),
     ],
 )
-def test_bad_arguments_exit_2_with_one_line(tmp_path: Path, args: tuple[str, ...]) -> None:
+def test_bad_arguments_exit_2_with_one_line(
+    tmp_path: Path, args: tuple[str, ...], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Refused before any GL: run in this process (`inprocess_cli`), with no headless context
+    to be had (one made would fail the test)."""
+    from globeview.render import offscreen
+
+    def no_gl(*_a: object, **_k: object) -> None:
+        raise AssertionError("a refused render made a GL context")
+
+    monkeypatch.setattr(offscreen, "create_headless_context", no_gl)
     out = tmp_path / "never.png"
-    res = globeview("--out", str(out), *args)
+    res = run_globeview(["render", "--out", str(out), *args])
     assert res.returncode == 2
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("globeview"), res.stderr

@@ -140,10 +140,12 @@ def test_renderer_with_a_small_pool_draws_a_degraded_frame(gl_ctx, terrain, targ
 
 @pytest.mark.gl
 @pytest.mark.slow
-def test_cli_overflowing_view_renders_and_says_it_degraded(tmp_path: Path) -> None:
+def test_cli_overflowing_view_renders_and_says_it_degraded(tmp_path: Path, seed_cache) -> None:
     """The view that failed with "tile pool too small: 1005 tiles to load": tiny tau, strong
-    exaggeration, low oblique over the White Mountains, on the embedded terrain."""
+    exaggeration, low oblique over the White Mountains, on the embedded terrain (its stores
+    copied into the child's cache, not ingested again)."""
     out, stats = tmp_path / "x.png", tmp_path / "s.json"
+    cache = seed_cache(tmp_path / "cache")
     res = subprocess.run(
         [
             str(GLOBEVIEW),
@@ -163,7 +165,7 @@ def test_cli_overflowing_view_renders_and_says_it_degraded(tmp_path: Path) -> No
         capture_output=True,
         text=True,
         timeout=600,
-        env={**os.environ, "GLOBEVIEW_CACHE_DIR": str(tmp_path / "cache")},
+        env={**os.environ, "GLOBEVIEW_CACHE_DIR": str(cache)},
     )
     assert res.returncode == 0, res.stderr
     data = json.loads(stats.read_text())

@@ -12,11 +12,10 @@ from globeview.terrain.quadtree import key_for_lonlat
 
 
 @pytest.fixture(scope="module")
-def stack():
-    from globeview.terrain.compose.stack import TerrainStack
-    from globeview.terrain.embedded import embedded_stores
-
-    return TerrainStack.from_stores(embedded_stores())
+def stack(globeview_terrain):
+    """The embedded terrain: the run's one stack (`globeview_terrain`, tests/conftest.py), not
+    one of the module's own (each stack measures its layers' blend masks again: up to ~7 CPU-s)."""
+    return globeview_terrain
 
 
 def _pair(level: int, lon: float, lat: float):

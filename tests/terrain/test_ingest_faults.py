@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from inprocess_cli import run_globeview
 
 from globeview.terrain.ingest.driver import FAULT_ENV, ingest
 from globeview.terrain.ingest.safety import build_folder, clean_stale_builds
@@ -31,6 +32,12 @@ def _cli(*args: str, env: dict | None = None, **kw) -> subprocess.CompletedProce
     return subprocess.run(
         [str(GLOBEVIEW), *args], capture_output=True, text=True, timeout=300, env=e, **kw
     )
+
+
+def _reingest(out: Path) -> subprocess.CompletedProcess:
+    """``globeview ingest SMALL --out OUT --quiet`` after a killed one: in this process
+    (`inprocess_cli`); the kill is what needs a process of its own, the clean-up does not."""
+    return run_globeview(["ingest", str(SMALL), "--out", str(out), "--quiet"])
 
 
 def _leftovers(parent: Path) -> list[str]:
@@ -95,7 +102,7 @@ def test_kill9_at_a_point_then_reingest_is_clean(
         # the old ones, manifest.json not switched): the store is still the one it was.
         with TileStore.open(out) as st:
             assert st.tile_n == 5 and st.manifest.generation == 0
-    r = _cli("ingest", str(SMALL), "--out", str(out), "--quiet")
+    r = _reingest(out)
     assert r.returncode == 0, r.stderr
     assert _leftovers(tmp_path) == []
     with TileStore.open(out) as st:
@@ -121,7 +128,7 @@ def test_kill9_at_a_random_time_then_reingest_is_clean(
     time.sleep(rng.uniform(0.0, 0.3))
     p.send_signal(signal.SIGKILL)
     p.wait()
-    r = _cli("ingest", str(SMALL), "--out", str(out), "--quiet")
+    r = _reingest(out)
     assert r.returncode == 0, r.stderr
     assert _leftovers(tmp_path) == []
     with TileStore.open(out) as st:

@@ -18,10 +18,10 @@ SIZE = 65
 
 
 @pytest.fixture(scope="module")
-def stack() -> TerrainStack:
-    from globeview.terrain.embedded import embedded_stores
-
-    return TerrainStack.from_stores(embedded_stores())
+def stack(globeview_terrain: TerrainStack) -> TerrainStack:
+    """The embedded terrain: the run's one stack (`globeview_terrain`, tests/conftest.py), not
+    one of the module's own (each stack measures its layers' blend masks again: up to ~7 CPU-s)."""
+    return globeview_terrain
 
 
 def bilinear_at(h: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
