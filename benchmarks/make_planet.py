@@ -21,9 +21,10 @@ leaves no half tile), so asking for N = 2 000 after N = 200 writes only the 1 80
 and ``tiles_N.txt`` lists exactly the first N (``globeview ingest @tiles_N.txt``) whatever
 else the folder holds. Before writing, the tiles still missing are checked against the free
 space (2.9 MB each at 3"): one line, not a full disk. ``--placeholders`` writes instead sparse
-files of SRTM 1"'s size (25 934 402 bytes of holes: no disk used) with the same names, for
-``globeview ingest --plan``, which places SRTM tiles by name and size without opening them:
-any N fits, up to all 14 277 names of `bench_plan.planet_cells`.
+files of SRTM 1"'s size (25 934 402 bytes of holes: no disk used) for ``globeview ingest
+--plan``, which places SRTM tiles by name and size without opening them: any N fits; their
+cells are SRTM 1"'s layout of `bench_plan.planet_cells` (the land cells, then the cells next
+to them, up to SRTM's 14 277).
 
 **GEBCO-size grid** (``gebco``): a CF netCDF-4 (GDAL's netCDF driver, int16 ``Band1`` with
 lat/lon axes, DEFLATE level 1, nodata -32767), 86 400 x 43 200 cells of 15" over the globe,
@@ -228,7 +229,12 @@ def ensure_srtm(
 ) -> tuple[Path, int, float]:
     """The first ``n`` tiles in ``out`` (missing ones written), and ``out/tiles_N.txt``
     listing them: (the list, tiles written now, CPU seconds)."""
-    cells = compact_cells(n, center)
+    if placeholders:  # SRTM 1"'s layout: the land cells, then the cells around them
+        from bench_plan import planet_cells
+
+        cells = planet_cells(n)
+    else:
+        cells = compact_cells(n, center)
     out.mkdir(parents=True, exist_ok=True)
     names = [srtm_name(lat, lon) for lat, lon in cells]
     missing = [(c, nm) for c, nm in zip(cells, names, strict=True) if not (out / nm).exists()]

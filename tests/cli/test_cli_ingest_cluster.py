@@ -14,8 +14,9 @@ the venv's `dask` CLI on 127.0.0.1, not a LocalCluster.
 
 The workers run without a nanny (the process started is the worker: what is killed stays
 dead), one thread and 1 GiB each. Every process is started in its own session and its group
-is killed by the fixture's finalizer, whatever the test did. Cost: ~15 CPU s for the two
-tests (four interpreters with dask a cluster, two small ingests), hence `slow`.
+is killed by the fixture's finalizer, whatever the test did. Cost (CPU s, user + sys, the
+processes started included; 2026-11-29, load 16): 6.7 and 4.3 (three interpreters with dask
+a cluster, the ingest's, the Vancouver DEM built twice or once), hence `slow`.
 """
 
 from __future__ import annotations
