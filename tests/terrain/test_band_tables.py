@@ -10,7 +10,7 @@ import pytest
 
 import globeview.terrain.compose.band_tables as band_tables
 from globeview.terrain.compose.stack import TerrainStack
-from globeview.terrain.quadtree import tiles_covering
+from globeview.terrain.quadtree import tile_bounds_arrays, tiles_covering
 
 BOX = (-73.0, 43.0, -70.0, 46.0)  # around the N44W072 sample and its border band
 LEVELS = range(3, 9)
@@ -97,3 +97,24 @@ def test_a_table_of_another_shape_is_not_used(kept):
         np.testing.assert_array_equal(a, b)
     assert band_tables.load_tables("k", (3, 2)) is None
     assert band_tables.load_tables("missing", shape) is None
+
+
+def test_the_band_counts_only_the_tiles_it_measures(stores):
+    """`_exact_level` counts the band tiles with data (those `_difference_table` measures),
+    not a format-7 level grid's empty chunk tiles: counting those made N44W072's level 12
+    band 1924 tiles, past DIFF_TABLE_TILES, so it was bounded from level 11 (2x triangles)."""
+    st = stores["N44W072"]
+    stack = _stack(stores)
+    band = stack._band
+    mask = stack.blend_mask(st)
+    for level in range(st.max_level + 1):
+        g = st.level_grid(level)
+        ys, xs = np.mgrid[g.y0 : g.y0 + g.ny, g.x0 : g.x0 + g.nx]
+        xs = xs % g.ncols
+        brute = 0
+        for x, y in zip(xs.ravel().tolist(), ys.ravel().tolist(), strict=True):
+            bounds = tile_bounds_arrays(level, np.array([x]), np.array([y]))
+            brute += bool(st.has_data(level, x, y)) and bool(mask.touches_band(*bounds)[0])
+        band._exact_level(1, st, level)
+        assert band._band_counts[(st, level)] == brute, level
+    assert band._exact_level(1, st, st.max_level) == st.max_level

@@ -250,21 +250,31 @@ class BandErrors:
 
     def _exact_level(self, i: int, st: TileStore, level: int) -> int:
         """The finest level <= ``level`` whose border band holds at most `DIFF_TABLE_TILES`
-        tiles of layer ``i`` (one-time work per level is bounded)."""
+        tiles of layer ``i`` (one-time work per level is bounded). The count is of the tiles
+        `_difference_table` measures, those with data: since store format 7 a level grid spans
+        whole chunks, and counting its empty tiles too made the Whites' level 12 band 1924
+        tiles (196 with data), so the band was bounded from level 11 (2x the triangles)."""
         for c in range(level, -1, -1):
             key = (st, c)
             with self._lock:
                 n = self._band_counts.get(key)
             if n is None:
-                mask = self._stack.blend_mask(st)
-                grid = st.level_grid(c)
-                ys, xs = np.mgrid[grid.y0 : grid.y0 + grid.ny, grid.x0 : grid.x0 + grid.nx]
-                n = int(mask.touches_band(*tile_bounds_arrays(c, xs.ravel(), ys.ravel())).sum())
+                n = int(self._band_tiles(st, c).sum())
                 with self._lock:
                     self._band_counts[key] = n
             if n <= DIFF_TABLE_TILES:
                 return c
         return 0
+
+    def _band_tiles(self, st: TileStore, level: int) -> np.ndarray:
+        """(ny, nx) bool over ``st``'s level grid: the tiles with data that touch its border
+        band (those `_difference_table` measures)."""
+        grid = st.level_grid(level)
+        ys, xs = np.mgrid[grid.y0 : grid.y0 + grid.ny, grid.x0 : grid.x0 + grid.nx]
+        xs = xs % grid.ncols
+        todo = st.has_data(level, xs, ys)
+        todo &= self._stack.blend_mask(st).touches_band(*tile_bounds_arrays(level, xs, ys))
+        return np.asarray(todo, dtype=bool)
 
     def _difference_table(self, i: int, st: TileStore, level: int) -> tuple:
         """(grid, (ny, nx) table): max over each tile's nodes of |U - L| (layer ``i`` minus the
@@ -288,9 +298,7 @@ class BandErrors:
             if kept is not None:  # measured in an earlier session: the same numbers
                 return self._keep(key, version, (grid, *kept), [])
         if hit is None:
-            mask = self._stack.blend_mask(st)
-            todo = st.has_data(level, xs, ys)
-            todo &= mask.touches_band(*tile_bounds_arrays(level, xs, ys))
+            todo = self._band_tiles(st, level)
             tiles = [(int(j), int(c)) for j, c in zip(*np.nonzero(todo), strict=True)]
             table = np.zeros(todo.shape)
             spread = np.zeros((*todo.shape, N_STRIDES))
