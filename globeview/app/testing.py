@@ -24,7 +24,10 @@ Nothing heavy is imported when pytest loads this module; each fixture imports wh
 
 from __future__ import annotations
 
+import contextlib
 import importlib
+import importlib.util
+import os
 import sys
 import textwrap
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -174,6 +177,11 @@ class PluginSite:
             path = pkg_dir.joinpath(*rel.split(".")).with_suffix(".py")
             path.parent.mkdir(parents=True, exist_ok=True)
             path.write_text(textwrap.dedent(src), encoding="utf-8")
+            # A module rewritten within the second of its last import, at the same length,
+            # would pass the bytecode cache's check (whole-second mtime + size) and run the old
+            # code: drop its cached bytecode (the cache prefix included).
+            with contextlib.suppress(OSError):
+                os.unlink(importlib.util.cache_from_source(str(path)))
         manifest_text = textwrap.dedent(manifest)
         (pkg_dir / manifest_file).write_text(manifest_text, encoding="utf-8")
         if entry_name is None:

@@ -72,7 +72,10 @@ def test_blocks_draw_fewer_triangles_exactly_as_counted(frames) -> None:
     assert res.stats.triangles == counted.triangles(65)
     assert res.stats.extra["tiles_blocked"] == int(patterned.sum())
     assert res_whole.stats.triangles == rs.triangles(65)
-    assert res.stats.triangles < 0.7 * res_whole.stats.triangles
+    # Blocks must save triangles: 17 723 of 21 824 (0.81) at this view once the border band's
+    # error bound was measured again (issue #25's band-count fix; 0.6 before, on a looser
+    # bound that drew finer whole tiles).
+    assert res.stats.triangles < 0.9 * res_whole.stats.triangles
 
 
 def test_blocks_open_no_hole(frames) -> None:
