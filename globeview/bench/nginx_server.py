@@ -219,6 +219,17 @@ class NginxServer:
                 out.append(req)
         return out
 
+    def wait_logged(self, n: int, timeout_s: float = 5.0) -> list[Served]:
+        """`requests` once at least ``n`` are logged (or ``timeout_s`` passed): nginx writes a
+        request's log line after sending its answer, so a client that has just read the answer
+        may look before the line is there."""
+        deadline = time.monotonic() + timeout_s
+        reqs = self.requests()
+        while len(reqs) < n and time.monotonic() < deadline:
+            time.sleep(0.01)
+            reqs = self.requests()
+        return reqs
+
     def max_in_flight(self, pattern: str = "*") -> int:
         """The most requests matching ``pattern`` nginx was answering at once since the last
         `reset_log`, from the logged intervals (each shortened by 1 ms at both ends: the

@@ -273,6 +273,7 @@ def test_nginx_traffic_counts_what_came_before_the_first_frame(tmp_path: Path) -
         conn.request("GET", "/s/missing.tif")
         conn.getresponse().read()
         conn.close()
+        server.wait_logged(3)  # the last answer is read before nginx logs it
         got = bench_remote._nginx_traffic(server, first)
     assert (got["requests"], got["manifest"]) == (3, 1) and got["sent"] > 102  # + a 404 page
     assert got["by_status"] == {200: 1, 206: 1, 404: 1}

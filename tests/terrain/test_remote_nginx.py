@@ -87,7 +87,7 @@ def test_nginx_answers_range_requests_and_logs_them(site: Path, nginx: NginxServ
     opts = _opts(Path(site.parent))
     ans = remote.fetch(f"{nginx.url}/{STORE}/manifest.json", opts, (0, 10))
     assert ans.status == 206 and ans.body == (site / STORE / "manifest.json").read_bytes()[:10]
-    (req,) = nginx.requests()
+    (req,) = nginx.wait_logged(1)  # nginx logs a request after answering it
     assert (req.path, req.range, req.status, req.sent) == (
         f"/{STORE}/manifest.json",
         "bytes=0-9",
