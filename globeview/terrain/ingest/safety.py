@@ -33,6 +33,7 @@ from globeview.fileio import describe_os_error
 from globeview.paths import cache_dir
 from globeview.terrain.ingest.tasks import fault_point
 from globeview.terrain.store.backend import RASTER_ERRORS
+from globeview.terrain.store.generations import remove_empty_dirs
 from globeview.terrain.store.identify import (
     StoreIdentity,
     identify,
@@ -124,22 +125,10 @@ def remove_store_dir(d: Path) -> None:
     try:
         for f in store_files(d):
             f.unlink()
-        _remove_empty_dirs(d)
+        remove_empty_dirs(d)
         d.rmdir()
     except OSError:
         pass
-
-
-def _remove_empty_dirs(d: Path) -> None:
-    """Remove the (now empty) folders of a store's subtrees, deepest first; a folder still
-    holding something (not ours) stays."""
-    for name in STORE_DIRS:
-        top = d / name
-        if not top.is_dir() or top.is_symlink():
-            continue
-        for sub, _dirs, _files in sorted(os.walk(top), key=lambda t: -len(t[0])):
-            with contextlib.suppress(OSError):
-                os.rmdir(sub)
 
 
 def _try_lock(path: Path) -> int | None:
@@ -315,7 +304,7 @@ def clear_folder(folder: Path) -> None:
     """Remove the store files in a building folder (links of a refused update)."""
     for f in store_files(folder):
         f.unlink(missing_ok=True)
-    _remove_empty_dirs(folder)
+    remove_empty_dirs(folder)
 
 
 def write_error(

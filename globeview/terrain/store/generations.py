@@ -68,6 +68,7 @@ __all__ = [
     "commit_generation",
     "read_generation",
     "referenced_files",
+    "remove_empty_dirs",
     "store_lock",
     "write_durable",
 ]
@@ -199,13 +200,13 @@ def collect_garbage(folder: Path, keep: Sequence[StoreManifest | None]) -> list[
         with contextlib.suppress(FileNotFoundError):
             p.unlink()
             removed.append(rel)
-    _remove_empty_dirs(folder)
+    remove_empty_dirs(folder)
     return removed
 
 
-def _remove_empty_dirs(folder: Path) -> None:
-    """Remove the empty folders of the store's folders, deepest first (an old generation's
-    ``facts/`` too)."""
+def remove_empty_dirs(folder: Path) -> None:
+    """Remove the empty folders of the store's folders (`STORE_DIRS`), deepest first (an old
+    generation's ``facts/`` too); a folder still holding something (not ours) stays."""
     for name in STORE_DIRS:
         top = folder / name
         if not top.is_dir() or top.is_symlink():
