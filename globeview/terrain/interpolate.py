@@ -13,7 +13,7 @@ import functools
 
 import numpy as np
 
-__all__ = ["bilinear", "linear_weights", "upsample_subtile"]
+__all__ = ["bilinear", "interp_axis", "linear_weights", "upsample_subtile"]
 
 
 def bilinear(grid: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
@@ -79,3 +79,20 @@ def linear_weights(pos: np.ndarray, n: int) -> np.ndarray:
     m[rows, i0] = 1.0 - fr
     m[rows, i0 + 1] += fr
     return m
+
+
+def interp_axis(values: np.ndarray, pos: np.ndarray, axis: int) -> np.ndarray:
+    """Linear interpolation of ``values`` along ``axis`` at fractional node positions (clamped
+    to 0..n-1): the product with `linear_weights` (``linear_weights(pos, n) @ values`` for axis
+    0), done by gathering each position's two neighbouring nodes. That costs O(output), where
+    the dense weight matrix costs O(output x n): seconds for a layer-sized raster (issue #28).
+    Float64 out; NaN in a neighbour of weight 0 does not propagate (it does in the product)."""
+    n = values.shape[axis]
+    p = np.clip(np.asarray(pos, dtype=np.float64), 0.0, n - 1.0)
+    i0 = np.minimum(np.floor(p).astype(np.int64), n - 2)
+    shape = [1] * values.ndim
+    shape[axis] = len(p)
+    fr = (p - i0).reshape(shape)
+    lo = np.take(values, i0, axis=axis).astype(np.float64)
+    hi = np.take(values, i0 + 1, axis=axis).astype(np.float64)
+    return lo * (1.0 - fr) + hi * fr
