@@ -146,6 +146,17 @@ def sprite_classes(
     return sprite, seen & ~sprite
 
 
+def _view_key(view: ViewState) -> bytes:
+    """What `sprite_classes` and `placemark_classes` read of a view (eye, rotation,
+    projection, viewport, field of view), as bytes: equal keys choose the same split."""
+    w, h = view.viewport
+    extra = np.array([w, h, view.fovy_deg], np.float64)
+    return b"".join(
+        np.ascontiguousarray(a, np.float64).tobytes()
+        for a in (view.eye, view.rotation, view.proj, extra)
+    )
+
+
 def _box_mesh() -> np.ndarray:
     """(36, 6) float32 triangles of a unit box (x, y in -0.5..0.5, z 0..1): position, normal."""
     faces = []
@@ -360,6 +371,7 @@ class PointOverlay:
         self._centres = np.zeros((0, 3))
         self._radii = np.zeros(0)
         self._split: tuple[bytes, bytes] | None = None
+        self._split_view: bytes | None = None  # the view the split was chosen for
         self.n_sprites = self.n_meshes = 0
         if self.style.labels and self.names:
             uniq, inv = np.unique(np.array(self.names, dtype=object), return_inverse=True)
@@ -441,6 +453,12 @@ class PointOverlay:
         """Choose sprites and meshes (boxes) or quads (placemarks) for this frame
         (`sprite_classes`, `placemark_classes`) and upload each set's rows when the choice
         changed."""
+        # A still camera over the same resident objects keeps last frame's choice: the view
+        # is all the choice depends on (`update` resets it when the objects change).
+        view_key = _view_key(view)
+        if self._split is not None and view_key == self._split_view:
+            return
+        self._split_view = view_key
         rel = self._centres - np.asarray(view.eye, np.float64)
         classes = placemark_classes if self.style.kind == "placemark" else sprite_classes
         sprite, mesh = classes(view, rel, self._radii)

@@ -127,12 +127,17 @@ def view_uniforms(view: ViewState) -> dict[str, object]:
 
 
 def set_uniforms(program: moderngl.Program, uni: dict[str, object]) -> None:
+    """Set the uniforms of ``uni`` that ``program`` has (the GLSL compiler drops unused
+    ones): bytes are written, other values assigned. Looked up with ``get`` (a dict lookup):
+    ``name in program`` walks the program's members one by one in Python."""
     for name, value in uni.items():
-        if name in program:
-            if isinstance(value, bytes):
-                program[name].write(value)
-            else:
-                program[name].value = value
+        member = program.get(name, None)
+        if member is None:
+            continue
+        if isinstance(value, bytes):
+            member.write(value)
+        else:
+            member.value = value
 
 
 @dataclass

@@ -181,3 +181,36 @@ def test_cones_out_of_view_are_culled_without_changing_the_image(session, monkey
         session.renderer.overlays.points.remove(ov)
         ov.release()
     assert np.abs(culled - every).max() <= 2
+
+
+@pytest.mark.slow
+def test_a_still_view_keeps_its_sprite_choice(session, monkeypatch) -> None:
+    """A still camera over the same boxes keeps last frame's sprite/mesh choice (no
+    `sprite_classes` over every box, no upload); a turn, or boxes paged in again, choose
+    again, and the same view draws the same image either way."""
+    import globeview.render.overlay_points as op
+
+    calls = []
+    real = op.sprite_classes
+    monkeypatch.setattr(op, "sprite_classes", lambda *a: calls.append(1) or real(*a))
+    rng = np.random.default_rng(5)
+    lon, lat = rng.uniform(0.0, 20.0, 500), rng.uniform(38.0, 54.0, 500)
+    ov = op.PointOverlay(session.ctx, lon, lat, None, op.PointStyle("box", scale_m=20000.0))
+    session.renderer.overlays.points.append(ov)
+    try:
+        session.camera = Camera.from_lonlat(10.0, 46.0, 1.5e6, 0.0, -90.0)
+        session.render(session.target.fbo, SIZE)
+        first = session.target.read_rgb()
+        n = len(calls)
+        session.render(session.target.fbo, SIZE)
+        assert len(calls) == n and ov.n_sprites > 0  # still: the choice is kept
+        assert np.array_equal(session.target.read_rgb(), first)
+        session.camera.fly_yaw(0.5)
+        session.render(session.target.fbo, SIZE)
+        assert len(calls) == n + 1  # turned: chosen again
+        ov._sig = None  # the objects paged in again: chosen again, even for the same view
+        session.render(session.target.fbo, SIZE)
+        assert len(calls) == n + 2
+    finally:
+        session.renderer.overlays.points.remove(ov)
+        ov.release()
