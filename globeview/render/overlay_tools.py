@@ -83,6 +83,11 @@ class DisplacedMemo:
         self._key: tuple | None = None
         self._moved: dict[tuple, np.ndarray] = {}
 
+    @property
+    def key(self) -> tuple | None:
+        """The displacement key of the last `wrap` (None before any)."""
+        return self._key
+
     def wrap(self, view: ViewState, displace: Displace) -> Displace:
         """``displace`` memoised for this frame's displacement (the view's, with ``displace``)."""
         key = displacement_key(replace(view, displace=displace))
@@ -101,6 +106,31 @@ class DisplacedMemo:
             return out
 
         return cached
+
+
+def _view_key(view: ViewState) -> bytes:
+    """What the instance tables read of a view: its eye (ECEF m), as bytes (a camera turning
+    in place keeps its tables; the projection is a uniform)."""
+    return np.ascontiguousarray(view.eye, np.float64).tobytes()
+
+
+def _primitives_key(primitives: Sequence[Any]) -> tuple:
+    """The primitives' values (what `overlay_instances` and `label_instances` read), hashable:
+    a tool that returns equal primitives again gets the same tables."""
+    out: list[tuple] = []
+    for p in primitives:
+        if hasattr(p, "position"):
+            pos = np.asarray(p.position, np.float64).tobytes()
+            rgba = np.asarray(p.color, np.float64).tobytes()
+            out.append(("m", pos, rgba, float(p.size_px), str(getattr(p, "label", ""))))
+        elif hasattr(p, "points"):
+            pts = np.ascontiguousarray(p.points, np.float64).tobytes()
+            rgba = np.asarray(p.color, np.float64).tobytes()
+            flags = (bool(getattr(p, "closed", False)), bool(getattr(p, "depth_test", True)))
+            out.append(("l", pts, rgba, float(p.width_px), flags))
+        else:
+            out.append(("?", id(p)))
+    return tuple(out)
 
 
 def _pieces(pts: np.ndarray) -> np.ndarray:
@@ -238,6 +268,8 @@ class ToolOverlayRenderer:
         self.drawn = 0
         self.labels_drawn = 0
         self._displaced = DisplacedMemo()
+        # The last frame's (key, instance table, label table, atlas rects) (`draw`).
+        self._tables: tuple[tuple, np.ndarray, np.ndarray, dict] | None = None
 
     def _make_vao(self) -> moderngl.VertexArray:
         return gpu_objects(self.ctx).vertex_array(
@@ -293,9 +325,22 @@ class ToolOverlayRenderer:
         (markers and segments; labels are counted in ``labels_drawn``)."""
         if displace is not None:
             displace = self._displaced.wrap(view, displace)
-        data = overlay_instances(view, primitives, displace)
         self._ensure_atlas(primitives)
-        labels = label_instances(view, primitives, self._rect_of, displace)
+        # A still view of the same primitives under the same displacement has the same
+        # instance tables: kept from the last frame instead of displaced and projected again.
+        key = (
+            _view_key(view),
+            _primitives_key(primitives),
+            None if displace is None else ("displaced", self._displaced.key),
+            id(self._rect_of),
+        )
+        if self._tables is not None and self._tables[0] == key:
+            data, labels = self._tables[1], self._tables[2]
+        else:
+            data = overlay_instances(view, primitives, displace)
+            labels = label_instances(view, primitives, self._rect_of, displace)
+            # The atlas' rects are held too, so their id in the key is not reused meanwhile.
+            self._tables = (key, data, labels, self._rect_of)
         n = len(data)
         self.drawn = n
         self.labels_drawn = len(labels)

@@ -118,3 +118,28 @@ def test_labels_beyond_the_horizon_are_not_drawn(session) -> None:
     assert session.tools_renderer.labels_drawn == 0 and session.tools_renderer.drawn == 0
     plain, _, _ = _draw(session, [])
     assert np.array_equal(rgb, plain)
+
+
+@pytest.mark.slow
+def test_a_still_eye_keeps_the_instance_tables(session, monkeypatch) -> None:
+    """The same primitives seen from the same eye draw from last frame's instance tables (no
+    projection again: a still tool overlay costs no Python per repaint), the same pixels;
+    another eye, or another primitive, makes them again."""
+    import globeview.render.overlay_tools as ot
+
+    calls = []
+    real = ot.overlay_instances
+    monkeypatch.setattr(ot, "overlay_instances", lambda *a: calls.append(1) or real(*a))
+    line = Polyline(np.stack([_ecef(-45.0, 48.0), _ecef(-35.0, 52.0)]), width_px=3.0)
+    prims = [Marker(tuple(_ecef(-40.0, 50.0)), label="kept"), line]
+    _, first, view = _draw(session, prims)
+    same = [Marker(tuple(_ecef(-40.0, 50.0)), label="kept"), line]  # equal, not the same objects
+    _, again, _ = _draw(session, same)
+    assert len(calls) == 1 and np.array_equal(first, again)
+    session.tools_renderer.draw(
+        view, [*same, Marker(tuple(_ecef(-30.0, 45.0)))], session.target.fbo
+    )
+    assert len(calls) == 2 and session.tools_renderer.drawn == real(view, prims).shape[0] + 1
+    session.camera = Camera.from_lonlat(-41.0, 50.0, 8.0e6)
+    _draw(session, same)
+    assert len(calls) == 3
