@@ -13,6 +13,8 @@ Overlays (host layers built from the plugin API's drawables, as a layer plugin r
 Target (issue #17, item 5): 10 000 boxes cost at most +20 % frame time over the same view
 without them; the ``ratio`` column is frame_ms with / without, ``cpu_ratio`` the same for
 the process's CPU time per frame (all threads, llvmpipe's included: steadier under load).
+Every row turns the camera a hair per frame; the issue's scene also has ``still cam`` rows
+(the camera not moving, a window's repaint: the boxes' sprite/mesh split is kept).
 
     .venv/bin/python benchmarks/bench_overlays.py [--frames 9] [--size 1280x720]
         [--objects 10000] [--kinds boxes,cones,placemarks,labels,lines] [--views SUBSTR]
@@ -84,15 +86,40 @@ def drawable(kind: str, pose: tuple, n: int):
     raise GlobeviewError(f"--kinds: unknown overlay kind {kind!r} (one of {', '.join(KINDS)})")
 
 
-def measured(bench: Bench, pose: tuple, frames: int) -> tuple[dict[str, float], float]:
+def measured(
+    bench: Bench, pose: tuple, frames: int, turn_deg: float = 0.01
+) -> tuple[dict[str, float], float]:
     """`Bench.measure` of the view after a warm frame (tiles and instances uploaded), and the
     mean CPU time per frame (ms, all the process's threads: llvmpipe's too),
-    which a loaded machine disturbs less than wall time."""
+    which a loaded machine disturbs less than wall time. ``turn_deg`` 0: a still camera."""
     bench.set_pose(pose, cut=True)
     bench.frame()
     t0 = time.process_time()
-    m = bench.measure(pose, frames, turn_deg=0.01)
+    m = bench.measure(pose, frames, turn_deg=turn_deg)
     return m, (time.process_time() - t0) * 1e3 / (frames + 1)
+
+
+def still_row(
+    wanted: bool,
+    bench: Bench,
+    what: tuple[str, str, int],
+    pose: tuple,
+    frames: int,
+    base: tuple[dict[str, float], float] | None,
+) -> tuple[dict[str, float], float] | None:
+    """With ``wanted``, measure the view with the camera still and print its row (``what``:
+    view name, overlay, objects drawn) with its ratios to ``base`` (the same view without
+    the overlay, still; None: this is it); returns (measure, cpu_ms), None if not wanted."""
+    if not wanted:
+        return None
+    m, cpu = measured(bench, pose, frames, 0.0)
+    b_m, b_cpu = base if base is not None else (m, cpu)
+    name, overlay, drawn = what
+    print(
+        f"| {name} | {overlay}, still cam | {drawn} | {m['frame_ms']:.1f} | {m['draw_ms']:.1f} "
+        f"| {m['frame_ms'] / b_m['frame_ms']:.2f} | {cpu:.1f} | {cpu / b_cpu:.2f} |"
+    )
+    return m, cpu
 
 
 def main() -> int:
@@ -136,12 +163,14 @@ def main() -> int:
             f"| {vname} | none | 0 | {base['frame_ms']:.1f} | {base['draw_ms']:.1f} | 1.00 "
             f"| {base_cpu:.1f} | 1.00 |"
         )
+        still = still_row(b is not bench, b, (vname, "none", 0), pose, args.frames, None)
         for kind in row_kinds:
             d = issue_boxes(args.objects) if b is not bench else drawable(kind, pose, args.objects)
             layer, problem = host_layer(d, kind)
             if problem is not None:
                 raise GlobeviewError(f"{kind}: {problem}")
             session.globe.add_overlay(layer)
+            still_row(b is not bench, b, (vname, "boxes", args.objects), pose, args.frames, still)
             m, cpu = measured(b, pose, args.frames)
             r = session.render(b.target.fbo, b.size)
             drawn = r.stats.extra.get("objects", r.stats.extra.get("vector_segments", 0))
