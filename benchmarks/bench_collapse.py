@@ -8,7 +8,9 @@ points (9 per tile corner lattice), never vertices.
 ``cpu_ms`` is the process's CPU time per frame (all threads, llvmpipe's too: steadier than
 wall time on a loaded machine). The ``off, still cam`` and ``on, still cam`` rows repeat the
 view with the camera not moving at all (a window repainting a still view: the selection is
-reused, nothing is re-uploaded), so what is left is the draw.
+reused, nothing is re-uploaded), so what is left is the draw; ``on, plain LOD`` draws the
+collapse over the tiles and strides of the view without it (the provider is shown no
+displacement): the vertex shader's bend by itself, without the triangles the fold adds.
 
 Targets (issue #17, item 5): a still collapse <= +10 % frame time over the same view without
 it; an animating collapse's lod_ms <= 5 ms.
@@ -23,9 +25,12 @@ import os
 import statistics
 import sys
 import time
+from dataclasses import replace
 
 from globeview.bench.harness import Bench, machine, parse_size
 from globeview.errors import GlobeviewError
+from globeview.lod.render_set import RenderSet
+from globeview.lod.view_state import ViewState
 from globeview.terrain.compose.stack import TerrainStack
 from globeview.terrain.embedded import embedded_stores
 
@@ -87,6 +92,23 @@ def measured(bench: Bench, cam: tuple, frames: int, turn_deg: float) -> dict[str
     return m
 
 
+def plain_lod(bench: Bench, cam: tuple, frames: int) -> dict[str, float]:
+    """`measured` with the collapse drawn (its shader, uniforms and overlay) over the tiles
+    and strides of the view without it (the provider sees no displacement): what the
+    vertex shader's bend costs by itself, apart from the triangles the fold adds."""
+    session = bench.session
+    select = session.select
+
+    def undisplaced(view: ViewState) -> RenderSet:
+        return select(replace(view, displace=None, displacement_bend=None, displacement_key=None))
+
+    session.select = undisplaced  # type: ignore[method-assign]
+    try:
+        return measured(bench, cam, frames, 0.01)
+    finally:
+        del session.select  # the class's method again
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--frames", type=int, default=9)
@@ -114,6 +136,7 @@ def main() -> int:
         session.activate_tool("collapse")
         on = measured(bench, cam, args.frames, 0.01)
         on_still = measured(bench, cam, args.frames, 0.0)
+        shader_only = plain_lod(bench, cam, args.frames)
         t0 = time.process_time()
         anim = animate(bench, tool, cam, pair, args.frames)
         anim["cpu_ms"] = (time.process_time() - t0) * 1e3 / (args.frames + 2)
@@ -123,6 +146,7 @@ def main() -> int:
             ("anim", anim),
             ("off, still cam", off_still),
             ("on, still cam", on_still),
+            ("on, plain LOD", shader_only),
         )
         for label, m in rows:
             print(
