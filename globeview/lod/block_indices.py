@@ -7,8 +7,12 @@ stride indices (0..3: strides 1, 2, 4, 8), row 0 the northern blocks, column 0 t
 Crack-free inside the tile: the edge between two blocks is drawn at the larger of their two
 strides by both (the finer block's border cells become fans onto the coarse edge's nodes,
 `tile_indices._stitch_edges` on a 9 x 9 grid); the coarse edge's nodes are a subset of the
-fine ones, so no T-junction. The tile's own edges keep today's rule: skirts, each edge
-block's at its stride (the skirt vertices of `render/tile_mesh.py`'s layout).
+fine ones, so no T-junction. The tile's own edges: by default skirts, each edge block's at
+its stride (the skirt vertices of `render/tile_mesh.py`'s layout); with *tile edges*
+(``edges`` (4, 8): north, south, west, east, each edge block west to east or north to
+south) an edge block may instead be drawn at a stride stitched to the same-level neighbour
+across that edge (the larger of the two tiles' blocks there, `stitching.stitch_tile_edges`)
+and then has no skirt: both tiles draw the same nodes there.
 
 Every block's triangles come from a precomputed *piece* per (block stride, its four edge
 strides) in node offsets relative to the block's origin node ``8 bi size + 8 bj``, and every
@@ -32,6 +36,8 @@ BLOCK_CELLS = 8
 N_BLOCK_STRIDES = 4
 #: (north, south, west, east) edges, as in `tile_indices._skirt_triangles`.
 _EDGES = 4
+#: A tile edge block's entry in ``edges`` that keeps its skirt at the block's own stride.
+SKIRTED = -1
 
 
 @dataclass(frozen=True)
@@ -127,14 +133,10 @@ def block_pieces(size: int) -> BlockPieces:
     return out
 
 
-def _segments(size: int, patterns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(M, 96) start in the piece table, length and node offset of each pattern's 64 grid
-    pieces (blocks row-major) and 32 skirt pieces (north, south, west, east edges)."""
-    p = block_pieces(size)
-    bs = np.asarray(patterns, dtype=np.int64).reshape(-1, BLOCKS, BLOCKS)
-    if bs.size and (bs.min() < 0 or bs.max() >= N_BLOCK_STRIDES):
-        raise ValueError("block stride indices must be 0..3")
-    # Edge strides: the larger of the two blocks' strides; the tile's edges the block's own.
+def _edge_strides(bs: np.ndarray, edges: np.ndarray | None) -> tuple[np.ndarray, ...]:
+    """(north, south, west, east) edge stride indices (M, 8, 8) of every block of patterns
+    ``bs``: the larger of the two blocks' strides inside the tile; on the tile's edges the
+    block's own, or the stitched stride of ``edges`` (M, 4, 8) where it is not `SKIRTED`."""
     north = bs.copy()
     north[:, 1:] = np.maximum(bs[:, 1:], bs[:, :-1])
     south = bs.copy()
@@ -143,6 +145,43 @@ def _segments(size: int, patterns: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     west[:, :, 1:] = np.maximum(bs[:, :, 1:], bs[:, :, :-1])
     east = bs.copy()
     east[:, :, :-1] = np.maximum(bs[:, :, :-1], bs[:, :, 1:])
+    if edges is not None:
+        for out, line in ((north[:, 0, :], 0), (south[:, -1, :], 1)):
+            np.maximum(out, edges[:, line], out=out)
+        for out, line in ((west[:, :, 0], 2), (east[:, :, -1], 3)):
+            np.maximum(out, edges[:, line], out=out)
+    return north, south, west, east
+
+
+def _check_patterns(
+    patterns: np.ndarray, edges: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """``patterns`` as (M, 8, 8) int64 and ``edges`` as (M, 4, 8) int64 (or None), checked:
+    stride indices 0..3, tile edges `SKIRTED` or a stride no finer than the edge block's."""
+    bs = np.asarray(patterns, dtype=np.int64).reshape(-1, BLOCKS, BLOCKS)
+    if bs.size and (bs.min() < 0 or bs.max() >= N_BLOCK_STRIDES):
+        raise ValueError("block stride indices must be 0..3")
+    if edges is None:
+        return bs, None
+    ed = np.asarray(edges, dtype=np.int64).reshape(-1, _EDGES, BLOCKS)
+    if len(ed) != len(bs):
+        raise ValueError(f"{len(ed)} tile edges for {len(bs)} block patterns")
+    own = np.stack([bs[:, 0, :], bs[:, -1, :], bs[:, :, 0], bs[:, :, -1]], axis=1)
+    stitched = ed != SKIRTED
+    if ((ed >= N_BLOCK_STRIDES) | (stitched & (ed < own))).any():
+        raise ValueError("a tile edge stride must be -1 or 0..3, no finer than its block's")
+    return bs, ed
+
+
+def _segments(
+    size: int, patterns: np.ndarray, edges: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(M, 96) start in the piece table, length and node offset of each pattern's 64 grid
+    pieces (blocks row-major) and 32 skirt pieces (north, south, west, east edges; length 0
+    where ``edges`` stitches the edge block)."""
+    p = block_pieces(size)
+    bs, ed = _check_patterns(patterns, edges)
+    north, south, west, east = _edge_strides(bs, ed)
     m = len(bs)
     g_start = p.grid_start[bs, north, south, west, east].reshape(m, -1)
     g_len = p.grid_len[bs, north, south, west, east].reshape(m, -1)
@@ -153,26 +192,32 @@ def _segments(size: int, patterns: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     edge = np.repeat(np.arange(_EDGES), BLOCKS)
     s_start = p.skirt_start[edge, np.tile(pos, _EDGES), edge_strides]
     s_len = p.skirt_len[edge, np.tile(pos, _EDGES), edge_strides]
+    if ed is not None:
+        s_len = np.where(ed.reshape(m, -1) == SKIRTED, s_len, 0)
     starts = np.concatenate([g_start, s_start], axis=1)
     lens = np.concatenate([g_len, s_len], axis=1)
     offs = np.concatenate([g_off, np.zeros_like(s_start)], axis=1)
     return starts, lens, offs
 
 
-def pattern_counts(size: int, patterns: np.ndarray) -> np.ndarray:
+def pattern_counts(size: int, patterns: np.ndarray, edges: np.ndarray | None = None) -> np.ndarray:
     """(M,) int64 indices (3 per triangle) of each block pattern (M, 8, 8) over tiles of
-    ``size`` nodes: what `pattern_indices` returns for it, skirts included."""
-    _, lens, _ = _segments(size, patterns)
+    ``size`` nodes, with tile edges ``edges`` (M, 4, 8) or None (all skirted): what
+    `pattern_indices` returns for it, skirts included."""
+    _, lens, _ = _segments(size, patterns, edges)
     counts: np.ndarray = lens.sum(axis=1)
     return counts
 
 
-def pattern_indices(size: int, patterns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The triangle lists of block patterns (M, 8, 8) over tiles of ``size`` nodes, as one
+def pattern_indices(
+    size: int, patterns: np.ndarray, edges: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The triangle lists of block patterns (M, 8, 8) with tile edges ``edges`` (M, 4, 8)
+    (None: every edge block skirted at its stride) over tiles of ``size`` nodes, as one
     uint32 array of the M lists one after the other and (M + 1,) int64 bounds (list i is
     ``out[bounds[i]:bounds[i + 1]]``). One gather over every piece of every pattern."""
     p = block_pieces(size)
-    starts, lens, offs = _segments(size, patterns)
+    starts, lens, offs = _segments(size, patterns, edges)
     flat_len = lens.reshape(-1)
     total = int(flat_len.sum())
     seg_first = np.cumsum(flat_len) - flat_len  # where each segment lands in the output

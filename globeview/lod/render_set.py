@@ -307,6 +307,11 @@ def _check_variant(v: object, n_cells: int) -> None:
                     f"edge stride {e!r:.40} is not a multiple of stride {s} dividing "
                     f"{n_cells} cells"
                 )
+    flags = v.skirt_edges
+    if flags is not None and (
+        not isinstance(flags, tuple) or len(flags) != 4 or not all(type(f) is bool for f in flags)
+    ):
+        raise InvalidRenderSet(f"skirt_edges {flags!r:.60} is not 4 bools")
     try:
         hash(v)  # the index pool caches variants by value
     except TypeError as exc:

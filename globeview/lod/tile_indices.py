@@ -39,12 +39,16 @@ class IndexVariant:
     edge_strides: optional (north, south, west, east) strides of the edges, each a multiple
         of ``stride``: an edge drawn at a coarser stride matches a coarser neighbour exactly
         (TREND §4.2.3 / Rishe §3.3 border stitching) instead of relying on skirts.
+    skirt_edges: optional (north, south, west, east) flags: with ``skirts``, only the edges
+        flagged get skirts (an edge stitched to a same-level neighbour drawn there shares
+        its nodes and needs none); None: every non-pole edge.
     """
 
     stride: int = 1
     skirts: bool = True
     pole: Pole = None
     edge_strides: tuple[int, int, int, int] | None = None
+    skirt_edges: tuple[bool, bool, bool, bool] | None = None
 
 
 @functools.lru_cache(maxsize=4096)
@@ -104,9 +108,12 @@ def _skirt_triangles(size: int, variant: IndexVariant) -> list[np.ndarray]:
         "east": np.arange(size) * size + n,
     }
     strides = variant.edge_strides or (variant.stride,) * 4
+    flags = variant.skirt_edges or (True,) * 4
     out = []
     for k, (name, nodes) in enumerate(edge_nodes.items()):
         if variant.pole == name or (variant.pole == "both" and name in ("north", "south")):
+            continue
+        if not flags[k]:
             continue
         s = strides[k]
         i = np.arange(0, n, s)

@@ -30,6 +30,7 @@ from globeview.lod.render_set import (
     clean_provider_stats,
     level_histogram,
 )
+from globeview.lod.stitching import plain_stride_idx, stitch_tile_edges
 from globeview.lod.tile_indices import IndexVariant
 from globeview.lod.view_state import INV_AXES2, ViewState
 from globeview.model.display import DisplaySettings
@@ -45,6 +46,10 @@ from globeview.render.tile_workers import ProcessBuilder, TerrainRecipe, default
 from globeview.terrain.compose.stack import TerrainStack
 from globeview.terrain.quadtree import tile_bounds
 
+#: Pixels that tile edges reach past their neighbours' (the terrain shader's
+#: ``gv_edge_push``): edges stitched without skirts overlap instead of leaving float32
+#: rounding slivers between them.
+EDGE_PUSH_PX = 0.05
 #: Loader threads when a visible layer is remote (`GlobeRenderer.load_workers`): four builds
 #: overlap four round trips (issue #25 item 4); at most the store's `max_requests`.
 REMOTE_LOAD_WORKERS = 4
@@ -91,7 +96,7 @@ class GlobeRenderer:
         # imagery, hillshade, fog, tilt, wireframe (TERRAIN_FEATURES)
         self._features = (False, False, True, False, False)
         self.program = self._compile(None, self._features)
-        self.instances = gpu_objects(ctx).buffer(reserve=capacity * 8 * 4, dynamic=True)
+        self.instances = gpu_objects(ctx).buffer(reserve=capacity * 9 * 4, dynamic=True)
         self.commands = gpu_objects(ctx).buffer(reserve=capacity * 5 * 4, dynamic=True)
         # Providers that triangulate each tile themselves (quadtree-clod) write their indices
         # here every frame; the buffer only grows (rarely), it is never created per frame.
@@ -187,11 +192,12 @@ class GlobeRenderer:
             (self.pool.vbo, "3f 1f 2f", "in_pos", "in_h", "in_uv"),
             (
                 self.instances,
-                "3f 3f 1f 1f/i",
+                "3f 3f 1f 1f 1f/i",
                 "in_center_rel",
                 "in_center",
                 "in_layer",
                 "in_coast_scale",
+                "in_edge_push",
             ),
         ]
         # skip_errors: a shader variant may not use every attribute.
@@ -454,11 +460,24 @@ class GlobeRenderer:
         n = len(slots)
 
         blocks = self.block_strides(view, render_set, slots)
+        edges = None
+        push = np.zeros(n)
+        if render_set.block_tau_px is not None and n:
+            # The default provider's tiles: edges shared with a same-level neighbour stitched
+            # instead of skirted (issue #27 item 3), and pushed to overlap (`EDGE_PUSH_PX`).
+            tile_edges = stitch_tile_edges(render_set, blocks)
+            blocks, edges = tile_edges.blocks, tile_edges.edges
+            push = tile_edges.stitched @ np.array([1.0, 2.0, 4.0, 8.0])
+            render_set = dataclasses.replace(
+                render_set, variant_ids=tile_edges.variant_ids, variants=tile_edges.variants
+            )
         patterned = np.empty(0, np.int64)
         if blocks is not None:
             patterned = np.flatnonzero(blocks[:, 0, 0] >= 0)
             # Before the variants: room for new patterns may start the index pool afresh.
-            p_first, p_count = self.indices.patterns(blocks[patterned])
+            p_first, p_count = self.indices.patterns(
+                blocks[patterned], None if edges is None else edges[patterned]
+            )
         self.last_block_tiles = len(patterned)
         self.last_blocks = blocks if len(patterned) else None
         table = np.array(
@@ -496,6 +515,7 @@ class GlobeRenderer:
                 centers,
                 slots[:, None].astype(np.float64),
                 self.pool.coast_scale[slots, None],
+                push[:, None],
             ],
             axis=1,
         ).astype(np.float32)
@@ -569,20 +589,9 @@ class GlobeRenderer:
         t0 = time.process_time()
         if slots is None:
             slots = self.pool.slots_of(render_set.keys)
-        # A variant's stride index where blocks may go coarser, else past the blocks' range.
-        var_idx = np.array(
-            [
-                int(v.stride).bit_length() - 1
-                if v.pole is None and v.edge_strides is None and v.skirts
-                else WHOLE_FROM
-                for v in render_set.variants
-            ],
-            dtype=np.int64,
-        )
-        stride_idx = var_idx[render_set.variant_ids]
-        if render_set.custom_indices:
-            stride_idx = stride_idx.copy()
-            stride_idx[np.array(list(render_set.custom_indices), dtype=np.int64)] = WHOLE_FROM
+        # A plain variant's stride index, where blocks may go coarser; else past their range.
+        stride_idx = plain_stride_idx(render_set)
+        stride_idx = np.where(stride_idx >= 0, stride_idx, WHOLE_FROM)
         out = choose_block_strides(
             self.pool.block_facts,
             slots,
@@ -655,6 +664,7 @@ class GlobeRenderer:
         uni["u_fog_end"] = 1.6 * horizon if s.fog else 2e30
         uni["u_fog_color"] = (0.70, 0.78, 0.90)
         uni["u_wire_color"] = tuple(s.wire_color)
+        uni["u_edge_push"] = (EDGE_PUSH_PX / view.sse_factor, 1.0 / self.size)
         if extra:
             uni.update(extra)
         p = self.program

@@ -12,7 +12,7 @@ from collections.abc import Callable
 import moderngl
 import numpy as np
 
-from globeview.lod.block_indices import pattern_indices
+from globeview.lod.block_indices import SKIRTED, pattern_indices
 from globeview.lod.block_strides import N_BLOCKS, N_FACTS, block_facts
 from globeview.lod.tile_indices import IndexVariant, grid_indices
 from globeview.render.gpu_objects import gpu_objects
@@ -58,21 +58,29 @@ class IndexPool:
         self._custom_first = None
         self.on_realloc: Callable[[], None] | None = None
 
-    def patterns(self, block_strides: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(first index, index count) (M,) each of block patterns (M, 8, 8) int8 in the
-        buffer, building the new ones in one vectorised gather (`pattern_indices`).
+    def patterns(
+        self, block_strides: np.ndarray, edges: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(first index, index count) (M,) each of block patterns (M, 8, 8) int8 with tile
+        edges ``edges`` (M, 4, 8) int8 (None: all skirted; `block_indices.pattern_indices`)
+        in the buffer, building the new ones in one vectorised gather.
 
         Ask for a frame's patterns before its variants (`get`): making room for them may
         start the pool afresh, which moves every variant."""
         bs = np.ascontiguousarray(block_strides, dtype=np.int8).reshape(-1, 64)
-        keys = [row.tobytes() for row in bs]
+        if edges is None:
+            edges = np.full((len(bs), 4, 8), SKIRTED, dtype=np.int8)
+        both = np.concatenate([bs, np.asarray(edges, dtype=np.int8).reshape(-1, 32)], axis=1)
+        keys = [row.tobytes() for row in both]
         new = sorted({k for k in keys if k not in self._patterns})
         if new:
-            fresh = np.frombuffer(b"".join(new), dtype=np.int8).reshape(-1, 8, 8)
-            idx, bounds = pattern_indices(self.size, fresh)
+            fresh = np.frombuffer(b"".join(new), dtype=np.int8).reshape(-1, 96)
+            idx, bounds = pattern_indices(
+                self.size, fresh[:, :64].reshape(-1, 8, 8), fresh[:, 64:].reshape(-1, 4, 8)
+            )
             if self._used + len(idx) > self.cap and self._used:
                 self._restart()
-                return self.patterns(block_strides)
+                return self.patterns(block_strides, edges)
             first = self._append(idx)
             for k, lo, hi in zip(new, bounds[:-1].tolist(), bounds[1:].tolist(), strict=True):
                 self._patterns[k] = (first + lo, hi - lo)
