@@ -51,6 +51,7 @@ def test_a_kept_mask_is_read_back_without_building_or_measuring(stores, kept, mo
     again, again_errors = _built(st)
     np.testing.assert_array_equal(again, w)  # the same bits
     assert again.dtype == np.float32
+    np.testing.assert_array_equal(blend.BlendMask(st)._partial, _partial(w))
     assert again_errors == errors
 
 
@@ -64,11 +65,19 @@ def test_damaged_files_are_built_and_measured_again(stores, kept):
     assert again_errors == errors
 
 
+def _partial(w: np.ndarray) -> np.ndarray:
+    return np.pad((w < 1.0).astype(np.int64), ((1, 0), (1, 0))).cumsum(0).cumsum(1)
+
+
 def test_a_mask_of_another_shape_or_range_is_not_used(kept):
-    mask_cache.save_weights("k", np.full((3, 4), 0.5, np.float32))
+    w = np.full((3, 4), 0.5, np.float32)
+    mask_cache.save_weights("k", w, _partial(w))
     assert mask_cache.load_weights("k", (3, 4)) is not None
     assert mask_cache.load_weights("k", (4, 3)) is None
-    mask_cache.save_weights("k", np.full((3, 4), 2.0, np.float32))
+    mask_cache.save_weights("k", w, _partial(w) + 1)  # not the integral of w < 1
+    assert mask_cache.load_weights("k", (3, 4)) is None
+    w = np.full((3, 4), 2.0, np.float32)
+    mask_cache.save_weights("k", w, _partial(w))
     assert mask_cache.load_weights("k", (3, 4)) is None
     mask_cache.save_interp_errors("e", {2: 0.5, 4: 1.5})
     assert mask_cache.load_interp_errors("e") == {}

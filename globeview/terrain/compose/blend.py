@@ -100,12 +100,15 @@ class BlendMask:
         # _box_mean's raster is one node larger than the coverage's along each axis.
         shape = (grid.ny * cells + 2, grid.nx * cells + 2)
         kept = None if self.cache_key is None else load_weights(self.cache_key, shape)
-        self.w = self._weights(st, lv) if kept is None else kept
-        if kept is None and self.cache_key is not None:
-            save_weights(self.cache_key, self.w)
-        # Integral image of "w < 1" raster nodes: does a lon/lat box meet the band?
-        part = np.pad((self.w < 1.0).astype(np.int64), ((1, 0), (1, 0)))
-        self._partial = part.cumsum(0).cumsum(1)
+        if kept is None:
+            self.w = self._weights(st, lv)
+            # Integral image of "w < 1" raster nodes: does a lon/lat box meet the band?
+            part = np.pad((self.w < 1.0).astype(np.int64), ((1, 0), (1, 0)))
+            self._partial = part.cumsum(0).cumsum(1)
+            if self.cache_key is not None:
+                save_weights(self.cache_key, self.w, self._partial)
+        else:
+            self.w, self._partial = kept
         #: `interpolation_error` by cell size in raster steps (it depends on w only).
         self.interp_errors: dict[int, float] = (
             {} if self.cache_key is None else load_interp_errors(self.cache_key)

@@ -40,7 +40,7 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 #: Bump when the kept arrays change meaning: old files are then never read.
-MASK_FORMAT = 1
+MASK_FORMAT = 2
 
 
 def mask_key(st: TileStore) -> str | None:
@@ -57,28 +57,36 @@ def _folder() -> Path:
     return cache_dir() / "blend-masks"
 
 
-def load_weights(key: str, shape: tuple[int, int]) -> np.ndarray | None:
-    """The weight raster kept under ``key`` if it is a float32 array of ``shape`` (rows,
-    columns) with values in [0, 1], else None."""
+def load_weights(key: str, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray] | None:
+    """The weight raster and its integral image kept under ``key`` (`save_weights`) if the
+    raster is a float32 array of ``shape`` (rows, columns) with values in [0, 1] and the
+    integral an int64 array one row and column larger ending in the count of w < 1, else
+    None."""
     path = _folder() / f"{key}.npz"
     if not path.is_file():
         return None
     try:
         with np.load(path, allow_pickle=False) as npz:
-            w = npz["w"]
+            w, partial = npz["w"], npz["partial"]
     except (OSError, ValueError, KeyError, EOFError) as exc:
         log.debug("blend mask %s unreadable (%s): built again", path, exc)
         return None
     if w.shape != shape or w.dtype != np.float32 or not (w.min() >= 0.0 and w.max() <= 1.0):
         return None
-    return w
+    rows, cols = shape
+    if partial.shape != (rows + 1, cols + 1) or partial.dtype != np.int64:
+        return None
+    if partial[-1, -1] != np.count_nonzero(w < 1.0):
+        return None
+    return w, partial
 
 
-def save_weights(key: str, w: np.ndarray) -> None:
-    """Keep the weight raster ``w`` under ``key`` (atomic; a cache that cannot be written is
-    skipped)."""
+def save_weights(key: str, w: np.ndarray, partial: np.ndarray) -> None:
+    """Keep the weight raster ``w`` and its integral image ``partial`` (of "w < 1", with a
+    leading row and column of zeros) under ``key`` (atomic; a cache that cannot be written
+    is skipped)."""
     buf = io.BytesIO()
-    np.savez(buf, w=w)
+    np.savez(buf, w=w, partial=partial)
     _write(_folder() / f"{key}.npz", buf.getvalue())
 
 
