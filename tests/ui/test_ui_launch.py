@@ -84,3 +84,66 @@ def test_cancelled_embedded_overlays_never_open(unshown_window, qtbot):
     qtbot.waitUntil(lambda: win.globe.frames > n, timeout=10000)
     assert not win.files.embedded_overlays_pending
     assert list(win.model.overlays) == []
+
+
+#: Modules the launch must not import before the first complete view: the ingest and the DEM
+#: reader (the embedded stores open as stamped, `globeview.terrain.embedded`).
+LAZY = ("globeview.terrain.ingest.driver", "globeview.terrain.dem.reader")
+
+CHILD = """
+import sys
+from PyQt6.QtCore import QSettings, QTemporaryDir, QTimer
+import globeview.ui.app as app
+
+qapp = app.create_application()
+tmp = QTemporaryDir()
+qs = QSettings(tmp.filePath("w.ini"), QSettings.Format.IniFormat)
+win = app.MainWindow(app.embedded_terrain(), qs, app.plugin_registry(qs), embedded_overlays=True)
+seen = []
+
+def rendered(stats, fps):
+    if stats.tiles_loading == 0 and not seen:
+        seen.append([m for m in sys.argv[1:] if m in sys.modules])
+        print("imported:", *seen[0], flush=True)
+        print("overlays:", len(win.model.overlays), flush=True)
+        QTimer.singleShot(0, finish)
+
+def finish():
+    win.close()
+    qapp.quit()
+
+win.globe.frameRendered.connect(rendered)
+win.show()
+QTimer.singleShot(60_000, qapp.quit)
+qapp.exec()
+sys.exit(0 if seen else 1)
+"""
+
+
+def test_launch_to_the_complete_view_imports_no_ingest(embedded_cache, tmp_path):
+    """A window launched as `globeview gui` launches it (a process of its own: this one has
+    imported everything), on a cache whose embedded stores were stamped: at its first
+    complete view the ingest and the DEM reader are not imported, and the embedded overlays
+    are open."""
+    import os
+    import subprocess
+    import sys
+
+    from globeview.terrain.embedded import embedded_stores
+
+    env = {**os.environ, "GLOBEVIEW_CACHE_DIR": str(embedded_cache)}
+    env["GLOBEVIEW_CONFIG_DIR"] = str(tmp_path / "config")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("GLOBEVIEW_CACHE_DIR", str(embedded_cache))
+        for store in embedded_stores():  # stamps them (as a first launch does)
+            store.close()
+    out = subprocess.run(
+        [sys.executable, "-c", CHILD, *LAZY],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "imported:\n" in out.stdout, out.stdout  # none of LAZY
+    assert "overlays: 2" in out.stdout
