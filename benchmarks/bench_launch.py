@@ -203,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=3, help="counted launches (default 3)")
     ap.add_argument("--size", default="1600x1000", help="Xvfb screen WxH (default 1600x1000)")
-    ap.add_argument("--timeout", type=float, default=30.0, help="seconds a run may take")
+    ap.add_argument("--timeout", type=float, default=90.0, help="seconds a run may take")
     ap.add_argument("--settle", type=float, default=3.0, help="seconds of a still globe to stop")
     ap.add_argument("--poll-ms", type=float, default=10.0, help="screen poll period, ms")
     ap.add_argument("--save", type=Path, help="folder for each run's last screen (PNG)")
