@@ -15,9 +15,9 @@ in seconds since the process was spawned (interpreter start included):
 - ``settled``: the last poll at which the count still changed by more than 0.5 %.
 
 The runs use the user's cache (``--cache`` another): a first run, not counted, fills it where
-it is empty (the embedded data are ingested, the border blend's tables kept) and writes
-Python's bytecode caches (whatever PYTHONDONTWRITEBYTECODE says), so the runs measure a user's
-second and later launches. The window's settings are temporary (a first launch's layout).
+it is empty (the embedded data are ingested and stamped, the border blend's tables and masks
+kept) and writes Python's bytecode caches (whatever PYTHONDONTWRITEBYTECODE says), so the runs
+measure a user's second and later launches. The window's settings are temporary (a first launch's layout).
 A run that never shows a globe within ``--timeout`` fails the script (one line, exit 1).
 
     .venv/bin/python benchmarks/bench_launch.py                 # 3 runs, 1600x1000
@@ -203,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=3, help="counted launches (default 3)")
     ap.add_argument("--size", default="1600x1000", help="Xvfb screen WxH (default 1600x1000)")
-    ap.add_argument("--timeout", type=float, default=30.0, help="seconds a run may take")
+    ap.add_argument("--timeout", type=float, default=90.0, help="seconds a run may take")
     ap.add_argument("--settle", type=float, default=3.0, help="seconds of a still globe to stop")
     ap.add_argument("--poll-ms", type=float, default=10.0, help="screen poll period, ms")
     ap.add_argument("--save", type=Path, help="folder for each run's last screen (PNG)")

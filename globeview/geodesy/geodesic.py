@@ -11,10 +11,13 @@ from __future__ import annotations
 
 import functools
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from pyproj import Geod
+
+if TYPE_CHECKING:
+    from pyproj import Geod
 
 from globeview.geodesy.ellipsoid import WGS84, Ellipsoid
 from globeview.validate import check_number, check_numbers
@@ -27,6 +30,8 @@ FloatArray = NDArray[np.float64]
 @functools.lru_cache(maxsize=16)
 def _geod(ellipsoid: Ellipsoid) -> Geod:
     """A pyproj Geod for the ellipsoid (cached: the dataclass is frozen and hashable)."""
+    from pyproj import Geod  # deferred: the window's launch needs no geodesic (issue #27)
+
     return Geod(a=ellipsoid.a, f=ellipsoid.f)
 
 

@@ -31,9 +31,6 @@ from typing import Literal
 from globeview.errors import GlobeviewError, StoreError
 from globeview.fileio import describe_os_error
 from globeview.paths import cache_dir
-from globeview.terrain.dem.reader import check_dem_path
-from globeview.terrain.ingest.driver import ingest
-from globeview.terrain.ingest.safety import remove_store_dir
 from globeview.terrain.store.backend import (
     StoreBackend,
     find_backend,
@@ -48,6 +45,7 @@ __all__ = [
     "check_source",
     "check_store_url",
     "is_store_url",
+    "open_ingested",
     "open_source",
     "opened_as",
     "source_kind",
@@ -132,6 +130,8 @@ def check_source(text: str) -> str:
     folder that is a store. Returns the source as it will be opened (a URL normalised)."""
     if source_kind(text) == "store":
         return check_store_url(text) if is_store_url(text) else text
+    from globeview.terrain.dem.reader import check_dem_path  # deferred: GDAL's CRS set-up
+
     check_dem_path(Path(text))
     return text
 
@@ -203,6 +203,11 @@ def _open_dem(
     progress: bool,
 ) -> TileStore:
     """A DEM file's cached store, ingested first when missing or stale."""
+    # Deferred: the ingest's and the DEM reader's imports (~0.13 CPU-s) are for DEM files
+    # only; the window's launch opens its embedded stores without them (issue #27).
+    from globeview.terrain.dem.reader import check_dem_path
+    from globeview.terrain.ingest.driver import ingest
+
     check_dem_path(path)  # a link loop cannot even be resolved to a cache key
     out = store_path_for(path, crs=crs, vdatum=vdatum)
     try:
@@ -221,6 +226,16 @@ def _open_dem(
             raise StoreError(f"cannot ingest {path.name}: {cache_message(problem)}") from None
         raise
     return TileStore.open(out)
+
+
+def open_ingested(path: Path) -> TileStore:
+    """The cache's store of DEM file ``path`` opened as it is, without checking that it is
+    current (the caller knows: `globeview.terrain.embedded`'s stamps), and recorded as
+    `open_source` records a DEM's store (`opened_as`). Raises `StoreError` (one line) for a
+    store that does not open."""
+    store = TileStore.open(store_path_for(path))
+    _OPENED[store] = SourceOrigin(os.path.abspath(path), "dem", None, None)
+    return store
 
 
 def cache_message(problem: str) -> str:
@@ -254,4 +269,6 @@ def _drop_stem_keyed_store(source: Path) -> None:
     identified as globeview's, holding store files only, is removed."""
     old = cache_dir() / "stores" / Path(source).stem
     if identify(old).kind == "legacy":
+        from globeview.terrain.ingest.safety import remove_store_dir  # deferred, as above
+
         remove_store_dir(old)

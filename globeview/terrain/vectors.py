@@ -19,19 +19,35 @@ Pure numpy/pyproj: no GL.
 
 from __future__ import annotations
 
+import functools
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from pyproj import Geod
 
 from globeview.errors import GlobeviewError, StoreError
 from globeview.terrain.quadtree import key_for_lonlat, tile_bounds_arrays
 
-GEOD = Geod(ellps="WGS84")
+if TYPE_CHECKING:
+    from pyproj import Geod
+
+
+@functools.cache
+def _geod() -> Geod:
+    """pyproj's WGS84 Geod, made at the first densify (pyproj's import, ~0.07 CPU-s, is off
+    the window's launch, issue #27; also ``GEOD``, the module attribute)."""
+    from pyproj import Geod
+
+    return Geod(ellps="WGS84")
+
+
+def __getattr__(name: str) -> Any:
+    if name == "GEOD":
+        return _geod()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 class VectorError(GlobeviewError):
@@ -200,12 +216,12 @@ def densify(lines: Polylines, max_segment_m: float) -> Polylines:
     """Insert points along geodesics so no segment is longer than ``max_segment_m`` metres."""
     a, b = lines.segments()
     lon, lat = lines.lon, lines.lat
-    az, _, dist = GEOD.inv(lon[a], lat[a], lon[b], lat[b])
+    az, _, dist = _geod().inv(lon[a], lat[a], lon[b], lat[b])
     az, dist = np.asarray(az), np.asarray(dist)
     n_sub = np.maximum(np.ceil(dist / max_segment_m).astype(np.int64), 1)
 
     def along(seg: np.ndarray, frac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        flon, flat, _ = GEOD.fwd(lon[a][seg], lat[a][seg], az[seg], dist[seg] * frac)
+        flon, flat, _ = _geod().fwd(lon[a][seg], lat[a][seg], az[seg], dist[seg] * frac)
         # Keep longitudes continuous with the segment start (no jump across +-180).
         flon = np.asarray(flon)
         return flon + 360.0 * np.round((lon[a][seg] - flon) / 360.0), np.asarray(flat)
@@ -220,7 +236,7 @@ RHUMB_MAX_LAT = 89.9
 def _isometric_lat(lat_deg: np.ndarray) -> np.ndarray:
     """Isometric latitude psi (radians) on WGS84: the Mercator ordinate, in which rhumb lines
     are straight."""
-    e = float(np.sqrt(GEOD.es))
+    e = float(np.sqrt(_geod().es))
     s = np.sin(np.radians(lat_deg))
     return np.arctanh(s) - e * np.arctanh(e * s)
 
@@ -228,7 +244,7 @@ def _isometric_lat(lat_deg: np.ndarray) -> np.ndarray:
 def _lat_from_isometric(psi: np.ndarray) -> np.ndarray:
     """Inverse of `_isometric_lat` (degrees), by fixed-point iteration (converges to 1e-15
     rad in under 10 steps: the correction is scaled by e^2)."""
-    e = float(np.sqrt(GEOD.es))
+    e = float(np.sqrt(_geod().es))
     phi = np.arcsin(np.tanh(psi))
     for _ in range(12):
         phi = np.arcsin(np.tanh(psi + e * np.arctanh(e * np.sin(phi))))

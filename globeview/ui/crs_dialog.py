@@ -13,7 +13,6 @@ from pathlib import Path
 
 from PyQt6.QtWidgets import QDialog, QWidget
 
-from globeview.terrain.dem.reader import parse_crs
 from globeview.ui.checked_text_dialog import CheckedTextDialog
 
 __all__ = ["CrsDialog", "ask_crs"]
@@ -42,6 +41,8 @@ class CrsDialog(CheckedTextDialog):
 
     def checked(self, text: str) -> str:
         """``text`` stripped, once `parse_crs` (``--crs``'s check) takes it."""
+        from globeview.terrain.dem.reader import parse_crs  # deferred: off the launch path
+
         parse_crs(text.strip())
         return text.strip()
 

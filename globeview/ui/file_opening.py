@@ -14,7 +14,7 @@ import urllib.parse
 from pathlib import Path
 from typing import Any
 
-from PyQt6.QtCore import QSettings
+from PyQt6.QtCore import QSettings, QTimer
 from PyQt6.QtGui import QAction, QKeySequence
 from PyQt6.QtWidgets import QFileDialog, QLabel, QMainWindow, QMenu, QProgressBar, QPushButton
 
@@ -38,6 +38,11 @@ DEM_FILTER = (
     "DEM rasters (*.tif *.tiff *.hgt *.dem *.asc *.img *.vrt *.nc *.bil *.dt0 *.dt1 *.dt2);;"
     "All files (*)"
 )
+
+
+#: Milliseconds after the window is built by which the embedded overlays are opened even if
+#: no complete view was drawn by then (a tile that never loads must not keep the borders off).
+EMBEDDED_OVERLAYS_LATEST_MS = 5000
 
 
 class FileOpening:
@@ -83,6 +88,7 @@ class FileOpening:
         #: How opening a GIS file of several layers asks which: ``ask_layer(parent, file name,
         #: [(layer, geometry type), ...]) -> layer | None`` (None: cancelled); tests replace it.
         self.ask_layer = ask_vector_layer
+        self._embedded_pending = False  # `open_embedded_overlays_after_first_view`
 
         # The File menu's entries (the window places them).
         self.open_action = QAction("&Open DEM…", window)
@@ -227,9 +233,9 @@ class FileOpening:
         name = self.ask_layer(self.window, Path(path).name, layers)
         return None if name is None else f"{path}::{name}"
 
-    def open_embedded_overlays(self) -> None:
+    def open_embedded_overlays(self) -> list[Any]:
         """The embedded overlays: the borders shown, the Blue Marble listed but hidden
-        (models through the built-in layer types: no GL)."""
+        (models through the built-in layer types: no GL). Returns the layers opened."""
         try:
             layers = self.overlay_host.open_embedded(imagery=True)
             for layer in layers:
@@ -237,6 +243,46 @@ class FileOpening:
                     layer.set_visible(False)  # announced: listed and drawn hidden
         except Exception as exc:  # noqa: BLE001  any failure is one line in a dialog, the window keeps working
             self.errors.error(exc, "adding the embedded overlays")
+            return []
+        return layers
+
+    def open_embedded_overlays_after_first_view(self) -> None:
+        """`open_embedded_overlays` once the globe's first complete view is drawn (no tile
+        loading), or `EMBEDDED_OVERLAYS_LATEST_MS` after this call at the latest (issue #27:
+        the window's launch to the globe drawn; reading and densifying the borders and
+        draping them on every new tile cost ~0.2 CPU-s before it). They go below any overlay
+        opened meanwhile, as if opened first; a project opened meanwhile replaces them
+        (`cancel_embedded_overlays`)."""
+        self._embedded_pending = True
+        self.globe.frameRendered.connect(self._first_view_drawn)
+        timer = QTimer(self.window)  # goes with the window
+        timer.setSingleShot(True)
+        timer.timeout.connect(self._open_pending_embedded)
+        timer.start(EMBEDDED_OVERLAYS_LATEST_MS)
+
+    @property
+    def embedded_overlays_pending(self) -> bool:
+        """Whether the embedded overlays are still to be opened (after the first view)."""
+        return self._embedded_pending
+
+    def cancel_embedded_overlays(self) -> None:
+        """Do not open the pending embedded overlays (a project's overlays replace them)."""
+        self._embedded_pending = False
+
+    def _first_view_drawn(self, stats: Any, _fps: float) -> None:
+        if getattr(stats, "tiles_loading", 0) == 0:
+            self._open_pending_embedded()
+
+    def _open_pending_embedded(self) -> None:
+        if not self._embedded_pending or not self.window.isVisible():
+            return  # a window not shown yet (or closed) opens them at its first view
+        self._embedded_pending = False
+        self.globe.frameRendered.disconnect(self._first_view_drawn)
+        opened = {id(layer) for layer in self.open_embedded_overlays()}
+        if opened:
+            order = list(self.model.overlays)
+            first = [ly for ly in order if id(ly) in opened]
+            self.model.set_overlay_order(first + [ly for ly in order if id(ly) not in opened])
 
     # -- the loader's progress ----------------------------------------------------------------
 

@@ -32,7 +32,6 @@ from PyQt6.QtWidgets import QWidget
 
 from globeview.errors import GlobeviewError
 from globeview.terrain.compose.blend import BlendMask
-from globeview.terrain.dem.reader import NoCrsError
 from globeview.terrain.sources import open_source
 from globeview.terrain.store.tile_store import TileStore
 from globeview.ui.crs_dialog import ask_crs
@@ -191,6 +190,8 @@ class DemLoader(QObject):
         self._done.emit(request.path, store, None)
 
     def _on_done(self, path: str, store: object, exc: object) -> None:
+        from globeview.terrain.dem.reader import NoCrsError  # deferred: DEM files only
+
         request = self._current
         self._future = None
         if (

@@ -182,8 +182,8 @@ class MainWindow(QMainWindow):
         self._connect()
         self._restore()
         self.plot_dock = install_plot_dock(self)  # shows the active tool's plot, if any
-        if embedded_overlays:
-            self.files.open_embedded_overlays()
+        if embedded_overlays:  # after the first complete view (issue #27: the launch)
+            self.files.open_embedded_overlays_after_first_view()
         self.globe.setFocus()
 
     # -- construction ----------------------------------------------------------------------

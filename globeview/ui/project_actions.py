@@ -132,6 +132,7 @@ class ProjectActions(QObject):
         if opened is None:  # the window was closed meanwhile
             return False
         self.window.tour_panel.stop()
+        self.window.files.cancel_embedded_overlays()  # the project's overlays replace them
         try:
             problems = apply_project(project, base, self._parts(), opened=opened)
         except GlobeviewError as exc:  # a plugin changed while the DEMs were opened

@@ -18,6 +18,13 @@ from typing import Literal
 
 import numpy as np
 
+from globeview.terrain.compose.mask_cache import (
+    load_interp_errors,
+    load_weights,
+    mask_key,
+    save_interp_errors,
+    save_weights,
+)
 from globeview.terrain.interpolate import bilinear, interp_axis, linear_weights
 from globeview.terrain.quadtree import node_spacing, tile_bounds_arrays
 from globeview.terrain.store.coverage import coverage_level
@@ -85,21 +92,37 @@ class BlendMask:
         lv = self.level
         grid = st.level_grid(lv)
         cells = st.tile_size - 1
-        # Built once per layer, never per frame: the top shard's coverage (a store built
-        # before it: a few dozen tiles of the level read).
-        data = st.coverage(lv)
         self.step = (180.0 / 2**lv) / cells
         w0, _, _, n0 = (float(v) for v in tile_bounds_arrays(lv, grid.x0, grid.y0))
-        r = max(1, round(self.band / self.step))
-        c = _box_mean(data.astype(np.float64), r, st.bounds)
-        t = np.clip(2.0 * c - 1.0, 0.0, 1.0)
-        self.w = (t * t * (3.0 - 2.0 * t)).astype(np.float32)
         self.west, self.north = w0, n0
-        # Integral image of "w < 1" raster nodes: does a lon/lat box meet the band?
-        part = np.pad((self.w < 1.0).astype(np.int64), ((1, 0), (1, 0)))
-        self._partial = part.cumsum(0).cumsum(1)
+        #: The name the mask is kept under in the user's cache (`mask_cache`), None: not kept.
+        self.cache_key = mask_key(st)
+        # _box_mean's raster is one node larger than the coverage's along each axis.
+        shape = (grid.ny * cells + 2, grid.nx * cells + 2)
+        kept = None if self.cache_key is None else load_weights(self.cache_key, shape)
+        if kept is None:
+            self.w = self._weights(st, lv)
+            # Integral image of "w < 1" raster nodes: does a lon/lat box meet the band?
+            part = np.pad((self.w < 1.0).astype(np.int64), ((1, 0), (1, 0)))
+            self._partial = part.cumsum(0).cumsum(1)
+            if self.cache_key is not None:
+                save_weights(self.cache_key, self.w, self._partial)
+        else:
+            self.w, self._partial = kept
         #: `interpolation_error` by cell size in raster steps (it depends on w only).
-        self.interp_errors: dict[int, float] = {}
+        self.interp_errors: dict[int, float] = (
+            {} if self.cache_key is None else load_interp_errors(self.cache_key)
+        )
+
+    def _weights(self, st: TileStore, lv: int) -> np.ndarray:
+        """The weight raster (float32) built from the store's coverage at level ``lv``: once
+        per layer, never per frame (the top shard's coverage; a store built before it: a few
+        dozen tiles of the level read), and once per store and terrain code in the user's
+        cache."""
+        r = max(1, round(self.band / self.step))
+        c = _box_mean(st.coverage(lv).astype(np.float64), r, st.bounds)
+        t = np.clip(2.0 * c - 1.0, 0.0, 1.0)
+        return (t * t * (3.0 - 2.0 * t)).astype(np.float32)
 
     def _east_of_west(self, lon: np.ndarray) -> np.ndarray:
         """Degrees east of the raster's west edge, the longitude taken within 180 degrees of
@@ -236,4 +259,6 @@ def interpolation_error(mask: BlendMask, cell_deg: float) -> float:
     interp = interp_axis(interp_axis(corners, rows, 0), cols, 1)
     hit = float(np.abs(interp - w).max())
     cache[m] = hit
+    if mask.cache_key is not None:
+        save_interp_errors(mask.cache_key, dict(cache))
     return hit
