@@ -146,12 +146,56 @@ def _look_down_at(work, case: Case, lon: float, lat: float, png: Path, *extra: s
     return terrain_kind(centre_block(_read_png(png)))
 
 
+@pytest.fixture(scope="module")
+def registry():
+    """The installed plugins, discovered once for the module's in-process frames."""
+    from globeview.plugins.registry import PluginRegistry
+
+    return PluginRegistry().discover()
+
+
+class _LookDown:
+    """Frames from 30 km straight above places, drawn in this process by the one frame
+    pipeline `globeview render` runs (`GlobeSession`, the same defaults: chunked-sse, tau,
+    fov; no borders, the magenta background), over the store the command left in the
+    test's cache. A process a look costs ~1 CPU-s (a new session, stack and GL context);
+    here a look is a frame."""
+
+    def __init__(self, ctx, registry, store) -> None:
+        from globeview.app.session import GlobeSession
+        from globeview.model.camera import Camera
+        from globeview.render.offscreen import OffscreenTarget
+        from globeview.terrain.compose.stack import TerrainStack
+
+        self._size = (96, 64)
+        self._camera = Camera
+        camera = Camera.from_lonlat(0.0, 0.0, 2.0e7, 0.0, -90.0)
+        self._session = GlobeSession(
+            ctx, TerrainStack.from_stores([store]), camera, registry=registry
+        )
+        self._session.settings.background = (1.0, 0.0, 1.0)
+        self._target = OffscreenTarget(ctx, self._size)
+
+    def kind(self, lon: float, lat: float) -> str:
+        self._session.camera = self._camera.from_lonlat(lon, lat, 30000.0, 0.0, -90.0)
+        self._session.render(self._target.fbo, self._size)  # uploads the tiles
+        self._session.reset_lod()
+        self._session.render(self._target.fbo, self._size)
+        return terrain_kind(centre_block(self._target.read_rgb()))
+
+    def release(self) -> None:
+        self._target.release()
+        self._session.release_gl()
+
+
 @pytest.mark.gl
 @pytest.mark.parametrize("name", CASES)
-def test_render(name: str, work, corpus_snapshot) -> None:
-    """Default camera (it frames the source's footprint): the image centre shows the terrain;
-    then cameras 30 km straight above the probe (the terrain is there), places beyond the
-    footprint (bare ellipsoid) and fill (never drawn as heights)."""
+def test_render(name: str, work, corpus_snapshot, globeview_gl, registry, monkeypatch) -> None:
+    """Default camera (it frames the source's footprint), as a real process: the image centre
+    shows the terrain; then, in this process over the store that command left in the cache,
+    views from 30 km straight above the probe (the terrain is there), places beyond the
+    footprint (bare ellipsoid) and fill (never drawn as heights). `render --camera` as a
+    process is `test_the_no_crs_hint_works`'s (and the CLI's own tests')."""
     case = CASES[name]
     png, stats = work.cwd / "x.png", work.cwd / "s.json"
     common = ("--size", SIZE, "--background", MAGENTA_ARG)
@@ -175,12 +219,22 @@ def test_render(name: str, work, corpus_snapshot) -> None:
     checks += [((lon, lat), {kind}) for lon, lat, kind in case.extra_probes]
     checks += [(place, {"other"}) for place in case.outside]
     checks += [(place, {LAND, "other"}) for place in case.fill_places]
-    wrong = []
-    for i, ((lon, lat), allowed) in enumerate(checks):
-        seen = _look_down_at(work, case, lon, lat, work.cwd / f"look{i}.png")
-        if seen not in allowed:
-            wrong.append(f"({lon:.3f}, {lat:.3f}) shows {seen}, not {sorted(allowed)}")
+    from globeview.terrain.sources import open_source
+
+    monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(work.cache))
+    cached = sorted((work.cache / "stores").iterdir())
+    look = _LookDown(globeview_gl, registry, open_source(case.path))
+    try:
+        wrong = []
+        for (lon, lat), allowed in checks:
+            seen = look.kind(lon, lat)
+            if seen not in allowed:
+                wrong.append(f"({lon:.3f}, {lat:.3f}) shows {seen}, not {sorted(allowed)}")
+    finally:
+        look.release()
     assert not wrong, "seen from 30 km straight above: " + "; ".join(wrong)
+    # The looks drew the store the command left (open_source found it: nothing ingested).
+    assert sorted((work.cache / "stores").iterdir()) == cached, "the looks ingested again"
     _inputs_untouched(corpus_snapshot)
 
 
