@@ -122,3 +122,37 @@ def seed_cache(embedded_cache: Path) -> Callable[[Path], Path]:
         return folder
 
     return seed
+
+
+@pytest.fixture(scope="session")
+def seed_dem_store() -> Callable[[Path, Path], Path]:
+    """``seed_dem_store(folder, dem) -> folder``: copies the store that a command given the
+    DEM file ``dem`` (no --crs, no --vdatum) ingests into its cache (`store_path_for`) into
+    the cache folder ``folder``, so a child given ``GLOBEVIEW_CACHE_DIR=folder`` finds it
+    current instead of ingesting it again (~4.3 CPU-s for data/N44W072.hgt). The store is
+    built once per DEM and version of globeview's terrain code (`band_tables.code_digest`)
+    in the system's temporary folder, beside `embedded_cache`'s folders; pytest-xdist workers
+    and concurrent runs take turns under a lock. For tests that draw or query a DEM, not for
+    tests about its ingest into the cache."""
+    import hashlib
+    import tempfile
+
+    from globeview.terrain.compose.band_tables import code_digest
+    from globeview.terrain.sources import open_source, store_path_for
+
+    root = Path(tempfile.gettempdir()) / f"globeview-test-cache-{os.getuid()}"
+    root.mkdir(mode=0o700, exist_ok=True)
+
+    def seed(folder: Path, dem: Path) -> Path:
+        key = f"{Path(dem).resolve()}|{code_digest()}".encode()
+        built = root / f"dem-{hashlib.sha256(key).hexdigest()[:16]}"
+        with open(root / f"{built.name}.lock", "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+            with pytest.MonkeyPatch.context() as mp:
+                mp.setenv("GLOBEVIEW_CACHE_DIR", str(built))
+                open_source(dem).close()  # an ingest where the store is missing or stale
+                name = store_path_for(Path(dem)).name
+            shutil.copytree(built / "stores" / name, folder / "stores" / name, dirs_exist_ok=True)
+        return folder
+
+    return seed

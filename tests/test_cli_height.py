@@ -27,8 +27,11 @@ SRTM = REPO / "data" / "N44W072.hgt"
 
 
 @pytest.fixture(scope="module")
-def env(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
-    return {**os.environ, "GLOBEVIEW_CACHE_DIR": str(tmp_path_factory.mktemp("cache"))}
+def env(tmp_path_factory: pytest.TempPathFactory, seed_dem_store) -> dict[str, str]:
+    """The environment with the module's cache folder, holding SRTM's store (copied, not
+    ingested again)."""
+    cache = seed_dem_store(tmp_path_factory.mktemp("cache"), SRTM)
+    return {**os.environ, "GLOBEVIEW_CACHE_DIR": str(cache)}
 
 
 def _run(env: dict[str, str], *args: str) -> subprocess.CompletedProcess[str]:

@@ -62,6 +62,7 @@ def test_check_quick_prints_a_verdict_per_target(capsys):
     assert "targets hold" in out
 
 
+@pytest.mark.slow  # over 5 CPU-s (tests/cpu_durations.py)
 def test_experiments_quick_writes_csv_png_md(tmp_path):
     pytest.importorskip("matplotlib")
     out = tmp_path / "exp"

@@ -76,6 +76,7 @@ def test_bad_arguments_are_one_line_and_exit_2(
     assert out == ""
 
 
+@pytest.mark.slow  # over 5 CPU-s (tests/cpu_durations.py)
 def test_tiny_ingest_run_prints_every_row_and_each_target(tmp_path: Path) -> None:
     before = {p.name for p in (BENCH / "cache").glob("bench-ingest-*")}
     proc = _script("bench_ingest.py", "--sizes", "512", "--skip", "cluster")
@@ -282,6 +283,7 @@ def test_nginx_traffic_counts_what_came_before_the_first_frame(tmp_path: Path) -
     assert got["in_flight"] == 1
 
 
+@pytest.mark.slow  # over 5 CPU-s (tests/cpu_durations.py)
 def test_tiny_remote_run_reaches_complete_frames_and_a_warm_cache() -> None:
     """The real SRTM3 tile's store over 127.0.0.1: each run draws a complete frame, the cold
     one fetches chunk bytes, the warm one (a new process) only the manifest."""

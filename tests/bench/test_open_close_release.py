@@ -143,6 +143,7 @@ def test_a_handed_back_headless_context_is_reused_and_draws_the_same(store_paths
     assert len(np.unique(plain.reshape(-1, 3), axis=0)) > 10  # terrain drawn, not a blank
 
 
+@pytest.mark.slow  # over 5 CPU-s (tests/cpu_durations.py)
 def test_bench_soak_cycles_prints_drift_and_verdict(capsys):
     import argparse
 

@@ -31,8 +31,9 @@ CODEC_TOLERANCE = 5.0
 
 
 @pytest.fixture(scope="module")
-def cache(tmp_path_factory) -> Path:
-    return tmp_path_factory.mktemp("movie-cache")
+def cache(tmp_path_factory, seed_dem_store) -> Path:
+    """The module's cache folder, holding DEM's store (copied, not ingested again)."""
+    return seed_dem_store(tmp_path_factory.mktemp("movie-cache"), Path(DEM))
 
 
 def decoded(path: Path) -> tuple[tuple[int, int], list[np.ndarray]]:

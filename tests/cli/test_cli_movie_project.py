@@ -30,8 +30,9 @@ TOUR = (
 
 
 @pytest.fixture(scope="module")
-def cache(tmp_path_factory) -> Path:
-    return tmp_path_factory.mktemp("movie-project-cache")
+def cache(tmp_path_factory, seed_dem_store) -> Path:
+    """The module's cache folder, holding DEM's store (copied, not ingested again)."""
+    return seed_dem_store(tmp_path_factory.mktemp("movie-project-cache"), DEM)
 
 
 def project(folder: Path, tour: str = TOUR) -> Path:

@@ -7,12 +7,12 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+import zygote
 
 from globeview.lod.render_set import RenderSet
 from globeview.lod.tile_indices import IndexVariant
@@ -146,7 +146,7 @@ def test_cli_overflowing_view_renders_and_says_it_degraded(tmp_path: Path, seed_
     copied into the child's cache, not ingested again)."""
     out, stats = tmp_path / "x.png", tmp_path / "s.json"
     cache = seed_cache(tmp_path / "cache")
-    res = subprocess.run(
+    res = zygote.run(  # a process of its own, forked from the pre-warmed server
         [
             str(GLOBEVIEW),
             "render",

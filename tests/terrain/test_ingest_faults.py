@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import random
+import shutil
 import signal
 import subprocess
 import sys
@@ -14,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import zygote
 from inprocess_cli import run_globeview
 
 from globeview.terrain.ingest.driver import FAULT_ENV, ingest
@@ -23,15 +25,15 @@ from globeview.terrain.store.tile_store import TileStore
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "data"
 GLOBEVIEW = Path(sys.executable).parent / "globeview"
-SMALL = DATA / "craterlake-elev-16bit-30m.tif"  # 14 levels, ~20 window writes, < 1 s
+SMALL = DATA / "craterlake-elev-16bit-30m.tif"  # 14 levels, ~20 window writes, ~2 CPU-s
 BIG = DATA / "N44W072.hgt"  # SRTM3, 1201 x 1201: a few MB of levels
 
 
-def _cli(*args: str, env: dict | None = None, **kw) -> subprocess.CompletedProcess:
+def _cli(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    """``globeview ARGS`` as a process of its own (the faults kill it or make it exit 2),
+    forked from `zygote`'s server: no interpreter start and imports (~1.3 CPU-s) each."""
     e = {**os.environ, **(env or {})}
-    return subprocess.run(
-        [str(GLOBEVIEW), *args], capture_output=True, text=True, timeout=300, env=e, **kw
-    )
+    return zygote.run([str(GLOBEVIEW), *args], capture_output=True, text=True, timeout=300, env=e)
 
 
 def _reingest(out: Path) -> subprocess.CompletedProcess:
@@ -70,6 +72,20 @@ def clean_errors(tmp_path_factory: pytest.TempPathFactory) -> list:
     return _errors(out)
 
 
+@pytest.fixture(scope="module")
+def tile5_store(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A store of SMALL with tiles of 2^5 nodes (not what an ingest with the defaults
+    writes: that one replaces it), built once; tests copy it (`_old_store`)."""
+    out = tmp_path_factory.mktemp("tile5") / "s"
+    ingest([SMALL], out, tile_n=5)
+    return out
+
+
+def _old_store(tile5_store: Path, out: Path) -> None:
+    """``out``: a copy of `tile5_store` (its files, not hard links: a test may change them)."""
+    shutil.copytree(tile5_store, out)
+
+
 def _one_error_line(r: subprocess.CompletedProcess) -> str:
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2, r.stderr
@@ -84,11 +100,11 @@ def _one_error_line(r: subprocess.CompletedProcess) -> str:
 @pytest.mark.slow
 @pytest.mark.parametrize("point", ["1", "4", "9", "manifest", "commit", "commit-swap"])
 def test_kill9_at_a_point_then_reingest_is_clean(
-    tmp_path: Path, clean_errors: list, point: str
+    tmp_path: Path, clean_errors: list, tile5_store: Path, point: str
 ) -> None:
     out = tmp_path / "s"
     if point.startswith("commit"):
-        ingest([SMALL], out, tile_n=5)  # a store to be replaced: killed mid-commit
+        _old_store(tile5_store, out)  # a store to be replaced: killed mid-commit
     if point == "commit-swap":  # a store that does not open is replaced whole (two renames)
         next(out.glob("meta/top-*.gvm")).unlink()
     fault = point.removesuffix("-swap")
@@ -117,7 +133,7 @@ def test_kill9_at_a_random_time_then_reingest_is_clean(
 ) -> None:
     out = tmp_path / "s"
     rng = random.Random(seed)
-    p = subprocess.Popen(
+    p = zygote.popen(
         [str(GLOBEVIEW), "ingest", str(SMALL), "--out", str(out), "--quiet"],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
@@ -171,11 +187,13 @@ def test_leftovers_of_older_versions_and_foreign_folders(tmp_path: Path) -> None
 
 @pytest.mark.slow
 @pytest.mark.parametrize("at", ["1", "6", "manifest", "commit"])
-def test_injected_disk_full_is_one_line_and_leaves_nothing(tmp_path: Path, at: str) -> None:
+def test_injected_disk_full_is_one_line_and_leaves_nothing(
+    tmp_path: Path, tile5_store: Path, at: str
+) -> None:
     out = tmp_path / "s"
     old = None
     if at == "commit":
-        ingest([SMALL], out, tile_n=5)
+        _old_store(tile5_store, out)
         old = _files(out)
     r = _cli("ingest", str(SMALL), "--out", str(out), env={FAULT_ENV: f"ENOSPC@{at}"})
     line = _one_error_line(r)

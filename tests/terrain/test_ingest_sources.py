@@ -5,13 +5,12 @@ subfolders are not read; an empty folder or a store folder is one line."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import rasterio
+from inprocess_cli import run_globeview
 from rasterio.windows import Window
 
 from globeview.errors import DemError
@@ -19,7 +18,26 @@ from globeview.terrain.ingest.driver import ingest
 from globeview.terrain.ingest.sources import expand_sources
 
 SRTM = Path(__file__).resolve().parents[2] / "data" / "N44W072.hgt"
-GLOBEVIEW = Path(sys.executable).with_name("globeview")
+# A 480 x 480 part of the SRTM3 tile (0.4 degree) inside one chunk of every level: a store of
+# 13 chunks, ~2.4 CPU-s to ingest (the whole tile's 29 chunks take ~4.3).
+PART = Window(400, 360, 480, 480)
+
+
+@pytest.fixture(scope="module")
+def dem(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """`PART` of the SRTM3 tile as a GeoTIFF with its georeferencing and tags."""
+    path = tmp_path_factory.mktemp("dem") / "srtm_part.tif"
+    with rasterio.open(SRTM) as ds:
+        prof = ds.profile | {
+            "driver": "GTiff",
+            "width": PART.width,
+            "height": PART.height,
+            "transform": ds.window_transform(PART),
+        }
+        with rasterio.open(path, "w", **prof) as dst:
+            dst.write(ds.read(1, window=PART), 1)
+            dst.update_tags(**ds.tags())
+    return path
 
 
 def split_into_tiles(src: Path, folder: Path) -> list[Path]:
@@ -63,8 +81,8 @@ def manifest_arrays(store: Path) -> dict:
 
 
 @pytest.mark.slow
-def test_a_folder_of_tiles_ingests_as_its_files(tmp_path: Path) -> None:
-    tiles = split_into_tiles(SRTM, tmp_path / "tiles")
+def test_a_folder_of_tiles_ingests_as_its_files(tmp_path: Path, dem: Path) -> None:
+    tiles = split_into_tiles(dem, tmp_path / "tiles")
     # What a download holds beside the tiles: none of it is a DEM to read.
     (tmp_path / "tiles" / "README.txt").write_text("SRTM tiles")
     (tmp_path / "tiles" / "tile_0.tif.aux.xml").write_text("<PAMDataset/>")
@@ -79,7 +97,7 @@ def test_a_folder_of_tiles_ingests_as_its_files(tmp_path: Path) -> None:
     recorded = json.loads((tmp_path / "from_folder" / "manifest.json").read_text())["sources"]
     assert [Path(s["path"]) for s in recorded] == tiles  # the files, not the folder
     # The tiles together are the whole DEM: the same heights as the one file.
-    c = ingest([SRTM], tmp_path / "from_one", vdatum="egm96")
+    c = ingest([dem], tmp_path / "from_one", vdatum="egm96")
     assert c.max_level == a.max_level
     with (
         rasterio.open(tmp_path / "from_one" / f"level_{a.max_level:02d}.vrt") as one,
@@ -98,8 +116,10 @@ def test_a_folder_of_tiles_ingests_as_its_files(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-def test_a_tile_changed_in_place_updates_the_store_as_a_full_build_would(tmp_path: Path):
-    tiles = split_into_tiles(SRTM, tmp_path / "tiles")
+def test_a_tile_changed_in_place_updates_the_store_as_a_full_build_would(
+    tmp_path: Path, dem: Path
+) -> None:
+    tiles = split_into_tiles(dem, tmp_path / "tiles")
     ingest([tmp_path / "tiles"], tmp_path / "s", vdatum="egm96")
     assert ingest([tmp_path / "tiles"], tmp_path / "s", vdatum="egm96").up_to_date
     with rasterio.open(tiles[3], "r+") as ds:
@@ -114,21 +134,16 @@ def test_a_tile_changed_in_place_updates_the_store_as_a_full_build_would(tmp_pat
 
 
 @pytest.mark.slow
-def test_an_empty_folder_or_a_store_folder_is_one_line(tmp_path: Path) -> None:
+def test_an_empty_folder_or_a_store_folder_is_one_line(tmp_path: Path, dem: Path) -> None:
     (tmp_path / "empty").mkdir()
     (tmp_path / "empty" / "notes.txt").write_text("no DEM here")
     with pytest.raises(DemError, match="is a folder with no DEM files in it"):
         ingest([tmp_path / "empty"], tmp_path / "s")
-    ingest([SRTM], tmp_path / "store", vdatum="egm96")
+    ingest([dem], tmp_path / "store", max_level=4)  # any store: its levels do not matter
     with pytest.raises(DemError, match="is a globeview tile store, not a folder of DEM files"):
         ingest([tmp_path / "store"], tmp_path / "s2")
     assert not (tmp_path / "s").exists() and not (tmp_path / "s2").exists()
-    res = subprocess.run(
-        [str(GLOBEVIEW), "ingest", str(tmp_path / "empty"), "--out", str(tmp_path / "s3")],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    res = run_globeview(["ingest", str(tmp_path / "empty"), "--out", str(tmp_path / "s3")])
     assert res.returncode == 2
     assert res.stderr.splitlines() == [
         f"globeview: error: {tmp_path / 'empty'} is a folder with no DEM files in it (looked"

@@ -450,14 +450,14 @@ def _n44() -> Path:
 
 
 @pytest.fixture(scope="module")
-def store_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def store_root(tmp_path_factory: pytest.TempPathFactory, seed_dem_store) -> Path:
     """A folder holding ``n44/``, the store of the SRTM3 White Mountains tile (levels 0-12,
-    four chunk files at level 12), and ``not-a-store/`` (a folder with a foreign
-    manifest.json)."""
-    from globeview.terrain.ingest.driver import ingest
-
+    four chunk files at level 12; what ``ingest([N44], out)`` writes, copied from the
+    session's `seed_dem_store` instead of ingested again), and ``not-a-store/`` (a folder
+    with a foreign manifest.json)."""
     root = tmp_path_factory.mktemp("remote")
-    ingest([_n44()], root / "n44")
+    (store,) = (seed_dem_store(tmp_path_factory.mktemp("cache"), _n44()) / "stores").iterdir()
+    store.rename(root / "n44")
     (root / "not-a-store").mkdir()
     (root / "not-a-store" / "manifest.json").write_text('{"name": "a web app"}')
     return root
