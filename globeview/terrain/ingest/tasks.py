@@ -321,14 +321,35 @@ def _present(results: Sequence[ChunkResult], lv: int) -> dict[tuple[int, int], t
 
 
 def _window_undulation(
-    datum: str, grid: str | None, west: float, north: float, d: float, w: int, h: int
+    datum: str,
+    grid: str | None,
+    west: float,
+    north: float,
+    d: float,
+    w: int,
+    h: int,
+    box: tuple[slice, slice] = (slice(None), slice(None)),
 ) -> np.ndarray:
     """N (m, float32) of geoid ``datum`` on a window's nodes: lon west + j*d, lat
-    north - i*d (degrees). EGM96 from the shipped grid; EGM2008 from ``grid``, of which only
-    the window's part is read (`vdatum.undulation_on_grid`)."""
-    lons = west + d * np.arange(w)
-    lats = north - d * np.arange(h)
+    north - i*d (degrees), or on the nodes ``box`` (rows, columns) of it (the same
+    coordinates, so the same values). EGM96 from the shipped grid; EGM2008 from ``grid``, of
+    which only the window's part is read (`vdatum.undulation_on_grid`)."""
+    lons = (west + d * np.arange(w))[box[1]]
+    lats = (north - d * np.arange(h))[box[0]]
     return undulation_on_grid(datum, grid, lons, lats).astype(np.float32)
+
+
+def _finite_box(*parts: np.ndarray) -> tuple[slice, slice] | None:
+    """The smallest box (rows, columns) holding every finite node of the arrays (one
+    shape), None if none is."""
+    finite = np.isfinite(parts[0])
+    for p in parts[1:]:
+        finite |= np.isfinite(p)
+    rows = np.flatnonzero(finite.any(axis=1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(finite.any(axis=0))
+    return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
 
 
 def _lon_overlaps(a0: float, a1: float, b: tuple[float, float, float, float], wraps: bool) -> bool:
@@ -387,7 +408,6 @@ def fill_from_sources(
     west = -180.0 + gc0 * d
     north = 90.0 - gr0 * d
     west_n = (west + 180.0) % 360.0 - 180.0
-    undulations: dict[tuple[str, str | None], np.ndarray] = {}  # N on the nodes, per geoid
     rings: list[np.ndarray] = []  # the edge rings of the level being filled
     level = None
     for s in sources:
@@ -406,11 +426,16 @@ def fill_from_sources(
         parts = s.dem().read_grid_parts(west_n, north, d, d, w, h)
         data, edge = parts.data, parts.edge
         if s.datum != "ellipsoid":  # each source with its own datum's geoid
-            geoid = (s.datum, s.grid)
-            if geoid not in undulations:
-                undulations[geoid] = _window_undulation(s.datum, s.grid, west, north, d, w, h)
-            n = undulations[geoid]
-            data, edge = data + n, edge + n  # NaN (nodata) stays NaN
+            # N only where the source gave a value (NaN stays NaN elsewhere): a window at a
+            # DEM's edge, or one of the tiles of a mosaic, holds its data in a part. (The
+            # shipped EGM96 grid only: an external grid is read by window, and N's last bits
+            # follow the window read, so those keep the whole window.)
+            whole = (slice(0, h), slice(0, w))
+            box = _finite_box(data, edge) if s.grid is None else whole
+            if box is not None:
+                n = _window_undulation(s.datum, s.grid, west, north, d, w, h, box)
+                data[box] += n
+                edge[box] += n
         np.copyto(out, data, where=np.isnan(out))
         rings.append(edge)
     _fill_nan(out, rings)
