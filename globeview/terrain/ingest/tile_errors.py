@@ -16,6 +16,7 @@ data" and is ignored by the maxima (np.fmax), i.e. comparisons use valid nodes o
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -110,9 +111,18 @@ def upsample_nodes(
 
 
 def _phase_weights(f: int, dtype: type) -> tuple[np.ndarray, np.ndarray]:
-    """(1 - t, t) for every phase k of a factor-f grid, computed like ``interp_axis``."""
-    t = np.arange(f).astype(dtype) / f
-    return 1.0 - t, t
+    """(1 - t, t) for every phase k of a factor-f grid, computed like ``interp_axis``
+    (remembered per factor and dtype: read-only arrays, shared by every call)."""
+    return _phase_weights_cached(f, np.dtype(dtype).str)
+
+
+@functools.lru_cache(maxsize=64)
+def _phase_weights_cached(f: int, dtype: str) -> tuple[np.ndarray, np.ndarray]:
+    t = np.arange(f).astype(np.dtype(dtype).type) / f
+    w0, w1 = 1.0 - t, t
+    w0.flags.writeable = False
+    w1.flags.writeable = False
+    return w0, w1
 
 
 def lerp_rows(
@@ -676,7 +686,10 @@ def cell_min(d: np.ndarray) -> np.ndarray:
 
 def segment_starts(group: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Start offsets of runs of equal values in a non-decreasing int array, and their values."""
-    starts = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
+    change = np.empty(group.shape[0], dtype=bool)
+    change[:1] = True
+    np.not_equal(group[1:], group[:-1], out=change[1:])
+    starts = np.flatnonzero(change)
     return starts, group[starts]
 
 
