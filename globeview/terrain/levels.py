@@ -161,7 +161,8 @@ def read_level_nodes(
     i0, i1 = int(vr[0]), int(vr[-1]) + 1
     r_a = int(rr[i0])
     for p, c, n in _runs(vc, rc[vc]):
-        out[i0:i1, p : p + n] = ds.read(1, window=Window(c, r_a, n, i1 - i0))
+        # Straight into the window (rasterio's read takes a strided ``out`` too).
+        ds.read(1, window=Window(c, r_a, n, i1 - i0), out=out[i0:i1, p : p + n])
     if mirror:
         _mirror_axis(out, rr, grid.height, mirror, axis=0)
         if not grid.global_lon:

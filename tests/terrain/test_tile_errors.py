@@ -4,6 +4,8 @@ NaN, -0 and inf."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -340,3 +342,54 @@ def test_stride_stats_are_the_ingest_loop(seed, tile_n, kty, ktx, nan, zeros) ->
     _assert_identical(lo, hmin)
     _assert_identical(hi, hmax)
     _assert_identical(stride_deltas(arr, s_n, STRIDES), deltas)
+
+
+def _srtm_window(rows: int, cols: int) -> np.ndarray:
+    """Real heights (metres, float32): the north-west corner of SRTM tile N44W072."""
+    import rasterio
+
+    from globeview.terrain.ingest import tile_errors as te
+
+    root = Path(te.__file__).resolve().parents[3]
+    with rasterio.open(root / "data" / "N44W072.hgt") as ds:
+        return ds.read(1, window=((0, rows), (0, cols))).astype(np.float32)
+
+
+@pytest.mark.parametrize("case", ["full", "edges", "corner", "node", "closing", "none"])
+def test_tile_stats_on_the_data_box_are_the_whole_window(case: str) -> None:
+    """tile_stats runs the per-tile passes on the box of tiles that hold data: on real
+    heights with the NaN a chunk at a DEM's edge has (data from a column / row on, a corner
+    block, one finite node on a tile corner (in four tiles), only the closing row, none),
+    hmin, hmax and the stride deltas are those of the whole window, bit for bit."""
+    s_n = 64
+    arr = _srtm_window(8 * s_n + 1, 12 * s_n + 1)
+    keep = np.zeros(arr.shape, dtype=bool)
+    if case == "full":
+        keep[:] = True
+    elif case == "edges":
+        keep[100:, 150:] = True
+    elif case == "corner":
+        keep[-70:, -70:] = True
+    elif case == "node":
+        keep[2 * s_n, 3 * s_n] = True
+    elif case == "closing":
+        keep[-1, :200] = True
+    arr[~keep] = np.nan
+    hmin, hmax, delta = tile_errors.tile_stats(arr, s_n, STRIDES)
+    lo, hi = tile_min_max(arr, s_n)
+    _assert_identical(hmin, lo)
+    _assert_identical(hmax, hi)
+    _assert_identical(delta, stride_deltas(arr, s_n, STRIDES))
+    if case == "node":
+        assert np.isfinite(hmin).sum() == 4
+
+
+def test_data_blocks_is_the_box_of_closed_blocks_with_data() -> None:
+    """A finite node on a block edge belongs to both closed blocks it bounds."""
+    a = np.full((4 * 8 + 1, 5 * 8 + 1), np.nan, dtype=np.float32)
+    assert tile_errors.data_blocks(a, 8) is None
+    a[8, 17] = 1.0  # on the edge of block rows 0/1, inside block column 2
+    assert tile_errors.data_blocks(a, 8) == (slice(0, 2), slice(2, 3))
+    a[32, 0] = 2.0  # the closing row's first node: block row 3 only, block column 0
+    assert tile_errors.data_blocks(a, 8) == (slice(0, 4), slice(0, 3))
+    assert tile_errors.data_blocks(a[:32, :40], 8) == (slice(0, 2), slice(2, 3))  # no closing

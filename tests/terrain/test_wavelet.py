@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -264,3 +266,30 @@ def test_nan_blocks_are_the_whole_array_nan_filter(
         got = filter_decimate_grid(x, taps, step)
         assert got.shape == want.shape and got.dtype == np.float32
         np.testing.assert_array_equal(got.view(np.int32), want.view(np.int32))
+
+
+@pytest.mark.parametrize("case", ["edges", "island", "one_node", "none"])
+def test_only_valid_centres_are_filtered(case: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The filter runs on the box of output nodes with a valid centre: on real heights with
+    the NaN a coarse level's window around a small DEM has (data in a corner, an island, one
+    node, none), the result is the whole window's, bit for bit."""
+    import rasterio
+
+    from globeview.terrain.ingest import wavelet as wv
+
+    root = Path(wv.__file__).resolve().parents[3]
+    with rasterio.open(root / "data" / "N44W072.hgt") as ds:
+        x = ds.read(1, window=((0, 2 * 150 + 5), (0, 2 * 200 + 5))).astype(np.float32)
+    keep = np.zeros(x.shape, dtype=bool)
+    if case == "edges":
+        keep[37:, :120] = True
+    elif case == "island":
+        keep[101:180, 211:260] = True
+    elif case == "one_node":
+        keep[120, 240] = True
+    x[~keep] = np.nan
+    got = approximate_window(x, 2)
+    monkeypatch.setattr(wv, "_valid_box", lambda c: ((0, c.shape[0]), (0, c.shape[1])))
+    whole = approximate_window(x, 2)
+    np.testing.assert_array_equal(got.view(np.int32), whole.view(np.int32))
+    assert np.isfinite(got).any() == (case != "none")

@@ -22,7 +22,7 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
-from globeview.terrain.ingest.tile_errors import tile_min_max
+from globeview.terrain.ingest.tile_errors import data_blocks, tile_min_max
 
 __all__ = ["EdgeFacts", "stored_part_facts", "tile_ranges"]
 
@@ -71,10 +71,17 @@ def stored_part_facts(
     nodes of: its tiles' ranges over those nodes ((kty, ktx) float32) and the facts of its
     first row and column its neighbours' tiles close on."""
     part = window[:stored_rows, :stored_cols]
-    own = np.full(window.shape, np.nan, dtype=np.float32)
-    own[:stored_rows, :stored_cols] = part
-    hmin, hmax = tile_min_max(own, s_n)
     kty, ktx = (window.shape[0] - 1) // s_n, (window.shape[1] - 1) // s_n
+    hmin = np.full((kty, ktx), np.nan, dtype=np.float32)
+    hmax = hmin.copy()
+    box = data_blocks(part, s_n)  # the tiles holding a stored finite node
+    if box is not None:
+        ty, tx = box
+        shape = ((ty.stop - ty.start) * s_n + 1, (tx.stop - tx.start) * s_n + 1)
+        own = np.full(shape, np.nan, dtype=np.float32)
+        got = part[ty.start * s_n : ty.stop * s_n + 1, tx.start * s_n : tx.stop * s_n + 1]
+        own[: got.shape[0], : got.shape[1]] = got
+        hmin[ty, tx], hmax[ty, tx] = tile_min_max(own, s_n)
     corner = float(part[0, 0]) if part.size else float("nan")
     edges = EdgeFacts(_segments(part[0], s_n, ktx), _segments(part[:, 0], s_n, kty), corner)
     return hmin, hmax, edges.pack()

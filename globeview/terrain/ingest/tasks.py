@@ -37,10 +37,11 @@ from globeview.terrain.dem.reader import Dem
 from globeview.terrain.dem.vdatum import undulation_on_grid
 from globeview.terrain.ingest.stored_ranges import stored_part_facts
 from globeview.terrain.ingest.tile_errors import (
+    ErrorWindow,
+    data_blocks,
     error_window,
     pruned_error_tiles,
-    stride_deltas,
-    tile_min_max,
+    tile_stats,
 )
 from globeview.terrain.ingest.wavelet import approximate_window
 from globeview.terrain.levels import LevelGrid, read_level_nodes
@@ -247,12 +248,18 @@ class ChunkReader:
         self.grid = plan.grids[lv]
         self.present = present
 
-    def read(self, band: int, window: Window) -> np.ndarray:
+    def read(self, band: int, window: Window, out: np.ndarray | None = None) -> np.ndarray:
+        """The window's nodes (float32, NaN where no chunk has data), into ``out`` (of the
+        window's shape, may be strided) when given."""
         c = self.plan.chunk_nodes
         rows, cols = self.plan.chunk_shape(self.grid.level)
         r_a, c_a = int(window.row_off), int(window.col_off)
         h, w = int(window.height), int(window.width)
-        out = np.full((h, w), np.nan, dtype=np.float32)
+        if out is None:
+            out = np.full((h, w), np.nan, dtype=np.float32)
+        else:
+            out.fill(np.nan)
+        filled: list[tuple[int, int, int, int]] = []
         # From the chunk above / west too: it may store its closing row / column.
         for cy in range(max(0, (r_a - 1) // c), min((r_a + h - 1) // c, rows - 1) + 1):
             for cx in range(max(0, (c_a - 1) // c), min((c_a + w - 1) // c, cols - 1) + 1):
@@ -275,14 +282,20 @@ class ChunkReader:
                 path = Path(self.plan.folder) / chunk_file_name(self.grid.level, cy, cx, sha)
                 win = Window(ca - c0, ra - r0, cb - ca, rb - ra)
                 dst = out[ra - r_a : rb - r_a, ca - c_a : cb - c_a]
+                # Where no chunk read before covers the part, read straight into it.
+                shared = any(ra < b and a < rb and ca < d and c_ < cb for a, b, c_, d in filled)
+                filled.append((ra, rb, ca, cb))
+                got = None if shared else dst
                 if self.plan.keep_open:
-                    got = _open_chunk(path, sha).read(band, window=win)
+                    got = _open_chunk(path, sha).read(band, window=win, out=got)
                 else:
                     with rasterio.open(path) as ds:
-                        got = ds.read(band, window=win)
-                # A node both chunks hold (an owner's first row and its neighbour's closing
-                # row): the owner's (read last: row-major) wins where it has a value.
-                np.copyto(dst, got, where=np.isnan(dst) | np.isfinite(got))
+                        got = ds.read(band, window=win, out=got)
+                if shared:
+                    # A node both chunks hold (an owner's first row and its neighbour's
+                    # closing row): the owner's (read last: row-major) wins where it has a
+                    # value.
+                    np.copyto(dst, got, where=np.isnan(dst) | np.isfinite(got))
         return out
 
     def __enter__(self) -> ChunkReader:
@@ -308,14 +321,35 @@ def _present(results: Sequence[ChunkResult], lv: int) -> dict[tuple[int, int], t
 
 
 def _window_undulation(
-    datum: str, grid: str | None, west: float, north: float, d: float, w: int, h: int
+    datum: str,
+    grid: str | None,
+    west: float,
+    north: float,
+    d: float,
+    w: int,
+    h: int,
+    box: tuple[slice, slice] = (slice(None), slice(None)),
 ) -> np.ndarray:
     """N (m, float32) of geoid ``datum`` on a window's nodes: lon west + j*d, lat
-    north - i*d (degrees). EGM96 from the shipped grid; EGM2008 from ``grid``, of which only
-    the window's part is read (`vdatum.undulation_on_grid`)."""
-    lons = west + d * np.arange(w)
-    lats = north - d * np.arange(h)
+    north - i*d (degrees), or on the nodes ``box`` (rows, columns) of it (the same
+    coordinates, so the same values). EGM96 from the shipped grid; EGM2008 from ``grid``, of
+    which only the window's part is read (`vdatum.undulation_on_grid`)."""
+    lons = (west + d * np.arange(w))[box[1]]
+    lats = (north - d * np.arange(h))[box[0]]
     return undulation_on_grid(datum, grid, lons, lats).astype(np.float32)
+
+
+def _finite_box(*parts: np.ndarray) -> tuple[slice, slice] | None:
+    """The smallest box (rows, columns) holding every finite node of the arrays (one
+    shape), None if none is."""
+    finite = np.isfinite(parts[0])
+    for p in parts[1:]:
+        finite |= np.isfinite(p)
+    rows = np.flatnonzero(finite.any(axis=1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(finite.any(axis=0))
+    return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
 
 
 def _lon_overlaps(a0: float, a1: float, b: tuple[float, float, float, float], wraps: bool) -> bool:
@@ -374,7 +408,6 @@ def fill_from_sources(
     west = -180.0 + gc0 * d
     north = 90.0 - gr0 * d
     west_n = (west + 180.0) % 360.0 - 180.0
-    undulations: dict[tuple[str, str | None], np.ndarray] = {}  # N on the nodes, per geoid
     rings: list[np.ndarray] = []  # the edge rings of the level being filled
     level = None
     for s in sources:
@@ -393,11 +426,16 @@ def fill_from_sources(
         parts = s.dem().read_grid_parts(west_n, north, d, d, w, h)
         data, edge = parts.data, parts.edge
         if s.datum != "ellipsoid":  # each source with its own datum's geoid
-            geoid = (s.datum, s.grid)
-            if geoid not in undulations:
-                undulations[geoid] = _window_undulation(s.datum, s.grid, west, north, d, w, h)
-            n = undulations[geoid]
-            data, edge = data + n, edge + n  # NaN (nodata) stays NaN
+            # N only where the source gave a value (NaN stays NaN elsewhere): a window at a
+            # DEM's edge, or one of the tiles of a mosaic, holds its data in a part. (The
+            # shipped EGM96 grid only: an external grid is read by window, and N's last bits
+            # follow the window read, so those keep the whole window.)
+            whole = (slice(0, h), slice(0, w))
+            box = _finite_box(data, edge) if s.grid is None else whole
+            if box is not None:
+                n = _window_undulation(s.datum, s.grid, west, north, d, w, h, box)
+                data[box] += n
+                edge[box] += n
         np.copyto(out, data, where=np.isnan(out))
         rings.append(edge)
     _fill_nan(out, rings)
@@ -519,11 +557,11 @@ def chunk_task(
             edge = first_col if bx == 0 else (first.first_col if first is not None else None)
             # No first chunk in the row (no data there): its column reads as NaN.
             arr[:, -1] = np.nan if edge is None else edge
-    hmin, hmax = tile_min_max(arr, s_n)
     # Stride deltas: delta_s = max |S_s - S_1| over the tile, where S_s is the bilinear
     # surface on every s-th node and S_1 the tile's own (exact at the nodes; a running max
-    # over the strides keeps the bounds monotone): see tile_errors.stride_deltas.
-    delta = stride_deltas(arr, s_n, STRIDES)
+    # over the strides keeps the bounds monotone): see tile_errors.stride_deltas. On the
+    # tiles that hold data only (tile_errors.tile_stats).
+    hmin, hmax, delta = tile_stats(arr, s_n, STRIDES)
     # The chunk is the window's half-open part; the last row of chunks also holds the south
     # pole row (column W, one turn east, is column 0: never stored, `layout.chunk_window`).
     _, _, hh, ww = chunk_window(
@@ -579,23 +617,79 @@ def error_task(
         fine = reader.read(1, window=Window(bx * s_n, by * s_n, w, h))
         if not np.isfinite(fine).any():
             return []
-        # Prepared once for every coarser level; the coarse passes skip the blocks that
-        # cannot hold their tile's maximum (branch and bound: the same floats).
-        win = error_window(fine)
+        # The passes run on the box of blocks that hold data and are judged here: the
+        # others would give their tiles NaN, which the whole window's result keeps.
+        box = _error_box(fine, block, owned)
+        win = None
+        if box is not None:
+            br, bc = box
+            fine = fine[
+                br.start * block : br.stop * block + 1, bc.start * block : bc.stop * block + 1
+            ]
+            owned = None if owned is None else owned[br, bc]
+            sr0, sc0 = gr0 + br.start * block, gc0 + bc.start * block
+            # Prepared once for every coarser level; the coarse passes skip the blocks that
+            # cannot hold their tile's maximum (branch and bound: the same floats).
+            win = error_window(fine)
         for lv in range(lf):
             g = plan.grids[lv]
-            f = 1 << (lf - lv)
-            r0, c0 = gr0 // f, gc0 // f
-            r1, c1 = -(-(gr0 + h - 1) // f), -(-(gc0 + w - 1) // f)
-            with ChunkReader(plan, lv, _present(deps, lv)) as ds:
-                coarse = read_level_nodes(ds, g, r0, c0, r1 - r0 + 1, c1 - c0 + 1)
-            rv, cv, red = pruned_error_tiles(
-                coarse, win, f, gr0 - r0 * f, gc0 - c0 * f, gr0, gc0, f * s_n, block, owned
-            )
+            span = (1 << (lf - lv)) * s_n
+            rv = np.arange(gr0 // span, (gr0 + h - 2) // span + 1)
+            cv = np.arange(gc0 // span, (gc0 + w - 2) // span + 1)
+            red = np.full((rv.size, cv.size), np.nan)
+            if win is not None:
+                ry, cx_, part = _box_errors(plan, lf, lv, deps, win, sr0, sc0, block, owned)
+                red[np.ix_(ry - rv[0], cx_ - cv[0])] = part
             iy, ix, inside = g.tile_slots(rv[:, None], cv[None, :])
             iy, ix, inside = np.broadcast_arrays(iy, ix, inside)
             out.append((lv, iy[inside], ix[inside], red[inside]))
     return out
+
+
+def _box_errors(
+    plan: BuildPlan,
+    lf: int,
+    lv: int,
+    deps: Sequence[ChunkResult],
+    win: ErrorWindow,
+    gr0: int,
+    gc0: int,
+    block: int,
+    owned: np.ndarray | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-tile errors of level lv against the level-lf nodes of ``win`` (a box of an error
+    window, its first node at global node (gr0, gc0) of level lf): the tile rows, columns
+    and maxima of `pruned_error_tiles`, reading the level-lv nodes over the box."""
+    g = plan.grids[lv]
+    f = 1 << (lf - lv)
+    h, w = win.fine.shape
+    r0, c0 = gr0 // f, gc0 // f
+    r1, c1 = -(-(gr0 + h - 1) // f), -(-(gc0 + w - 1) // f)
+    with ChunkReader(plan, lv, _present(deps, lv)) as ds:
+        coarse = read_level_nodes(ds, g, r0, c0, r1 - r0 + 1, c1 - c0 + 1)
+    s_n = plan.grids[lf].tile_nodes
+    return pruned_error_tiles(
+        coarse, win, f, gr0 - r0 * f, gc0 - c0 * f, gr0, gc0, f * s_n, block, owned
+    )
+
+
+def _error_box(
+    fine: np.ndarray, block: int, owned: np.ndarray | None
+) -> tuple[slice, slice] | None:
+    """The box of blocks (of ``block`` cells) of an error window that hold a finite node
+    and are owned (judged in this window): slices of block indices, None when none."""
+    box = data_blocks(fine, block)
+    if box is None or owned is None:
+        return box
+    br, bc = box
+    rows = np.flatnonzero(owned[br, bc].any(axis=1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(owned[br, bc].any(axis=0))
+    return (
+        slice(br.start + int(rows[0]), br.start + int(rows[-1]) + 1),
+        slice(bc.start + int(cols[0]), bc.start + int(cols[-1]) + 1),
+    )
 
 
 def _has_data(

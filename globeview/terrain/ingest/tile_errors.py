@@ -16,6 +16,7 @@ data" and is ignored by the maxima (np.fmax), i.e. comparisons use valid nodes o
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,6 +29,7 @@ __all__ = [
     "block_node_min",
     "cell_max",
     "cell_min",
+    "data_blocks",
     "error_window",
     "interp_axis",
     "lerp_rows",
@@ -38,6 +40,7 @@ __all__ = [
     "segment_starts",
     "stride_deltas",
     "tile_min_max",
+    "tile_stats",
     "transposed_nodes",
     "upsample_nodes",
     "upsample_window",
@@ -108,9 +111,18 @@ def upsample_nodes(
 
 
 def _phase_weights(f: int, dtype: type) -> tuple[np.ndarray, np.ndarray]:
-    """(1 - t, t) for every phase k of a factor-f grid, computed like ``interp_axis``."""
-    t = np.arange(f).astype(dtype) / f
-    return 1.0 - t, t
+    """(1 - t, t) for every phase k of a factor-f grid, computed like ``interp_axis``
+    (remembered per factor and dtype: read-only arrays, shared by every call)."""
+    return _phase_weights_cached(f, np.dtype(dtype).str)
+
+
+@functools.lru_cache(maxsize=64)
+def _phase_weights_cached(f: int, dtype: str) -> tuple[np.ndarray, np.ndarray]:
+    t = np.arange(f).astype(np.dtype(dtype).type) / f
+    w0, w1 = 1.0 - t, t
+    w0.flags.writeable = False
+    w1.flags.writeable = False
+    return w0, w1
 
 
 def lerp_rows(
@@ -270,6 +282,55 @@ def stride_deltas(
             delta = np.maximum(delta, np.nan_to_num(blocks, nan=0.0))
         out[:, :, i] = delta
     return out
+
+
+def data_blocks(arr: np.ndarray, b: int) -> tuple[slice, slice] | None:
+    """The closed b x b cell blocks of a node window (``arr``: (m*b+1, n*b+1) or its first
+    rows / columns, e.g. without the closing ones) that hold a finite node: (rows, cols),
+    slices of block indices (a box: every block outside it holds only NaN), or None when
+    no node is finite. Closed blocks share their edge nodes, so a finite node on a block
+    edge puts both blocks in.
+
+    The ingest's per-tile passes (heights, stride deltas, errors) give an all-NaN block
+    NaN (0 for stride deltas) whatever they compute, so they run on the box alone: a chunk
+    at a DEM's edge, or a coarse level's chunk around a small DEM, is mostly NaN (of the
+    8192^2 benchmark's 94 chunk windows, 46 % of the nodes are finite).
+    """
+    finite = np.isfinite(arr)
+    rows = np.flatnonzero(finite.any(axis=1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(finite.any(axis=0))
+    return _block_span(rows, b, arr.shape[0]), _block_span(cols, b, arr.shape[1])
+
+
+def _block_span(nodes: np.ndarray, b: int, size: int) -> slice:
+    """Blocks of b cells (ceil((size - 1) / b) of them along an axis of ``size`` nodes)
+    whose closed node range [k*b, (k+1)*b] meets node indices ``nodes`` (sorted, non-empty):
+    from the block that closes on the first to the one that opens on the last."""
+    n = max(1, -(-(size - 1) // b))
+    return slice(max(0, (int(nodes[0]) - 1) // b), min(n, int(nodes[-1]) // b + 1))
+
+
+def tile_stats(
+    arr: np.ndarray, s_n: int, strides: tuple[int, ...]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(hmin, hmax, stride deltas) of a closed, tile-aligned float32 node window: exactly
+    `tile_min_max` and `stride_deltas` of the whole window, computed on the box of tiles
+    that hold data (`data_blocks`); the others are NaN, NaN and 0 as those give them."""
+    kty, ktx = (arr.shape[0] - 1) // s_n, (arr.shape[1] - 1) // s_n
+    hmin = np.full((kty, ktx), np.nan, dtype=arr.dtype)
+    hmax = hmin.copy()
+    delta = np.zeros((kty, ktx, len(strides)), dtype=np.float64)
+    box = data_blocks(arr, s_n)
+    if box is None:
+        return hmin, hmax, delta
+    ty, tx = box
+    sub = arr[ty.start * s_n : ty.stop * s_n + 1, tx.start * s_n : tx.stop * s_n + 1]
+    lo, hi = tile_min_max(sub, s_n)
+    hmin[ty, tx], hmax[ty, tx] = lo, hi
+    delta[ty, tx] = stride_deltas(sub, s_n, strides)
+    return hmin, hmax, delta
 
 
 def transposed_nodes(fine: np.ndarray) -> np.ndarray:
@@ -625,7 +686,10 @@ def cell_min(d: np.ndarray) -> np.ndarray:
 
 def segment_starts(group: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Start offsets of runs of equal values in a non-decreasing int array, and their values."""
-    starts = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
+    change = np.empty(group.shape[0], dtype=bool)
+    change[:1] = True
+    np.not_equal(group[1:], group[:-1], out=change[1:])
+    starts = np.flatnonzero(change)
     return starts, group[starts]
 
 

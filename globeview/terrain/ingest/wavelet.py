@@ -214,8 +214,21 @@ def _filter_padded(
     output node i is centred on ``padded[step*i + h]``, whose value is ``centres[i]``.
 
     Every output node depends only on its own support and centre (the NaN rule included),
-    so a window cut from a larger padded array gives those nodes' whole-array values.
+    so a window cut from a larger padded array gives those nodes' whole-array values. So
+    only the box of output nodes with a valid centre is filtered (a NaN centre gives NaN):
+    a coarse level's window around a small DEM is mostly NaN.
     """
+    box = _valid_box(centres)
+    if box is None:
+        return np.full(centres.shape, np.nan, dtype=np.float32)
+    (b_r0, b_r1), (b_c0, b_c1) = box
+    if b_r1 - b_r0 < centres.shape[0] or b_c1 - b_c0 < centres.shape[1]:
+        boxed = np.full(centres.shape, np.nan, dtype=np.float32)
+        rows = slice(b_r0 * step, (b_r1 - 1) * step + taps.size)
+        cols = slice(b_c0 * step, (b_c1 - 1) * step + taps.size)
+        inner = centres[b_r0:b_r1, b_c0:b_c1]
+        boxed[b_r0:b_r1, b_c0:b_c1] = _filter_padded(padded[rows, cols], inner, taps, step)
+        return boxed
     invalid = np.isnan(padded)
     if not invalid.any():
         return _separable(padded, taps, step)
@@ -249,6 +262,17 @@ def _filter_padded(
             out[r0:r1, c0:c1][t] = convex[t]
     out[centre_nan] = np.nan
     return out
+
+
+def _valid_box(centres: np.ndarray) -> tuple[tuple[int, int], tuple[int, int]] | None:
+    """((r0, r1), (c0, c1)): the smallest box of nodes holding every non-NaN one, None if
+    all are NaN."""
+    valid = ~np.isnan(centres)
+    rows = np.flatnonzero(valid.any(axis=1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(valid.any(axis=0))
+    return (int(rows[0]), int(rows[-1]) + 1), (int(cols[0]), int(cols[-1]) + 1)
 
 
 def _touches(invalid: np.ndarray, nt: int, step: int) -> np.ndarray:
