@@ -17,7 +17,8 @@ in seconds since the process was spawned (interpreter start included):
 The runs use the user's cache (``--cache`` another): a first run, not counted, fills it where
 it is empty (the embedded data are ingested and stamped, the border blend's tables and masks
 kept) and writes Python's bytecode caches (whatever PYTHONDONTWRITEBYTECODE says), so the runs
-measure a user's second and later launches. The window's settings are temporary (a first launch's layout).
+measure a user's second and later launches. The window's settings are temporary (a first
+launch's layout).
 A run that never shows a globe within ``--timeout`` fails the script (one line, exit 1).
 
     .venv/bin/python benchmarks/bench_launch.py                 # 3 runs, 1600x1000
