@@ -90,3 +90,42 @@ def test_block_bounds_tile_the_tile() -> None:
     assert w[0, 0] == tw[0] and n[0, 0] == tn[0] and e[0, 63] == te[0] and s[0, 63] == ts[0]
     np.testing.assert_allclose(e[0, :7], w[0, 1:8])  # row-major from the north-west block
     np.testing.assert_allclose(s[0, :8], n[0, 8:16])
+
+
+def test_blocks_away_from_the_fold_coarsen_within_tau(case) -> None:
+    """`choose_block_strides` under the collapse (flat land, a level-LEVEL tile the fold
+    crosses, drawn at stride 1): the blocks away from the fold go coarser than those it
+    crosses, and every block's chosen stride keeps its brute-force bend, projected from the
+    eye's true distance to its collapsed nodes, within tau. Without the tiles' keys nothing
+    goes coarser (the old behaviour)."""
+    from globeview.lod.block_strides import block_facts, block_height_stats, choose_block_strides
+
+    frame, view, key = case
+    tau = 2.0
+    facts = block_facts(key, block_height_stats(np.zeros((1, 65, 65)), np.zeros(1)))
+    args = (facts, np.array([0]), key[:, 0], np.array([0]), view, tau, 65)
+    assert np.all(choose_block_strides(*args) == -1)
+    chosen = choose_block_strides(*args, keys=key)[0]
+    assert chosen.min() < chosen.max()  # the blocks the fold crosses stay finer
+    w, s, e, n = tile_bounds_arrays(LEVEL, key[:, 1], key[:, 2])
+    t = np.arange(65) / 64
+    lon = np.broadcast_to(w[0] + (e[0] - w[0]) * t, (65, 65))
+    lat = np.broadcast_to((n[0] + (s[0] - n[0]) * t)[:, None], (65, 65))
+    nodes = lonlat_to_ecef(lon, lat, np.zeros((65, 65)))
+    moved = frame.forward(nodes.reshape(-1, 3)).reshape(nodes.shape)
+    dist = np.linalg.norm(moved - view.eye, axis=-1)
+    for bi in range(8):
+        for bj in range(8):
+            k = int(chosen[bi, bj])
+            if k == 0:
+                continue
+            st = 2**k
+            blk = nodes[8 * bi : 8 * bi + 9, 8 * bj : 8 * bj + 9]
+            a = blk[:-st:st, :-st:st]
+            worst = max(
+                _stray(frame, a, blk[st::st, :-st:st]).max(),
+                _stray(frame, a, blk[:-st:st, st::st]).max(),
+                _stray(frame, a, blk[st::st, st::st]).max(),
+            )
+            near = dist[8 * bi : 8 * bi + 9, 8 * bj : 8 * bj + 9].min()
+            assert worst * view.sse_factor / near <= tau, (bi, bj, st)
