@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -39,6 +40,7 @@ from globeview.render.overlay_imagery import OverlaySet  # overlays:
 from globeview.render.shader_source import build_shader, explain_sources
 from globeview.render.tile_build import ReadyTile, TileBuilder, bake
 from globeview.render.tile_loader import (
+    BytesWarmer,
     TileLoader,
     coarse_standins,
     substitute_missing,
@@ -107,6 +109,8 @@ class GlobeRenderer:
         self.last_view: ViewState | None = None
         #: The render set the last frame drew (`load`'s: stand-ins included), or None.
         self.last_drawn: RenderSet | None = None
+        self._draw_thread: int | None = None  # the thread that ran `load` last
+        self._warmer: BytesWarmer | None = None  # remote layers' byte prefetch (`_warm`)
         # Interactive use (the window) loads tiles on worker threads and uploads at most
         # upload_budget per frame; headless renders load everything before drawing.
         self.async_loading = False
@@ -132,6 +136,8 @@ class GlobeRenderer:
         self.on_tile_ready: Callable[[], None] | None = None
         # overlays: imagery drape (texture array parallel to the pool), vectors, point objects.
         self.overlays = OverlaySet(ctx, capacity)
+        # psygnal holds the bound method weakly: the stack does not keep the renderer alive.
+        terrain.changed.connect(self._terrain_changed)
 
     # -- shader program and displacement hooks --------------------------------------------
     # The terrain shaders' optional parts (imagery drape, hillshade, fog, the exaggeration
@@ -294,6 +300,25 @@ class GlobeRenderer:
                     self.loader.cancel_all()
             self._terrain_version = self.terrain.version
 
+    def _terrain_changed(self) -> None:
+        """The layers changed (`TerrainStack.changed`, on the thread that changed them). On
+        the thread that draws, with tiles loading in the background: retire the pool's
+        tiles and ask at once for the coarse stand-ins of the view last drawn
+        (`coarse_standins`), so they build while the next frame selects its tiles (the first
+        selection over a new layer reads its metadata: seconds over a network at load)."""
+        last = self.last_drawn
+        if not self.async_loading or last is None or not len(last.keys):
+            return
+        if threading.get_ident() != self._draw_thread:
+            return  # another thread's change: the next frame sees it (`load`)
+        self._check_terrain_version()
+        ahead = coarse_standins(last.keys, lambda k: self.pool.slots_of(k) >= 0)
+        if len(ahead) and len(last) + len(ahead) <= self.pool.capacity:
+            # No byte prefetch here: the loader's threads read the few stand-ins' bytes
+            # themselves, and starting the prefetch's threads (~0.4 s at load 20) would hold
+            # up the frame; the frame's `_load_async` hands it the view's tiles.
+            self._ensure_loader().request(np.empty((0, 3), np.int64), ahead=ahead)
+
     def ensure_resident(self, keys: np.ndarray) -> int:
         """Upload the tiles of ``keys`` that are not on the GPU yet; returns how many."""
         self._check_terrain_version()
@@ -385,12 +410,11 @@ class GlobeRenderer:
         if len(render_set) + len(ahead) > pool.capacity:
             ahead = ahead[:0]  # no room: they would push out the view's own tiles
         loader.request(missing_keys, priority, ahead=ahead)
-        warm = getattr(self.terrain, "prefetch_bytes", None)  # (a TerrainStack's)
-        if warm is not None and len(missing_keys):
+        if len(missing_keys):
             # Remote layers: the missing tiles' bytes, several requests at once (the loader
             # builds one tile at a time), the stand-ins first, then nearest first.
             order = np.argsort(priority, kind="stable") if priority is not None else slice(None)
-            warm(np.concatenate([ahead, missing_keys[order]]))
+            self._warm(np.concatenate([ahead, missing_keys[order]]))
         if extra is not None:
             extra["upload_ms"] = upload_ms
             extra["tiles_missing"] = len(missing)
@@ -401,6 +425,18 @@ class GlobeRenderer:
             extra["tiles_ahead"] = len(ahead)
             extra["tiles_failed"] = n_failed
         return drawn, len(ready), loader.pending
+
+    def _warm(self, keys: np.ndarray) -> None:
+        """Hand ``keys`` (N, 3) to the terrain's byte prefetch (`TerrainStack.prefetch_bytes`)
+        on the `BytesWarmer`'s thread, made when a visible layer is remote."""
+        warm = getattr(self.terrain, "prefetch_bytes", None)  # (a TerrainStack's)
+        if warm is None:
+            return
+        if self._warmer is None:
+            if not any(ly.store.is_remote for ly in self.terrain.visible_layers):
+                return  # nothing to prefetch: no thread
+            self._warmer = BytesWarmer(warm)
+        self._warmer.submit(keys)
 
     def _with_failed_ancestors(
         self, loader: TileLoader, missing: np.ndarray, priority: np.ndarray | None
@@ -464,6 +500,7 @@ class GlobeRenderer:
         (`_fit_pool`), then upload every missing tile (headless) or a budget of finished
         ones, standing in ancestors for the rest (``async_loading``, the window). Returns the
         render set to draw; sets ``stats.tiles_uploaded`` and ``stats.tiles_loading``."""
+        self._draw_thread = threading.get_ident()
         render_set = self._fit_pool(render_set, stats)
         if self.async_loading:
             render_set, stats.tiles_uploaded, stats.tiles_loading = self._load_async(
@@ -704,6 +741,7 @@ class GlobeRenderer:
                     p[name].value = value
 
     def release(self) -> None:
+        self.terrain.changed.disconnect(self._terrain_changed, missing_ok=True)
         self._release_variants()
         for obj in (
             self.instances,
@@ -721,6 +759,8 @@ class GlobeRenderer:
         self.overlays.release()  # overlays:
         if self.loader is not None:
             self.loader.shutdown()
+        if self._warmer is not None:
+            self._warmer.shutdown()
 
 
 #: The ramp near sea level, as the terrain shader's coast uniforms (u_coast_jump, u_coast_t).

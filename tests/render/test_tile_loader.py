@@ -20,6 +20,7 @@ from globeview.lod.render_set import RenderSet
 from globeview.lod.tile_indices import IndexVariant
 from globeview.render.tile_loader import (
     STANDIN_TILES,
+    BytesWarmer,
     TileLoader,
     coarse_standins,
     covered_by,
@@ -340,3 +341,32 @@ def test_standins_never_overlap_when_one_lies_under_another() -> None:
     rs = RenderSet(keys, np.zeros(2, np.int64), [IndexVariant()])
     out, _ = substitute_missing(rs, _is_in({(3, 0, 0), (2, 0, 0)}))
     assert {tuple(map(int, r)) for r in out.keys} == {(2, 0, 0)}
+
+
+def test_the_bytes_warmer_hands_over_the_latest_keys_on_its_thread() -> None:
+    """The byte prefetch runs on the warmer's thread, not the caller's; lists handed over
+    while it is busy are replaced by the latest; a failing prefetch does not stop it."""
+    calls: list[tuple[str, list]] = []
+    busy = threading.Event()
+
+    def warm(keys: np.ndarray) -> None:
+        calls.append((threading.current_thread().name, keys.tolist()))
+        if len(calls) == 1:
+            assert busy.wait(10.0)
+        if len(calls) == 2:
+            raise OSError("server gone")
+
+    warmer = BytesWarmer(warm)
+    try:
+        warmer.submit(np.array([[1, 0, 0]]))
+        wait_for(lambda: len(calls) == 1)
+        warmer.submit(np.array([[2, 0, 0]]))  # replaced before the thread is free
+        warmer.submit(np.array([[3, 0, 0]]))
+        busy.set()
+        wait_for(lambda: len(calls) == 2)
+        warmer.submit(np.array([[4, 0, 0]]))  # after a failure: still warming
+        wait_for(lambda: len(calls) == 3)
+    finally:
+        warmer.shutdown()
+    assert [c[1] for c in calls] == [[[1, 0, 0]], [[3, 0, 0]], [[4, 0, 0]]]
+    assert {c[0] for c in calls} == {"gv-warm"}
