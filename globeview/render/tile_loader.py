@@ -25,6 +25,15 @@ Scheduling (issue #17: "Go to" -> complete view): the queue is a priority list, 
   so a window can schedule a frame when there is something new to draw instead of
   redrawing in a busy loop that takes the CPU from the workers.
 
+Stand-ins (issue #25 item 4: a remote layer added, or a view that jumps): a view whose tiles
+have no resident ancestor near them would wait for hundreds of its own tiles (over a network,
+seconds of round trips and builds). `coarse_standins` picks a few of their ancestors (at most
+8, then at most 32, at the deepest levels that few cover the view), which the renderer asks
+for *ahead* of the frame's tiles (`TileLoader.request`'s ``ahead``): they draw the whole view
+at once and refine as its own tiles arrive. After the layers change, the tiles of the layers
+before are *retired* in the pool, not dropped (`TilePool.retire`), and stand in where no
+resident tile does (`substitute_missing`'s ``stale``): the view is never blanked.
+
 A failed tile is not asked for again at once (its nearest ancestor stands in, see
 `substitute_missing`), but only for `retry_failed_s` seconds: a store read over HTTP fails
 while its server is down or overloaded and serves the tile again later (issue #18), and a
