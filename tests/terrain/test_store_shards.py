@@ -171,3 +171,27 @@ def test_hostile_coverages_are_one_line() -> None:
         assert words in str(err.value) and "\n" not in str(err.value), (words, err.value)
     with pytest.raises(ValueError, match="top shard"):
         S.encode(dataclass_replace(_shard(), coverage=S.Coverage(1, 0, 0, np.ones((2, 2), bool))))
+
+
+def test_a_store_with_no_chunk_in_the_top_shard_writes_its_shards(tmp_path) -> None:
+    """A source too small for any node of the coarse levels (a 4 km 1 m DTM has none of
+    levels 0..5, whose nodes lie 7-80 km apart) leaves the top shard without a chunk; the
+    tree is still written (it crashed on an empty array's reshape) and the top names the
+    chain down to the chunks."""
+    max_level = 18
+    kk = 256
+    records = {
+        (lv, cy, cx): S.ChunkRecord(
+            "%064x" % (lv + 1),
+            100 + lv,
+            np.full((16, 16, NS + 1), 0.5),
+            np.zeros((16, 16)),
+            np.ones((16, 16)),
+        )
+        for lv, cy, cx in ((6, 1, 2), (7, 2, 4), (11, 32, 77), (15, 519, 1235))
+    }
+    name, _sha, _size, count = S.write_tree(tmp_path, TILE_N, max_level, NS, records)
+    assert count == 5  # the top and one shard a root level (6, 7, 11, 15)
+    top = S.decode((tmp_path / name).read_bytes(), ShardRef(0, 0, 0, 6), TILE_N, NS)
+    assert not top.present.any() and top.errors.shape == (0, kk, NS + 1)
+    assert [(c.cy, c.cx) for c in top.children] == [(1, 2)]

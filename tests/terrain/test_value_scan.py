@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rasterio
+from affine import Affine
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -94,3 +96,61 @@ def test_dem_info_unchanged(monkeypatch: pytest.MonkeyPatch, name: str) -> None:
         with open_dem(DATA / name) as dem:
             before = dem.info
     assert native == before
+
+
+def _raster(path: Path, dtype: str, tiled: bool) -> Path:
+    """A 613 x 701 DEFLATE raster with nodata (-9999) in a corner and an undeclared -32767
+    fill plateau: what the decimated value scan must find."""
+    rng = np.random.default_rng(3)
+    a = rng.uniform(100.0, 900.0, (613, 701))
+    a[:200, :150] = -9999.0
+    a[300:420, 400:560] = -32767.0
+    blocks = {"tiled": True, "blockxsize": 64, "blockysize": 128} if tiled else {}
+    with rasterio.open(
+        path, "w", driver="GTiff", width=701, height=613, count=1, dtype=dtype,
+        crs="EPSG:4326", transform=Affine(0.001, 0, -71, 0, -0.001, 44.6), nodata=-9999,
+        compress="deflate", **blocks,
+    ) as ds:  # fmt: skip
+        ds.write(a.astype(dtype), 1)
+    return path
+
+
+@pytest.mark.parametrize("dtype", ["float32", "int16"])
+@pytest.mark.parametrize("tiled", [True, False])
+def test_decimated_scan_reads_each_block_once_and_finds_what_gdal_decimation_did(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, dtype: str, tiled: bool
+) -> None:
+    """A raster too large for the exact scan is sampled as GDAL's decimated nearest read
+    samples it (the same fills, masked samples and range), but one block at a time, each
+    block read once: GDAL's own decimated read decompressed a row of blocks again for every
+    output row when the row outgrew its block cache (16x the CPU on a 50 000^2 DTM)."""
+    path = _raster(tmp_path / "d.tif", dtype, tiled)
+    monkeypatch.setattr(dem_module, "EXACT_RANGE_MAX_PIXELS", 1000)
+    monkeypatch.setattr(dem_module, "_DECIMATED_PIXELS", 30_000)
+    windows: list[tuple[int, int, int, int]] = []
+    read_raw = dem_module.Dem._read_raw
+
+    def spy(self, window, out_shape=None, native=False):
+        if window is not None:
+            windows.append((window.col_off, window.row_off, window.width, window.height))
+        return read_raw(self, window, out_shape=out_shape, native=native)
+
+    with monkeypatch.context() as mp:
+        mp.setattr(dem_module.Dem, "_read_raw", spy)
+        with open_dem(path) as dem:
+            by_blocks = dem.info
+            bh, bw = dem._ds.block_shapes[0]
+    with monkeypatch.context() as mp:
+        mp.setattr(
+            dem_module.Dem,
+            "_decimated",
+            lambda self, shape, native: iter(
+                [self._read_raw(None, out_shape=shape, native=native)]
+            ),
+        )
+        with open_dem(path) as dem:
+            gdal_way = dem.info
+    assert not by_blocks.range_exact and by_blocks.fill_values == (-32767.0,)
+    assert by_blocks == gdal_way
+    assert windows and len(set(windows)) == len(windows)  # no block read twice
+    assert all(r % bh == 0 and c % bw == 0 and h <= bh and w <= bw for c, r, w, h in windows)

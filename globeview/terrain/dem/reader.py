@@ -692,7 +692,7 @@ class Dem:
         else:
             f = math.sqrt(ds.width * ds.height / _DECIMATED_PIXELS)
             shape = (max(2, int(ds.height / f)), max(2, int(ds.width / f)))
-            arrays = iter([self._read_raw(None, out_shape=shape, native=native)])
+            arrays = self._decimated(shape, native)
         counts = np.zeros(cand_arr.size, dtype=np.int64)
         masked = 0
         lo, hi = math.inf, -math.inf
@@ -733,6 +733,29 @@ class Dem:
         fills.sort(key=lambda nc: (-nc[0], nc[1]))
         fill_values = tuple(c for _, c in fills)
         return fill_values, sum(n for n, _ in fills), masked, lo, hi, exact
+
+    def _decimated(self, shape: tuple[int, int], native: bool) -> Iterator[np.ndarray]:
+        """Band 1 read with nearest-neighbour decimation to ``shape`` (rows, cols), in pieces:
+        the samples GDAL's decimated read takes (source pixel floor((i + 0.5) * size / n)),
+        one block of the raster at a time, so that each block is decompressed once. GDAL's
+        own decimated read fetches a row of blocks for every output row: where that row
+        outgrows the block cache (the ingest's 96 MB; 98 MB for a 50 000-pixel-wide float32
+        raster of 512^2 blocks) every block is decompressed again for each of its sampled
+        rows, 16x the CPU. Blocks over `_SCAN_BLOCK_PIXELS` are read GDAL's way."""
+        ds = self._ds
+        bh, bw = ds.block_shapes[0]
+        if bh * bw > _SCAN_BLOCK_PIXELS:
+            yield self._read_raw(None, out_shape=shape, native=native)
+            return
+        rows = ((np.arange(shape[0]) + 0.5) * (ds.height / shape[0])).astype(np.int64)
+        cols = ((np.arange(shape[1]) + 0.5) * (ds.width / shape[1])).astype(np.int64)
+        for r0 in range(0, ds.height, bh):
+            rr = rows[(rows >= r0) & (rows < r0 + bh)] - r0
+            for c0 in range(0, ds.width, bw) if rr.size else ():
+                cc = cols[(cols >= c0) & (cols < c0 + bw)] - c0
+                if cc.size:
+                    win = Window(c0, r0, min(bw, ds.width - c0), min(bh, ds.height - r0))
+                    yield self._read_raw(win, native=native)[np.ix_(rr, cc)]
 
     def _to_metres(self, raw: np.ndarray) -> np.ndarray:
         """Stored values -> heights in metres (scale, offset and vertical units applied)."""

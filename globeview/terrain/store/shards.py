@@ -470,7 +470,12 @@ def _shard(
     keys = [s for s in slots if s in mine]
     k = chunk_tiles(tile_n)
     recs = [records[s] for s in keys]
-    errors = np.array([r.errors for r in recs], dtype=np.float64).reshape(len(recs), k * k, -1)
+    # Explicit sizes: a shard may hold no chunk (an ancestor naming its children; the top
+    # shard of a source too small for any node of the coarse levels), and -1 cannot be
+    # inferred from an empty array.
+    errors = np.array([r.errors for r in recs], dtype=np.float64).reshape(
+        len(recs), k * k, n_strides + 1
+    )
     return Shard(
         ref,
         tile_n,
@@ -478,7 +483,7 @@ def _shard(
         present,
         tuple(r.sha256 for r in recs),
         np.array([r.bytes for r in recs], dtype=np.int64),
-        errors.reshape(len(recs), k * k, n_strides + 1),
+        errors,
         f32_down(np.array([r.hmin for r in recs]).reshape(len(recs), k * k)),
         f32_up(np.array([r.hmax for r in recs]).reshape(len(recs), k * k)),
         tuple(children),
