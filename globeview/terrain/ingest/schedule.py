@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from globeview.errors import StoreError
+from globeview.terrain.ingest.memory import run_task
 from globeview.terrain.ingest.tasks import (
     BuildPlan,
     SourceSpec,
@@ -202,7 +203,9 @@ def build_graph(
     chunks ``planned[level]`` ((cy, cx) of the global chunk grid, `store.layout`); every
     other chunk has no data."""
     dsk: dict[Hashable, Any] = {"plan": plan, "sources": tuple(sources)}
-    dsk["pole"] = (pole_task, "plan", "sources")
+    # Each task through `memory.run_task`: freed temporaries go back to the system, so a
+    # worker's RSS does not grow with the number of tasks it has run.
+    dsk["pole"] = (run_task, pole_task, "plan", "sources")
     chunk_keys: list[str] = []
     deps_of: dict[str, list[str]] = {}
     write_no = 0
@@ -240,6 +243,7 @@ def build_graph(
                 EXTRA_COL if (cy, cx + 1) not in planned[lv] else 0
             )
             dsk[key] = (
+                run_task,
                 chunk_task,
                 "plan",
                 "sources",
@@ -298,7 +302,7 @@ def build_graph(
                     )
                 }
             key = f"error-{lf}-{cy}-{cx}"
-            dsk[key] = (error_task, "plan", lf, cy, cx, sorted(deps))
+            dsk[key] = (run_task, error_task, "plan", lf, cy, cx, sorted(deps))
             error_keys.append(key)
             deps_of[key] = sorted(deps)
     return Graph(dsk, chunk_keys, error_keys, deps_of)
