@@ -5,11 +5,13 @@ number of tasks it has run, issue #25's 2 000-tile build)."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from globeview.terrain.ingest import driver as driver_mod
 from globeview.terrain.ingest import memory
 from globeview.terrain.ingest.driver import ingest
 
@@ -82,3 +84,43 @@ def test_every_task_of_the_graph_runs_through_the_check(
     )
     # Every chunk and error task (what progress counts) and the pole task.
     assert progress and len(checks) == progress[-1] + 1
+
+
+def _open_fds() -> int:
+    return len(os.listdir("/proc/self/fd"))
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/fd"), reason="counts /proc/self/fd")
+def test_sources_are_not_held_open_while_the_build_runs(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """40 one-degree tiles (tiny rasters): once planned, the driver holds no file of them
+    (the tasks reopen what they read, a bounded number per thread)."""
+    import rasterio
+    from affine import Affine
+
+    paths = []
+    for i in range(40):
+        p = tmp_path / f"t{i:02d}.tif"
+        data = np.full((8, 8), 100.0 + i, dtype=np.float32)
+        with rasterio.open(
+            p, "w", driver="GTiff", width=8, height=8, count=1, dtype="float32",
+            crs="EPSG:4326", transform=Affine(1 / 8, 0, i % 8, 0, -1 / 8, 40 + i // 8),
+        ) as ds:  # fmt: skip
+            ds.write(data, 1)
+        paths.append(p)
+
+    class Planned(Exception):
+        pass
+
+    seen: list[int] = []
+
+    def stop(*args: object, **kw: object) -> None:
+        seen.append(_open_fds())
+        raise Planned
+
+    monkeypatch.setattr(driver_mod, "_plan_build", stop)
+    before = _open_fds()
+    with pytest.raises(Planned):
+        ingest(paths, tmp_path / "s", workers=2)
+    assert seen and seen[0] - before < 10  # not one per source
