@@ -25,7 +25,9 @@ Schedulers: threads (dask's local threaded scheduler, our own pool so that a fai
 wait for every task in flight before the building folder is removed), processes (dask's
 multiprocessing scheduler over a spawned process pool), or an existing ``dask.distributed``
 scheduler at tcp://HOST:PORT (futures, `as_completed` for progress), asked for its
-identity first with a hard deadline (`probe_scheduler`).
+identity first with a hard deadline (`probe_scheduler`). On each, the graph runs in waves
+(`stages`: the pole, each level's chunks, the error windows), so dask orders one flat wave at
+a time, never the whole pyramid.
 """
 
 from __future__ import annotations
