@@ -137,34 +137,15 @@ class TileBuilder:
             # Skirts must reach below any neighbour drawn at another level or stride: a few
             # times this tile's coarsest height error plus a little of its size.
             out[rows] = 3.0 * np.nanmax(meta.stride_error, axis=1) + 0.01 * edge_m + 10.0
-            wall = self._data_edge_drop(int(level), keys[rows, 1], keys[rows, 2], meta.hmax)
-            out[rows] = np.maximum(out[rows], wall + 10.0)
+            # Down to the bottom of the tile's height range, which holds the bare ellipsoid
+            # (`TileMetadata.hmin` <= 0): past a layer's data edge the surface drops to the
+            # ellipsoid within a node spacing, and a neighbour of another level or without
+            # data meets this tile's edge up to that whole wall lower (issue #25: background
+            # showed between the raised land and the ground).
+            wall = np.where(meta.covered, meta.hmax - np.minimum(meta.hmin, 0.0), 0.0)
+            out[rows] = np.maximum(out[rows], np.nan_to_num(wall, nan=0.0) + 10.0)
             level_err[rows] = meta.stride_error[:, 0]
         return out, level_err
-
-    def _data_edge_drop(
-        self, level: int, x: np.ndarray, y: np.ndarray, hmax: np.ndarray
-    ) -> np.ndarray:
-        """(N,) metres from the top ``hmax`` (N,) of tiles (``level``, ``x``, ``y``) down to
-        the bare ellipsoid (or the lowest tile around), for tiles near a data edge: 0 elsewhere.
-
-        Near a layer's data edge the surface drops to the ellipsoid (height 0) within one node
-        spacing, so a neighbour drawn at another level (or a tile without data) can meet this
-        tile's edge up to that whole wall lower; its skirt must reach down there (issue #25: a
-        hole where a data tile met a coarser wall piece or a bare-ellipsoid tile). A tile is
-        near a data edge when a tile of its 5 x 5 same-level block has no data or reaches the
-        ellipsoid (hmin <= 0).
-        """
-        steps = np.arange(-2, 3)
-        nx = (x[:, None, None] + steps[None, None, :]) % (2 << level)
-        ny = np.clip(y[:, None, None] + steps[None, :, None], 0, (1 << level) - 1)
-        nx, ny = np.broadcast_arrays(nx, ny)
-        meta = self.terrain.metadata(level, nx.reshape(-1), ny.reshape(-1))
-        low = np.where(meta.covered, np.nan_to_num(meta.hmin, nan=0.0), 0.0)
-        low = np.minimum(low, 0.0).reshape(len(x), -1)
-        near = ((~meta.covered) | (np.nan_to_num(meta.hmin, nan=0.0) <= 0.0)).reshape(len(x), -1)
-        drop = np.nan_to_num(hmax, nan=0.0) - low.min(axis=1)
-        return np.where(near.any(axis=1), np.maximum(drop, 0.0), 0.0)
 
     def skirt_depth(self, key: Key) -> float:
         return self._one_tile_facts(key)[0]
