@@ -83,7 +83,8 @@ def test_no_background_between_the_walls_and_the_ground(hill: Path, tmp_path: Pa
             MAGENTA,
             "--out",
             str(out),
-        ]
+        ],
+        env={"GLOBEVIEW_CACHE_DIR": str(hill.parent / "cache")},  # never the user's cache
     )
     assert res.returncode == 0, res.stderr
     rgb = np.asarray(Image.open(out).convert("RGB")).astype(np.int64)
