@@ -137,6 +137,13 @@ class TileBuilder:
             # Skirts must reach below any neighbour drawn at another level or stride: a few
             # times this tile's coarsest height error plus a little of its size.
             out[rows] = 3.0 * np.nanmax(meta.stride_error, axis=1) + 0.01 * edge_m + 10.0
+            # Down to the bottom of the tile's height range, which holds the bare ellipsoid
+            # (`TileMetadata.hmin` <= 0): past a layer's data edge the surface drops to the
+            # ellipsoid within a node spacing, and a neighbour of another level or without
+            # data meets this tile's edge up to that whole wall lower (issue #25: background
+            # showed between the raised land and the ground).
+            wall = np.where(meta.covered, meta.hmax - np.minimum(meta.hmin, 0.0), 0.0)
+            out[rows] = np.maximum(out[rows], np.nan_to_num(wall, nan=0.0) + 10.0)
             level_err[rows] = meta.stride_error[:, 0]
         return out, level_err
 
