@@ -26,7 +26,6 @@ from __future__ import annotations
 import numpy as np
 
 from globeview.geodesy import WGS84
-from globeview.lod.block_bends import displaced_block_terms
 from globeview.lod.block_indices import BLOCK_CELLS, BLOCKS, N_BLOCK_STRIDES
 from globeview.lod.culling import chord_sag
 from globeview.lod.view_state import ViewState
@@ -160,7 +159,6 @@ def choose_block_strides(
     view: ViewState,
     tau_px: float,
     size: int,
-    keys: np.ndarray | None = None,
 ) -> np.ndarray:
     """(N, 8, 8) int8 stride index (0..3) of each block of N tiles, or -1 for a tile drawn
     by its index variant (its stride index is `WHOLE_FROM` or more, its slot is -1 or its
@@ -174,9 +172,6 @@ def choose_block_strides(
         view: the frame's view (eye, exaggeration, ``sse_factor``).
         tau_px: the screen-space error threshold (pixels).
         size: nodes per tile side (65).
-        keys: (N, 3) the tiles' keys (level, x, y); needed under a displacement
-            (``view.displace``), where each block adds its own bend (`block_bends`): without
-            them no block goes coarser than its tile there.
     Vectorised over the tiles: a few dozen numpy calls whatever N.
     """
     n = len(stride_idx)
@@ -186,32 +181,10 @@ def choose_block_strides(
     rows = np.flatnonzero(tile_idx < WHOLE_FROM)
     rows = rows[slots[rows] >= 0]
     rows = rows[np.isfinite(facts[slots[rows], 0, 0])]
-    if not len(rows) or (view.displace is not None and keys is None):
+    if not len(rows) or view.displace is not None:
         return out
     # Fact-major rows (M, N_FACTS, 64): every fact below is a contiguous (M, 64) array.
     f = facts[slots[rows]]
-    e = np.float32(view.exaggeration)
-    if view.displace is not None:
-        assert keys is not None
-        px_per_m, bend_s = _displaced_terms(np.asarray(keys)[rows], f, view)
-    else:
-        px_per_m = _plain_px_per_m(f, view)
-        bend_s = np.zeros((len(rows), N_BLOCKS, 3), dtype=np.float32)
-    node_deg = 180.0 / np.exp2(np.asarray(level, dtype=np.float64)[rows]) / (size - 1)
-    # Errors grow with the stride (running max, sag, bend): the coarsest within tau is a count.
-    ok = np.zeros(px_per_m.shape, dtype=np.int64)
-    for k, s in enumerate((2.0, 4.0, 8.0)):
-        sag = chord_sag(node_deg * s)[:, None].astype(np.float32)  # (M, 1)
-        ok += (f[:, k] * e + sag + bend_s[:, :, k]) * px_per_m <= tau_px
-    chosen = np.maximum(ok, tile_idx[rows, None])
-    coarser = (chosen > tile_idx[rows, None]).any(axis=1)
-    out[rows[coarser]] = chosen[coarser].reshape(-1, BLOCKS, BLOCKS).astype(np.int8)
-    return out
-
-
-def _plain_px_per_m(f: np.ndarray, view: ViewState) -> np.ndarray:
-    """(M, 64) pixels per metre of error of blocks with facts ``f`` (M, N_FACTS, 64), drawn
-    where they are (no displacement): from the ball about each block's centre."""
     e = np.float32(view.exaggeration)
     mid = (f[:, 3] + f[:, 4]) * (np.float32(0.5) * e)
     half = (f[:, 4] - f[:, 3]) * (np.float32(0.5) * e)
@@ -222,19 +195,14 @@ def _plain_px_per_m(f: np.ndarray, view: ViewState) -> np.ndarray:
         d2 += diff * diff
     # float32 ECEF (ulp 0.5 m at the Earth's radius): `FLOAT32_SLACK_M` more reach.
     reach = f[:, RADIUS] + half + np.abs(mid) * f[:, TURN] + np.float32(FLOAT32_SLACK_M)
-    px_per_m: np.ndarray = view.sse_factor / np.maximum(np.sqrt(d2) - reach, 1.0)
-    return px_per_m
-
-
-def _displaced_terms(
-    keys: np.ndarray, f: np.ndarray, view: ViewState
-) -> tuple[np.ndarray, np.ndarray]:
-    """(pixels per metre (M, 64), bend (m) at strides 2, 4, 8 (M, 64, 3)) of blocks with
-    facts ``f`` (M, N_FACTS, 64) of tiles ``keys`` (M, 3) drawn under ``view.displace``
-    (`block_bends.displaced_block_terms`). Blocks without finite heights get inf pixels
-    per metre (never coarser than their tile)."""
-    lo, hi = f[:, 3].astype(np.float64), f[:, 4].astype(np.float64)
-    bad = ~(np.isfinite(lo) & np.isfinite(hi))
-    lo, hi = np.where(bad, 0.0, lo), np.where(bad, 0.0, hi)
-    px_per_m, bend_s = displaced_block_terms(keys, lo, hi, view)
-    return np.where(bad, np.inf, px_per_m), bend_s
+    px_per_m = view.sse_factor / np.maximum(np.sqrt(d2) - reach, 1.0)  # (M, 64)
+    node_deg = 180.0 / np.exp2(np.asarray(level, dtype=np.float64)[rows]) / (size - 1)
+    # Errors grow with the stride (running max, sag): the coarsest within tau is a count.
+    ok = np.zeros(mid.shape, dtype=np.int64)
+    for k, s in enumerate((2.0, 4.0, 8.0)):
+        sag = chord_sag(node_deg * s)[:, None].astype(np.float32)  # (M, 1)
+        ok += (f[:, k] * e + sag) * px_per_m <= tau_px
+    chosen = np.maximum(ok, tile_idx[rows, None])
+    coarser = (chosen > tile_idx[rows, None]).any(axis=1)
+    out[rows[coarser]] = chosen[coarser].reshape(-1, BLOCKS, BLOCKS).astype(np.int8)
+    return out

@@ -36,12 +36,9 @@ MAX_LEVEL = 22
 
 
 def bend_fractions(size: int) -> np.ndarray:
-    """(N_STRIDES,) how many spans of a tile's bounding lattice an edge of each stride 1, 2,
-    4.. spans: a displacement's bend over the tile (per lattice span) times it is the bend at
-    that stride. Strides longer than a span (the whole tile's side is LATTICE - 1 spans) get
-    more than 1: the bend of a kink grows with the edge's length, and capping it at one
-    span opened gaps at the collapse's folds once those tiles were drawn whole."""
-    return 2.0 ** np.arange(N_STRIDES) * (LATTICE - 1) / (size - 1)
+    """(N_STRIDES,) the share of a displacement's bend over a tile (measured across LATTICE-1
+    spans of its bounding lattice) that an edge of each stride 1, 2, 4.. spans (at most 1)."""
+    return np.minimum(1.0, 2.0 ** np.arange(N_STRIDES) * (LATTICE - 1) / (size - 1))
 
 
 class TileFacts(Protocol):

@@ -674,7 +674,6 @@ class GlobeRenderer:
             view,
             float(tau),
             self.size,
-            render_set.keys,
         )
         self.last_block_ms = (time.process_time() - t0) * 1e3
         return out

@@ -62,9 +62,9 @@ BEND_RHO_MIN = 0.05
 #: Ellipsoid term of the smooth-region bend bound (`CollapseFrame.bend_bound_m`), calibrated
 #: with a wide safety factor against the exact measure (tests/collapse/test_collapse_bend.py).
 BEND_ELLIPSOID_K = 0.05
-#: Factor on a kink's jump of the map's derivative (1 - r at a fold line) for the ellipsoid
-#: (the foot point and the normal turn with the land: O(e^2)) and the heights (O(h / R)).
-BEND_JUMP_SLACK = 1.1
+#: Batches of fewer tiles than this (or with a quarter or more crossed by a kink) get the
+#: exact measure throughout: cheaper there than the bound, and never larger.
+BEND_EXACT_BELOW = 64
 
 _A2 = WGS84.a**2
 _B2 = WGS84.b**2
@@ -291,36 +291,22 @@ class CollapseFrame:
 
     # -- bend bound for LOD providers ---------------------------------------------------------
     def bend_bound_m(self, points: np.ndarray, displaced: np.ndarray | None = None) -> np.ndarray:
-        """An upper bound (m, (N,)) of how far the drawn triangles of tiles with bounding
-        lattices ``points`` (N, K, 3) (true ECEF, 2 heights x L x L) stray from the collapsed
-        surface, per lattice span: a triangle whose sides are at most f lattice spans long
-        (f up to L - 1, the whole tile side) strays at most f times the bound. That is how LOD
-        providers scale it to a stride (`lod.candidates.bend_fractions`). ``displaced`` =
+        """A cheap upper bound (m, (N,)) of `culling.displacement_chord_error_m` of `forward`
+        over tile bounding lattices ``points`` (N, K, 3) (true ECEF); ``displaced`` =
         ``forward(points)`` if the caller has it. See docs/collapse.md ("Cracks").
 
         The lattice's geocentric along-axis angles (no foot points: cheap) give each tile's psi
-        range; the mesh between lattice points stays inside it (psi is monotonic along a
-        chord), widened by ``BEND_PSI_MARGIN`` for the foot point's psi. Two parts add up:
-
-        - **kinks** (|psi| = psi0 and psi_k) inside that range: the map's derivative jumps by
-          J = 1 - r at a fold line and g_taper - 1 at the taper's start (a rotation by phi(psi)
-          about n: the jump is rho |phi'| |grad psi| = |delta phi'|), and a triangle of
-          diameter D crossing a kink strays at most J D / 4 from the kinked surface (the
-          gap between a convex ramp and its linear interpolation, whatever where the kink
-          crosses it). A triangle of a lattice span's cells has D <= sqrt(2) x the lattice
-          edge;
-        - **curvature**: where smooth the map is (rho, psi, z) -> (rho, g psi + const, z)
-          about the normal (g = r in the zone, 1 beyond it, the taper's stretch past psi_k),
-          second derivative at most |1 - g^2| / rho, plus ``BEND_ELLIPSOID_K`` * (shift +
-          |1 - g|) / rho for the ellipsoid: a triangle of diameter D strays at most D^2 / 8
-          of that; D <= sqrt(2) f edge with f <= L - 1, so per lattice span (L - 1) edge^2 / 4.
-
-        ``BEND_JUMP_SLACK`` covers the ellipsoid's and the heights' share of the jump. Tiles
-        close to the normal's axis (rho below ``BEND_RHO_MIN`` R_M, where 1 / rho blows up)
-        or spanning the half-meridian at psi = pi get the exact midpoint measure
-        (`culling.displacement_chord_error_m`) instead, displacing only their edges'
-        midpoints: they lie about 90 degrees or more from the A-B line, where nothing moves
-        much."""
+        range; the straight edges between lattice points stay inside it (psi is monotonic
+        along a chord). Tiles whose range, widened by ``BEND_PSI_MARGIN``, avoids the kinks
+        (|psi| = psi0 and psi_k) lie where the map is smooth: on a sphere it is
+        (rho, psi, z) -> (rho, g psi + const, z) about the A-B plane's normal, whose second
+        derivative is at most |1 - g^2| / rho (g = r inside the zone, 1 outside, the taper's
+        stretch beyond psi_k), so an edge of length L bends at most L^2 / 8 of that; the
+        ellipsoid adds ``BEND_ELLIPSOID_K`` * (shift + |1 - g|) / rho. Those tiles get the
+        bound; the others (a kink inside, the antipodal half-meridian, close to the normal's
+        axis) get the exact measure, displacing only their edges' midpoints. Small batches and
+        batches with many kinked tiles get the exact measure throughout (``BEND_EXACT_BELOW``):
+        numpy's per-call overhead, not the points, is what costs there."""
         pts = np.asarray(points, dtype=np.float64)
         n = pts.shape[0]
         if n == 0 or self.ratio == 1.0 or self.psi0 == 0.0:
@@ -335,9 +321,12 @@ class CollapseFrame:
         shift = (1.0 - r) * p0
         g_taper = 1.0 + shift / (math.pi - pk)
         knots = np.array([-pk, -p0, p0, pk])
-        jumps = np.array([g_taper - 1.0, 1.0 - r, 1.0 - r, g_taper - 1.0])
         hits = (lo[:, None] <= knots + eps) & (hi[:, None] >= knots - eps)
-        jump = hits.astype(np.float64) @ jumps  # the kinks' jumps inside each tile
+        kinked = hits.any(axis=1) | (hi - lo >= math.pi)  # a kink inside, or the wrap at pi
+        if n < BEND_EXACT_BELOW or 4 * np.count_nonzero(kinked) >= n:
+            # Few tiles, or many crossed by a kink: one exact call costs less than the bound's
+            # extra numpy calls (per-call overhead dominates small arrays) and is tighter.
+            return displacement_chord_error_m(self.forward, pts, displaced)
         side = round(math.sqrt(k))
         idx = np.arange(k).reshape(side, side)
         ia = np.concatenate([idx[:, :-1].ravel(), idx[:-1, :].ravel()])
@@ -354,12 +343,12 @@ class CollapseFrame:
         c_taper = np.where(a_hi > pk, g_taper * g_taper - 1.0, 0.0)
         dev = np.maximum(np.where(touches_zone, 1.0 - r, 0.0), g_max_dev)
         curv = np.maximum(c_in, c_taper) + BEND_ELLIPSOID_K * (shift + dev)
-        exact = (hi - lo >= math.pi) | (rho <= BEND_RHO_MIN * self.r_m)
-        kink_k = math.sqrt(2.0) * BEND_JUMP_SLACK / 4.0  # J D / 4, D <= sqrt(2) edge
-        curv_k = (side - 1) / 4.0  # D^2 / 8 per span, D <= sqrt(2) (side - 1) edge
+        exact = kinked | (rho <= BEND_RHO_MIN * self.r_m)
         with np.errstate(divide="ignore", invalid="ignore"):
-            out = kink_k * jump * edge + curv_k * edge * edge * curv / rho
+            out = edge * edge / 8.0 * curv / rho
         rest = exact.nonzero()[0]
+        if len(rest) == n:
+            return displacement_chord_error_m(self.forward, pts, displaced)
         if len(rest):
             disp = None if displaced is None else np.asarray(displaced).take(rest, axis=0)
             out[rest] = displacement_chord_error_m(self.forward, pts.take(rest, axis=0), disp)
