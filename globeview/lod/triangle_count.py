@@ -21,7 +21,10 @@ DEFAULT_TILE_SIZE = 65
 
 def triangle_count(candidate: RenderSet | Selection, tile_size: int = DEFAULT_TILE_SIZE) -> int:
     """Triangles the renderer would draw for ``candidate`` over tiles of ``tile_size`` nodes
-    per side (pass ``terrain.tile_size``): the number the frame's ``triangles`` stat gives.
+    per side (pass ``terrain.tile_size``): the number the frame's ``triangles`` stat gives,
+    but for the default provider's sets (``block_tau_px`` set), whose frames draw at most this
+    many: the renderer stitches their same-level tile edges instead of skirting them and
+    draws blocks at their own strides (issue #27).
 
     A `RenderSet` counts as it is (its variants and custom index lists). A `Selection` (what
     a policy's ``render_set`` receives) counts as the default policy draws it: each tile at

@@ -68,6 +68,9 @@ WGS84 = CRS.from_epsg(4326)
 EXACT_RANGE_MAX_PIXELS = 50_000_000
 # Pixels per block when scanning a raster for statistics (bounded memory).
 _SCAN_BLOCK_PIXELS = 4_000_000
+#: The most blocks `Dem._decimated` reads one by one (a 50 000^2 raster of 512^2 blocks: 9 604);
+#: past it the scan is one decimated GDAL read.
+_SCAN_MAX_BLOCKS = 40_000
 # Target size of the decimated read used for statistics of huge rasters.
 _DECIMATED_PIXELS = 4_000_000
 # Extra source cells read around a request so void detection sees a void's surroundings.
@@ -744,11 +747,14 @@ class Dem:
         rows, 16x the CPU. Blocks over `_SCAN_BLOCK_PIXELS` are read GDAL's way."""
         ds = self._ds
         bh, bw = ds.block_shapes[0]
-        if bh * bw > _SCAN_BLOCK_PIXELS:
-            yield self._read_raw(None, out_shape=shape, native=native)
-            return
         rows = ((np.arange(shape[0]) + 0.5) * (ds.height / shape[0])).astype(np.int64)
         cols = ((np.arange(shape[1]) + 0.5) * (ds.width / shape[1])).astype(np.int64)
+        touched = np.unique(rows // bh).size * np.unique(cols // bw).size
+        if bh * bw > _SCAN_BLOCK_PIXELS or touched > _SCAN_MAX_BLOCKS:
+            # Few large blocks, or more blocks than reads are worth (a VRT of millions of
+            # small blocks, mostly empty, as a hostile 2 000 000-pixel-wide one): GDAL's way.
+            yield self._read_raw(None, out_shape=shape, native=native)
+            return
         for r0 in range(0, ds.height, bh):
             rr = rows[(rows >= r0) & (rows < r0 + bh)] - r0
             for c0 in range(0, ds.width, bw) if rr.size else ():
