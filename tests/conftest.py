@@ -10,7 +10,7 @@ import shutil
 import signal
 import subprocess
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import cpu_durations
@@ -66,6 +66,19 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         mark = _FOLDER_MARKS.get(folder)
         if mark is not None:
             item.add_marker(mark)
+
+
+@pytest.fixture(autouse=True)
+def _environment_restored() -> Iterator[None]:
+    """Each test leaves `os.environ` as it found it: an import can change it for the whole
+    process (importing `distributed` sets MALLOC_TRIM_THRESHOLD_, OMP_NUM_THREADS, ... and
+    __DASK_PARENT_PID), and a later test in the same worker that checks what a child process
+    inherits (tests/test_zygote.py) then failed depending on the order of the tests."""
+    saved = dict(os.environ)
+    yield
+    if os.environ != saved:
+        os.environ.clear()
+        os.environ.update(saved)
 
 
 @pytest.fixture(scope="session")

@@ -29,6 +29,7 @@ from globeview.model.globe import DEFAULT_LOD, Globe
 from globeview.plugins.api import NullRendererHooks
 from globeview.plugins.registry import PluginRegistry
 from globeview.render.frame_pipeline import FramePipeline
+from globeview.render.offscreen import make_current
 from globeview.render.picking import Pick
 from globeview.render.renderer import GlobeRenderer
 from globeview.render.scene import FrameResult, GlobeScene
@@ -288,6 +289,7 @@ class GlobeSession(GlobeScene):
     def release_gl(self) -> None:
         """Release the GL objects the session owns (with its context current), and stop
         listening to the globe, which may outlive the session (a window's model)."""
+        make_current(self.ctx)  # never another headless context's names
         self.tool_host.close()
         self.pipeline.release()
         self.renderer.release()

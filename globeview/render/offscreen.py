@@ -42,6 +42,21 @@ def create_headless_context(*, fresh: bool = False) -> moderngl.Context:
     return ctx
 
 
+def make_current(ctx: moderngl.Context) -> None:
+    """Make a context from `create_headless_context` current on this thread again; any other
+    context (a window's, which its toolkit makes current before painting) is left alone.
+
+    Why: creating a headless context makes it current, so a second context opened on the same
+    thread (an in-process `globeview render`, a second session or benchmark) left the first
+    one's later calls drawing into, reading from and deleting names of the other context:
+    wrong images, an empty frame or another context's objects released. GL names are small
+    integers in every context, so such calls often "work" on the wrong objects. Each frame and
+    each read or release of a headless target calls this first (an `eglMakeCurrent` of the
+    context already current costs microseconds)."""
+    if isinstance(ctx.extra, dict) and ctx.extra.get("globeview_headless"):
+        ctx.__enter__()  # no __exit__: it stays current, as `create_headless_context` leaves it
+
+
 def release_headless_context(ctx: moderngl.Context) -> None:
     """Close a context from `create_headless_context` once everything made in it has been
     released (session.release_gl, target.release): it is kept, with its state back to the
@@ -69,6 +84,7 @@ class OffscreenTarget:
 
     def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
         self.ctx = ctx
+        make_current(ctx)
         self.size = (int(size[0]), int(size[1]))
         self.color = gpu_objects(ctx).texture(self.size, 4)
         self.depth = gpu_objects(ctx).depth_texture(self.size)
@@ -78,12 +94,14 @@ class OffscreenTarget:
 
     def read_rgb(self) -> np.ndarray:
         """(height, width, 3) uint8, row 0 at the top of the image."""
+        make_current(self.ctx)
         w, h = self.size
         data = np.frombuffer(self.fbo.read(components=3, alignment=1), dtype=np.uint8)
         return data.reshape(h, w, 3)[::-1].copy()
 
     def read_depth(self) -> np.ndarray:
         """(height, width) float32 window depth in 0..1 (1 = nothing drawn), row 0 at top."""
+        make_current(self.ctx)
         w, h = self.size
         data = np.frombuffer(
             self.fbo.read(attachment=-1, components=1, dtype="f4", alignment=1), np.float32
@@ -91,5 +109,6 @@ class OffscreenTarget:
         return data.reshape(h, w)[::-1].copy()
 
     def release(self) -> None:
+        make_current(self.ctx)
         for obj in (self.fbo, self.color, self.depth):
             obj.release()

@@ -15,6 +15,7 @@ from globeview.lod.view_state import ViewState
 from globeview.model.camera import Camera
 from globeview.model.display import DisplaySettings
 from globeview.render.frame_pipeline import FramePipeline, FrameResult, FrameTool
+from globeview.render.offscreen import make_current
 from globeview.render.picking import Pick, pick
 from globeview.render.renderer import GlobeRenderer
 from globeview.terrain.compose.stack import TerrainStack
@@ -109,7 +110,8 @@ class GlobeScene:
         viewport: tuple[int, int],
         now_s: float | None = None,
     ) -> FrameResult:
-        """Run one frame through the pipeline (`FramePipeline.run`)."""
+        """Run one frame through the pipeline (`FramePipeline.run`), its context current."""
+        make_current(self.ctx)
         self.last = self.pipeline.run(fbo, viewport, now_s)
         return self.last
 
