@@ -9,7 +9,10 @@ number of files, the finest level and its tiles with data (manifest), CPU a fine
 (CPU / (finest tiles with data x 64^2 nodes), as docs/scale.md counts nodes) and CPU a node
 of the chunk files (every level: what `terrain/ingest/cost.py` counts). ``--keep`` keeps the
 store (default: removed after counting, so the next build has the disk), ``--digest FILE``
-writes every file's sha256 (to compare two builds).
+writes every file's sha256 (to compare two builds). Every ``--every`` seconds (default 60) a
+line says how far the build is (Linux): the ingest process's CPU seconds so far (its threads;
+not a process pool's workers), its RSS and peak RSS, and the chunk files in its building
+folder, so a build stopped before the end (a shared machine, a deadline) still has figures.
 
     python benchmarks/bench_planet.py --out /tmp/planet/store200 [--workers 2] \\
         -- @benchmarks/cache/planet/srtm3/tiles_200.txt
@@ -61,12 +64,47 @@ def digest(store: Path) -> dict[str, str]:
     return out
 
 
+def _proc_figures(pid: int) -> tuple[float, int, int] | None:
+    """(CPU seconds, RSS bytes, peak RSS bytes) of a running process from /proc, or None."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        status = Path(f"/proc/{pid}/status").read_text().splitlines()
+    except (OSError, IndexError):
+        return None
+    mem = {ln.split(":")[0]: int(ln.split()[1]) * 1024 for ln in status if ln.startswith("Vm")}
+    cpu = (int(stat[11]) + int(stat[12])) / os.sysconf("SC_CLK_TCK")  # utime + stime
+    return cpu, mem.get("VmRSS", 0), mem.get("VmHWM", 0)
+
+
+def _building_chunks(out: Path) -> int:
+    """Chunk files so far in the building folder(s) of ``out`` (``.NAME.building-*``)."""
+    return sum(1 for d in out.parent.glob(f".{out.name}.building-*") for _ in d.rglob("*.tif"))
+
+
+def _wait_reporting(proc: subprocess.Popen[bytes], out: Path, every: float, t0: float) -> int:
+    """Wait for the ingest, printing a progress line every ``every`` seconds."""
+    while True:
+        try:
+            return proc.wait(timeout=every)
+        except subprocess.TimeoutExpired:
+            fig = _proc_figures(proc.pid)
+            if fig is not None:
+                cpu, rss, hwm = fig
+                print(
+                    f"  {time.perf_counter() - t0:6.0f} s wall: ingest {cpu:7.1f} CPU s, RSS "
+                    f"{rss / 2**20:.0f} MiB (peak {hwm / 2**20:.0f}), "
+                    f"{_building_chunks(out)} chunk files, load {os.getloadavg()[0]:.1f}",
+                    flush=True,
+                )
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", type=Path, required=True, help="the store to build (replaced)")
     ap.add_argument("--workers", default=None, help="globeview ingest --workers")
     ap.add_argument("--keep", action="store_true", help="keep the store")
     ap.add_argument("--digest", type=Path, default=None, help="write the files' sha256 here")
+    ap.add_argument("--every", type=float, default=60.0, help="seconds between progress lines")
     ap.add_argument("args", nargs="+", help="sources and other ingest arguments (after --)")
     a = ap.parse_args()
     cmd = [str(GLOBEVIEW), "ingest", *a.args, "--out", str(a.out), "--quiet", "--force"]
@@ -77,12 +115,12 @@ def main() -> int:
     print("$ " + " ".join(cmd), flush=True)
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    res = subprocess.run(cmd, check=False)
+    code = _wait_reporting(subprocess.Popen(cmd), a.out, a.every, t0)
     wall = time.perf_counter() - t0
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
-    if res.returncode != 0:
-        print(f"bench_planet: the ingest failed (exit {res.returncode}) after {wall:.0f} s")
+    if code != 0:
+        print(f"bench_planet: the ingest failed (exit {code}) after {wall:.0f} s")
         return 1
     f = store_figures(a.out)
     print(
