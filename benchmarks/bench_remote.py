@@ -15,11 +15,14 @@ Each run is a fresh child process drawing the view ``--view`` (default "low-alti
 (White Mountains, 9 km)") of `globeview.bench.views.VIEWS` the way the window does: a running
 view (its GL context made, not timed) to which the store is added once opened, tiles built by
 the background loader (`GlobeRenderer.load_workers`: 4 threads for a remote layer on 2 cores),
-frames drawn until none is loading. Figures: seconds to open the store (manifest and top
-shard), seconds from the open to the first frame with a resident tile of the store's data and
-to the first complete frame (no tile loading), frames drawn, tiles, and tiles that failed; the
-server's log gives the requests and bytes sent (nginx's also what came before the first
-frame). Runs:
+frames drawn until none is loading. The view is drawn complete from the embedded layers first
+(not timed: the view the user was looking at). Figures: seconds to open the store (manifest
+and top shard), seconds from the open to the first frame with a resident tile of the store's
+data and to the first complete frame (no tile loading), CPU seconds of the run's process from
+the open to the complete frame (every thread), frames drawn, tiles, and tiles that failed;
+the levels of the store's tiles in its first frame and the frames drawn blank after the add
+(notes); the server's log gives the requests and bytes sent (nginx's also what came before
+the first frame). Runs:
 
 - ``local``: the same store opened from its folder (the reference);
 - ``cold``: over HTTP with an empty disk cache;
@@ -84,19 +87,33 @@ class BenchError(Exception):
 # The child: opens the store, draws frames until complete, prints one JSON line
 
 
-def _store_drawn(bench, store, keys) -> bool:
-    """Whether a resident tile of the selected ``keys`` ((N, 3) level, x, y) holds the
-    store's data (a key finer than the store's levels: its ancestor at the finest level)."""
+def _store_tiles(bench, store, keys):
+    """The resident tiles among the drawn ``keys`` ((N, 3) level, x, y: the frame's tiles
+    and the ancestors standing in for the missing ones) that hold the
+    store's data (a key finer than the store's levels: its ancestor at the finest level has
+    data); retired tiles (built before the store was added) are not resident."""
     import numpy as np
 
     keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
     keys = keys[bench.session.renderer.pool.slots_of(keys) >= 0]
+    out = []
     for level in np.unique(keys[:, 0]).tolist():
         sel = keys[keys[:, 0] == level]
         up = max(0, level - store.max_level)
-        if store.has_data(level - up, sel[:, 1] >> up, sel[:, 2] >> up).any():
-            return True
-    return False
+        has = np.asarray(store.has_data(level - up, sel[:, 1] >> up, sel[:, 2] >> up), bool)
+        out.append(sel[has.reshape(-1)])
+    return np.concatenate(out) if out else keys[:0]
+
+
+def _load_view(bench, deadline_s: float) -> None:
+    """Frames until the view is complete (the embedded layers' tiles all resident)."""
+    deadline = time.perf_counter() + deadline_s
+    while time.perf_counter() < deadline:
+        r, _ = bench.frame()
+        if r.stats.tiles_drawn and r.stats.tiles_loading == 0:
+            return
+        time.sleep(0.005)
+    raise RuntimeError("the embedded view never completed")
 
 
 def _child(spec: dict) -> None:
@@ -118,7 +135,7 @@ def _child(spec: dict) -> None:
     if spec.get("load_workers") is not None:  # else chosen for the layers (4 for a remote one)
         bench.session.renderer.load_workers = int(spec["load_workers"])
     bench.set_pose(VIEWS[spec["view"]], cut=True)
-    bench.frame()
+    _load_view(bench, float(spec["timeout"]))  # the view the user was looking at
     store = None
     try:
         t0, cpu0 = time.perf_counter(), time.process_time()
@@ -128,12 +145,17 @@ def _child(spec: dict) -> None:
         frames, deadline = 0, t0 + float(spec["timeout"])
         complete = False
         t_first = first_epoch = None
+        blank, first_levels = 0, []
         while time.perf_counter() < deadline:
             r, _ = bench.frame()
             frames += 1
             st = r.stats
-            if t_first is None and _store_drawn(bench, store, r.render_set.keys):
-                t_first, first_epoch = time.perf_counter() - t0, time.time()
+            blank += st.tiles_drawn == 0
+            if t_first is None:
+                mine = _store_tiles(bench, store, bench.session.renderer.last_drawn.keys)
+                if len(mine):
+                    t_first, first_epoch = time.perf_counter() - t0, time.time()
+                    first_levels = sorted(set(mine[:, 0].tolist()))
             if st.tiles_loading == 0:
                 complete = True
                 break
@@ -155,6 +177,9 @@ def _child(spec: dict) -> None:
             "cpu_s": cpu_s,
             "complete": complete,
             "frames": frames,
+            "blank": blank,
+            "first_levels": first_levels,
+            "deepest": int(r.render_set.keys[:, 0].max()) if len(r.render_set.keys) else 0,
             "tiles": st.tiles_drawn,
             "triangles": st.triangles,
             "failed": failed,
@@ -300,7 +325,7 @@ def _report(
     label = RUN_LABELS.get(kind, kind).format(ms=args.latency_ms)
     if len(ok) < len(rs):
         first = next(r["error"] for r in rs if "error" in r)
-        print(f"| {label} | failed: {first} | | | | | | | |")
+        print(f"| {label} | failed: {first} | | | | | | | | |")
         verdicts.append((f"{label} completes every round", False))
         return 1
 
@@ -310,9 +335,16 @@ def _report(
     failed = max(r["failed"] for r in ok)
     print(
         f"| {label} | {med('open_s'):.2f} | {med('first_s'):.2f} | {med('complete_s'):.2f} | "
-        f"{med('frames'):.0f} | {med('tiles'):.0f} | {failed} | {med('requests'):.0f} | "
-        f"{med('sent') / 1e6:.2f} |",
+        f"{med('cpu_s'):.1f} | {med('frames'):.0f} | {med('tiles'):.0f} | {failed} | "
+        f"{med('requests'):.0f} | {med('sent') / 1e6:.2f} |",
         flush=True,
+    )
+    last = ok[-1]
+    notes.append(
+        f"{label}: the first frame drew the store's data at levels "
+        f"{', '.join(map(str, last['first_levels'])) or '-'} (the view down to level "
+        f"{last['deepest']}); blank frames after the add: "
+        f"{', '.join(str(r['blank']) for r in ok)}"
     )
     if failed:
         first = next(r["first_failure"] for r in ok if r["failed"])
@@ -522,10 +554,10 @@ def main(argv: list[str] | None = None) -> int:
             "first with a resident tile of the store's data\n"
         )
         print(
-            "| run | open s | first frame s | complete frame s | frames | tiles | failed "
-            "| requests | MB sent |"
+            "| run | open s | first frame s | complete frame s | CPU s | frames | tiles "
+            "| failed | requests | MB sent |"
         )
-        print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+        print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
         verdicts: list[tuple[str, bool]] = []
         notes: list[str] = []
         broken = 0  # runs that failed outright (exit status 1: publish.py keeps the old block)
@@ -550,7 +582,8 @@ def main(argv: list[str] | None = None) -> int:
         for kind in kinds:
             broken += _report(kind, runs[kind], args, notes, verdicts)
         print()
-        print(f"Medians of {args.rounds} interleaved round(s).")
+        load = " ".join(f"{v:.2f}" for v in os.getloadavg())
+        print(f"Medians of {args.rounds} interleaved round(s); load {load} at the end.")
         for n in notes:
             print(f"- {n}")
         for what, good in verdicts:

@@ -75,6 +75,9 @@ class LodHost:
     def __init__(self, globe: Globe, registry: PluginRegistry) -> None:
         self.globe = globe
         self.registry = registry
+        # The last selection: drawn again while a selection waits for remote metadata
+        # (`TileNotReady`), so the view stays drawn (its tiles or their stand-ins), not blank.
+        self._last: RenderSet | None = None
 
     def providers(self) -> dict:
         """Name -> provider of every enabled LOD plugin contribution (imports them all: for
@@ -118,10 +121,12 @@ class LodHost:
             except TileNotReady:
                 # The provider read a remote tile that is not here yet (the UI thread never
                 # waits for the network; the store fetches it in the background): late data,
-                # not the provider's fault. This frame is the default provider's selection,
-                # the user's provider stays chosen and selects again next frame.
+                # not the provider's fault. This frame is the default provider's selection
+                # (or the last one), the user's provider stays chosen and selects again next
+                # frame.
                 return self._select_default(provider, view, terrain, check)
             if rs is not None:
+                self._last = rs
                 return rs
         # The registry already reported the failure in one line; this is detail.
         log.info("LOD provider %s unavailable; falling back to %s", self.globe.lod, DEFAULT_LOD)
@@ -142,12 +147,20 @@ class LodHost:
         check: Callable[[RenderSet], None],
     ) -> RenderSet:
         """The `DEFAULT_LOD` provider's render set for one frame (``tried``, the provider that
-        could not select, is not asked again), else an empty set."""
+        could not select, is not asked again); where it too waits for remote metadata, the
+        last selection (`_late`); else an empty set."""
         fallback = self.registry.find(PluginKind.LOD, DEFAULT_LOD)
         if fallback is None or fallback is tried:
-            return RenderSet.empty()
+            return self._late()
         try:
             rs = self.registry.select(fallback, view, terrain, check=check)
         except TileNotReady:
-            rs = None
+            return self._late()
         return rs if rs is not None else RenderSet.empty()
+
+    def _late(self) -> RenderSet:
+        """The selection of a frame whose metadata is still on its way (a remote layer just
+        added: its shards are fetched in the background): the last selection, drawn by the
+        renderer with what is resident, else an empty set (issue #25 item 4: adding a
+        remote layer does not blank the view)."""
+        return self._last if self._last is not None else RenderSet.empty()

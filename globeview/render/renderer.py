@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -39,7 +40,13 @@ from globeview.render.gpu_objects import gpu_objects
 from globeview.render.overlay_imagery import OverlaySet  # overlays:
 from globeview.render.shader_source import build_shader, explain_sources
 from globeview.render.tile_build import ReadyTile, TileBuilder, bake
-from globeview.render.tile_loader import TileLoader, substitute_missing, tile_priority
+from globeview.render.tile_loader import (
+    BytesWarmer,
+    TileLoader,
+    coarse_standins,
+    substitute_missing,
+    tile_priority,
+)
 from globeview.render.tile_mesh import FLOATS_PER_VERTEX, TileMesh
 from globeview.render.tile_pool import IndexPool, TilePool, key_codes
 from globeview.render.tile_workers import ProcessBuilder, TerrainRecipe, default_loader
@@ -105,6 +112,10 @@ class GlobeRenderer:
         self.vao, self.custom_vao = self._make_vaos(self.program)
         self._variants = {self._features: (self.program, self.vao, self.custom_vao)}
         self.last_view: ViewState | None = None
+        #: The render set the last frame drew (`load`'s: stand-ins included), or None.
+        self.last_drawn: RenderSet | None = None
+        self._draw_thread: int | None = None  # the thread that ran `load` last
+        self._warmer: BytesWarmer | None = None  # remote layers' byte prefetch (`_warm`)
         # Interactive use (the window) loads tiles on worker threads and uploads at most
         # upload_budget per frame; headless renders load everything before drawing.
         self.async_loading = False
@@ -130,6 +141,8 @@ class GlobeRenderer:
         self.on_tile_ready: Callable[[], None] | None = None
         # overlays: imagery drape (texture array parallel to the pool), vectors, point objects.
         self.overlays = OverlaySet(ctx, capacity)
+        # psygnal holds the bound method weakly: the stack does not keep the renderer alive.
+        terrain.changed.connect(self._terrain_changed)
 
     # -- shader program and displacement hooks --------------------------------------------
     # The terrain shaders' optional parts (imagery drape, hillshade, fog, the exaggeration
@@ -275,7 +288,9 @@ class GlobeRenderer:
 
     def _check_terrain_version(self) -> None:
         if self.terrain.version != self._terrain_version:
-            self.pool.invalidate()
+            # Retired, not forgotten: the window draws the old tiles where the new layers'
+            # have not loaded yet (`_load_async`) instead of a blank view.
+            self.pool.retire()
             if self.loader is not None:
                 if self.loader.processes is not None:
                     # The workers opened the old layers: new ones for the new recipe.
@@ -290,6 +305,25 @@ class GlobeRenderer:
                 else:
                     self.loader.cancel_all()
             self._terrain_version = self.terrain.version
+
+    def _terrain_changed(self) -> None:
+        """The layers changed (`TerrainStack.changed`, on the thread that changed them). On
+        the thread that draws, with tiles loading in the background: retire the pool's
+        tiles and ask at once for the coarse stand-ins of the view last drawn
+        (`coarse_standins`), so they build while the next frame selects its tiles (the first
+        selection over a new layer reads its metadata: seconds over a network at load)."""
+        last = self.last_drawn
+        if not self.async_loading or last is None or not len(last.keys):
+            return
+        if threading.get_ident() != self._draw_thread:
+            return  # another thread's change: the next frame sees it (`load`)
+        self._check_terrain_version()
+        ahead = coarse_standins(last.keys, lambda k: self.pool.slots_of(k) >= 0)
+        if len(ahead) and len(last) + len(ahead) <= self.pool.capacity:
+            # No byte prefetch here: the loader's threads read the few stand-ins' bytes
+            # themselves, and starting the prefetch's threads (~0.4 s at load 20) would hold
+            # up the frame; the frame's `_load_async` hands it the view's tiles.
+            self._ensure_loader().request(np.empty((0, 3), np.int64), ahead=ahead)
 
     def ensure_resident(self, keys: np.ndarray) -> int:
         """Upload the tiles of ``keys`` that are not on the GPU yet; returns how many."""
@@ -337,12 +371,16 @@ class GlobeRenderer:
         self, render_set: RenderSet, extra: dict[str, float] | None = None
     ) -> tuple[RenderSet, int, int]:
         """Upload the finished tiles (up to ``upload_budget``), stand in ancestors for the
-        missing ones and queue them nearest the eye first (see tile_loader.py). Returns the
-        render set to draw, tiles uploaded, tiles loading; ``extra`` (the frame's
-        ``FrameStats.extra``) gets ``upload_ms`` (wall milliseconds of the uploads),
-        ``tiles_missing`` (tiles of the set not resident),
-        ``tiles_standin`` (ancestors drawn for them) and ``tiles_failed`` (missing tiles whose
-        build failed: they stay stood in until the layers change)."""
+        missing ones (resident ones, else the retired tiles of the layers before a change:
+        the view is never blanked by a layer change) and queue them nearest the eye first,
+        after a few coarse ancestors where the view has none (`coarse_standins`: see
+        tile_loader.py). Returns the render set to draw, tiles uploaded, tiles loading;
+        ``extra`` (the frame's ``FrameStats.extra``) gets ``upload_ms`` (wall milliseconds of
+        the uploads), ``tiles_missing`` (tiles of the set not resident), ``tiles_standin``
+        (ancestors drawn for them), ``tiles_stale`` (retired tiles among those drawn),
+        ``tiles_ahead`` (coarse ancestors queued before the view's tiles) and
+        ``tiles_failed`` (missing tiles whose build failed: they stay stood in until the
+        layers change)."""
         self._check_terrain_version()
         loader = self._ensure_loader()
         t_upload = time.perf_counter()
@@ -354,46 +392,80 @@ class GlobeRenderer:
             # are requested again) rather than failing the frame.
             self.pool.load(ready_keys, meshes.__getitem__, protect=render_set.keys, partial=True)
         upload_ms = (time.perf_counter() - t_upload) * 1e3
-        drawn, missing = substitute_missing(render_set, lambda k: self.pool.slots_of(k) >= 0)
+        pool = self.pool
+
+        def resident(keys: np.ndarray) -> np.ndarray:
+            return pool.slots_of(keys) >= 0
+
+        def stale(keys: np.ndarray) -> np.ndarray:
+            return pool.stale_slots_of(keys) >= 0
+
+        drawn, missing = substitute_missing(
+            render_set, resident, stale if pool.stale_count else None
+        )
+        if not len(missing):
+            pool.forget_stale()  # the view is the new layers' own: the old tiles are done
         # Nearest first, from the last frame's eye (this frame's view is made after loading);
         # the first frame has none: coarse first.
         eye = None if self.last_view is None else self.last_view.eye
         priority = None if eye is None or not len(missing) else tile_priority(missing, eye)
-        failed = loader.failed
-        bad = [tuple(k) for k in missing.tolist() if tuple(k) in failed] if failed else []
-        if bad:
-            # A tile that cannot be built would stay a hole where no ancestor is resident:
-            # ask for its nearest ancestor that has not failed (a loop over the few failed
-            # tiles, not over the frame's).
-            up = set()
-            for level, x, y in bad:
-                while level > 0 and (level, x, y) in failed:
-                    level, x, y = level - 1, x >> 1, y >> 1
-                if (level, x, y) not in failed:
-                    up.add((level, x, y))
-            extra_keys = np.array(sorted(up), dtype=np.int64).reshape(-1, 3)
-            extra_keys = extra_keys[self.pool.slots_of(extra_keys) < 0]
-            missing_keys = np.concatenate([missing, extra_keys])
-            if priority is not None:
-                priority = np.concatenate([priority, np.zeros(len(extra_keys))])
-        else:
-            missing_keys = missing
-        loader.request(missing_keys, priority)
-        warm = getattr(self.terrain, "prefetch_bytes", None)  # (a TerrainStack's)
-        if warm is not None and len(missing_keys):
+        missing_keys, priority, n_failed = self._with_failed_ancestors(loader, missing, priority)
+        # A view whose tiles have no resident ancestor near them (a layer added, a jump):
+        # a few coarse ancestors first, drawn while the view's own tiles load.
+        ahead = coarse_standins(missing, resident)
+        if len(render_set) + len(ahead) > pool.capacity:
+            ahead = ahead[:0]  # no room: they would push out the view's own tiles
+        loader.request(missing_keys, priority, ahead=ahead)
+        if len(missing_keys):
             # Remote layers: the missing tiles' bytes, several requests at once (the loader
-            # builds one tile at a time), nearest first.
+            # builds one tile at a time), the stand-ins first, then nearest first.
             order = np.argsort(priority, kind="stable") if priority is not None else slice(None)
-            warm(missing_keys[order])
-        n_failed = len(bad)
+            self._warm(np.concatenate([ahead, missing_keys[order]]))
         if extra is not None:
             extra["upload_ms"] = upload_ms
             extra["tiles_missing"] = len(missing)
             # Stand-ins: drawn tiles the provider did not ask for (ancestors).
             asked = key_codes(render_set.keys)
             extra["tiles_standin"] = int(np.count_nonzero(~np.isin(key_codes(drawn.keys), asked)))
+            extra["tiles_stale"] = int(np.count_nonzero(pool.slots_of(drawn.keys) < 0))
+            extra["tiles_ahead"] = len(ahead)
             extra["tiles_failed"] = n_failed
         return drawn, len(ready), loader.pending
+
+    def _warm(self, keys: np.ndarray) -> None:
+        """Hand ``keys`` (N, 3) to the terrain's byte prefetch (`TerrainStack.prefetch_bytes`)
+        on the `BytesWarmer`'s thread, made when a visible layer is remote."""
+        warm = getattr(self.terrain, "prefetch_bytes", None)  # (a TerrainStack's)
+        if warm is None:
+            return
+        if self._warmer is None:
+            if not any(ly.store.is_remote for ly in self.terrain.visible_layers):
+                return  # nothing to prefetch: no thread
+            self._warmer = BytesWarmer(warm)
+        self._warmer.submit(keys)
+
+    def _with_failed_ancestors(
+        self, loader: TileLoader, missing: np.ndarray, priority: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray | None, int]:
+        """The tiles to request for ``missing`` (with their ``priority``), and how many of
+        them failed: a tile that cannot be built would stay a hole where no ancestor is
+        resident, so its nearest ancestor that has not failed is asked for too (a loop over
+        the few failed tiles, not over the frame's)."""
+        failed = loader.failed
+        bad = [tuple(k) for k in missing.tolist() if tuple(k) in failed] if failed else []
+        if not bad:
+            return missing, priority, 0
+        up = set()
+        for level, x, y in bad:
+            while level > 0 and (level, x, y) in failed:
+                level, x, y = level - 1, x >> 1, y >> 1
+            if (level, x, y) not in failed:
+                up.add((level, x, y))
+        extra_keys = np.array(sorted(up), dtype=np.int64).reshape(-1, 3)
+        extra_keys = extra_keys[self.pool.slots_of(extra_keys) < 0]
+        if priority is not None:
+            priority = np.concatenate([priority, np.zeros(len(extra_keys))])
+        return np.concatenate([missing, extra_keys]), priority, len(bad)
 
     def prefetch(self, render_set: RenderSet, eye: np.ndarray) -> int:
         """Build the tiles of ``render_set`` that are not resident ahead of any frame's
@@ -434,6 +506,7 @@ class GlobeRenderer:
         (`_fit_pool`), then upload every missing tile (headless) or a budget of finished
         ones, standing in ancestors for the rest (``async_loading``, the window). Returns the
         render set to draw; sets ``stats.tiles_uploaded`` and ``stats.tiles_loading``."""
+        self._draw_thread = threading.get_ident()
         render_set = self._fit_pool(render_set, stats)
         if self.async_loading:
             render_set, stats.tiles_uploaded, stats.tiles_loading = self._load_async(
@@ -441,6 +514,7 @@ class GlobeRenderer:
             )
         else:
             stats.tiles_uploaded = self.ensure_resident(render_set.keys)
+        self.last_drawn = render_set
         return render_set
 
     def draw_terrain(
@@ -453,7 +527,7 @@ class GlobeRenderer:
         """Clear ``target`` and draw the (resident) tiles of ``render_set`` in one multi-draw
         call, with the imagery drape; ``uniforms``: the displacement hook's for this frame
         (names ``gv_u_*``). Returns the triangles drawn."""
-        slots = self.pool.slots_of(render_set.keys)
+        slots = self.pool.drawable_slots(render_set.keys)  # stand-ins may be retired tiles
         # Draw near tiles first so the depth test rejects hidden fragments early.
         order = np.argsort(np.linalg.norm(self.pool.centers[slots] - view.eye, axis=1))
         self.pool.touch(slots)
@@ -588,7 +662,7 @@ class GlobeRenderer:
             return None
         t0 = time.process_time()
         if slots is None:
-            slots = self.pool.slots_of(render_set.keys)
+            slots = self.pool.drawable_slots(render_set.keys)
         # A plain variant's stride index, where blocks may go coarser; else past their range.
         stride_idx = plain_stride_idx(render_set)
         stride_idx = np.where(stride_idx >= 0, stride_idx, WHOLE_FROM)
@@ -677,6 +751,7 @@ class GlobeRenderer:
                     p[name].value = value
 
     def release(self) -> None:
+        self.terrain.changed.disconnect(self._terrain_changed, missing_ok=True)
         self._release_variants()
         for obj in (
             self.instances,
@@ -694,6 +769,8 @@ class GlobeRenderer:
         self.overlays.release()  # overlays:
         if self.loader is not None:
             self.loader.shutdown()
+        if self._warmer is not None:
+            self._warmer.shutdown()
 
 
 #: The ramp near sea level, as the terrain shader's coast uniforms (u_coast_jump, u_coast_t).

@@ -25,6 +25,15 @@ Scheduling (issue #17: "Go to" -> complete view): the queue is a priority list, 
   so a window can schedule a frame when there is something new to draw instead of
   redrawing in a busy loop that takes the CPU from the workers.
 
+Stand-ins (issue #25 item 4: a remote layer added, or a view that jumps): a view whose tiles
+have no resident ancestor near them would wait for hundreds of its own tiles (over a network,
+seconds of round trips and builds). `coarse_standins` picks a few of their ancestors (at most
+8, then at most 32, at the deepest levels that few cover the view), which the renderer asks
+for *ahead* of the frame's tiles (`TileLoader.request`'s ``ahead``): they draw the whole view
+at once and refine as its own tiles arrive. After the layers change, the tiles of the layers
+before are *retired* in the pool, not dropped (`TilePool.retire`), and stand in where no
+resident tile does (`substitute_missing`'s ``stale``): the view is never blanked.
+
 A failed tile is not asked for again at once (its nearest ancestor stands in, see
 `substitute_missing`), but only for `retry_failed_s` seconds: a store read over HTTP fails
 while its server is down or overloaded and serves the tile again later (issue #18), and a
@@ -82,6 +91,71 @@ def _ordered(keys: np.ndarray, priority: np.ndarray | None) -> list[Key]:
     else:
         order = np.lexsort((keys[:, 0], np.asarray(priority, dtype=np.float64)))
     return [(int(k[0]), int(k[1]), int(k[2])) for k in keys[order]]
+
+
+#: Stand-in tiers (`coarse_standins`): for each, the deepest level at which the missing
+#: tiles have at most this many ancestors. 8: a few tiles that draw the whole view at once
+#: (for a view of the globe or a region, levels whose chunks are few and whose metadata is in
+#: a store's top shard); 32: a sharper second step, still few beside a view's hundreds.
+STANDIN_TILES = (8, 32)
+#: A missing tile gets a stand-in at a tier's level when it is at least this many levels
+#: finer than that level (and what stands in for it now is coarser, or nothing does).
+STANDIN_GAP = 3
+
+
+def coarse_standins(
+    missing: np.ndarray, resident: Callable[[np.ndarray], np.ndarray]
+) -> np.ndarray:
+    """Ancestors of the ``missing`` tiles (N, 3) to build before them, coarse tier first
+    (K, 3), none resident: when a layer was added or the view jumped, the view's own tiles
+    are hundreds and arrive over many seconds (over a network, round trips each), while a
+    few coarse ancestors draw the whole view at once and refine as the tiles arrive (the
+    coarser ones first: Cesium and Google Earth load the same way).
+
+    For each `STANDIN_TILES` tier, the level is the deepest at which the missing tiles have
+    at most that many distinct ancestors (a tile at or above it counting as itself); a
+    missing tile at least `STANDIN_GAP` levels deeper gets its ancestor there when its
+    nearest resident ancestor is coarser, or it has none. A small view (a few tiles), or
+    the edge a moving camera uncovers (whose parents are resident), gets none."""
+    missing = np.asarray(missing, dtype=np.int64).reshape(-1, 3)
+    if not len(missing):
+        return np.empty((0, 3), np.int64)
+    anc, found = nearest_ancestors(missing, resident)
+    drawn_level = np.where(found, anc[:, 0], -1)
+    out: dict[tuple[int, int, int], None] = {}
+    for cap in STANDIN_TILES:
+        level = _standin_level(missing, cap)
+        want = (missing[:, 0] - level >= STANDIN_GAP) & (drawn_level < level)
+        if not want.any():
+            continue
+        shift = missing[want, 0] - level
+        at = np.stack(
+            [np.full(len(shift), level), missing[want, 1] >> shift, missing[want, 2] >> shift],
+            axis=1,
+        )
+        at = np.unique(at, axis=0)
+        at = at[~resident(at)]
+        out.update(((int(a), int(b), int(c)), None) for a, b, c in at.tolist())
+    return np.array(list(out), dtype=np.int64).reshape(-1, 3)
+
+
+def _standin_level(keys: np.ndarray, cap: int) -> int:
+    """The deepest level at which ``keys`` (N, 3) have at most ``cap`` distinct ancestors
+    (a key at or above the level counting as itself); 0 at least."""
+    best = 0
+    for level in range(1, int(keys[:, 0].max()) + 1):
+        lv = np.minimum(keys[:, 0], level)
+        shift = keys[:, 0] - lv
+        codes = _codes(lv, keys[:, 1] >> shift, keys[:, 2] >> shift)
+        if len(np.unique(codes)) > cap:
+            break
+        best = level
+    return best
+
+
+def _codes(level: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """One int64 per tile (level < 32, x, y < 2^29), as `tile_pool.key_codes`."""
+    return (level.astype(np.int64) << 58) | (y.astype(np.int64) << 29) | x.astype(np.int64)
 
 
 #: How long `TileLoader.shutdown` waits for each worker's build under way (seconds).
@@ -200,11 +274,20 @@ class TileLoader:
         return own + (self.processes.cpu_seconds() if self.processes is not None else 0.0)
 
     # -- asking ----------------------------------------------------------------------------
-    def request(self, keys: np.ndarray, priority: np.ndarray | None = None) -> None:
+    def request(
+        self,
+        keys: np.ndarray,
+        priority: np.ndarray | None = None,
+        ahead: np.ndarray | None = None,
+    ) -> None:
         """This frame's missing tiles ``keys`` (N, 3), ``priority`` ascending (e.g.
-        `tile_priority`; None: coarse first). Replaces the previous frame's request: queued
-        tiles not asked for again are dropped (those being built finish and are kept)."""
+        `tile_priority`; None: coarse first), after the tiles ``ahead`` (K, 3), in their
+        order (e.g. `coarse_standins`). Replaces the previous frame's request: queued tiles
+        not asked for again are dropped (those being built finish and are kept)."""
         wanted = _ordered(keys, priority)
+        if ahead is not None and len(ahead):
+            first = [(int(a), int(b), int(c)) for a, b, c in np.asarray(ahead).tolist()]
+            wanted = list(dict.fromkeys([*first, *wanted]))
         with self._cv:
             self._expire_failures()
             self._queue = {
@@ -354,6 +437,51 @@ class TileLoader:
                     log.exception("tile loader: on_ready failed")
 
 
+class BytesWarmer:
+    """Hands the tiles a frame misses to a terrain's byte prefetch (``warm(keys (N, 3))``,
+    e.g. `TerrainStack.prefetch_bytes`) on a thread of its own, so the frame does not wait
+    for it: mapping hundreds of tiles to their chunk blocks and starting the prefetch's
+    threads took 0.8 s of the first frame over a remote layer at load 20. The latest keys
+    win: a list handed over while the thread is busy replaces one still waiting (the
+    prefetch skips tiles it was asked for before, so nothing is fetched twice)."""
+
+    def __init__(self, warm: Callable[[np.ndarray], object]) -> None:
+        self._warm = warm
+        self._cv = threading.Condition()
+        self._keys: np.ndarray | None = None
+        self._stop = False
+        self._thread = threading.Thread(target=self._run, name="gv-warm", daemon=True)
+        self._thread.start()
+
+    def submit(self, keys: np.ndarray) -> None:
+        """Warm ``keys`` (N, 3), most wanted first, once the thread is free."""
+        with self._cv:
+            self._keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
+            self._cv.notify()
+
+    def shutdown(self, timeout_s: float = JOIN_TIMEOUT_S) -> None:
+        """Stop the thread (a list being handed over finishes) and wait for it."""
+        with self._cv:
+            self._stop = True
+            self._keys = None
+            self._cv.notify()
+        if self._thread is not threading.current_thread():
+            self._thread.join(timeout_s)
+
+    def _run(self) -> None:
+        while True:
+            with self._cv:
+                while self._keys is None and not self._stop:
+                    self._cv.wait()
+                if self._stop:
+                    return
+                keys, self._keys = self._keys, None
+            try:
+                self._warm(keys)
+            except Exception:  # a prefetch is a hint: the loader's reads report failures
+                log.debug("tile bytes prefetch failed", exc_info=True)
+
+
 class ProcessPart(Protocol):
     """The worker processes a loader hands builds to (`tile_workers.ProcessBuilder`)."""
 
@@ -375,42 +503,72 @@ def _thread_cpu_s(thread: threading.Thread) -> float:
 
 
 def substitute_missing(
-    render_set: RenderSet, resident: Callable[[np.ndarray], np.ndarray]
+    render_set: RenderSet,
+    resident: Callable[[np.ndarray], np.ndarray],
+    stale: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> tuple[RenderSet, np.ndarray]:
     """Replace tiles that are not resident by their nearest resident ancestor.
 
     ``resident(keys) -> bool array``. Every requested tile below a chosen ancestor is dropped
-    (the ancestor covers it), so the result has no overlaps; a missing tile with no resident
-    ancestor leaves a gap until something loads. Returns the new render set and the keys
-    that were missing (to request).
+    (the ancestor covers it), and so is a chosen ancestor below another (the coarser one
+    covers both), so the result has no overlaps. ``stale(keys) -> bool array``: tiles of the
+    layers as they were before a change (`TilePool.retire`); a missing tile with no resident
+    ancestor is drawn by its stale tile or nearest stale ancestor, so a view does not blank
+    while the new layers' tiles load. A missing tile with neither leaves a gap until
+    something loads. Returns the new render set and the keys that were missing (to request).
     """
     keys = render_set.keys
     have = resident(keys)
     if have.all():
         return render_set, np.empty((0, 3), np.int64)
     missing = keys[~have]
-    # Walk each missing tile up until a resident ancestor turns up (one vectorised step per
-    # level).
-    anc = missing.copy()
-    found = np.zeros(len(anc), dtype=bool)
+    anc, found = nearest_ancestors(missing, resident)
+    subs = anc[found]
+    if stale is not None and not found.all():
+        old, old_found = nearest_ancestors(missing[~found], stale, include_self=True)
+        subs = np.concatenate([subs, old[old_found]])
+    subs = np.unique(subs, axis=0)
+    subs = subs[~covered_by(subs, subs, strict=True)]
+    # Drop requested tiles that lie under a chosen ancestor (and the missing ones).
+    keep = have & ~covered_by(keys, subs)
+    return _with_standins(render_set, np.nonzero(keep)[0], subs), missing
+
+
+def nearest_ancestors(
+    keys: np.ndarray, present: Callable[[np.ndarray], np.ndarray], include_self: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
+    """(ancestors (N, 3), found (N,) bool): for each of ``keys`` (N, 3) its nearest strict
+    ancestor (or itself, with ``include_self``) for which ``present(keys) -> bool array`` is
+    true, where ``found``; one vectorised step per level."""
+    anc = np.asarray(keys, dtype=np.int64).reshape(-1, 3).copy()
+    found = present(anc) if include_self and len(anc) else np.zeros(len(anc), dtype=bool)
     while not found.all() and (anc[~found, 0] > 0).any():
         step = ~found & (anc[:, 0] > 0)
         anc[step] = np.stack([anc[step, 0] - 1, anc[step, 1] >> 1, anc[step, 2] >> 1], axis=1)
-        found[step] = resident(anc[step])
-    subs = np.unique(anc[found], axis=0)
+        found[step] = present(anc[step])
+    return anc, found
 
-    # Drop requested tiles that lie under a chosen ancestor (and the missing ones).
-    keep = have.copy()
-    for level in np.unique(subs[:, 0]):
-        at = subs[subs[:, 0] == level]
+
+def covered_by(keys: np.ndarray, covers: np.ndarray, strict: bool = False) -> np.ndarray:
+    """(N,) bool: whether each of ``keys`` (N, 3) lies under one of ``covers`` (M, 3): is
+    one of them (unless ``strict``) or a descendant of one."""
+    keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
+    out = np.zeros(len(keys), dtype=bool)
+    for level in np.unique(covers[:, 0]) if len(covers) else ():
+        at = covers[covers[:, 0] == level]
         codes = at[:, 1] * (1 << 31) + at[:, 2]
-        deeper = keys[:, 0] >= level
-        shift = keys[:, 0] - level
-        ax = np.where(deeper, keys[:, 1] >> np.maximum(shift, 0), -1)
-        ay = np.where(deeper, keys[:, 2] >> np.maximum(shift, 0), -1)
-        keep &= ~(deeper & np.isin(ax * (1 << 31) + ay, codes))
+        deeper = keys[:, 0] > level if strict else keys[:, 0] >= level
+        shift = np.maximum(keys[:, 0] - level, 0)
+        ax = np.where(deeper, keys[:, 1] >> shift, -1)
+        ay = np.where(deeper, keys[:, 2] >> shift, -1)
+        out |= deeper & np.isin(ax * (1 << 31) + ay, codes)
+    return out
 
-    rows = np.nonzero(keep)[0]
+
+def _with_standins(render_set: RenderSet, rows: np.ndarray, subs: np.ndarray) -> RenderSet:
+    """The rows ``rows`` of ``render_set`` and the stand-in tiles ``subs`` (M, 3), drawn at
+    stride 4 with skirts (error unknown: inf; no block strides)."""
+    keys = render_set.keys
     variants = list(render_set.variants)
     pole = (subs[:, 2] == 0).astype(np.int64) + 2 * (subs[:, 2] == (1 << subs[:, 0]) - 1)
     poles = (None, "north", "south", "both")
@@ -427,7 +585,7 @@ def substitute_missing(
     blocks = render_set.block_strides
     if blocks is not None:  # stand-ins are drawn by their variants
         blocks = np.concatenate([blocks[rows], np.full((len(subs), 8, 8), -1, np.int8)])
-    out = RenderSet(
+    return RenderSet(
         np.concatenate([keys[rows], subs]),
         np.concatenate([render_set.variant_ids[rows], sub_ids]),
         variants,
@@ -437,4 +595,3 @@ def substitute_missing(
         block_strides=blocks,
         block_tau_px=render_set.block_tau_px,
     )
-    return out, missing

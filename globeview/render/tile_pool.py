@@ -3,6 +3,12 @@
 All GL objects are created once (capacity fixed at construction); loading a tile writes its
 slot, so the steady-state frame creates no GL object. Lookups of many keys at once are
 vectorised (tile keys are packed into int64 codes kept in a sorted array).
+
+When the terrain's layers change, the resident tiles are *retired* (`TilePool.retire`), not
+forgotten: they are no longer resident (`slots_of` does not find them), but a retired tile
+stays in its slot, findable by `stale_slots_of`, until a new tile is written there, so the
+window can keep drawing the old surface where the new layers' tiles have not loaded yet
+(issue #25 item 4: adding a layer does not blank the view).
 """
 
 from __future__ import annotations
@@ -162,20 +168,28 @@ class TilePool:
         self.block_facts = np.full((capacity, N_FACTS, N_BLOCKS), np.nan, dtype=np.float32)
         self._block_stats: dict[int, np.ndarray] = {}  # uploaded, facts not made yet
         self.generation = np.zeros(capacity, dtype=np.int64)
+        # Retired tiles (`retire`): their codes, -1 where a slot holds none.
+        self.stale_codes = np.full(capacity, -1, dtype=np.int64)
         self._sorted_codes = np.empty(0, dtype=np.int64)
         self._sorted_slots = np.empty(0, dtype=np.int64)
+        self._stale_sorted = (np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64))
         self._frame = 0
 
     # -- lookups -----------------------------------------------------------------------------
     def slots_of(self, keys: KeyArray) -> np.ndarray:
         """Slot of each key, or -1 where not resident."""
-        codes = key_codes(keys)
-        if len(self._sorted_codes) == 0:
-            return np.full(len(codes), -1, dtype=np.int64)
-        pos = np.searchsorted(self._sorted_codes, codes)
-        pos = np.minimum(pos, len(self._sorted_codes) - 1)
-        found = self._sorted_codes[pos] == codes
-        return np.where(found, self._sorted_slots[pos], -1)
+        return _lookup(self._sorted_codes, self._sorted_slots, key_codes(keys))
+
+    def stale_slots_of(self, keys: KeyArray) -> np.ndarray:
+        """Slot of each key's retired tile (`retire`), or -1 where there is none."""
+        return _lookup(*self._stale_sorted, key_codes(keys))
+
+    def drawable_slots(self, keys: KeyArray) -> np.ndarray:
+        """Slot of each key: its resident tile, else its retired one, else -1."""
+        slots = self.slots_of(keys)
+        if len(self._stale_sorted[0]) and (slots < 0).any():
+            slots = np.where(slots >= 0, slots, self.stale_slots_of(keys))
+        return slots
 
     def touch(self, slots: np.ndarray) -> None:
         self._frame += 1
@@ -183,7 +197,13 @@ class TilePool:
 
     @property
     def resident_count(self) -> int:
+        """Tiles resident (retired ones not counted)."""
         return int(np.count_nonzero(self.codes >= 0))
+
+    @property
+    def stale_count(self) -> int:
+        """Retired tiles still in their slots (`retire`)."""
+        return int(np.count_nonzero(self.stale_codes >= 0))
 
     # -- loading -----------------------------------------------------------------------------
     def load(
@@ -209,7 +229,10 @@ class TilePool:
         protected = np.zeros(self.capacity, dtype=bool)
         have = self.slots_of(keys if protect is None else np.concatenate([keys, protect]))
         protected[have[have >= 0]] = True
-        order = np.argsort(np.where(self.codes < 0, -1, self.last_used), kind="stable")
+        # Empty slots first, then the least recently drawn, retired tiles among them (a
+        # retired tile drawn this frame was touched like a resident one).
+        empty = (self.codes < 0) & (self.stale_codes < 0)
+        order = np.argsort(np.where(empty, -1, self.last_used), kind="stable")
         free = order[~protected[order]]
         if len(missing) > len(free) and partial:
             missing = missing[: len(free)]
@@ -220,6 +243,7 @@ class TilePool:
         for key, slot in zip(missing, free[: len(missing)], strict=False):
             self._upload(int(slot), build((int(key[0]), int(key[1]), int(key[2]))))
             self.codes[slot] = key_codes(key[None, :])[0]
+            self.stale_codes[slot] = -1
             self.last_used[slot] = self._frame
         self._measure_blocks(missing, free[: len(missing)])
         self._reindex()
@@ -236,15 +260,30 @@ class TilePool:
             self.block_facts[slots[rows]] = block_facts(keys[rows], got)
 
     def invalidate(self) -> None:
-        """Forget every resident tile (e.g. after a layer was hidden or removed)."""
+        """Forget every tile, resident or retired."""
+        self.codes[:] = -1
+        self.stale_codes[:] = -1
+        self._reindex()
+
+    def retire(self) -> None:
+        """The resident tiles become retired (e.g. after a layer was added, hidden or
+        removed): no longer resident, but kept in their slots for `stale_slots_of` until a
+        tile is loaded there. A slot's older retired tile is replaced by its newer one."""
+        live = self.codes >= 0
+        self.stale_codes[live] = self.codes[live]
         self.codes[:] = -1
         self._reindex()
 
+    def forget_stale(self) -> None:
+        """Forget the retired tiles (their slots become free): once a view is complete they
+        would only stand in later for tiles of layers that are gone."""
+        if (self.stale_codes >= 0).any():
+            self.stale_codes[:] = -1
+            self._reindex()
+
     def _reindex(self) -> None:
-        live = np.nonzero(self.codes >= 0)[0]
-        order = np.argsort(self.codes[live])
-        self._sorted_codes = self.codes[live][order]
-        self._sorted_slots = live[order]
+        self._sorted_codes, self._sorted_slots = _sorted_index(self.codes)
+        self._stale_sorted = _sorted_index(self.stale_codes)
 
     def _upload(self, slot: int, tile: TileMesh | ReadyTile) -> None:
         """Write a tile into ``slot``: a `ReadyTile` as it is (its texels baked where it was
@@ -263,3 +302,18 @@ class TilePool:
         if ready.release is not None:
             ready.release()  # its arrays are on the GPU now (a worker's shared slot)
         self.generation[slot] += 1
+
+
+def _sorted_index(codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(sorted codes, their slots) of the slots holding a code (>= 0) in ``codes``."""
+    live = np.nonzero(codes >= 0)[0]
+    order = np.argsort(codes[live])
+    return codes[live][order], live[order]
+
+
+def _lookup(sorted_codes: np.ndarray, slots: np.ndarray, codes: np.ndarray) -> np.ndarray:
+    """Slot of each of ``codes`` in a `_sorted_index`, or -1 where absent."""
+    if len(sorted_codes) == 0:
+        return np.full(len(codes), -1, dtype=np.int64)
+    pos = np.minimum(np.searchsorted(sorted_codes, codes), len(sorted_codes) - 1)
+    return np.where(sorted_codes[pos] == codes, slots[pos], -1)

@@ -125,3 +125,53 @@ def test_async_frames_count_missing_stand_in_and_failed_tiles(scene, targets) ->
             renderer.loader = None
         renderer.pool.invalidate()
         renderer.async_loading = False
+
+
+@pytest.mark.slow
+def test_a_layer_shown_again_keeps_the_view_drawn_and_converges(scene, targets, gv) -> None:
+    """A regional layer shown again while the window draws (the layers changed: every tile
+    is built again): the frame after the change draws the retired tiles of the view before
+    it, so no pixel shows the background where the view had ground; a few coarse ancestors
+    are asked for ahead of the view's own tiles; once everything has loaded the image is
+    exactly the synchronous render of the new layers."""
+    size = (192, 128)
+    target = targets(size)
+    renderer, terrain = scene.renderer, scene.renderer.terrain
+    name = next(ly.name for ly in terrain.layers if "N44W072" in ly.name)
+    scene.camera = Camera.from_lonlat(-71.3, 44.2, 60000.0, 0.0, -50.0)
+    scene.renderer.settings.background = (1.0, 0.0, 1.0)
+    if renderer.loader is not None:
+        renderer.loader.shutdown()
+        renderer.loader = None
+    try:
+        scene.render(target.fbo, size)
+        shown = target.read_rgb()
+        terrain.set_visible(name, False)
+        hidden_result = scene.render(target.fbo, size)
+        hidden = target.read_rgb()
+        ground = ~gv.is_colour(hidden, (1.0, 0.0, 1.0))
+        assert ground.mean() > 0.5 and hidden_result.stats.tiles_drawn > 0
+
+        renderer.async_loading = True
+        terrain.set_visible(name, True)
+        first = scene.render(target.fbo, size)
+        img = target.read_rgb()
+        extra = first.stats.extra
+        assert extra["tiles_stale"] > 0 and extra["tiles_ahead"] > 0
+        assert not gv.is_colour(img, (1.0, 0.0, 1.0))[ground].any()  # not blanked
+        deadline = time.monotonic() + 60.0
+        while True:
+            result = scene.render(target.fbo, size)
+            if result.stats.tiles_drawn and result.stats.tiles_loading == 0:
+                break
+            assert time.monotonic() < deadline, "tiles never finished loading"
+            time.sleep(0.02)
+        assert result.stats.extra["tiles_stale"] == 0
+        assert np.array_equal(target.read_rgb(), shown)
+    finally:
+        terrain.set_visible(name, True)
+        if renderer.loader is not None:
+            renderer.loader.shutdown()
+            renderer.loader = None
+        renderer.async_loading = False
+        renderer.settings.background = (0.0, 0.0, 0.0)

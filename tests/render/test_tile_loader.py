@@ -1,7 +1,9 @@
 """The background tile queue (render/tile_loader.py): nearest tiles first, a frame's request
 replaces the previous one (tiles a moving camera left behind are never built), a prefetch
 (a flight's destination) goes before every frame's request, failed tiles are counted and not
-retried until `retry_failed_s` has passed, and a cancel discards builds under way. No GL:
+retried until `retry_failed_s` has passed, and a cancel discards builds under way; a view
+with nothing resident near it gets a few coarse stand-ins first, and after a layer change
+the old (retired) tiles stand in where nothing new is resident. No GL:
 the builds here are plain callables (the renderer's real `build_mesh` runs in
 test_render_async_loading.py)."""
 
@@ -14,7 +16,17 @@ import numpy as np
 import pytest
 
 from globeview.geodesy import lonlat_to_ecef
-from globeview.render.tile_loader import TileLoader, tile_priority
+from globeview.lod.render_set import RenderSet
+from globeview.lod.tile_indices import IndexVariant
+from globeview.render.tile_loader import (
+    STANDIN_TILES,
+    BytesWarmer,
+    TileLoader,
+    coarse_standins,
+    covered_by,
+    substitute_missing,
+    tile_priority,
+)
 
 
 class Recorder:
@@ -238,3 +250,123 @@ def test_a_failure_is_remembered_without_its_traceback(busy_loader) -> None:
     exc = loader.failed[(5, 1, 1)]
     assert isinstance(exc, OSError) and "unreadable tile" in str(exc)
     assert exc.__traceback__ is None
+
+
+def test_tiles_asked_ahead_go_first_in_their_order(busy_loader) -> None:
+    """A frame's ``ahead`` tiles (coarse stand-ins) are built before its own, nearest
+    first or not, and a tile in both lists is built once."""
+    loader, rec, _ = busy_loader
+    near, far = (9, 10, 10), (9, 30, 30)
+    ahead = np.array([(4, 0, 0), (6, 3, 3), near])
+    loader.request(np.array([far, near]), priority=np.array([5.0, 0.0]), ahead=ahead)
+    rec.gate.set()
+    wait_for(lambda: loader.building == 0)
+    assert rec.order == [(0, 0, 0), (4, 0, 0), (6, 3, 3), near, far]
+
+
+def _view_keys(level: int, x0: int, y0: int, n: int) -> np.ndarray:
+    """An n x n block of tiles of ``level`` from (x0, y0): a close view's tiles."""
+    xs, ys = np.meshgrid(np.arange(x0, x0 + n), np.arange(y0, y0 + n))
+    return np.stack([np.full(n * n, level), xs.ravel(), ys.ravel()], axis=1)
+
+
+def _is_in(tiles: set):
+    return lambda k: np.array([tuple(map(int, r)) in tiles for r in k], dtype=bool)
+
+
+def test_a_view_with_nothing_resident_gets_a_few_coarse_standins_coarse_tier_first() -> None:
+    """A 24 x 24 view of level 12 tiles (576, as a layer just added): the first tier is
+    the deepest level with at most 8 ancestors of them, the second at most 32; both
+    before the view's own tiles, none of them resident."""
+    keys = _view_keys(12, 1200, 1000, 24)
+    out = coarse_standins(keys, lambda k: np.zeros(len(k), dtype=bool))
+    tiers = [out[out[:, 0] == lv] for lv in np.unique(out[:, 0])]
+    assert [len(t) for t in tiers] and len(tiers) == 2
+    assert 1 <= len(tiers[0]) <= STANDIN_TILES[0] and len(tiers[1]) <= STANDIN_TILES[1]
+    assert tiers[0][0, 0] < tiers[1][0, 0] < 12
+    assert list(out[:, 0]) == sorted(out[:, 0])  # the coarse tier first
+    # Each stand-in is an ancestor of some view tile, and together they cover the view.
+    for tier in tiers:
+        assert covered_by(keys, tier).all()
+
+
+def test_no_standins_where_near_ancestors_are_resident() -> None:
+    """The edge a moving camera uncovers (its tiles' parents resident), and a small view:
+    nothing is asked ahead; a view whose resident ancestors are coarser than a tier gets
+    that tier."""
+    keys = _view_keys(12, 1200, 1000, 24)
+    parents = {(11, x >> 1, y >> 1) for _, x, y in keys.tolist()}
+    assert len(coarse_standins(keys, _is_in(parents))) == 0
+    assert len(coarse_standins(keys[:4], _is_in(set()))) == 0
+
+    # Resident ancestors 7 levels up (level 5): both tiers (levels 8 and 9) are asked for;
+    # the first tier resident: the second; both: none.
+    def below(tiles: set) -> np.ndarray:
+        return coarse_standins(keys, _is_in(tiles))
+
+    got = below({(5, x >> 7, y >> 7) for _, x, y in keys.tolist()})
+    assert sorted(set(got[:, 0].tolist())) == [8, 9]
+    tier1 = {tuple(r) for r in got.tolist() if r[0] == 8}
+    tier2 = {tuple(r) for r in got.tolist() if r[0] == 9}
+    assert {tuple(r) for r in below(tier1).tolist()} == tier2
+    assert len(below(tier1 | tier2)) == 0
+
+
+def test_missing_tiles_with_no_resident_ancestor_are_drawn_by_stale_tiles() -> None:
+    """After a layer change the old tiles are retired: a missing tile with no resident
+    ancestor draws its own stale tile or its nearest stale ancestor; a resident ancestor
+    wins over a stale tile; nothing drawn overlaps."""
+    keys = np.array([[5, 8, 8], [5, 9, 8], [5, 20, 20], [5, 21, 20], [5, 0, 30]])
+    rs = RenderSet(keys, np.zeros(5, np.int64), [IndexVariant()], error_px=np.ones(5))
+    resident = {(4, 10, 10)}  # the new layers' stand-in for (5, 20, 20) and (5, 21, 20)
+    stale = {(5, 8, 8), (3, 2, 2), (5, 20, 20)}  # (3, 2, 2): an ancestor of (5, 9, 8)
+    out, missing = substitute_missing(rs, _is_in(resident), _is_in(stale))
+    got = {tuple(map(int, r)) for r in out.keys}
+    # (5, 8, 8) lies under the stale (3, 2, 2) that (5, 9, 8) needs: the coarser one covers
+    # both; the resident (4, 10, 10) wins over the stale (5, 20, 20); (5, 0, 30) has nothing.
+    assert got == {(3, 2, 2), (4, 10, 10)}
+    assert len(missing) == 5
+    assert not covered_by(out.keys, out.keys, strict=True).any()
+    assert len(out.variant_ids) == len(out.keys) == len(out.error_px)
+    # Without stale tiles: only the resident ancestor.
+    out, _ = substitute_missing(rs, _is_in(resident))
+    assert {tuple(map(int, r)) for r in out.keys} == {(4, 10, 10)}
+
+
+def test_standins_never_overlap_when_one_lies_under_another() -> None:
+    """Two missing tiles whose nearest resident ancestors nest (a parent and one of its
+    children): only the coarser is drawn, covering both (it used to draw both, one
+    over the other)."""
+    keys = np.array([[4, 0, 0], [4, 3, 3]])
+    rs = RenderSet(keys, np.zeros(2, np.int64), [IndexVariant()])
+    out, _ = substitute_missing(rs, _is_in({(3, 0, 0), (2, 0, 0)}))
+    assert {tuple(map(int, r)) for r in out.keys} == {(2, 0, 0)}
+
+
+def test_the_bytes_warmer_hands_over_the_latest_keys_on_its_thread() -> None:
+    """The byte prefetch runs on the warmer's thread, not the caller's; lists handed over
+    while it is busy are replaced by the latest; a failing prefetch does not stop it."""
+    calls: list[tuple[str, list]] = []
+    busy = threading.Event()
+
+    def warm(keys: np.ndarray) -> None:
+        calls.append((threading.current_thread().name, keys.tolist()))
+        if len(calls) == 1:
+            assert busy.wait(10.0)
+        if len(calls) == 2:
+            raise OSError("server gone")
+
+    warmer = BytesWarmer(warm)
+    try:
+        warmer.submit(np.array([[1, 0, 0]]))
+        wait_for(lambda: len(calls) == 1)
+        warmer.submit(np.array([[2, 0, 0]]))  # replaced before the thread is free
+        warmer.submit(np.array([[3, 0, 0]]))
+        busy.set()
+        wait_for(lambda: len(calls) == 2)
+        warmer.submit(np.array([[4, 0, 0]]))  # after a failure: still warming
+        wait_for(lambda: len(calls) == 3)
+    finally:
+        warmer.shutdown()
+    assert [c[1] for c in calls] == [[[1, 0, 0]], [[3, 0, 0]], [[4, 0, 0]]]
+    assert {c[0] for c in calls} == {"gv-warm"}

@@ -11,6 +11,7 @@ nginx runs as a child process with its own configuration on a free port of 127.0
 from __future__ import annotations
 
 import os
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -24,6 +25,7 @@ from rasterio.windows import Window
 from globeview.bench.nginx_server import NginxError, NginxServer, find_nginx
 from globeview.terrain.quadtree import TileKey, key_for_lonlat
 from globeview.terrain.store import http as remote
+from globeview.terrain.store.backend import TileNotReady
 from globeview.terrain.store.http import RemoteOptions
 from globeview.terrain.store.tile_store import TileStore
 
@@ -297,3 +299,88 @@ def test_remote_loader_threads_overlap_their_requests(
     assert in_flight.keys() == {1, REMOTE_LOAD_WORKERS}
     assert in_flight[1] == 1
     assert in_flight[REMOTE_LOAD_WORKERS] > 1, in_flight
+
+
+def _chunk_level(path: str) -> int:
+    """The level of a chunk file's URL path (``.../chunks/LL/cy/cx-h16.tif``)."""
+    return int(path.split("/chunks/")[1].split("/")[0])
+
+
+def _store_tiles(renderer, store: TileStore, keys: np.ndarray) -> np.ndarray:
+    """The resident tiles among ``keys`` (N, 3) built with ``store``'s data (a key finer
+    than the store: its ancestor at the store's finest level has data); retired tiles,
+    built before the store was added, are not resident."""
+    keys = keys[renderer.pool.slots_of(keys) >= 0]
+    up = np.maximum(keys[:, 0] - store.max_level, 0)
+    has = np.array(
+        [
+            store.has_data(int(lv - u), np.array([x >> u]), np.array([y >> u])).any()
+            for (lv, x, y), u in zip(keys.tolist(), up.tolist(), strict=True)
+        ],
+        dtype=bool,
+    )
+    return keys[has]
+
+
+@pytest.mark.gl
+@pytest.mark.slow
+def test_a_remote_layer_added_draws_coarse_ancestors_first_and_never_blanks(
+    site: Path, slow_nginx: NginxServer, tmp_path: Path, globeview_gl
+) -> None:
+    """The window's path (issue #25 item 4): a view drawn complete from a local base layer,
+    then the store over nginx 20 ms away added on top, its reads on the drawing thread never
+    waiting for the network (`forbid_network_on`, as the window's UI thread: the first
+    selections over it wait for its metadata shards, fetched in the background, and draw the
+    last selection meanwhile). No frame is blank (the base layer's retired tiles and the
+    store's stand-ins are drawn); the first frame drawing the store's data draws it through a
+    few coarse ancestors while the view's own tiles are still missing; nginx's access log
+    shows the chunk requests of those coarse levels before those of the view's deepest
+    level; the view then completes with no failed tile. One request in flight at a time
+    (``max_requests=1``: one loader thread, one byte-prefetch thread), so the log's order
+    is the order the tiles were asked for, not a race between threads."""
+    from globeview.bench.harness import Bench
+    from globeview.terrain.compose.stack import TerrainStack
+
+    base = TileStore.open(site / STORE)
+    stack = TerrainStack.from_stores([base])
+    bench = Bench(stack, (160, 96), ctx=globeview_gl)
+    renderer = bench.session.renderer
+    renderer.load_kind = "thread"
+    far = None
+    try:
+        _load_async(bench)
+        slow_nginx.reset_log()
+        far = TileStore.open(
+            f"{slow_nginx.url}/{STORE}", remote_options=_opts(tmp_path, max_requests=1)
+        )
+        far.forbid_network_on(threading.get_ident())
+        stack.add(far, "far")
+        first = None
+        deadline = time.monotonic() + 120.0
+        while time.monotonic() < deadline:
+            r, _ = bench.frame()
+            assert r.stats.tiles_drawn > 0, "a blank frame while the layer loads"
+            if first is None:
+                try:
+                    mine = _store_tiles(renderer, far, renderer.last_drawn.keys)
+                except TileNotReady:  # its metadata not fetched yet: not drawn yet either
+                    mine = np.empty((0, 3), np.int64)
+                if len(mine):
+                    first = (r, mine)  # the store's tiles drawn, as resident at that frame
+            if r.stats.tiles_loading == 0:
+                break
+            time.sleep(0.01)
+        assert first is not None and r.stats.tiles_loading == 0, "the view never completed"
+        assert not renderer.loader.failed
+        fr, drawn = first
+        wanted = int(r.render_set.keys[:, 0].max())  # the complete view's deepest level
+        assert fr.stats.extra["tiles_missing"] > 0  # the view's own tiles still loading
+        assert int(drawn[:, 0].max()) <= wanted - 3, (drawn.tolist(), wanted)
+        chunks = sorted(slow_nginx.requests(f"/{STORE}/chunks/*"), key=lambda q: q.start)
+        levels = [_chunk_level(q.path) for q in chunks]
+        assert levels and levels[0] <= wanted - 3 and max(levels) > levels[0], levels
+    finally:
+        bench.release()
+        if far is not None:
+            far.close()
+        base.close()
