@@ -15,6 +15,7 @@ from pathlib import Path
 
 import cpu_durations
 import pytest
+import zygote  # first: its fork server's environment is the session's, taken now
 
 PROBE = "from globeview.render.offscreen import create_headless_context as c; c().release()"
 
@@ -33,9 +34,7 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
-    zygote = sys.modules.get("zygote")  # the CLI tests' fork server, where one was started
-    if zygote is not None:
-        zygote.close()
+    zygote.close()  # the CLI tests' fork server, where one was started
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:

@@ -50,14 +50,21 @@ START_TIMEOUT_S = 300.0  # wall seconds for its imports (~1.4 CPU-s) on a loaded
 # runs (globeview's settings, the test plugins' GVT_*, Qt's and the display's, the home and XDG
 # folders, pytest's bookkeeping), never while the server imports; the three `globeview.cli.main`
 # sets itself before its first GDAL or PROJ call (an in-process CLI test leaves them in this
-# process's environment); and PYTHONPATH where the server has none (the child puts its folders
-# on sys.path as the interpreter's start would).
+# process's environment); the CA bundles rasterio and pyproj set when imported (the server
+# imports both, which sets them to the same files); and PYTHONPATH where the server has none
+# (the child puts its folders on sys.path as the interpreter's start would).
 _MAY_DIFFER = re.compile(
     r"(GLOBEVIEW_\w+|GVT_\w+|DISPLAY|WAYLAND_DISPLAY|QT_QPA_PLATFORM|XDG_\w+|HOME|PYTEST_\w+"
-    r"|COLUMNS|CPL_LOG|CPL_DEBUG|PROJ_DEBUG)"
+    r"|COLUMNS|CPL_LOG|CPL_DEBUG|PROJ_DEBUG|GDAL_CURL_CA_BUNDLE|PROJ_CURL_CA_BUNDLE)"
 )
 
 _File = int | IO[Any] | None
+#: This process's environment when the test session began (tests/conftest.py imports this
+#: module first thing): the fork server starts with it whenever it is first used, not with
+#: whatever a test had set then (an in-process `distributed` import sets OMP_NUM_THREADS,
+#: ..., which `_environment_restored` undoes after that test: a server started inside it
+#: then differed from every later test's environment).
+_SESSION_ENV = dict(os.environ)
 _cpu_s = 0.0
 _warned: set[tuple[str, ...]] = set()
 
@@ -73,7 +80,7 @@ class _Server:
     def __init__(self) -> None:
         self.folder = tempfile.mkdtemp(prefix="gv-zygote-")
         self.socket = os.path.join(self.folder, "s")
-        self.env = dict(os.environ)
+        self.env = dict(_SESSION_ENV)
         self.log = tempfile.TemporaryFile()  # noqa: SIM115  its stderr, for as long as it runs
         self.proc = subprocess.Popen(
             [sys.executable, str(SERVER), self.socket],

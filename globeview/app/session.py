@@ -29,7 +29,7 @@ from globeview.model.globe import DEFAULT_LOD, Globe
 from globeview.plugins.api import NullRendererHooks
 from globeview.plugins.registry import PluginRegistry
 from globeview.render.frame_pipeline import FramePipeline
-from globeview.render.offscreen import make_current
+from globeview.render.gpu_objects import make_current
 from globeview.render.picking import Pick
 from globeview.render.renderer import GlobeRenderer
 from globeview.render.scene import FrameResult, GlobeScene

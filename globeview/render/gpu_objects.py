@@ -27,7 +27,22 @@ from typing import Any
 
 import moderngl
 
-__all__ = ["GpuObjects", "TrackedObject", "gpu_objects"]
+__all__ = ["GpuObjects", "TrackedObject", "gpu_objects", "make_current"]
+
+
+def make_current(ctx: moderngl.Context) -> None:
+    """Make a context from `create_headless_context` current on this thread again; any other
+    context (a window's, which its toolkit makes current before painting) is left alone.
+
+    Why: creating a headless context makes it current, so a second context opened on the same
+    thread (an in-process `globeview render`, a second session or benchmark) left the first
+    one's later calls drawing into, reading from and deleting names of the other context:
+    wrong images, an empty frame or another context's objects released. GL names are small
+    integers in every context, so such calls often "work" on the wrong objects. Every GL
+    object made through `gpu_objects`, each frame, and each read or release of a headless
+    target calls this first (entering the context already current: ~1 us)."""
+    if isinstance(ctx.extra, dict) and ctx.extra.get("globeview_headless"):
+        ctx.__enter__()  # no __exit__: it stays current, as `create_headless_context` leaves it
 
 
 @dataclass
@@ -62,6 +77,7 @@ class GpuObjects:
         ctx = self._ctx()
         if ctx is None:
             raise RuntimeError("the GL context of this tracker is gone")
+        make_current(ctx)
         obj = getattr(ctx, kind)(*args, **kwargs)
         # The caller's module: who to blame in a leak report (creation only, not per frame).
         owner = sys._getframe(2).f_globals.get("__name__", "?")

@@ -6,7 +6,7 @@ import moderngl
 import numpy as np
 
 from globeview.errors import GlobeviewError
-from globeview.render.gpu_objects import gpu_objects
+from globeview.render.gpu_objects import gpu_objects, make_current
 
 
 class RenderError(GlobeviewError):
@@ -40,21 +40,6 @@ def create_headless_context(*, fresh: bool = False) -> moderngl.Context:
         ) from None
     ctx.extra = {"globeview_headless": True}
     return ctx
-
-
-def make_current(ctx: moderngl.Context) -> None:
-    """Make a context from `create_headless_context` current on this thread again; any other
-    context (a window's, which its toolkit makes current before painting) is left alone.
-
-    Why: creating a headless context makes it current, so a second context opened on the same
-    thread (an in-process `globeview render`, a second session or benchmark) left the first
-    one's later calls drawing into, reading from and deleting names of the other context:
-    wrong images, an empty frame or another context's objects released. GL names are small
-    integers in every context, so such calls often "work" on the wrong objects. Each frame and
-    each read or release of a headless target calls this first (an `eglMakeCurrent` of the
-    context already current costs microseconds)."""
-    if isinstance(ctx.extra, dict) and ctx.extra.get("globeview_headless"):
-        ctx.__enter__()  # no __exit__: it stays current, as `create_headless_context` leaves it
 
 
 def release_headless_context(ctx: moderngl.Context) -> None:

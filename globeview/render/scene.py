@@ -15,7 +15,7 @@ from globeview.lod.view_state import ViewState
 from globeview.model.camera import Camera
 from globeview.model.display import DisplaySettings
 from globeview.render.frame_pipeline import FramePipeline, FrameResult, FrameTool
-from globeview.render.offscreen import make_current
+from globeview.render.gpu_objects import make_current
 from globeview.render.picking import Pick, pick
 from globeview.render.renderer import GlobeRenderer
 from globeview.terrain.compose.stack import TerrainStack

@@ -301,19 +301,21 @@ def test_tiny_remote_run_reaches_complete_frames_and_a_warm_cache() -> None:
     assert proc.returncode == 0, proc.stderr
     out = proc.stdout
     assert re.search(r"Remote store benchmark, \d{4}-\d{2}-\d{2} .* cores, load ", out)
+    table = [r for r in out.splitlines() if r.startswith("| ") and "---" not in r]
+    header = [c.strip() for c in table[0].split("|")[1:-1]]  # by name: columns get added
     rows = {
-        r.split("|")[1].strip(): [c.strip() for c in r.split("|")[2:-1]]
-        for r in out.splitlines()
-        if r.startswith("| ") and "---" not in r and not r.startswith("| run")
+        cells[0]: dict(zip(header, cells, strict=True))
+        for r in table[1:]
+        for cells in [[c.strip() for c in r.split("|")[1:-1]]]
     }
     local, cold, warm = (rows[k] for k in RUN_ROWS)
-    # open s, first frame s, complete s, frames, tiles, failed, requests, MB sent
-    assert local[6] == "0" and float(local[7]) == 0
-    assert int(cold[6]) > 1 and float(cold[7]) > 0
-    assert warm[6] == "1"  # the manifest alone
-    assert local[4] == cold[4] == warm[4] and int(local[4]) > 0  # the same tiles drawn
-    assert all(r[5] == "0" for r in (local, cold, warm))
-    assert all(0 < float(r[1]) <= float(r[2]) for r in (local, cold, warm))
+    assert local["requests"] == "0" and float(local["MB sent"]) == 0
+    assert int(cold["requests"]) > 1 and float(cold["MB sent"]) > 0
+    assert warm["requests"] == "1"  # the manifest alone
+    assert local["tiles"] == cold["tiles"] == warm["tiles"] and int(local["tiles"]) > 0
+    assert all(r["failed"] == "0" for r in (local, cold, warm))
+    timed = ("first frame s", "complete frame s")
+    assert all(0 < float(r[timed[0]]) <= float(r[timed[1]]) for r in (local, cold, warm))
     assert "NOT MET" not in out and out.count(": met") == 4
 
 
