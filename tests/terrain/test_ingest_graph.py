@@ -54,9 +54,16 @@ def reference(tmp_path_factory: pytest.TempPathFactory) -> dict[str, bytes]:
 @pytest.fixture(scope="module")
 def cluster():
     distributed = pytest.importorskip("distributed")
+    saved = dict(os.environ)
     with distributed.LocalCluster(
         n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0"
     ) as c:
+        # Its nannies set OMP_NUM_THREADS, MALLOC_TRIM_THRESHOLD_, ... in this process's
+        # environment to spawn their workers (and set them again for a restart); other
+        # modules' tests run on this pytest worker while the cluster lives (xdist), and a
+        # child they start must inherit the session's environment (tests/test_zygote.py).
+        os.environ.clear()
+        os.environ.update(saved)
         yield c
 
 
