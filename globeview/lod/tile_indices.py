@@ -51,6 +51,11 @@ class IndexVariant:
     skirt_edges: tuple[bool, bool, bool, bool] | None = None
 
 
+#: Variants whose index lists `grid_indices` keeps (at most ~100 KB each, a 65-node tile at
+#: stride 1): enough for the new variants of a frame, which are asked for twice in it.
+GRID_INDICES_CACHE = 256
+
+
 @functools.lru_cache(maxsize=4096)
 def index_count(size: int, variant: IndexVariant) -> int:
     """How many indices (3 per triangle) ``variant`` has over a tile of ``size`` nodes per
@@ -59,8 +64,19 @@ def index_count(size: int, variant: IndexVariant) -> int:
     return len(grid_indices(size, variant))
 
 
+@functools.lru_cache(maxsize=GRID_INDICES_CACHE)
 def grid_indices(size: int, variant: IndexVariant) -> np.ndarray:
-    """uint32 triangle-list indices for ``variant`` over a tile of ``size`` nodes per side."""
+    """uint32 triangle-list indices for ``variant`` over a tile of ``size`` nodes per side,
+    read-only and shared: a variant first met in a frame is counted (`index_count`, the
+    frame's triangles) and uploaded (the renderer's index pool) from one build (a fast low
+    flight meets several stitched-edge variants a frame, ~1 ms CPU each to build)."""
+    idx = _build_grid_indices(size, variant)
+    idx.flags.writeable = False
+    return idx
+
+
+def _build_grid_indices(size: int, variant: IndexVariant) -> np.ndarray:
+    """`grid_indices`' list, built."""
     s = variant.stride
     n = size - 1
     if s < 1 or n % s:

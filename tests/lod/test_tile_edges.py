@@ -181,3 +181,17 @@ def test_stitched_edges_are_flagged_and_skirt_flags_are_checked() -> None:
     bad = RenderSet(rs.keys, np.zeros(2, np.int64), [IndexVariant(skirt_edges=(1, 1, 1, 1))])  # type: ignore[arg-type]
     with pytest.raises(InvalidRenderSet, match="4 bools"):
         bad.validate(SIZE)
+
+
+def test_a_variants_index_list_is_built_once_read_only_and_counted_from_it() -> None:
+    # A frame counts a new variant's indices and uploads them: one build, shared (#27).
+    from globeview.lod.tile_indices import _build_grid_indices, index_count
+
+    variant = IndexVariant(4, True, None, (8, 4, 16, 4), (False, True, True, False))
+    first = grid_indices(SIZE, variant)
+    assert grid_indices(SIZE, variant) is first
+    assert not first.flags.writeable
+    with pytest.raises(ValueError, match="read-only"):
+        first[0] = 0
+    np.testing.assert_array_equal(first, _build_grid_indices(SIZE, variant))
+    assert first.dtype == np.uint32 and index_count(SIZE, variant) == len(first)
