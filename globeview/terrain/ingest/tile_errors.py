@@ -110,14 +110,15 @@ def upsample_nodes(
 # errors against 14 coarser levels 180 -> 46 ms CPU, hmin/hmax + stride deltas 41 -> 13 ms.
 
 
-#: Fine columns per strip of the passes below (`_abs_diff_block_max`): the stride deltas
-#: (float32) and the error passes (float64). Strips change no value (each node is computed
-#: by the same operations whatever the strip, tests/terrain/test_tile_errors.py); wider
-#: strips mean fewer numpy calls a window for temporaries of 1-2 MB (a 1025-node window):
-#: thread CPU a 1025^2 window of the 8192^2 benchmark DEM, stride deltas 64 -> 512 columns
-#: 29.8 -> 23.7 ms, error passes f = 4-16 64 -> 256 columns 6.3 -> 5.3 ms (f = 2 unchanged).
+#: Fine columns per strip of the stride-delta passes (`stride_deltas`, float32). Strips
+#: change no value (each node is computed by the same operations whatever the strip,
+#: tests/terrain/test_tile_errors.py); wider strips mean fewer numpy calls a window for
+#: temporaries of 2 MB (a 1025-node window). Thread CPU a 1025^2 window of the 8192^2
+#: benchmark DEM (4 windows, 11 interleaved rounds, load 10): 64 -> 512 columns 30.2 ->
+#: 27.1 ms (median), 23.8 -> 20.1 ms (min). The float64 error passes keep 64: 256 gave no
+#: clear gain there (27.5 vs 28.6 ms median, 22.8 vs 21.6 ms min).
 STRIDE_STRIP = 512
-ERROR_STRIP = 256
+ERROR_STRIP = 64
 
 
 def _phase_weights(f: int, dtype: type) -> tuple[np.ndarray, np.ndarray]:
