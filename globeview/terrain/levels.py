@@ -151,18 +151,26 @@ def read_level_nodes(
     ``wavelet.extend_borders``), so a windowed wavelet approximation equals the whole-array
     one at the raster's borders. Longitudes of a global level wrap instead of mirroring.
     """
-    out = np.full((h, w), np.nan, dtype=np.float32)
     rr = grid.raster_rows(gr0 + np.arange(h))
     rc = grid.raster_cols(gc0 + np.arange(w))
     vr = np.flatnonzero(rr >= 0)
     vc = np.flatnonzero(rc >= 0)
     if vr.size == 0 or vc.size == 0:
-        return out
+        return np.full((h, w), np.nan, dtype=np.float32)
     i0, i1 = int(vr[0]), int(vr[-1]) + 1
     r_a = int(rr[i0])
+    # NaN only where no read writes: the rows outside [i0, i1) and the columns outside the
+    # runs (a read writes every node of its ``out``), not the whole window first.
+    out = np.empty((h, w), dtype=np.float32)
+    out[:i0] = np.nan
+    out[i1:] = np.nan
+    col = 0
     for p, c, n in _runs(vc, rc[vc]):
+        out[i0:i1, col:p] = np.nan
+        col = p + n
         # Straight into the window (rasterio's read takes a strided ``out`` too).
         ds.read(1, window=Window(c, r_a, n, i1 - i0), out=out[i0:i1, p : p + n])
+    out[i0:i1, col:] = np.nan
     if mirror:
         _mirror_axis(out, rr, grid.height, mirror, axis=0)
         if not grid.global_lon:

@@ -974,14 +974,20 @@ class Dem:
         except KeyError:
             raise DemError(f"unknown resampling {resampling!r}") from None
         shape = (height, width)
-        data = np.full(shape, np.nan, dtype=np.float32)
-        edge = np.full(shape, np.nan, dtype=np.float32)
+        data: np.ndarray | None = None
         # Destination cells centred on the nodes.
         dst_t = Affine(dlon, 0.0, west - dlon / 2.0, 0.0, -dlat, north + dlat / 2.0)
         windows = self._source_windows(west, north, dlon, dlat, width, height)
         for src, k in windows:
             piece = self._warp(src.arr, src.transform, dst_t, shape, rs, k)
-            np.copyto(data, piece, where=np.isnan(data))
+            if data is None:
+                # A new float32 array of its own: what copying it into all-NaN nodes gives.
+                data = piece
+            else:
+                np.copyto(data, piece, where=np.isnan(data))
+        if data is None:
+            data = np.full(shape, np.nan, dtype=np.float32)
+        edge = np.full(shape, np.nan, dtype=np.float32)
         for src, k in windows:
             if src.has_edge():
                 self._continue_edge(src, k, data, edge, (west, north, dlon, dlat))

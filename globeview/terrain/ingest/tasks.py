@@ -251,14 +251,40 @@ class ChunkReader:
     def read(self, band: int, window: Window, out: np.ndarray | None = None) -> np.ndarray:
         """The window's nodes (float32, NaN where no chunk has data), into ``out`` (of the
         window's shape, may be strided) when given."""
-        c = self.plan.chunk_nodes
-        rows, cols = self.plan.chunk_shape(self.grid.level)
         r_a, c_a = int(window.row_off), int(window.col_off)
         h, w = int(window.height), int(window.width)
+        parts = self._parts(r_a, c_a, h, w)
+        # NaN first only where no read of its own part writes every node (a part no file
+        # holds, or one read over another): a read writes each node of its ``out``.
+        covered = sum((b[1] - b[0]) * (b[3] - b[2]) for *_, b, shared in parts if not shared)
         if out is None:
-            out = np.full((h, w), np.nan, dtype=np.float32)
-        else:
+            out = np.empty((h, w), dtype=np.float32)
+        if covered < h * w:
             out.fill(np.nan)
+        for path, sha, win, (ra, rb, ca, cb), shared in parts:
+            dst = out[ra - r_a : rb - r_a, ca - c_a : cb - c_a]
+            got = None if shared else dst
+            if self.plan.keep_open:
+                got = _open_chunk(path, sha).read(band, window=win, out=got)
+            else:
+                with rasterio.open(path) as ds:
+                    got = ds.read(band, window=win, out=got)
+            if shared:
+                # A node both chunks hold (an owner's first row and its neighbour's
+                # closing row): the owner's (read last: row-major) wins where it has a
+                # value.
+                np.copyto(dst, got, where=np.isnan(dst) | np.isfinite(got))
+        return out
+
+    def _parts(
+        self, r_a: int, c_a: int, h: int, w: int
+    ) -> list[tuple[Path, str, Window, tuple[int, int, int, int], bool]]:
+        """The reads of a window (rows r_a.., columns c_a.., h x w nodes of the level), in
+        row-major chunk order: (file, sha256, window in the file, level rows ra:rb and
+        columns ca:cb it gives, whether it overlaps a part before it)."""
+        c = self.plan.chunk_nodes
+        rows, cols = self.plan.chunk_shape(self.grid.level)
+        parts: list[tuple[Path, str, Window, tuple[int, int, int, int], bool]] = []
         filled: list[tuple[int, int, int, int]] = []
         # From the chunk above / west too: it may store its closing row / column.
         for cy in range(max(0, (r_a - 1) // c), min((r_a + h - 1) // c, rows - 1) + 1):
@@ -281,22 +307,10 @@ class ChunkReader:
                     continue
                 path = Path(self.plan.folder) / chunk_file_name(self.grid.level, cy, cx, sha)
                 win = Window(ca - c0, ra - r0, cb - ca, rb - ra)
-                dst = out[ra - r_a : rb - r_a, ca - c_a : cb - c_a]
-                # Where no chunk read before covers the part, read straight into it.
                 shared = any(ra < b and a < rb and ca < d and c_ < cb for a, b, c_, d in filled)
                 filled.append((ra, rb, ca, cb))
-                got = None if shared else dst
-                if self.plan.keep_open:
-                    got = _open_chunk(path, sha).read(band, window=win, out=got)
-                else:
-                    with rasterio.open(path) as ds:
-                        got = ds.read(band, window=win, out=got)
-                if shared:
-                    # A node both chunks hold (an owner's first row and its neighbour's
-                    # closing row): the owner's (read last: row-major) wins where it has a
-                    # value.
-                    np.copyto(dst, got, where=np.isnan(dst) | np.isfinite(got))
-        return out
+                parts.append((path, sha, win, (ra, rb, ca, cb), shared))
+        return parts
 
     def __enter__(self) -> ChunkReader:
         return self
@@ -421,7 +435,8 @@ def fill_from_sources(
         if s.level != level:
             _fill_nan(out, rings)
             rings, level = [], s.level
-        if not np.isnan(out).any():
+        missing = np.isnan(out)
+        if not missing.any():
             return
         parts = s.dem().read_grid_parts(west_n, north, d, d, w, h)
         data, edge = parts.data, parts.edge
@@ -436,7 +451,7 @@ def fill_from_sources(
                 n = _window_undulation(s.datum, s.grid, west, north, d, w, h, box)
                 data[box] += n
                 edge[box] += n
-        np.copyto(out, data, where=np.isnan(out))
+        np.copyto(out, data, where=missing)  # ``out`` unchanged since ``missing``
         rings.append(edge)
     _fill_nan(out, rings)
 
