@@ -41,6 +41,10 @@ from affine import Affine
 from rasterio.windows import Window
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from make_planet import _hash01 as planet_hash01  # noqa: E402  (a sibling script)
+
 CACHE = ROOT / "benchmarks" / "cache"
 SRTM = ROOT / "data" / "N44W072.hgt"
 CRS = "EPSG:26919"  # NAD83 / UTM zone 19N
@@ -56,15 +60,8 @@ OCTAVES = ((2048, 12.0), (512, 4.0), (128, 1.5), (32, 0.5), (8, 0.15), (2, 0.04)
 
 
 def _hash01(ix: np.ndarray, iy: np.ndarray, octave: int) -> np.ndarray:
-    """Deterministic pseudo-random value in [-1, 1) per integer lattice point (splitmix64)."""
-    with np.errstate(over="ignore"):
-        z = (ix.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)) ^ (
-            iy.astype(np.uint64) * np.uint64(0xC2B2AE3D27D4EB4F) + np.uint64(octave * 7919 + 13)
-        )
-        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-        z = z ^ (z >> np.uint64(31))
-    return ((z >> np.uint64(11)).astype(np.float64) / float(1 << 53) * 2.0 - 1.0).astype(np.float32)
+    """make_planet.py's lattice hash with this script's salt, as float32 in [-1, 1)."""
+    return planet_hash01(ix, iy, octave, salt=13).astype(np.float32)
 
 
 def _axis_weights(

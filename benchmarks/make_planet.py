@@ -104,11 +104,12 @@ def srtm_name(lat: int, lon: int) -> str:
 # -- heights -------------------------------------------------------------------------------------
 
 
-def _hash01(ix: np.ndarray, iy: np.ndarray, octave: int) -> np.ndarray:
-    """Deterministic value in [-1, 1) per integer lattice point and octave (splitmix64)."""
+def _hash01(ix: np.ndarray, iy: np.ndarray, octave: int, salt: int = 1) -> np.ndarray:
+    """Deterministic value in [-1, 1) per integer lattice point and octave (splitmix64);
+    ``salt`` tells one script's fields from another's (make_dtm.py uses 13)."""
     with np.errstate(over="ignore"):
         z = (ix.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)) ^ (
-            iy.astype(np.uint64) * np.uint64(0xC2B2AE3D27D4EB4F) + np.uint64(octave * 7919 + 1)
+            iy.astype(np.uint64) * np.uint64(0xC2B2AE3D27D4EB4F) + np.uint64(octave * 7919 + salt)
         )
         z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
         z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
