@@ -68,8 +68,7 @@ class OffscreenTarget:
     """A colour + depth framebuffer of a given size (pixels)."""
 
     def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
-        self.ctx = ctx
-        make_current(ctx)
+        self.ctx = ctx  # current while its objects are made: gpu_objects enters it
         self.size = (int(size[0]), int(size[1]))
         self.color = gpu_objects(ctx).texture(self.size, 4)
         self.depth = gpu_objects(ctx).depth_texture(self.size)
