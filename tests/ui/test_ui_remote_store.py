@@ -22,8 +22,10 @@ DATA = Path(__file__).resolve().parents[2] / "data"
 #: Longest the UI thread may go without running a 10 ms timer while a slow server's tiles
 #: load (ms). A read of a tile on the UI thread would wait for the server's SLOW_S (3 s) at
 #: least; frames drawn meanwhile take 60-150 ms on llvmpipe (2 cores), up to ~550 ms
-#: measured with the machine 3x oversubscribed (load 6.6): quiet, the longest gap was 77 ms.
-MAX_GAP_MS = 1000
+#: measured with the machine 3x oversubscribed (load 6.6), 1 710 ms once at load ~10 (a full
+#: suite beside two benchmarks and a planet build); quiet, the longest gap was 77 ms. The
+#: bound stays below SLOW_S, so one read on the UI thread still fails the test.
+MAX_GAP_MS = 2000
 SLOW_S = 3.0
 #: Seconds the slow server's loading is watched (at most).
 MEASURE_S = 25.0
