@@ -103,17 +103,6 @@ def test_local_schedulers_give_the_same_store_bit_for_bit(
 
 
 @pytest.mark.slow
-def test_a_distributed_cluster_gives_the_same_store_bit_for_bit(
-    reference: dict[str, bytes], tmp_path: Path, cluster
-) -> None:
-    out = tmp_path / "s"
-    ingest([ETOPO], out, scheduler=cluster.scheduler_address, **ETOPO_KW)
-    assert _files(out) == reference
-    with TileStore.open(out) as st:
-        st.verify()
-
-
-@pytest.mark.slow
 def test_progress_counts_every_chunk_and_error_task(tmp_path: Path) -> None:
     calls: list[tuple[int, int]] = []
     ingest([ETOPO], tmp_path / "s", workers=2, on_progress=lambda d, t: calls.append((d, t)))
@@ -224,6 +213,46 @@ def test_a_port_that_accepts_but_never_answers_is_one_line_within_seconds(
 
 
 @pytest.mark.slow
+def test_a_worker_that_dies_is_one_line_and_leaves_nothing(tmp_path: Path) -> None:
+    """kill -9 of the worker running a chunk (every time it is retried): one StoreError line,
+    no store, no building folder (the tasks still running elsewhere finish first)."""
+    import dask
+    from distributed import LocalCluster
+
+    with (
+        dask.config.set({"distributed.scheduler.allowed-failures": 1}),
+        LocalCluster(
+            n_workers=2,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=":0",
+            env={FAULT_ENV: "KILL@3"},  # every worker, restarted ones too
+        ) as c,
+        pytest.raises(StoreError) as exc,
+    ):
+        ingest([ETOPO], tmp_path / "s", scheduler=c.scheduler_address, **ETOPO_KW)
+    msg = str(exc.value)
+    assert msg.startswith("a dask worker died running chunk-") and "\n" not in msg
+    assert list(tmp_path.iterdir()) == []
+
+
+# The tests on the module's `cluster` last and together: its two idle worker processes
+# spend CPU for as long as it lives (until the module's last test), ~4 CPU-s when it lived
+# through the waits of the tests above.
+
+
+@pytest.mark.slow
+def test_a_distributed_cluster_gives_the_same_store_bit_for_bit(
+    reference: dict[str, bytes], tmp_path: Path, cluster
+) -> None:
+    out = tmp_path / "s"
+    ingest([ETOPO], out, scheduler=cluster.scheduler_address, **ETOPO_KW)
+    assert _files(out) == reference
+    with TileStore.open(out) as st:
+        st.verify()
+
+
+@pytest.mark.slow
 def test_a_worker_address_is_not_a_scheduler(tmp_path: Path, cluster) -> None:
     worker = next(iter(cluster.workers.values())).worker_address
     with pytest.raises(StoreError, match="is not a dask scheduler"):
@@ -248,27 +277,3 @@ def test_a_failing_task_on_the_cluster_is_one_line_and_leaves_the_old_store(
             client.run(lambda: os.environ.pop(FAULT_ENV, None))
     assert str(exc.value).startswith(f"disk full writing {out}") and "\n" not in str(exc.value)
     assert _files(out) == before and _leftovers(tmp_path) == []
-
-
-@pytest.mark.slow
-def test_a_worker_that_dies_is_one_line_and_leaves_nothing(tmp_path: Path) -> None:
-    """kill -9 of the worker running a chunk (every time it is retried): one StoreError line,
-    no store, no building folder (the tasks still running elsewhere finish first)."""
-    import dask
-    from distributed import LocalCluster
-
-    with (
-        dask.config.set({"distributed.scheduler.allowed-failures": 1}),
-        LocalCluster(
-            n_workers=2,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=":0",
-            env={FAULT_ENV: "KILL@3"},  # every worker, restarted ones too
-        ) as c,
-        pytest.raises(StoreError) as exc,
-    ):
-        ingest([ETOPO], tmp_path / "s", scheduler=c.scheduler_address, **ETOPO_KW)
-    msg = str(exc.value)
-    assert msg.startswith("a dask worker died running chunk-") and "\n" not in msg
-    assert list(tmp_path.iterdir()) == []
