@@ -14,15 +14,19 @@ import itertools
 
 import numpy as np
 import pytest
+from test_flat_walk import assert_same
 
 from globeview.app.testing import make_view
 from globeview.lod.cheapest_cut import VisitedLevel, cheapest_cut
+from globeview.lod.flat_walk import SelectionState
 from globeview.lod.render_set import RenderSet
 from globeview.lod.sse_policy import ScreenSpaceErrorPolicy, variant_triangles
 from globeview.lod.traversal import traverse
 from globeview.plugins.builtin.chunked.provider import ChunkedSseProvider
 
 LADDER = (0.5, 1.0, 2.0, 4.0, 8.0)
+#: The taus at which the random-views test also holds the flat walk to the level walk.
+FLAT_WALK_TAUS = (0.5, 2.0)
 N_VIEWS = 200
 #: (lon, lat) boxes of the regional DEMs the near half of the views look at.
 REGIONS = (
@@ -75,14 +79,21 @@ def _is_cut(keys: np.ndarray) -> bool:
 
 
 def _ladder_violations(
-    terrain, poses, exaggeration: float = 1.0, max_tiles: int = 600
+    terrain,
+    poses,
+    exaggeration: float = 1.0,
+    max_tiles: int = 600,
+    states: dict[float, SelectionState] | None = None,
 ) -> tuple[list, dict[str, int]]:
     """Walk ``poses`` over `LADDER` and check each selection; returns the views whose cut
     (drawn as is: neither ``cut_over_budget`` nor ``cut_traded``) draws more triangles at a
     larger tau, and how many selections fell in each case (ScreenSpaceErrorPolicy's
     docstring). Asserts: every tile of a cut within tau, a cut of the quadtree, no more
     triangles than the plain walk; the plain walk where over budget, and that only for the
-    smallest taus of the ladder (the budgets' counts never grow with tau)."""
+    smallest taus of the ladder (the budgets' counts never grow with tau). At each tau of
+    ``states`` also: the flat walk with that tau's state carried through the poses in order
+    selects exactly what the level walk selected (test_flat_walk's identity, on the level
+    walk's selections already made here instead of making them again there)."""
     size = terrain.tile_size
     one_cell = int(variant_triangles(size)[-1].max())
     worse, cases = [], {"cut": 0, "traded": 0, "over": 0}
@@ -92,6 +103,9 @@ def _ladder_violations(
             view = make_view(*pose, viewport=(1280, 720), tau_px=tau, exaggeration=exaggeration)
             policy = ScreenSpaceErrorPolicy(max_tiles=max_tiles, min_triangles=True)
             rs = traverse(view, terrain, policy)
+            if states is not None and tau in states:
+                flat = ScreenSpaceErrorPolicy(max_tiles=max_tiles, min_triangles=True)
+                assert_same(rs, traverse(view, terrain, flat, state=states[tau]), (pose, tau))
             n = triangles(rs, size)
             case = (
                 "over"
@@ -130,7 +144,11 @@ def _ladder_violations(
 
 @pytest.mark.slow
 def test_triangles_never_grow_with_tau_over_random_views(globeview_terrain) -> None:
-    worse, cases = _ladder_violations(globeview_terrain, _views())
+    """Also test_flat_walk's identity over these views at tau 0.5 and 2 (one state a tau
+    carried through all 200 in a row; its own test keeps tau 8)."""
+    states = {tau: SelectionState() for tau in FLAT_WALK_TAUS}
+    worse, cases = _ladder_violations(globeview_terrain, _views(), states=states)
+    assert all(st.rows > 0 for st in states.values())
     # At exaggeration 1 and the default budget every view of the test draws the cut.
     assert cases["cut"] == N_VIEWS * len(LADDER), cases
     assert not worse, f"{len(worse)} views draw more triangles at a larger tau: {worse[:3]}"

@@ -108,10 +108,12 @@ def _slow(*values: object) -> object:
 
 
 # -- identity ---------------------------------------------------------------------------------
-@pytest.mark.parametrize("tau", [_slow(0.5), _slow(2.0), 8.0])
+@pytest.mark.parametrize("tau", [8.0])
 def test_same_as_the_level_walk_over_random_views(globeview_terrain, tau) -> None:
     """200 random views in a row, one state carried through them all (each view a camera
-    cut from the last: the tree grows and is pruned), chunked-sse's cut."""
+    cut from the last: the tree grows and is pruned), chunked-sse's cut. Tau 0.5 and 2:
+    test_chunked_min_triangles' random-views test (the same 200 views) holds its level-walk
+    selections to the flat walk's, a state a tau carried through them in the same order."""
     poses = random_poses()
     cases = compare_along(
         globeview_terrain,

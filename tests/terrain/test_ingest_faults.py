@@ -66,9 +66,10 @@ def _files(store: Path) -> dict[str, bytes]:
 
 
 @pytest.fixture(scope="module")
-def clean_errors(tmp_path_factory: pytest.TempPathFactory) -> list:
-    out = tmp_path_factory.mktemp("clean") / "s"
-    ingest([SMALL], out)
+def clean_errors(tmp_path_factory: pytest.TempPathFactory, seed_dem_store) -> list:
+    """The tile errors of what ``ingest([SMALL], out)`` writes: the session's
+    `seed_dem_store` of SMALL (the same files, byte for byte), not ingested again."""
+    (out,) = (seed_dem_store(tmp_path_factory.mktemp("clean"), SMALL) / "stores").iterdir()
     return _errors(out)
 
 

@@ -5,6 +5,7 @@ rest is hard-linked from the old store; the result equals a full rebuild bit for
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -75,20 +76,39 @@ def _inodes(store: Path) -> dict[str, int]:
 
 
 @pytest.fixture(scope="module")
-def updated(tmp_path_factory: pytest.TempPathFactory):
-    """(store updated incrementally, its old inodes, the update's result, a full rebuild)."""
+def stores(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
+    """Two tiles ingested (``s``), a copy of that store with a level-12 sidecar damaged
+    (``damaged``); then one source changes (same place, new heights) and both are ingested
+    again, and the changed sources are ingested into ``full`` from nothing: four ingests for
+    the update and the damaged-sidecar tests (six when each built its own)."""
     tmp = tmp_path_factory.mktemp("upd")
     a = _tile(tmp / "a.tif", 10.0)
     b = _tile(tmp / "b.tif", 11.0)
-    store = tmp / "s"
+    store, damaged = tmp / "s", tmp / "damaged"
     first = ingest([a, b], store, workers=2)
     assert first.chunks_rebuilt == first.chunks_total
+    shutil.copytree(store, damaged)
+    sorted(damaged.glob("facts/12/*/*.npz"))[0].write_bytes(b"not a zip")
     before = _inodes(store)
     _tile(b, 11.0, bump=250.0)  # one source changes: same place, new heights
     result = ingest([a, b], store, workers=2)
+    damaged_result = ingest([a, b], damaged, workers=2)
     full = tmp / "full"
     ingest([a, b], full, workers=1)
-    return store, before, result, full
+    return {
+        "store": store,
+        "before": before,
+        "result": result,
+        "full": full,
+        "damaged": damaged,
+        "damaged_result": damaged_result,
+    }
+
+
+@pytest.fixture(scope="module")
+def updated(stores: dict[str, object]):
+    """(store updated incrementally, its old inodes, the update's result, a full rebuild)."""
+    return stores["store"], stores["before"], stores["result"], stores["full"]
 
 
 @pytest.mark.slow
@@ -132,15 +152,10 @@ def test_an_unchanged_store_is_still_up_to_date(updated, tmp_path: Path) -> None
 
 
 @pytest.mark.slow
-def test_a_damaged_sidecar_means_a_full_rebuild_not_a_wrong_store(tmp_path: Path) -> None:
-    a = _tile(tmp_path / "a.tif", 10.0)
-    b = _tile(tmp_path / "b.tif", 11.0)
-    store = tmp_path / "s"
-    ingest([a, b], store, workers=2)
-    sorted(store.glob("facts/12/*/*.npz"))[0].write_bytes(b"not a zip")
-    _tile(b, 11.0, bump=100.0)
-    result = ingest([a, b], store, workers=2)
+def test_a_damaged_sidecar_means_a_full_rebuild_not_a_wrong_store(stores) -> None:
+    """A store whose level-12 sidecar was damaged before a source changed (`stores`): the
+    update rebuilds every chunk and equals the full rebuild (1 worker: the same bits as 2,
+    tests/terrain/test_ingest_graph.py)."""
+    result = stores["damaged_result"]
     assert result.chunks_rebuilt == result.chunks_total
-    full = tmp_path / "full"
-    ingest([a, b], full, workers=2)
-    assert _files(store) == _files(full)
+    assert _files(stores["damaged"]) == _files(stores["full"])

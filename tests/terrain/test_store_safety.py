@@ -17,7 +17,6 @@ from affine import Affine
 from inprocess_cli import run_globeview
 
 from globeview.errors import StoreError
-from globeview.terrain.ingest.driver import ingest
 from globeview.terrain.quadtree import TileKey
 from globeview.terrain.sources import open_source, store_path_for
 from globeview.terrain.store.identify import identify
@@ -44,9 +43,10 @@ def _snapshot(d: Path) -> dict[str, bytes | None]:
 
 
 @pytest.fixture(scope="module")
-def store(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("st") / "store"
-    ingest([SMALL], out)
+def store(tmp_path_factory: pytest.TempPathFactory, seed_dem_store) -> Path:
+    """What ``ingest([SMALL], out)`` writes: the session's `seed_dem_store` of SMALL (the
+    same files, byte for byte), not ingested again. Tests change copies only (`_copy`)."""
+    (out,) = (seed_dem_store(tmp_path_factory.mktemp("st"), SMALL) / "stores").iterdir()
     return out
 
 
@@ -153,10 +153,10 @@ def test_a_version_that_is_not_this_format_number_is_refused(
 
 @pytest.mark.slow
 def test_cached_store_of_another_version_is_rebuilt_silently(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, seed_dem_store
 ) -> None:
     monkeypatch.setenv("GLOBEVIEW_CACHE_DIR", str(tmp_path / "cache"))
-    open_source(SMALL).close()
+    seed_dem_store(tmp_path / "cache", SMALL)  # what open_source(SMALL) caches, not ingested
     _legacy(store_path_for(SMALL))
     with open_source(SMALL) as st:  # globeview owns its cache: no --force needed
         assert st.manifest.header.format == STORE_FORMAT
