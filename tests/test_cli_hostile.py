@@ -55,9 +55,10 @@ def leftovers(folder: Path) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def filled_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A cache folder holding the embedded stores (one small render ingests them)."""
-    cache = tmp_path_factory.mktemp("cache")
+def filled_cache(tmp_path_factory: pytest.TempPathFactory, seed_cache) -> Path:
+    """A cache folder holding the embedded stores (copied by `seed_cache` instead of an
+    ~5 CPU-s ingest) and what one small render adds to a cache besides them."""
+    cache = seed_cache(tmp_path_factory.mktemp("cache"))
     out = tmp_path_factory.mktemp("warm") / "warm.png"
     res = globeview("render", "--out", str(out), "--size", "32x24", cache=cache)
     if res.returncode != 0:

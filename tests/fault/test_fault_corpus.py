@@ -37,7 +37,6 @@ from .contract import (
     globeview_argv,
     leftovers,
     remount_readonly,
-    run_globeview,
     terrain_kind,
     tree_digest,
     valid_looking_stores,
@@ -500,15 +499,14 @@ def _wait_for_work_folder(parent: Path, proc: subprocess.Popen, limit_s: float =
 
 
 @pytest.fixture(scope="module")
-def complete_store(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A complete store of N44W072.hgt, ingested once for the cases that replace one (each
-    works on a copy)."""
-    folder = tmp_path_factory.mktemp("complete")
-    (folder / "cache").mkdir()
-    out = folder / "store"
-    cmd = ["ingest", str(DATA / "N44W072.hgt"), "--out", str(out), "--quiet"]
-    assert_quiet_success(run_globeview(cmd, folder, folder / "cache"))
-    return out
+def complete_store(tmp_path_factory: pytest.TempPathFactory, seed_dem_store) -> Path:
+    """A complete store of N44W072.hgt for the cases that replace one (each works on a
+    copy): the one `ingest` writes into a cache, built once per session by `seed_dem_store`
+    (~3 CPU-s for an `ingest --out` of its own)."""
+    (store,) = (seed_dem_store(tmp_path_factory.mktemp("complete"), DATA / "N44W072.hgt")
+                / "stores").iterdir()  # fmt: skip
+    assert (store / "manifest.json").is_file()
+    return store
 
 
 @pytest.mark.parametrize(("seed", "when"), KILL_CASES)

@@ -1,6 +1,8 @@
 """`globeview plugins set NAME.KEY VALUE` / `plugins get NAME[.KEY]` and `plugins validate
---import` (issue #15 items 5 and 11), as real subprocesses of `.venv/bin/globeview` with an
-installed (real distribution, entry point) plugin on PYTHONPATH.
+--import` (issue #15 items 5 and 11), as real processes of `.venv/bin/globeview` (forked by
+`zygote` from its pre-warmed server: exit status, stdout and stderr of a process of their own,
+without the ~1 CPU-s interpreter start) with an installed (real distribution, entry point)
+plugin on PYTHONPATH.
 
 The contract: a setting is checked against its `Setting` (type, range, choices) and stored in
 ``$GLOBEVIEW_CONFIG_DIR/settings.json`` atomically; a bad name or value is one line, exit 2,
@@ -18,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import zygote
 from PIL import Image
 
 from globeview.app.testing import PluginSite, plugin_manifest
@@ -61,7 +64,7 @@ def run(site: PluginSite, config: Path, *args: str, **env: str) -> subprocess.Co
         **env,
     }
     environ.pop("GLOBEVIEW_DEBUG", None)
-    return subprocess.run(
+    return zygote.run(
         [str(GLOBEVIEW), *args], capture_output=True, text=True, env=environ, timeout=300
     )
 

@@ -44,8 +44,10 @@ def test_example_wheel_installs_and_passes_its_tests(tmp_path: Path) -> None:
     _run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(wheels), str(EXAMPLE)])
     (wheel,) = wheels.glob("globeview_fixedlevel-*.whl")
 
+    # The fresh environment gets no pip of its own (`ensurepip` costs ~7 CPU-s): this
+    # environment's pip installs the wheel into it (`pip --python`), as it would with its own.
     venv = tmp_path / "venv"
-    _run([sys.executable, "-m", "venv", str(venv)])
+    _run([sys.executable, "-m", "venv", "--without-pip", str(venv)])
     py = venv / "bin" / "python"
     purelib = _run(
         [str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"]
@@ -53,7 +55,8 @@ def test_example_wheel_installs_and_passes_its_tests(tmp_path: Path) -> None:
     # globeview itself (from this checkout) and its dependencies, through a .pth file.
     deps = _deps_dir(tmp_path / "deps")
     (Path(purelib) / "globeview_deps.pth").write_text(f"{deps}\n{ROOT}\n", encoding="utf-8")
-    _run([str(py), "-m", "pip", "install", "-q", "--no-deps", "--no-index", str(wheel)])
+    pip = [sys.executable, "-m", "pip", "--python", str(py)]
+    _run([*pip, "install", "-q", "--no-deps", "--no-index", str(wheel)])
 
     work = tmp_path / "work"  # away from the source tree: imports come from the venv
     shutil.copytree(EXAMPLE / "tests", work / "tests")

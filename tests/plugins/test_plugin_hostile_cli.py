@@ -1,6 +1,9 @@
-"""Misbehaving plugins seen from the command line (issue #13, item 10): real subprocesses of
-`.venv/bin/globeview` with throwaway plugin distributions made discoverable through PYTHONPATH
-(a package plus a .dist-info, found by importlib.metadata like a pip install).
+"""Misbehaving plugins seen from the command line (issue #13, item 10): real processes of
+`.venv/bin/globeview` (forked by `zygote` from its pre-warmed server: a process of their own,
+its exit status, stderr and signals, without the ~1 CPU-s interpreter start) with throwaway
+plugin distributions made discoverable through PYTHONPATH (a package plus a .dist-info, found
+by importlib.metadata like a pip install). Which modules a render imports is read from a
+fresh interpreter (`python -c`), where nothing was imported before the command.
 
 The contract: the command completes (exit 0, the PNG drawn by the fallback provider), stderr
 has exactly one line about the broken plugin and no traceback; plugins nobody asked for are
@@ -16,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import zygote
 from PIL import Image
 from test_plugin_hostile import add_lod, manifest
 
@@ -35,7 +39,7 @@ def globeview(
         **env,
     }
     environ.pop("GLOBEVIEW_DEBUG", None)
-    return subprocess.run(
+    return zygote.run(
         [str(GLOBEVIEW), *args], capture_output=True, text=True, env=environ, timeout=300
     )
 
