@@ -467,6 +467,30 @@ class GridParts:
     edge: np.ndarray
 
 
+def _local_cells(
+    cols: np.ndarray, rows: np.ndarray, size: tuple[int, int], step: tuple[float, float]
+) -> tuple[float, float] | None:
+    """Source cells per node spacing where the source is: (smallest, largest) over the
+    neighbouring pairs of an (n, n) grid of sample points (fractional source ``cols``,
+    ``rows``; NaN where the CRS has no point) with one point inside the source's ``size``
+    (width, height), each pair's distance in cells over the nodes between the two samples
+    (``step``: along longitude, along latitude). None where no pair has a point inside."""
+    width, height = size
+    with np.errstate(invalid="ignore"):
+        inside = (cols >= 0) & (cols <= width) & (rows >= 0) & (rows <= height)
+    spans = []
+    for axis, nodes in ((1, step[0]), (0, step[1])):
+        dc, dr = np.diff(cols, axis=axis), np.diff(rows, axis=axis)
+        a = inside[:, :-1] if axis == 1 else inside[:-1, :]
+        b = inside[:, 1:] if axis == 1 else inside[1:, :]
+        d = np.hypot(dc, dr)[(a | b) & np.isfinite(dc) & np.isfinite(dr)] / nodes
+        spans.append(d)
+    every = np.concatenate(spans)
+    if every.size == 0:
+        return None
+    return float(every.min()), float(every.max())
+
+
 @dataclass(frozen=True)
 class _SourceWindow:
     """Source cells to warp: arr (float32, NaN = no data) and its affine transform in the
@@ -510,6 +534,8 @@ class _SourceWindow:
         r1 = min(h + bottom, math.ceil(float(rows.max())) + m + 1)
         c0 = max(-left, math.floor(float(cols.min())) - m)
         c1 = min(w + right, math.ceil(float(cols.max())) + m + 1)
+        if r1 <= r0 or c1 <= c0:  # all beyond the continued cells (a far, coarse node)
+            return np.full(rows.shape, np.nan)
         crop = np.full((r1 - r0, c1 - c0), np.nan, dtype=np.float32)
         ar0, ar1, ac0, ac1 = max(r0, 0), min(r1, h), max(c0, 0), min(c1, w)
         crop[ar0 - r0 : ar1 - r0, ac0 - c0 : ac1 - c0] = self.arr[ar0:ar1, ac0:ac1]
@@ -1035,6 +1061,15 @@ class Dem:
         lon = west + lon_shift + (cols[:, None, None] + dc) * dlon
         lat = north - (rows[:, None, None] + dr) * dlat
         px, py = self._pixel_positions(src, lon, lat)
+        # Points the source's CRS has no place for (a polar stereographic source's opposite
+        # pole) are nowhere near its data: their candidates are left out.
+        placed = np.isfinite(px).all(axis=(1, 2)) & np.isfinite(py).all(axis=(1, 2))
+        if not placed.all():
+            rows, cols, px, py = rows[placed], cols[placed], px[placed], py[placed]
+        # Far ones (near that pole) can be beyond int64 in pixels: clipped to a frame a few
+        # times the window's, which keeps every corner box's overlap with the window as is.
+        far = 4.0 * (max(src.arr.shape) + 4)
+        px, py = np.clip(px, -far, far), np.clip(py, -far, far)
         cells = DataCells(src.arr)
         needed = np.zeros(rows.size, dtype=bool)
         for i, j in ((0, 0), (0, 1), (1, 0), (1, 1)):
@@ -1048,9 +1083,16 @@ class Dem:
         self, src: _SourceWindow, lon: np.ndarray, lat: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """Fractional (column, row) pixel coordinates in ``src`` of points (degrees; in the
-        source's longitude frame for a geographic source)."""
+        source's longitude frame for a geographic source). For a projected source a point
+        past a pole (a neighbour of a node on the pole row: latitude beyond +-90) is the point
+        across it, at latitude +-180 - lat and longitude + 180: PROJ refuses such latitudes
+        (a polar stereographic DEM's coarse levels failed with "stere: Invalid latitude")."""
         x, y = lon, lat
         if not self._geo_fast:
+            past = np.abs(lat) > 90.0
+            if past.any():
+                lat = np.where(past, np.copysign(180.0, lat) - lat, lat)
+                lon = np.where(past, lon + 180.0, lon)
             with np.errstate(all="ignore"):
                 xs, ys = rasterio.warp.transform(WGS84, self.crs, lon.ravel(), lat.ravel())
             x = np.asarray(xs, dtype=np.float64).reshape(lon.shape)
@@ -1228,7 +1270,8 @@ class Dem:
         if not ok.any():
             return None
         inv = ~self.transform
-        cols, rows = inv @ (xs[ok], ys[ok])
+        grid_cols, grid_rows = inv @ (np.where(ok, xs, np.nan), np.where(ok, ys, np.nan))
+        cols, rows = np.asarray(grid_cols)[ok], np.asarray(grid_rows)[ok]
         pad = 3 + _VOID_MARGIN
         # The sampled nodes bound the window only approximately: pad by a tenth of its span.
         span_c = float(cols.max() - cols.min()) / 10.0
@@ -1241,14 +1284,36 @@ class Dem:
         if cc1 <= cc0 or rr1 <= rr0:
             return None
         # Source cells per destination cell, from the node spacing mapped into the source.
-        cells_x = (cols.max() - cols.min()) / max(1, (lon1 - lon0) / dlon + 2)
-        cells_y = (rows.max() - rows.min()) / max(1, (lat1 - lat0) / dlat + 2)
+        nodes_x = max(1, (lon1 - lon0) / dlon + 2)
+        nodes_y = max(1, (lat1 - lat0) / dlat + 2)
+        cells_x = (cols.max() - cols.min()) / nodes_x
+        cells_y = (rows.max() - rows.min()) / nodes_y
+        shape = (n, n)
+        near = _local_cells(
+            np.asarray(grid_cols).reshape(shape),
+            np.asarray(grid_rows).reshape(shape),
+            (ds.width, ds.height),
+            (nodes_x / (n - 1), nodes_y / (n - 1)),
+        )
+        if near is not None and near[0] < 0.5 * min(cells_x, cells_y):
+            # The whole window's spread overstates the scale where the source is: a polar
+            # stereographic DEM seen from a hemisphere-wide window (coarse levels) maps the far
+            # latitudes to huge distances, and the read was decimated to one averaged pixel.
+            # Where the two agree (near-linear projections) the spread decides, as before.
+            cells_x = cells_y = near[0]
+            node_span = near[1]
+        else:
+            node_span = max(cells_x, cells_y)
         f = max(1, int(min(cells_x, cells_y) / 2.0))
         arr = self._clean(self._read_window(Window(cc0, rr0, cc1 - cc0, rr1 - rr0), f))
         sx, sy = (cc1 - cc0) / arr.shape[1], (rr1 - rr0) / arr.shape[0]
         win_t = self.transform @ Affine.translation(cc0, rr0) @ Affine.scale(sx, sy)
         ends = (r0 < rr0, r1 > rr1, c0 < cc0, c1 > cc1)
-        return _SourceWindow(arr, win_t, float(max(cells_x / sx, cells_y / sy)), ends)
+        if node_span == max(cells_x, cells_y):
+            node_cells = float(max(cells_x / sx, cells_y / sy))
+        else:
+            node_cells = float(node_span / min(sx, sy))
+        return _SourceWindow(arr, win_t, node_cells, ends)
 
     def _read_window(self, window: Window, f: int) -> np.ndarray:
         """Band 1 of a window as float32 metres, decimated by f; nodata, undeclared fills,
