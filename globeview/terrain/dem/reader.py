@@ -1295,25 +1295,23 @@ class Dem:
             (ds.width, ds.height),
             (nodes_x / (n - 1), nodes_y / (n - 1)),
         )
-        if near is not None and near[0] < 0.5 * min(cells_x, cells_y):
-            # The whole window's spread overstates the scale where the source is: a polar
-            # stereographic DEM seen from a hemisphere-wide window (coarse levels) maps the far
-            # latitudes to huge distances, and the read was decimated to one averaged pixel.
-            # Where the two agree (near-linear projections) the spread decides, as before.
+        # The whole window's spread can overstate the scale where the source is: a polar
+        # stereographic DEM seen from a hemisphere-wide window (coarse levels) maps the far
+        # latitudes to huge distances, and its read was decimated to one averaged pixel. Where
+        # the two agree within 2x (near-linear projections) the spread decides, as before.
+        local = near is not None and near[0] < 0.5 * min(cells_x, cells_y)
+        if near is not None and local:
             cells_x = cells_y = near[0]
-            node_span = near[1]
-        else:
-            node_span = max(cells_x, cells_y)
         f = max(1, int(min(cells_x, cells_y) / 2.0))
         arr = self._clean(self._read_window(Window(cc0, rr0, cc1 - cc0, rr1 - rr0), f))
         sx, sy = (cc1 - cc0) / arr.shape[1], (rr1 - rr0) / arr.shape[0]
         win_t = self.transform @ Affine.translation(cc0, rr0) @ Affine.scale(sx, sy)
         ends = (r0 < rr0, r1 > rr1, c0 < cc0, c1 > cc1)
-        if node_span == max(cells_x, cells_y):
-            node_cells = float(max(cells_x / sx, cells_y / sy))
+        if near is not None and local:
+            node_cells = near[1] / min(sx, sy)  # the largest spacing near the source
         else:
-            node_cells = float(node_span / min(sx, sy))
-        return _SourceWindow(arr, win_t, node_cells, ends)
+            node_cells = max(cells_x / sx, cells_y / sy)
+        return _SourceWindow(arr, win_t, float(node_cells), ends)
 
     def _read_window(self, window: Window, f: int) -> np.ndarray:
         """Band 1 of a window as float32 metres, decimated by f; nodata, undeclared fills,
