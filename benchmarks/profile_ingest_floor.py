@@ -102,16 +102,12 @@ class _Split:
 def _ingest_round(src: Path, split: _Split) -> dict[str, float]:
     from globeview.terrain.ingest.driver import ingest
 
-    before = (split.task_thread, split.decode, split.encode)
+    split.task_thread = split.decode = split.encode = 0.0  # this round's only
     with tempfile.TemporaryDirectory(prefix="gv-floor-") as tmp:
         c = _process_cpu()
         ingest([src], Path(tmp) / "store", force=True, progress=False, workers=1)
         total = _process_cpu() - c
-    now = _Split()
-    now.task_thread = split.task_thread - before[0]
-    now.decode = split.decode - before[1]
-    now.encode = split.encode - before[2]
-    return {"total": total, **now.parts(total)}
+    return {"total": total, **split.parts(total)}
 
 
 def _gdal_round(src: Path) -> float:

@@ -19,6 +19,7 @@ from pyproj import Transformer
 from globeview.terrain.compose.height_query import composed_heights
 from globeview.terrain.compose.stack import TerrainStack
 from globeview.terrain.ingest.driver import ingest
+from globeview.terrain.interpolate import bilinear
 from globeview.terrain.store.tile_store import TileStore
 
 N, PIXEL_M = 50, 20_000.0  # a 1 000 km square of 20 km pixels, centred on the pole
@@ -37,16 +38,10 @@ def _polar_dem(path: Path, crs: str) -> tuple[Path, np.ndarray, Affine]:
     return path, heights, transform
 
 
-def _bilinear(heights: np.ndarray, transform: Affine, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+def _source_heights(heights: np.ndarray, transform: Affine, x, y) -> np.ndarray:
     """The source's heights bilinear between its pixel centres at projected (x, y) metres."""
-    col, row = ~transform @ (x, y)
-    col, row = np.asarray(col) - 0.5, np.asarray(row) - 0.5
-    c0, r0 = np.floor(col).astype(int), np.floor(row).astype(int)
-    tc, tr = col - c0, row - r0
-    h = heights.astype(np.float64)
-    top = h[r0, c0] * (1 - tc) + h[r0, c0 + 1] * tc
-    bottom = h[r0 + 1, c0] * (1 - tc) + h[r0 + 1, c0 + 1] * tc
-    return top * (1 - tr) + bottom * tr
+    col, row = ~transform @ (np.asarray(x), np.asarray(y))
+    return bilinear(heights, np.asarray(row) - 0.5, np.asarray(col) - 0.5)
 
 
 @pytest.mark.parametrize(("crs", "pole"), [("EPSG:3413", 90.0), ("EPSG:3031", -90.0)])
@@ -62,7 +57,7 @@ def test_a_coarse_polar_dem_ingests_with_its_heights(tmp_path: Path, crs: str, p
         lat = pole - np.copysign(colat, pole)
         got = composed_heights(stack, lon, lat)
         x, y = Transformer.from_crs("EPSG:4326", crs, always_xy=True).transform(lon, lat)
-        want = _bilinear(heights, transform, np.asarray(x), np.asarray(y))
+        want = _source_heights(heights, transform, x, y)
     finally:
         store.close()
     assert np.isfinite(got).all()

@@ -479,11 +479,10 @@ def _local_cells(
     with np.errstate(invalid="ignore"):
         inside = (cols >= 0) & (cols <= width) & (rows >= 0) & (rows <= height)
     spans = []
-    for axis, nodes in ((1, step[0]), (0, step[1])):
+    pairs_inside = (inside[:, :-1] | inside[:, 1:], inside[:-1, :] | inside[1:, :])
+    for axis, nodes, near in zip((1, 0), step, pairs_inside, strict=True):
         dc, dr = np.diff(cols, axis=axis), np.diff(rows, axis=axis)
-        a = inside[:, :-1] if axis == 1 else inside[:-1, :]
-        b = inside[:, 1:] if axis == 1 else inside[1:, :]
-        d = np.hypot(dc, dr)[(a | b) & np.isfinite(dc) & np.isfinite(dr)] / nodes
+        d = np.hypot(dc, dr)[near & np.isfinite(dc) & np.isfinite(dr)] / nodes
         spans.append(d)
     every = np.concatenate(spans)
     if every.size == 0:
@@ -1299,18 +1298,19 @@ class Dem:
         # stereographic DEM seen from a hemisphere-wide window (coarse levels) maps the far
         # latitudes to huge distances, and its read was decimated to one averaged pixel. Where
         # the two agree within 2x (near-linear projections) the spread decides, as before.
-        local = near is not None and near[0] < 0.5 * min(cells_x, cells_y)
-        if near is not None and local:
+        node_span = None  # the largest spacing near the source, where that decides
+        if near is not None and near[0] < 0.5 * min(cells_x, cells_y):
             cells_x = cells_y = near[0]
+            node_span = near[1]
         f = max(1, int(min(cells_x, cells_y) / 2.0))
         arr = self._clean(self._read_window(Window(cc0, rr0, cc1 - cc0, rr1 - rr0), f))
         sx, sy = (cc1 - cc0) / arr.shape[1], (rr1 - rr0) / arr.shape[0]
         win_t = self.transform @ Affine.translation(cc0, rr0) @ Affine.scale(sx, sy)
         ends = (r0 < rr0, r1 > rr1, c0 < cc0, c1 > cc1)
-        if near is not None and local:
-            node_cells = near[1] / min(sx, sy)  # the largest spacing near the source
-        else:
+        if node_span is None:
             node_cells = max(cells_x / sx, cells_y / sy)
+        else:
+            node_cells = node_span / min(sx, sy)
         return _SourceWindow(arr, win_t, float(node_cells), ends)
 
     def _read_window(self, window: Window, f: int) -> np.ndarray:
